@@ -1,0 +1,1 @@
+//! Wiring a config into running tasks.

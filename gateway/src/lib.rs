@@ -1,0 +1,21 @@
+//! The CP 341 gateway service: configuration, serial lines driving the proto-core engines, the
+//! process image, the Modbus TCP server and the device simulators.
+//!
+//! Module ownership (one concern each):
+//! - [`config`]: the TOML configuration, its validation and `gateway check`;
+//! - [`serial`]: opening ports with line settings, RS485 mode, reopen with back-off;
+//! - [`line`]: one task per line driving an engine, the poll scheduler;
+//! - [`image`]: the process image (value, quality, timestamp per register);
+//! - [`unit`]: the contract between the Modbus TCP server and whatever answers a unit id;
+//! - [`modbus_tcp`]: our own MBAP framing, validation and the TCP server;
+//! - [`sim`]: simulated devices on a serial port (`gateway sim`);
+//! - [`app`]: wiring a config into running tasks (`gateway run`, `gateway demo`).
+
+pub mod app;
+pub mod config;
+pub mod image;
+pub mod line;
+pub mod modbus_tcp;
+pub mod serial;
+pub mod sim;
+pub mod unit;

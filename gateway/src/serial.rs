@@ -1,0 +1,1 @@
+//! Opening serial ports with line settings (see the crate documentation).

@@ -1,0 +1,66 @@
+//! The contract between the Modbus TCP server and whatever answers a unit id.
+//!
+//! The server frames and validates requests (MBAP, PDU) and applies its own policy (read-only mode,
+//! write-enabled ranges); it then hands each request to the [`UnitService`] registered for the unit
+//! id. A polled device answers reads of polled ranges from the process image, other reads on demand
+//! from the device, and writes through to the device. Telegram mailboxes and the gateway's CP memory
+//! are further implementations.
+
+use std::collections::HashMap;
+use std::future::Future;
+use std::pin::Pin;
+use std::sync::Arc;
+
+use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
+
+/// What a unit answers: a response, or the exception the client receives.
+pub type UnitResult = Result<Response, ExceptionCode>;
+
+/// The future a [`UnitService`] returns.
+pub type UnitFuture = Pin<Box<dyn Future<Output = UnitResult> + Send + 'static>>;
+
+/// Something that answers Modbus requests for one unit id.
+pub trait UnitService: Send + Sync + 'static {
+    /// Answers one request. Must not block; may wait (for the device) asynchronously. A device
+    /// that does not answer gives `GatewayTargetFailedToRespond` (0x0B), a full write queue
+    /// `ServerDeviceBusy` (0x06).
+    fn call(&self, request: Request) -> UnitFuture;
+}
+
+/// The unit ids the server knows, each with its service.
+#[derive(Clone, Default)]
+pub struct UnitMap {
+    units: HashMap<u8, Arc<dyn UnitService>>,
+}
+
+// === impl UnitMap ===
+
+impl UnitMap {
+    /// An empty map: every unit id answers 0x0A.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Registers `service` under `unit`, replacing any earlier one.
+    pub fn insert(&mut self, unit: u8, service: Arc<dyn UnitService>) {
+        self.units.insert(unit, service);
+    }
+
+    /// The service of `unit`, if any.
+    pub fn get(&self, unit: u8) -> Option<&Arc<dyn UnitService>> {
+        self.units.get(&unit)
+    }
+
+    /// The registered unit ids, sorted.
+    pub fn unit_ids(&self) -> Vec<u8> {
+        let mut ids: Vec<u8> = self.units.keys().copied().collect();
+        ids.sort_unstable();
+        ids
+    }
+}
+
+impl std::fmt::Debug for UnitMap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("UnitMap").field("units", &self.unit_ids()).finish()
+    }
+}

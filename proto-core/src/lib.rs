@@ -1,0 +1,27 @@
+//! Sans-IO protocol engines of the CP 341 gateway.
+//!
+//! Everything in this crate is deterministic: bytes and time are arguments, never read from the
+//! operating system. The runtime (the `gateway` crate) owns the serial port, the sockets and the
+//! clock, and drives the engines:
+//!
+//! ```text
+//!            bytes from the wire           bytes to send
+//!   runtime ── handle_rx(now, &[u8]) ──▶ ┌──────────────┐ ── poll_transmit() ──▶ runtime ─▶ port
+//!   clock   ── handle_timeout(now) ────▶ │   engine      │ ── poll_event()    ──▶ image / metrics
+//!   app     ── submit(now, request) ───▶ └──────────────┘ ── poll_timeout()  ──▶ next deadline
+//! ```
+//!
+//! Modules:
+//! - [`checksum`]: CRC-16/Modbus, LRC, BCC;
+//! - [`codec`]: a cursor reader/writer that owns every length check;
+//! - [`modbus`]: the PDU codec, RTU and ASCII framing, the master and slave engines;
+//! - [`event`]: the CP 341 event catalog (chapter 7.2), the STATUS word and the diagnostic buffer;
+//! - [`profiles`]: the register-map models of the supported devices;
+//! - [`time`]: the instant type the engines take as input.
+
+pub mod checksum;
+pub mod codec;
+pub mod event;
+pub mod modbus;
+pub mod profiles;
+pub mod time;

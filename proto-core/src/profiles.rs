@@ -1,0 +1,1 @@
+//! Register-map models of the supported devices (SPEC "Device profiles").
