@@ -17,11 +17,17 @@
 //! - [`modbus`]: the PDU codec, RTU and ASCII framing, the master and slave engines;
 //! - [`event`]: the CP 341 event catalog (chapter 7.2), the STATUS word and the diagnostic buffer;
 //! - [`profiles`]: the register-map models of the supported devices;
+//! - [`proc3964`]: the 3964(R) procedure (6.3);
+//! - [`telegram`]: the ASCII telegram driver (6.2);
+//! - [`cpmem`]: the CP memory areas and the Modbus slave address conversion (6.4.8);
 //! - [`time`]: the instant type the engines take as input.
 
 pub mod checksum;
 pub mod codec;
+pub mod cpmem;
 pub mod event;
 pub mod modbus;
+pub mod proc3964;
 pub mod profiles;
+pub mod telegram;
 pub mod time;

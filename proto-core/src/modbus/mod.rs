@@ -4,3 +4,4 @@ pub mod ascii;
 pub mod master;
 pub mod pdu;
 pub mod rtu;
+pub mod slave;
