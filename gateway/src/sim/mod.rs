@@ -64,11 +64,15 @@ impl<D: ModbusDevice + ?Sized> ModbusDevice for Box<D> {
 /// faults while it serves). The lock is held for one frame or one tick, never across an await.
 impl<D: ModbusDevice> ModbusDevice for Arc<Mutex<D>> {
     fn handle_frame(&mut self, adu: &[u8]) -> Option<Vec<u8>> {
-        self.lock().unwrap_or_else(PoisonError::into_inner).handle_frame(adu)
+        self.lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .handle_frame(adu)
     }
 
     fn tick(&mut self, elapsed: Duration) {
-        self.lock().unwrap_or_else(PoisonError::into_inner).tick(elapsed);
+        self.lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .tick(elapsed);
     }
 
     fn faults(&self) -> Faults {

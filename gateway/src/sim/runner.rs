@@ -167,9 +167,16 @@ pub async fn run(args: SimArgs, shutdown: CancellationToken) -> Result<(), SimEr
             Parity::Even => tokio_serial::Parity::Even,
         })
         .data_bits(tokio_serial::DataBits::Eight)
-        .stop_bits(if args.stop_bits == 2 { tokio_serial::StopBits::Two } else { tokio_serial::StopBits::One })
+        .stop_bits(if args.stop_bits == 2 {
+            tokio_serial::StopBits::Two
+        } else {
+            tokio_serial::StopBits::One
+        })
         .open_native_async()
-        .map_err(|source| SimError::Open { port: args.port.clone(), source })?;
+        .map_err(|source| SimError::Open {
+            port: args.port.clone(),
+            source,
+        })?;
     tracing::info!(device = %args.device, port = %args.port, baud = args.baud, "simulator serving");
     serve_modbus(port, device, args.timing(), shutdown).await
 }

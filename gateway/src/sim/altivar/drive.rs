@@ -105,9 +105,13 @@ impl Drive {
     }
 
     fn update_state(&mut self, inputs: &Inputs) {
-        let reset_edge = inputs.cmd & cmd::FAULT_RESET != 0 && self.last_cmd & cmd::FAULT_RESET == 0;
+        let reset_edge =
+            inputs.cmd & cmd::FAULT_RESET != 0 && self.last_cmd & cmd::FAULT_RESET == 0;
         self.last_cmd = inputs.cmd;
-        let running = matches!(self.state, DriveState::OperationEnabled | DriveState::QuickStopActive);
+        let running = matches!(
+            self.state,
+            DriveState::OperationEnabled | DriveState::QuickStopActive
+        );
         // 002 "Konfiguration Management Kommunikationsfehler": no request for the time-out while
         // the drive is controlled over Modbus raises SLF (factory reaction: freewheel stop).
         if running && inputs.since_request >= COMMUNICATION_TIMEOUT {
@@ -136,7 +140,11 @@ impl Drive {
 
     fn ramp(&mut self, seconds: f64, inputs: &Inputs) {
         let max = f64::from(inputs.hsp) * RPM_PER_DECIHERTZ;
-        let sign = if inputs.cmd & cmd::REVERSE != 0 { -1.0 } else { 1.0 };
+        let sign = if inputs.cmd & cmd::REVERSE != 0 {
+            -1.0
+        } else {
+            1.0
+        };
         let mut target = (f64::from(inputs.lfrd) * sign).clamp(-max, max);
         if self.state != DriveState::OperationEnabled || inputs.cmd & cmd::HALT != 0 {
             target = 0.0;
@@ -173,7 +181,10 @@ impl Drive {
     }
 
     fn energised(&self) -> bool {
-        matches!(self.state, DriveState::OperationEnabled | DriveState::QuickStopActive)
+        matches!(
+            self.state,
+            DriveState::OperationEnabled | DriveState::QuickStopActive
+        )
     }
 
     /// The values the drive reports.
@@ -230,9 +241,13 @@ fn drivecom(state: DriveState, control: u16) -> DriveState {
         DriveState::ReadyToSwitchOn | DriveState::SwitchedOn if disable_voltage || quick_stop => {
             DriveState::SwitchOnDisabled
         }
-        DriveState::ReadyToSwitchOn | DriveState::SwitchedOn if enable => DriveState::OperationEnabled,
+        DriveState::ReadyToSwitchOn | DriveState::SwitchedOn if enable => {
+            DriveState::OperationEnabled
+        }
         DriveState::ReadyToSwitchOn | DriveState::SwitchedOn if switch_on => DriveState::SwitchedOn,
-        DriveState::ReadyToSwitchOn | DriveState::SwitchedOn if shutdown => DriveState::ReadyToSwitchOn,
+        DriveState::ReadyToSwitchOn | DriveState::SwitchedOn if shutdown => {
+            DriveState::ReadyToSwitchOn
+        }
         DriveState::OperationEnabled if disable_voltage => DriveState::SwitchOnDisabled,
         DriveState::OperationEnabled if quick_stop => DriveState::QuickStopActive,
         DriveState::OperationEnabled if shutdown => DriveState::ReadyToSwitchOn,
@@ -259,7 +274,9 @@ fn clamp_u16(value: f64) -> u16 {
 }
 
 fn clamp_i16(value: f64) -> i16 {
-    value.round().clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16
+    value
+        .round()
+        .clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16
 }
 
 #[cfg(test)]
@@ -267,7 +284,15 @@ mod tests {
     use super::*;
 
     fn inputs(control: u16, lfrd: i16) -> Inputs {
-        Inputs { cmd: control, lfrd, acc: 30, dec: 30, hsp: 500, chcf: 1, since_request: Duration::ZERO }
+        Inputs {
+            cmd: control,
+            lfrd,
+            acc: 30,
+            dec: 30,
+            hsp: 500,
+            chcf: 1,
+            since_request: Duration::ZERO,
+        }
     }
 
     fn run(drive: &mut Drive, inputs: &Inputs, seconds: u64) {
@@ -281,7 +306,10 @@ mod tests {
         let mut drive = Drive::new(1);
         assert_eq!(drive.outputs().eta, 0x0250);
         run(&mut drive, &inputs(cmd::SHUTDOWN, 0), 1);
-        assert_eq!(DriveState::from_eta(drive.outputs().eta), DriveState::ReadyToSwitchOn);
+        assert_eq!(
+            DriveState::from_eta(drive.outputs().eta),
+            DriveState::ReadyToSwitchOn
+        );
         run(&mut drive, &inputs(cmd::SWITCH_ON_COMMAND, 0), 1);
         run(&mut drive, &inputs(cmd::ENABLE_OPERATION_COMMAND, 1200), 1);
         // ACC 3.0 s to 1500 rpm: after 1 s about 500 rpm.
@@ -293,7 +321,11 @@ mod tests {
         assert_eq!(out.rfrd, 1200);
         assert_eq!(out.eta, 0x0637);
         assert!(out.lcr > 20 && out.thd > 0);
-        run(&mut drive, &inputs(cmd::ENABLE_OPERATION_COMMAND | cmd::REVERSE, 600), 10);
+        run(
+            &mut drive,
+            &inputs(cmd::ENABLE_OPERATION_COMMAND | cmd::REVERSE, 600),
+            10,
+        );
         assert_eq!(drive.outputs().rfrd, -600);
         assert_eq!(drive.outputs().eta, 0x8637);
     }
@@ -311,6 +343,9 @@ mod tests {
         let mut reset = inputs(cmd::FAULT_RESET, 0);
         reset.chcf = CHCF_IO;
         drive.step(Duration::from_millis(100), &reset);
-        assert_eq!(DriveState::from_eta(drive.outputs().eta), DriveState::SwitchedOn);
+        assert_eq!(
+            DriveState::from_eta(drive.outputs().eta),
+            DriveState::SwitchedOn
+        );
     }
 }

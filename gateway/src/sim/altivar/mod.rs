@@ -120,7 +120,10 @@ impl AltivarSim {
     pub fn new(address: u8) -> Self {
         let mut words = WordMap::default();
         for tag in profile::tags() {
-            words.insert(tag.address, Word::from_tag(&tag, initial_value(tag.address)));
+            words.insert(
+                tag.address,
+                Word::from_tag(&tag, initial_value(tag.address)),
+            );
         }
         let chcf = words.get(profile::CHCF).unwrap_or(drive::CHCF_IO);
         let mut sim = Self {
@@ -285,21 +288,28 @@ impl AltivarSim {
 
     fn answer(&mut self, request: Request) -> Answer {
         match request {
-            Request::ReadHoldingRegisters { address, quantity } => {
-                self.read(address, quantity).map(Response::ReadHoldingRegisters)
-            }
-            Request::WriteSingleRegister { address, value } => {
-                self.write(address, &[value]).map(|()| Response::WriteSingleRegister { address, value })
-            }
+            Request::ReadHoldingRegisters { address, quantity } => self
+                .read(address, quantity)
+                .map(Response::ReadHoldingRegisters),
+            Request::WriteSingleRegister { address, value } => self
+                .write(address, &[value])
+                .map(|()| Response::WriteSingleRegister { address, value }),
             Request::WriteMultipleRegisters { address, values } => {
                 let quantity = values.len() as u16;
-                self.write(address, &values).map(|()| Response::WriteMultipleRegisters { address, quantity })
+                self.write(address, &values)
+                    .map(|()| Response::WriteMultipleRegisters { address, quantity })
             }
             // FC 23: the write is carried out before the read (Modbus Application Protocol
             // V1.1b3, 6.17; 002's scanner example reads back what it wrote).
-            Request::ReadWriteMultipleRegisters { read_address, read_quantity, write_address, values } => {
+            Request::ReadWriteMultipleRegisters {
+                read_address,
+                read_quantity,
+                write_address,
+                values,
+            } => {
                 self.write(write_address, &values)?;
-                self.read(read_address, read_quantity).map(Response::ReadWriteMultipleRegisters)
+                self.read(read_address, read_quantity)
+                    .map(Response::ReadWriteMultipleRegisters)
             }
             Request::Diagnostics { sub_function, data } => self.diagnostics(sub_function, data),
             _ => Err(ExceptionCode::IllegalFunction),
@@ -310,7 +320,12 @@ impl AltivarSim {
     /// 0E messages for this slave. Other sub-functions answer 01 (Modbus Application Protocol
     /// V1.1b3, 6.8: an unsupported sub-function is an illegal function).
     fn diagnostics(&mut self, sub_function: u16, data: Vec<u8>) -> Answer {
-        let counter = |value: u16| Ok(Response::Diagnostics { sub_function, data: value.to_be_bytes().to_vec() });
+        let counter = |value: u16| {
+            Ok(Response::Diagnostics {
+                sub_function,
+                data: value.to_be_bytes().to_vec(),
+            })
+        };
         if sub_function != 0x00 && data != [0, 0] {
             return Err(ExceptionCode::IllegalDataValue);
         }
@@ -331,7 +346,16 @@ impl AltivarSim {
     /// read code 04 (one object) is beyond conformity level 02 and is refused like a wrong read
     /// code. Refusals use the drive's own negative answer `AB 0E code`.
     fn identification(&self, pdu: &[u8]) -> Vec<u8> {
-        let negative = |code: u8| pdu_frame(self.address, &[FunctionCode::ENCAPSULATED_INTERFACE.to_exception(), MEI_READ_DEVICE_ID, code]);
+        let negative = |code: u8| {
+            pdu_frame(
+                self.address,
+                &[
+                    FunctionCode::ENCAPSULATED_INTERFACE.to_exception(),
+                    MEI_READ_DEVICE_ID,
+                    code,
+                ],
+            )
+        };
         let [_, mei, read_code, object_id] = pdu else {
             return negative(ID_ERROR_REQUEST);
         };
@@ -350,7 +374,16 @@ impl AltivarSim {
         let objects = all
             .iter()
             .skip(first)
-            .map(|(id, text)| (*id, text.as_bytes().iter().copied().take(usize::from(u8::MAX)).collect()))
+            .map(|(id, text)| {
+                (
+                    *id,
+                    text.as_bytes()
+                        .iter()
+                        .copied()
+                        .take(usize::from(u8::MAX))
+                        .collect(),
+                )
+            })
             .collect();
         let response = Response::ReadDeviceIdentification {
             read_code: *read_code,
@@ -475,14 +508,16 @@ impl Card {
         let function = FunctionCode(pdu.first().copied().unwrap_or_default());
         let answer = match Request::decode_with(pdu, &LIMITS) {
             Ok(Request::ReadHoldingRegisters { address, quantity }) => {
-                read_block(address, quantity, |a| self.words.get(a)).map(Response::ReadHoldingRegisters)
+                read_block(address, quantity, |a| self.words.get(a))
+                    .map(Response::ReadHoldingRegisters)
             }
             Ok(Request::WriteSingleRegister { address, value }) => self
                 .write(address, &[value])
                 .map(|()| Response::WriteSingleRegister { address, value }),
             Ok(Request::WriteMultipleRegisters { address, values }) => {
                 let quantity = values.len() as u16;
-                self.write(address, &values).map(|()| Response::WriteMultipleRegisters { address, quantity })
+                self.write(address, &values)
+                    .map(|()| Response::WriteMultipleRegisters { address, quantity })
             }
             Ok(_) => Err(ExceptionCode::IllegalFunction),
             Err(error) => Err(ExceptionCode::from(&error)),

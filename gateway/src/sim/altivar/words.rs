@@ -25,12 +25,22 @@ pub(crate) struct Word {
 impl Word {
     /// A read-only word.
     pub(crate) const fn read_only(value: u16) -> Self {
-        Self { value, writable: false, range: None, signed: false }
+        Self {
+            value,
+            writable: false,
+            range: None,
+            signed: false,
+        }
     }
 
     /// A writable word without range.
     pub(crate) const fn read_write(value: u16) -> Self {
-        Self { value, writable: true, range: None, signed: false }
+        Self {
+            value,
+            writable: true,
+            range: None,
+            signed: false,
+        }
     }
 
     /// The word a profile tag describes, holding `value`.
@@ -45,8 +55,14 @@ impl Word {
 
     /// Whether `value` is inside the word's range.
     fn accepts(&self, value: u16) -> bool {
-        let Some((min, max)) = self.range else { return true };
-        let number = if self.signed { i32::from(value as i16) } else { i32::from(value) };
+        let Some((min, max)) = self.range else {
+            return true;
+        };
+        let number = if self.signed {
+            i32::from(value as i16)
+        } else {
+            i32::from(value)
+        };
         (min..=max).contains(&number)
     }
 }
@@ -72,11 +88,6 @@ impl WordMap {
             return None;
         }
         self.words.get(&address).map(|w| w.value)
-    }
-
-    /// Whether the parameter exists (protected or not).
-    pub(crate) fn contains(&self, address: u16) -> bool {
-        self.words.contains_key(&address)
     }
 
     /// Sets a value without the access checks (the drive's own updates, test presets). Returns
@@ -107,7 +118,10 @@ impl WordMap {
         if self.protected.contains(&address) {
             return Err(ExceptionCode::IllegalDataAddress);
         }
-        let word = self.words.get(&address).ok_or(ExceptionCode::IllegalDataAddress)?;
+        let word = self
+            .words
+            .get(&address)
+            .ok_or(ExceptionCode::IllegalDataAddress)?;
         if !word.writable {
             return Err(ExceptionCode::ServerDeviceFailure);
         }
@@ -130,14 +144,19 @@ pub(crate) fn read_block(
     if values.iter().all(Option::is_none) {
         return Err(ExceptionCode::IllegalDataAddress);
     }
-    Ok(values.into_iter().map(|v| v.unwrap_or(NOT_AVAILABLE)).collect())
+    Ok(values
+        .into_iter()
+        .map(|v| v.unwrap_or(NOT_AVAILABLE))
+        .collect())
 }
 
 /// The addresses and values of a block write, in order. Writers check every word first and store
 /// only when all pass, so that a refused block changes nothing; 002 documents only the single-word
 /// case (ETA, exception 04), checking the whole block first is the simulator's choice.
 pub(crate) fn addressed(start: u16, values: &[u16]) -> impl Iterator<Item = (u16, u16)> + '_ {
-    (0u16..).zip(values).map(move |(i, v)| (start.wrapping_add(i), *v))
+    (0u16..)
+        .zip(values)
+        .map(move |(i, v)| (start.wrapping_add(i), *v))
 }
 
 #[cfg(test)]
@@ -148,15 +167,38 @@ mod tests {
     fn ranges_and_access() {
         let mut map = WordMap::default();
         map.insert(1, Word::read_only(7));
-        map.insert(2, Word { value: 0, writable: true, range: Some((-5, 5)), signed: true });
-        assert_eq!(map.check_write(1, 0), Err(ExceptionCode::ServerDeviceFailure));
+        map.insert(
+            2,
+            Word {
+                value: 0,
+                writable: true,
+                range: Some((-5, 5)),
+                signed: true,
+            },
+        );
+        assert_eq!(
+            map.check_write(1, 0),
+            Err(ExceptionCode::ServerDeviceFailure)
+        );
         assert_eq!(map.check_write(2, (-5i16) as u16), Ok(()));
         assert_eq!(map.check_write(2, 6), Err(ExceptionCode::IllegalDataValue));
-        assert_eq!(map.check_write(3, 0), Err(ExceptionCode::IllegalDataAddress));
+        assert_eq!(
+            map.check_write(3, 0),
+            Err(ExceptionCode::IllegalDataAddress)
+        );
         map.set_protected(2, true);
         assert_eq!(map.get(2), None);
-        assert_eq!(map.check_write(2, 0), Err(ExceptionCode::IllegalDataAddress));
-        assert_eq!(read_block(0, 3, |a| map.get(a)), Ok(vec![0x8000, 7, 0x8000]));
-        assert_eq!(read_block(2, 2, |a| map.get(a)), Err(ExceptionCode::IllegalDataAddress));
+        assert_eq!(
+            map.check_write(2, 0),
+            Err(ExceptionCode::IllegalDataAddress)
+        );
+        assert_eq!(
+            read_block(0, 3, |a| map.get(a)),
+            Ok(vec![0x8000, 7, 0x8000])
+        );
+        assert_eq!(
+            read_block(2, 2, |a| map.get(a)),
+            Err(ExceptionCode::IllegalDataAddress)
+        );
     }
 }

@@ -17,8 +17,8 @@ use proto_core::modbus::rtu;
 use proto_core::modbus::FrameError;
 use proto_core::profiles::ksvario::{self as profile, diag};
 
-use self::store::{Entry, Store};
 pub use self::store::Datum;
+use self::store::{Entry, Store};
 use super::{answer_frame, exception_frame, Answer, Faults, ModbusDevice, BROADCAST};
 
 /// The request limits as the PDU decoder takes them (001 3.1: 120 integer data a message).
@@ -127,12 +127,21 @@ impl KsVarioSim {
         let setpoint = (profile::INT_MIN as f32, profile::INT_MAX as f32);
         for channel in 1..=30u8 {
             let word = |offset| profile::channel_index(channel, offset).unwrap_or_default();
-            store.define(word(SETP_INTERFACE), Entry::adjustable(0.0, setpoint.0, setpoint.1));
+            store.define(
+                word(SETP_INTERFACE),
+                Entry::adjustable(0.0, setpoint.0, setpoint.1),
+            );
             // 001 4.2.1: ti1 / ti2 of channel 1 read 180 / 333; the limits are the simulator's.
             store.define(word(TI1), Entry::adjustable(180.0, 0.0, 9999.0));
             store.define(word(TI2), Entry::adjustable(333.0, 0.0, 9999.0));
-            store.define(word(DATA_15), Entry::adjustable(0.0, setpoint.0, setpoint.1));
-            store.define(word(DATA_16), Entry::adjustable(0.0, setpoint.0, setpoint.1));
+            store.define(
+                word(DATA_15),
+                Entry::adjustable(0.0, setpoint.0, setpoint.1),
+            );
+            store.define(
+                word(DATA_16),
+                Entry::adjustable(0.0, setpoint.0, setpoint.1),
+            );
         }
         Self {
             address,
@@ -162,7 +171,12 @@ impl KsVarioSim {
 
     /// Defines a datum: its value, whether it is writable, and its limits.
     pub fn define(&mut self, index: u16, value: f32, writable: bool, min: f32, max: f32) {
-        let entry = Entry { datum: Datum::Value(value), writable, min, max };
+        let entry = Entry {
+            datum: Datum::Value(value),
+            writable,
+            min,
+            max,
+        };
         self.store.define(index, entry);
     }
 
@@ -219,7 +233,10 @@ impl KsVarioSim {
             // 001 4.3.2: only a restart ends listen-only mode, and it is not answered then.
             let restart = matches!(
                 Request::decode_with(frame.pdu, &LIMITS),
-                Ok(Request::Diagnostics { sub_function: diag::RESTART, .. })
+                Ok(Request::Diagnostics {
+                    sub_function: diag::RESTART,
+                    ..
+                })
             );
             bump(&mut self.counters.no_response);
             if restart && address != BROADCAST {
@@ -234,7 +251,11 @@ impl KsVarioSim {
         }
         if !profile::FUNCTIONS.contains(&function) {
             bump(&mut self.counters.exceptions);
-            return Some(exception_frame(self.address, function, ExceptionCode::IllegalFunction));
+            return Some(exception_frame(
+                self.address,
+                function,
+                ExceptionCode::IllegalFunction,
+            ));
         }
         let answer = match Request::decode_with(frame.pdu, &LIMITS) {
             Ok(request) => self.answer(request)?,
@@ -249,12 +270,14 @@ impl KsVarioSim {
     /// The answer to a request, `None` when the request is not answered (FC 08 / 04).
     fn answer(&mut self, request: Request) -> Option<Answer> {
         Some(match request {
-            Request::ReadHoldingRegisters { address, quantity } => {
-                self.store.read_block(address, quantity).map(Response::ReadHoldingRegisters)
-            }
-            Request::ReadInputRegisters { address, quantity } => {
-                self.store.read_block(address, quantity).map(Response::ReadInputRegisters)
-            }
+            Request::ReadHoldingRegisters { address, quantity } => self
+                .store
+                .read_block(address, quantity)
+                .map(Response::ReadHoldingRegisters),
+            Request::ReadInputRegisters { address, quantity } => self
+                .store
+                .read_block(address, quantity)
+                .map(Response::ReadInputRegisters),
             Request::WriteSingleRegister { address, value } => self
                 .store
                 .write_single(address, value)
@@ -265,7 +288,9 @@ impl KsVarioSim {
                     .write_multiple(address, &values)
                     .map(|()| Response::WriteMultipleRegisters { address, quantity })
             }
-            Request::Diagnostics { sub_function, data } => return self.diagnostics(sub_function, data),
+            Request::Diagnostics { sub_function, data } => {
+                return self.diagnostics(sub_function, data)
+            }
             _ => Err(ExceptionCode::IllegalFunction),
         })
     }
@@ -293,13 +318,18 @@ impl KsVarioSim {
                 0 => count.to_be_bytes().to_vec(),
                 0b010 => {
                     let scaled = u32::from(count) * 10;
-                    let word = u16::try_from(scaled).ok().filter(|w| i32::from(*w) <= profile::INT_MAX);
+                    let word = u16::try_from(scaled)
+                        .ok()
+                        .filter(|w| i32::from(*w) <= profile::INT_MAX);
                     word.unwrap_or(profile::OUT_OF_RANGE).to_be_bytes().to_vec()
                 }
                 0b100 => f32::from(count).to_be_bytes().to_vec(),
                 _ => return Some(Err(ExceptionCode::IllegalFunction)),
             };
-            return Some(Ok(Response::Diagnostics { sub_function, data: bytes }));
+            return Some(Ok(Response::Diagnostics {
+                sub_function,
+                data: bytes,
+            }));
         }
         if format != 0 {
             return Some(Err(ExceptionCode::IllegalFunction));

@@ -31,12 +31,22 @@ pub(crate) struct Entry {
 impl Entry {
     /// A read-only datum.
     pub(crate) const fn read_only(value: f32) -> Self {
-        Self { datum: Datum::Value(value), writable: false, min: f32::MIN, max: f32::MAX }
+        Self {
+            datum: Datum::Value(value),
+            writable: false,
+            min: f32::MIN,
+            max: f32::MAX,
+        }
     }
 
     /// A writable datum with limits.
     pub(crate) const fn adjustable(value: f32, min: f32, max: f32) -> Self {
-        Self { datum: Datum::Value(value), writable: true, min, max }
+        Self {
+            datum: Datum::Value(value),
+            writable: true,
+            min,
+            max,
+        }
     }
 }
 
@@ -53,7 +63,10 @@ fn integer_word(datum: Datum, factor: f32) -> u16 {
         Datum::Off => ksvario::OFF,
         Datum::Value(value) => {
             let scaled = (value * factor).round();
-            if scaled.is_nan() || scaled < ksvario::INT_MIN as f32 || scaled > ksvario::INT_MAX as f32 {
+            if scaled.is_nan()
+                || scaled < ksvario::INT_MIN as f32
+                || scaled > ksvario::INT_MAX as f32
+            {
                 ksvario::OUT_OF_RANGE
             } else {
                 scaled as i16 as u16
@@ -148,7 +161,9 @@ impl Store {
         if !self.entries.contains_key(&first.index) {
             return Err(ExceptionCode::IllegalDataAddress);
         }
-        Ok((0..quantity).map(|i| self.read_register(start.wrapping_add(i))).collect())
+        Ok((0..quantity)
+            .map(|i| self.read_register(start.wrapping_add(i)))
+            .collect())
     }
 
     /// FC 06: 001 4.2.2. A float address is refused: "Eine Vorgabe im Datenformat Real ist nicht
@@ -160,7 +175,10 @@ impl Store {
         if address.format == Format::Float {
             return Err(ExceptionCode::IllegalDataAddress);
         }
-        let entry = self.entries.get(&address.index).ok_or(ExceptionCode::IllegalDataAddress)?;
+        let entry = self
+            .entries
+            .get(&address.index)
+            .ok_or(ExceptionCode::IllegalDataAddress)?;
         if !entry.writable {
             return Err(ExceptionCode::IllegalDataValue);
         }
@@ -171,7 +189,11 @@ impl Store {
     /// FC 16: 001 4.4. The first datum undefined answers 02, not writable 03; later undefined or
     /// read-only data are skipped; a value outside the limits answers 03 and stops, the data
     /// accepted before it stay written. Floats take two registers each (001 4.5).
-    pub(crate) fn write_multiple(&mut self, start: u16, values: &[u16]) -> Result<(), ExceptionCode> {
+    pub(crate) fn write_multiple(
+        &mut self,
+        start: u16,
+        values: &[u16],
+    ) -> Result<(), ExceptionCode> {
         let (first, low) = Address::locate(start);
         if low {
             return Err(ExceptionCode::IllegalDataAddress);
@@ -179,7 +201,10 @@ impl Store {
         if first.format == Format::Float && values.len() % 2 == 1 {
             return Err(ExceptionCode::IllegalDataValue);
         }
-        let entry = self.entries.get(&first.index).ok_or(ExceptionCode::IllegalDataAddress)?;
+        let entry = self
+            .entries
+            .get(&first.index)
+            .ok_or(ExceptionCode::IllegalDataAddress)?;
         if !entry.writable {
             return Err(ExceptionCode::IllegalDataValue);
         }
@@ -189,7 +214,9 @@ impl Store {
             let (address, low) = Address::locate(register);
             let (value, used) = match address.format {
                 Format::Float => {
-                    let Some(&next) = values.get(i + 1) else { break };
+                    let Some(&next) = values.get(i + 1) else {
+                        break;
+                    };
                     let value = f32::from_bits((u32::from(raw) << 16) | u32::from(next));
                     // A register pair that starts on the low half of a float is no datum.
                     (if low { None } else { Some(value) }, 2)
@@ -208,7 +235,10 @@ impl Store {
 
     /// Stores a value after the limit checks (NaN and floats beyond ±1.0E37 included).
     fn store(&mut self, index: u16, value: f32) -> Result<(), ExceptionCode> {
-        let entry = self.entries.get_mut(&index).ok_or(ExceptionCode::IllegalDataAddress)?;
+        let entry = self
+            .entries
+            .get_mut(&index)
+            .ok_or(ExceptionCode::IllegalDataAddress)?;
         let transferable = f64::from(value).abs() <= ksvario::FLOAT_LIMIT;
         if !transferable || !(entry.min..=entry.max).contains(&value) {
             return Err(ExceptionCode::IllegalDataValue);
@@ -241,8 +271,17 @@ mod tests {
         assert_eq!(store.read_register(3415), 32000);
         // Gaps.
         assert_eq!(store.read_register(3416), 31000);
-        assert_eq!(store.read_block(0x9AB0, 2), Err(ExceptionCode::IllegalDataAddress));
-        assert_eq!(store.read_block(0x9AAF, 2), Err(ExceptionCode::IllegalDataAddress));
-        assert_eq!(store.read_block(0x9AAE, 3), Err(ExceptionCode::IllegalDataValue));
+        assert_eq!(
+            store.read_block(0x9AB0, 2),
+            Err(ExceptionCode::IllegalDataAddress)
+        );
+        assert_eq!(
+            store.read_block(0x9AAF, 2),
+            Err(ExceptionCode::IllegalDataAddress)
+        );
+        assert_eq!(
+            store.read_block(0x9AAE, 3),
+            Err(ExceptionCode::IllegalDataValue)
+        );
     }
 }
