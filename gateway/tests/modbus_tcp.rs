@@ -657,9 +657,11 @@ async fn clients_that_never_finish_a_header_are_dropped_after_the_idle_timeout()
     // One byte every 100 ms: never a complete frame, so never a reason to stay.
     let mut trickle = server.raw().await;
     let started = tokio::time::Instant::now();
-    let header = [0u8, 2, 0, 0, 0, 6, 1, 0x03];
+    // A header announcing the largest PDU, then PDU bytes: 40 bytes in all, never a whole frame.
+    let mut bytes = vec![0u8, 2, 0, 0, 0, 254, 1];
+    bytes.resize(40, 0x10);
     let mut closed = false;
-    for byte in header.iter().cycle().take(40) {
+    for byte in &bytes {
         if trickle.write_all(std::slice::from_ref(byte)).await.is_err() {
             closed = true;
             break;
