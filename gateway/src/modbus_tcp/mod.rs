@@ -23,8 +23,8 @@ mod options;
 mod request;
 
 pub use server::{
-    serve, ServerOptions, SharedUnits, WriteRange, WriteTable, DEFAULT_IDLE_TIMEOUT,
-    DEFAULT_MAX_CONNECTIONS, DEFAULT_REQUEST_TIMEOUT,
+    bind, serve, ServerOptions, SharedUnits, WriteRange, WriteTable, DEFAULT_BACKLOG,
+    DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS, DEFAULT_REQUEST_TIMEOUT,
 };
 pub use stats::{
     AcceptError, CloseReason, FrameReject, RejectReason, RequestCount, RequestResult, ServerStats,

@@ -5,7 +5,7 @@ use std::net::SocketAddr;
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::{TcpListener, TcpSocket, TcpStream};
 use tokio::sync::Semaphore;
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
@@ -24,6 +24,24 @@ pub use super::options::{
 /// The unit map the server answers from, replaceable at run time: take the write lock and swap
 /// the map. Each request clones its unit's service out and drops the lock before it waits.
 pub type SharedUnits = Arc<RwLock<UnitMap>>;
+
+/// Listen backlog of [`bind`]: room for a burst of clients connecting at once (SCADA stations
+/// reconnecting after a network outage). `TcpListener::bind` uses 128, and connections past a full
+/// queue wait for the kernel's SYN-ACK retransmission (1 s, then doubling).
+pub const DEFAULT_BACKLOG: u32 = 1024;
+
+/// Binds a listener for [`serve`] with [`DEFAULT_BACKLOG`] and `SO_REUSEADDR` (a restart does not
+/// wait for the old connections' TIME_WAIT). Must be called inside a tokio runtime.
+pub fn bind(addr: SocketAddr) -> io::Result<TcpListener> {
+    let socket = if addr.is_ipv4() {
+        TcpSocket::new_v4()?
+    } else {
+        TcpSocket::new_v6()?
+    };
+    socket.set_reuseaddr(true)?;
+    socket.bind(addr)?;
+    socket.listen(DEFAULT_BACKLOG)
+}
 
 /// Pause after a failed `accept()` before the next one, so that a process out of file
 /// descriptors does not spin; connections wait in the listen backlog meanwhile.

@@ -225,19 +225,7 @@ fn result_index(result: RequestResult) -> usize {
     let RequestResult::Exception(code) = result else {
         return 0;
     };
-    let byte = match code {
-        ExceptionCode::IllegalFunction => 0x01,
-        ExceptionCode::IllegalDataAddress => 0x02,
-        ExceptionCode::IllegalDataValue => 0x03,
-        ExceptionCode::ServerDeviceFailure => 0x04,
-        ExceptionCode::Acknowledge => 0x05,
-        ExceptionCode::ServerDeviceBusy => 0x06,
-        ExceptionCode::NegativeAcknowledge => 0x07,
-        ExceptionCode::MemoryParityError => 0x08,
-        ExceptionCode::GatewayPathUnavailable => 0x0A,
-        ExceptionCode::GatewayTargetFailedToRespond => 0x0B,
-        ExceptionCode::Other(byte) => byte,
-    };
+    let byte = u8::from(code);
     EXCEPTIONS
         .iter()
         .position(|&known| known == byte)

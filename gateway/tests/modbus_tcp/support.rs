@@ -6,11 +6,11 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 use std::time::Duration;
 
-use gateway::modbus_tcp::{serve, ServerOptions, ServerStats, SharedUnits};
+use gateway::modbus_tcp::{bind, serve, ServerOptions, ServerStats, SharedUnits};
 use gateway::unit::{UnitFuture, UnitMap, UnitService};
 use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 use tokio::io::AsyncReadExt;
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::TcpStream;
 use tokio::task::JoinHandle;
 use tokio_modbus::client::Context;
 use tokio_modbus::prelude::*;
@@ -158,7 +158,7 @@ pub(crate) async fn start_with(
     map: UnitMap,
     memory: Arc<MemoryUnit>,
 ) -> TestServer {
-    let listener = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+    let listener = bind(([127, 0, 0, 1], 0).into()).expect("bind");
     let addr = listener.local_addr().expect("local addr");
     let units: SharedUnits = Arc::new(RwLock::new(map));
     let stats = Arc::new(ServerStats::new());
