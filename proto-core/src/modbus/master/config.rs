@@ -88,15 +88,16 @@ pub enum ConfigError {
 impl MasterConfig {
     /// An RTU master with the CP's defaults (003 6.4.2.1): reply monitoring time 2000 ms, normal
     /// operation, multiplier 1, no turnaround delay, no repetition. The end-of-frame time is 3.5
-    /// character times at every baud rate, as the CP computes it (003 6.4.3: "76800 -> 0.5 ms ...
-    /// 300 -> 128 ms"); set `framing` with [`CharTiming::new`] for the fixed 1.75 ms of the Modbus
-    /// specification above 19200 Bd, or [`CharTiming::with_multiplier`] for the CP's multiplier.
+    /// character times, fixed at 1.75 ms above 19200 Bd (Modbus over Serial Line V1.02, 2.5.1.1,
+    /// which devices such as the Altivar follow); set `framing` with [`CharTiming::exact`] for the
+    /// CP's own table at every baud rate (003 6.4.3: "76800 -> 0.5 ms ... 300 -> 128 ms"), and
+    /// [`CharTiming::with_multiplier`] for the CP's multiplier.
     ///
     /// `bits_per_char` counts start, data, parity and stop bits (11 for 8E1).
     pub fn rtu(baud: u32, bits_per_char: u8) -> Self {
         Self {
             framing: Framing::Rtu {
-                timing: CharTiming::exact(baud, bits_per_char),
+                timing: CharTiming::new(baud, bits_per_char),
             },
             reply_timeout: DEFAULT_REPLY_TIMEOUT,
             retries: 0,
