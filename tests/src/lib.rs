@@ -1,1 +1,147 @@
-//! Helpers shared by the end-to-end tests.
+//! Helpers shared by the end-to-end tests: start the real `gateway` binary and wait until it
+//! listens.
+//!
+//! The binary is looked up next to the test executable (`target/<profile>/gateway`); when it is
+//! missing it is built with `cargo build -p gateway` first, so `cargo test -p gateway-tests` works on
+//! its own too.
+
+use std::io::{BufRead, BufReader};
+use std::net::SocketAddr;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::sync::{Arc, Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+/// How long a gateway may take to come up (ptys, simulators, first polls) on a loaded machine.
+pub const START_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// The path of the `gateway` binary, built once if needed.
+pub fn gateway_bin() -> PathBuf {
+    static BIN: OnceLock<PathBuf> = OnceLock::new();
+    BIN.get_or_init(|| {
+        let exe = std::env::current_exe().expect("test executable path");
+        // target/<profile>/deps/<test> -> target/<profile>/gateway
+        let profile_dir = exe.parent().and_then(Path::parent).expect("target/<profile> directory");
+        let bin = profile_dir.join("gateway");
+        if !bin.exists() {
+            let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
+                .args(["build", "-p", "gateway", "--bin", "gateway"])
+                .status()
+                .expect("run cargo build -p gateway");
+            assert!(status.success(), "cargo build -p gateway failed");
+        }
+        assert!(bin.exists(), "gateway binary not found at {}", bin.display());
+        bin
+    })
+    .clone()
+}
+
+/// A running gateway process, stopped (SIGTERM, then SIGKILL) when dropped.
+#[derive(Debug)]
+pub struct Gateway {
+    child: Child,
+    /// The Modbus TCP address the gateway announced.
+    pub modbus_tcp: SocketAddr,
+    /// Every line the process wrote to stdout and stderr so far.
+    output: Arc<Mutex<Vec<String>>>,
+    lines: mpsc::Receiver<String>,
+}
+
+impl Gateway {
+    /// Starts `gateway demo` with the given extra arguments and Modbus TCP on an ephemeral port.
+    pub fn demo(extra: &[&str]) -> Self {
+        let mut args = vec!["demo", "--modbus-tcp", "127.0.0.1:0"];
+        args.extend_from_slice(extra);
+        Self::start(&args)
+    }
+
+    /// Starts `gateway run --config FILE`.
+    pub fn run(config: &Path) -> Self {
+        Self::start(&["run", "--config", config.to_str().expect("utf-8 path")])
+    }
+
+    /// Starts the binary with `args` and waits for its Modbus TCP announcement.
+    pub fn start(args: &[&str]) -> Self {
+        let mut child = Command::new(gateway_bin())
+            .args(args)
+            .env("RUST_LOG", std::env::var("RUST_LOG").unwrap_or_else(|_| "info".into()))
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .expect("start gateway");
+        let output = Arc::new(Mutex::new(Vec::new()));
+        let (tx, lines) = mpsc::channel();
+        for stream in [
+            Box::new(child.stdout.take().expect("stdout")) as Box<dyn std::io::Read + Send>,
+            Box::new(child.stderr.take().expect("stderr")),
+        ] {
+            let tx = tx.clone();
+            let output = Arc::clone(&output);
+            std::thread::spawn(move || {
+                for line in BufReader::new(stream).lines().map_while(Result::ok) {
+                    output.lock().expect("output lock").push(line.clone());
+                    let _ = tx.send(line);
+                }
+            });
+        }
+        let mut gw = Self { child, modbus_tcp: "0.0.0.0:0".parse().expect("addr"), output, lines };
+        let line = gw.wait_for("modbus-tcp listening on ", START_TIMEOUT);
+        let addr = line.rsplit("modbus-tcp listening on ").next().expect("address").trim();
+        gw.modbus_tcp = addr.parse().unwrap_or_else(|e| panic!("bad address {addr:?}: {e}"));
+        gw
+    }
+
+    /// Waits until a line containing `needle` appears and returns it; panics with the whole
+    /// output after `timeout`.
+    pub fn wait_for(&mut self, needle: &str, timeout: Duration) -> String {
+        let deadline = Instant::now() + timeout;
+        loop {
+            let left = deadline.saturating_duration_since(Instant::now());
+            match self.lines.recv_timeout(left) {
+                Ok(line) if line.contains(needle) => return line,
+                Ok(_) => {}
+                Err(_) => panic!("no line containing {needle:?} within {timeout:?}; output:\n{}", self.output()),
+            }
+        }
+    }
+
+    /// Everything the process printed so far.
+    pub fn output(&self) -> String {
+        self.output.lock().expect("output lock").join("\n")
+    }
+
+    /// The process id.
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// Sends SIGTERM and waits up to `timeout` for the exit status.
+    pub fn terminate(&mut self, timeout: Duration) -> Option<std::process::ExitStatus> {
+        let _ = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).status();
+        let deadline = Instant::now() + timeout;
+        while Instant::now() < deadline {
+            if let Ok(Some(status)) = self.child.try_wait() {
+                return Some(status);
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        None
+    }
+}
+
+impl Drop for Gateway {
+    fn drop(&mut self) {
+        if let Ok(None) = self.child.try_wait() {
+            if self.terminate(Duration::from_secs(5)).is_none() {
+                let _ = self.child.kill();
+                let _ = self.child.wait();
+            }
+        }
+        let out = self.output();
+        if !std::thread::panicking() {
+            assert!(!out.contains("panicked at"), "the gateway panicked:\n{out}");
+        }
+    }
+}
