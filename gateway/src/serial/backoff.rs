@@ -46,6 +46,17 @@ impl Backoff {
         })
     }
 
+    /// A back-off from `min` (at least 1 ms) to `max` (at least `min`): never fails, for settings
+    /// validated elsewhere.
+    pub fn clamped(min: Duration, max: Duration) -> Self {
+        let min = min.max(Duration::from_millis(1));
+        Self {
+            min,
+            max: max.max(min),
+            next: min,
+        }
+    }
+
     /// The delay before the next attempt; each call doubles the following one up to the maximum.
     pub fn next_delay(&mut self) -> Duration {
         let delay = self.next;
@@ -98,5 +109,7 @@ mod tests {
             })
         );
         assert!(Backoff::try_new(ms(10), ms(10)).is_ok());
+        let mut c = Backoff::clamped(ms(0), ms(0));
+        assert_eq!((c.next_delay(), c.next_delay()), (ms(1), ms(1)));
     }
 }
