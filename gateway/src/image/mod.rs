@@ -268,51 +268,105 @@ impl ProcessImage {
         self.store(unit, table, start, values.iter().copied(), quality, period);
     }
 
+    /// Updates registers that are already in the image (after a write through to the device or an
+    /// on-demand read), keeping their poll period; addresses not in the image are left out.
+    pub fn refresh_words(&self, unit: u8, table: Table, start: u16, values: &[u16]) {
+        let values = values.iter().copied();
+        self.store_inner(unit, table, start, values, Quality::Good, None, true);
+    }
+
+    /// Updates bits that are already in the image (see [`Self::refresh_words`]).
+    pub fn refresh_bits(&self, unit: u8, table: Table, start: u16, values: &[bool]) {
+        let values = values.iter().map(|&b| u16::from(b));
+        self.store_inner(unit, table, start, values, Quality::Good, None, true);
+    }
+
     fn store(
         &self,
         unit: u8,
         table: Table,
         start: u16,
-        values: impl ExactSizeIterator<Item = u16>,
+        values: impl Iterator<Item = u16>,
         quality: Quality,
         period: Option<Duration>,
+    ) {
+        self.store_inner(unit, table, start, values, quality, period, false);
+    }
+
+    /// Stores `values` from `start`; with `existing_only`, only addresses already in the image are
+    /// updated and keep their freshness limit. Announces each run of consecutive stored addresses
+    /// in which something changed.
+    #[allow(clippy::too_many_arguments)] // private: the public shapes above fix the flags
+    fn store_inner(
+        &self,
+        unit: u8,
+        table: Table,
+        start: u16,
+        values: impl Iterator<Item = u16>,
+        quality: Quality,
+        period: Option<Duration>,
+        existing_only: bool,
     ) {
         let now = Instant::now();
         let wall = SystemTime::now();
         let max_age = period.map(|p| p.saturating_mul(self.inner.stale_factor));
-        let mut changed = false;
-        let mut stored = Vec::with_capacity(values.len());
+        let mut changes: Vec<Change> = Vec::new();
         {
             let mut units = self
                 .inner
                 .units
                 .write()
                 .unwrap_or_else(PoisonError::into_inner);
-            let slots = units.entry(unit).or_default().table_mut(table);
-            for (address, value) in (start..=u16::MAX).zip(values) {
-                let slot = Slot {
-                    value,
-                    quality,
-                    updated: wall,
-                    at: now,
-                    max_age,
-                };
-                match slots.insert(address, slot) {
-                    Some(old) if old.value == value && old.effective_quality(now) == quality => {}
-                    _ => changed = true,
-                }
-                stored.push(value);
+            if existing_only && !units.contains_key(&unit) {
+                return;
             }
+            let slots = units.entry(unit).or_default().table_mut(table);
+            // The run of consecutive stored addresses being built, and whether it changed.
+            let mut run: Option<(Change, bool)> = None;
+            for (address, value) in (start..=u16::MAX).zip(values) {
+                let old = slots.get(&address).copied();
+                let max_age = match old {
+                    Some(old) if existing_only => old.max_age,
+                    None if existing_only => {
+                        changes.extend(run.take().filter(|(_, changed)| *changed).map(|(c, _)| c));
+                        continue;
+                    }
+                    _ => max_age,
+                };
+                slots.insert(
+                    address,
+                    Slot {
+                        value,
+                        quality,
+                        updated: wall,
+                        at: now,
+                        max_age,
+                    },
+                );
+                let changed =
+                    old.is_none_or(|o| o.value != value || o.effective_quality(now) != quality);
+                match run.as_mut() {
+                    Some((c, run_changed)) => {
+                        c.values.push(value);
+                        *run_changed |= changed;
+                    }
+                    None => {
+                        let c = Change {
+                            unit,
+                            table,
+                            start: address,
+                            values: vec![value],
+                            quality,
+                            time: wall,
+                        };
+                        run = Some((c, changed));
+                    }
+                }
+            }
+            changes.extend(run.filter(|(_, changed)| *changed).map(|(c, _)| c));
         }
-        if changed && !stored.is_empty() {
-            self.announce(Change {
-                unit,
-                table,
-                start,
-                values: stored,
-                quality,
-                time: wall,
-            });
+        for change in changes {
+            self.announce(change);
         }
     }
 

@@ -219,3 +219,50 @@ fn snapshot_lists_a_table_in_address_order() {
     assert_eq!(image.units(), vec![4]);
     assert!(image.snapshot(5, Table::Coils).is_empty());
 }
+
+#[tokio::test(start_paused = true)]
+async fn refresh_updates_only_values_already_in_the_image_and_keeps_their_period() {
+    let image = ProcessImage::new(ImageConfig {
+        stale_factor: 2,
+        notify_capacity: 8,
+    });
+    image.store_words(
+        2,
+        Table::HoldingRegisters,
+        9001,
+        &[10, 20],
+        Some(Duration::from_millis(100)),
+    );
+    let mut rx = image.subscribe();
+    tokio::time::advance(Duration::from_millis(150)).await;
+    // A write of 9000..9002 through to the device: 9000 is not polled and stays out.
+    image.refresh_words(2, Table::HoldingRegisters, 9000, &[1, 13, 20]);
+    assert_eq!(
+        image.read_words(2, Table::HoldingRegisters, 9000, 1),
+        Err(ImageError::Missing {
+            unit: 2,
+            table: Table::HoldingRegisters,
+            address: 9000
+        })
+    );
+    let read = image
+        .read_words(2, Table::HoldingRegisters, 9001, 2)
+        .unwrap();
+    assert_eq!((read.values, read.quality), (vec![13, 20], Quality::Good));
+    // One change for the run that changed (9001, value 13; 9002 is in the same run).
+    let change = rx.try_recv().unwrap();
+    assert_eq!((change.start, change.values), (9001, vec![13, 20]));
+    assert_eq!(rx.try_recv(), Err(TryRecvError::Empty));
+    // Still the poll period's freshness limit (2 x 100 ms).
+    tokio::time::advance(Duration::from_millis(201)).await;
+    assert_eq!(
+        image
+            .read_words(2, Table::HoldingRegisters, 9001, 2)
+            .unwrap()
+            .quality,
+        Quality::Stale
+    );
+    // An unknown unit is left alone.
+    image.refresh_bits(3, Table::Coils, 0, &[true]);
+    assert_eq!(image.units(), vec![2]);
+}
