@@ -7,15 +7,96 @@
 //! Modules:
 //! - [`plan`]: merging polled ranges into the fewest reads within a device's limits (pure);
 //! - `scheduler`: which request goes next (writes, on-demand reads, due polls, offline back-off);
+//! - `command`: the bounded command queue and the error-to-exception mapping;
+//! - `status`: diagnostic buffer, event counters, STATUS word, device states;
+//! - `driver`: clock conversion and timer helpers of the driver loop;
+//! - `modbus_master`: the line task itself;
+//! - `device_unit`: a polled device as a Modbus TCP unit.
 
+mod command;
+mod device_unit;
+mod driver;
+mod modbus_master;
 pub mod plan;
 mod scheduler;
+mod status;
 
+use std::sync::Arc;
 use std::time::Duration;
 
-pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
+use proto_core::modbus::master::MasterConfig;
+use tokio::sync::{broadcast, mpsc};
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
 
-use crate::image::Table;
+pub use command::{
+    exception_for, exception_for_queue, CommandError, CommandResult, LineClient, QueueError,
+};
+pub use device_unit::DeviceUnit;
+pub use modbus_master::{EVENT_PORT_LOST, EVENT_PORT_SETUP};
+pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
+pub use status::{DeviceStatus, LineEvent, LineStatus, DEFAULT_DIAG_DEPTH};
+
+use crate::image::{ProcessImage, Table};
+use crate::serial::PortSettings;
+
+/// Depth of a line's command queue by default.
+pub const DEFAULT_QUEUE_DEPTH: usize = 16;
+/// First delay before reopening a failed port by default.
+pub const DEFAULT_REOPEN_MIN: Duration = Duration::from_millis(500);
+/// Longest delay between reopen attempts by default.
+pub const DEFAULT_REOPEN_MAX: Duration = Duration::from_secs(30);
+/// Slack on top of the master's own reply monitoring for a command's deadline by default.
+pub const DEFAULT_COMMAND_SLACK: Duration = Duration::from_secs(1);
+
+/// Settings of one Modbus master line.
+#[derive(Clone, Debug)]
+pub struct LineSettings {
+    /// The line's name (logs, status, keys).
+    pub name: String,
+    /// The serial port.
+    pub port: PortSettings,
+    /// The master engine: framing, reply monitoring time, retries, operating mode.
+    pub master: MasterConfig,
+    /// Depth of the bounded command queue (a full queue answers 0x06).
+    pub queue_depth: usize,
+    /// Depth of the diagnostic buffer (the CP keeps 9).
+    pub diag_depth: usize,
+    /// First delay before reopening a failed port.
+    pub reopen_min: Duration,
+    /// Longest delay between reopen attempts.
+    pub reopen_max: Duration,
+    /// How long a command waits for its answer, queueing included (`None`: the master's reply
+    /// monitoring time x (retries + 1) + [`DEFAULT_COMMAND_SLACK`]).
+    pub command_deadline: Option<Duration>,
+}
+
+// === impl LineSettings ===
+
+impl LineSettings {
+    /// A Modbus master RTU line on `port` with the master's defaults for its baud rate and frame.
+    pub fn rtu(name: impl Into<String>, port: PortSettings) -> Self {
+        let master = MasterConfig::rtu(port.baud, port.bits_per_char());
+        Self {
+            name: name.into(),
+            port,
+            master,
+            queue_depth: DEFAULT_QUEUE_DEPTH,
+            diag_depth: DEFAULT_DIAG_DEPTH,
+            reopen_min: DEFAULT_REOPEN_MIN,
+            reopen_max: DEFAULT_REOPEN_MAX,
+            command_deadline: None,
+        }
+    }
+
+    /// How long a command waits for its answer.
+    pub fn command_deadline(&self) -> Duration {
+        self.command_deadline.unwrap_or_else(|| {
+            let attempts = u32::from(self.master.retries) + 1;
+            self.master.reply_timeout.saturating_mul(attempts) + DEFAULT_COMMAND_SLACK
+        })
+    }
+}
 
 /// Default back-off before the first retry of a device that stopped answering.
 pub const DEFAULT_DEVICE_BACKOFF_MIN: Duration = Duration::from_secs(1);
@@ -120,5 +201,131 @@ impl DeviceSettings {
                 })
             })
         })
+    }
+}
+
+/// A running line: its status, its command queue and its devices as Modbus TCP units.
+#[derive(Debug)]
+pub struct LineHandle {
+    name: String,
+    client: LineClient,
+    shared: Arc<status::Shared>,
+    devices: Vec<Arc<DeviceSettings>>,
+    image: ProcessImage,
+    task: JoinHandle<()>,
+}
+
+// === impl LineHandle ===
+
+impl LineHandle {
+    /// The line's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// A snapshot of the line's state: port, diagnostic buffer (newest first), event counters,
+    /// last STATUS word, devices.
+    pub fn status(&self) -> LineStatus {
+        self.shared.snapshot()
+    }
+
+    /// A client of the line's command queue.
+    pub fn client(&self) -> LineClient {
+        self.client.clone()
+    }
+
+    /// The line's events as they happen (bounded; a lagging receiver is told how many it missed).
+    pub fn subscribe_events(&self) -> broadcast::Receiver<LineEvent> {
+        self.shared.subscribe()
+    }
+
+    /// Every device of the line as a Modbus TCP unit, with its unit id.
+    pub fn device_units(&self) -> Vec<(u8, DeviceUnit)> {
+        self.devices
+            .iter()
+            .enumerate()
+            .map(|(index, device)| {
+                let unit = DeviceUnit::new(
+                    Arc::clone(device),
+                    index,
+                    Arc::clone(&self.shared),
+                    self.client.clone(),
+                    self.image.clone(),
+                );
+                (device.unit_id, unit)
+            })
+            .collect()
+    }
+
+    /// The device named `name` as a Modbus TCP unit.
+    pub fn device_unit(&self, name: &str) -> Option<DeviceUnit> {
+        self.device_units()
+            .into_iter()
+            .map(|(_, u)| u)
+            .find(|u| u.device().name == name)
+    }
+
+    /// Waits for the line task to end (after the shutdown token was cancelled).
+    pub async fn join(self) {
+        if let Err(err) = self.task.await {
+            tracing::error!(line = %self.name, %err, "line task failed");
+        }
+    }
+}
+
+/// Starts a Modbus master line: opens its port (reopening with back-off), polls `devices` into
+/// `image`, and serves commands until `shutdown` is cancelled. Must be called within a tokio
+/// runtime.
+pub fn spawn_modbus_master_line(
+    settings: LineSettings,
+    devices: Vec<DeviceSettings>,
+    image: ProcessImage,
+    shutdown: CancellationToken,
+) -> LineHandle {
+    let (tx, rx) = mpsc::channel(settings.queue_depth.max(1));
+    let devices: Vec<Arc<DeviceSettings>> = devices.into_iter().map(Arc::new).collect();
+    let status = LineStatus {
+        name: settings.name.clone(),
+        port_open: false,
+        port_error: None,
+        port_opens: 0,
+        status_word: 0,
+        diagnostics: Vec::new(),
+        event_counts: std::collections::BTreeMap::new(),
+        devices: devices
+            .iter()
+            .map(|d| DeviceStatus {
+                name: d.name.clone(),
+                slave: d.slave,
+                unit_id: d.unit_id,
+                online: true,
+                polls_ok: 0,
+                polls_exception: 0,
+                polls_failed: 0,
+                last_answer: None,
+            })
+            .collect(),
+        commands_answered: 0,
+        commands_failed: 0,
+    };
+    let shared = status::Shared::new(status, settings.diag_depth);
+    let client = LineClient::new(tx, settings.command_deadline());
+    let name = settings.name.clone();
+    let task = modbus_master::LineTask::new(
+        settings,
+        devices.clone(),
+        image.clone(),
+        Arc::clone(&shared),
+        rx,
+        shutdown,
+    );
+    let task = tokio::spawn(task.run());
+    LineHandle {
+        name,
+        client,
+        shared,
+        devices,
+        image,
+        task,
     }
 }

@@ -81,9 +81,12 @@ pub(crate) struct Scheduler<C> {
 
 impl<C> Scheduler<C> {
     /// A schedule with every poll due at `now`.
-    pub(crate) fn new(devices: &[DeviceSettings], now: Instant) -> Self {
+    pub(crate) fn new<'a>(
+        devices: impl IntoIterator<Item = &'a DeviceSettings>,
+        now: Instant,
+    ) -> Self {
         let devices = devices
-            .iter()
+            .into_iter()
             .map(|d| DeviceState {
                 slave: d.slave,
                 blocks: d
@@ -201,6 +204,17 @@ impl<C> Scheduler<C> {
                     Transition::StillOffline { retry_in }
                 }
             }
+        }
+    }
+
+    /// Puts a poll that could not be sent off by one period from `now`.
+    pub(crate) fn postpone(&mut self, job: PollJob, now: Instant) {
+        if let Some(b) = self
+            .devices
+            .get_mut(job.device)
+            .and_then(|d| d.blocks.get_mut(job.block))
+        {
+            b.next_due = now + job.read.period;
         }
     }
 
