@@ -1,15 +1,17 @@
 //! Commands into a line: writes and on-demand reads from the Modbus TCP server, REST or zenoh.
 //!
-//! The queue is bounded (STYLE habit 10): a full queue is refused at once, and the Modbus TCP
-//! server turns that into exception 06 "server device busy". Every command is answered exactly
+//! The queue is bounded (STYLE habit 10): at most `queue_depth` commands wait or are in flight
+//! on a line (each holds a permit of a semaphore until it is answered); one more is refused at
+//! once, and the Modbus TCP server turns that into exception 06 "server device busy". Every command is answered exactly
 //! once, with the device's answer or a [`CommandError`]; the mapping of both to a Modbus exception
 //! is in one place, [`exception_for`].
 
+use std::sync::Arc;
 use std::time::Duration;
 
 use proto_core::event::EventId;
 use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
 
 /// The device's answer ([`Response`] or its exception), or why there is none.
 pub type CommandResult = Result<Result<Response, ExceptionCode>, CommandError>;
@@ -81,6 +83,8 @@ pub(crate) struct Command {
     pub(crate) request: Request,
     /// Where the answer goes.
     pub(crate) reply: oneshot::Sender<CommandResult>,
+    /// The command's place in the bounded queue, freed when it is answered.
+    pub(crate) _permit: OwnedSemaphorePermit,
 }
 
 // === impl Command ===
@@ -113,6 +117,8 @@ impl Command {
 #[derive(Clone, Debug)]
 pub struct LineClient {
     tx: mpsc::Sender<Command>,
+    /// One permit per command that may wait or be in flight.
+    permits: Arc<Semaphore>,
     /// How long [`LineClient::request`] waits for an answer.
     deadline: Duration,
 }
@@ -120,8 +126,9 @@ pub struct LineClient {
 // === impl LineClient ===
 
 impl LineClient {
-    pub(crate) fn new(tx: mpsc::Sender<Command>, deadline: Duration) -> Self {
-        Self { tx, deadline }
+    /// A client of a queue of `depth` commands; `tx` must have room for `depth` commands.
+    pub(crate) fn new(tx: mpsc::Sender<Command>, depth: usize, deadline: Duration) -> Self {
+        Self { tx, permits: Arc::new(Semaphore::new(depth.max(1))), deadline }
     }
 
     /// How long [`Self::request`] waits for the answer.
@@ -135,13 +142,13 @@ impl LineClient {
         slave: u8,
         request: Request,
     ) -> Result<oneshot::Receiver<CommandResult>, QueueError> {
+        if self.tx.is_closed() {
+            return Err(QueueError::Closed);
+        }
+        let permit = Arc::clone(&self.permits).try_acquire_owned().map_err(|_| QueueError::Full)?;
         let (reply, rx) = oneshot::channel();
         self.tx
-            .try_send(Command {
-                slave,
-                request,
-                reply,
-            })
+            .try_send(Command { slave, request, reply, _permit: permit })
             .map_err(|e| match e {
                 mpsc::error::TrySendError::Full(_) => QueueError::Full,
                 mpsc::error::TrySendError::Closed(_) => QueueError::Closed,

@@ -58,7 +58,7 @@ pub struct LineSettings {
     pub port: PortSettings,
     /// The master engine: framing, reply monitoring time, retries, operating mode.
     pub master: MasterConfig,
-    /// Depth of the bounded command queue (a full queue answers 0x06).
+    /// How many commands may wait or be in flight on the line (one more answers 0x06).
     pub queue_depth: usize,
     /// Depth of the diagnostic buffer (the CP keeps 9).
     pub diag_depth: usize,
@@ -309,7 +309,7 @@ pub fn spawn_modbus_master_line(
         commands_failed: 0,
     };
     let shared = status::Shared::new(status, settings.diag_depth);
-    let client = LineClient::new(tx, settings.command_deadline());
+    let client = LineClient::new(tx, settings.queue_depth.max(1), settings.command_deadline());
     let name = settings.name.clone();
     let task = modbus_master::LineTask::new(
         settings,
