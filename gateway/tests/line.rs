@@ -12,8 +12,8 @@ use std::time::Duration;
 
 use gateway::image::{ProcessImage, Quality, Table};
 use gateway::line::{
-    spawn_modbus_master_line, AddrRange, DeviceLimits, DeviceSettings, LineHandle, LineSettings, PollGroup,
-    EVENT_PORT_LOST, EVENT_PORT_SETUP,
+    spawn_modbus_master_line, AddrRange, DeviceLimits, DeviceSettings, LineHandle, LineSettings,
+    PollGroup, EVENT_PORT_LOST, EVENT_PORT_SETUP,
 };
 use gateway::serial::{Interface, PortSettings, Rs485};
 use gateway::unit::UnitService;
@@ -73,12 +73,18 @@ impl Slave {
                 self.holding.lock().unwrap().insert(address, value);
                 Ok(Response::WriteSingleRegister { address, value })
             }
-            Request::WriteMultipleRegisters { address, ref values } => {
+            Request::WriteMultipleRegisters {
+                address,
+                ref values,
+            } => {
                 let mut holding = self.holding.lock().unwrap();
                 for (a, v) in (address..).zip(values) {
                     holding.insert(a, *v);
                 }
-                Ok(Response::WriteMultipleRegisters { address, quantity: values.len() as u16 })
+                Ok(Response::WriteMultipleRegisters {
+                    address,
+                    quantity: values.len() as u16,
+                })
             }
             _ => Err(ExceptionCode::IllegalFunction),
         }
@@ -101,8 +107,12 @@ async fn run_device(mut port: SerialStream, slaves: Vec<(u8, Arc<Slave>)>) {
                 buf.clear(); // resync: a pty does not corrupt bytes, so this is not expected
                 break;
             };
-            let Some((_, slave)) = slaves.iter().find(|(a, _)| *a == frame.address) else { continue };
-            let Ok(request) = Request::decode(frame.pdu) else { continue };
+            let Some((_, slave)) = slaves.iter().find(|(a, _)| *a == frame.address) else {
+                continue;
+            };
+            let Ok(request) = Request::decode(frame.pdu) else {
+                continue;
+            };
             let answer = slave.answer(&request);
             if slave.silent.load(Ordering::Relaxed) {
                 continue;
@@ -148,7 +158,11 @@ fn line_settings(path: &str) -> LineSettings {
 fn altivar(name: &str, slave: u8, ranges: Vec<AddrRange>) -> DeviceSettings {
     let mut device = DeviceSettings::new(name, slave, slave);
     device.limits = DeviceLimits::ALTIVAR;
-    device.groups = vec![PollGroup { period: POLL, table: Table::HoldingRegisters, ranges }];
+    device.groups = vec![PollGroup {
+        period: POLL,
+        table: Table::HoldingRegisters,
+        ranges,
+    }];
     device.backoff_min = ms(1000);
     device.backoff_max = ms(4000);
     device
@@ -158,7 +172,10 @@ fn altivar(name: &str, slave: u8, ranges: Vec<AddrRange>) -> DeviceSettings {
 async fn eventually(what: &str, mut check: impl FnMut() -> bool) {
     let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
     while !check() {
-        assert!(tokio::time::Instant::now() < deadline, "timed out waiting for {what}");
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "timed out waiting for {what}"
+        );
         tokio::time::sleep(ms(10)).await;
     }
 }
@@ -169,7 +186,9 @@ fn event_count(line: &LineHandle, id: EventId) -> u64 {
 
 async fn stop(line: LineHandle, shutdown: CancellationToken) {
     shutdown.cancel();
-    tokio::time::timeout(Duration::from_secs(5), line.join()).await.expect("line stops");
+    tokio::time::timeout(Duration::from_secs(5), line.join())
+        .await
+        .expect("line stops");
 }
 
 // === tests ===
@@ -178,32 +197,71 @@ async fn stop(line: LineHandle, shutdown: CancellationToken) {
 async fn the_line_polls_the_device_and_the_image_fills() {
     let (device_end, path, _keep) = pty();
     // W3102..W3105 = SFr, tFr, HSP, LSP as in the Altivar manual's FC03 example.
-    let slave = Arc::new(Slave::with_holding(&[(3102, 40), (3103, 600), (3104, 500), (3105, 0), (3201, 0x0637)]));
+    let slave = Arc::new(Slave::with_holding(&[
+        (3102, 40),
+        (3103, 600),
+        (3104, 500),
+        (3105, 0),
+        (3201, 0x0637),
+    ]));
     tokio::spawn(run_device(device_end, vec![(2, slave.clone())]));
 
     let image = ProcessImage::default();
     let shutdown = CancellationToken::new();
     let ranges = vec![AddrRange::new(3102, 4), AddrRange::new(3201, 1)];
-    let line = spawn_modbus_master_line(line_settings(&path), vec![altivar("atv", 2, ranges)], image.clone(), shutdown.clone());
+    let line = spawn_modbus_master_line(
+        line_settings(&path),
+        vec![altivar("atv", 2, ranges)],
+        image.clone(),
+        shutdown.clone(),
+    );
 
-    eventually("the image to fill", || image.read_words(2, Table::HoldingRegisters, 3102, 4).is_ok()).await;
-    let read = image.read_words(2, Table::HoldingRegisters, 3102, 4).unwrap();
-    assert_eq!((read.values, read.quality), (vec![40, 600, 500, 0], Quality::Good));
-    eventually("ETA", || image.read_words(2, Table::HoldingRegisters, 3201, 1).is_ok_and(|r| r.values == [0x0637])).await;
+    eventually("the image to fill", || {
+        image
+            .read_words(2, Table::HoldingRegisters, 3102, 4)
+            .is_ok()
+    })
+    .await;
+    let read = image
+        .read_words(2, Table::HoldingRegisters, 3102, 4)
+        .unwrap();
+    assert_eq!(
+        (read.values, read.quality),
+        (vec![40, 600, 500, 0], Quality::Good)
+    );
+    eventually("ETA", || {
+        image
+            .read_words(2, Table::HoldingRegisters, 3201, 1)
+            .is_ok_and(|r| r.values == [0x0637])
+    })
+    .await;
     // The unpolled gap between the two ranges was not read (no bridging by default).
-    assert!(image.read_words(2, Table::HoldingRegisters, 3106, 1).is_err());
+    assert!(image
+        .read_words(2, Table::HoldingRegisters, 3106, 1)
+        .is_err());
 
     // Values keep coming: the poll count grows.
     let before = slave.reads.load(Ordering::Relaxed);
-    eventually("more polls", || slave.reads.load(Ordering::Relaxed) >= before + 4).await;
+    eventually("more polls", || {
+        slave.reads.load(Ordering::Relaxed) >= before + 4
+    })
+    .await;
     let status = line.status();
     assert!(status.port_open);
     assert_eq!(status.port_opens, 1);
-    assert!(status.devices[0].online && status.devices[0].polls_ok >= 2, "{status:?}");
+    assert!(
+        status.devices[0].online && status.devices[0].polls_ok >= 2,
+        "{status:?}"
+    );
 
     // Served from the image through the unit.
     let unit = line.device_unit("atv").unwrap();
-    let answer = unit.call(Request::ReadHoldingRegisters { address: 3103, quantity: 2 }).await;
+    let answer = unit
+        .call(Request::ReadHoldingRegisters {
+            address: 3103,
+            quantity: 2,
+        })
+        .await;
     assert_eq!(answer, Ok(Response::ReadHoldingRegisters(vec![600, 500])));
     stop(line, shutdown).await;
 }
@@ -219,25 +277,71 @@ async fn a_write_through_the_unit_lands_in_the_device_and_the_image() {
     let image = ProcessImage::default();
     let shutdown = CancellationToken::new();
     let ranges = vec![AddrRange::new(9001, 2)];
-    let line = spawn_modbus_master_line(line_settings(&path), vec![altivar("atv", 2, ranges)], image.clone(), shutdown.clone());
+    let line = spawn_modbus_master_line(
+        line_settings(&path),
+        vec![altivar("atv", 2, ranges)],
+        image.clone(),
+        shutdown.clone(),
+    );
     let (unit_id, unit) = line.device_units().pop().unwrap();
     assert_eq!(unit_id, 2);
-    eventually("the image to fill", || image.read_words(2, Table::HoldingRegisters, 9001, 2).is_ok()).await;
+    eventually("the image to fill", || {
+        image
+            .read_words(2, Table::HoldingRegisters, 9001, 2)
+            .is_ok()
+    })
+    .await;
 
     // FC06 ACC = 13 (the Altivar manual's example): the device's echo comes back.
-    let answer = unit.call(Request::WriteSingleRegister { address: 9001, value: 13 }).await;
-    assert_eq!(answer, Ok(Response::WriteSingleRegister { address: 9001, value: 13 }));
+    let answer = unit
+        .call(Request::WriteSingleRegister {
+            address: 9001,
+            value: 13,
+        })
+        .await;
+    assert_eq!(
+        answer,
+        Ok(Response::WriteSingleRegister {
+            address: 9001,
+            value: 13
+        })
+    );
     assert_eq!(slave.holding(9001), Some(13));
     // The image has it at once, without waiting for the next poll.
-    assert_eq!(image.read_words(2, Table::HoldingRegisters, 9001, 1).unwrap().values, vec![13]);
+    assert_eq!(
+        image
+            .read_words(2, Table::HoldingRegisters, 9001, 1)
+            .unwrap()
+            .values,
+        vec![13]
+    );
 
     // FC16 ACC, DEC = 20, 30.
-    let answer = unit.call(Request::WriteMultipleRegisters { address: 9001, values: vec![20, 30] }).await;
-    assert_eq!(answer, Ok(Response::WriteMultipleRegisters { address: 9001, quantity: 2 }));
-    assert_eq!((slave.holding(9001), slave.holding(9002)), (Some(20), Some(30)));
+    let answer = unit
+        .call(Request::WriteMultipleRegisters {
+            address: 9001,
+            values: vec![20, 30],
+        })
+        .await;
+    assert_eq!(
+        answer,
+        Ok(Response::WriteMultipleRegisters {
+            address: 9001,
+            quantity: 2
+        })
+    );
+    assert_eq!(
+        (slave.holding(9001), slave.holding(9002)),
+        (Some(20), Some(30))
+    );
 
     // The device's exception is passed through: ETA is read-only (exception 04).
-    let answer = unit.call(Request::WriteSingleRegister { address: 3201, value: 1 }).await;
+    let answer = unit
+        .call(Request::WriteSingleRegister {
+            address: 3201,
+            value: 1,
+        })
+        .await;
     assert_eq!(answer, Err(ExceptionCode::ServerDeviceFailure));
     assert_eq!(slave.holding(3201), Some(0x0637));
     assert!(line.status().commands_answered >= 3);
@@ -260,11 +364,26 @@ async fn an_unpolled_address_is_read_on_demand() {
     );
     let unit = line.device_unit("atv").unwrap();
     // CHCF, COP (W8401, W8402): nobody polls them, the device answers.
-    let answer = unit.call(Request::ReadHoldingRegisters { address: 8401, quantity: 2 }).await;
+    let answer = unit
+        .call(Request::ReadHoldingRegisters {
+            address: 8401,
+            quantity: 2,
+        })
+        .await;
     assert_eq!(answer, Ok(Response::ReadHoldingRegisters(vec![3, 2])));
-    assert!(image.read_words(2, Table::HoldingRegisters, 8401, 1).is_err(), "on-demand values stay out of the image");
+    assert!(
+        image
+            .read_words(2, Table::HoldingRegisters, 8401, 1)
+            .is_err(),
+        "on-demand values stay out of the image"
+    );
     // An address the device does not have: its exception 02 passes through.
-    let answer = unit.call(Request::ReadHoldingRegisters { address: 8400, quantity: 1 }).await;
+    let answer = unit
+        .call(Request::ReadHoldingRegisters {
+            address: 8400,
+            quantity: 1,
+        })
+        .await;
     assert_eq!(answer, Err(ExceptionCode::IllegalDataAddress));
     stop(line, shutdown).await;
 }
@@ -274,34 +393,71 @@ async fn a_silent_device_goes_offline_answers_0x0b_and_the_other_keeps_its_rate(
     let (device_end, path, _keep) = pty();
     let good = Arc::new(Slave::with_holding(&[(3201, 7)]));
     let flaky = Arc::new(Slave::with_holding(&[(3201, 9)]));
-    tokio::spawn(run_device(device_end, vec![(2, good.clone()), (3, flaky.clone())]));
+    tokio::spawn(run_device(
+        device_end,
+        vec![(2, good.clone()), (3, flaky.clone())],
+    ));
 
     let image = ProcessImage::default();
     let shutdown = CancellationToken::new();
-    let devices =
-        vec![altivar("good", 2, vec![AddrRange::new(3201, 1)]), altivar("flaky", 3, vec![AddrRange::new(3201, 1)])];
-    let line = spawn_modbus_master_line(line_settings(&path), devices, image.clone(), shutdown.clone());
+    let devices = vec![
+        altivar("good", 2, vec![AddrRange::new(3201, 1)]),
+        altivar("flaky", 3, vec![AddrRange::new(3201, 1)]),
+    ];
+    let line = spawn_modbus_master_line(
+        line_settings(&path),
+        devices,
+        image.clone(),
+        shutdown.clone(),
+    );
     eventually("both devices in the image", || {
-        image.read_words(2, Table::HoldingRegisters, 3201, 1).is_ok()
-            && image.read_words(3, Table::HoldingRegisters, 3201, 1).is_ok()
+        image
+            .read_words(2, Table::HoldingRegisters, 3201, 1)
+            .is_ok()
+            && image
+                .read_words(3, Table::HoldingRegisters, 3201, 1)
+                .is_ok()
     })
     .await;
 
     flaky.silent.store(true, Ordering::Relaxed);
-    eventually("the flaky device offline", || !line.status().devices[1].online).await;
-    let read = image.read_words(3, Table::HoldingRegisters, 3201, 1).unwrap();
+    eventually("the flaky device offline", || {
+        !line.status().devices[1].online
+    })
+    .await;
+    let read = image
+        .read_words(3, Table::HoldingRegisters, 3201, 1)
+        .unwrap();
     assert_eq!(read.quality, Quality::CommFailure);
-    assert!(event_count(&line, EventId::new(0x08, 0x30)) >= 1, "08 30h no reply counted");
+    assert!(
+        event_count(&line, EventId::new(0x08, 0x30)) >= 1,
+        "08 30h no reply counted"
+    );
     assert_eq!(line.status().status_word, 0x0830);
 
     let flaky_unit = line.device_unit("flaky").unwrap();
-    let answer = flaky_unit.call(Request::ReadHoldingRegisters { address: 3201, quantity: 1 }).await;
+    let answer = flaky_unit
+        .call(Request::ReadHoldingRegisters {
+            address: 3201,
+            quantity: 1,
+        })
+        .await;
     assert_eq!(answer, Err(ExceptionCode::GatewayTargetFailedToRespond));
-    let answer = flaky_unit.call(Request::WriteSingleRegister { address: 3201, value: 1 }).await;
+    let answer = flaky_unit
+        .call(Request::WriteSingleRegister {
+            address: 3201,
+            value: 1,
+        })
+        .await;
     assert_eq!(answer, Err(ExceptionCode::GatewayTargetFailedToRespond));
     let good_unit = line.device_unit("good").unwrap();
     assert_eq!(
-        good_unit.call(Request::ReadHoldingRegisters { address: 3201, quantity: 1 }).await,
+        good_unit
+            .call(Request::ReadHoldingRegisters {
+                address: 3201,
+                quantity: 1
+            })
+            .await,
         Ok(Response::ReadHoldingRegisters(vec![7]))
     );
 
@@ -314,13 +470,18 @@ async fn a_silent_device_goes_offline_answers_0x0b_and_the_other_keeps_its_rate(
     let polls = good.reads.load(Ordering::Relaxed) - before;
     assert!(polls >= 28, "the good device got only {polls} polls in 2 s");
     let probes = flaky.reads.load(Ordering::Relaxed) - probes_before;
-    assert!(probes <= 3, "the silent device was asked {probes} times in 2 s");
+    assert!(
+        probes <= 3,
+        "the silent device was asked {probes} times in 2 s"
+    );
 
     // It answers again: back online after its next probe, values good again.
     flaky.silent.store(false, Ordering::Relaxed);
     eventually("the flaky device back", || line.status().devices[1].online).await;
     eventually("its value good again", || {
-        image.read_words(3, Table::HoldingRegisters, 3201, 1).is_ok_and(|r| r.quality == Quality::Good)
+        image
+            .read_words(3, Table::HoldingRegisters, 3201, 1)
+            .is_ok_and(|r| r.quality == Quality::Good)
     })
     .await;
     stop(line, shutdown).await;
@@ -341,18 +502,36 @@ async fn a_full_queue_answers_0x06_and_no_answer_0x0b() {
     let client = line.client();
     let unit = line.device_unit("ghost").unwrap();
 
-    let request = Request::ReadHoldingRegisters { address: 0, quantity: 1 };
+    let request = Request::ReadHoldingRegisters {
+        address: 0,
+        quantity: 1,
+    };
     let first = client.try_submit(9, request.clone()).unwrap();
     let second = client.try_submit(9, request.clone()).unwrap();
     // Both places taken (one in flight, one waiting): the next is refused at once.
-    assert_eq!(unit.call(request.clone()).await, Err(ExceptionCode::ServerDeviceBusy));
+    assert_eq!(
+        unit.call(request.clone()).await,
+        Err(ExceptionCode::ServerDeviceBusy)
+    );
 
     // The first times out (08 30h); the device goes offline, the second is answered at once.
     let first = first.await.unwrap();
-    assert_eq!(first, Err(gateway::line::CommandError::NoReply { slave: 9, event: EventId::new(0x08, 0x30) }));
-    assert_eq!(second.await.unwrap(), Err(gateway::line::CommandError::Offline(9)));
+    assert_eq!(
+        first,
+        Err(gateway::line::CommandError::NoReply {
+            slave: 9,
+            event: EventId::new(0x08, 0x30)
+        })
+    );
+    assert_eq!(
+        second.await.unwrap(),
+        Err(gateway::line::CommandError::Offline(9))
+    );
     // Places free again; an offline device answers 0x0B.
-    assert_eq!(unit.call(request).await, Err(ExceptionCode::GatewayTargetFailedToRespond));
+    assert_eq!(
+        unit.call(request).await,
+        Err(ExceptionCode::GatewayTargetFailedToRespond)
+    );
     stop(line, shutdown).await;
 }
 
@@ -369,7 +548,12 @@ async fn a_vanished_port_raises_events_and_is_reopened_with_back_off() {
         image.clone(),
         shutdown.clone(),
     );
-    eventually("the image to fill", || image.read_words(2, Table::HoldingRegisters, 3201, 1).is_ok()).await;
+    eventually("the image to fill", || {
+        image
+            .read_words(2, Table::HoldingRegisters, 3201, 1)
+            .is_ok()
+    })
+    .await;
 
     // The device's end goes away: the pty is gone, the line loses its port.
     device.abort();
@@ -377,18 +561,33 @@ async fn a_vanished_port_raises_events_and_is_reopened_with_back_off() {
     drop(keep);
     eventually("the port lost", || event_count(&line, EVENT_PORT_LOST) >= 1).await;
     eventually("values marked", || {
-        image.read_words(2, Table::HoldingRegisters, 3201, 1).is_ok_and(|r| r.quality == Quality::CommFailure)
+        image
+            .read_words(2, Table::HoldingRegisters, 3201, 1)
+            .is_ok_and(|r| r.quality == Quality::CommFailure)
     })
     .await;
     // Each reopen attempt that fails raises 02 0Fh with the reason.
-    eventually("two failed reopen attempts", || event_count(&line, EVENT_PORT_SETUP) >= 2).await;
+    eventually("two failed reopen attempts", || {
+        event_count(&line, EVENT_PORT_SETUP) >= 2
+    })
+    .await;
     let status = line.status();
     assert!(!status.port_open);
-    assert!(status.port_error.as_deref().is_some_and(|e| e.contains(&path)), "{status:?}");
+    assert!(
+        status
+            .port_error
+            .as_deref()
+            .is_some_and(|e| e.contains(&path)),
+        "{status:?}"
+    );
     // Commands meanwhile are answered at once.
     let unit = line.device_unit("atv").unwrap();
     assert_eq!(
-        unit.call(Request::WriteSingleRegister { address: 3201, value: 1 }).await,
+        unit.call(Request::WriteSingleRegister {
+            address: 3201,
+            value: 1
+        })
+        .await,
         Err(ExceptionCode::GatewayTargetFailedToRespond)
     );
     stop(line, shutdown).await;
@@ -400,12 +599,19 @@ async fn rs485_on_a_pty_is_reported_as_an_event_with_the_reason() {
     let mut settings = line_settings(&path);
     settings.port.interface = Interface::Rs485(Rs485::default());
     let shutdown = CancellationToken::new();
-    let line = spawn_modbus_master_line(settings, vec![], ProcessImage::default(), shutdown.clone());
+    let line =
+        spawn_modbus_master_line(settings, vec![], ProcessImage::default(), shutdown.clone());
     eventually("the refusal", || event_count(&line, EVENT_PORT_SETUP) >= 1).await;
     let status = line.status();
     let error = status.port_error.clone().unwrap();
-    assert!(error.starts_with(&format!("port {path} refused RS485 mode: ")), "{error}");
-    assert!(error.ends_with("(a pseudo-terminal has no RS485 driver)"), "{error}");
+    assert!(
+        error.starts_with(&format!("port {path} refused RS485 mode: ")),
+        "{error}"
+    );
+    assert!(
+        error.ends_with("(a pseudo-terminal has no RS485 driver)"),
+        "{error}"
+    );
     assert_eq!(status.status_word, 0x020F);
     stop(line, shutdown).await;
 }

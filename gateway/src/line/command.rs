@@ -128,7 +128,11 @@ pub struct LineClient {
 impl LineClient {
     /// A client of a queue of `depth` commands; `tx` must have room for `depth` commands.
     pub(crate) fn new(tx: mpsc::Sender<Command>, depth: usize, deadline: Duration) -> Self {
-        Self { tx, permits: Arc::new(Semaphore::new(depth.max(1))), deadline }
+        Self {
+            tx,
+            permits: Arc::new(Semaphore::new(depth.max(1))),
+            deadline,
+        }
     }
 
     /// How long [`Self::request`] waits for the answer.
@@ -145,10 +149,17 @@ impl LineClient {
         if self.tx.is_closed() {
             return Err(QueueError::Closed);
         }
-        let permit = Arc::clone(&self.permits).try_acquire_owned().map_err(|_| QueueError::Full)?;
+        let permit = Arc::clone(&self.permits)
+            .try_acquire_owned()
+            .map_err(|_| QueueError::Full)?;
         let (reply, rx) = oneshot::channel();
         self.tx
-            .try_send(Command { slave, request, reply, _permit: permit })
+            .try_send(Command {
+                slave,
+                request,
+                reply,
+                _permit: permit,
+            })
             .map_err(|e| match e {
                 mpsc::error::TrySendError::Full(_) => QueueError::Full,
                 mpsc::error::TrySendError::Closed(_) => QueueError::Closed,

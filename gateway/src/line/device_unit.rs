@@ -69,7 +69,7 @@ impl DeviceUnit {
         self.device.unit_id
     }
 
-    fn from_image(&self, request: &Request) -> ImageAnswer {
+    fn answer_from_image(&self, request: &Request) -> ImageAnswer {
         let (table, address, quantity) = match *request {
             Request::ReadCoils { address, quantity } => (Table::Coils, address, quantity),
             Request::ReadDiscreteInputs { address, quantity } => {
@@ -131,7 +131,7 @@ impl DeviceUnit {
 
 impl UnitService for DeviceUnit {
     fn call(&self, request: Request) -> UnitFuture {
-        match self.from_image(&request) {
+        match self.answer_from_image(&request) {
             ImageAnswer::Answer(response) => Box::pin(std::future::ready(Ok(response))),
             ImageAnswer::Fail(code) => Box::pin(std::future::ready(Err(code))),
             ImageAnswer::OnDemand => {

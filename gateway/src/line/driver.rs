@@ -23,24 +23,24 @@ impl Clock {
     }
 
     /// The origin (tokio time).
-    pub(crate) fn base(&self) -> Instant {
+    pub(crate) fn base(self) -> Instant {
         self.base
     }
 
     /// Now, on both clocks.
-    pub(crate) fn now(&self) -> (Instant, proto_core::time::Instant) {
+    pub(crate) fn now(self) -> (Instant, proto_core::time::Instant) {
         let now = Instant::now();
         (now, self.to_engine(now))
     }
 
     /// A tokio instant as an engine instant (the origin for instants before it).
-    pub(crate) fn to_engine(&self, at: Instant) -> proto_core::time::Instant {
+    pub(crate) fn to_engine(self, at: Instant) -> proto_core::time::Instant {
         let micros = at.saturating_duration_since(self.base).as_micros();
         proto_core::time::Instant::from_micros(u64::try_from(micros).unwrap_or(u64::MAX))
     }
 
     /// An engine instant as a tokio instant.
-    pub(crate) fn to_tokio(&self, at: proto_core::time::Instant) -> Instant {
+    pub(crate) fn to_tokio(self, at: proto_core::time::Instant) -> Instant {
         self.base + Duration::from_micros(at.as_micros())
     }
 }

@@ -291,6 +291,8 @@ pub fn spawn_modbus_master_line(
         port_opens: 0,
         status_word: 0,
         diagnostics: Vec::new(),
+        last_event: None,
+        started: std::time::SystemTime::now(),
         event_counts: std::collections::BTreeMap::new(),
         devices: devices
             .iter()
@@ -308,7 +310,8 @@ pub fn spawn_modbus_master_line(
         commands_answered: 0,
         commands_failed: 0,
     };
-    let shared = status::Shared::new(status, settings.diag_depth);
+    let clock = driver::Clock::start();
+    let shared = status::Shared::new(status, settings.diag_depth, clock);
     let client = LineClient::new(tx, settings.queue_depth.max(1), settings.command_deadline());
     let name = settings.name.clone();
     let task = modbus_master::LineTask::new(
@@ -318,6 +321,7 @@ pub fn spawn_modbus_master_line(
         Arc::clone(&shared),
         rx,
         shutdown,
+        clock,
     );
     let task = tokio::spawn(task.run());
     LineHandle {

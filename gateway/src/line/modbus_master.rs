@@ -9,7 +9,7 @@
 use std::sync::Arc;
 use std::time::SystemTime;
 
-use proto_core::event::EventId;
+use proto_core::event::{ids, EventId};
 use proto_core::modbus::master::{Master, MasterEvent, Outcome, RequestId};
 use proto_core::modbus::pdu::{Request, Response};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -28,10 +28,10 @@ use crate::serial::{self, Backoff};
 
 /// The port could not be opened or set up: 003 7.2 event 02 0Fh "Interface could not be
 /// parameterized" (also for RS485 mode refused by the driver).
-pub const EVENT_PORT_SETUP: EventId = EventId::new(0x02, 0x0F);
+pub const EVENT_PORT_SETUP: EventId = ids::INVALID_PARAMETERIZATION;
 /// The open port failed (read or write error, end of file: the device node vanished): 003 7.2
 /// event 08 0Dh "BREAK: receive line to partner is interrupted".
-pub const EVENT_PORT_LOST: EventId = EventId::new(0x08, 0x0D);
+pub const EVENT_PORT_LOST: EventId = ids::LINE_BREAK;
 
 /// What is in flight on the line.
 #[derive(Debug)]
@@ -74,8 +74,8 @@ impl LineTask {
         shared: Arc<Shared>,
         commands: mpsc::Receiver<Command>,
         shutdown: CancellationToken,
+        clock: Clock,
     ) -> Self {
-        let clock = Clock::start();
         let sched = Scheduler::new(devices.iter().map(|d| &**d), clock.base());
         Self {
             settings,
@@ -163,7 +163,7 @@ impl LineTask {
 
     /// The driver loop on an open port.
     async fn drive(&mut self, mut port: SerialStream) -> PortExit {
-        let mut master = Master::new(self.settings.master.clone());
+        let mut master = Master::new(self.settings.master);
         let char_time = self.settings.port.char_time();
         let mut stopping = false;
         let mut buf = [0u8; 512];
@@ -195,7 +195,10 @@ impl LineTask {
             let mut completed = false;
             while let Some(event) = master.poll_event() {
                 match event {
-                    MasterEvent::Raised { id, slave } => self.shared.raise(id, Some(slave), None),
+                    // Slave 0: raised while the line was idle.
+                    MasterEvent::Raised { id, slave } => {
+                        self.shared.raise(id, (slave != 0).then_some(slave), None);
+                    }
                     MasterEvent::Completed {
                         id,
                         slave,
@@ -212,6 +215,10 @@ impl LineTask {
                                 self.inflight = other;
                             }
                         }
+                    }
+                    // This line never submits 32-bit register jobs.
+                    MasterEvent::Completed32 { slave, .. } => {
+                        tracing::error!(line = %self.settings.name, slave, "completion of a 32-bit job never submitted");
                     }
                 }
             }

@@ -175,6 +175,7 @@ impl<C> Scheduler<C> {
     }
 
     /// Whether commands are queued.
+    #[cfg(test)]
     pub(crate) fn has_commands(&self) -> bool {
         !self.writes.is_empty() || !self.reads.is_empty()
     }

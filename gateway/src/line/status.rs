@@ -1,18 +1,21 @@
 //! What a line reports: its diagnostic buffer, event counters, last STATUS word, port and devices.
 //!
-//! The CP keeps the newest events of a line in a diagnostic buffer of 9 entries (003 7.3); the depth
-//! is configurable here. Every event is also counted by id, logged with its class name, and sent
-//! to subscribers (metrics, zenoh) on a bounded broadcast channel.
+//! The CP keeps the newest events of a line in a diagnostic buffer of 9 entries (003 7.3); the
+//! catalog's [`DiagBuffer`] does that here with a configurable depth. Every event is also counted
+//! by id, logged with its class name from the catalog, and sent to subscribers (metrics, zenoh) on
+//! a bounded broadcast channel.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::SystemTime;
 
-use proto_core::event::EventId;
+use proto_core::event::{self, DiagBuffer, DiagEntry, EventId};
 use tokio::sync::broadcast;
 
+use super::driver::Clock;
+
 /// Depth of the diagnostic buffer by default: the CP's 9 entries (003 7.3).
-pub const DEFAULT_DIAG_DEPTH: usize = 9;
+pub const DEFAULT_DIAG_DEPTH: usize = event::DEFAULT_DEPTH;
 
 /// Capacity of a line's event broadcast channel.
 const EVENT_CHANNEL_CAPACITY: usize = 256;
@@ -66,8 +69,13 @@ pub struct LineStatus {
     pub port_opens: u64,
     /// The STATUS word of the newest event (bits 12..8 class, 7..0 number; 0 before any event).
     pub status_word: u16,
-    /// The diagnostic buffer, newest first.
-    pub diagnostics: Vec<LineEvent>,
+    /// The diagnostic buffer, newest first (repeats of the newest event merged, see
+    /// [`DiagBuffer`]); its instants count from `started`.
+    pub diagnostics: Vec<DiagEntry>,
+    /// The newest event with its wall-clock time and details.
+    pub last_event: Option<LineEvent>,
+    /// When the line started: the origin of the diagnostic buffer's instants.
+    pub started: SystemTime,
     /// Events counted by id since the line started.
     pub event_counts: BTreeMap<EventId, u64>,
     /// The polled devices.
@@ -82,21 +90,22 @@ pub struct LineStatus {
 #[derive(Debug)]
 pub(crate) struct Shared {
     status: Mutex<LineStatus>,
-    /// The diagnostic buffer, newest first, bounded by `depth`.
-    diag: Mutex<VecDeque<LineEvent>>,
-    depth: usize,
+    /// The diagnostic buffer, newest first.
+    diag: Mutex<DiagBuffer>,
+    /// The line's clock (the diagnostic buffer's instants).
+    clock: Clock,
     events: broadcast::Sender<LineEvent>,
 }
 
 // === impl Shared ===
 
 impl Shared {
-    pub(crate) fn new(status: LineStatus, depth: usize) -> Arc<Self> {
+    pub(crate) fn new(status: LineStatus, depth: usize, clock: Clock) -> Arc<Self> {
         let (events, _) = broadcast::channel(EVENT_CHANNEL_CAPACITY);
         Arc::new(Self {
             status: Mutex::new(status),
-            diag: Mutex::new(VecDeque::with_capacity(depth)),
-            depth: depth.max(1),
+            diag: Mutex::new(DiagBuffer::new(depth)),
+            clock,
             events,
         })
     }
@@ -109,13 +118,8 @@ impl Shared {
     /// A snapshot with the diagnostic buffer.
     pub(crate) fn snapshot(&self) -> LineStatus {
         let mut status = self.update(|s| s.clone());
-        status.diagnostics = self
-            .diag
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .iter()
-            .cloned()
-            .collect();
+        let diag = self.diag.lock().unwrap_or_else(PoisonError::into_inner);
+        status.diagnostics = diag.iter().copied().collect();
         status
     }
 
@@ -130,47 +134,33 @@ impl Shared {
 
     /// Records an event: diagnostic buffer, counter, STATUS word, log, subscribers.
     pub(crate) fn raise(&self, id: EventId, slave: Option<u8>, detail: Option<String>) {
-        let line = self.update(|s| {
+        let (_, at) = self.clock.now();
+        self.diag
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .push(DiagEntry::new(id, at));
+        let event = self.update(|s| {
             *s.event_counts.entry(id).or_default() += 1;
             s.status_word = id.status_word();
-            s.name.clone()
+            let event = LineEvent {
+                line: s.name.clone(),
+                id,
+                slave,
+                time: SystemTime::now(),
+                detail,
+            };
+            s.last_event = Some(event.clone());
+            event
         });
-        let class = class_name(id);
-        match &detail {
-            Some(detail) => tracing::warn!(line, event = %id, class, slave, detail, "line event"),
-            None => tracing::warn!(line, event = %id, class, slave, "line event"),
-        }
-        let event = LineEvent {
-            line,
-            id,
-            slave,
-            time: SystemTime::now(),
-            detail,
-        };
-        {
-            let mut diag = self.diag.lock().unwrap_or_else(PoisonError::into_inner);
-            diag.push_front(event.clone());
-            diag.truncate(self.depth);
+        let class = event::class_name(id.class).unwrap_or("unknown class");
+        match &event.detail {
+            Some(detail) => {
+                tracing::warn!(line = %event.line, event = %id, class, slave, detail, "line event")
+            }
+            None => tracing::warn!(line = %event.line, event = %id, class, slave, "line event"),
         }
         // No subscriber: nobody to lose it.
         let _ = self.events.send(event);
-    }
-}
-
-/// The class title of an event (003 7.2), for logs.
-fn class_name(id: EventId) -> &'static str {
-    match id.class {
-        0x00 => "CP start-up",
-        0x01 => "Hardware fault on CP",
-        0x02 => "Initialization error",
-        0x03 => "Error parameterization of FBs",
-        0x04 => "CP detected error in data traffic CP - CPU",
-        0x05 => "error while processing CPU request",
-        0x07 => "Send error",
-        0x08 => "Receive error",
-        0x0E => "Loadable Driver - General Processing Errors",
-        0x1E => "Error during communication between CP and CPU via backplane bus",
-        _ => "unknown class",
     }
 }
 
@@ -186,6 +176,8 @@ mod tests {
             port_opens: 0,
             status_word: 0,
             diagnostics: Vec::new(),
+            last_event: None,
+            started: SystemTime::now(),
             event_counts: BTreeMap::new(),
             devices: Vec::new(),
             commands_answered: 0,
@@ -195,22 +187,24 @@ mod tests {
 
     #[test]
     fn the_diagnostic_buffer_keeps_the_newest_events_first() {
-        let shared = Shared::new(status(), 3);
+        let shared = Shared::new(status(), 3, Clock::start());
         let mut rx = shared.subscribe();
         for n in 0..5u8 {
             shared.raise(EventId::new(0x08, 0x30 + n), Some(2), None);
         }
         shared.raise(EventId::new(0x08, 0x30), None, Some("again".into()));
+        shared.raise(EventId::new(0x08, 0x30), None, None);
         let s = shared.snapshot();
-        let ids: Vec<u8> = s.diagnostics.iter().map(|e| e.id.number).collect();
-        assert_eq!(ids, vec![0x30, 0x34, 0x33]);
+        let ids: Vec<(u8, u32)> = s
+            .diagnostics
+            .iter()
+            .map(|e| (e.id.number, e.count))
+            .collect();
+        assert_eq!(ids, vec![(0x30, 2), (0x34, 1), (0x33, 1)]);
         assert_eq!(s.status_word, 0x0830);
-        assert_eq!(s.event_counts[&EventId::new(0x08, 0x30)], 2);
+        assert_eq!(s.event_counts[&EventId::new(0x08, 0x30)], 3);
         assert_eq!(s.event_counts[&EventId::new(0x08, 0x34)], 1);
+        assert_eq!(s.last_event.unwrap().detail, None);
         assert_eq!(rx.try_recv().unwrap().id, EventId::new(0x08, 0x30));
-        assert_eq!(
-            class_name(EventId::new(0x0E, 0x57)),
-            "Loadable Driver - General Processing Errors"
-        );
     }
 }
