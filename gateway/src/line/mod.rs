@@ -11,6 +11,7 @@
 //! - `status`: diagnostic buffer, event counters, STATUS word, device states;
 //! - `driver`: clock conversion and timer helpers of the driver loop;
 //! - `modbus_master`: the line task itself;
+//! - `writeback`: the image refresh after a confirmed write, the broadcast echo;
 //! - `device_unit`: a polled device as a Modbus TCP unit.
 
 mod command;
@@ -20,6 +21,7 @@ mod modbus_master;
 pub mod plan;
 mod scheduler;
 mod status;
+mod writeback;
 
 use std::sync::Arc;
 use std::time::Duration;
