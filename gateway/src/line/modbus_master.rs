@@ -267,7 +267,7 @@ impl LineTask {
             match job {
                 Job::Command(command) => {
                     let device = self.sched.device_index(command.slave);
-                    if device.is_some_and(|d| !self.sched.is_online(d)) {
+                    if device.is_some_and(|d| !self.sched.accepts_commands(d, now)) {
                         let slave = command.slave;
                         command.answer(Err(CommandError::Offline(slave)));
                         continue;

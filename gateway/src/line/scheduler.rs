@@ -130,8 +130,17 @@ impl<C> Scheduler<C> {
     }
 
     /// Whether the device answers (not backed off).
+    #[cfg(test)]
     pub(crate) fn is_online(&self, device: usize) -> bool {
         self.devices.get(device).is_some_and(|d| d.online)
+    }
+
+    /// Whether a command for `device` may be sent at `now`: it answers, or its back-off has run
+    /// out and the command serves as the probe (a device nobody polls has no other).
+    pub(crate) fn accepts_commands(&self, device: usize, now: Instant) -> bool {
+        self.devices
+            .get(device)
+            .is_some_and(|d| d.online || d.retry_at <= now)
     }
 
     /// The next job due at `now`, if any.

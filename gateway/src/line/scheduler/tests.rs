@@ -169,3 +169,21 @@ fn queued_commands_can_be_drained_and_an_empty_line_never_wakes() {
     assert!(s.next_job(t0).is_none());
     assert_eq!(s.observe(7, false, t0), Transition::Unchanged);
 }
+
+#[test]
+fn an_offline_device_takes_a_command_as_its_probe_once_the_back_off_ran_out() {
+    let t0 = Instant::now();
+    // Nobody polls this device: commands are its only probes.
+    let mut d = DeviceSettings::new("ghost", 9, 9);
+    d.backoff_min = ms(500);
+    let mut s: Scheduler<&str> = Scheduler::new(&[d], t0);
+    assert!(s.accepts_commands(0, t0));
+    assert_eq!(
+        s.observe(0, false, t0),
+        Transition::WentOffline { retry_in: ms(500) }
+    );
+    assert!(!s.accepts_commands(0, t0 + ms(499)));
+    assert!(s.accepts_commands(0, t0 + ms(500)));
+    assert_eq!(s.observe(0, true, t0 + ms(600)), Transition::CameBack);
+    assert!(!s.accepts_commands(1, t0));
+}
