@@ -151,3 +151,41 @@ fn device_settings_report_every_problem_at_once() {
     assert!(issues[0].contains("slave address 0"));
     assert!(issues[1].contains("max_read_regs 200 is outside 1..127"));
 }
+
+#[test]
+fn groups_of_one_table_and_period_merge_and_other_periods_stay_apart() {
+    use crate::line::{DeviceSettings, PollGroup};
+    let fast = Duration::from_millis(100);
+    let slow = Duration::from_secs(1);
+    let group = |period, table, ranges| PollGroup {
+        period,
+        table,
+        ranges,
+    };
+    let mut d = DeviceSettings::new("ks", 17, 17);
+    d.limits = DeviceLimits::KS_VARIO;
+    d.groups = vec![
+        group(fast, Table::InputRegisters, vec![r(1004, 2)]),
+        group(fast, Table::InputRegisters, vec![r(1006, 1)]),
+        group(slow, Table::InputRegisters, vec![r(1007, 1)]),
+        group(fast, Table::HoldingRegisters, vec![r(1004, 3)]),
+    ];
+    let blocks: Vec<(Table, AddrRange, Duration)> = d
+        .read_blocks()
+        .iter()
+        .map(|b| (b.table, b.range, b.period))
+        .collect();
+    assert_eq!(
+        blocks,
+        vec![
+            (Table::HoldingRegisters, r(1004, 3), fast),
+            (Table::InputRegisters, r(1004, 3), fast),
+            (Table::InputRegisters, r(1007, 1), slow),
+        ]
+    );
+    assert_eq!(d.poll_period(Table::InputRegisters, 1006), Some(fast));
+    assert_eq!(d.poll_period(Table::InputRegisters, 1008), None);
+    assert!(d.is_polled(Table::InputRegisters, r(1004, 4)));
+    assert!(!d.is_polled(Table::InputRegisters, r(1004, 5)));
+    assert!(!d.is_polled(Table::Coils, r(1004, 1)));
+}
