@@ -333,23 +333,30 @@ fn read_tag(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<TagConfig> {
         cx.issue(f.at("table"), "missing required key");
     }
     let address = f.required_int::<u16>(cx, "address", 0..=u16::MAX, "");
-    let default_type = match table {
-        Some(t) if !t.is_register() => DataType::Bool,
-        _ => DataType::U16,
-    };
+    let data_type = f.choice::<DataType>(cx, "type");
+    // A missing or bad table is reported above; the stand-in keeps the tag (so that poll groups
+    // naming it raise nothing more) and agrees with its type.
+    let table_or_standin = table.unwrap_or(match data_type {
+        Some(DataType::Bool) => ModbusTable::Coil,
+        _ => ModbusTable::Holding,
+    });
     let tag = TagConfig {
-        name: name.unwrap_or_default(),
-        table: table.unwrap_or(ModbusTable::Holding),
+        table: table_or_standin,
         address: address.unwrap_or_default(),
-        data_type: f.choice_or(cx, "type", default_type),
+        data_type: data_type.unwrap_or(if table_or_standin.is_register() {
+            DataType::U16
+        } else {
+            DataType::Bool
+        }),
         word_order: f.choice_or(cx, "word_order", DEFAULT_WORD_ORDER),
         scale: f.float_or(cx, "scale", DEFAULT_SCALE),
         decimals: f.int_or(cx, "decimals", 0..=MAX_DECIMALS, DEFAULT_DECIMALS, ""),
         unit: f.string_or(cx, "unit", ""),
         writable: f.bool_or(cx, "writable", false),
+        name: name.clone().unwrap_or_default(),
     };
     f.finish(cx);
-    (table.is_some() && address.is_some() && !tag.name.is_empty()).then_some(tag)
+    name.map(|_| tag)
 }
 
 fn read_poll(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<PollGroup> {
@@ -363,12 +370,17 @@ fn read_poll(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<PollGroup> 
     if !f.has("period") {
         cx.issue(f.at("period"), "missing required key");
     }
+    let raw_tags = f.array(cx, "tags");
+    let raw_ranges = f.array(cx, "ranges");
+    if raw_tags.is_empty() && raw_ranges.is_empty() {
+        cx.issue(f.path().to_owned(), "a poll group needs tags or ranges");
+    }
     let mut tags = Vec::new();
-    for (p, v) in f.array(cx, "tags") {
+    for (p, v) in raw_tags {
         tags.extend(string_value(cx, v, &p));
     }
     let mut ranges = Vec::new();
-    for (p, v) in f.array(cx, "ranges") {
+    for (p, v) in raw_ranges {
         ranges.extend(read_range(cx, &p, v));
     }
     f.finish(cx);
@@ -427,8 +439,12 @@ impl DeviceConfig {
             DEFAULT_OFFLINE_BACKOFF_MAX,
             "",
         );
+        let raw_tags = f.array(cx, "tags");
+        if profile == Some(Profile::Generic) && raw_tags.is_empty() {
+            cx.issue(f.at("tags"), "a generic device needs a tag list");
+        }
         let mut tags = Vec::new();
-        for (p, v) in f.array(cx, "tags") {
+        for (p, v) in raw_tags {
             tags.extend(read_tag(cx, &p, v));
         }
         let mut poll = Vec::new();
@@ -438,7 +454,8 @@ impl DeviceConfig {
         f.finish(cx);
         let address = address?;
         Some(Self {
-            profile: profile?,
+            // A bad profile is reported above; generic stands in (it accepts every table).
+            profile: profile.unwrap_or(Profile::Generic),
             address,
             unit_id: unit_id.unwrap_or(address),
             limits,

@@ -19,7 +19,8 @@ pub const DEFAULT_MAX_CONNECTIONS: u32 = 64;
 pub const MAX_MAX_CONNECTIONS: u32 = 4096;
 /// A connection without a request for this long is closed.
 pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(60);
-/// A request that has no answer after this long gets exception 0x0B.
+/// A request that has no answer after this long is answered with an exception (SPEC: 0x0B for a
+/// device that does not answer).
 pub const DEFAULT_REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
 /// Accepted range of `idle_timeout`.
 pub const IDLE_TIMEOUT_RANGE: (Duration, Duration) =
@@ -61,14 +62,14 @@ pub struct ModbusTcpConfig {
     /// Close a connection without requests after this long.
     #[serde(with = "humantime_serde")]
     pub idle_timeout: Duration,
-    /// Answer 0x0B when a request has no answer after this long.
+    /// Answer with an exception when a request has no answer after this long.
     #[serde(with = "humantime_serde")]
     pub request_timeout: Duration,
     /// Client networks accepted; empty: every client.
     pub allowed_networks: Vec<IpNet>,
-    /// Refuse every write (exception 01).
+    /// Refuse every write with an exception.
     pub read_only: bool,
-    /// When not empty, writes are accepted only inside these ranges (others: exception 02).
+    /// When not empty, writes are accepted only inside these ranges.
     pub write_ranges: Vec<UnitRange>,
 }
 

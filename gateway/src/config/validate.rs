@@ -4,7 +4,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::device::{DataType, DeviceConfig, Profile};
+use super::device::{DataType, DeviceConfig};
 use super::line::{LineConfig, ProtocolConfig};
 use super::modbus::{BitArea, ModbusSlaveRtuConfig};
 use super::reader::{show_duration, Cx};
@@ -283,9 +283,6 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
             ),
         );
     }
-    if dev.profile == Profile::Generic && dev.tags.is_empty() {
-        cx.issue(format!("{path}.tags"), "a generic device needs a tag list");
-    }
     let tables = dev.profile.tables();
     let profile = serde_name(dev.profile);
     let mut names: BTreeSet<&str> = dev.profile.tag_names().iter().copied().collect();
@@ -340,9 +337,6 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
                 format!("poll group {:?} is defined twice", group.name),
             );
         }
-        if group.tags.is_empty() && group.ranges.is_empty() {
-            cx.issue(p.clone(), "a poll group needs tags or ranges");
-        }
         for (j, tag) in group.tags.iter().enumerate() {
             if !names.contains(tag.as_str()) {
                 cx.issue(
@@ -373,7 +367,7 @@ fn serde_name<T: serde::Serialize>(value: T) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::ModbusTable;
+    use crate::config::{ModbusTable, Profile};
 
     #[test]
     fn serde_names() {
