@@ -137,7 +137,8 @@ impl LineConfig {
             ProtocolKind::Proc3964 => ProtocolConfig::Proc3964(Proc3964Config::read(cx, &mut f)),
             ProtocolKind::Ascii => ProtocolConfig::Ascii(AsciiConfig::read(cx, &mut f, baud)),
         };
-        if !kind.is_master() && f.raw("devices").is_some() {
+        if !kind.is_master() && f.has("devices") {
+            let _ = f.raw("devices");
             cx.issue(
                 f.at("devices"),
                 format!(

@@ -144,9 +144,32 @@ impl fmt::Display for ConfigErrors {
 
 impl std::error::Error for ConfigErrors {}
 
+impl Default for Config {
+    /// What an empty file gives: no lines.
+    fn default() -> Self {
+        Self {
+            gateway: GatewaySection::default(),
+            modbus_tcp: ModbusTcpConfig::default(),
+            lines: BTreeMap::new(),
+        }
+    }
+}
+
 // === impl Config ===
 
 impl Config {
+    /// Runs every rule of [`parse`] on a config built or changed in code (e.g. a line replaced
+    /// through the REST API): the config is written out and read back.
+    pub fn check(&self) -> Result<(), ConfigErrors> {
+        let table = toml::Table::try_from(self).map_err(|e| ConfigErrors {
+            issues: vec![ConfigIssue {
+                path: String::new(),
+                message: format!("cannot serialize the config: {e}"),
+            }],
+        })?;
+        Self::from_table(&table).map(drop)
+    }
+
     /// The number of devices over all lines.
     pub fn device_count(&self) -> usize {
         self.lines.values().map(|l| l.devices().count()).sum()

@@ -137,6 +137,35 @@ fn example_contains_every_key() {
 }
 
 #[test]
+fn configs_changed_in_code_are_checked_by_the_same_rules() {
+    let mut c = config::demo();
+    assert_eq!(c.check(), Ok(()));
+    let ProtocolConfig::ModbusMasterRtu(m) = &mut c.lines.get_mut("drive").expect("drive").protocol
+    else {
+        panic!("drive is a Modbus master")
+    };
+    m.reply_timeout = ms(1);
+    let kv = c.lines["ksvario"].clone();
+    c.lines.insert("copy".to_owned(), kv);
+    let got: Vec<_> = c
+        .check()
+        .expect_err("invalid")
+        .issues
+        .into_iter()
+        .map(|i| i.path)
+        .collect();
+    assert_eq!(
+        got,
+        [
+            "lines.drive.reply_timeout",
+            "lines.ksvario.port",
+            "lines.ksvario.devices.ksvario.unit_id"
+        ],
+    );
+    assert_eq!(Config::default(), parse(""));
+}
+
+#[test]
 fn serde_deserialize_uses_the_same_rules() {
     let c: Config = toml::from_str(EXAMPLE).expect("example through serde");
     assert_eq!(c, parse(EXAMPLE));
