@@ -223,9 +223,17 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         Some(f) => ModbusTcpConfig::read(cx, f),
     };
     let mut lines = BTreeMap::new();
-    for (name, path, value) in root.named_tables(cx, "lines") {
-        if let Some(line) = LineConfig::read(cx, &name, &path, value) {
-            lines.insert(name, line);
+    if table.get("lines").is_some_and(toml::Value::is_array) {
+        let _ = root.raw("lines");
+        cx.issue(
+            "lines",
+            "write each line as a table [lines.<name>], not as [[lines]]",
+        );
+    } else {
+        for (name, path, value) in root.named_tables(cx, "lines") {
+            if let Some(line) = LineConfig::read(cx, &name, &path, value) {
+                lines.insert(name, line);
+            }
         }
     }
     root.finish(cx);
@@ -296,7 +304,15 @@ fn syntax_message(text: &str, e: &toml::de::Error) -> String {
             let before = text.get(..span.start).unwrap_or(text);
             let line = before.matches('\n').count() + 1;
             let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
-            format!("TOML syntax error at line {line}, column {column}: {what}")
+            let near = text
+                .get(span.clone())
+                .filter(|t| !t.is_empty() && t.len() <= 40 && !t.contains('\n'));
+            match near {
+                Some(t) => {
+                    format!("TOML syntax error at line {line}, column {column}: {what} (at `{t}`)")
+                }
+                None => format!("TOML syntax error at line {line}, column {column}: {what}"),
+            }
         }
         None => format!("TOML syntax error: {what}"),
     }

@@ -294,6 +294,7 @@ fn syntax_errors_carry_line_and_column() {
     );
     // Two lines of the same name are a TOML duplicate key.
     let got = issues("[lines.a]\nport = \"x\"\nprotocol = \"ascii\"\n[lines.a]\nport = \"y\"\n");
+    assert!(got[0].1.ends_with("duplicate key (at `a`)"), "{}", got[0].1);
     assert!(
         got[0].1.starts_with("TOML syntax error at line 4"),
         "{}",

@@ -371,6 +371,7 @@ fn root_and_server_range_checks() {
         "needs a name",
     );
     one_issue("lines = 3\n", "lines", "expected a table");
+    one_issue("[[lines]]\nport = \"x\"\n", "lines", "not as [[lines]]");
 }
 
 #[test]
