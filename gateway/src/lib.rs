@@ -18,4 +18,5 @@ pub mod line;
 pub mod modbus_tcp;
 pub mod serial;
 pub mod sim;
+pub mod tags;
 pub mod unit;
