@@ -22,7 +22,10 @@ pub fn gateway_bin() -> PathBuf {
     BIN.get_or_init(|| {
         let exe = std::env::current_exe().expect("test executable path");
         // target/<profile>/deps/<test> -> target/<profile>/gateway
-        let profile_dir = exe.parent().and_then(Path::parent).expect("target/<profile> directory");
+        let profile_dir = exe
+            .parent()
+            .and_then(Path::parent)
+            .expect("target/<profile> directory");
         let bin = profile_dir.join("gateway");
         if !bin.exists() {
             let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
@@ -31,7 +34,11 @@ pub fn gateway_bin() -> PathBuf {
                 .expect("run cargo build -p gateway");
             assert!(status.success(), "cargo build -p gateway failed");
         }
-        assert!(bin.exists(), "gateway binary not found at {}", bin.display());
+        assert!(
+            bin.exists(),
+            "gateway binary not found at {}",
+            bin.display()
+        );
         bin
     })
     .clone()
@@ -65,7 +72,10 @@ impl Gateway {
     pub fn start(args: &[&str]) -> Self {
         let mut child = Command::new(gateway_bin())
             .args(args)
-            .env("RUST_LOG", std::env::var("RUST_LOG").unwrap_or_else(|_| "info".into()))
+            .env(
+                "RUST_LOG",
+                std::env::var("RUST_LOG").unwrap_or_else(|_| "info".into()),
+            )
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -86,10 +96,21 @@ impl Gateway {
                 }
             });
         }
-        let mut gw = Self { child, modbus_tcp: "0.0.0.0:0".parse().expect("addr"), output, lines };
+        let mut gw = Self {
+            child,
+            modbus_tcp: "0.0.0.0:0".parse().expect("addr"),
+            output,
+            lines,
+        };
         let line = gw.wait_for("modbus-tcp listening on ", START_TIMEOUT);
-        let addr = line.rsplit("modbus-tcp listening on ").next().expect("address").trim();
-        gw.modbus_tcp = addr.parse().unwrap_or_else(|e| panic!("bad address {addr:?}: {e}"));
+        let addr = line
+            .rsplit("modbus-tcp listening on ")
+            .next()
+            .expect("address")
+            .trim();
+        gw.modbus_tcp = addr
+            .parse()
+            .unwrap_or_else(|e| panic!("bad address {addr:?}: {e}"));
         gw
     }
 
@@ -102,7 +123,10 @@ impl Gateway {
             match self.lines.recv_timeout(left) {
                 Ok(line) if line.contains(needle) => return line,
                 Ok(_) => {}
-                Err(_) => panic!("no line containing {needle:?} within {timeout:?}; output:\n{}", self.output()),
+                Err(_) => panic!(
+                    "no line containing {needle:?} within {timeout:?}; output:\n{}",
+                    self.output()
+                ),
             }
         }
     }
@@ -119,7 +143,9 @@ impl Gateway {
 
     /// Sends SIGTERM and waits up to `timeout` for the exit status.
     pub fn terminate(&mut self, timeout: Duration) -> Option<std::process::ExitStatus> {
-        let _ = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).status();
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status();
         let deadline = Instant::now() + timeout;
         while Instant::now() < deadline {
             if let Ok(Some(status)) = self.child.try_wait() {
