@@ -16,8 +16,10 @@ use gateway::image::{ProcessImage, Quality, Table};
 use gateway::line::{spawn_modbus_slave_line, SlaveLineSettings, EVENT_PORT_SETUP};
 use gateway::serial::PortSettings;
 use gateway::sim::master::{spawn_sim_master, SimMasterSettings};
-use proto_core::cpmem::{AddressMap, MemoryLayout, SlaveParams};
+use proto_core::cpmem::{AddressMap, MemoryLayout, OperatingMode, SlaveParams};
 use proto_core::event::ids;
+use proto_core::modbus::rtu::{decode_frame, encode_frame};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio_modbus::prelude::*;
 use tokio_util::sync::CancellationToken;
 
@@ -176,6 +178,60 @@ async fn a_broadcast_is_applied_without_an_answer() {
     let back = c.read_holding_registers(20, 2).await.unwrap().unwrap();
     assert_eq!(back, vec![99, 98]);
     rig.stop().await;
+}
+
+/// Bytes that are not a request for this slave get no answer and are counted, never lost
+/// silently: a bad CRC (event 0E 57h) and a good frame for another address on the bus.
+#[tokio::test]
+async fn bad_frames_and_other_addresses_get_no_answer() {
+    let (mut outside, path, _keep) = pty();
+    let params = SlaveParams::new(ADDRESS, OperatingMode::Normal, 1, test_map()).unwrap();
+    let shutdown = CancellationToken::new();
+    let line = spawn_modbus_slave_line(
+        SlaveLineSettings::new("hmi", PortSettings::new(path, 19200), params),
+        filled_memory(),
+        shutdown.clone(),
+    );
+    eventually("the port to open", || line.status().port_open).await;
+    // FC 03, register 0, quantity 1.
+    let pdu = [0x03, 0x00, 0x00, 0x00, 0x01];
+    let mut bad = Vec::new();
+    encode_frame(ADDRESS, &pdu, &mut bad);
+    *bad.last_mut().unwrap() ^= 0xFF;
+    let mut other = Vec::new();
+    encode_frame(17, &pdu, &mut other);
+    for frame in [&bad, &other] {
+        outside.write_all(frame).await.unwrap();
+        // A pause longer than t3.5 so that each frame ends on its own.
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let mut buf = [0u8; 64];
+    let silent = tokio::time::timeout(Duration::from_millis(200), outside.read(&mut buf)).await;
+    assert!(silent.is_err(), "answered: {silent:?}");
+    let counters = line.counters();
+    assert_eq!(counters.discarded.get("bad_crc"), Some(&1), "{counters:?}");
+    assert_eq!(counters.other_address, 1);
+    assert_eq!(
+        line.status().event_counts.get(&ids::MODBUS_CHECKSUM_ERROR),
+        Some(&1)
+    );
+
+    // A good frame right after is answered: DB 800 word 0.
+    let mut good = Vec::new();
+    encode_frame(ADDRESS, &pdu, &mut good);
+    outside.write_all(&good).await.unwrap();
+    let mut answer = Vec::new();
+    while answer.len() < 7 {
+        let n = within("the answer", outside.read(&mut buf)).await.unwrap();
+        answer.extend_from_slice(&buf[..n]);
+    }
+    let frame = decode_frame(&answer).expect("a good answer frame");
+    assert_eq!(
+        (frame.address, frame.pdu),
+        (ADDRESS, &[0x03, 0x02, 0x11, 0x11][..])
+    );
+    shutdown.cancel();
+    within("the line to stop", line.join()).await;
 }
 
 // === the same memory over Modbus TCP ===
@@ -434,13 +490,7 @@ async fn a_port_that_cannot_open_is_an_event_and_retried() {
 #[tokio::test]
 async fn the_simulated_master_moves_values_and_counters() {
     let (outside, path, _keep) = pty();
-    let params = SlaveParams::new(
-        ADDRESS,
-        proto_core::cpmem::OperatingMode::Normal,
-        1,
-        test_map(),
-    )
-    .unwrap();
+    let params = SlaveParams::new(ADDRESS, OperatingMode::Normal, 1, test_map()).unwrap();
     let memory = filled_memory();
     let shutdown = CancellationToken::new();
     let line = spawn_modbus_slave_line(
