@@ -171,3 +171,89 @@ impl Drop for Gateway {
         }
     }
 }
+
+/// A fresh directory under the system temp dir for one test.
+pub fn temp_dir(test: &str) -> PathBuf {
+    static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("gateway-e2e-{}-{test}-{n}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("create temp dir");
+    dir
+}
+
+/// A child process killed (by its PID, SIGKILL) and reaped when dropped.
+#[derive(Debug)]
+pub struct ChildGuard(pub Child);
+
+impl ChildGuard {
+    /// Kills the process now and waits for it.
+    pub fn kill(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+impl Drop for ChildGuard {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// A virtual null-modem cable: two pseudo-terminals joined by socat, reachable at `a` and `b`.
+#[derive(Debug)]
+pub struct SocatLink {
+    /// One end (give it to the gateway).
+    pub a: PathBuf,
+    /// The other end (give it to the device).
+    pub b: PathBuf,
+    _socat: ChildGuard,
+}
+
+impl SocatLink {
+    /// Creates the link in `dir` as `<name>-a` and `<name>-b`.
+    pub fn new(dir: &Path, name: &str) -> Self {
+        let a = dir.join(format!("{name}-a"));
+        let b = dir.join(format!("{name}-b"));
+        let child = Command::new("socat")
+            .arg("-d")
+            .arg(format!("pty,raw,echo=0,link={}", a.display()))
+            .arg(format!("pty,raw,echo=0,link={}", b.display()))
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap_or_else(|e| {
+                panic!("socat is needed (apt install socat; .ci/run installs it): {e}")
+            });
+        let guard = ChildGuard(child);
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !(a.exists() && b.exists()) {
+            assert!(
+                Instant::now() < deadline,
+                "socat did not create {} and {}",
+                a.display(),
+                b.display()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Self {
+            a,
+            b,
+            _socat: guard,
+        }
+    }
+}
+
+/// Starts `gateway sim` with `args` (stdout and stderr discarded).
+pub fn start_sim(args: &[&str]) -> ChildGuard {
+    let child = Command::new(gateway_bin())
+        .arg("sim")
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start gateway sim");
+    ChildGuard(child)
+}
