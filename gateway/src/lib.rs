@@ -15,6 +15,7 @@ pub mod app;
 pub mod config;
 pub mod image;
 pub mod line;
+pub mod metrics;
 pub mod modbus_tcp;
 pub mod serial;
 pub mod sim;
