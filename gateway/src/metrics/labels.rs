@@ -112,11 +112,10 @@ const FUNCTION_LABELS: [(u8, &str); 18] = [
 /// The `function` label of a code outside [`FUNCTION_LABELS`].
 const FUNCTION_OTHER: &str = "other";
 
-/// The `function` label value of a function code: two upper-case hex digits (`"03"`, `"2B"`) for
-/// the known functions, `"other"` for the rest. An exception response's code (bit 7 set) is
-/// labelled by the function it answers.
+/// The `function` label value of a request's function code: two upper-case hex digits (`"03"`,
+/// `"2B"`) for the known functions, `"other"` for the rest (a code with bit 7 set included: that is
+/// no request). Pass the request's code, also when the answer was an exception.
 pub fn function_label(function: u8) -> &'static str {
-    let function = function & 0x7F;
     FUNCTION_LABELS
         .iter()
         .find(|(known, _)| *known == function)
@@ -227,7 +226,7 @@ mod tests {
         let labels: BTreeSet<_> = (0..=u8::MAX).map(function_label).collect();
         assert_eq!(labels.len(), FUNCTION_LABELS.len() + 1);
         assert_eq!(function_label(0x03), "03");
-        assert_eq!(function_label(0x83), "03", "exception response of FC03");
+        assert_eq!(function_label(0x83), "other", "no request has bit 7 set");
         assert_eq!(function_label(0x2B), "2B");
         assert_eq!(function_label(0x42), "other");
         for (code, label) in FUNCTION_LABELS {
