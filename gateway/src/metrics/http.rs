@@ -99,7 +99,7 @@ async fn handle(mut stream: TcpStream, registry: &Registry) -> std::io::Result<(
 }
 
 /// What the responder understood of a request.
-#[derive(Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct RequestHead<'a> {
     method: &'a str,
     /// The path without the query.
