@@ -185,7 +185,9 @@ fn start_lines(config: &Config, shutdown: &CancellationToken) -> Running {
     for (name, line) in &config.lines {
         match &line.protocol {
             ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => {
-                let (settings, devices) = build::master_line(name, line, config);
+                let Some((settings, devices)) = build::master_line(name, line, config) else {
+                    continue;
+                };
                 let handle = line::spawn_modbus_master_line(
                     settings,
                     devices,

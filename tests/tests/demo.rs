@@ -108,6 +108,18 @@ async fn demo_serves_both_devices_and_writes_through() {
     assert_eq!(unknown, Err(ExceptionCode::GatewayPathUnavailable));
 }
 
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_stops_the_demo_gracefully() {
+    let mut gw = Gateway::demo(&[]);
+    let mut drive = connect(&gw, 2).await;
+    read_holding_eventually(&mut drive, 3102, 4).await;
+    let status = gw
+        .terminate(Duration::from_secs(15))
+        .expect("the gateway did not stop within 15 s of SIGTERM");
+    assert!(status.success(), "exit status {status:?}");
+    gw.wait_for("stopped gracefully", Duration::from_secs(5));
+}
+
 /// Runs mbpoll once against the gateway (`-0`: the device's own addresses); `write` values come
 /// after the host, as mbpoll wants them.
 fn mbpoll(gw: &Gateway, args: &[&str], write: &[&str]) -> String {
