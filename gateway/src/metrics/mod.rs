@@ -18,6 +18,26 @@
 //! - `direction`, `reason`, `kind` are enums.
 //!
 //! No label carries a client address, a register address or a telegram's content.
+//!
+//! Wiring, in `main` or `app`:
+//!
+//! ```no_run
+//! # async fn wire() -> Result<(), Box<dyn std::error::Error>> {
+//! use gateway::metrics::{serve_metrics, Metrics};
+//!
+//! let registry = prometheus::Registry::new();
+//! let metrics = Metrics::register(&registry)?; // clone it into every task
+//! metrics.init_line("drive", "modbus-master-rtu");
+//! metrics.init_device("drive", "atv71");
+//! let shutdown = tokio_util::sync::CancellationToken::new();
+//! let listener = tokio::net::TcpListener::bind("127.0.0.1:8080").await?;
+//! let server = tokio::spawn(serve_metrics(listener, registry.clone(), shutdown.clone()));
+//! metrics.line_started("drive", "modbus-master-rtu"); // line up, event 00 03h
+//! // ... on SIGTERM:
+//! shutdown.cancel();
+//! server.await?;
+//! # Ok(()) }
+//! ```
 
 use std::time::{Duration, Instant};
 
