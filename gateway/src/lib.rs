@@ -17,6 +17,7 @@ pub mod config;
 pub mod cpmem;
 pub mod image;
 pub mod line;
+pub mod metrics;
 pub mod modbus_tcp;
 pub mod serial;
 pub mod sim;
