@@ -9,6 +9,7 @@
 //! - [`unit`]: the contract between the Modbus TCP server and whatever answers a unit id;
 //! - [`modbus_tcp`]: our own MBAP framing, validation and the TCP server;
 //! - [`sim`]: simulated devices on a serial port (`gateway sim`);
+//! - [`zenoh_bridge`]: telegrams, tag values, queries, writes, events and presence on zenoh;
 //! - [`app`]: wiring a config into running tasks (`gateway run`, `gateway demo`).
 
 pub mod app;
@@ -19,3 +20,4 @@ pub mod modbus_tcp;
 pub mod serial;
 pub mod sim;
 pub mod unit;
+pub mod zenoh_bridge;
