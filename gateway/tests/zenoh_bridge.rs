@@ -582,3 +582,88 @@ async fn the_python_binding_receives_gets_sends_and_writes() {
     shutdown.cancel();
     bridge.join().await;
 }
+
+/// A gate a subscriber callback waits at while it is closed.
+#[derive(Default)]
+struct Gate {
+    closed: std::sync::Mutex<bool>,
+    changed: std::sync::Condvar,
+}
+
+impl Gate {
+    fn set_closed(&self, closed: bool) {
+        *self.closed.lock().unwrap() = closed;
+        self.changed.notify_all();
+    }
+
+    fn pass(&self) {
+        let mut closed = self.closed.lock().unwrap();
+        while *closed {
+            closed = self.changed.wait(closed).unwrap();
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stuck_subscriber_never_makes_the_producer_wait() {
+    const N: u64 = 2000;
+    let port = free_port();
+    let mut cfg = ZenohConfig::loopback_peer(&endpoint(port)).unwrap();
+    cfg.telegram_queue = 8.try_into().unwrap();
+    let (bridge, handle, shutdown) = start(cfg, TestBackend::new()).await;
+    let session = peer(&[endpoint(port)], &[]).await;
+    let gate = std::sync::Arc::new(Gate::default());
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let _stuck = {
+        let gate = gate.clone();
+        session
+            .declare_subscriber("gw/test/**")
+            .callback(move |s| {
+                gate.pass();
+                let _ = tx.send(s);
+            })
+            .await
+            .unwrap()
+    };
+    publish_until_seen(&handle, &mut rx, 3).await;
+
+    // The subscriber stops reading: zenoh's reader stalls, TCP pushes back, and the publisher
+    // thread waits in its put (telegrams use CongestionControl::Block). 128 MB cannot fit in
+    // the socket buffers and queues in between.
+    gate.set_closed(true);
+    let (mut queued, mut dropped) = (0u64, 0u64);
+    for seq in 0..N {
+        let bytes = vec![0x55; 64 * 1024];
+        match handle.publish_telegram("r3964", seq, SystemTime::now(), bytes) {
+            Ok(()) => queued += 1,
+            Err(DropReason::TelegramQueueFull) => dropped += 1,
+            Err(other) => panic!("unexpected drop reason {other:?}"),
+        }
+    }
+    // The loop ended while the subscriber was still stuck: no call waited for the network.
+    gate.set_closed(false);
+    assert_eq!(queued + dropped, N);
+    assert!(dropped > 0, "the queue never filled: nothing pushed back");
+    assert_eq!(handle.stats().drops(DropReason::TelegramQueueFull), dropped);
+
+    // What was queued arrives once the subscriber reads again: in order, each once.
+    let mut last = None;
+    for _ in 0..queued {
+        let s = recv_until(&mut rx, Duration::from_secs(30), |s| {
+            s.key_expr().as_str() == "gw/test/r3964/rx"
+        })
+        .await;
+        let att: Value = serde_json::from_slice(&s.attachment().unwrap().to_bytes()).unwrap();
+        let seq = att["seq"].as_u64().unwrap();
+        assert!(last.is_none_or(|l| seq > l), "{seq} after {last:?}");
+        last = Some(seq);
+    }
+    assert_eq!(
+        handle.stats().publications(PublicationKind::Telegram),
+        queued
+    );
+
+    shutdown.cancel();
+    bridge.join().await;
+    session.close().await.unwrap();
+}

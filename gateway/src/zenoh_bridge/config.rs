@@ -31,6 +31,9 @@
 //!   is told. Order per line is kept, nothing is published twice;
 //! - commands and queries: when full, the command is answered `busy` on its result key
 //!   (`command_queue_full`), the query gets no reply (`query_queue_full`).
+//!
+//! The publisher thread takes everything pending at once, so up to twice a queue's size can be
+//! held (one batch being published, one queue filling).
 
 use std::num::NonZeroUsize;
 use std::path::{Path, PathBuf};
@@ -128,7 +131,7 @@ impl From<Prefix> for String {
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct ZenohConfig {
-    /// Whether the gateway opens a session at all.
+    /// Whether the gateway starts the bridge at all (the bridge itself does not look at it).
     #[serde(default = "default_enabled")]
     pub enabled: bool,
     /// Peer or client; unset: the file's, else peer.

@@ -11,7 +11,9 @@
 //! A zenoh put with `CongestionControl::Block` waits while the network is congested; that wait
 //! happens on the publisher thread only, so a slow subscriber slows the outbox, never a serial
 //! line: when a queue is full the producer's item is dropped and counted (see
-//! [`super::config`] for the policy per kind).
+//! [`super::config`] for the policy per kind). zenoh closes a link whose put stayed blocked for
+//! `transport/link/tx/queue/congestion_control/block/wait_before_close` (5 s by default), so a
+//! stuck peer costs at most that long before the thread moves on.
 
 use std::collections::{HashMap, VecDeque};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
