@@ -26,7 +26,13 @@
 //!   `{"value": .., "unit": "rpm" | null, "quality": "good", "timestamp": "<RFC 3339>"}`.
 //! - `<prefix>/<line>/events`: JSON `{"class": 8, "number": 10, "event": "080A", "name": ..,
 //!   "text": .., "time": "<RFC 3339>"}`.
-//! - commands and their results: see [`subscribe`].
+//! - `<prefix>/<line>/tx`: the telegram bytes to send. `<prefix>/<line>/<device>/<tag>/set`: the
+//!   value as JSON (`1500`, `true`, `"text"`). Either as a put, or as a get with the payload (the
+//!   result is then also the reply). Results on `<prefix>/<line>/tx/result` and
+//!   `<prefix>/<line>/<device>/<tag>/set/result`, JSON: `{"ok": true, "line", "len", "result"}`
+//!   for a send, `{"ok": true, "line", "device", "tag", "value", "result"}` for a write, with
+//!   `"ok": false` and `"error": "<text>"` instead of `result` on failure (bad payload, unknown
+//!   line, `busy`, or the backend's refusal). The command's attachment is copied to its result.
 //!
 //! Session: peer by default; `Bridge::start` fails if a peer cannot open its session (a listen
 //! endpoint in use, a bad config file). A client keeps retrying its first connection in the
