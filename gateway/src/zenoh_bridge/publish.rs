@@ -317,28 +317,41 @@ impl PublisherThread {
         json: bool,
         attachment: Option<Vec<u8>>,
     ) {
-        let publisher = match self.publishers.get(&key) {
-            Some(p) => p,
-            None => match declare(session, &key, kind) {
-                Ok(p) => self.publishers.entry(key.clone()).or_insert(p),
-                Err(e) => {
-                    self.stats.dropped(DropReason::BadKey);
-                    tracing::warn!(%key, error = %e, "zenoh publisher not declared, update dropped");
-                    return;
-                }
-            },
-        };
         let encoding = if json {
             Encoding::APPLICATION_JSON
         } else {
             Encoding::APPLICATION_OCTET_STREAM
         };
-        let put = publisher
-            .put(payload)
-            .encoding(encoding)
-            .timestamp(session.new_timestamp())
-            .attachment(attachment);
-        match put.wait() {
+        let result = if kind.key_from_config() {
+            let publisher = match self.publishers.get(&key) {
+                Some(p) => p,
+                None => match declare(session, &key, kind) {
+                    Ok(p) => self.publishers.entry(key.clone()).or_insert(p),
+                    Err(e) => {
+                        self.stats.dropped(DropReason::BadKey);
+                        tracing::warn!(%key, error = %e, "zenoh publisher not declared, update dropped");
+                        return;
+                    }
+                },
+            };
+            publisher
+                .put(payload)
+                .encoding(encoding)
+                .timestamp(session.new_timestamp())
+                .attachment(attachment)
+                .wait()
+        } else {
+            // Result keys name whatever a command named: no publisher is kept for them, or any
+            // peer could grow the map without bound.
+            session
+                .put(key.as_str(), payload)
+                .congestion_control(congestion(kind))
+                .encoding(encoding)
+                .timestamp(session.new_timestamp())
+                .attachment(attachment)
+                .wait()
+        };
+        match result {
             Ok(()) => self.stats.published(kind),
             Err(e) => {
                 self.stats.dropped(DropReason::PublishError);
@@ -348,20 +361,24 @@ impl PublisherThread {
     }
 }
 
-/// A publisher for `key`: telegrams, events and results wait under congestion (they must not
-/// be lost); tag values are dropped by zenoh under congestion (a newer one follows).
+/// Telegrams, events and results wait under congestion (they must not be lost); tag values
+/// are dropped by zenoh under congestion (a newer one follows).
+fn congestion(kind: PublicationKind) -> CongestionControl {
+    match kind {
+        PublicationKind::Tag => CongestionControl::Drop,
+        _ => CongestionControl::Block,
+    }
+}
+
+/// A publisher for `key`, with the congestion control of its kind.
 fn declare(
     session: &Session,
     key: &str,
     kind: PublicationKind,
 ) -> zenoh::Result<Publisher<'static>> {
-    let congestion = match kind {
-        PublicationKind::Tag => CongestionControl::Drop,
-        _ => CongestionControl::Block,
-    };
     session
         .declare_publisher(key.to_owned())
-        .congestion_control(congestion)
+        .congestion_control(congestion(kind))
         .wait()
 }
 

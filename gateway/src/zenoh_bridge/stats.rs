@@ -27,6 +27,12 @@ impl PublicationKind {
         Self::SetResult,
     ];
 
+    /// Whether the key is built from configured names only (a bounded set), rather than from
+    /// what a command named.
+    pub(crate) fn key_from_config(self) -> bool {
+        matches!(self, Self::Telegram | Self::Tag | Self::Event)
+    }
+
     /// The metric label.
     pub fn as_str(self) -> &'static str {
         match self {
