@@ -22,6 +22,7 @@ use crate::unit::UnitMap;
 
 mod build;
 mod demo;
+mod zenoh;
 
 pub use demo::demo;
 
@@ -34,6 +35,9 @@ pub const GRACE_PERIOD: Duration = Duration::from_secs(10);
 pub struct Overrides {
     /// Listen for Modbus TCP here instead of `modbus_tcp.listen`.
     pub modbus_tcp: Option<SocketAddr>,
+    /// The zenoh session listens on this endpoint only (e.g. `tcp/127.0.0.1:7447`), with
+    /// multicast scouting off, instead of the config's `[zenoh]` endpoints.
+    pub zenoh_listen: Option<String>,
 }
 
 /// Why the gateway could not start or stopped.
@@ -153,11 +157,15 @@ pub async fn run(
     // A fixed line on stdout that scripts and tests wait for.
     println!("modbus-tcp listening on {local}");
 
+    let options = server_options(&config.modbus_tcp);
+    let zenoh_token = shutdown.child_token();
+    let bridge = start_zenoh(&config, &overrides, &running, options.clone(), &zenoh_token).await?;
+
     let server_token = shutdown.child_token();
     let server = tokio::spawn(modbus_tcp::serve(
         listener,
         Arc::clone(&running.units),
-        server_options(&config.modbus_tcp),
+        options,
         server_token.clone(),
         Arc::clone(&running.tcp_stats),
     ));
@@ -166,7 +174,11 @@ pub async fn run(
     info!(grace = ?GRACE_PERIOD, "draining: lines finish their transaction in flight, connections their request");
     lines_token.cancel();
     server_token.cancel();
+    zenoh_token.cancel();
     let drain = async {
+        if let Some(bridge) = bridge {
+            bridge.join().await;
+        }
         for (_, line) in running.lines {
             line.join().await;
         }
@@ -190,6 +202,57 @@ pub async fn run(
         warn!(grace = ?GRACE_PERIOD, "grace period over: stopping forcibly");
     }
     Ok(())
+}
+
+/// Starts the zenoh bridge when the config has a `[zenoh]` section (or the command line names an
+/// endpoint), fed from the image and the lines.
+async fn start_zenoh(
+    config: &Config,
+    overrides: &Overrides,
+    running: &Running,
+    server: ServerOptions,
+    shutdown: &CancellationToken,
+) -> Result<Option<crate::zenoh_bridge::Bridge>, AppError> {
+    let cfg = match (&overrides.zenoh_listen, &config.zenoh) {
+        (Some(endpoint), base) => {
+            let mut cfg = crate::zenoh_bridge::ZenohConfig::loopback_peer(endpoint)
+                .map_err(AppError::Setup)?;
+            if let Some(base) = base {
+                cfg.prefix.clone_from(&base.prefix);
+            }
+            cfg
+        }
+        (None, Some(cfg)) if cfg.enabled => cfg.clone(),
+        (None, _) => {
+            info!("no [zenoh] section: the gateway joins no zenoh fabric");
+            return Ok(None);
+        }
+    };
+    let tags = Arc::new(crate::tags::TagDirectory::from_config(config));
+    let protocols = config
+        .lines
+        .iter()
+        .map(|(n, l)| (n.clone(), l.protocol.kind().as_str()))
+        .collect();
+    let backend =
+        zenoh::GatewayBackend::new(&config.gateway.name, running, tags, protocols, server);
+    let listen = cfg.listen.clone().unwrap_or_default();
+    let (bridge, handle) = crate::zenoh_bridge::Bridge::start(
+        cfg,
+        &config.gateway.name,
+        Arc::new(backend.clone_for_bridge()),
+        shutdown.clone(),
+    )
+    .await
+    .map_err(|e| AppError::Setup(format!("zenoh: {e}")))?;
+    zenoh::spawn_feeds(&handle, &backend, shutdown);
+    let endpoints: Vec<&str> = listen
+        .iter()
+        .map(crate::zenoh_bridge::Endpoint::as_str)
+        .collect();
+    info!(prefix = %handle.prefix(), ?endpoints, "zenoh session open");
+    println!("zenoh session open, prefix {}", handle.prefix());
+    Ok(Some(bridge))
 }
 
 /// Starts every line of `config` and registers its devices, memory and mailboxes as Modbus TCP

@@ -37,12 +37,18 @@ enum Command {
         /// Listen for Modbus TCP here instead of the config's `modbus_tcp.listen`.
         #[arg(long, value_name = "ADDR")]
         modbus_tcp: Option<SocketAddr>,
+        /// The zenoh session listens on this endpoint only, multicast scouting off.
+        #[arg(long, value_name = "ENDPOINT")]
+        zenoh_listen: Option<String>,
     },
     /// Run the embedded demo: virtual serial lines with simulated devices.
     Demo {
         /// Listen for Modbus TCP here.
         #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:5020")]
         modbus_tcp: SocketAddr,
+        /// The zenoh peer listens on this endpoint (multicast scouting off).
+        #[arg(long, value_name = "ENDPOINT", default_value = "tcp/127.0.0.1:7447")]
+        zenoh_listen: String,
     },
     /// Run one simulated device on a serial port (a pty end, or a real port).
     Sim(gateway::sim::SimArgs),
@@ -74,9 +80,16 @@ async fn async_main(command: Command) -> ExitCode {
     let shutdown = CancellationToken::new();
     tokio::spawn(gateway::app::cancel_on_signal(shutdown.clone()));
     let result = match command {
-        Command::Run { config, modbus_tcp } => match gateway::config::load(&config) {
+        Command::Run {
+            config,
+            modbus_tcp,
+            zenoh_listen,
+        } => match gateway::config::load(&config) {
             Ok(cfg) => {
-                let overrides = gateway::app::Overrides { modbus_tcp };
+                let overrides = gateway::app::Overrides {
+                    modbus_tcp,
+                    zenoh_listen,
+                };
                 gateway::app::run(cfg, overrides, shutdown).await
             }
             Err(errors) => {
@@ -87,9 +100,13 @@ async fn async_main(command: Command) -> ExitCode {
                 return ExitCode::from(EX_USAGE);
             }
         },
-        Command::Demo { modbus_tcp } => {
+        Command::Demo {
+            modbus_tcp,
+            zenoh_listen,
+        } => {
             let overrides = gateway::app::Overrides {
                 modbus_tcp: Some(modbus_tcp),
+                zenoh_listen: Some(zenoh_listen),
             };
             gateway::app::demo(overrides, shutdown).await
         }

@@ -270,14 +270,15 @@ impl DeviceSettings {
 }
 
 /// A running line: its status, its command queue and its devices as Modbus TCP units.
-#[derive(Debug)]
+/// Clones share the line; [`Self::join`] waits for its task once.
+#[derive(Clone, Debug)]
 pub struct LineHandle {
     name: String,
     client: LineClient,
     shared: Arc<status::Shared>,
     devices: Vec<Arc<DeviceSettings>>,
     image: ProcessImage,
-    task: JoinHandle<()>,
+    task: Arc<std::sync::Mutex<Option<JoinHandle<()>>>>,
 }
 
 // === impl LineHandle ===
@@ -332,7 +333,13 @@ impl LineHandle {
 
     /// Waits for the line task to end (after the shutdown token was cancelled).
     pub async fn join(self) {
-        if let Err(err) = self.task.await {
+        let task = self
+            .task
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take();
+        let Some(task) = task else { return };
+        if let Err(err) = task.await {
             tracing::error!(line = %self.name, %err, "line task failed");
         }
     }
@@ -395,6 +402,6 @@ pub fn spawn_modbus_master_line(
         shared,
         devices,
         image,
-        task,
+        task: Arc::new(std::sync::Mutex::new(Some(task))),
     }
 }

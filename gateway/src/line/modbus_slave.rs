@@ -93,14 +93,15 @@ pub struct SlaveCounters {
 }
 
 /// A running slave line: its status, counters and the memory it serves.
-#[derive(Debug)]
+/// Clones share the line; [`Self::join`] waits for its task once.
+#[derive(Clone, Debug)]
 pub struct SlaveLineHandle {
     name: String,
     params: SlaveParams,
     shared: Arc<Shared>,
     counters: Arc<Mutex<SlaveCounters>>,
     memory: SharedCpMemory,
-    task: JoinHandle<()>,
+    task: Arc<Mutex<Option<JoinHandle<()>>>>,
 }
 
 // === impl SlaveLineHandle ===
@@ -155,7 +156,13 @@ impl SlaveLineHandle {
 
     /// Waits for the line task to end (after the shutdown token was cancelled).
     pub async fn join(self) {
-        if let Err(err) = self.task.await {
+        let task = self
+            .task
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take();
+        let Some(task) = task else { return };
+        if let Err(err) = task.await {
             tracing::error!(line = %self.name, %err, "slave line task failed");
         }
     }
@@ -200,7 +207,7 @@ pub fn spawn_modbus_slave_line(
         shared,
         counters,
         memory,
-        task,
+        task: Arc::new(Mutex::new(Some(task))),
     }
 }
 
