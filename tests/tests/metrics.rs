@@ -183,6 +183,15 @@ fn prometheus_scrapes_the_demo_sees_every_line_start_and_evaluates_every_dashboa
     if let Err(complaints) = promtool_check(&exposition) {
         panic!("promtool check metrics: {complaints}\n--- /metrics ---\n{exposition}");
     }
+    // A Modbus slave line counts the requests its serial master sent (the demo's hmi line).
+    if lines.contains("hmi") {
+        let served: f64 = samples(&exposition, "gateway_modbus_requests_total")
+            .iter()
+            .filter(|(l, _)| l.get("line") == Some(&"hmi") && l.get("device") == Some(&"master"))
+            .map(|(_, v)| v)
+            .sum();
+        assert!(served >= 1.0, "{exposition}");
+    }
     // The 0x0A answers of unit 99 were counted.
     assert!(
         value(
