@@ -50,15 +50,24 @@ pub struct Gateway {
     child: Child,
     /// The Modbus TCP address the gateway announced.
     pub modbus_tcp: SocketAddr,
+    /// The HTTP address (`/metrics`) the gateway announced, if it serves HTTP.
+    pub http: Option<SocketAddr>,
     /// Every line the process wrote to stdout and stderr so far.
     output: Arc<Mutex<Vec<String>>>,
     lines: mpsc::Receiver<String>,
 }
 
 impl Gateway {
-    /// Starts `gateway demo` with the given extra arguments and Modbus TCP on an ephemeral port.
+    /// Starts `gateway demo` with the given extra arguments, Modbus TCP and HTTP on ephemeral
+    /// ports.
     pub fn demo(extra: &[&str]) -> Self {
-        let mut args = vec!["demo", "--modbus-tcp", "127.0.0.1:0"];
+        let mut args = vec![
+            "demo",
+            "--modbus-tcp",
+            "127.0.0.1:0",
+            "--http",
+            "127.0.0.1:0",
+        ];
         args.extend_from_slice(extra);
         Self::start(&args)
     }
@@ -68,7 +77,8 @@ impl Gateway {
         Self::start(&["run", "--config", config.to_str().expect("utf-8 path")])
     }
 
-    /// Starts the binary with `args` and waits for its Modbus TCP announcement.
+    /// Starts the binary with `args` and waits for its Modbus TCP announcement (printed last,
+    /// after the HTTP one when it serves HTTP).
     pub fn start(args: &[&str]) -> Self {
         let mut child = Command::new(gateway_bin())
             .args(args)
@@ -99,6 +109,7 @@ impl Gateway {
         let mut gw = Self {
             child,
             modbus_tcp: "0.0.0.0:0".parse().expect("addr"),
+            http: None,
             output,
             lines,
         };
@@ -111,6 +122,18 @@ impl Gateway {
         gw.modbus_tcp = addr
             .parse()
             .unwrap_or_else(|e| panic!("bad address {addr:?}: {e}"));
+        // Both lines go to stdout, read in order by one thread: the HTTP line, if any, is already
+        // in the output.
+        gw.http = gw
+            .output
+            .lock()
+            .expect("output lock")
+            .iter()
+            .find_map(|line| line.split_once("http listening on ").map(|(_, a)| a.trim()))
+            .map(|addr| {
+                addr.parse()
+                    .unwrap_or_else(|e| panic!("bad address {addr:?}: {e}"))
+            });
         gw
     }
 
