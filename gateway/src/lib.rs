@@ -6,6 +6,8 @@
 //! - [`serial`]: opening ports with line settings, RS485 mode, reopen with back-off;
 //! - [`line`]: one task per line driving an engine, the poll scheduler;
 //! - [`image`]: the process image (value, quality, timestamp per register);
+//! - [`mailbox`]: telegram lines' received telegrams and sends as Modbus TCP registers;
+//! - [`signals`]: RS232 modem signals of a port (read DTR/DSR/RTS/CTS/DCD/RI, set DTR/RTS);
 //! - [`unit`]: the contract between the Modbus TCP server and whatever answers a unit id;
 //! - [`modbus_tcp`]: our own MBAP framing, validation and the TCP server;
 //! - [`sim`]: simulated devices on a serial port (`gateway sim`);
@@ -15,7 +17,9 @@ pub mod app;
 pub mod config;
 pub mod image;
 pub mod line;
+pub mod mailbox;
 pub mod modbus_tcp;
 pub mod serial;
+pub mod signals;
 pub mod sim;
 pub mod unit;

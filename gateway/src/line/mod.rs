@@ -12,7 +12,8 @@
 //! - `driver`: clock conversion and timer helpers of the driver loop;
 //! - `modbus_master`: the line task itself;
 //! - `writeback`: the image refresh after a confirmed write, the broadcast echo;
-//! - `device_unit`: a polled device as a Modbus TCP unit.
+//! - `device_unit`: a polled device as a Modbus TCP unit;
+//! - [`telegram`]: ASCII and 3964(R) lines with their mailboxes.
 
 mod command;
 mod device_unit;
@@ -21,6 +22,7 @@ mod modbus_master;
 pub mod plan;
 mod scheduler;
 mod status;
+pub mod telegram;
 mod writeback;
 
 use std::sync::Arc;
