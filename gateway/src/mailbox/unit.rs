@@ -31,6 +31,11 @@ impl MailboxUnit {
         &self.mailbox
     }
 
+    /// The line client its send block uses.
+    pub fn client(&self) -> &TelegramClient {
+        &self.client
+    }
+
     /// Carries out a write of `values` at `address`.
     fn write(&self, address: u16, values: &[u16]) -> Result<(), ExceptionCode> {
         match layout::plan_write(address, values)? {

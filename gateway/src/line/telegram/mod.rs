@@ -32,6 +32,8 @@ use tokio::sync::{broadcast, mpsc};
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
+#[cfg(test)]
+pub(crate) use client::Command;
 pub use client::{PendingSend, SendResult, SignalsClient, TelegramClient, TelegramSendError};
 pub use convert::{params_3964, params_ascii, TelegramConfigError};
 

@@ -20,6 +20,8 @@ pub(crate) struct Pump<E> {
     clock: Clock,
     /// One character on the wire, for the estimated end of a transmission.
     char_time: Duration,
+    /// The estimated end of the last transmission.
+    tx_end: Option<tokio::time::Instant>,
 }
 
 // === impl Pump ===
@@ -31,6 +33,7 @@ impl<E: TelegramEngine> Pump<E> {
             engine,
             clock: Clock::start(),
             char_time,
+            tx_end: None,
         }
     }
 
@@ -59,10 +62,18 @@ impl<E: TelegramEngine> Pump<E> {
         self.engine.handle_timeout(now);
     }
 
-    /// Hands the engine received bytes.
+    /// Hands the engine received bytes, timestamped no earlier than the estimated end of our
+    /// last transmission.
+    ///
+    /// The estimate assumes the configured baud rate; a pseudo-terminal carries the bytes at
+    /// once, and the partner's answer then arrives before the estimated end. A byte that answers
+    /// ours cannot precede it, and the 3964(R) engine takes a byte received before its DLE is out
+    /// as a partner that did not wait (7.2, 08 02h). What is lost: a byte the partner sent,
+    /// without waiting, within the few character times our own bytes take on a real line.
     pub(crate) fn handle_rx(&mut self, bytes: &[u8]) {
-        let now = self.now();
-        self.engine.handle_rx(now, bytes);
+        let now = tokio::time::Instant::now();
+        let at = self.tx_end.map_or(now, |end| end.max(now));
+        self.engine.handle_rx(self.clock.to_engine(at), bytes);
     }
 
     /// Drains the engine's RS232 actions (to `apply`) and transmissions (to `port`), in the
@@ -88,6 +99,7 @@ impl<E: TelegramEngine> Pump<E> {
             };
             port.write_all(&bytes).await?;
             let end = estimated_tx_end(tokio::time::Instant::now(), bytes.len(), self.char_time);
+            self.tx_end = Some(end);
             self.engine.handle_tx_done(self.clock.to_engine(end));
             progress = true;
         }

@@ -238,7 +238,7 @@ impl<F: EngineFactory> TelegramTask<F> {
                 () = sleep_until_opt(stop_at) => return PortExit::Shutdown,
                 read = port.read(&mut buf) => match read {
                     Ok(0) => return PortExit::Lost(format!("{path} reached end of file")),
-                    Ok(n) => session.pump.handle_rx(buf.get(..n).unwrap_or_default()),
+                    Ok(n) => self.receive(session, buf.get(..n).unwrap_or_default()),
                     Err(err) => return PortExit::Lost(format!("read from {path} failed: {err}")),
                 },
                 () = sleep_until_opt(session.pump.deadline()) => session.pump.handle_timeout(),
@@ -248,6 +248,19 @@ impl<F: EngineFactory> TelegramTask<F> {
                     Some(command) => self.handle_command(port, session, command),
                     None => self.commands_open = false,
                 },
+            }
+        }
+    }
+
+    /// Hands received bytes to the engine one at a time and moves each completed telegram to
+    /// the mailbox at once: a read can hold several short telegrams, and the engine's receive
+    /// buffer is kept small (see the module doc of the line), so taking them only after the whole
+    /// read would make the engine drop or refuse telegrams the mailbox has room for.
+    fn receive(&self, session: &mut Session<F::Engine>, bytes: &[u8]) {
+        for &byte in bytes {
+            session.pump.handle_rx(&[byte]);
+            if self.handle_events(session) {
+                self.move_received(session, false);
             }
         }
     }
