@@ -3,8 +3,10 @@
 //!
 //! The mailbox follows the line's receive buffer: its depth is `receive_buffer`; its policy is
 //! 3964(R) `overflow` (refuse: NAK, or drop-oldest), ASCII `prevent_overwrite` (on: the CP drops
-//! the new telegram, or under data flow control holds the partner back, 003 6.2.1; off: the
+//! the new telegram, or under XON/XOFF or RTS/CTS holds the partner back, 003 6.2.1; off: the
 //! newest telegram replaces the oldest).
+//!
+//! The port path is given apart: the demo replaces `pty:<name>` by the pty it made.
 
 use proto_core::proc3964::{Params3964, Priority, Settings3964, Variant};
 use proto_core::telegram::{
@@ -187,10 +189,15 @@ impl TelegramLineSettings {
             }
             ProtocolConfig::Ascii(c) => {
                 let params = params_ascii(&line.serial, c).map_err(invalid)?;
+                // Only XON/XOFF and RTS/CTS can hold the partner back (003 6.2.1); under the
+                // automatic V24 handling "Bei Überlauf des Empfangspuffers erfolgt keine Reaktion
+                // des CP" (000 5.4).
                 let overflow = match (c.prevent_overwrite, c.flow_control) {
                     (false, _) => Overflow::DropOldest,
-                    (true, cfg::FlowControl::None) => Overflow::DropNew,
-                    (true, _) => Overflow::Refuse,
+                    (true, cfg::FlowControl::XonXoff | cfg::FlowControl::RtsCts) => {
+                        Overflow::Refuse
+                    }
+                    (true, cfg::FlowControl::None | cfg::FlowControl::AutoV24) => Overflow::DropNew,
                 };
                 (
                     TelegramProtocol::Ascii(params),

@@ -13,8 +13,11 @@
 //!
 //! The mailbox is the CP's receive buffer, so the engine's own buffer is kept small: under
 //! [`Overflow::Refuse`] the engine holds one telegram beyond the mailbox and then refuses
-//! (3964(R): NAK; ASCII under data flow control: XOFF / RTS off after a few more); under the
-//! other policies every telegram is taken from the engine at once.
+//! (3964(R): NAK; ASCII under XON/XOFF or RTS/CTS: XOFF / RTS off after a few more; ASCII
+//! otherwise: the engine drops the telegram, 08 0Ah); under the other policies every telegram
+//! is taken from the engine at once. Received bytes go to the engine one at a time and each
+//! completed telegram moves to the mailbox at once, so the small engine buffer fills only while
+//! the mailbox is full.
 
 mod client;
 mod convert;
@@ -49,9 +52,9 @@ use crate::serial::PortSettings;
 pub const DEFAULT_SEND_QUEUE: usize = 16;
 /// How long a stopping line may finish the telegram it is sending or receiving by default.
 pub const DEFAULT_SHUTDOWN_GRACE: Duration = Duration::from_secs(2);
-/// Telegrams the ASCII driver holds beyond a full mailbox under data flow control before it
-/// stops the partner (XOFF, RTS off): more than one, so that two telegrams arriving in one read
-/// do not make it stop and restart the partner for nothing (our choice).
+/// Telegrams the ASCII driver holds beyond a full mailbox under XON/XOFF or RTS/CTS before it
+/// stops the partner (XOFF, RTS off): room for what the partner sends before it reacts (our
+/// choice; the manual gives no number).
 const ASCII_FLOW_SLACK: u16 = 4;
 /// The engine's buffer when the line takes every telegram at once (the manual's maximum).
 const ENGINE_BUFFER_MAX: u16 = 250;
@@ -135,7 +138,7 @@ impl TelegramLineSettings {
     }
 
     /// The engine's parameters with the receive buffer the mailbox needs: one telegram under
-    /// [`Overflow::Refuse`] (ASCII with data flow control: a few), the manual's maximum
+    /// [`Overflow::Refuse`] (ASCII under XON/XOFF or RTS/CTS: a few), the manual's maximum
     /// otherwise; overwriting is always prevented in the engine (the mailbox decides).
     fn engine_protocol(&self) -> TelegramProtocol {
         let refuse = self.mailbox.overflow == Overflow::Refuse;
@@ -148,7 +151,10 @@ impl TelegramLineSettings {
                 TelegramProtocol::P3964(Params3964::try_new(settings).unwrap_or_else(|_| p.clone()))
             }
             TelegramProtocol::Ascii(p) => {
-                let flow = p.settings().flow != FlowControl::None;
+                let flow = matches!(
+                    p.settings().flow,
+                    FlowControl::XonXoff { .. } | FlowControl::RtsCts
+                );
                 let settings = AsciiSettings {
                     receive_buffers: match (refuse, flow) {
                         (true, false) => 1,
