@@ -5,6 +5,7 @@
 //! - [`config`]: the TOML configuration, its validation and `gateway check`;
 //! - [`serial`]: opening ports with line settings, RS485 mode, reopen with back-off;
 //! - [`line`]: one task per line driving an engine, the poll scheduler;
+//! - [`cpmem`]: the CP memory (M, Q, I, T, C, DBs) shared by slave lines, Modbus TCP and the image;
 //! - [`image`]: the process image (value, quality, timestamp per register);
 //! - [`mailbox`]: telegram lines' received telegrams and sends as Modbus TCP registers;
 //! - [`signals`]: RS232 modem signals of a port (read DTR/DSR/RTS/CTS/DCD/RI, set DTR/RTS);
@@ -15,11 +16,14 @@
 
 pub mod app;
 pub mod config;
+pub mod cpmem;
 pub mod image;
 pub mod line;
 pub mod mailbox;
+pub mod metrics;
 pub mod modbus_tcp;
 pub mod serial;
 pub mod signals;
 pub mod sim;
+pub mod tags;
 pub mod unit;
