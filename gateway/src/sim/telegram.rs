@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use proto_core::proc3964::{Params3964, Priority, Settings3964, Variant};
 use proto_core::telegram::{
-    AsciiParams, AsciiSettings, ConfigError, EndCriterion, Interface, TelegramEvent,
+    AsciiParams, AsciiSettings, ConfigError, EndCriterion, FlowControl, Interface, TelegramEvent,
     DEFAULT_END_CHAR,
 };
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite};
@@ -21,9 +21,10 @@ use tokio::sync::mpsc;
 use tokio::time::{Instant, MissedTickBehavior};
 use tokio_util::sync::CancellationToken;
 
+use crate::config::{LineConfig, ProtocolConfig};
 use crate::line::telegram::engine::{EngineFactory, TelegramEngine};
 use crate::line::telegram::pump::{sleep_until_opt, Pump};
-use crate::line::telegram::TelegramProtocol;
+use crate::line::telegram::{params_3964, params_ascii, TelegramProtocol};
 use crate::serial::{self, DataBits, OpenError, PortSettings};
 
 /// How often a simulator sends a telegram of its own by default (SPEC: "every `--every`
@@ -120,6 +121,43 @@ impl TelegramSim {
             char_time: Duration::ZERO,
             observer: None,
         }
+    }
+
+    /// The partner of a configured telegram line, as the demo runs it: the line's own parameters
+    /// with the other 3964(R) priority (003 6.3.3: one partner high, the other low), and for ASCII
+    /// without RTS/CTS or the automatic V24 handling (the simulator has no RS232 signals; it
+    /// would wait for CTS forever). `None` for a line of another protocol.
+    ///
+    /// # Errors
+    ///
+    /// The parameters the engine refuses (the config check catches them first).
+    pub fn for_line(line: &LineConfig) -> Option<Result<Self, ConfigError>> {
+        let protocol = match &line.protocol {
+            ProtocolConfig::Proc3964(c) => params_3964(&line.serial, c).and_then(|p| {
+                let priority = match p.settings().priority {
+                    Priority::High => Priority::Low,
+                    Priority::Low => Priority::High,
+                };
+                Params3964::try_new(Settings3964 {
+                    priority,
+                    ..p.settings().clone()
+                })
+                .map(TelegramProtocol::P3964)
+            }),
+            ProtocolConfig::Ascii(c) => params_ascii(&line.serial, c).and_then(|p| {
+                let flow = match p.settings().flow {
+                    FlowControl::RtsCts | FlowControl::AutoV24 { .. } => FlowControl::None,
+                    other => other,
+                };
+                AsciiParams::try_new(AsciiSettings {
+                    flow,
+                    ..p.settings().clone()
+                })
+                .map(TelegramProtocol::Ascii)
+            }),
+            _ => return None,
+        };
+        Some(protocol.map(Self::new))
     }
 
     /// Sends its own telegram every `every` (zero: never).
@@ -390,6 +428,26 @@ mod tests {
         let slow = partner_ascii(1200, 7).expect("valid");
         assert_eq!(slow.settings().zvz, Duration::from_millis(32));
         assert!(partner_ascii(9600, 6).is_err());
+    }
+
+    #[test]
+    fn the_demo_partners_mirror_their_lines() {
+        let demo = crate::config::demo();
+        let r3964 = demo.lines.get("r3964").expect("demo line");
+        let sim = TelegramSim::for_line(r3964)
+            .expect("telegram line")
+            .expect("valid");
+        let TelegramProtocol::P3964(p) = &sim.protocol else {
+            panic!("3964R expected");
+        };
+        assert_eq!(p.settings().priority, Priority::Low, "the line is high");
+        let ascii = demo.lines.get("ascii").expect("demo line");
+        let sim = TelegramSim::for_line(ascii)
+            .expect("telegram line")
+            .expect("valid");
+        assert_eq!(sim.own_telegram(1), b"ASCII 000001\x03");
+        let drive = demo.lines.get("drive").expect("demo line");
+        assert!(TelegramSim::for_line(drive).is_none());
     }
 
     #[test]

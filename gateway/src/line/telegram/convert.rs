@@ -6,7 +6,8 @@
 //! the new telegram, or under XON/XOFF or RTS/CTS holds the partner back, 003 6.2.1; off: the
 //! newest telegram replaces the oldest).
 //!
-//! The port path is given apart: the demo replaces `pty:<name>` by the pty it made.
+//! The port settings come from the caller (the app's conversion of the serial section), so that
+//! every line opens its port the same way.
 
 use proto_core::proc3964::{Params3964, Priority, Settings3964, Variant};
 use proto_core::telegram::{
@@ -18,7 +19,7 @@ use crate::config::{
     self as cfg, AsciiConfig, LineConfig, Proc3964Config, ProtocolConfig, SerialConfig,
 };
 use crate::mailbox::{MailboxSettings, Overflow};
-use crate::serial::{self, PortSettings, Rs485};
+use crate::serial::PortSettings;
 
 /// Why a line's configuration does not make a telegram line.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -35,38 +36,6 @@ pub enum TelegramConfigError {
         #[source]
         source: ConfigError,
     },
-}
-
-/// The port settings of a configured line, opened at `path` (the config's port, or the pty the
-/// demo made for it).
-pub(crate) fn port_settings(serial: &SerialConfig, path: &str) -> PortSettings {
-    let mut port = PortSettings::new(path, serial.baud.get());
-    port.data_bits = match serial.data_bits {
-        cfg::DataBits::Seven => serial::DataBits::Seven,
-        cfg::DataBits::Eight => serial::DataBits::Eight,
-    };
-    port.parity = match serial.parity {
-        cfg::Parity::None => serial::Parity::None,
-        cfg::Parity::Odd => serial::Parity::Odd,
-        cfg::Parity::Even => serial::Parity::Even,
-    };
-    port.stop_bits = match serial.stop_bits {
-        cfg::StopBits::One => serial::StopBits::One,
-        cfg::StopBits::Two => serial::StopBits::Two,
-    };
-    port.interface = match serial.interface {
-        cfg::Interface::Rs232 => serial::Interface::Rs232,
-        cfg::Interface::Rs422 => serial::Interface::Rs422,
-        cfg::Interface::Rs485 => {
-            let rs485 = serial.rs485.clone().unwrap_or_default();
-            serial::Interface::Rs485(Rs485 {
-                rts_on_send: rs485.rts_on_send,
-                delay_before_send: rs485.delay_before_send,
-                delay_after_send: rs485.delay_after_send,
-            })
-        }
-    };
-    port
 }
 
 fn interface(serial: &SerialConfig) -> Interface {
@@ -154,8 +123,9 @@ pub fn params_ascii(serial: &SerialConfig, c: &AsciiConfig) -> Result<AsciiParam
 // === impl TelegramLineSettings (from the configuration) ===
 
 impl TelegramLineSettings {
-    /// The settings of the configured line `name`, its port opened at `path`. Diagnostic depth
-    /// and reopen back-off keep their defaults; set them from the gateway section.
+    /// The settings of the configured line `name` on `port` (the runtime's port settings of the
+    /// line's serial section). Diagnostic depth and reopen back-off keep their defaults; set them
+    /// from the gateway section.
     ///
     /// # Errors
     ///
@@ -163,13 +133,12 @@ impl TelegramLineSettings {
     pub fn from_config(
         name: &str,
         line: &LineConfig,
-        path: &str,
+        port: PortSettings,
     ) -> Result<Self, TelegramConfigError> {
         let invalid = |source| TelegramConfigError::Invalid {
             line: name.to_owned(),
             source,
         };
-        let port = port_settings(&line.serial, path);
         let (protocol, mailbox, max_len, send_queue) = match &line.protocol {
             ProtocolConfig::Proc3964(c) => {
                 let params = params_3964(&line.serial, c).map_err(invalid)?;
@@ -224,6 +193,10 @@ mod tests {
     use super::*;
     use crate::config;
 
+    fn port() -> PortSettings {
+        PortSettings::new("/dev/null", 9600)
+    }
+
     fn line(config: &config::Config, name: &str) -> LineConfig {
         config.lines.get(name).cloned().expect("demo line")
     }
@@ -231,7 +204,7 @@ mod tests {
     #[test]
     fn the_demo_lines_make_telegram_lines_with_the_manuals_defaults() {
         let demo = config::demo();
-        let r3964 = TelegramLineSettings::from_config("r3964", &line(&demo, "r3964"), "/dev/null")
+        let r3964 = TelegramLineSettings::from_config("r3964", &line(&demo, "r3964"), port())
             .expect("3964r line");
         let TelegramProtocol::P3964(p) = &r3964.protocol else {
             panic!("3964R expected");
@@ -250,10 +223,8 @@ mod tests {
                 overflow: Overflow::Refuse
             }
         );
-        assert_eq!(r3964.port.baud, 9600);
-        assert_eq!(r3964.port.parity, serial::Parity::Even);
 
-        let ascii = TelegramLineSettings::from_config("ascii", &line(&demo, "ascii"), "/dev/null")
+        let ascii = TelegramLineSettings::from_config("ascii", &line(&demo, "ascii"), port())
             .expect("ascii line");
         let TelegramProtocol::Ascii(p) = &ascii.protocol else {
             panic!("ASCII expected");
@@ -270,7 +241,7 @@ mod tests {
 
         let drive = line(&demo, "drive");
         assert_eq!(
-            TelegramLineSettings::from_config("drive", &drive, "/dev/null").unwrap_err(),
+            TelegramLineSettings::from_config("drive", &drive, port()).unwrap_err(),
             TelegramConfigError::NotATelegramLine("drive".into())
         );
     }
