@@ -434,3 +434,47 @@ async fn a_lost_port_fails_the_send_and_the_line_reopens() {
         .await
         .expect("stops at once while closed");
 }
+
+// === `gateway sim --device ascii` on a port by its path ===
+
+#[tokio::test]
+async fn the_ascii_simulator_opens_its_port_sends_its_own_and_echoes() {
+    use gateway::serial::PortSettings;
+    use gateway::sim::telegram::{run_telegram_sim, TelegramDevice};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    let (mut line_end, path, _keep) = pty();
+    let shutdown = CancellationToken::new();
+    let sim = tokio::spawn(run_telegram_sim(
+        TelegramDevice::Ascii,
+        PortSettings::new(path, 9600),
+        ms(50),
+        shutdown.clone(),
+    ));
+    let mut received = Vec::new();
+    let mut buf = [0u8; 64];
+    let first: &[u8] = b"ASCII 000001\x03";
+    while !received.ends_with(first) {
+        let n = tokio::time::timeout(Duration::from_secs(5), line_end.read(&mut buf))
+            .await
+            .expect("the simulator's own telegram in time")
+            .expect("read");
+        received.extend_from_slice(&buf[..n]);
+    }
+    assert_eq!(received, first, "nothing before its first telegram");
+    line_end.write_all(b"PING\x03").await.expect("write");
+    received.clear();
+    while !received.windows(5).any(|w| w == b"PING\x03") {
+        let n = tokio::time::timeout(Duration::from_secs(5), line_end.read(&mut buf))
+            .await
+            .expect("the echo in time")
+            .expect("read");
+        received.extend_from_slice(&buf[..n]);
+    }
+    shutdown.cancel();
+    let result = tokio::time::timeout(Duration::from_secs(5), sim)
+        .await
+        .expect("the simulator stops")
+        .expect("no panic");
+    assert!(result.is_ok(), "{result:?}");
+}

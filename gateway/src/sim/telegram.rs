@@ -384,7 +384,7 @@ where
 /// The port does not open, the line settings give no valid parameters, or a write fails.
 pub async fn run_telegram_sim(
     device: TelegramDevice,
-    port: &PortSettings,
+    port: PortSettings,
     every: Duration,
     shutdown: CancellationToken,
 ) -> Result<(), TelegramSimError> {
@@ -398,7 +398,7 @@ pub async fn run_telegram_sim(
             TelegramProtocol::Ascii(partner_ascii(port.baud, bits)?)
         }
     };
-    let stream = serial::open(port)?;
+    let stream = serial::open(&port)?;
     tracing::info!(port = %port.path, baud = port.baud, ?device, "telegram simulator on its port");
     TelegramSim::new(protocol)
         .every(every)

@@ -35,6 +35,7 @@ use tokio::sync::{broadcast, mpsc};
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
+pub use crate::mailbox::TelegramRx;
 #[cfg(test)]
 pub(crate) use client::Command;
 pub use client::{PendingSend, SendResult, SignalsClient, TelegramClient, TelegramSendError};
@@ -43,9 +44,7 @@ pub use convert::{params_3964, params_ascii, TelegramConfigError};
 use super::driver::Clock;
 use super::status::{self, LineEvent, LineStatus};
 use super::{DEFAULT_DIAG_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
-use crate::mailbox::{
-    Mailbox, MailboxSettings, MailboxUnit, Overflow, TelegramCounters, TelegramRx,
-};
+use crate::mailbox::{Mailbox, MailboxSettings, MailboxUnit, Overflow, TelegramCounters};
 use crate::serial::PortSettings;
 
 /// Commands (sends, signal requests) that may wait for the line task by default.
