@@ -12,6 +12,7 @@
 //! - [`unit`]: the contract between the Modbus TCP server and whatever answers a unit id;
 //! - [`modbus_tcp`]: our own MBAP framing, validation and the TCP server;
 //! - [`sim`]: simulated devices on a serial port (`gateway sim`);
+//! - [`zenoh_bridge`]: telegrams, tag values, queries, writes, events and presence on zenoh;
 //! - [`app`]: wiring a config into running tasks (`gateway run`, `gateway demo`).
 
 pub mod app;
@@ -27,3 +28,4 @@ pub mod signals;
 pub mod sim;
 pub mod tags;
 pub mod unit;
+pub mod zenoh_bridge;
