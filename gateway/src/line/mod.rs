@@ -14,7 +14,8 @@
 //! - `modbus_master`: the line task itself;
 //! - `modbus_slave`: the Modbus slave RTU line serving the CP memory ([`spawn_modbus_slave_line`]);
 //! - `writeback`: the image refresh after a confirmed write, the broadcast echo;
-//! - `device_unit`: a polled device as a Modbus TCP unit.
+//! - `device_unit`: a polled device as a Modbus TCP unit;
+//! - [`telegram`]: ASCII and 3964(R) lines with their mailboxes.
 
 mod command;
 mod device_unit;
@@ -25,6 +26,7 @@ mod modbus_slave;
 pub mod plan;
 mod scheduler;
 mod status;
+pub mod telegram;
 mod writeback;
 
 use std::sync::Arc;
