@@ -16,9 +16,10 @@ use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
-use crate::config::{self, Config, LineConfig, ProtocolConfig};
+use crate::config::{self, Config, ProtocolConfig};
 use crate::cpmem::{self, SharedCpMemory};
 use crate::image::{ImageConfig, ProcessImage};
+use crate::line::telegram::{TelegramLineHandle, TelegramLineSettings};
 use crate::line::{self, LineHandle, SlaveLineHandle, SlaveLineSettings};
 use crate::metrics::Metrics;
 use crate::modbus_tcp::{self, ServerOptions, ServerStats, SharedUnits};
@@ -156,6 +157,8 @@ pub struct Running {
     pub lines: BTreeMap<String, LineHandle>,
     /// The Modbus slave lines by name.
     pub slave_lines: BTreeMap<String, SlaveLineHandle>,
+    /// The telegram lines (3964(R), ASCII) by name.
+    pub telegram_lines: BTreeMap<String, TelegramLineHandle>,
     /// The CP memory the slave lines serve, if any line does.
     pub cp_memory: Option<SharedCpMemory>,
     /// Saves the CP memory; stopped (with a last save) after the lines and servers.
@@ -227,6 +230,9 @@ pub async fn run(
             line.join().await;
         }
         for (_, line) in running.slave_lines {
+            line.join().await;
+        }
+        for (_, line) in running.telegram_lines {
             line.join().await;
         }
         match server.await {
@@ -338,6 +344,7 @@ fn start_lines(
     let mut units = UnitMap::new();
     let mut lines = BTreeMap::new();
     let mut slave_lines = BTreeMap::new();
+    let mut telegram_lines = BTreeMap::new();
     let (cp_memory, persistence) = match open_cp_memory(config)? {
         Some((memory, persistence)) => (Some(memory), persistence),
         None => (None, None),
@@ -385,13 +392,25 @@ fn start_lines(
                 }
                 slave_lines.insert(name.clone(), handle);
             }
-            other => not_served(name, line, other.kind().as_str()),
+            ProtocolConfig::Proc3964(_) | ProtocolConfig::Ascii(_) => {
+                let port = build::port_settings(&line.serial);
+                let mut settings = TelegramLineSettings::from_config(name, line, port)
+                    .map_err(|e| AppError::Setup(format!("line {name}: {e}")))?;
+                settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
+                settings.metrics = Some(metrics.clone());
+                let handle = line::telegram::spawn_telegram_line(settings, shutdown.child_token());
+                if let Some(unit) = line.unit_id() {
+                    units.insert(unit, Arc::new(handle.mailbox_unit()));
+                }
+                telegram_lines.insert(name.clone(), handle);
+            }
         }
     }
     Ok(Running {
         image,
         lines,
         slave_lines,
+        telegram_lines,
         cp_memory,
         persistence,
         units: Arc::new(RwLock::new(units)),
@@ -436,10 +455,6 @@ fn open_cp_memory(config: &Config) -> Result<Option<(SharedCpMemory, Persistence
     };
     let task = cpmem::spawn_persistence(memory.clone(), settings, token.clone());
     Ok(Some((memory, Some((token, task)))))
-}
-
-fn not_served(name: &str, line: &LineConfig, protocol: &str) {
-    warn!(line = name, port = %line.serial.port, protocol, "this protocol is not served by this build; the line stays closed");
 }
 
 /// The Modbus TCP server options of the config.

@@ -88,10 +88,23 @@ fn start_simulator(
             sim::master::spawn_sim_master(stream, settings, shutdown.clone());
             Ok(())
         }
-        ProtocolConfig::ModbusMasterAscii(_)
-        | ProtocolConfig::Proc3964(_)
-        | ProtocolConfig::Ascii(_) => {
-            // Telegram partners are started by their own module.
+        ProtocolConfig::Proc3964(_) | ProtocolConfig::Ascii(_) => {
+            // The partner echoes every telegram and sends one of its own every second (the
+            // 3964R partner at the other priority, the ASCII partner ending with ETX).
+            let partner = sim::telegram::TelegramSim::for_line(line)
+                .ok_or_else(|| AppError::Setup(format!("line {name}: no telegram partner")))?
+                .map_err(|e| AppError::Setup(format!("line {name}: {e}")))?;
+            let token = shutdown.clone();
+            let line_name = name.to_owned();
+            tokio::spawn(async move {
+                if let Err(e) = partner.serve(stream, token).await {
+                    tracing::error!(line = %line_name, error = %e, "simulated telegram partner stopped");
+                }
+            });
+            Ok(())
+        }
+        ProtocolConfig::ModbusMasterAscii(_) => {
+            // The demo has no Modbus ASCII line; a config that adds one gets no simulator.
             drop(stream);
             Ok(())
         }

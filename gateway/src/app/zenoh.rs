@@ -20,6 +20,7 @@ use tracing::{debug, warn};
 
 use super::Running;
 use crate::image::ProcessImage;
+use crate::line::telegram::TelegramLineHandle;
 use crate::line::{LineEvent, LineHandle, LineStatus, SlaveLineHandle};
 use crate::modbus_tcp::{ServerOptions, SharedUnits};
 use crate::tags::{TagDirectory, TagEntry, TagWriteError};
@@ -35,6 +36,7 @@ pub(crate) struct GatewayBackend {
     pub(crate) tags: Arc<TagDirectory>,
     pub(crate) lines: BTreeMap<String, LineHandle>,
     pub(crate) slave_lines: BTreeMap<String, SlaveLineHandle>,
+    pub(crate) telegram_lines: BTreeMap<String, TelegramLineHandle>,
     pub(crate) protocols: BTreeMap<String, &'static str>,
     pub(crate) units: SharedUnits,
     pub(crate) server: ServerOptions,
@@ -55,16 +57,9 @@ impl GatewayBackend {
             name: name.to_owned(),
             image: running.image.clone(),
             tags,
-            lines: running
-                .lines
-                .iter()
-                .map(|(k, v)| (k.clone(), v.clone()))
-                .collect(),
-            slave_lines: running
-                .slave_lines
-                .iter()
-                .map(|(k, v)| (k.clone(), v.clone()))
-                .collect(),
+            lines: running.lines.clone(),
+            slave_lines: running.slave_lines.clone(),
+            telegram_lines: running.telegram_lines.clone(),
             protocols,
             units: Arc::clone(&running.units),
             server,
@@ -79,6 +74,7 @@ impl GatewayBackend {
             tags: Arc::clone(&self.tags),
             lines: self.lines.clone(),
             slave_lines: self.slave_lines.clone(),
+            telegram_lines: self.telegram_lines.clone(),
             protocols: self.protocols.clone(),
             units: Arc::clone(&self.units),
             server: self.server.clone(),
@@ -90,6 +86,7 @@ impl GatewayBackend {
             .get(line)
             .map(LineHandle::status)
             .or_else(|| self.slave_lines.get(line).map(SlaveLineHandle::status))
+            .or_else(|| self.telegram_lines.get(line).map(|t| t.status().line))
     }
 }
 
@@ -137,9 +134,22 @@ impl BridgeBackend for GatewayBackend {
         })
     }
 
-    fn send_telegram(&self, line: &str, _bytes: Vec<u8>) -> BackendFuture<Result<Json, String>> {
-        let answer = Err(format!("line {line} does not send telegrams"));
-        Box::pin(async move { answer })
+    fn send_telegram(&self, line: &str, bytes: Vec<u8>) -> BackendFuture<Result<Json, String>> {
+        let Some(client) = self
+            .telegram_lines
+            .get(line)
+            .map(TelegramLineHandle::client)
+        else {
+            let answer = Err(format!("line {line} does not send telegrams"));
+            return Box::pin(async move { answer });
+        };
+        Box::pin(async move {
+            let len = bytes.len();
+            match client.send(bytes).await {
+                Ok(()) => Ok(json!({ "sent": len })),
+                Err(e) => Err(e.to_string()),
+            }
+        })
     }
 
     fn write_tag(
@@ -318,7 +328,42 @@ pub(crate) fn spawn_feeds(
                 .values()
                 .map(SlaveLineHandle::subscribe_events),
         )
+        .chain(
+            backend
+                .telegram_lines
+                .values()
+                .map(TelegramLineHandle::subscribe_events),
+        )
         .collect();
+    // Received telegrams, in order, each once (the bridge's queue counts what it must drop).
+    for line in backend.telegram_lines.values() {
+        let bridge = bridge.clone();
+        let shutdown = shutdown.clone();
+        let mut rx = line.subscribe_rx();
+        tokio::spawn(async move {
+            loop {
+                let received = tokio::select! {
+                    () = shutdown.cancelled() => return,
+                    t = rx.recv() => t,
+                };
+                match received {
+                    Ok(t) => {
+                        let data = t.data.to_vec();
+                        if bridge
+                            .publish_telegram(&t.line, u64::from(t.seq), t.received, data)
+                            .is_err()
+                        {
+                            debug!(line = %t.line, seq = t.seq, "zenoh telegram queue full; the drop is counted");
+                        }
+                    }
+                    Err(RecvError::Lagged(n)) => {
+                        warn!(missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
+                    }
+                    Err(RecvError::Closed) => return,
+                }
+            }
+        });
+    }
     for mut events in receivers {
         let bridge = bridge.clone();
         let shutdown = shutdown.clone();

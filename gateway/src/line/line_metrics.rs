@@ -81,6 +81,20 @@ impl LineMetrics {
         }
     }
 
+    /// `len` bytes written to the port (telegram lines: framing included).
+    pub(crate) fn sent_bytes(&self, len: usize) {
+        if let (Some(i), true) = (&self.inner, len > 0) {
+            i.metrics.bytes(&i.line, Direction::Tx, len);
+        }
+    }
+
+    /// One user telegram sent and acknowledged by the partner (telegram lines).
+    pub(crate) fn sent_telegram(&self) {
+        if let Some(i) = &self.inner {
+            i.metrics.telegram(&i.line, Direction::Tx);
+        }
+    }
+
     /// `len` bytes read from the port.
     pub(crate) fn received_bytes(&self, len: usize) {
         if let Some(i) = &self.inner {

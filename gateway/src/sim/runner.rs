@@ -120,6 +120,9 @@ pub enum SimError {
     /// Reading or writing the port failed.
     #[error("serial I/O failed: {0}")]
     Io(#[from] std::io::Error),
+    /// The 3964(R) or ASCII partner stopped.
+    #[error("telegram simulator: {0}")]
+    Telegram(String),
 }
 
 // === impl SimArgs ===
@@ -155,6 +158,33 @@ impl SimArgs {
 
 /// Runs the simulator the arguments describe until `shutdown` is cancelled.
 pub async fn run(args: SimArgs, shutdown: CancellationToken) -> Result<(), SimError> {
+    let telegram = match args.device {
+        DeviceKind::Proc3964r => Some(super::telegram::TelegramDevice::P3964r),
+        DeviceKind::Ascii => Some(super::telegram::TelegramDevice::Ascii),
+        DeviceKind::Altivar71 | DeviceKind::KsVario => None,
+    };
+    if let Some(device) = telegram {
+        let mut port = crate::serial::PortSettings::new(args.port.clone(), args.baud);
+        port.parity = match args.parity {
+            Parity::None => crate::serial::Parity::None,
+            Parity::Odd => crate::serial::Parity::Odd,
+            Parity::Even => crate::serial::Parity::Even,
+        };
+        port.data_bits = if args.data_bits == 7 {
+            crate::serial::DataBits::Seven
+        } else {
+            crate::serial::DataBits::Eight
+        };
+        port.stop_bits = if args.stop_bits == 2 {
+            crate::serial::StopBits::Two
+        } else {
+            crate::serial::StopBits::One
+        };
+        tracing::info!(device = %args.device, port = %args.port, baud = args.baud, every = ?args.every, "simulator serving");
+        return super::telegram::run_telegram_sim(device, port, args.every, shutdown)
+            .await
+            .map_err(|e| SimError::Telegram(e.to_string()));
+    }
     let device = args.device()?;
     if args.data_bits != 8 {
         // Modbus over Serial Line V1.02, 2.5.1: RTU characters have 8 data bits.

@@ -42,6 +42,7 @@ pub use client::{PendingSend, SendResult, SignalsClient, TelegramClient, Telegra
 pub use convert::{params_3964, params_ascii, TelegramConfigError};
 
 use super::driver::Clock;
+use super::line_metrics::LineMetrics;
 use super::status::{self, LineEvent, LineStatus};
 use super::{DEFAULT_DIAG_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::mailbox::{Mailbox, MailboxSettings, MailboxUnit, Overflow, TelegramCounters};
@@ -114,6 +115,8 @@ pub struct TelegramLineSettings {
     pub reopen_max: Duration,
     /// How long a stopping line may finish the telegram in progress.
     pub shutdown_grace: Duration,
+    /// Prometheus families, if the gateway exports them.
+    pub metrics: Option<crate::metrics::Metrics>,
 }
 
 // === impl TelegramLineSettings ===
@@ -133,6 +136,7 @@ impl TelegramLineSettings {
             reopen_min: DEFAULT_REOPEN_MIN,
             reopen_max: DEFAULT_REOPEN_MAX,
             shutdown_grace: DEFAULT_SHUTDOWN_GRACE,
+            metrics: None,
         }
     }
 
@@ -193,6 +197,8 @@ pub struct TelegramLineStatus {
 #[derive(Debug)]
 pub(crate) struct LineShared {
     pub(crate) status: Arc<status::Shared>,
+    /// Telegrams and bytes of the line (events are counted through `status`).
+    pub(crate) metrics: LineMetrics,
     pub(crate) mailbox: Arc<Mailbox>,
     protocol: &'static str,
     signals_error: Mutex<Option<String>>,
@@ -223,13 +229,13 @@ impl LineShared {
     }
 }
 
-/// A running telegram line.
-#[derive(Debug)]
+/// A running telegram line; clones share it, [`Self::join`] waits for its task once.
+#[derive(Clone, Debug)]
 pub struct TelegramLineHandle {
     name: String,
     shared: Arc<LineShared>,
     client: TelegramClient,
-    task: JoinHandle<()>,
+    task: Arc<Mutex<Option<JoinHandle<()>>>>,
 }
 
 // === impl TelegramLineHandle ===
@@ -291,7 +297,13 @@ impl TelegramLineHandle {
 
     /// Waits for the line task to end (after the shutdown token was cancelled).
     pub async fn join(self) {
-        if let Err(err) = self.task.await {
+        let task = self
+            .task
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take();
+        let Some(task) = task else { return };
+        if let Err(err) = task.await {
             tracing::error!(line = %self.name, %err, "line task failed");
         }
     }
@@ -325,8 +337,19 @@ pub fn spawn_telegram_line(
         commands_answered: 0,
         commands_failed: 0,
     };
+    let kind = match settings.protocol {
+        TelegramProtocol::P3964(_) => "3964r",
+        TelegramProtocol::Ascii(_) => "ascii",
+    };
+    let metrics = LineMetrics::new(settings.metrics.clone(), &settings.name, kind);
     let shared = Arc::new(LineShared {
-        status: status::Shared::new(status, settings.diag_depth, Clock::start()),
+        status: status::Shared::with_metrics(
+            status,
+            settings.diag_depth,
+            Clock::start(),
+            metrics.clone(),
+        ),
+        metrics,
         mailbox: Mailbox::new(&settings.name, settings.mailbox, settings.max_len),
         protocol: settings.protocol.name(),
         signals_error: Mutex::new(None),
@@ -346,6 +369,6 @@ pub fn spawn_telegram_line(
         name: settings.name,
         shared,
         client,
-        task,
+        task: Arc::new(Mutex::new(Some(task))),
     }
 }

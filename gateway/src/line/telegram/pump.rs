@@ -22,6 +22,8 @@ pub(crate) struct Pump<E> {
     char_time: Duration,
     /// The estimated end of the last transmission.
     tx_end: Option<tokio::time::Instant>,
+    /// Bytes written since the owner last took the count (for the bytes metric).
+    pub(crate) written: usize,
 }
 
 // === impl Pump ===
@@ -34,6 +36,7 @@ impl<E: TelegramEngine> Pump<E> {
             clock: Clock::start(),
             char_time,
             tx_end: None,
+            written: 0,
         }
     }
 
@@ -98,6 +101,7 @@ impl<E: TelegramEngine> Pump<E> {
                 return Ok(progress);
             };
             port.write_all(&bytes).await?;
+            self.written += bytes.len();
             let end = estimated_tx_end(tokio::time::Instant::now(), bytes.len(), self.char_time);
             self.tx_end = Some(end);
             self.engine.handle_tx_done(self.clock.to_engine(end));

@@ -107,15 +107,12 @@ impl<F: EngineFactory> TelegramTask<F> {
             match serial::open(&self.settings.port) {
                 Ok(port) => {
                     reopen.reset();
-                    self.shared.status.update(|s| {
-                        s.port_open = true;
-                        s.port_error = None;
-                        s.port_opens += 1;
-                    });
+                    // 00 03h "parameter accepted": status, diag buffer, log, metrics.
+                    self.shared.status.started();
                     self.shared.mailbox.set_port_open(true);
                     tracing::info!(line = %self.name(), path = %self.settings.port.path, "port open");
                     let exit = self.drive(port).await;
-                    self.shared.status.update(|s| s.port_open = false);
+                    self.shared.status.port_closed();
                     self.shared.mailbox.set_port_open(false);
                     match exit {
                         PortExit::Shutdown => break,
@@ -210,6 +207,9 @@ impl<F: EngineFactory> TelegramTask<F> {
                         apply_action(shared, port, &path, outputs, action);
                     })
                     .await;
+                self.shared
+                    .metrics
+                    .sent_bytes(std::mem::take(&mut session.pump.written));
                 let wrote = match wrote {
                     Ok(wrote) => wrote,
                     Err(err) => return PortExit::Lost(format!("write to {path} failed: {err}")),
@@ -238,7 +238,10 @@ impl<F: EngineFactory> TelegramTask<F> {
                 () = sleep_until_opt(stop_at) => return PortExit::Shutdown,
                 read = port.read(&mut buf) => match read {
                     Ok(0) => return PortExit::Lost(format!("{path} reached end of file")),
-                    Ok(n) => self.receive(session, buf.get(..n).unwrap_or_default()),
+                    Ok(n) => {
+                        self.shared.metrics.received_bytes(n);
+                        self.receive(session, buf.get(..n).unwrap_or_default());
+                    }
                     Err(err) => return PortExit::Lost(format!("read from {path} failed: {err}")),
                 },
                 () = sleep_until_opt(session.pump.deadline()) => session.pump.handle_timeout(),
@@ -286,8 +289,12 @@ impl<F: EngineFactory> TelegramTask<F> {
             any = true;
             match event {
                 // The copy for observers; the telegram itself is taken from the engine's buffer.
-                TelegramEvent::Received { .. } => session.received_at.push_back(SystemTime::now()),
+                TelegramEvent::Received { .. } => {
+                    self.shared.metrics.received_telegram();
+                    session.received_at.push_back(SystemTime::now());
+                }
                 TelegramEvent::Sent { id } => {
+                    self.shared.metrics.sent_telegram();
                     if let Some(waiting) = session.waiting.remove(&id) {
                         self.shared.mailbox.count_send(true, waiting.bytes);
                         let _ = waiting.reply.send(Ok(()));
