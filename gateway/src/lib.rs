@@ -8,6 +8,7 @@
 //! - [`image`]: the process image (value, quality, timestamp per register);
 //! - [`unit`]: the contract between the Modbus TCP server and whatever answers a unit id;
 //! - [`modbus_tcp`]: our own MBAP framing, validation and the TCP server;
+//! - [`paced`]: a paced link, a virtual serial cable with the timing of a real one;
 //! - [`sim`]: simulated devices on a serial port (`gateway sim`);
 //! - [`app`]: wiring a config into running tasks (`gateway run`, `gateway demo`).
 
@@ -16,6 +17,7 @@ pub mod config;
 pub mod image;
 pub mod line;
 pub mod modbus_tcp;
+pub mod paced;
 pub mod serial;
 pub mod sim;
 pub mod unit;
