@@ -1,1 +1,395 @@
-//! See the crate documentation.
+//! Serial lines: one task per line owns the port and a protocol engine.
+//!
+//! A Modbus master line ([`spawn_modbus_master_line`]) polls its devices on a schedule, keeps their
+//! registers in the [`ProcessImage`](crate::image::ProcessImage), and carries writes and on-demand
+//! reads from the Modbus TCP server ([`DeviceUnit`]) through a bounded command queue.
+//!
+//! Modules:
+//! - [`plan`]: merging polled ranges into the fewest reads within a device's limits (pure);
+//! - `scheduler`: which request goes next (writes, on-demand reads, due polls, offline back-off);
+//! - `command`: the bounded command queue and the error-to-exception mapping;
+//! - `status`: diagnostic buffer, event counters, STATUS word, device states;
+//! - `driver`: clock conversion and timer helpers of the driver loop;
+//! - `modbus_master`: the line task itself;
+//! - `writeback`: the image refresh after a confirmed write, the broadcast echo;
+//! - `device_unit`: a polled device as a Modbus TCP unit.
+
+mod command;
+mod device_unit;
+mod driver;
+mod modbus_master;
+pub mod plan;
+mod scheduler;
+mod status;
+mod writeback;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use proto_core::modbus::master::MasterConfig;
+use tokio::sync::{broadcast, mpsc};
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+
+pub use command::{
+    exception_for, exception_for_queue, CommandError, CommandResult, LineClient, QueueError,
+};
+pub use device_unit::DeviceUnit;
+pub use modbus_master::{EVENT_PORT_LOST, EVENT_PORT_SETUP};
+pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
+pub use status::{DeviceStatus, LineEvent, LineStatus, DEFAULT_DIAG_DEPTH};
+
+use crate::image::{ProcessImage, Table};
+use crate::serial::PortSettings;
+
+/// Depth of a line's command queue by default.
+pub const DEFAULT_QUEUE_DEPTH: usize = 16;
+/// First delay before reopening a failed port by default.
+pub const DEFAULT_REOPEN_MIN: Duration = Duration::from_millis(500);
+/// Longest delay between reopen attempts by default.
+pub const DEFAULT_REOPEN_MAX: Duration = Duration::from_secs(30);
+/// Slack on top of the master's own reply monitoring for a command's deadline by default.
+pub const DEFAULT_COMMAND_SLACK: Duration = Duration::from_secs(1);
+
+/// Settings of one Modbus master line.
+#[derive(Clone, Debug)]
+pub struct LineSettings {
+    /// The line's name (logs, status, keys).
+    pub name: String,
+    /// The serial port.
+    pub port: PortSettings,
+    /// The master engine: framing, reply monitoring time, retries, operating mode.
+    pub master: MasterConfig,
+    /// How many commands may wait or be in flight on the line (one more answers 0x06).
+    pub queue_depth: usize,
+    /// Depth of the diagnostic buffer (the CP keeps 9).
+    pub diag_depth: usize,
+    /// First delay before reopening a failed port.
+    pub reopen_min: Duration,
+    /// Longest delay between reopen attempts.
+    pub reopen_max: Duration,
+    /// How long a command waits for its answer, queueing included (`None`: the master's reply
+    /// monitoring time x (retries + 1) + [`DEFAULT_COMMAND_SLACK`]).
+    pub command_deadline: Option<Duration>,
+}
+
+// === impl LineSettings ===
+
+impl LineSettings {
+    /// A Modbus master RTU line on `port` with the master's defaults for its baud rate and frame.
+    pub fn rtu(name: impl Into<String>, port: PortSettings) -> Self {
+        let master = MasterConfig::rtu(port.baud, port.bits_per_char());
+        Self {
+            name: name.into(),
+            port,
+            master,
+            queue_depth: DEFAULT_QUEUE_DEPTH,
+            diag_depth: DEFAULT_DIAG_DEPTH,
+            reopen_min: DEFAULT_REOPEN_MIN,
+            reopen_max: DEFAULT_REOPEN_MAX,
+            command_deadline: None,
+        }
+    }
+
+    /// How long a command waits for its answer.
+    pub fn command_deadline(&self) -> Duration {
+        self.command_deadline.unwrap_or_else(|| {
+            let attempts = u32::from(self.master.retries) + 1;
+            self.master.reply_timeout.saturating_mul(attempts) + DEFAULT_COMMAND_SLACK
+        })
+    }
+}
+
+/// Default back-off before the first retry of a device that stopped answering.
+pub const DEFAULT_DEVICE_BACKOFF_MIN: Duration = Duration::from_secs(1);
+/// Default longest back-off of a device that stopped answering.
+pub const DEFAULT_DEVICE_BACKOFF_MAX: Duration = Duration::from_secs(30);
+
+/// A set of ranges of one table polled at one period.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PollGroup {
+    /// How often the ranges are read.
+    pub period: Duration,
+    /// The table read.
+    pub table: Table,
+    /// The polled ranges (merged by [`merge_ranges`] within the device's limits).
+    pub ranges: Vec<AddrRange>,
+}
+
+/// One polled device on a Modbus master line.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DeviceSettings {
+    /// Name for logs, status and keys.
+    pub name: String,
+    /// Its Modbus address on the serial line (1..247).
+    pub slave: u8,
+    /// The unit id under which the image and the Modbus TCP server keep it.
+    pub unit_id: u8,
+    /// What it accepts in one request.
+    pub limits: DeviceLimits,
+    /// What is polled and how often.
+    pub groups: Vec<PollGroup>,
+    /// First delay before retrying the device after it stopped answering.
+    pub backoff_min: Duration,
+    /// Longest delay between retries of an offline device.
+    pub backoff_max: Duration,
+}
+
+// === impl DeviceSettings ===
+
+impl DeviceSettings {
+    /// A device with no poll groups, the CP's limits and the default back-off.
+    pub fn new(name: impl Into<String>, slave: u8, unit_id: u8) -> Self {
+        Self {
+            name: name.into(),
+            slave,
+            unit_id,
+            limits: DeviceLimits::default(),
+            groups: Vec::new(),
+            backoff_min: DEFAULT_DEVICE_BACKOFF_MIN,
+            backoff_max: DEFAULT_DEVICE_BACKOFF_MAX,
+        }
+    }
+
+    /// The reads that serve every poll group: groups of the same table and period are merged
+    /// together, each within the device's limits.
+    pub fn read_blocks(&self) -> Vec<ReadBlock> {
+        let mut keys: Vec<(Table, Duration)> =
+            self.groups.iter().map(|g| (g.table, g.period)).collect();
+        keys.sort_unstable();
+        keys.dedup();
+        let mut blocks = Vec::new();
+        for (table, period) in keys {
+            let ranges: Vec<AddrRange> = self
+                .groups
+                .iter()
+                .filter(|g| g.table == table && g.period == period)
+                .flat_map(|g| g.ranges.iter().copied())
+                .collect();
+            let max = self.limits.max_read(table);
+            blocks.extend(
+                merge_ranges(&ranges, max, self.limits.bridge_gap)
+                    .into_iter()
+                    .map(|range| ReadBlock {
+                        table,
+                        range,
+                        period,
+                    }),
+            );
+        }
+        blocks
+    }
+
+    /// Every problem of the settings, all at once (empty: valid): slave address 1..247 (003 6.4.3
+    /// "ADDR": 0 is broadcast, which is never polled), limits within the CP's (1..127 registers,
+    /// 1..2040 bits, 003 6.4.4), periods above zero, ranges inside the address space and the
+    /// back-off bounds ordered.
+    pub fn validate(&self) -> Vec<String> {
+        let mut issues = Vec::new();
+        let name = &self.name;
+        if !(1..=247).contains(&self.slave) {
+            issues.push(format!(
+                "device {name}: slave address {} is outside 1..247",
+                self.slave
+            ));
+        }
+        let cp = DeviceLimits::CP341;
+        for (what, value, max) in [
+            ("max_read_regs", self.limits.max_read_regs, cp.max_read_regs),
+            (
+                "max_write_regs",
+                self.limits.max_write_regs,
+                cp.max_write_regs,
+            ),
+            ("max_read_bits", self.limits.max_read_bits, cp.max_read_bits),
+            (
+                "max_write_bits",
+                self.limits.max_write_bits,
+                cp.max_write_bits,
+            ),
+        ] {
+            if !(1..=max).contains(&value) {
+                issues.push(format!(
+                    "device {name}: {what} {value} is outside 1..{max} (the CP master's limit)"
+                ));
+            }
+        }
+        for (i, group) in self.groups.iter().enumerate() {
+            if group.period.is_zero() {
+                issues.push(format!(
+                    "device {name}: poll group {i} has a period of zero"
+                ));
+            }
+            if group.ranges.is_empty() {
+                issues.push(format!("device {name}: poll group {i} has no ranges"));
+            }
+            for range in &group.ranges {
+                if range.count == 0 || range.end() > 0x1_0000 {
+                    issues.push(format!(
+                        "device {name}: poll group {i} range {}+{} is empty or runs past 65535",
+                        range.start, range.count
+                    ));
+                }
+            }
+        }
+        if let Err(err) = crate::serial::Backoff::try_new(self.backoff_min, self.backoff_max) {
+            issues.push(format!("device {name}: back-off: {err}"));
+        }
+        issues
+    }
+
+    /// The poll period of the fastest group that polls `address` of `table`, if any.
+    pub fn poll_period(&self, table: Table, address: u16) -> Option<Duration> {
+        self.groups
+            .iter()
+            .filter(|g| {
+                g.table == table
+                    && g.ranges
+                        .iter()
+                        .any(|r| r.contains(AddrRange::new(address, 1)))
+            })
+            .map(|g| g.period)
+            .min()
+    }
+
+    /// Whether every address of `range` in `table` is polled.
+    pub fn is_polled(&self, table: Table, range: AddrRange) -> bool {
+        (u32::from(range.start)..range.end()).all(|a| {
+            u16::try_from(a).is_ok_and(|a| {
+                self.groups.iter().any(|g| {
+                    g.table == table && g.ranges.iter().any(|r| r.contains(AddrRange::new(a, 1)))
+                })
+            })
+        })
+    }
+}
+
+/// A running line: its status, its command queue and its devices as Modbus TCP units.
+#[derive(Debug)]
+pub struct LineHandle {
+    name: String,
+    client: LineClient,
+    shared: Arc<status::Shared>,
+    devices: Vec<Arc<DeviceSettings>>,
+    image: ProcessImage,
+    task: JoinHandle<()>,
+}
+
+// === impl LineHandle ===
+
+impl LineHandle {
+    /// The line's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// A snapshot of the line's state: port, diagnostic buffer (newest first), event counters,
+    /// last STATUS word, devices.
+    pub fn status(&self) -> LineStatus {
+        self.shared.snapshot()
+    }
+
+    /// A client of the line's command queue.
+    pub fn client(&self) -> LineClient {
+        self.client.clone()
+    }
+
+    /// The line's events as they happen (bounded; a lagging receiver is told how many it missed).
+    pub fn subscribe_events(&self) -> broadcast::Receiver<LineEvent> {
+        self.shared.subscribe()
+    }
+
+    /// Every device of the line as a Modbus TCP unit, with its unit id.
+    pub fn device_units(&self) -> Vec<(u8, DeviceUnit)> {
+        self.devices
+            .iter()
+            .enumerate()
+            .map(|(index, device)| {
+                let unit = DeviceUnit::new(
+                    Arc::clone(device),
+                    index,
+                    Arc::clone(&self.shared),
+                    self.client.clone(),
+                    self.image.clone(),
+                );
+                (device.unit_id, unit)
+            })
+            .collect()
+    }
+
+    /// The device named `name` as a Modbus TCP unit.
+    pub fn device_unit(&self, name: &str) -> Option<DeviceUnit> {
+        self.device_units()
+            .into_iter()
+            .map(|(_, u)| u)
+            .find(|u| u.device().name == name)
+    }
+
+    /// Waits for the line task to end (after the shutdown token was cancelled).
+    pub async fn join(self) {
+        if let Err(err) = self.task.await {
+            tracing::error!(line = %self.name, %err, "line task failed");
+        }
+    }
+}
+
+/// Starts a Modbus master line: opens its port (reopening with back-off), polls `devices` into
+/// `image`, and serves commands until `shutdown` is cancelled. Must be called within a tokio
+/// runtime.
+pub fn spawn_modbus_master_line(
+    settings: LineSettings,
+    devices: Vec<DeviceSettings>,
+    image: ProcessImage,
+    shutdown: CancellationToken,
+) -> LineHandle {
+    let (tx, rx) = mpsc::channel(settings.queue_depth.max(1));
+    let devices: Vec<Arc<DeviceSettings>> = devices.into_iter().map(Arc::new).collect();
+    let status = LineStatus {
+        name: settings.name.clone(),
+        port_open: false,
+        port_error: None,
+        port_opens: 0,
+        status_word: 0,
+        diagnostics: Vec::new(),
+        last_event: None,
+        started: std::time::SystemTime::now(),
+        event_counts: std::collections::BTreeMap::new(),
+        devices: devices
+            .iter()
+            .map(|d| DeviceStatus {
+                name: d.name.clone(),
+                slave: d.slave,
+                unit_id: d.unit_id,
+                online: true,
+                polls_ok: 0,
+                polls_exception: 0,
+                polls_failed: 0,
+                last_answer: None,
+            })
+            .collect(),
+        commands_answered: 0,
+        commands_failed: 0,
+    };
+    let clock = driver::Clock::start();
+    let shared = status::Shared::new(status, settings.diag_depth, clock);
+    let client = LineClient::new(tx, settings.queue_depth.max(1), settings.command_deadline());
+    let name = settings.name.clone();
+    let task = modbus_master::LineTask::new(
+        settings,
+        devices.clone(),
+        image.clone(),
+        Arc::clone(&shared),
+        rx,
+        shutdown,
+        clock,
+    );
+    let task = tokio::spawn(task.run());
+    LineHandle {
+        name,
+        client,
+        shared,
+        devices,
+        image,
+        task,
+    }
+}

@@ -1,0 +1,268 @@
+use std::time::Duration;
+
+use tokio::sync::broadcast::error::TryRecvError;
+
+use super::*;
+
+#[tokio::test(start_paused = true)]
+async fn a_stored_range_reads_back_good_and_turns_stale_after_factor_periods() {
+    let image = ProcessImage::new(ImageConfig {
+        stale_factor: 3,
+        notify_capacity: 8,
+    });
+    let period = Duration::from_millis(100);
+    image.store_words(
+        2,
+        Table::HoldingRegisters,
+        3102,
+        &[40, 600, 500, 0],
+        Some(period),
+    );
+
+    let read = image
+        .read_words(2, Table::HoldingRegisters, 3102, 4)
+        .unwrap();
+    assert_eq!(read.values, vec![40, 600, 500, 0]);
+    assert_eq!(read.quality, Quality::Good);
+
+    tokio::time::advance(Duration::from_millis(300)).await;
+    assert_eq!(
+        image
+            .read_words(2, Table::HoldingRegisters, 3103, 2)
+            .unwrap()
+            .quality,
+        Quality::Good
+    );
+    tokio::time::advance(Duration::from_millis(1)).await;
+    assert_eq!(
+        image
+            .read_words(2, Table::HoldingRegisters, 3103, 2)
+            .unwrap()
+            .quality,
+        Quality::Stale
+    );
+
+    // A fresh store of part of the range: the worst quality and the oldest time still come from
+    // the old part.
+    image.store_words(2, Table::HoldingRegisters, 3102, &[41], Some(period));
+    let read = image
+        .read_words(2, Table::HoldingRegisters, 3102, 2)
+        .unwrap();
+    assert_eq!(read.values, vec![41, 600]);
+    assert_eq!(read.quality, Quality::Stale);
+    assert_eq!(
+        image
+            .read_words(2, Table::HoldingRegisters, 3102, 1)
+            .unwrap()
+            .quality,
+        Quality::Good
+    );
+    let fresh = image
+        .read_words(2, Table::HoldingRegisters, 3102, 1)
+        .unwrap()
+        .oldest_at;
+    assert!(read.oldest_at < fresh);
+}
+
+#[test]
+fn unpolled_values_never_turn_stale_and_tables_are_separate() {
+    let image = ProcessImage::default();
+    image.store_bits(5, Table::Coils, 10, &[true, false, true], None);
+    assert_eq!(
+        image.read_bits(5, Table::Coils, 10, 3).unwrap().values,
+        vec![true, false, true]
+    );
+    assert_eq!(
+        image.read_bits(5, Table::DiscreteInputs, 10, 1),
+        Err(ImageError::Missing {
+            unit: 5,
+            table: Table::DiscreteInputs,
+            address: 10
+        })
+    );
+    assert_eq!(
+        image.read_words(6, Table::Coils, 10, 1),
+        Err(ImageError::UnknownUnit(6))
+    );
+}
+
+#[test]
+fn a_gap_or_a_range_past_the_end_is_reported() {
+    let image = ProcessImage::default();
+    image.store_words(1, Table::InputRegisters, 0, &[1, 2], None);
+    image.store_words(1, Table::InputRegisters, 3, &[4], None);
+    assert_eq!(
+        image.read_words(1, Table::InputRegisters, 0, 4),
+        Err(ImageError::Missing {
+            unit: 1,
+            table: Table::InputRegisters,
+            address: 2
+        })
+    );
+    assert_eq!(
+        image.read_words(1, Table::InputRegisters, 3, 2),
+        Err(ImageError::Missing {
+            unit: 1,
+            table: Table::InputRegisters,
+            address: 4
+        })
+    );
+    assert_eq!(
+        image.read_words(1, Table::InputRegisters, 0xFFFF, 2),
+        Err(ImageError::InvalidRange {
+            start: 0xFFFF,
+            count: 2
+        })
+    );
+    assert_eq!(
+        image.read_words(1, Table::InputRegisters, 0, 0),
+        Err(ImageError::InvalidRange { start: 0, count: 0 })
+    );
+    // Storing at the top of the address space stops at 65535 instead of wrapping.
+    image.store_words(1, Table::InputRegisters, 0xFFFF, &[7, 8], None);
+    assert_eq!(
+        image
+            .read_words(1, Table::InputRegisters, 0xFFFF, 1)
+            .unwrap()
+            .values,
+        vec![7]
+    );
+    assert_eq!(
+        image
+            .read_words(1, Table::InputRegisters, 0, 1)
+            .unwrap()
+            .values,
+        vec![1]
+    );
+}
+
+#[test]
+fn quality_changes_mark_stored_values_only_and_are_announced_in_runs() {
+    let image = ProcessImage::default();
+    image.store_words(3, Table::HoldingRegisters, 100, &[1, 2, 3], None);
+    image.store_words(3, Table::HoldingRegisters, 200, &[9], None);
+    let mut rx = image.subscribe();
+
+    image.set_unit_quality(3, Quality::CommFailure);
+    let first = rx.try_recv().unwrap();
+    assert_eq!(
+        (first.start, first.values.clone(), first.quality),
+        (100, vec![1, 2, 3], Quality::CommFailure)
+    );
+    let second = rx.try_recv().unwrap();
+    assert_eq!((second.start, second.values), (200, vec![9]));
+    assert_eq!(rx.try_recv(), Err(TryRecvError::Empty));
+    let read = image
+        .read_words(3, Table::HoldingRegisters, 100, 3)
+        .unwrap();
+    assert_eq!(
+        (read.values, read.quality),
+        (vec![1, 2, 3], Quality::CommFailure)
+    );
+
+    // Setting the same quality again changes nothing and announces nothing.
+    image.set_quality(3, Table::HoldingRegisters, 100, 3, Quality::CommFailure);
+    assert_eq!(rx.try_recv(), Err(TryRecvError::Empty));
+    // An unknown unit or range is a no-op.
+    image.set_quality(9, Table::HoldingRegisters, 0, 10, Quality::Stale);
+    image.set_quality(3, Table::HoldingRegisters, 0xFFFF, 0, Quality::Stale);
+
+    image.set_quality(3, Table::HoldingRegisters, 101, 1, Quality::Good);
+    let change = rx.try_recv().unwrap();
+    assert_eq!(
+        (change.start, change.values, change.quality),
+        (101, vec![2], Quality::Good)
+    );
+}
+
+#[test]
+fn stores_announce_only_what_changed() {
+    let image = ProcessImage::default();
+    let mut rx = image.subscribe();
+    image.store_words(1, Table::HoldingRegisters, 0, &[5, 6], None);
+    assert_eq!(rx.try_recv().unwrap().values, vec![5, 6]);
+    image.store_words(1, Table::HoldingRegisters, 0, &[5, 6], None);
+    assert_eq!(rx.try_recv(), Err(TryRecvError::Empty));
+    image.store_words(1, Table::HoldingRegisters, 1, &[7], None);
+    let change = rx.try_recv().unwrap();
+    assert_eq!(
+        (change.unit, change.table, change.start, change.values),
+        (1, Table::HoldingRegisters, 1, vec![7])
+    );
+}
+
+#[test]
+fn a_lagging_subscriber_learns_how_many_changes_it_missed() {
+    let image = ProcessImage::new(ImageConfig {
+        stale_factor: 3,
+        notify_capacity: 2,
+    });
+    let mut rx = image.subscribe();
+    for v in 0..5 {
+        image.store_words(1, Table::HoldingRegisters, 0, &[v], None);
+    }
+    assert_eq!(rx.try_recv(), Err(TryRecvError::Lagged(3)));
+    assert_eq!(rx.try_recv().unwrap().values, vec![3]);
+}
+
+#[test]
+fn snapshot_lists_a_table_in_address_order() {
+    let image = ProcessImage::default();
+    image.store_words(4, Table::InputRegisters, 1004, &[1066, 140, 4158], None);
+    image.store_words(4, Table::InputRegisters, 10, &[1], None);
+    let snap = image.snapshot(4, Table::InputRegisters);
+    let addrs: Vec<(u16, u16)> = snap.iter().map(|s| (s.address, s.value)).collect();
+    assert_eq!(
+        addrs,
+        vec![(10, 1), (1004, 1066), (1005, 140), (1006, 4158)]
+    );
+    assert_eq!(image.units(), vec![4]);
+    assert!(image.snapshot(5, Table::Coils).is_empty());
+}
+
+#[tokio::test(start_paused = true)]
+async fn refresh_updates_only_values_already_in_the_image_and_keeps_their_period() {
+    let image = ProcessImage::new(ImageConfig {
+        stale_factor: 2,
+        notify_capacity: 8,
+    });
+    image.store_words(
+        2,
+        Table::HoldingRegisters,
+        9001,
+        &[10, 20],
+        Some(Duration::from_millis(100)),
+    );
+    let mut rx = image.subscribe();
+    tokio::time::advance(Duration::from_millis(150)).await;
+    // A write of 9000..9002 through to the device: 9000 is not polled and stays out.
+    image.refresh_words(2, Table::HoldingRegisters, 9000, &[1, 13, 20]);
+    assert_eq!(
+        image.read_words(2, Table::HoldingRegisters, 9000, 1),
+        Err(ImageError::Missing {
+            unit: 2,
+            table: Table::HoldingRegisters,
+            address: 9000
+        })
+    );
+    let read = image
+        .read_words(2, Table::HoldingRegisters, 9001, 2)
+        .unwrap();
+    assert_eq!((read.values, read.quality), (vec![13, 20], Quality::Good));
+    // One change for the run that changed (9001, value 13; 9002 is in the same run).
+    let change = rx.try_recv().unwrap();
+    assert_eq!((change.start, change.values), (9001, vec![13, 20]));
+    assert_eq!(rx.try_recv(), Err(TryRecvError::Empty));
+    // Still the poll period's freshness limit (2 x 100 ms).
+    tokio::time::advance(Duration::from_millis(201)).await;
+    assert_eq!(
+        image
+            .read_words(2, Table::HoldingRegisters, 9001, 2)
+            .unwrap()
+            .quality,
+        Quality::Stale
+    );
+    // An unknown unit is left alone.
+    image.refresh_bits(3, Table::Coils, 0, &[true]);
+    assert_eq!(image.units(), vec![2]);
+}

@@ -1,0 +1,478 @@
+//! The Modbus master line task: owns the port and a [`Master`], polls the devices on schedule,
+//! keeps the image, carries commands, and reopens the port with back-off when it fails.
+//!
+//! The driver loop (STYLE "serial/driver.rs"): start the next job when the master is idle, write
+//! what the master transmits and tell it the estimated end of transmission, hand its events to the
+//! image and the status, then wait for bytes, the master's deadline, the next poll, a command or
+//! shutdown. On shutdown the request in flight is finished first (STYLE habit 9).
+
+use std::sync::Arc;
+use std::time::SystemTime;
+
+use proto_core::event::{ids, EventId};
+use proto_core::modbus::master::{Master, MasterEvent, Outcome, RequestId};
+use proto_core::modbus::pdu::{Request, Response};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::sync::mpsc;
+use tokio::time::Instant;
+use tokio_serial::SerialStream;
+use tokio_util::sync::CancellationToken;
+
+use super::command::{Command, CommandError, CommandResult};
+use super::driver::{estimated_tx_end, sleep_until_opt, Clock};
+use super::scheduler::{Job, PollJob, Scheduler, Transition};
+use super::status::Shared;
+use super::writeback::{broadcast_echo, refresh_image};
+use super::{DeviceSettings, LineSettings};
+use crate::image::{ProcessImage, Quality, Table};
+use crate::serial::{self, Backoff};
+
+/// The port could not be opened or set up: 003 7.2 event 02 0Fh "Interface could not be
+/// parameterized" (also for RS485 mode refused by the driver).
+pub const EVENT_PORT_SETUP: EventId = ids::INVALID_PARAMETERIZATION;
+/// The open port failed (read or write error, end of file: the device node vanished): 003 7.2
+/// event 08 0Dh "BREAK: receive line to partner is interrupted".
+pub const EVENT_PORT_LOST: EventId = ids::LINE_BREAK;
+
+/// What is in flight on the line.
+#[derive(Debug)]
+enum InFlight {
+    Poll(PollJob),
+    Command {
+        device: Option<usize>,
+        command: Command,
+    },
+}
+
+/// Why the driver loop ended.
+#[derive(Debug)]
+enum PortExit {
+    Shutdown,
+    Lost(String),
+}
+
+/// The task of one Modbus master line.
+pub(crate) struct LineTask {
+    pub(crate) settings: LineSettings,
+    pub(crate) devices: Vec<Arc<DeviceSettings>>,
+    pub(crate) image: ProcessImage,
+    pub(crate) shared: Arc<Shared>,
+    pub(crate) commands: mpsc::Receiver<Command>,
+    pub(crate) shutdown: CancellationToken,
+    pub(crate) clock: Clock,
+    pub(crate) sched: Scheduler<Command>,
+    inflight: Option<(RequestId, InFlight)>,
+    commands_open: bool,
+}
+
+// === impl LineTask ===
+
+impl LineTask {
+    pub(crate) fn new(
+        settings: LineSettings,
+        devices: Vec<Arc<DeviceSettings>>,
+        image: ProcessImage,
+        shared: Arc<Shared>,
+        commands: mpsc::Receiver<Command>,
+        shutdown: CancellationToken,
+        clock: Clock,
+    ) -> Self {
+        let sched = Scheduler::new(devices.iter().map(|d| &**d), clock.base());
+        Self {
+            settings,
+            devices,
+            image,
+            shared,
+            commands,
+            shutdown,
+            clock,
+            sched,
+            inflight: None,
+            commands_open: true,
+        }
+    }
+
+    /// Opens the port, drives it until it fails, reopens with back-off; until shutdown.
+    pub(crate) async fn run(mut self) {
+        let mut reopen = Backoff::clamped(self.settings.reopen_min, self.settings.reopen_max);
+        loop {
+            match serial::open(&self.settings.port) {
+                Ok(port) => {
+                    reopen.reset();
+                    self.shared.update(|s| {
+                        s.port_open = true;
+                        s.port_error = None;
+                        s.port_opens += 1;
+                    });
+                    tracing::info!(line = %self.settings.name, path = %self.settings.port.path, "port open");
+                    let exit = self.drive(port).await;
+                    self.shared.update(|s| s.port_open = false);
+                    if let Some((_, InFlight::Command { command, .. })) = self.inflight.take() {
+                        command.answer(Err(CommandError::PortClosed));
+                    }
+                    match exit {
+                        PortExit::Shutdown => break,
+                        PortExit::Lost(reason) => self.port_failed(EVENT_PORT_LOST, reason),
+                    }
+                }
+                Err(err) => self.port_failed(EVENT_PORT_SETUP, err.to_string()),
+            }
+            let delay = reopen.next_delay();
+            tracing::info!(line = %self.settings.name, ?delay, "reopening the port after back-off");
+            if !self.wait_closed(delay).await {
+                break;
+            }
+        }
+        for command in self.sched.drain_commands() {
+            command.answer(Err(CommandError::ShuttingDown));
+        }
+        self.commands.close();
+        while let Some(command) = self.commands.recv().await {
+            command.answer(Err(CommandError::ShuttingDown));
+        }
+        tracing::info!(line = %self.settings.name, "line stopped");
+    }
+
+    /// The port failed: event, status, and every device's values marked as comm failure.
+    fn port_failed(&mut self, id: EventId, reason: String) {
+        self.shared.update(|s| s.port_error = Some(reason.clone()));
+        self.shared.raise(id, None, Some(reason));
+        for device in &self.devices {
+            self.image
+                .set_unit_quality(device.unit_id, Quality::CommFailure);
+        }
+    }
+
+    /// Waits `delay` with the port closed, answering commands at once. False on shutdown.
+    async fn wait_closed(&mut self, delay: std::time::Duration) -> bool {
+        for command in self.sched.drain_commands() {
+            command.answer(Err(CommandError::PortClosed));
+        }
+        let until = Instant::now() + delay;
+        loop {
+            tokio::select! {
+                biased;
+                () = self.shutdown.cancelled() => return false,
+                () = tokio::time::sleep_until(until) => return true,
+                command = self.commands.recv(), if self.commands_open => match command {
+                    Some(command) => command.answer(Err(CommandError::PortClosed)),
+                    None => self.commands_open = false,
+                },
+            }
+        }
+    }
+
+    /// The driver loop on an open port.
+    async fn drive(&mut self, mut port: SerialStream) -> PortExit {
+        let mut master = Master::new(self.settings.master);
+        let char_time = self.settings.port.char_time();
+        let mut stopping = false;
+        let mut buf = [0u8; 512];
+        loop {
+            let (now, engine_now) = self.clock.now();
+            // A deadline already passed is handled without sleeping (quinn drive_timer).
+            if master
+                .poll_timeout()
+                .is_some_and(|t| self.clock.to_tokio(t) <= now)
+            {
+                master.handle_timeout(engine_now);
+            }
+            if self.inflight.is_none() && master.is_idle() {
+                if stopping {
+                    return PortExit::Shutdown;
+                }
+                self.start_next(&mut master, now);
+            }
+            while let Some(frame) = master.poll_transmit() {
+                if let Err(err) = port.write_all(&frame).await {
+                    return PortExit::Lost(format!(
+                        "write to {} failed: {err}",
+                        self.settings.port.path
+                    ));
+                }
+                let end = estimated_tx_end(Instant::now(), frame.len(), char_time);
+                master.handle_tx_done(self.clock.to_engine(end));
+            }
+            let mut completed = false;
+            while let Some(event) = master.poll_event() {
+                match event {
+                    // Slave 0: raised while the line was idle.
+                    MasterEvent::Raised { id, slave } => {
+                        self.shared.raise(id, (slave != 0).then_some(slave), None);
+                    }
+                    MasterEvent::Completed {
+                        id,
+                        slave,
+                        request,
+                        outcome,
+                    } => {
+                        completed = true;
+                        match self.inflight.take() {
+                            Some((expected, job)) if expected == id => {
+                                self.complete(job, slave, &request, outcome);
+                            }
+                            other => {
+                                tracing::error!(line = %self.settings.name, slave, "completion of a request not in flight");
+                                self.inflight = other;
+                            }
+                        }
+                    }
+                    // This line never submits 32-bit register jobs.
+                    MasterEvent::Completed32 { slave, .. } => {
+                        tracing::error!(line = %self.settings.name, slave, "completion of a 32-bit job never submitted");
+                    }
+                }
+            }
+            if completed {
+                continue; // start the next job at once
+            }
+
+            let master_deadline = master.poll_timeout().map(|t| self.clock.to_tokio(t));
+            let idle = self.inflight.is_none() && master.is_idle() && !stopping;
+            let poll_deadline = if idle { self.sched.next_wake() } else { None };
+            tokio::select! {
+                biased;
+                () = self.shutdown.cancelled(), if !stopping => {
+                    stopping = true;
+                    for command in self.sched.drain_commands() {
+                        command.answer(Err(CommandError::ShuttingDown));
+                    }
+                }
+                read = port.read(&mut buf) => match read {
+                    Ok(0) => return PortExit::Lost(format!("{} reached end of file", self.settings.port.path)),
+                    Ok(n) => {
+                        let (_, engine_now) = self.clock.now();
+                        master.handle_rx(engine_now, buf.get(..n).unwrap_or_default());
+                    }
+                    Err(err) => return PortExit::Lost(format!("read from {} failed: {err}", self.settings.port.path)),
+                },
+                () = sleep_until_opt(master_deadline) => {
+                    let (_, engine_now) = self.clock.now();
+                    master.handle_timeout(engine_now);
+                }
+                () = sleep_until_opt(poll_deadline) => {}
+                command = self.commands.recv(), if self.commands_open && !stopping => match command {
+                    Some(command) if command.is_write() => self.sched.push_write(command),
+                    Some(command) => self.sched.push_read(command),
+                    None => self.commands_open = false,
+                },
+            }
+        }
+    }
+
+    /// Submits the next job to the idle master; answers commands that cannot be sent.
+    fn start_next(&mut self, master: &mut Master, now: Instant) {
+        let engine_now = self.clock.to_engine(now);
+        while let Some(job) = self.sched.next_job(now) {
+            match job {
+                Job::Command(command) => {
+                    let device = self.sched.device_index(command.slave);
+                    if device.is_some_and(|d| !self.sched.accepts_commands(d, now)) {
+                        let slave = command.slave;
+                        command.answer(Err(CommandError::Offline(slave)));
+                        continue;
+                    }
+                    match master.submit(engine_now, command.slave, command.request.clone()) {
+                        Ok(id) => {
+                            self.inflight = Some((id, InFlight::Command { device, command }));
+                            return;
+                        }
+                        Err(err) => command.answer(Err(CommandError::Refused(err.to_string()))),
+                    }
+                }
+                Job::Poll(poll) => {
+                    let Some(device) = self.devices.get(poll.device) else {
+                        continue;
+                    };
+                    match master.submit(engine_now, device.slave, poll.read.request()) {
+                        Ok(id) => {
+                            self.inflight = Some((id, InFlight::Poll(poll)));
+                            return;
+                        }
+                        Err(err) => {
+                            tracing::error!(
+                                line = %self.settings.name, device = %device.name, error = %err,
+                                "poll refused by the master; check the device limits"
+                            );
+                            let range = poll.read.range;
+                            self.image.set_quality(
+                                device.unit_id,
+                                poll.read.table,
+                                range.start,
+                                range.count,
+                                Quality::Rejected,
+                            );
+                            self.sched.postpone(poll, now);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Handles the end of the request in flight.
+    fn complete(&mut self, job: InFlight, slave: u8, request: &Request, outcome: Outcome) {
+        let now = Instant::now();
+        match job {
+            InFlight::Poll(poll) => {
+                let Some(device) = self.devices.get(poll.device).cloned() else {
+                    return;
+                };
+                let range = poll.read.range;
+                let answered = match outcome {
+                    Outcome::Response(response) => {
+                        self.store_poll(&device, &poll, response);
+                        self.device_stat(poll.device, |d| d.polls_ok += 1);
+                        true
+                    }
+                    Outcome::Exception(code) => {
+                        tracing::debug!(line = %self.settings.name, device = %device.name, ?code, ?range, "poll answered with an exception");
+                        self.image.set_quality(
+                            device.unit_id,
+                            poll.read.table,
+                            range.start,
+                            range.count,
+                            Quality::Rejected,
+                        );
+                        self.device_stat(poll.device, |d| d.polls_exception += 1);
+                        true
+                    }
+                    Outcome::Broadcast => true,
+                    Outcome::Failed(_) => {
+                        self.device_stat(poll.device, |d| d.polls_failed += 1);
+                        false
+                    }
+                };
+                let transition = self.sched.poll_done(poll, answered, now);
+                self.apply(poll.device, transition);
+            }
+            InFlight::Command { device, command } => {
+                let result: CommandResult = match outcome {
+                    Outcome::Response(response) => {
+                        if let Some(d) = device.and_then(|d| self.devices.get(d)) {
+                            refresh_image(&self.image, d.unit_id, request, &response);
+                        }
+                        Ok(Ok(response))
+                    }
+                    Outcome::Exception(code) => Ok(Err(code)),
+                    Outcome::Broadcast => broadcast_echo(request)
+                        .map(Ok)
+                        .ok_or_else(|| CommandError::Refused("broadcast of a read".into())),
+                    Outcome::Failed(event) => Err(CommandError::NoReply { slave, event }),
+                };
+                let answered = !matches!(result, Err(CommandError::NoReply { .. }));
+                self.shared.update(|s| {
+                    if answered {
+                        s.commands_answered += 1;
+                    } else {
+                        s.commands_failed += 1;
+                    }
+                });
+                if let Some(d) = device {
+                    if answered {
+                        self.device_stat(d, |s| s.last_answer = Some(SystemTime::now()));
+                    }
+                    let transition = self.sched.observe(d, answered, now);
+                    self.apply(d, transition);
+                }
+                command.answer(result);
+            }
+        }
+    }
+
+    fn device_stat(&self, index: usize, f: impl FnOnce(&mut super::status::DeviceStatus)) {
+        self.shared.update(|s| {
+            if let Some(d) = s.devices.get_mut(index) {
+                f(d);
+            }
+        });
+    }
+
+    /// Stores a poll's answer in the image.
+    fn store_poll(&self, device: &DeviceSettings, poll: &PollJob, response: Response) {
+        let unit = device.unit_id;
+        let ReadBlockParts {
+            table,
+            start,
+            count,
+            period,
+        } = ReadBlockParts::of(poll);
+        self.device_stat(poll.device, |d| d.last_answer = Some(SystemTime::now()));
+        match (table, response) {
+            (Table::Coils, Response::ReadCoils(bits))
+            | (Table::DiscreteInputs, Response::ReadDiscreteInputs(bits)) => {
+                self.image.store_bits(
+                    unit,
+                    table,
+                    start,
+                    bits.get(..count).unwrap_or(&bits),
+                    Some(period),
+                );
+            }
+            (Table::HoldingRegisters, Response::ReadHoldingRegisters(words))
+            | (Table::InputRegisters, Response::ReadInputRegisters(words)) => {
+                self.image.store_words(
+                    unit,
+                    table,
+                    start,
+                    words.get(..count).unwrap_or(&words),
+                    Some(period),
+                );
+            }
+            (_, other) => {
+                tracing::error!(line = %self.settings.name, device = %device.name, ?other, "poll answered with another function");
+                self.image.set_quality(
+                    unit,
+                    table,
+                    start,
+                    poll.read.range.count,
+                    Quality::Rejected,
+                );
+            }
+        }
+    }
+
+    /// Applies a device's state change to the image and the status.
+    fn apply(&self, index: usize, transition: Transition) {
+        let Some(device) = self.devices.get(index) else {
+            return;
+        };
+        let line = &self.settings.name;
+        match transition {
+            Transition::Unchanged => {}
+            Transition::WentOffline { retry_in } => {
+                tracing::warn!(line = %line, device = %device.name, slave = device.slave, ?retry_in, "device offline");
+                self.image
+                    .set_unit_quality(device.unit_id, Quality::CommFailure);
+                self.device_stat(index, |d| d.online = false);
+            }
+            Transition::StillOffline { retry_in } => {
+                tracing::debug!(line = %line, device = %device.name, ?retry_in, "device still offline");
+            }
+            Transition::CameBack => {
+                tracing::info!(line = %line, device = %device.name, slave = device.slave, "device answers again");
+                self.device_stat(index, |d| d.online = true);
+            }
+        }
+    }
+}
+
+/// The parts of a poll's read block.
+struct ReadBlockParts {
+    table: Table,
+    start: u16,
+    count: usize,
+    period: std::time::Duration,
+}
+
+impl ReadBlockParts {
+    fn of(poll: &PollJob) -> Self {
+        let read = poll.read;
+        Self {
+            table: read.table,
+            start: read.range.start,
+            count: usize::from(read.range.count),
+            period: read.period,
+        }
+    }
+}

@@ -1,0 +1,210 @@
+//! What a line reports: its diagnostic buffer, event counters, last STATUS word, port and devices.
+//!
+//! The CP keeps the newest events of a line in a diagnostic buffer of 9 entries (003 7.3); the
+//! catalog's [`DiagBuffer`] does that here with a configurable depth. Every event is also counted
+//! by id, logged with its class name from the catalog, and sent to subscribers (metrics, zenoh) on
+//! a bounded broadcast channel.
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::SystemTime;
+
+use proto_core::event::{self, DiagBuffer, DiagEntry, EventId};
+use tokio::sync::broadcast;
+
+use super::driver::Clock;
+
+/// Depth of the diagnostic buffer by default: the CP's 9 entries (003 7.3).
+pub const DEFAULT_DIAG_DEPTH: usize = event::DEFAULT_DEPTH;
+
+/// Capacity of a line's event broadcast channel.
+const EVENT_CHANNEL_CAPACITY: usize = 256;
+
+/// An event of a line, as kept in the diagnostic buffer and sent to subscribers.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LineEvent {
+    /// The line's name.
+    pub line: String,
+    /// The event (class and number of 003 7.2).
+    pub id: EventId,
+    /// The slave concerned, if any.
+    pub slave: Option<u8>,
+    /// When it happened.
+    pub time: SystemTime,
+    /// Details for the log and the REST view (e.g. the operating system's error).
+    pub detail: Option<String>,
+}
+
+/// The state of one polled device.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DeviceStatus {
+    /// Its name.
+    pub name: String,
+    /// Its slave address.
+    pub slave: u8,
+    /// Its unit id in the image.
+    pub unit_id: u8,
+    /// Whether it answers (not backed off).
+    pub online: bool,
+    /// Polls answered with data.
+    pub polls_ok: u64,
+    /// Polls answered with an exception.
+    pub polls_exception: u64,
+    /// Polls without a valid answer (after the master's retries).
+    pub polls_failed: u64,
+    /// When it last answered.
+    pub last_answer: Option<SystemTime>,
+}
+
+/// A snapshot of a line's state ([`LineHandle::status`](super::LineHandle::status)).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct LineStatus {
+    /// The line's name.
+    pub name: String,
+    /// Whether the port is open.
+    pub port_open: bool,
+    /// Why the port last failed to open or was lost.
+    pub port_error: Option<String>,
+    /// How often the port was opened (1 after a clean start).
+    pub port_opens: u64,
+    /// The STATUS word of the newest event (bits 12..8 class, 7..0 number; 0 before any event).
+    pub status_word: u16,
+    /// The diagnostic buffer, newest first (repeats of the newest event merged, see
+    /// [`DiagBuffer`]); its instants count from `started`.
+    pub diagnostics: Vec<DiagEntry>,
+    /// The newest event with its wall-clock time and details.
+    pub last_event: Option<LineEvent>,
+    /// When the line started: the origin of the diagnostic buffer's instants.
+    pub started: SystemTime,
+    /// Events counted by id since the line started.
+    pub event_counts: BTreeMap<EventId, u64>,
+    /// The polled devices.
+    pub devices: Vec<DeviceStatus>,
+    /// Commands (writes, on-demand reads) answered by the device, exceptions included.
+    pub commands_answered: u64,
+    /// Commands that got no answer from the device.
+    pub commands_failed: u64,
+}
+
+/// The state shared between a line task and its handle.
+#[derive(Debug)]
+pub(crate) struct Shared {
+    status: Mutex<LineStatus>,
+    /// The diagnostic buffer, newest first.
+    diag: Mutex<DiagBuffer>,
+    /// The line's clock (the diagnostic buffer's instants).
+    clock: Clock,
+    events: broadcast::Sender<LineEvent>,
+}
+
+// === impl Shared ===
+
+impl Shared {
+    pub(crate) fn new(status: LineStatus, depth: usize, clock: Clock) -> Arc<Self> {
+        let (events, _) = broadcast::channel(EVENT_CHANNEL_CAPACITY);
+        Arc::new(Self {
+            status: Mutex::new(status),
+            diag: Mutex::new(DiagBuffer::new(depth)),
+            clock,
+            events,
+        })
+    }
+
+    /// Runs `f` on the status under its lock.
+    pub(crate) fn update<R>(&self, f: impl FnOnce(&mut LineStatus) -> R) -> R {
+        f(&mut self.status.lock().unwrap_or_else(PoisonError::into_inner))
+    }
+
+    /// A snapshot with the diagnostic buffer.
+    pub(crate) fn snapshot(&self) -> LineStatus {
+        let mut status = self.update(|s| s.clone());
+        let diag = self.diag.lock().unwrap_or_else(PoisonError::into_inner);
+        status.diagnostics = diag.iter().copied().collect();
+        status
+    }
+
+    pub(crate) fn subscribe(&self) -> broadcast::Receiver<LineEvent> {
+        self.events.subscribe()
+    }
+
+    /// Whether the device at `index` answers.
+    pub(crate) fn device_online(&self, index: usize) -> bool {
+        self.update(|s| s.devices.get(index).is_some_and(|d| d.online))
+    }
+
+    /// Records an event: diagnostic buffer, counter, STATUS word, log, subscribers.
+    pub(crate) fn raise(&self, id: EventId, slave: Option<u8>, detail: Option<String>) {
+        let (_, at) = self.clock.now();
+        self.diag
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .push(DiagEntry::new(id, at));
+        let event = self.update(|s| {
+            *s.event_counts.entry(id).or_default() += 1;
+            s.status_word = id.status_word();
+            let event = LineEvent {
+                line: s.name.clone(),
+                id,
+                slave,
+                time: SystemTime::now(),
+                detail,
+            };
+            s.last_event = Some(event.clone());
+            event
+        });
+        let class = event::class_name(id.class).unwrap_or("unknown class");
+        match &event.detail {
+            Some(detail) => {
+                tracing::warn!(line = %event.line, event = %id, class, slave, detail, "line event")
+            }
+            None => tracing::warn!(line = %event.line, event = %id, class, slave, "line event"),
+        }
+        // No subscriber: nobody to lose it.
+        let _ = self.events.send(event);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn status() -> LineStatus {
+        LineStatus {
+            name: "drive".into(),
+            port_open: false,
+            port_error: None,
+            port_opens: 0,
+            status_word: 0,
+            diagnostics: Vec::new(),
+            last_event: None,
+            started: SystemTime::now(),
+            event_counts: BTreeMap::new(),
+            devices: Vec::new(),
+            commands_answered: 0,
+            commands_failed: 0,
+        }
+    }
+
+    #[test]
+    fn the_diagnostic_buffer_keeps_the_newest_events_first() {
+        let shared = Shared::new(status(), 3, Clock::start());
+        let mut rx = shared.subscribe();
+        for n in 0..5u8 {
+            shared.raise(EventId::new(0x08, 0x30 + n), Some(2), None);
+        }
+        shared.raise(EventId::new(0x08, 0x30), None, Some("again".into()));
+        shared.raise(EventId::new(0x08, 0x30), None, None);
+        let s = shared.snapshot();
+        let ids: Vec<(u8, u32)> = s
+            .diagnostics
+            .iter()
+            .map(|e| (e.id.number, e.count))
+            .collect();
+        assert_eq!(ids, vec![(0x30, 2), (0x34, 1), (0x33, 1)]);
+        assert_eq!(s.status_word, 0x0830);
+        assert_eq!(s.event_counts[&EventId::new(0x08, 0x30)], 3);
+        assert_eq!(s.event_counts[&EventId::new(0x08, 0x34)], 1);
+        assert_eq!(s.last_event.unwrap().detail, None);
+        assert_eq!(rx.try_recv().unwrap().id, EventId::new(0x08, 0x30));
+    }
+}

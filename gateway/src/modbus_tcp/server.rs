@@ -1,0 +1,170 @@
+//! The accept loop: network filter, connection cap, accept errors, shutdown.
+
+use std::io;
+use std::net::SocketAddr;
+use std::sync::{Arc, RwLock};
+use std::time::Duration;
+
+use tokio::net::{TcpListener, TcpSocket, TcpStream};
+use tokio::sync::Semaphore;
+use tokio_util::sync::CancellationToken;
+use tokio_util::task::TaskTracker;
+use tracing::{debug, error, info, warn};
+
+use super::connection;
+use super::request::Shared;
+use super::stats::{AcceptError, RejectReason, ServerStats};
+use crate::unit::UnitMap;
+
+pub use super::options::{
+    ServerOptions, WriteRange, WriteTable, DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS,
+    DEFAULT_REQUEST_TIMEOUT,
+};
+
+/// The unit map the server answers from, replaceable at run time: take the write lock and swap
+/// the map. Each request clones its unit's service out and drops the lock before it waits.
+pub type SharedUnits = Arc<RwLock<UnitMap>>;
+
+/// Listen backlog of [`bind`]: room for a burst of clients connecting at once (SCADA stations
+/// reconnecting after a network outage). `TcpListener::bind` uses 128, and connections past a full
+/// queue wait for the kernel's SYN-ACK retransmission (1 s, then doubling).
+pub const DEFAULT_BACKLOG: u32 = 1024;
+
+/// Binds a listener for [`serve`] with [`DEFAULT_BACKLOG`] and `SO_REUSEADDR` (a restart does not
+/// wait for the old connections' TIME_WAIT). Must be called inside a tokio runtime.
+pub fn bind(addr: SocketAddr) -> io::Result<TcpListener> {
+    let socket = if addr.is_ipv4() {
+        TcpSocket::new_v4()?
+    } else {
+        TcpSocket::new_v6()?
+    };
+    socket.set_reuseaddr(true)?;
+    socket.bind(addr)?;
+    socket.listen(DEFAULT_BACKLOG)
+}
+
+/// Pause after a failed `accept()` before the next one, so that a process out of file
+/// descriptors does not spin; connections wait in the listen backlog meanwhile.
+const ACCEPT_ERROR_PAUSE: Duration = Duration::from_millis(100);
+
+/// Serves Modbus TCP on `listener` until `shutdown` is cancelled.
+///
+/// On cancel: stops accepting, lets every connection finish the request it is serving (bounded by
+/// `request_timeout` and, for the write, `idle_timeout`), then returns `Ok(())`. Transient accept
+/// errors (EMFILE, ENFILE, ECONNABORTED, ENOBUFS, ENOMEM, network errors) are logged, counted and
+/// retried after a short pause; an error that means the listener itself is unusable (EBADF,
+/// EINVAL, ENOTSOCK, EOPNOTSUPP, EFAULT) ends the server with that error, after the open
+/// connections finished as on shutdown.
+pub async fn serve(
+    listener: TcpListener,
+    units: SharedUnits,
+    options: ServerOptions,
+    shutdown: CancellationToken,
+    stats: Arc<ServerStats>,
+) -> io::Result<()> {
+    let limit = Arc::new(Semaphore::new(
+        options.max_connections.min(Semaphore::MAX_PERMITS),
+    ));
+    let shared = Arc::new(Shared {
+        units,
+        options,
+        stats,
+    });
+    let tracker = TaskTracker::new();
+    if let Ok(local) = listener.local_addr() {
+        info!(%local, max_connections = shared.options.max_connections, "Modbus TCP server listening");
+    }
+    let result = loop {
+        let accepted = tokio::select! {
+            biased;
+            () = shutdown.cancelled() => break Ok(()),
+            accepted = listener.accept() => accepted,
+        };
+        match accepted {
+            Ok((stream, peer)) => admit(stream, peer, &shared, &limit, &tracker, &shutdown),
+            Err(error) => {
+                let Some(kind) = classify(&error) else {
+                    error!(%error, "Modbus TCP listener failed");
+                    break Err(error);
+                };
+                warn!(%error, ?kind, "accept failed, retrying");
+                shared.stats.count_accept_error(kind);
+                tokio::select! {
+                    () = shutdown.cancelled() => break Ok(()),
+                    () = tokio::time::sleep(ACCEPT_ERROR_PAUSE) => {}
+                }
+            }
+        }
+    };
+    drop(listener);
+    tracker.close();
+    tracker.wait().await;
+    info!("Modbus TCP server stopped");
+    result
+}
+
+/// Filters a new connection and spawns its task; a refused one is closed by dropping it.
+fn admit(
+    stream: TcpStream,
+    peer: SocketAddr,
+    shared: &Arc<Shared>,
+    limit: &Arc<Semaphore>,
+    tracker: &TaskTracker,
+    shutdown: &CancellationToken,
+) {
+    if !shared.options.allows_peer(peer.ip()) {
+        debug!(%peer, "client outside the allowed networks, closed");
+        shared.stats.count_rejected(RejectReason::Network);
+        return;
+    }
+    let Ok(permit) = Arc::clone(limit).try_acquire_owned() else {
+        debug!(%peer, "connection limit reached, closed");
+        shared.stats.count_rejected(RejectReason::Limit);
+        return;
+    };
+    // Responses are small and each one completes a client's transaction: do not wait for more.
+    if let Err(error) = stream.set_nodelay(true) {
+        debug!(%peer, %error, "TCP_NODELAY not set");
+    }
+    debug!(%peer, "client connected");
+    let open = shared.stats.count_accepted();
+    tracker.spawn(connection::run(
+        stream,
+        peer,
+        Arc::clone(shared),
+        shutdown.clone(),
+        permit,
+        open,
+    ));
+}
+
+/// The counter of a transient accept error, or `None` when the listener is unusable.
+fn classify(error: &io::Error) -> Option<AcceptError> {
+    if error.kind() == io::ErrorKind::ConnectionAborted {
+        return Some(AcceptError::ConnectionAborted);
+    }
+    match error.raw_os_error() {
+        Some(libc::EMFILE) => Some(AcceptError::ProcessFdLimit),
+        Some(libc::ENFILE) => Some(AcceptError::SystemFdLimit),
+        Some(libc::ECONNABORTED) => Some(AcceptError::ConnectionAborted),
+        Some(libc::EBADF | libc::EINVAL | libc::ENOTSOCK | libc::EOPNOTSUPP | libc::EFAULT) => None,
+        _ => Some(AcceptError::Other),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fd_exhaustion_and_aborts_are_transient() {
+        let of = |code| classify(&io::Error::from_raw_os_error(code));
+        assert_eq!(of(libc::EMFILE), Some(AcceptError::ProcessFdLimit));
+        assert_eq!(of(libc::ENFILE), Some(AcceptError::SystemFdLimit));
+        assert_eq!(of(libc::ECONNABORTED), Some(AcceptError::ConnectionAborted));
+        assert_eq!(of(libc::ENOBUFS), Some(AcceptError::Other));
+        assert_eq!(of(libc::EPROTO), Some(AcceptError::Other));
+        assert_eq!(of(libc::EBADF), None);
+        assert_eq!(of(libc::EINVAL), None);
+    }
+}

@@ -1,1 +1,0 @@
-//! Opening serial ports with line settings (see the crate documentation).

@@ -1,0 +1,270 @@
+//! 32-bit register jobs of the Modbus master ASCII (manual 003, 6.4.4 "32bit access with Modbus
+//! Master ASCII", 6.4.2.2 "with 32-Bit Register").
+//!
+//! The CP's user program asks for a 32-bit access by setting bit 6 of the function code in its
+//! send DB (43h, 46h, 50h instead of 03h, 06h, 10h). "The function code, which is sent is not
+//! affected by the state of the 6. bit. This serves for master information, which data size to be
+//! handled": on the wire the request carries 03h, 06h or 10h, and every register is 4 bytes long,
+//! most significant byte first (003 6.4.3 "word = high byte | low byte", extended to the double
+//! word). The slave must be set to 32-bit access too.
+//!
+//! Wire format (a register counts 4 bytes, quantities count registers):
+//! - read: `03 addr qty` -> `03 bytecount(4*qty) value32*qty`;
+//! - write single: `06 addr value32` -> the same echoed;
+//! - write multiple: `10 addr qty bytecount(4*qty) value32*qty` -> `10 addr qty`.
+
+use crate::codec::{Reader, Writer};
+use crate::modbus::pdu::{FunctionCode, PduError};
+
+/// The bytes of one 32-bit register.
+const REGISTER_BYTES: usize = 4;
+
+/// The function code the user program sets for a 32-bit read (003 6.4.4 table: 43h).
+pub const FC_READ_32: u8 = 0x43;
+/// The function code for a 32-bit single write (003 6.4.4 table: 46h).
+pub const FC_WRITE_SINGLE_32: u8 = 0x46;
+/// The function code for a 32-bit multiple write (003 6.4.4 table: 50h).
+pub const FC_WRITE_MULTIPLE_32: u8 = 0x50;
+
+/// A 32-bit register job (only FC 03, 06 and 16 exist in 32-bit form, 003 7.2 event 0E 4Ah).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Request32 {
+    /// FC 03 with bit 6 set (43h): read 1..62 registers of 4 bytes (003 7.2, 0E 45h).
+    ReadHoldingRegisters { address: u16, quantity: u16 },
+    /// FC 06 with bit 6 set (46h): write one register of 4 bytes.
+    WriteSingleRegister { address: u16, value: u32 },
+    /// FC 16 with bit 6 set (50h): write 1..61 registers of 4 bytes (003 7.2, 0E 46h).
+    WriteMultipleRegisters { address: u16, values: Vec<u32> },
+}
+
+/// The answer to a [`Request32`].
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Response32 {
+    /// The registers read.
+    ReadHoldingRegisters(Vec<u32>),
+    /// The echo of a single write.
+    WriteSingleRegister { address: u16, value: u32 },
+    /// The echo of a multiple write.
+    WriteMultipleRegisters { address: u16, quantity: u16 },
+}
+
+// === impl Request32 ===
+
+impl Request32 {
+    /// The function code sent on the wire (bit 6 cleared).
+    pub const fn function(&self) -> FunctionCode {
+        match self {
+            Self::ReadHoldingRegisters { .. } => FunctionCode::READ_HOLDING_REGISTERS,
+            Self::WriteSingleRegister { .. } => FunctionCode::WRITE_SINGLE_REGISTER,
+            Self::WriteMultipleRegisters { .. } => FunctionCode::WRITE_MULTIPLE_REGISTERS,
+        }
+    }
+
+    /// The function code of the CP's send DB (bit 6 set: 43h, 46h, 50h).
+    pub const fn job_function(&self) -> u8 {
+        match self {
+            Self::ReadHoldingRegisters { .. } => FC_READ_32,
+            Self::WriteSingleRegister { .. } => FC_WRITE_SINGLE_32,
+            Self::WriteMultipleRegisters { .. } => FC_WRITE_MULTIPLE_32,
+        }
+    }
+
+    /// Appends the request PDU.
+    pub fn encode(&self, out: &mut Vec<u8>) {
+        let mut w = Writer::new(out);
+        w.u8(self.function().0);
+        match self {
+            Self::ReadHoldingRegisters { address, quantity } => {
+                w.u16_be(*address).u16_be(*quantity);
+            }
+            Self::WriteSingleRegister { address, value } => {
+                w.u16_be(*address).u32_be(*value);
+            }
+            Self::WriteMultipleRegisters { address, values } => {
+                w.u16_be(*address)
+                    .u16_be(u16::try_from(values.len()).unwrap_or(u16::MAX))
+                    .count_u8(values.len().saturating_mul(REGISTER_BYTES));
+                for value in values {
+                    w.u32_be(*value);
+                }
+            }
+        }
+    }
+
+    /// Decodes the normal (non-exception) answer to this request; the function code has been
+    /// checked by the caller but is checked again here.
+    pub fn decode_response(&self, pdu: &[u8]) -> Result<Response32, PduError> {
+        let function = self.function().0;
+        let codec = |e| PduError::from_codec(function, e);
+        let mut r = Reader::new(pdu);
+        let got = r.u8().map_err(|_| PduError::Empty)?;
+        if got != function {
+            return Err(PduError::FunctionMismatch {
+                expected: function,
+                got,
+            });
+        }
+        let response = match self {
+            Self::ReadHoldingRegisters { quantity, .. } => {
+                let expected = usize::from(*quantity) * REGISTER_BYTES;
+                let byte_count = r.u8().map_err(codec)?;
+                if usize::from(byte_count) < expected {
+                    return Err(PduError::ByteCountTooSmall {
+                        function,
+                        byte_count,
+                        expected,
+                    });
+                }
+                if usize::from(byte_count) != expected {
+                    return Err(PduError::ByteCountMismatch {
+                        function,
+                        byte_count,
+                        expected,
+                    });
+                }
+                r.require(expected).map_err(codec)?;
+                let mut values = Vec::with_capacity(usize::from(*quantity));
+                for _ in 0..*quantity {
+                    values.push(r.u32_be().map_err(codec)?);
+                }
+                Response32::ReadHoldingRegisters(values)
+            }
+            Self::WriteSingleRegister { address, value } => {
+                let got_address = r.u16_be().map_err(codec)?;
+                let got_value = r.u32_be().map_err(codec)?;
+                check_echo(function, "address", *address, got_address)?;
+                if got_value != *value {
+                    // The echo field is 32 bits wide; the error reports the first differing half.
+                    let (sent, got) = if got_value >> 16 != value >> 16 {
+                        (value >> 16, got_value >> 16)
+                    } else {
+                        (value & 0xFFFF, got_value & 0xFFFF)
+                    };
+                    check_echo(function, "value", sent as u16, got as u16)?;
+                }
+                Response32::WriteSingleRegister {
+                    address: got_address,
+                    value: got_value,
+                }
+            }
+            Self::WriteMultipleRegisters { address, values } => {
+                let got_address = r.u16_be().map_err(codec)?;
+                let got_quantity = r.u16_be().map_err(codec)?;
+                check_echo(function, "address", *address, got_address)?;
+                check_echo(
+                    function,
+                    "quantity",
+                    u16::try_from(values.len()).unwrap_or(u16::MAX),
+                    got_quantity,
+                )?;
+                Response32::WriteMultipleRegisters {
+                    address: got_address,
+                    quantity: got_quantity,
+                }
+            }
+        };
+        r.expect_end().map_err(codec)?;
+        Ok(response)
+    }
+}
+
+fn check_echo(function: u8, field: &'static str, expected: u16, got: u16) -> Result<(), PduError> {
+    if expected == got {
+        Ok(())
+    } else {
+        Err(PduError::EchoMismatch {
+            function,
+            field,
+            expected,
+            got,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn read_round_trip() {
+        let request = Request32::ReadHoldingRegisters {
+            address: 0x0010,
+            quantity: 2,
+        };
+        let mut pdu = Vec::new();
+        request.encode(&mut pdu);
+        assert_eq!(pdu, [0x03, 0x00, 0x10, 0x00, 0x02]);
+        let answer = [0x03, 0x08, 0x12, 0x34, 0x56, 0x78, 0x00, 0x00, 0x00, 0x01];
+        assert_eq!(
+            request.decode_response(&answer),
+            Ok(Response32::ReadHoldingRegisters(vec![0x1234_5678, 1]))
+        );
+        assert!(matches!(
+            request.decode_response(&answer[..9]),
+            Err(PduError::TooShort { .. })
+        ));
+        assert!(matches!(
+            request.decode_response(&[0x03, 0x04, 0, 0, 0, 0]),
+            Err(PduError::ByteCountTooSmall {
+                byte_count: 4,
+                expected: 8,
+                ..
+            })
+        ));
+        assert!(matches!(
+            request.decode_response(&[0x04, 0x00]),
+            Err(PduError::FunctionMismatch { .. })
+        ));
+        assert_eq!(request.decode_response(&[]), Err(PduError::Empty));
+    }
+
+    #[test]
+    fn writes_encode_and_check_the_echo() {
+        let single = Request32::WriteSingleRegister {
+            address: 7,
+            value: 0xDEAD_BEEF,
+        };
+        let mut pdu = Vec::new();
+        single.encode(&mut pdu);
+        assert_eq!(pdu, [0x06, 0x00, 0x07, 0xDE, 0xAD, 0xBE, 0xEF]);
+        assert_eq!(
+            single.decode_response(&pdu),
+            Ok(Response32::WriteSingleRegister {
+                address: 7,
+                value: 0xDEAD_BEEF
+            })
+        );
+        assert!(matches!(
+            single.decode_response(&[0x06, 0x00, 0x07, 0xDE, 0xAD, 0xBE, 0xEE]),
+            Err(PduError::EchoMismatch { field: "value", .. })
+        ));
+        let multiple = Request32::WriteMultipleRegisters {
+            address: 1,
+            values: vec![1, 2],
+        };
+        pdu.clear();
+        multiple.encode(&mut pdu);
+        assert_eq!(
+            pdu,
+            [0x10, 0x00, 0x01, 0x00, 0x02, 0x08, 0, 0, 0, 1, 0, 0, 0, 2]
+        );
+        assert_eq!(
+            multiple.decode_response(&[0x10, 0x00, 0x01, 0x00, 0x02]),
+            Ok(Response32::WriteMultipleRegisters {
+                address: 1,
+                quantity: 2
+            })
+        );
+        assert!(matches!(
+            multiple.decode_response(&[0x10, 0x00, 0x01, 0x00, 0x03]),
+            Err(PduError::EchoMismatch {
+                field: "quantity",
+                ..
+            })
+        ));
+        assert!(matches!(
+            multiple.decode_response(&[0x10, 0x00, 0x01, 0x00, 0x02, 0x00]),
+            Err(PduError::TrailingData { .. })
+        ));
+    }
+}

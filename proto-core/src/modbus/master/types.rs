@@ -1,0 +1,58 @@
+//! The public vocabulary of the master: request ids, line errors, submit errors, outcomes and
+//! events.
+
+use super::job::JobError;
+use super::registers32::{Request32, Response32};
+use crate::event::EventId;
+use crate::modbus::pdu::{ExceptionCode, Request, Response};
+
+/// Identifies one submitted request in its [`MasterEvent::Completed`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct RequestId(pub u64);
+
+/// Why [`Master::submit`](super::Master::submit) refused a request.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum SubmitError {
+    /// A transaction is in flight or already queued (the bus carries one at a time).
+    #[error("a transaction is in flight")]
+    Busy,
+    /// The request fails the CP's job checks; its event has been raised too.
+    #[error("request refused: {0}")]
+    Invalid(JobError),
+}
+
+/// How a transaction ended.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Outcome<R = Response> {
+    /// The slave answered and the answer fits the request.
+    Response(R),
+    /// The slave answered with an exception (01..07 also raised as 0E 61h..0E 67h).
+    Exception(ExceptionCode),
+    /// The request was a broadcast: sent, never answered (003 6.4.3 "ADDR").
+    Broadcast,
+    /// No usable answer after every attempt: the event of the last attempt's first error
+    /// (08 30h no reply, 0E 57h checksum, ...).
+    Failed(EventId),
+}
+
+/// What the master reports.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum MasterEvent {
+    /// Every diagnostic event raised (one per occurrence, including a failed attempt that is
+    /// retried). `slave` is the slave of the transaction it belongs to, 0 when the line was idle.
+    Raised { id: EventId, slave: u8 },
+    /// The transaction finished.
+    Completed {
+        id: RequestId,
+        slave: u8,
+        request: Request,
+        outcome: Outcome,
+    },
+    /// A 32-bit register job (ASCII, [`Master::submit_registers32`](super::Master::submit_registers32)) finished.
+    Completed32 {
+        id: RequestId,
+        slave: u8,
+        request: Request32,
+        outcome: Outcome<Response32>,
+    },
+}

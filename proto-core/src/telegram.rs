@@ -1,1 +1,0 @@
-//! The ASCII telegram driver (manual 003, 6.2), sans-IO.
