@@ -14,6 +14,8 @@
 
 pub mod app;
 pub mod config;
+#[cfg(any(fuzzing, test))]
+pub mod fuzzing;
 pub mod image;
 pub mod line;
 pub mod modbus_tcp;

@@ -3,7 +3,12 @@
 
 use std::path::PathBuf;
 
+use super::slave::run_slave_script;
+use super::telegram::{run_3964, run_telegram};
 use super::*;
+use crate::modbus::ascii::{self, AsciiEvent, AsciiFrameAssembler};
+use crate::modbus::pdu::{Limits, Request, Response};
+use crate::modbus::rtu;
 
 /// Mutations tried per seed.
 const MUTATIONS_PER_SEED: usize = 200;
@@ -125,6 +130,41 @@ fn pdu_seeds_and_mutations() {
 #[test]
 fn slave_seeds_and_mutations() {
     exercise("slave", fuzz_slave);
+}
+
+#[test]
+fn proc3964_seeds_and_mutations() {
+    exercise("proc3964", fuzz_3964);
+}
+
+#[test]
+fn telegram_seeds_and_mutations() {
+    exercise("telegram", fuzz_telegram);
+}
+
+#[test]
+fn the_3964_seeds_receive_and_send_their_telegrams() {
+    for (path, seed) in seeds("proc3964") {
+        let report = run_3964(&seed).expect("valid setup");
+        if path.ends_with("-received") {
+            let expected = usize::from(!path.contains("bad-bcc"));
+            assert_eq!(report.received.len(), expected, "{path}: {report:?}");
+        } else if path.ends_with("-sent") {
+            assert_eq!((report.sent, report.failed), (1, 0), "{path}: {report:?}");
+        }
+    }
+}
+
+#[test]
+fn the_telegram_seeds_receive_and_send_their_telegrams() {
+    for (path, seed) in seeds("telegram") {
+        let report = run_telegram(&seed).expect("valid setup");
+        if path.ends_with("-received") {
+            assert_eq!(report.received.len(), 1, "{path}: {report:?}");
+        } else {
+            assert_eq!((report.sent, report.failed), (1, 0), "{path}: {report:?}");
+        }
+    }
 }
 
 #[test]
