@@ -5,21 +5,27 @@
 //! - [`config`]: the TOML configuration, its validation and `gateway check`;
 //! - [`serial`]: opening ports with line settings, RS485 mode, reopen with back-off;
 //! - [`line`]: one task per line driving an engine, the poll scheduler;
+//! - [`cpmem`]: the CP memory (M, Q, I, T, C, DBs) shared by slave lines, Modbus TCP and the image;
 //! - [`image`]: the process image (value, quality, timestamp per register);
 //! - [`unit`]: the contract between the Modbus TCP server and whatever answers a unit id;
 //! - [`modbus_tcp`]: our own MBAP framing, validation and the TCP server;
 //! - [`paced`]: a paced link, a virtual serial cable with the timing of a real one;
 //! - [`sim`]: simulated devices on a serial port (`gateway sim`);
+//! - [`zenoh_bridge`]: telegrams, tag values, queries, writes, events and presence on zenoh;
 //! - [`app`]: wiring a config into running tasks (`gateway run`, `gateway demo`).
 
 pub mod app;
 pub mod config;
+pub mod cpmem;
 #[cfg(any(fuzzing, test))]
 pub mod fuzzing;
 pub mod image;
 pub mod line;
+pub mod metrics;
 pub mod modbus_tcp;
 pub mod paced;
 pub mod serial;
 pub mod sim;
+pub mod tags;
 pub mod unit;
+pub mod zenoh_bridge;

@@ -56,12 +56,6 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    if let Command::Check { config } = &cli.command {
-        return match gateway::config::check_command(config) {
-            0 => ExitCode::SUCCESS,
-            code => ExitCode::from(u8::try_from(code).unwrap_or(1)),
-        };
-    }
     gateway::app::init_logging();
     let runtime = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -82,10 +76,7 @@ async fn async_main(command: Command) -> ExitCode {
     let result = match command {
         Command::Run { config, modbus_tcp } => match gateway::config::load(&config) {
             Ok(cfg) => {
-                let overrides = gateway::app::Overrides {
-                    modbus_tcp,
-                    ..Default::default()
-                };
+                let overrides = gateway::app::Overrides { modbus_tcp };
                 gateway::app::run(cfg, overrides, shutdown).await
             }
             Err(errors) => {
@@ -99,14 +90,18 @@ async fn async_main(command: Command) -> ExitCode {
         Command::Demo { modbus_tcp } => {
             let overrides = gateway::app::Overrides {
                 modbus_tcp: Some(modbus_tcp),
-                ..Default::default()
             };
             gateway::app::demo(overrides, shutdown).await
         }
         Command::Sim(args) => gateway::sim::run(args, shutdown)
             .await
             .map_err(gateway::app::AppError::from),
-        Command::Check { .. } => unreachable!("handled before the runtime starts"),
+        Command::Check { config } => {
+            return match gateway::config::check_command(&config) {
+                0 => ExitCode::SUCCESS,
+                code => ExitCode::from(u8::try_from(code).unwrap_or(1)),
+            };
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -53,12 +53,13 @@ fn operating_mode(mode: config::OperatingMode) -> OperatingMode {
     }
 }
 
-/// The settings and devices of a Modbus master line (RTU or ASCII).
+/// The settings and devices of a Modbus master line (RTU or ASCII); `None` for lines of other
+/// protocols.
 pub(crate) fn master_line(
     name: &str,
     line: &LineConfig,
     config: &Config,
-) -> (LineSettings, Vec<DeviceSettings>) {
+) -> Option<(LineSettings, Vec<DeviceSettings>)> {
     let port = port_settings(&line.serial);
     let bits = line.serial.bits_per_char();
     let mut settings = LineSettings::rtu(name, port);
@@ -88,7 +89,9 @@ pub(crate) fn master_line(
             };
             (master, &m.devices)
         }
-        _ => unreachable!("master_line is called for Modbus master lines only"),
+        ProtocolConfig::ModbusSlaveRtu(_)
+        | ProtocolConfig::Proc3964(_)
+        | ProtocolConfig::Ascii(_) => return None,
     };
     settings.master = master;
     settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
@@ -96,7 +99,7 @@ pub(crate) fn master_line(
         .iter()
         .map(|(name, device)| device_settings(name, device))
         .collect();
-    (settings, devices)
+    Some((settings, devices))
 }
 
 fn table(t: ModbusTable) -> Table {

@@ -5,7 +5,9 @@
 //! frame by frame; [`runner`] puts a model on a serial port or any byte stream.
 //!
 //! - [`altivar::AltivarSim`]: Altivar 61/71 (seed manual 002), default slave 2;
-//! - [`ksvario::KsVarioSim`]: KS vario (seed manual 001), default slave 17.
+//! - [`ksvario::KsVarioSim`]: KS vario (seed manual 001), default slave 17;
+//! - [`master`]: the other way round, a simulated serial master polling the gateway's Modbus slave
+//!   line (the demo's HMI).
 //!
 //! Common rules of both manuals, applied by every model: a frame for another address is not
 //! answered; a frame with a bad CRC is not answered (001 5 "Wird ein Übertragungsfehler
@@ -14,6 +16,7 @@
 
 pub mod altivar;
 pub mod ksvario;
+pub mod master;
 pub mod runner;
 
 use std::sync::{Arc, Mutex, PoisonError};

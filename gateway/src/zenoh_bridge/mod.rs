@@ -1,0 +1,512 @@
+//! The zenoh bridge: telegrams, tag values, queries, writes, events and presence on the zenoh
+//! fabric, through one session per gateway.
+//!
+//! The rest of the gateway sees two narrow types and knows nothing of zenoh:
+//! - [`BridgeHandle`] (cheap to clone): `publish_telegram`, `publish_tag`, `publish_event`,
+//!   `device_online`. None of them waits: they queue into bounded queues and count what does
+//!   not fit (policy in [`config`]).
+//! - [`BridgeBackend`] (implemented by the gateway): answers tag and status queries from the
+//!   image, sends telegrams and writes tags for commands that come from the fabric.
+//!
+//! ```text
+//!   lines / image ---BridgeHandle---> Outbox ---publisher thread---> zenoh session
+//!                                                                    |  ^
+//!   BridgeBackend <--command workers <--command queue <--callbacks --+  |
+//!   BridgeBackend <--query task      <--query queue   <--callbacks --+  |
+//!                                         results, replies ------------+
+//! ```
+//!
+//! Key layout: see [`keys`]. Payloads:
+//! - `<prefix>/<line>/rx`: the telegram bytes as they were received (encoding
+//!   `application/octet-stream`). The attachment is UTF-8 JSON
+//!   `{"seq": <u64 sequence number of the line>, "time": "<receive time, RFC 3339 UTC, µs>"}`
+//!   (Python: `json.loads(sample.attachment.to_string())`). The sample timestamp is the
+//!   session's (its HLC if timestamping is on, else the wall clock) at publication.
+//! - `<prefix>/<line>/<device>/<tag>` (and its query replies): JSON
+//!   `{"value": .., "unit": "rpm" | null, "quality": "good", "timestamp": "<RFC 3339>"}`.
+//! - `<prefix>/<line>/events`: JSON `{"class": 8, "number": 10, "event": "080A", "name": ..,
+//!   "text": .., "time": "<RFC 3339>"}`.
+//! - `<prefix>/<line>/tx`: the telegram bytes to send. `<prefix>/<line>/<device>/<tag>/set`: the
+//!   value as JSON (`1500`, `true`, `"text"`). Either as a put, or as a get with the payload (the
+//!   result is then also the reply). Results on `<prefix>/<line>/tx/result` and
+//!   `<prefix>/<line>/<device>/<tag>/set/result`, JSON: `{"ok": true, "line", "len", "result"}`
+//!   for a send, `{"ok": true, "line", "device", "tag", "value", "result"}` for a write, with
+//!   `"ok": false` and `"error": "<text>"` instead of `result` on failure (bad payload, unknown
+//!   line, `busy`, or the backend's refusal). The command's attachment is copied to its result.
+//!
+//! Session: peer by default; `Bridge::start` fails if a peer cannot open its session (a listen
+//! endpoint in use, a bad config file). A client keeps retrying its first connection in the
+//! background (1 s doubling to 30 s) and publishes once connected; after a loss zenoh itself
+//! reconnects to the configured endpoints, in both modes. Publications made while no peer
+//! subscribes are not stored anywhere (zenoh has no storage here).
+//!
+//! Runtime: call `start` inside a multi-threaded tokio runtime.
+//!
+//! Cargo features: zenoh is built with `transport_tcp` only. Build the gateway with the
+//! `zenoh-tls` feature for `tls/` endpoints (TLS certificates and mutual authentication are set
+//! in the zenoh config file); access control (`access_control` in the file) needs no feature.
+
+pub mod config;
+pub mod keys;
+pub mod stats;
+
+mod presence;
+mod publish;
+mod queryable;
+mod subscribe;
+
+use std::future::Future;
+use std::path::PathBuf;
+use std::pin::Pin;
+use std::sync::Arc;
+use std::time::{Duration, SystemTime};
+
+use serde_json::{json, Value};
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+use zenoh::pubsub::Subscriber;
+use zenoh::query::Queryable;
+use zenoh::Session;
+
+pub use config::{Endpoint, Mode, Prefix, ZenohConfig};
+pub use keys::{KeyError, Keys};
+pub use stats::{BridgeStats, CommandKind, CommandResult, DropReason, PublicationKind};
+
+use publish::{Limits, Message, Outbox, PublisherThread};
+use queryable::{Answerer, Queries, QueryKind};
+use subscribe::Commands;
+
+/// First wait before a client retries opening its session.
+const RETRY_MIN: Duration = Duration::from_secs(1);
+/// Longest wait between retries.
+const RETRY_MAX: Duration = Duration::from_secs(30);
+
+/// The future a [`BridgeBackend`] command returns.
+pub type BackendFuture<T> = Pin<Box<dyn Future<Output = T> + Send + 'static>>;
+
+/// One tag value as the bridge publishes it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TagValue {
+    /// The value in engineering units (number, bool, string...).
+    pub value: Value,
+    /// The unit, if the tag has one.
+    pub unit: Option<String>,
+    /// `good`, `stale`, `not_defined`, `off`, `out_of_range`, `comm_failure`...
+    pub quality: &'static str,
+    /// When the value was read from the device.
+    pub timestamp: SystemTime,
+}
+
+impl TagValue {
+    /// The JSON published and replied: `{"value", "unit", "quality", "timestamp"}`.
+    pub fn to_json(&self) -> Value {
+        json!({
+            "value": self.value,
+            "unit": self.unit,
+            "quality": self.quality,
+            "timestamp": publish::rfc3339(self.timestamp),
+        })
+    }
+}
+
+/// What the gateway provides to the bridge. Sync methods must be quick (an image read); the
+/// command methods return futures that end when the line has done the work.
+pub trait BridgeBackend: Send + Sync + 'static {
+    /// The names of the lines (for line status queries and to check commands).
+    fn lines(&self) -> Vec<String>;
+
+    /// The current value of every tag matching the filters (`None` = any), as
+    /// `(line, device, tag, value)`.
+    fn query_tags(
+        &self,
+        line: Option<&str>,
+        device: Option<&str>,
+        tag: Option<&str>,
+    ) -> Vec<(String, String, String, TagValue)>;
+
+    /// Status of one line, `None` if there is no such line.
+    fn line_status(&self, line: &str) -> Option<Value>;
+
+    /// Status of the gateway (the bridge adds a `"zenoh"` member when it is an object).
+    fn gateway_status(&self) -> Value;
+
+    /// Sends one telegram on `line`; the result (or the error text) becomes `<line>/tx/result`.
+    fn send_telegram(&self, line: &str, bytes: Vec<u8>) -> BackendFuture<Result<Value, String>>;
+
+    /// Writes `value` to a tag, with the same checks as a Modbus TCP write; the result (or the
+    /// error text) becomes `<line>/<device>/<tag>/set/result`.
+    fn write_tag(
+        &self,
+        line: &str,
+        device: &str,
+        tag: &str,
+        value: Value,
+    ) -> BackendFuture<Result<Value, String>>;
+}
+
+/// Why the bridge did not start.
+#[derive(Debug, thiserror::Error)]
+pub enum BridgeError {
+    /// A key of the `[zenoh]` section that zenoh refused.
+    #[error("zenoh config: {0}")]
+    Config(String),
+    /// The zenoh config file could not be read or parsed.
+    #[error("zenoh config file {path}: {reason}")]
+    ConfigFile {
+        /// The file.
+        path: PathBuf,
+        /// zenoh's message.
+        reason: String,
+    },
+    /// The prefix or gateway name does not make a key expression.
+    #[error(transparent)]
+    Key(#[from] KeyError),
+    /// The session did not open (peer mode).
+    #[error("zenoh session: {0}")]
+    Open(String),
+    /// The publisher thread could not be started.
+    #[error("zenoh publisher thread: {0}")]
+    Thread(std::io::Error),
+}
+
+/// The producer side of the bridge, for lines and the image. Cheap to clone; no method waits.
+#[derive(Clone)]
+pub struct BridgeHandle {
+    keys: Arc<Keys>,
+    outbox: Arc<Outbox>,
+    stats: Arc<BridgeStats>,
+}
+
+// === impl BridgeHandle ===
+
+impl BridgeHandle {
+    /// Queues a received telegram for `<prefix>/<line>/rx`. `Err` when it was dropped (queue
+    /// full, bridge closed, bad line name); the drop is counted and logged.
+    pub fn publish_telegram(
+        &self,
+        line: &str,
+        seq: u64,
+        received: SystemTime,
+        bytes: Vec<u8>,
+    ) -> Result<(), DropReason> {
+        self.check(&[line])?;
+        let attachment = json!({"seq": seq, "time": publish::rfc3339(received)});
+        let pushed = self.outbox.push(Message {
+            kind: PublicationKind::Telegram,
+            key: self.keys.rx(line),
+            payload: bytes,
+            json: false,
+            attachment: Some(attachment.to_string().into_bytes()),
+        });
+        if let Err(reason) = pushed {
+            tracing::warn!(%line, seq, reason = reason.as_str(), "telegram not published on zenoh");
+        }
+        pushed
+    }
+
+    /// Queues a tag value for `<prefix>/<line>/<device>/<tag>`; a newer value of the same tag
+    /// replaces one not yet published.
+    pub fn publish_tag(&self, line: &str, device: &str, tag: &str, value: TagValue) {
+        if self.check(&[line, device, tag]).is_ok() {
+            self.outbox
+                .push_tag(self.keys.tag(line, device, tag), value);
+        }
+    }
+
+    /// Queues an event for `<prefix>/<line>/events`. `Err` when it was dropped (counted).
+    pub fn publish_event(
+        &self,
+        line: &str,
+        class: u8,
+        number: u8,
+        name: &str,
+        text: &str,
+    ) -> Result<(), DropReason> {
+        self.check(&[line])?;
+        let body = json!({
+            "class": class,
+            "number": number,
+            "event": format!("{class:02X}{number:02X}"),
+            "name": name,
+            "text": text,
+            "time": publish::rfc3339(SystemTime::now()),
+        });
+        let pushed = self.outbox.push(Message {
+            kind: PublicationKind::Event,
+            key: self.keys.events(line),
+            payload: body.to_string().into_bytes(),
+            json: true,
+            attachment: None,
+        });
+        if let Err(reason) = pushed {
+            tracing::warn!(%line, class, number, reason = reason.as_str(), "event not published on zenoh");
+        }
+        pushed
+    }
+
+    /// Declares (online) or undeclares (offline) the liveliness token of a device.
+    pub fn device_online(&self, line: &str, device: &str, online: bool) {
+        if self.check(&[line, device]).is_ok() {
+            self.outbox
+                .push_presence(self.keys.device_token(line, device), online);
+        }
+    }
+
+    /// The bridge's counters.
+    pub fn stats(&self) -> &Arc<BridgeStats> {
+        &self.stats
+    }
+
+    /// The key prefix in use.
+    pub fn prefix(&self) -> &str {
+        self.keys.prefix()
+    }
+
+    fn check(&self, names: &[&str]) -> Result<(), DropReason> {
+        for name in names {
+            if let Err(e) = keys::check_chunk("name", name) {
+                self.stats.dropped(DropReason::BadKey);
+                tracing::warn!(error = %e, "update not published on zenoh");
+                return Err(DropReason::BadKey);
+            }
+        }
+        Ok(())
+    }
+}
+
+impl std::fmt::Debug for BridgeHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("BridgeHandle")
+            .field("prefix", &self.keys.prefix())
+            .finish_non_exhaustive()
+    }
+}
+
+/// The running bridge. Stops when the shutdown token given to [`Bridge::start`] is cancelled;
+/// [`Bridge::join`] waits for that.
+#[derive(Debug)]
+pub struct Bridge {
+    driver: JoinHandle<()>,
+    stats: Arc<BridgeStats>,
+}
+
+// === impl Bridge ===
+
+impl Bridge {
+    /// Opens the session (a client retries in the background), declares the subscribers,
+    /// queryables and the gateway's liveliness token, and starts the publisher thread.
+    pub async fn start(
+        cfg: ZenohConfig,
+        gateway_name: &str,
+        backend: Arc<dyn BridgeBackend>,
+        shutdown: CancellationToken,
+    ) -> Result<(Self, BridgeHandle), BridgeError> {
+        let keys = Arc::new(Keys::new(&cfg.prefix_for(gateway_name)?)?);
+        let (zcfg, mode) = cfg.to_zenoh()?;
+        let stats = Arc::new(BridgeStats::new());
+        let limits = Limits {
+            telegrams: cfg.telegram_queue.get(),
+            events: cfg.event_queue.get(),
+            results: cfg.result_queue.get(),
+            tags: cfg.tag_queue.get(),
+        };
+        let outbox = Arc::new(Outbox::new(limits, stats.clone()));
+
+        let session = match zenoh::open(zcfg.clone()).await {
+            Ok(s) => Some(s),
+            Err(e) if mode == Mode::Client => {
+                tracing::warn!(error = %e, "zenoh client not connected yet, retrying in the background");
+                None
+            }
+            Err(e) => return Err(BridgeError::Open(e.to_string())),
+        };
+
+        let thread = {
+            let worker = PublisherThread::new(
+                outbox.clone(),
+                stats.clone(),
+                presence::Presence::new(keys.gateway_token()),
+            );
+            std::thread::Builder::new()
+                .name("zenoh-publish".to_owned())
+                .spawn(move || worker.run())
+                .map_err(BridgeError::Thread)?
+        };
+
+        let parts = Parts {
+            keys: keys.clone(),
+            outbox: outbox.clone(),
+            stats: stats.clone(),
+            backend,
+            mode,
+            command_queue: cfg.command_queue.get(),
+            query_queue: cfg.query_queue.get(),
+        };
+        let driver = tokio::spawn(drive(parts, session, zcfg, thread, shutdown));
+        let handle = BridgeHandle {
+            keys,
+            outbox,
+            stats: stats.clone(),
+        };
+        Ok((Self { driver, stats }, handle))
+    }
+
+    /// The bridge's counters.
+    pub fn stats(&self) -> &Arc<BridgeStats> {
+        &self.stats
+    }
+
+    /// Waits until the bridge has stopped: shutdown cancelled, pending publications sent,
+    /// tokens undeclared, session closed.
+    pub async fn join(self) {
+        if let Err(e) = self.driver.await {
+            tracing::error!(error = %e, "zenoh bridge task failed");
+        }
+    }
+}
+
+/// What the driver task needs.
+struct Parts {
+    keys: Arc<Keys>,
+    outbox: Arc<Outbox>,
+    stats: Arc<BridgeStats>,
+    backend: Arc<dyn BridgeBackend>,
+    mode: Mode,
+    command_queue: usize,
+    query_queue: usize,
+}
+
+/// The subscribers and queryables; dropping them undeclares them.
+struct Declared {
+    _subscribers: Vec<Subscriber<()>>,
+    _queryables: Vec<Queryable<()>>,
+}
+
+async fn drive(
+    parts: Parts,
+    session: Option<Session>,
+    zcfg: zenoh::Config,
+    thread: std::thread::JoinHandle<()>,
+    shutdown: CancellationToken,
+) {
+    let session = match session {
+        Some(s) => Some(s),
+        None => open_with_retry(zcfg, &shutdown).await,
+    };
+    let mut declared = None;
+    if let Some(session) = &session {
+        match declare(&parts, session, &shutdown).await {
+            Ok(d) => declared = Some(d),
+            Err(e) => tracing::error!(error = %e, "zenoh subscribers and queryables not declared"),
+        }
+        parts.outbox.push_presence(parts.keys.gateway_token(), true);
+        parts.outbox.set_session(session.clone());
+        parts.stats.set_session_open(true);
+        tracing::info!(zid = %session.zid(), prefix = parts.keys.prefix(), mode = parts.mode.as_str(), "zenoh session open");
+        shutdown.cancelled().await;
+    }
+    // Stop taking commands and queries, publish what is pending, undeclare the tokens (the
+    // publisher thread does both), then close the session.
+    drop(declared);
+    parts.outbox.close();
+    if tokio::task::spawn_blocking(move || thread.join())
+        .await
+        .is_err()
+    {
+        tracing::error!("zenoh publisher thread panicked");
+    }
+    if let Some(session) = session {
+        if let Err(e) = session.close().await {
+            tracing::warn!(error = %e, "zenoh session close failed");
+        }
+    }
+    parts.stats.set_session_open(false);
+    tracing::info!("zenoh bridge stopped");
+}
+
+/// Opens a client session, retrying with back-off; `None` on shutdown.
+async fn open_with_retry(zcfg: zenoh::Config, shutdown: &CancellationToken) -> Option<Session> {
+    let mut wait = RETRY_MIN;
+    loop {
+        tokio::select! {
+            () = tokio::time::sleep(wait) => {}
+            () = shutdown.cancelled() => return None,
+        }
+        match zenoh::open(zcfg.clone()).await {
+            Ok(s) => return Some(s),
+            Err(e) => {
+                tracing::warn!(error = %e, retry_in = ?wait, "zenoh client still not connected")
+            }
+        }
+        wait = (wait * 2).min(RETRY_MAX);
+    }
+}
+
+async fn declare(
+    parts: &Parts,
+    session: &Session,
+    shutdown: &CancellationToken,
+) -> zenoh::Result<Declared> {
+    let keys = &parts.keys;
+    let (commands, command_rx) = Commands::new(
+        keys.clone(),
+        parts.outbox.clone(),
+        parts.stats.clone(),
+        parts.command_queue,
+        tokio::runtime::Handle::current(),
+    );
+    tokio::spawn(subscribe::dispatch(
+        commands.clone(),
+        command_rx,
+        parts.backend.clone(),
+        shutdown.clone(),
+    ));
+    let (queries, query_rx) = Queries::new(parts.stats.clone(), parts.query_queue);
+    let answerer = Arc::new(Answerer {
+        keys: keys.clone(),
+        backend: parts.backend.clone(),
+        stats: parts.stats.clone(),
+        identity: json!({
+            "zid": session.zid().to_string(),
+            "prefix": keys.prefix(),
+            "mode": parts.mode.as_str(),
+        }),
+    });
+    tokio::spawn(queryable::serve(answerer, query_rx, shutdown.clone()));
+
+    let mut subscribers = Vec::new();
+    for key in [keys.tx_pattern(), keys.set_pattern()] {
+        let commands = commands.clone();
+        let sub = session
+            .declare_subscriber(key)
+            .callback(move |sample| commands.on_sample(&sample))
+            .await?;
+        subscribers.push(sub);
+    }
+    let mut queryables = Vec::new();
+    for key in [keys.tx_pattern(), keys.set_pattern()] {
+        let commands = commands.clone();
+        let q = session
+            .declare_queryable(key)
+            .callback(move |query| commands.on_query(query))
+            .await?;
+        queryables.push(q);
+    }
+    for (key, kind) in [
+        (keys.tag_pattern(), QueryKind::Tags),
+        (keys.line_status_pattern(), QueryKind::LineStatus),
+        (keys.gateway_status(), QueryKind::GatewayStatus),
+    ] {
+        let queries = queries.clone();
+        let q = session
+            .declare_queryable(key)
+            .complete(true)
+            .callback(move |query| queries.on_query(kind, query))
+            .await?;
+        queryables.push(q);
+    }
+    Ok(Declared {
+        _subscribers: subscribers,
+        _queryables: queryables,
+    })
+}

@@ -1,0 +1,483 @@
+//! The outbox between the gateway and the session, and the publisher thread that empties it.
+//!
+//! ```text
+//! serial line / image / command worker          publisher thread (std, owns publishers + tokens)
+//!   BridgeHandle::publish_*  --try, never waits-->  Outbox { telegrams, events, results: FIFO,
+//!                                                            tags: newest value per key,
+//!                                                            presence: latest state per device }
+//!                                                       --> Publisher::put().wait()
+//! ```
+//!
+//! A zenoh put with `CongestionControl::Block` waits while the network is congested; that wait
+//! happens on the publisher thread only, so a slow subscriber slows the outbox, never a serial
+//! line: when a queue is full the producer's item is dropped and counted (see
+//! [`super::config`] for the policy per kind). zenoh closes a link whose put stayed blocked for
+//! `transport/link/tx/queue/congestion_control/block/wait_before_close` (5 s by default), so a
+//! stuck peer costs at most that long before the thread moves on.
+
+use std::collections::{HashMap, VecDeque};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::time::{Duration, SystemTime};
+
+use zenoh::bytes::Encoding;
+use zenoh::pubsub::Publisher;
+use zenoh::qos::CongestionControl;
+use zenoh::{Session, Wait};
+
+use super::presence::Presence;
+use super::stats::{BridgeStats, DropReason, PublicationKind};
+use super::TagValue;
+
+/// How long the thread sleeps between checks of a closed outbox when nothing arrives.
+const IDLE_WAIT: Duration = Duration::from_millis(500);
+/// At most this many presence changes wait (the devices of one gateway are far fewer).
+const PRESENCE_LIMIT: usize = 4096;
+
+/// One publication that must not be coalesced: a telegram, an event, a command result.
+#[derive(Debug)]
+pub(crate) struct Message {
+    pub(crate) kind: PublicationKind,
+    pub(crate) key: String,
+    pub(crate) payload: Vec<u8>,
+    /// JSON (`application/json`) or raw bytes (`application/octet-stream`).
+    pub(crate) json: bool,
+    pub(crate) attachment: Option<Vec<u8>>,
+}
+
+/// Queue limits, from the config.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Limits {
+    pub(crate) telegrams: usize,
+    pub(crate) events: usize,
+    pub(crate) results: usize,
+    pub(crate) tags: usize,
+}
+
+/// What waits for the publisher thread.
+#[derive(Default)]
+struct Pending {
+    telegrams: VecDeque<Message>,
+    events: VecDeque<Message>,
+    results: VecDeque<Message>,
+    /// Newest value per tag key, and the order in which keys became pending.
+    tags: HashMap<String, TagValue>,
+    tag_order: VecDeque<String>,
+    /// Latest online state per device token key, in order of first change.
+    presence: HashMap<String, bool>,
+    presence_order: VecDeque<String>,
+    /// Set once the session is open; the thread publishes only then.
+    session: Option<Session>,
+    /// No more items are accepted; the thread drains and exits.
+    closed: bool,
+}
+
+impl Pending {
+    fn is_empty(&self) -> bool {
+        self.telegrams.is_empty()
+            && self.events.is_empty()
+            && self.results.is_empty()
+            && self.tag_order.is_empty()
+            && self.presence_order.is_empty()
+    }
+}
+
+/// Everything taken from the outbox in one go.
+struct Batch {
+    presence: Vec<(String, bool)>,
+    results: VecDeque<Message>,
+    telegrams: VecDeque<Message>,
+    events: VecDeque<Message>,
+    tags: Vec<(String, TagValue)>,
+}
+
+/// The bounded hand-over between producers and the publisher thread.
+pub(crate) struct Outbox {
+    pending: Mutex<Pending>,
+    wake: Condvar,
+    limits: Limits,
+    stats: Arc<BridgeStats>,
+}
+
+// === impl Outbox ===
+
+impl Outbox {
+    pub(crate) fn new(limits: Limits, stats: Arc<BridgeStats>) -> Self {
+        Self {
+            pending: Mutex::new(Pending::default()),
+            wake: Condvar::new(),
+            limits,
+            stats,
+        }
+    }
+
+    fn lock(&self) -> MutexGuard<'_, Pending> {
+        // A panic while holding the lock leaves plain queues behind; keep using them.
+        self.pending.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Queues a telegram, event or result; on a full queue (or a closed outbox) drops it and
+    /// counts the drop.
+    pub(crate) fn push(&self, msg: Message) -> Result<(), DropReason> {
+        let mut p = self.lock();
+        let p_closed = p.closed;
+        let (queue, limit, full) = match msg.kind {
+            PublicationKind::Telegram => (
+                &mut p.telegrams,
+                self.limits.telegrams,
+                DropReason::TelegramQueueFull,
+            ),
+            PublicationKind::Event => (
+                &mut p.events,
+                self.limits.events,
+                DropReason::EventQueueFull,
+            ),
+            PublicationKind::TxResult | PublicationKind::SetResult | PublicationKind::Tag => (
+                &mut p.results,
+                self.limits.results,
+                DropReason::ResultQueueFull,
+            ),
+        };
+        let reason = if p_closed {
+            Some(DropReason::BridgeClosed)
+        } else if queue.len() >= limit {
+            Some(full)
+        } else {
+            None
+        };
+        if let Some(reason) = reason {
+            drop(p);
+            self.stats.dropped(reason);
+            return Err(reason);
+        }
+        queue.push_back(msg);
+        drop(p);
+        self.wake.notify_one();
+        Ok(())
+    }
+
+    /// Sets the pending value of a tag key; a pending older value is replaced (counted as
+    /// superseded).
+    pub(crate) fn push_tag(&self, key: String, value: TagValue) {
+        let mut p = self.lock();
+        if p.closed {
+            drop(p);
+            self.stats.dropped(DropReason::BridgeClosed);
+            return;
+        }
+        if let Some(slot) = p.tags.get_mut(&key) {
+            *slot = value;
+            drop(p);
+            self.stats.dropped(DropReason::TagSuperseded);
+            return;
+        }
+        if p.tags.len() >= self.limits.tags {
+            drop(p);
+            self.stats.dropped(DropReason::TagQueueFull);
+            return;
+        }
+        p.tag_order.push_back(key.clone());
+        p.tags.insert(key, value);
+        drop(p);
+        self.wake.notify_one();
+    }
+
+    /// Sets the latest online state of a device token key.
+    pub(crate) fn push_presence(&self, key: String, online: bool) {
+        let mut p = self.lock();
+        if p.closed {
+            return;
+        }
+        if let Some(slot) = p.presence.get_mut(&key) {
+            *slot = online;
+        } else if p.presence.len() >= PRESENCE_LIMIT {
+            drop(p);
+            tracing::warn!(%key, online, "zenoh presence queue full, change dropped");
+            return;
+        } else {
+            p.presence_order.push_back(key.clone());
+            p.presence.insert(key, online);
+        }
+        drop(p);
+        self.wake.notify_one();
+    }
+
+    /// Hands the open session to the publisher thread.
+    pub(crate) fn set_session(&self, session: Session) {
+        self.lock().session = Some(session);
+        self.wake.notify_all();
+    }
+
+    /// Stops accepting items; the thread publishes what is pending and exits.
+    pub(crate) fn close(&self) {
+        self.lock().closed = true;
+        self.wake.notify_all();
+    }
+
+    /// Waits until there is something to publish and a session to publish it on. `None` when
+    /// the outbox is closed and nothing can be published any more.
+    fn take(&self) -> Option<(Session, Batch)> {
+        let mut p = self.lock();
+        loop {
+            match (&p.session, p.is_empty(), p.closed) {
+                (Some(_), false, _) => break,
+                (_, true, true) | (None, _, true) => return None,
+                _ => {
+                    p = self
+                        .wake
+                        .wait_timeout(p, IDLE_WAIT)
+                        .unwrap_or_else(|e| e.into_inner())
+                        .0;
+                }
+            }
+        }
+        let session = p.session.clone()?;
+        let mut presence_map = std::mem::take(&mut p.presence);
+        let presence = std::mem::take(&mut p.presence_order)
+            .into_iter()
+            .filter_map(|k| presence_map.remove(&k).map(|on| (k, on)))
+            .collect();
+        let mut tag_map = std::mem::take(&mut p.tags);
+        let tags = std::mem::take(&mut p.tag_order)
+            .into_iter()
+            .filter_map(|k| tag_map.remove(&k).map(|v| (k, v)))
+            .collect();
+        let batch = Batch {
+            presence,
+            results: std::mem::take(&mut p.results),
+            telegrams: std::mem::take(&mut p.telegrams),
+            events: std::mem::take(&mut p.events),
+            tags,
+        };
+        Some((session, batch))
+    }
+}
+
+/// The publisher thread: declared publishers per key, liveliness tokens, the drain loop.
+pub(crate) struct PublisherThread {
+    outbox: Arc<Outbox>,
+    stats: Arc<BridgeStats>,
+    publishers: HashMap<String, Publisher<'static>>,
+    presence: Presence,
+}
+
+// === impl PublisherThread ===
+
+impl PublisherThread {
+    pub(crate) fn new(outbox: Arc<Outbox>, stats: Arc<BridgeStats>, presence: Presence) -> Self {
+        Self {
+            outbox,
+            stats,
+            publishers: HashMap::new(),
+            presence,
+        }
+    }
+
+    /// Runs until the outbox is closed and drained. Blocks: run it on its own thread.
+    pub(crate) fn run(mut self) {
+        while let Some((session, batch)) = self.outbox.take() {
+            for (key, online) in batch.presence {
+                self.presence.set(&session, key, online);
+            }
+            for msg in batch
+                .results
+                .into_iter()
+                .chain(batch.telegrams)
+                .chain(batch.events)
+            {
+                self.publish_message(&session, msg);
+            }
+            for (key, value) in batch.tags {
+                let payload = value.to_json().to_string().into_bytes();
+                self.put(&session, PublicationKind::Tag, key, payload, true, None);
+            }
+        }
+        // Undeclare in order: tokens first (peers see the devices and the gateway go), then
+        // the publishers. The session itself is closed by the driver.
+        self.presence.clear();
+        self.publishers.clear();
+    }
+
+    fn publish_message(&mut self, session: &Session, msg: Message) {
+        let Message {
+            kind,
+            key,
+            payload,
+            json,
+            attachment,
+        } = msg;
+        self.put(session, kind, key, payload, json, attachment);
+    }
+
+    fn put(
+        &mut self,
+        session: &Session,
+        kind: PublicationKind,
+        key: String,
+        payload: Vec<u8>,
+        json: bool,
+        attachment: Option<Vec<u8>>,
+    ) {
+        let encoding = if json {
+            Encoding::APPLICATION_JSON
+        } else {
+            Encoding::APPLICATION_OCTET_STREAM
+        };
+        let result = if kind.key_from_config() {
+            let publisher = match self.publishers.get(&key) {
+                Some(p) => p,
+                None => match declare(session, &key, kind) {
+                    Ok(p) => self.publishers.entry(key.clone()).or_insert(p),
+                    Err(e) => {
+                        self.stats.dropped(DropReason::BadKey);
+                        tracing::warn!(%key, error = %e, "zenoh publisher not declared, update dropped");
+                        return;
+                    }
+                },
+            };
+            publisher
+                .put(payload)
+                .encoding(encoding)
+                .timestamp(session.new_timestamp())
+                .attachment(attachment)
+                .wait()
+        } else {
+            // Result keys name whatever a command named: no publisher is kept for them, or any
+            // peer could grow the map without bound.
+            session
+                .put(key.as_str(), payload)
+                .congestion_control(congestion(kind))
+                .encoding(encoding)
+                .timestamp(session.new_timestamp())
+                .attachment(attachment)
+                .wait()
+        };
+        match result {
+            Ok(()) => self.stats.published(kind),
+            Err(e) => {
+                self.stats.dropped(DropReason::PublishError);
+                tracing::warn!(%key, kind = kind.as_str(), error = %e, "zenoh put failed");
+            }
+        }
+    }
+}
+
+/// Telegrams, events and results wait under congestion (they must not be lost); tag values
+/// are dropped by zenoh under congestion (a newer one follows).
+fn congestion(kind: PublicationKind) -> CongestionControl {
+    match kind {
+        PublicationKind::Tag => CongestionControl::Drop,
+        _ => CongestionControl::Block,
+    }
+}
+
+/// A publisher for `key`, with the congestion control of its kind.
+fn declare(
+    session: &Session,
+    key: &str,
+    kind: PublicationKind,
+) -> zenoh::Result<Publisher<'static>> {
+    session
+        .declare_publisher(key.to_owned())
+        .congestion_control(congestion(kind))
+        .wait()
+}
+
+/// RFC 3339 with microseconds, UTC: `2024-05-01T12:00:00.123456Z`.
+pub(crate) fn rfc3339(t: SystemTime) -> String {
+    humantime::format_rfc3339_micros(t).to_string()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn outbox(limit: usize) -> (Arc<BridgeStats>, Outbox) {
+        let stats = Arc::new(BridgeStats::new());
+        let limits = Limits {
+            telegrams: limit,
+            events: limit,
+            results: limit,
+            tags: limit,
+        };
+        (stats.clone(), Outbox::new(limits, stats))
+    }
+
+    fn msg(kind: PublicationKind, n: u8) -> Message {
+        Message {
+            kind,
+            key: "a/rx".into(),
+            payload: vec![n],
+            json: false,
+            attachment: None,
+        }
+    }
+
+    fn value(v: i64) -> TagValue {
+        TagValue {
+            value: v.into(),
+            unit: None,
+            quality: "good",
+            timestamp: SystemTime::UNIX_EPOCH,
+        }
+    }
+
+    #[test]
+    fn full_fifo_drops_the_new_item_and_counts_it() {
+        let (stats, o) = outbox(2);
+        assert!(o.push(msg(PublicationKind::Telegram, 1)).is_ok());
+        assert!(o.push(msg(PublicationKind::Telegram, 2)).is_ok());
+        assert_eq!(
+            o.push(msg(PublicationKind::Telegram, 3)),
+            Err(DropReason::TelegramQueueFull)
+        );
+        assert!(o.push(msg(PublicationKind::Event, 1)).is_ok());
+        assert_eq!(stats.drops(DropReason::TelegramQueueFull), 1);
+        let p = o.lock();
+        let kept: Vec<u8> = p.telegrams.iter().map(|m| m.payload[0]).collect();
+        assert_eq!(kept, [1, 2]);
+    }
+
+    #[test]
+    fn newest_tag_value_wins_and_keys_keep_their_order() {
+        let (stats, o) = outbox(2);
+        o.push_tag("k/a".into(), value(1));
+        o.push_tag("k/b".into(), value(2));
+        o.push_tag("k/a".into(), value(3));
+        o.push_tag("k/c".into(), value(4));
+        assert_eq!(stats.drops(DropReason::TagSuperseded), 1);
+        assert_eq!(stats.drops(DropReason::TagQueueFull), 1);
+        let p = o.lock();
+        assert_eq!(p.tag_order, ["k/a", "k/b"]);
+        assert_eq!(p.tags["k/a"].value, 3);
+    }
+
+    #[test]
+    fn closed_outbox_refuses_and_take_ends() {
+        let (stats, o) = outbox(4);
+        o.close();
+        assert_eq!(
+            o.push(msg(PublicationKind::Event, 1)),
+            Err(DropReason::BridgeClosed)
+        );
+        o.push_tag("k".into(), value(1));
+        assert_eq!(stats.drops(DropReason::BridgeClosed), 2);
+        assert!(o.take().is_none());
+    }
+
+    #[test]
+    fn presence_keeps_the_latest_state() {
+        let (_, o) = outbox(4);
+        o.push_presence("d1".into(), true);
+        o.push_presence("d1".into(), false);
+        o.push_presence("d2".into(), true);
+        let p = o.lock();
+        assert_eq!(p.presence_order, ["d1", "d2"]);
+        assert!(!p.presence["d1"]);
+    }
+
+    #[test]
+    fn timestamps_are_rfc3339_utc() {
+        let t = SystemTime::UNIX_EPOCH + Duration::from_micros(1_700_000_000_123_456);
+        assert_eq!(rfc3339(t), "2023-11-14T22:13:20.123456Z");
+    }
+}

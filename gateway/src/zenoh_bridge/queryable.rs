@@ -1,0 +1,150 @@
+//! Queryables: tag values from the image (`<prefix>/<line>/<device>/<tag>`, wildcards work), line
+//! status (`<prefix>/<line>/status`) and gateway status (`<prefix>/status`).
+//!
+//! The zenoh callback only queues the query (bounded; a full queue leaves the query without a
+//! reply and counts `query_queue_full`). One task serves the queue; each query is answered on
+//! the blocking pool, since the backend reads the image under a lock and a reply may wait under
+//! congestion. A wildcard query asks the backend for the tags its literal chunks name (see
+//! [`Keys::tag_filter`]) and replies with every tag whose key intersects the query.
+//!
+//! Replies: a tag as `{"value", "unit", "quality", "timestamp"}`, the status objects as the
+//! backend gives them; the gateway status gets a `"zenoh"` member with the bridge's zenoh id,
+//! prefix and counters.
+
+use std::sync::Arc;
+
+use serde_json::Value;
+use tokio::sync::mpsc;
+use tokio_util::sync::CancellationToken;
+use zenoh::bytes::Encoding;
+use zenoh::query::Query;
+use zenoh::Wait;
+
+use super::keys::{self, Keys};
+use super::stats::{BridgeStats, DropReason};
+use super::BridgeBackend;
+
+/// Which queryable a query came to.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum QueryKind {
+    Tags,
+    LineStatus,
+    GatewayStatus,
+}
+
+/// The queue entry shared by the query callbacks.
+pub(crate) struct Queries {
+    queue: mpsc::Sender<(QueryKind, Query)>,
+    stats: Arc<BridgeStats>,
+}
+
+// === impl Queries ===
+
+impl Queries {
+    pub(crate) fn new(
+        stats: Arc<BridgeStats>,
+        capacity: usize,
+    ) -> (Arc<Self>, mpsc::Receiver<(QueryKind, Query)>) {
+        let (queue, rx) = mpsc::channel(capacity);
+        (Arc::new(Self { queue, stats }), rx)
+    }
+
+    /// The queryable callback: queue without waiting.
+    pub(crate) fn on_query(&self, kind: QueryKind, query: Query) {
+        if self.queue.try_send((kind, query)).is_err() {
+            self.stats.dropped(DropReason::QueryQueueFull);
+            tracing::warn!("zenoh query queue full, query left without reply");
+        }
+    }
+}
+
+/// What answering needs.
+pub(crate) struct Answerer {
+    pub(crate) keys: Arc<Keys>,
+    pub(crate) backend: Arc<dyn BridgeBackend>,
+    pub(crate) stats: Arc<BridgeStats>,
+    /// `{"zid", "prefix", "mode"}`, merged into the gateway status with the counters.
+    pub(crate) identity: Value,
+}
+
+/// Serves queued queries one after the other until shutdown.
+pub(crate) async fn serve(
+    answerer: Arc<Answerer>,
+    mut rx: mpsc::Receiver<(QueryKind, Query)>,
+    shutdown: CancellationToken,
+) {
+    loop {
+        let (kind, query) = tokio::select! {
+            q = rx.recv() => match q { Some(q) => q, None => break },
+            () = shutdown.cancelled() => break,
+        };
+        let answerer = answerer.clone();
+        let done = tokio::task::spawn_blocking(move || answerer.answer(kind, &query)).await;
+        if let Err(e) = done {
+            tracing::error!(error = %e, "zenoh query task failed");
+        }
+    }
+}
+
+// === impl Answerer ===
+
+impl Answerer {
+    fn answer(&self, kind: QueryKind, query: &Query) {
+        let q = query.key_expr().as_str();
+        match kind {
+            QueryKind::Tags => {
+                let filter = self.keys.tag_filter(q);
+                let tags = self.backend.query_tags(
+                    filter.line.as_deref(),
+                    filter.device.as_deref(),
+                    filter.tag.as_deref(),
+                );
+                for (line, device, tag, value) in tags {
+                    let names_ok = keys::check_chunk("line", &line).is_ok()
+                        && keys::check_chunk("device", &device).is_ok()
+                        && keys::check_chunk("tag", &tag).is_ok();
+                    let key = self.keys.tag(&line, &device, &tag);
+                    if names_ok && keys::intersects(q, &key) {
+                        reply(query, key, &value.to_json());
+                    }
+                }
+            }
+            QueryKind::LineStatus => {
+                for line in self.backend.lines() {
+                    let key = self.keys.line_status(&line);
+                    if keys::check_chunk("line", &line).is_ok() && keys::intersects(q, &key) {
+                        if let Some(status) = self.backend.line_status(&line) {
+                            reply(query, key, &status);
+                        }
+                    }
+                }
+            }
+            QueryKind::GatewayStatus => {
+                let key = self.keys.gateway_status();
+                if keys::intersects(q, &key) {
+                    let mut zenoh = self.identity.clone();
+                    zenoh["stats"] = self.stats.to_json();
+                    let status = match self.backend.gateway_status() {
+                        Value::Object(mut map) => {
+                            map.insert("zenoh".to_owned(), zenoh);
+                            Value::Object(map)
+                        }
+                        other => serde_json::json!({"gateway": other, "zenoh": zenoh}),
+                    };
+                    reply(query, key, &status);
+                }
+            }
+        }
+        self.stats.query_served();
+    }
+}
+
+fn reply(query: &Query, key: String, body: &Value) {
+    let result = query
+        .reply(key, body.to_string())
+        .encoding(Encoding::APPLICATION_JSON)
+        .wait();
+    if let Err(e) = result {
+        tracing::debug!(error = %e, "zenoh reply failed");
+    }
+}

@@ -1,0 +1,169 @@
+//! Order, drops and back-pressure: what reaches the fabric when, and that the producer never
+//! waits.
+
+use super::*;
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_thousand_telegrams_in_order_each_once() {
+    const N: u64 = 1000;
+    let backend = TestBackend::new();
+    let (bridge, handle, shutdown, port) = start_listening(backend).await;
+    let session = peer(&[endpoint(port)], &[]).await;
+    let (_sub, mut rx) = subscribe(&session, "gw/test/*/rx").await;
+    let (_tags, mut tag_rx) = subscribe(&session, "gw/test/*/*/*").await;
+    publish_until_seen(&handle, &mut tag_rx, 2).await;
+
+    for seq in 0..N {
+        let line = if seq % 3 == 0 { "ascii" } else { "r3964" };
+        let bytes = format!("telegram {seq}").into_bytes();
+        handle
+            .publish_telegram(line, seq, SystemTime::now(), bytes)
+            .unwrap();
+    }
+    let mut seen: BTreeMap<String, Vec<u64>> = BTreeMap::new();
+    for _ in 0..N {
+        let s = tokio::time::timeout(LIMIT, rx.recv())
+            .await
+            .unwrap()
+            .unwrap();
+        let att: Value = serde_json::from_slice(&s.attachment().unwrap().to_bytes()).unwrap();
+        let seq = att["seq"].as_u64().unwrap();
+        assert_eq!(
+            &*s.payload().to_bytes(),
+            format!("telegram {seq}").as_bytes()
+        );
+        let line = s.key_expr().as_str().split('/').nth(2).unwrap().to_owned();
+        seen.entry(line).or_default().push(seq);
+    }
+    let want_ascii: Vec<u64> = (0..N).filter(|s| s % 3 == 0).collect();
+    let want_r3964: Vec<u64> = (0..N).filter(|s| s % 3 != 0).collect();
+    assert_eq!(seen["ascii"], want_ascii);
+    assert_eq!(seen["r3964"], want_r3964);
+    // Nothing more arrives: each telegram was published once.
+    assert!(tokio::time::timeout(Duration::from_millis(500), rx.recv())
+        .await
+        .is_err());
+    assert_eq!(handle.stats().publications(PublicationKind::Telegram), N);
+    assert_eq!(handle.stats().drops(DropReason::TelegramQueueFull), 0);
+
+    shutdown.cancel();
+    bridge.join().await;
+    session.close().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_full_telegram_queue_drops_and_counts_the_new_ones() {
+    // No session can publish before it is open: a client with nowhere to connect keeps
+    // everything in the outbox.
+    let port = free_port();
+    let cfg = ZenohConfig {
+        mode: Some(Mode::Client),
+        connect: Some(vec![endpoint(port).try_into().unwrap()]),
+        listen: Some(Vec::new()),
+        multicast_scouting: Some(false),
+        telegram_queue: 4.try_into().unwrap(),
+        ..ZenohConfig::default()
+    };
+    let (bridge, handle, shutdown) = start(cfg, TestBackend::new()).await;
+    for seq in 0..4 {
+        assert!(handle
+            .publish_telegram("r3964", seq, SystemTime::now(), vec![1])
+            .is_ok());
+    }
+    assert_eq!(
+        handle.publish_telegram("r3964", 4, SystemTime::now(), vec![1]),
+        Err(DropReason::TelegramQueueFull)
+    );
+    assert_eq!(handle.stats().drops(DropReason::TelegramQueueFull), 1);
+    assert_eq!(
+        handle.publish_telegram("a/b", 5, SystemTime::now(), vec![1]),
+        Err(DropReason::BadKey)
+    );
+    shutdown.cancel();
+    bridge.join().await;
+}
+
+/// A gate a subscriber callback waits at while it is closed.
+#[derive(Default)]
+struct Gate {
+    closed: std::sync::Mutex<bool>,
+    changed: std::sync::Condvar,
+}
+
+impl Gate {
+    fn set_closed(&self, closed: bool) {
+        *self.closed.lock().unwrap() = closed;
+        self.changed.notify_all();
+    }
+
+    fn pass(&self) {
+        let mut closed = self.closed.lock().unwrap();
+        while *closed {
+            closed = self.changed.wait(closed).unwrap();
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_stuck_subscriber_never_makes_the_producer_wait() {
+    const N: u64 = 2000;
+    let port = free_port();
+    let mut cfg = ZenohConfig::loopback_peer(&endpoint(port)).unwrap();
+    cfg.telegram_queue = 8.try_into().unwrap();
+    let (bridge, handle, shutdown) = start(cfg, TestBackend::new()).await;
+    let session = peer(&[endpoint(port)], &[]).await;
+    let gate = std::sync::Arc::new(Gate::default());
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+    let _stuck = {
+        let gate = gate.clone();
+        session
+            .declare_subscriber("gw/test/**")
+            .callback(move |s| {
+                gate.pass();
+                let _ = tx.send(s);
+            })
+            .await
+            .unwrap()
+    };
+    publish_until_seen(&handle, &mut rx, 3).await;
+
+    // The subscriber stops reading: zenoh's reader stalls, TCP pushes back, and the publisher
+    // thread waits in its put (telegrams use CongestionControl::Block). 128 MB cannot fit in
+    // the socket buffers and queues in between.
+    gate.set_closed(true);
+    let (mut queued, mut dropped) = (0u64, 0u64);
+    for seq in 0..N {
+        let bytes = vec![0x55; 64 * 1024];
+        match handle.publish_telegram("r3964", seq, SystemTime::now(), bytes) {
+            Ok(()) => queued += 1,
+            Err(DropReason::TelegramQueueFull) => dropped += 1,
+            Err(other) => panic!("unexpected drop reason {other:?}"),
+        }
+    }
+    // The loop ended while the subscriber was still stuck: no call waited for the network.
+    gate.set_closed(false);
+    assert_eq!(queued + dropped, N);
+    assert!(dropped > 0, "the queue never filled: nothing pushed back");
+    assert_eq!(handle.stats().drops(DropReason::TelegramQueueFull), dropped);
+
+    // What was queued arrives once the subscriber reads again: in order, each once.
+    let mut last = None;
+    for _ in 0..queued {
+        let s = recv_until(&mut rx, Duration::from_secs(30), |s| {
+            s.key_expr().as_str() == "gw/test/r3964/rx"
+        })
+        .await;
+        let att: Value = serde_json::from_slice(&s.attachment().unwrap().to_bytes()).unwrap();
+        let seq = att["seq"].as_u64().unwrap();
+        assert!(last.is_none_or(|l| seq > l), "{seq} after {last:?}");
+        last = Some(seq);
+    }
+    assert_eq!(
+        handle.stats().publications(PublicationKind::Telegram),
+        queued
+    );
+
+    shutdown.cancel();
+    bridge.join().await;
+    session.close().await.unwrap();
+}
