@@ -2,14 +2,17 @@
 //!
 //! [`run`] is the testable entry point (mini-redis `run(listener, shutdown)`): it builds the
 //! process image, starts one task per line, registers every device under its unit id, binds the
-//! Modbus TCP listener, and serves until `shutdown` is cancelled; then it drains within
-//! [`GRACE_PERIOD`] and says whether the stop was graceful or forced.
+//! Modbus TCP listener and the HTTP listener of `/metrics`, and serves until `shutdown` is
+//! cancelled; then it drains within [`GRACE_PERIOD`] and says whether the stop was graceful or
+//! forced.
 
 use std::collections::BTreeMap;
 use std::net::SocketAddr;
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
+use prometheus::Registry;
+use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
@@ -17,11 +20,13 @@ use crate::config::{self, Config, LineConfig, ProtocolConfig};
 use crate::cpmem::{self, SharedCpMemory};
 use crate::image::{ImageConfig, ProcessImage};
 use crate::line::{self, LineHandle, SlaveLineHandle, SlaveLineSettings};
+use crate::metrics::Metrics;
 use crate::modbus_tcp::{self, ServerOptions, ServerStats, SharedUnits};
 use crate::unit::UnitMap;
 
 mod build;
 mod demo;
+mod zenoh;
 
 pub use demo::demo;
 
@@ -34,6 +39,34 @@ pub const GRACE_PERIOD: Duration = Duration::from_secs(10);
 pub struct Overrides {
     /// Listen for Modbus TCP here instead of `modbus_tcp.listen`.
     pub modbus_tcp: Option<SocketAddr>,
+    /// The zenoh session listens on this endpoint only (e.g. `tcp/127.0.0.1:7447`), with
+    /// multicast scouting off, instead of the config's `[zenoh]` endpoints.
+    pub zenoh_listen: Option<String>,
+    /// Serve HTTP (`/metrics`) here; `None`: no HTTP listener.
+    pub http: Option<SocketAddr>,
+    /// The registry `/metrics` serves and its families, created in `main`; `None`: [`run`]
+    /// creates its own.
+    pub metrics: Option<MetricsRegistry>,
+}
+
+/// The Prometheus registry of the process and the gateway's families registered in it.
+#[derive(Clone, Debug)]
+pub struct MetricsRegistry {
+    /// What `/metrics` renders.
+    pub registry: Registry,
+    /// The families, cloned into every line and the Modbus TCP server.
+    pub metrics: Metrics,
+}
+
+// === impl MetricsRegistry ===
+
+impl MetricsRegistry {
+    /// A new registry with every family of the gateway registered in it.
+    pub fn new() -> Result<Self, prometheus::Error> {
+        let registry = Registry::new();
+        let metrics = Metrics::register(&registry)?;
+        Ok(Self { registry, metrics })
+    }
 }
 
 /// Why the gateway could not start or stopped.
@@ -126,7 +159,7 @@ pub struct Running {
     /// The CP memory the slave lines serve, if any line does.
     pub cp_memory: Option<SharedCpMemory>,
     /// Saves the CP memory; stopped (with a last save) after the lines and servers.
-    persistence: Option<(CancellationToken, tokio::task::JoinHandle<()>)>,
+    persistence: Option<(CancellationToken, JoinHandle<()>)>,
     /// What answers each Modbus TCP unit id.
     pub units: SharedUnits,
     /// Modbus TCP server counters.
@@ -139,8 +172,13 @@ pub async fn run(
     overrides: Overrides,
     shutdown: CancellationToken,
 ) -> Result<(), AppError> {
+    let exported = match overrides.metrics.clone() {
+        Some(exported) => exported,
+        None => MetricsRegistry::new()
+            .map_err(|e| AppError::Setup(format!("cannot register the metrics: {e}")))?,
+    };
     let lines_token = shutdown.child_token();
-    let running = start_lines(&config, &lines_token)?;
+    let running = start_lines(&config, &lines_token, &exported.metrics)?;
 
     let addr = overrides.modbus_tcp.unwrap_or(config.modbus_tcp.listen);
     let listener = modbus_tcp::bind(addr).map_err(|source| AppError::Bind {
@@ -149,15 +187,28 @@ pub async fn run(
         source,
     })?;
     let local = listener.local_addr()?;
+    let options = server_options(&config.modbus_tcp);
+    let zenoh_token = shutdown.child_token();
+    let bridge = start_zenoh(&config, &overrides, &running, options.clone(), &zenoh_token).await?;
+
+    let http_token = shutdown.child_token();
+    let http = match overrides.http {
+        Some(addr) => Some(serve_http(addr, exported.registry.clone(), http_token.clone()).await?),
+        None => {
+            info!("no HTTP listen address given (--http): /metrics is not served");
+            None
+        }
+    };
     info!(%local, units = ?running.units.read().map(|u| u.unit_ids()).unwrap_or_default(), "Modbus TCP listening");
-    // A fixed line on stdout that scripts and tests wait for.
+    // A fixed line on stdout that scripts and tests wait for; printed last, when everything
+    // listens.
     println!("modbus-tcp listening on {local}");
 
     let server_token = shutdown.child_token();
     let server = tokio::spawn(modbus_tcp::serve(
         listener,
         Arc::clone(&running.units),
-        server_options(&config.modbus_tcp),
+        options,
         server_token.clone(),
         Arc::clone(&running.tcp_stats),
     ));
@@ -166,7 +217,12 @@ pub async fn run(
     info!(grace = ?GRACE_PERIOD, "draining: lines finish their transaction in flight, connections their request");
     lines_token.cancel();
     server_token.cancel();
+    zenoh_token.cancel();
+    http_token.cancel();
     let drain = async {
+        if let Some(bridge) = bridge {
+            bridge.join().await;
+        }
         for (_, line) in running.lines {
             line.join().await;
         }
@@ -177,6 +233,11 @@ pub async fn run(
             Ok(Ok(())) => {}
             Ok(Err(e)) => warn!(error = %e, "Modbus TCP server ended with an error"),
             Err(e) => warn!(error = %e, "Modbus TCP server task failed"),
+        }
+        if let Some(task) = http {
+            if let Err(e) = task.await {
+                warn!(error = %e, "HTTP server task failed");
+            }
         }
         // Last: the final save sees every write the lines and the server carried out.
         if let Some((token, task)) = running.persistence {
@@ -192,9 +253,87 @@ pub async fn run(
     Ok(())
 }
 
+/// Starts the zenoh bridge when the config has a `[zenoh]` section (or the command line names an
+/// endpoint), fed from the image and the lines.
+async fn start_zenoh(
+    config: &Config,
+    overrides: &Overrides,
+    running: &Running,
+    server: ServerOptions,
+    shutdown: &CancellationToken,
+) -> Result<Option<crate::zenoh_bridge::Bridge>, AppError> {
+    let cfg = match (&overrides.zenoh_listen, &config.zenoh) {
+        (Some(endpoint), base) => {
+            let mut cfg = crate::zenoh_bridge::ZenohConfig::loopback_peer(endpoint)
+                .map_err(AppError::Setup)?;
+            if let Some(base) = base {
+                cfg.prefix.clone_from(&base.prefix);
+            }
+            cfg
+        }
+        (None, Some(cfg)) if cfg.enabled => cfg.clone(),
+        (None, _) => {
+            info!("no [zenoh] section: the gateway joins no zenoh fabric");
+            return Ok(None);
+        }
+    };
+    let tags = Arc::new(crate::tags::TagDirectory::from_config(config));
+    let protocols = config
+        .lines
+        .iter()
+        .map(|(n, l)| (n.clone(), l.protocol.kind().as_str()))
+        .collect();
+    let backend =
+        zenoh::GatewayBackend::new(&config.gateway.name, running, tags, protocols, server);
+    let listen = cfg.listen.clone().unwrap_or_default();
+    let (bridge, handle) = crate::zenoh_bridge::Bridge::start(
+        cfg,
+        &config.gateway.name,
+        Arc::new(backend.clone_for_bridge()),
+        shutdown.clone(),
+    )
+    .await
+    .map_err(|e| AppError::Setup(format!("zenoh: {e}")))?;
+    zenoh::spawn_feeds(&handle, &backend, shutdown);
+    let endpoints: Vec<&str> = listen
+        .iter()
+        .map(crate::zenoh_bridge::Endpoint::as_str)
+        .collect();
+    info!(prefix = %handle.prefix(), ?endpoints, "zenoh session open");
+    println!("zenoh session open, prefix {}", handle.prefix());
+    Ok(Some(bridge))
+}
+
+/// Binds `addr` and serves HTTP there until `shutdown`: for now `GET /metrics` from `registry`
+/// ([`crate::metrics::serve_metrics`]). Prints `http listening on <addr>` on stdout once bound.
+async fn serve_http(
+    addr: SocketAddr,
+    registry: Registry,
+    shutdown: CancellationToken,
+) -> Result<JoinHandle<()>, AppError> {
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .map_err(|source| AppError::Bind {
+            what: "HTTP",
+            addr,
+            source,
+        })?;
+    let local = listener.local_addr()?;
+    info!(%local, "HTTP listening: /metrics");
+    // A fixed line on stdout that scripts and tests wait for.
+    println!("http listening on {local}");
+    Ok(tokio::spawn(crate::metrics::serve_metrics(
+        listener, registry, shutdown,
+    )))
+}
+
 /// Starts every line of `config` and registers its devices, memory and mailboxes as Modbus TCP
-/// units.
-fn start_lines(config: &Config, shutdown: &CancellationToken) -> Result<Running, AppError> {
+/// units; every line counts into `metrics`.
+fn start_lines(
+    config: &Config,
+    shutdown: &CancellationToken,
+    metrics: &Metrics,
+) -> Result<Running, AppError> {
     let image = ProcessImage::new(ImageConfig::default());
     let mut units = UnitMap::new();
     let mut lines = BTreeMap::new();
@@ -206,9 +345,10 @@ fn start_lines(config: &Config, shutdown: &CancellationToken) -> Result<Running,
     for (name, line) in &config.lines {
         match &line.protocol {
             ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => {
-                let Some((settings, devices)) = build::master_line(name, line, config) else {
+                let Some((mut settings, devices)) = build::master_line(name, line, config) else {
                     continue;
                 };
+                settings.metrics = Some(metrics.clone());
                 let handle = line::spawn_modbus_master_line(
                     settings,
                     devices,
@@ -236,6 +376,7 @@ fn start_lines(config: &Config, shutdown: &CancellationToken) -> Result<Running,
                     params,
                 );
                 settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
+                settings.metrics = Some(metrics.clone());
                 let handle =
                     line::spawn_modbus_slave_line(settings, memory.clone(), shutdown.child_token());
                 if let Some(unit) = cfg.unit_id {
@@ -254,11 +395,11 @@ fn start_lines(config: &Config, shutdown: &CancellationToken) -> Result<Running,
         cp_memory,
         persistence,
         units: Arc::new(RwLock::new(units)),
-        tcp_stats: Arc::new(ServerStats::new()),
+        tcp_stats: Arc::new(ServerStats::with_metrics(metrics.clone())),
     })
 }
 
-type Persistence = Option<(CancellationToken, tokio::task::JoinHandle<()>)>;
+type Persistence = Option<(CancellationToken, JoinHandle<()>)>;
 
 /// The CP memory of the slave lines, loaded from its file when it is persisted; `None` when no
 /// line serves it.

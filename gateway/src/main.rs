@@ -1,14 +1,16 @@
 //! `gateway`: run, demo, sim, check.
 //!
 //! A thin main (linkerd2-proxy order): parse the command line, set up logging, load and validate
-//! the config (exit 64 before any port is opened when it is wrong), then hand over to
-//! [`gateway::app`], which runs until SIGINT or SIGTERM and drains within a grace period.
+//! the config (exit 64 before any port is opened when it is wrong), create the Prometheus registry
+//! of the process, then hand over to [`gateway::app`], which runs until SIGINT or SIGTERM and
+//! drains within a grace period.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use gateway::app::{MetricsRegistry, Overrides};
 use tokio_util::sync::CancellationToken;
 
 /// sysexits.h EX_USAGE: the configuration is unusable.
@@ -37,12 +39,24 @@ enum Command {
         /// Listen for Modbus TCP here instead of the config's `modbus_tcp.listen`.
         #[arg(long, value_name = "ADDR")]
         modbus_tcp: Option<SocketAddr>,
+        /// The zenoh session listens on this endpoint only, multicast scouting off.
+        #[arg(long, value_name = "ENDPOINT")]
+        zenoh_listen: Option<String>,
+        /// Serve HTTP (`/metrics`) here; without it, no HTTP listener.
+        #[arg(long, value_name = "ADDR")]
+        http: Option<SocketAddr>,
     },
     /// Run the embedded demo: virtual serial lines with simulated devices.
     Demo {
         /// Listen for Modbus TCP here.
         #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:5020")]
         modbus_tcp: SocketAddr,
+        /// The zenoh peer listens on this endpoint (multicast scouting off).
+        #[arg(long, value_name = "ENDPOINT", default_value = "tcp/127.0.0.1:7447")]
+        zenoh_listen: String,
+        /// Serve HTTP (`/metrics`) here.
+        #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:8080")]
+        http: SocketAddr,
     },
     /// Run one simulated device on a serial port (a pty end, or a real port).
     Sim(gateway::sim::SimArgs),
@@ -70,13 +84,39 @@ fn main() -> ExitCode {
     runtime.block_on(async_main(cli.command))
 }
 
+/// The registry `/metrics` serves, with every family of the gateway registered: one per process.
+fn metrics_registry() -> Result<MetricsRegistry, ExitCode> {
+    let registry = prometheus::Registry::new();
+    match gateway::metrics::Metrics::register(&registry) {
+        Ok(metrics) => Ok(MetricsRegistry { registry, metrics }),
+        Err(e) => {
+            eprintln!("gateway: cannot register the metrics: {e}");
+            Err(ExitCode::from(EX_SOFTWARE))
+        }
+    }
+}
+
 async fn async_main(command: Command) -> ExitCode {
     let shutdown = CancellationToken::new();
     tokio::spawn(gateway::app::cancel_on_signal(shutdown.clone()));
     let result = match command {
-        Command::Run { config, modbus_tcp } => match gateway::config::load(&config) {
+        Command::Run {
+            config,
+            modbus_tcp,
+            zenoh_listen,
+            http,
+        } => match gateway::config::load(&config) {
             Ok(cfg) => {
-                let overrides = gateway::app::Overrides { modbus_tcp };
+                let metrics = match metrics_registry() {
+                    Ok(metrics) => metrics,
+                    Err(code) => return code,
+                };
+                let overrides = Overrides {
+                    modbus_tcp,
+                    zenoh_listen,
+                    http,
+                    metrics: Some(metrics),
+                };
                 gateway::app::run(cfg, overrides, shutdown).await
             }
             Err(errors) => {
@@ -87,9 +127,20 @@ async fn async_main(command: Command) -> ExitCode {
                 return ExitCode::from(EX_USAGE);
             }
         },
-        Command::Demo { modbus_tcp } => {
-            let overrides = gateway::app::Overrides {
+        Command::Demo {
+            modbus_tcp,
+            zenoh_listen,
+            http,
+        } => {
+            let metrics = match metrics_registry() {
+                Ok(metrics) => metrics,
+                Err(code) => return code,
+            };
+            let overrides = Overrides {
                 modbus_tcp: Some(modbus_tcp),
+                zenoh_listen: Some(zenoh_listen),
+                http: Some(http),
+                metrics: Some(metrics),
             };
             gateway::app::demo(overrides, shutdown).await
         }

@@ -27,13 +27,19 @@ pub fn gateway_bin() -> PathBuf {
             .and_then(Path::parent)
             .expect("target/<profile> directory");
         let bin = profile_dir.join("gateway");
-        if !bin.exists() {
-            let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
-                .args(["build", "-p", "gateway", "--bin", "gateway"])
-                .status()
-                .expect("run cargo build -p gateway");
-            assert!(status.success(), "cargo build -p gateway failed");
+        // Always ask cargo: a no-op when the binary is up to date, a rebuild when only this
+        // crate's tests were built (`cargo test -p gateway-tests` does not build other packages'
+        // binaries), so a test never runs a stale gateway.
+        let target_dir = profile_dir.parent().expect("target directory");
+        let mut build = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()));
+        build
+            .args(["build", "-p", "gateway", "--bin", "gateway"])
+            .env("CARGO_TARGET_DIR", target_dir);
+        if profile_dir.file_name().is_some_and(|n| n == "release") {
+            build.arg("--release");
         }
+        let status = build.status().expect("run cargo build -p gateway");
+        assert!(status.success(), "cargo build -p gateway failed");
         assert!(
             bin.exists(),
             "gateway binary not found at {}",
@@ -50,15 +56,28 @@ pub struct Gateway {
     child: Child,
     /// The Modbus TCP address the gateway announced.
     pub modbus_tcp: SocketAddr,
+    /// The HTTP address (`/metrics`) the gateway announced, if it serves HTTP.
+    pub http: Option<SocketAddr>,
     /// Every line the process wrote to stdout and stderr so far.
     output: Arc<Mutex<Vec<String>>>,
     lines: mpsc::Receiver<String>,
 }
 
 impl Gateway {
-    /// Starts `gateway demo` with the given extra arguments and Modbus TCP on an ephemeral port.
+    /// Starts `gateway demo` with the given extra arguments, Modbus TCP and HTTP on ephemeral
+    /// ports.
     pub fn demo(extra: &[&str]) -> Self {
-        let mut args = vec!["demo", "--modbus-tcp", "127.0.0.1:0"];
+        let mut args = vec![
+            "demo",
+            "--modbus-tcp",
+            "127.0.0.1:0",
+            "--http",
+            "127.0.0.1:0",
+            "--zenoh-listen",
+        ];
+        // Tests run in parallel: every demo gets its own zenoh port.
+        let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+        args.push(&zenoh);
         args.extend_from_slice(extra);
         Self::start(&args)
     }
@@ -68,7 +87,8 @@ impl Gateway {
         Self::start(&["run", "--config", config.to_str().expect("utf-8 path")])
     }
 
-    /// Starts the binary with `args` and waits for its Modbus TCP announcement.
+    /// Starts the binary with `args` and waits for its Modbus TCP announcement (printed last,
+    /// after the HTTP one when it serves HTTP).
     pub fn start(args: &[&str]) -> Self {
         let mut child = Command::new(gateway_bin())
             .args(args)
@@ -96,9 +116,12 @@ impl Gateway {
                 }
             });
         }
+        // Only the reader threads hold senders now: when the process exits, waiting ends at once.
+        drop(tx);
         let mut gw = Self {
             child,
             modbus_tcp: "0.0.0.0:0".parse().expect("addr"),
+            http: None,
             output,
             lines,
         };
@@ -111,6 +134,18 @@ impl Gateway {
         gw.modbus_tcp = addr
             .parse()
             .unwrap_or_else(|e| panic!("bad address {addr:?}: {e}"));
+        // Both lines go to stdout, read in order by one thread: the HTTP line, if any, is already
+        // in the output.
+        gw.http = gw
+            .output
+            .lock()
+            .expect("output lock")
+            .iter()
+            .find_map(|line| line.split_once("http listening on ").map(|(_, a)| a.trim()))
+            .map(|addr| {
+                addr.parse()
+                    .unwrap_or_else(|e| panic!("bad address {addr:?}: {e}"))
+            });
         gw
     }
 
@@ -170,6 +205,15 @@ impl Drop for Gateway {
             assert!(!out.contains("panicked at"), "the gateway panicked:\n{out}");
         }
     }
+}
+
+/// A TCP port that was free on 127.0.0.1 a moment ago (for listeners of other programs that
+/// cannot be given port 0, such as a zenoh endpoint).
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .expect("bind 127.0.0.1:0")
+        .port()
 }
 
 /// A fresh directory under the system temp dir for one test.

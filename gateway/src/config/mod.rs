@@ -85,6 +85,9 @@ pub struct Config {
     pub modbus_tcp: ModbusTcpConfig,
     /// The CP memory served by `modbus-slave-rtu` lines and their unit ids.
     pub cp_memory: CpMemoryConfig,
+    /// The zenoh session (`[zenoh]`); none: the gateway joins no zenoh fabric.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub zenoh: Option<crate::zenoh_bridge::ZenohConfig>,
     /// Lines by name.
     pub lines: BTreeMap<String, LineConfig>,
 }
@@ -155,6 +158,7 @@ impl Default for Config {
             gateway: GatewaySection::default(),
             modbus_tcp: ModbusTcpConfig::default(),
             cp_memory: CpMemoryConfig::new(),
+            zenoh: None,
             lines: BTreeMap::new(),
         }
     }
@@ -231,6 +235,17 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         None => CpMemoryConfig::new(),
         Some(f) => CpMemoryConfig::read(cx, f),
     };
+    // The zenoh section is the bridge's own serde type (deny_unknown_fields): its first problem
+    // is reported with the section's path.
+    let zenoh = root.raw("zenoh").and_then(|value| {
+        match crate::zenoh_bridge::ZenohConfig::deserialize(value.clone()) {
+            Ok(z) => Some(z),
+            Err(e) => {
+                cx.issue("zenoh", e.to_string());
+                None
+            }
+        }
+    });
     let mut lines = BTreeMap::new();
     if table.get("lines").is_some_and(toml::Value::is_array) {
         let _ = root.raw("lines");
@@ -250,6 +265,7 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         gateway,
         modbus_tcp,
         cp_memory,
+        zenoh,
         lines,
     }
 }

@@ -9,26 +9,30 @@
 //! - `scheduler`: which request goes next (writes, on-demand reads, due polls, offline back-off);
 //! - `command`: the bounded command queue and the error-to-exception mapping;
 //! - `status`: diagnostic buffer, event counters, STATUS word, device states;
+//! - `line_metrics`: the line's Prometheus metrics (events, port state, traffic, requests);
 //! - `driver`: clock conversion and timer helpers of the driver loop;
 //! - `modbus_master`: the line task itself;
 //! - `modbus_slave`: the Modbus slave RTU line serving the CP memory ([`spawn_modbus_slave_line`]);
 //! - `writeback`: the image refresh after a confirmed write, the broadcast echo;
-//! - `device_unit`: a polled device as a Modbus TCP unit.
+//! - `device_unit`: a polled device as a Modbus TCP unit;
+//! - [`telegram`]: ASCII and 3964(R) lines with their mailboxes.
 
 mod command;
 mod device_unit;
 mod driver;
+mod line_metrics;
 mod modbus_master;
 mod modbus_slave;
 pub mod plan;
 mod scheduler;
 mod status;
+pub mod telegram;
 mod writeback;
 
 use std::sync::Arc;
 use std::time::Duration;
 
-use proto_core::modbus::master::MasterConfig;
+use proto_core::modbus::master::{Framing, MasterConfig};
 use tokio::sync::{broadcast, mpsc};
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
@@ -45,6 +49,7 @@ pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
 pub use status::{DeviceStatus, LineEvent, LineStatus, DEFAULT_DIAG_DEPTH};
 
 use crate::image::{ProcessImage, Table};
+use crate::metrics::Metrics;
 use crate::serial::PortSettings;
 
 /// Depth of a line's command queue by default.
@@ -76,6 +81,8 @@ pub struct LineSettings {
     /// How long a command waits for its answer, queueing included (`None`: the master's reply
     /// monitoring time x (retries + 1) + [`DEFAULT_COMMAND_SLACK`]).
     pub command_deadline: Option<Duration>,
+    /// Where the line counts its events, traffic and requests (`None`: nowhere).
+    pub metrics: Option<Metrics>,
 }
 
 // === impl LineSettings ===
@@ -93,6 +100,15 @@ impl LineSettings {
             reopen_min: DEFAULT_REOPEN_MIN,
             reopen_max: DEFAULT_REOPEN_MAX,
             command_deadline: None,
+            metrics: None,
+        }
+    }
+
+    /// The `protocol` label of the line: the config's key for its framing.
+    fn protocol(&self) -> &'static str {
+        match self.master.framing {
+            Framing::Rtu { .. } => "modbus-master-rtu",
+            Framing::Ascii { .. } => "modbus-master-ascii",
         }
     }
 
@@ -270,14 +286,15 @@ impl DeviceSettings {
 }
 
 /// A running line: its status, its command queue and its devices as Modbus TCP units.
-#[derive(Debug)]
+/// Clones share the line; [`Self::join`] waits for its task once.
+#[derive(Clone, Debug)]
 pub struct LineHandle {
     name: String,
     client: LineClient,
     shared: Arc<status::Shared>,
     devices: Vec<Arc<DeviceSettings>>,
     image: ProcessImage,
-    task: JoinHandle<()>,
+    task: Arc<std::sync::Mutex<Option<JoinHandle<()>>>>,
 }
 
 // === impl LineHandle ===
@@ -332,7 +349,13 @@ impl LineHandle {
 
     /// Waits for the line task to end (after the shutdown token was cancelled).
     pub async fn join(self) {
-        if let Err(err) = self.task.await {
+        let task = self
+            .task
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .take();
+        let Some(task) = task else { return };
+        if let Err(err) = task.await {
             tracing::error!(line = %self.name, %err, "line task failed");
         }
     }
@@ -376,7 +399,15 @@ pub fn spawn_modbus_master_line(
         commands_failed: 0,
     };
     let clock = driver::Clock::start();
-    let shared = status::Shared::new(status, settings.diag_depth, clock);
+    let metrics = line_metrics::LineMetrics::new(
+        settings.metrics.clone(),
+        &settings.name,
+        settings.protocol(),
+    );
+    for device in &devices {
+        metrics.init_device(&device.name);
+    }
+    let shared = status::Shared::with_metrics(status, settings.diag_depth, clock, metrics);
     let client = LineClient::new(tx, settings.queue_depth.max(1), settings.command_deadline());
     let name = settings.name.clone();
     let task = modbus_master::LineTask::new(
@@ -395,6 +426,6 @@ pub fn spawn_modbus_master_line(
         shared,
         devices,
         image,
-        task,
+        task: Arc::new(std::sync::Mutex::new(Some(task))),
     }
 }

@@ -20,11 +20,13 @@ use tokio_util::sync::CancellationToken;
 
 use super::command::{Command, CommandError, CommandResult};
 use super::driver::{estimated_tx_end, sleep_until_opt, Clock};
+use super::line_metrics::{master_result, BROADCAST_DEVICE, UNKNOWN_DEVICE};
 use super::scheduler::{Job, PollJob, Scheduler, Transition};
 use super::status::Shared;
 use super::writeback::{broadcast_echo, refresh_image};
 use super::{DeviceSettings, LineSettings};
 use crate::image::{ProcessImage, Quality, Table};
+use crate::metrics::RequestResult;
 use crate::serial::{self, Backoff};
 
 /// The port could not be opened or set up: 003 7.2 event 02 0Fh "Interface could not be
@@ -62,6 +64,8 @@ pub(crate) struct LineTask {
     pub(crate) clock: Clock,
     pub(crate) sched: Scheduler<Command>,
     inflight: Option<(RequestId, InFlight)>,
+    /// When the first frame of the request in flight was written (the poll duration's start).
+    sent_at: Option<Instant>,
     commands_open: bool,
 }
 
@@ -88,6 +92,7 @@ impl LineTask {
             clock,
             sched,
             inflight: None,
+            sent_at: None,
             commands_open: true,
         }
     }
@@ -99,17 +104,11 @@ impl LineTask {
             match serial::open(&self.settings.port) {
                 Ok(port) => {
                     reopen.reset();
-                    self.shared.update(|s| {
-                        s.port_open = true;
-                        s.port_error = None;
-                        s.port_opens += 1;
-                    });
                     tracing::info!(line = %self.settings.name, path = %self.settings.port.path, "port open");
+                    self.shared.started();
                     let exit = self.drive(port).await;
-                    self.shared.update(|s| s.port_open = false);
-                    if let Some((_, InFlight::Command { command, .. })) = self.inflight.take() {
-                        command.answer(Err(CommandError::PortClosed));
-                    }
+                    self.shared.port_closed();
+                    self.abandon_inflight();
                     match exit {
                         PortExit::Shutdown => break,
                         PortExit::Lost(reason) => self.port_failed(EVENT_PORT_LOST, reason),
@@ -133,6 +132,38 @@ impl LineTask {
         tracing::info!(line = %self.settings.name, "line stopped");
     }
 
+    /// The port closed with a request in flight: counted as an error, a command answered.
+    fn abandon_inflight(&mut self) {
+        self.sent_at = None;
+        let Some((_, job)) = self.inflight.take() else {
+            return;
+        };
+        let (device, slave, function) = match &job {
+            InFlight::Poll(poll) => (Some(poll.device), None, poll.read.request().function()),
+            InFlight::Command { device, command } => {
+                (*device, Some(command.slave), command.request.function())
+            }
+        };
+        self.shared.metrics().request(
+            self.device_label(device, slave),
+            function.0,
+            RequestResult::Error,
+        );
+        if let InFlight::Command { command, .. } = job {
+            command.answer(Err(CommandError::PortClosed));
+        }
+    }
+
+    /// The `device` label of a request to the device at `index`, or to `slave` when no
+    /// configured device has that address.
+    fn device_label(&self, index: Option<usize>, slave: Option<u8>) -> &str {
+        match (index.and_then(|i| self.devices.get(i)), slave) {
+            (Some(device), _) => &device.name,
+            (None, Some(0)) => BROADCAST_DEVICE,
+            (None, _) => UNKNOWN_DEVICE,
+        }
+    }
+
     /// The port failed: event, status, and every device's values marked as comm failure.
     fn port_failed(&mut self, id: EventId, reason: String) {
         self.shared.update(|s| s.port_error = Some(reason.clone()));
@@ -140,6 +171,7 @@ impl LineTask {
         for device in &self.devices {
             self.image
                 .set_unit_quality(device.unit_id, Quality::CommFailure);
+            self.shared.metrics().device_up(&device.name, false);
         }
     }
 
@@ -190,7 +222,10 @@ impl LineTask {
                         self.settings.port.path
                     ));
                 }
-                let end = estimated_tx_end(Instant::now(), frame.len(), char_time);
+                let written = Instant::now();
+                self.sent_at.get_or_insert(written);
+                self.shared.metrics().sent(frame.len());
+                let end = estimated_tx_end(written, frame.len(), char_time);
                 master.handle_tx_done(self.clock.to_engine(end));
             }
             let mut completed = false;
@@ -242,6 +277,7 @@ impl LineTask {
                     Ok(0) => return PortExit::Lost(format!("{} reached end of file", self.settings.port.path)),
                     Ok(n) => {
                         let (_, engine_now) = self.clock.now();
+                        self.shared.metrics().received_bytes(n);
                         master.handle_rx(engine_now, buf.get(..n).unwrap_or_default());
                     }
                     Err(err) => return PortExit::Lost(format!("read from {} failed: {err}", self.settings.port.path)),
@@ -274,6 +310,7 @@ impl LineTask {
                     }
                     match master.submit(engine_now, command.slave, command.request.clone()) {
                         Ok(id) => {
+                            self.sent_at = None;
                             self.inflight = Some((id, InFlight::Command { device, command }));
                             return;
                         }
@@ -286,6 +323,7 @@ impl LineTask {
                     };
                     match master.submit(engine_now, device.slave, poll.read.request()) {
                         Ok(id) => {
+                            self.sent_at = None;
                             self.inflight = Some((id, InFlight::Poll(poll)));
                             return;
                         }
@@ -313,11 +351,30 @@ impl LineTask {
     /// Handles the end of the request in flight.
     fn complete(&mut self, job: InFlight, slave: u8, request: &Request, outcome: Outcome) {
         let now = Instant::now();
+        let duration = self
+            .sent_at
+            .take()
+            .map(|sent| now.saturating_duration_since(sent));
+        let result = master_result(&outcome);
+        if matches!(outcome, Outcome::Response(_) | Outcome::Exception(_)) {
+            self.shared.metrics().received_telegram();
+        }
+        let index = match &job {
+            InFlight::Poll(poll) => Some(poll.device),
+            InFlight::Command { device, .. } => *device,
+        };
+        let function = request.function().0;
+        self.shared
+            .metrics()
+            .request(self.device_label(index, Some(slave)), function, result);
         match job {
             InFlight::Poll(poll) => {
                 let Some(device) = self.devices.get(poll.device).cloned() else {
                     return;
                 };
+                if let Some(duration) = duration {
+                    self.shared.metrics().poll_duration(&device.name, duration);
+                }
                 let range = poll.read.range;
                 let answered = match outcome {
                     Outcome::Response(response) => {
@@ -343,6 +400,9 @@ impl LineTask {
                         false
                     }
                 };
+                if answered {
+                    self.shared.metrics().device_up(&device.name, true);
+                }
                 let transition = self.sched.poll_done(poll, answered, now);
                 self.apply(poll.device, transition);
             }
@@ -361,6 +421,12 @@ impl LineTask {
                     Outcome::Failed(event) => Err(CommandError::NoReply { slave, event }),
                 };
                 let answered = !matches!(result, Err(CommandError::NoReply { .. }));
+                if let Some(d) = device
+                    .and_then(|d| self.devices.get(d))
+                    .filter(|_| answered)
+                {
+                    self.shared.metrics().device_up(&d.name, true);
+                }
                 self.shared.update(|s| {
                     if answered {
                         s.commands_answered += 1;
@@ -408,6 +474,7 @@ impl LineTask {
                     bits.get(..count).unwrap_or(&bits),
                     Some(period),
                 );
+                self.shared.metrics().image_updated(&device.name);
             }
             (Table::HoldingRegisters, Response::ReadHoldingRegisters(words))
             | (Table::InputRegisters, Response::ReadInputRegisters(words)) => {
@@ -418,6 +485,7 @@ impl LineTask {
                     words.get(..count).unwrap_or(&words),
                     Some(period),
                 );
+                self.shared.metrics().image_updated(&device.name);
             }
             (_, other) => {
                 tracing::error!(line = %self.settings.name, device = %device.name, ?other, "poll answered with another function");
@@ -445,6 +513,7 @@ impl LineTask {
                 self.image
                     .set_unit_quality(device.unit_id, Quality::CommFailure);
                 self.device_stat(index, |d| d.online = false);
+                self.shared.metrics().device_up(&device.name, false);
             }
             Transition::StillOffline { retry_in } => {
                 tracing::debug!(line = %line, device = %device.name, ?retry_in, "device still offline");

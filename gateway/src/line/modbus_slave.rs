@@ -24,10 +24,12 @@ use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
 use super::driver::{sleep_until_opt, Clock};
+use super::line_metrics::{slave_result, LineMetrics, SLAVE_LINE_PARTNER};
 use super::modbus_master::{EVENT_PORT_LOST, EVENT_PORT_SETUP};
 use super::status::{LineEvent, LineStatus, Shared, DEFAULT_DIAG_DEPTH};
 use super::{DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::cpmem::{CpMemoryUnit, SharedCpMemory};
+use crate::metrics::Metrics;
 use crate::serial::{self, Backoff, PortSettings};
 
 /// Settings of one Modbus slave RTU line.
@@ -45,11 +47,16 @@ pub struct SlaveLineSettings {
     pub reopen_min: Duration,
     /// Longest delay between reopen attempts.
     pub reopen_max: Duration,
+    /// Where the line counts its events, traffic and requests (`None`: nowhere).
+    pub metrics: Option<Metrics>,
 }
 
 // === impl SlaveLineSettings ===
 
 impl SlaveLineSettings {
+    /// The `protocol` label of a slave line: the config's key.
+    const PROTOCOL: &'static str = "modbus-slave-rtu";
+
     /// A slave line on `port` with `params` and the defaults of the master line for the rest.
     pub fn new(name: impl Into<String>, port: PortSettings, params: SlaveParams) -> Self {
         Self {
@@ -59,6 +66,7 @@ impl SlaveLineSettings {
             diag_depth: DEFAULT_DIAG_DEPTH,
             reopen_min: DEFAULT_REOPEN_MIN,
             reopen_max: DEFAULT_REOPEN_MAX,
+            metrics: None,
         }
     }
 
@@ -93,14 +101,15 @@ pub struct SlaveCounters {
 }
 
 /// A running slave line: its status, counters and the memory it serves.
-#[derive(Debug)]
+/// Clones share the line; [`Self::join`] waits for its task once.
+#[derive(Clone, Debug)]
 pub struct SlaveLineHandle {
     name: String,
     params: SlaveParams,
     shared: Arc<Shared>,
     counters: Arc<Mutex<SlaveCounters>>,
     memory: SharedCpMemory,
-    task: JoinHandle<()>,
+    task: Arc<Mutex<Option<JoinHandle<()>>>>,
 }
 
 // === impl SlaveLineHandle ===
@@ -155,7 +164,13 @@ impl SlaveLineHandle {
 
     /// Waits for the line task to end (after the shutdown token was cancelled).
     pub async fn join(self) {
-        if let Err(err) = self.task.await {
+        let task = self
+            .task
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take();
+        let Some(task) = task else { return };
+        if let Err(err) = task.await {
             tracing::error!(line = %self.name, %err, "slave line task failed");
         }
     }
@@ -183,7 +198,12 @@ pub fn spawn_modbus_slave_line(
         commands_failed: 0,
     };
     let clock = Clock::start();
-    let shared = Shared::new(status, settings.diag_depth, clock);
+    let metrics = LineMetrics::new(
+        settings.metrics.clone(),
+        &settings.name,
+        SlaveLineSettings::PROTOCOL,
+    );
+    let shared = Shared::with_metrics(status, settings.diag_depth, clock, metrics);
     let counters = Arc::new(Mutex::new(SlaveCounters::default()));
     let task = SlaveTask {
         settings: settings.clone(),
@@ -200,7 +220,7 @@ pub fn spawn_modbus_slave_line(
         shared,
         counters,
         memory,
-        task,
+        task: Arc::new(Mutex::new(Some(task))),
     }
 }
 
@@ -232,14 +252,10 @@ impl SlaveTask {
             match serial::open(&self.settings.port) {
                 Ok(port) => {
                     reopen.reset();
-                    self.shared.update(|s| {
-                        s.port_open = true;
-                        s.port_error = None;
-                        s.port_opens += 1;
-                    });
                     tracing::info!(line = %name, path = %self.settings.port.path, address = self.settings.params.address(), "slave port open");
+                    self.shared.started();
                     let exit = self.drive(port).await;
-                    self.shared.update(|s| s.port_open = false);
+                    self.shared.port_closed();
                     match exit {
                         PortExit::Shutdown => break,
                         PortExit::Lost(reason) => self.port_failed(EVENT_PORT_LOST, reason),
@@ -286,6 +302,7 @@ impl SlaveTask {
                 if let Err(err) = port.write_all(&frame).await {
                     return PortExit::Lost(format!("write to {path} failed: {err}"));
                 }
+                self.shared.metrics().sent(frame.len());
             }
             while let Some(event) = slave.poll_event() {
                 self.on_event(event);
@@ -307,6 +324,7 @@ impl SlaveTask {
                     Ok(0) => return PortExit::Lost(format!("{path} reached end of file")),
                     Ok(n) => {
                         let (_, engine_now) = self.clock.now();
+                        self.shared.metrics().received_bytes(n);
                         slave.handle_rx(engine_now, buf.get(..n).unwrap_or_default());
                     }
                     Err(err) => return PortExit::Lost(format!("read from {path} failed: {err}")),
@@ -329,6 +347,9 @@ impl SlaveTask {
                 outcome,
             } => {
                 tracing::debug!(line = %line, address, function = function.0, ?outcome, "request");
+                let metrics = self.shared.metrics();
+                metrics.received_telegram();
+                metrics.request(SLAVE_LINE_PARTNER, function.0, slave_result(outcome));
                 let served = matches!(outcome, Outcome::Answered | Outcome::BroadcastApplied);
                 self.shared.update(|s| {
                     if served {

@@ -2,17 +2,18 @@
 //!
 //! The CP keeps the newest events of a line in a diagnostic buffer of 9 entries (003 7.3); the
 //! catalog's [`DiagBuffer`] does that here with a configurable depth. Every event is also counted
-//! by id, logged with its class name from the catalog, and sent to subscribers (metrics, zenoh) on
-//! a bounded broadcast channel.
+//! by id, logged with its class name from the catalog, counted in the line's Prometheus metrics,
+//! and sent to subscribers (zenoh, REST) on a bounded broadcast channel.
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::SystemTime;
 
-use proto_core::event::{self, DiagBuffer, DiagEntry, EventId};
+use proto_core::event::{self, ids, DiagBuffer, DiagEntry, EventId};
 use tokio::sync::broadcast;
 
 use super::driver::Clock;
+use super::line_metrics::LineMetrics;
 
 /// Depth of the diagnostic buffer by default: the CP's 9 entries (003 7.3).
 pub const DEFAULT_DIAG_DEPTH: usize = event::DEFAULT_DEPTH;
@@ -95,19 +96,39 @@ pub(crate) struct Shared {
     /// The line's clock (the diagnostic buffer's instants).
     clock: Clock,
     events: broadcast::Sender<LineEvent>,
+    /// The line's Prometheus metrics (no-ops without).
+    metrics: LineMetrics,
 }
 
 // === impl Shared ===
 
 impl Shared {
+    /// The shared state of a line without metrics.
+    #[allow(dead_code)] // for lines without metrics (the unit tests; the telegram lines)
     pub(crate) fn new(status: LineStatus, depth: usize, clock: Clock) -> Arc<Self> {
+        Self::with_metrics(status, depth, clock, LineMetrics::default())
+    }
+
+    /// The shared state of a line whose events are also counted in `metrics`.
+    pub(crate) fn with_metrics(
+        status: LineStatus,
+        depth: usize,
+        clock: Clock,
+        metrics: LineMetrics,
+    ) -> Arc<Self> {
         let (events, _) = broadcast::channel(EVENT_CHANNEL_CAPACITY);
         Arc::new(Self {
             status: Mutex::new(status),
             diag: Mutex::new(DiagBuffer::new(depth)),
             clock,
             events,
+            metrics,
         })
+    }
+
+    /// The line's metrics.
+    pub(crate) fn metrics(&self) -> &LineMetrics {
+        &self.metrics
     }
 
     /// Runs `f` on the status under its lock.
@@ -132,8 +153,36 @@ impl Shared {
         self.update(|s| s.devices.get(index).is_some_and(|d| d.online))
     }
 
-    /// Records an event: diagnostic buffer, counter, STATUS word, log, subscribers.
+    /// Records an event: diagnostic buffer, counter, STATUS word, log, metrics, subscribers.
     pub(crate) fn raise(&self, id: EventId, slave: Option<u8>, detail: Option<String>) {
+        self.record(id, slave, detail);
+        self.metrics.event(id);
+    }
+
+    /// The line took its parameters and its port is open: port state in the status, event 00 03h
+    /// "PtP parameters accepted" recorded as the CP reports it at start-up (003 7.2, class 00h),
+    /// and in the metrics the line up with that event counted.
+    ///
+    /// The gateway sets the port's parameters each time it opens it, so a port reopened after a
+    /// failure reports 00 03h again, after the 02 0Fh or 08 0Dh of the failure.
+    pub(crate) fn started(&self) {
+        self.update(|s| {
+            s.port_open = true;
+            s.port_error = None;
+            s.port_opens += 1;
+        });
+        self.record(ids::PTP_PARAMS_ACCEPTED, None, None);
+        self.metrics.started();
+    }
+
+    /// The port closed (failure or shutdown).
+    pub(crate) fn port_closed(&self) {
+        self.update(|s| s.port_open = false);
+        self.metrics.port_closed();
+    }
+
+    /// Diagnostic buffer, counter, STATUS word, log and subscribers of one event.
+    fn record(&self, id: EventId, slave: Option<u8>, detail: Option<String>) {
         let (_, at) = self.clock.now();
         self.diag
             .lock()
@@ -156,6 +205,10 @@ impl Shared {
         match &event.detail {
             Some(detail) => {
                 tracing::warn!(line = %event.line, event = %id, class, slave, detail, "line event")
+            }
+            // Class 00h "CP start-up" reports normal operation.
+            None if id.class == 0 => {
+                tracing::info!(line = %event.line, event = %id, class, "line event")
             }
             None => tracing::warn!(line = %event.line, event = %id, class, slave, "line event"),
         }
@@ -206,5 +259,38 @@ mod tests {
         assert_eq!(s.event_counts[&EventId::new(0x08, 0x34)], 1);
         assert_eq!(s.last_event.unwrap().detail, None);
         assert_eq!(rx.try_recv().unwrap().id, EventId::new(0x08, 0x30));
+    }
+
+    #[test]
+    fn start_up_is_recorded_like_every_event_and_counted_once_in_the_metrics() {
+        let registry = prometheus::Registry::new();
+        let metrics = crate::metrics::Metrics::register(&registry).expect("register");
+        let line = LineMetrics::new(Some(metrics), "drive", "modbus-master-rtu");
+        let shared = Shared::with_metrics(status(), 9, Clock::start(), line);
+        let mut rx = shared.subscribe();
+        shared.started();
+        shared.raise(EventId::new(0x08, 0x30), Some(2), None);
+        let s = shared.snapshot();
+        assert!(s.port_open);
+        assert_eq!(s.port_opens, 1);
+        assert_eq!(s.event_counts[&ids::PTP_PARAMS_ACCEPTED], 1);
+        let newest_first: Vec<EventId> = s.diagnostics.iter().map(|e| e.id).collect();
+        assert_eq!(
+            newest_first,
+            [EventId::new(0x08, 0x30), ids::PTP_PARAMS_ACCEPTED]
+        );
+        assert_eq!(rx.try_recv().unwrap().id, ids::PTP_PARAMS_ACCEPTED);
+        let text = crate::metrics::encode_text(&registry);
+        for expected in [
+            r#"gateway_events_total{class="00",class_name="cp start-up",event="0003",line="drive"} 1"#,
+            r#"gateway_events_total{class="08",class_name="receive error",event="0830",line="drive"} 1"#,
+            r#"gateway_line_up{line="drive",protocol="modbus-master-rtu"} 1"#,
+        ] {
+            assert!(text.contains(expected), "{expected} missing in\n{text}");
+        }
+        shared.port_closed();
+        assert!(!shared.snapshot().port_open);
+        let text = crate::metrics::encode_text(&registry);
+        assert!(text.contains(r#"gateway_line_up{line="drive",protocol="modbus-master-rtu"} 0"#));
     }
 }

@@ -1,12 +1,16 @@
 //! Counters of the Modbus TCP server.
 //!
-//! Every label set is bounded and carries no client address, no register address: the counters
-//! become Prometheus metric families as they are.
+//! Every label set is bounded and carries no client address, no register address. With
+//! [`ServerStats::with_metrics`] every count is mirrored into the Prometheus families of
+//! [`Metrics`]: open and accepted connections, rejected ones by reason (failed accepts as
+//! `accept_error`), requests by function and result.
 
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
 use proto_core::modbus::pdu::ExceptionCode;
+
+use crate::metrics::{self, Metrics, TcpConnectionGuard};
 
 /// Why a connection was closed at accept.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -101,6 +105,8 @@ pub struct ServerStats {
     closed: [AtomicU64; 5],
     frames_rejected: [AtomicU64; 3],
     requests: [[AtomicU64; RESULT_LABELS.len()]; FUNCTION_LABELS.len()],
+    /// The Prometheus families the counts are mirrored into, if any.
+    metrics: Option<Metrics>,
 }
 
 // === impl ServerStats ===
@@ -109,6 +115,14 @@ impl ServerStats {
     /// All counters at zero.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// All counters at zero, every count also made in the Prometheus families of `metrics`.
+    pub fn with_metrics(metrics: Metrics) -> Self {
+        Self {
+            metrics: Some(metrics),
+            ..Self::default()
+        }
     }
 
     /// Connections being served now.
@@ -173,6 +187,7 @@ impl ServerStats {
         self.connections_open.fetch_add(1, Ordering::Relaxed);
         OpenConnection {
             stats: Arc::clone(self),
+            _metrics: self.metrics.as_ref().map(Metrics::tcp_connection_accepted),
         }
     }
 
@@ -182,10 +197,19 @@ impl ServerStats {
             RejectReason::Network => &self.rejected_network,
         }
         .fetch_add(1, Ordering::Relaxed);
+        if let Some(m) = &self.metrics {
+            m.tcp_connection_rejected(match reason {
+                RejectReason::Limit => metrics::RejectReason::Limit,
+                RejectReason::Network => metrics::RejectReason::Network,
+            });
+        }
     }
 
     pub(crate) fn count_accept_error(&self, kind: AcceptError) {
         self.accept_errors[kind as usize].fetch_add(1, Ordering::Relaxed);
+        if let Some(m) = &self.metrics {
+            m.tcp_connection_rejected(metrics::RejectReason::AcceptError);
+        }
     }
 
     pub(crate) fn count_closed(&self, reason: CloseReason) {
@@ -199,13 +223,24 @@ impl ServerStats {
     pub(crate) fn count_request(&self, function: u8, result: RequestResult) {
         self.requests[function_index(function)][result_index(result)]
             .fetch_add(1, Ordering::Relaxed);
+        if let Some(m) = &self.metrics {
+            m.tcp_request(
+                function,
+                match result {
+                    RequestResult::Ok => metrics::RequestResult::Ok,
+                    RequestResult::Exception(code) => metrics::RequestResult::Exception(code),
+                },
+            );
+        }
     }
 }
 
-/// Keeps `connections_open` up while a connection is served.
+/// Keeps `connections_open` (and `gateway_modbus_tcp_connections`) up while a connection is
+/// served.
 #[derive(Debug)]
 pub(crate) struct OpenConnection {
     stats: Arc<ServerStats>,
+    _metrics: Option<TcpConnectionGuard>,
 }
 
 impl Drop for OpenConnection {
@@ -258,6 +293,37 @@ mod tests {
         let code_03 = RequestResult::Exception(ExceptionCode::IllegalDataValue);
         // Function 0x03 got Other(0x03), which counts as exception 03.
         assert_eq!(stats.request_count(0x03, code_03), 1);
+    }
+
+    #[test]
+    fn counts_are_mirrored_into_the_prometheus_families() {
+        let registry = prometheus::Registry::new();
+        let stats = Arc::new(ServerStats::with_metrics(
+            Metrics::register(&registry).expect("register"),
+        ));
+        let open = stats.count_accepted();
+        stats.count_rejected(RejectReason::Limit);
+        stats.count_accept_error(AcceptError::ProcessFdLimit);
+        stats.count_request(0x03, RequestResult::Ok);
+        stats.count_request(
+            0x10,
+            RequestResult::Exception(ExceptionCode::GatewayTargetFailedToRespond),
+        );
+        let text = metrics::encode_text(&registry);
+        for expected in [
+            "gateway_modbus_tcp_connections 1",
+            "gateway_modbus_tcp_connections_accepted_total 1",
+            r#"gateway_modbus_tcp_connections_rejected_total{reason="limit"} 1"#,
+            r#"gateway_modbus_tcp_connections_rejected_total{reason="network"} 0"#,
+            r#"gateway_modbus_tcp_connections_rejected_total{reason="accept_error"} 1"#,
+            r#"gateway_modbus_tcp_requests_total{function="03",result="ok"} 1"#,
+            r#"gateway_modbus_tcp_requests_total{function="10",result="exception_0B"} 1"#,
+        ] {
+            assert!(text.contains(expected), "{expected} missing in\n{text}");
+        }
+        drop(open);
+        let text = metrics::encode_text(&registry);
+        assert!(text.contains("gateway_modbus_tcp_connections 0"), "{text}");
     }
 
     #[test]

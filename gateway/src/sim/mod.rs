@@ -6,6 +6,7 @@
 //!
 //! - [`altivar::AltivarSim`]: Altivar 61/71 (seed manual 002), default slave 2;
 //! - [`ksvario::KsVarioSim`]: KS vario (seed manual 001), default slave 17;
+//! - [`telegram`]: the 3964(R) and ASCII partners (echo, own telegrams every interval);
 //! - [`master`]: the other way round, a simulated serial master polling the gateway's Modbus slave
 //!   line (the demo's HMI).
 //!
@@ -18,6 +19,7 @@ pub mod altivar;
 pub mod ksvario;
 pub mod master;
 pub mod runner;
+pub mod telegram;
 
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;

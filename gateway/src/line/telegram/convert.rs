@@ -1,0 +1,248 @@
+//! From the configuration (`[lines.<name>]` with `protocol = "3964r"` or `"ascii"`) to the
+//! settings of a telegram line.
+//!
+//! The mailbox follows the line's receive buffer: its depth is `receive_buffer`; its policy is
+//! 3964(R) `overflow` (refuse: NAK, or drop-oldest), ASCII `prevent_overwrite` (on: the CP drops
+//! the new telegram, or under XON/XOFF or RTS/CTS holds the partner back, 003 6.2.1; off: the
+//! newest telegram replaces the oldest).
+//!
+//! The port settings come from the caller (the app's conversion of the serial section), so that
+//! every line opens its port the same way.
+
+use proto_core::proc3964::{Params3964, Priority, Settings3964, Variant};
+use proto_core::telegram::{
+    AsciiParams, AsciiSettings, ConfigError, EndCriterion, FlowControl, Interface, DEFAULT_TX_CHUNK,
+};
+
+use super::{TelegramLineSettings, TelegramProtocol};
+use crate::config::{
+    self as cfg, AsciiConfig, LineConfig, Proc3964Config, ProtocolConfig, SerialConfig,
+};
+use crate::mailbox::{MailboxSettings, Overflow};
+use crate::serial::PortSettings;
+
+/// Why a line's configuration does not make a telegram line.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum TelegramConfigError {
+    /// The line speaks another protocol.
+    #[error("line {0} is not a 3964(R) or ASCII line")]
+    NotATelegramLine(String),
+    /// The protocol engine refuses the parameters (the config check should have caught it).
+    #[error("line {line}: {source}")]
+    Invalid {
+        /// The line.
+        line: String,
+        /// The parameter the engine refused.
+        #[source]
+        source: ConfigError,
+    },
+}
+
+fn interface(serial: &SerialConfig) -> Interface {
+    match serial.interface {
+        cfg::Interface::Rs232 => Interface::Rs232,
+        cfg::Interface::Rs422 => Interface::Rs422,
+        cfg::Interface::Rs485 => Interface::Rs485,
+    }
+}
+
+/// The engine parameters of a 3964(R) line.
+///
+/// # Errors
+///
+/// The parameter the engine refuses.
+pub fn params_3964(serial: &SerialConfig, c: &Proc3964Config) -> Result<Params3964, ConfigError> {
+    Params3964::try_new(Settings3964 {
+        variant: if c.block_check {
+            Variant::P3964R
+        } else {
+            Variant::P3964
+        },
+        priority: match c.priority {
+            cfg::Priority::High => Priority::High,
+            cfg::Priority::Low => Priority::Low,
+        },
+        baud: serial.baud.get(),
+        interface: interface(serial),
+        zvz: c.character_delay,
+        qvz: c.ack_delay,
+        setup_attempts: c.setup_attempts,
+        transmission_attempts: c.transmission_attempts,
+        max_len: c.max_telegram_len,
+        receive_buffers: c.receive_buffer,
+        send_queue: c.send_queue,
+    })
+}
+
+/// The engine parameters of an ASCII line.
+///
+/// # Errors
+///
+/// The parameter the engine refuses.
+pub fn params_ascii(serial: &SerialConfig, c: &AsciiConfig) -> Result<AsciiParams, ConfigError> {
+    let end = match c.end_criterion {
+        cfg::EndCriterion::CharDelay => EndCriterion::CharacterDelay,
+        cfg::EndCriterion::FixedLength => EndCriterion::FixedLength(c.fixed_length),
+        cfg::EndCriterion::EndChars => EndCriterion::EndChars {
+            first: c
+                .end_chars
+                .first()
+                .copied()
+                .unwrap_or(cfg::DEFAULT_ASCII_END_CHARS[0]),
+            second: c.end_chars.get(1).copied(),
+        },
+    };
+    let flow = match c.flow_control {
+        cfg::FlowControl::None => FlowControl::None,
+        cfg::FlowControl::XonXoff => FlowControl::XonXoff {
+            xon: c.xon_code,
+            xoff: c.xoff_code,
+        },
+        cfg::FlowControl::RtsCts => FlowControl::RtsCts,
+        cfg::FlowControl::AutoV24 => FlowControl::AutoV24 {
+            output_wait: c.data_output_wait,
+            rts_hold: c.rts_hold_time,
+        },
+    };
+    AsciiParams::try_new(AsciiSettings {
+        baud: serial.baud.get(),
+        data_bits: serial.data_bits.get(),
+        interface: interface(serial),
+        end,
+        zvz: c.character_delay,
+        send_pause: c.send_pause,
+        flow,
+        flow_wait: c.xon_wait,
+        receive_buffers: c.receive_buffer,
+        prevent_overwrite: c.prevent_overwrite,
+        send_queue: c.send_queue,
+        tx_chunk: DEFAULT_TX_CHUNK,
+    })
+}
+
+// === impl TelegramLineSettings (from the configuration) ===
+
+impl TelegramLineSettings {
+    /// The settings of the configured line `name` on `port` (the runtime's port settings of the
+    /// line's serial section). Diagnostic depth and reopen back-off keep their defaults; set them
+    /// from the gateway section.
+    ///
+    /// # Errors
+    ///
+    /// The line is no telegram line, or its engine refuses a parameter.
+    pub fn from_config(
+        name: &str,
+        line: &LineConfig,
+        port: PortSettings,
+    ) -> Result<Self, TelegramConfigError> {
+        let invalid = |source| TelegramConfigError::Invalid {
+            line: name.to_owned(),
+            source,
+        };
+        let (protocol, mailbox, max_len, send_queue) = match &line.protocol {
+            ProtocolConfig::Proc3964(c) => {
+                let params = params_3964(&line.serial, c).map_err(invalid)?;
+                let overflow = match c.overflow {
+                    cfg::Overflow3964::Refuse => Overflow::Refuse,
+                    cfg::Overflow3964::DropOldest => Overflow::DropOldest,
+                };
+                (
+                    TelegramProtocol::P3964(params),
+                    MailboxSettings {
+                        queue_depth: usize::from(c.receive_buffer),
+                        overflow,
+                    },
+                    c.max_telegram_len,
+                    c.send_queue,
+                )
+            }
+            ProtocolConfig::Ascii(c) => {
+                let params = params_ascii(&line.serial, c).map_err(invalid)?;
+                // Only XON/XOFF and RTS/CTS can hold the partner back (003 6.2.1); under the
+                // automatic V24 handling "Bei Überlauf des Empfangspuffers erfolgt keine Reaktion
+                // des CP" (000 5.4).
+                let overflow = match (c.prevent_overwrite, c.flow_control) {
+                    (false, _) => Overflow::DropOldest,
+                    (true, cfg::FlowControl::XonXoff | cfg::FlowControl::RtsCts) => {
+                        Overflow::Refuse
+                    }
+                    (true, cfg::FlowControl::None | cfg::FlowControl::AutoV24) => Overflow::DropNew,
+                };
+                (
+                    TelegramProtocol::Ascii(params),
+                    MailboxSettings {
+                        queue_depth: usize::from(c.receive_buffer),
+                        overflow,
+                    },
+                    c.max_telegram_len,
+                    c.send_queue,
+                )
+            }
+            _ => return Err(TelegramConfigError::NotATelegramLine(name.to_owned())),
+        };
+        let mut settings = Self::new(name, port, protocol);
+        settings.mailbox = mailbox;
+        settings.max_len = usize::from(max_len);
+        settings.send_queue = usize::from(send_queue);
+        Ok(settings)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config;
+
+    fn port() -> PortSettings {
+        PortSettings::new("/dev/null", 9600)
+    }
+
+    fn line(config: &config::Config, name: &str) -> LineConfig {
+        config.lines.get(name).cloned().expect("demo line")
+    }
+
+    #[test]
+    fn the_demo_lines_make_telegram_lines_with_the_manuals_defaults() {
+        let demo = config::demo();
+        let r3964 = TelegramLineSettings::from_config("r3964", &line(&demo, "r3964"), port())
+            .expect("3964r line");
+        let TelegramProtocol::P3964(p) = &r3964.protocol else {
+            panic!("3964R expected");
+        };
+        let s = p.settings();
+        assert_eq!((s.variant, s.priority), (Variant::P3964R, Priority::High));
+        assert_eq!(
+            (s.zvz.as_millis(), s.qvz.as_millis(), s.setup_attempts),
+            (220, 2000, 6)
+        );
+        assert_eq!(r3964.max_len, 250);
+        assert_eq!(
+            r3964.mailbox,
+            MailboxSettings {
+                queue_depth: 250,
+                overflow: Overflow::Refuse
+            }
+        );
+
+        let ascii = TelegramLineSettings::from_config("ascii", &line(&demo, "ascii"), port())
+            .expect("ascii line");
+        let TelegramProtocol::Ascii(p) = &ascii.protocol else {
+            panic!("ASCII expected");
+        };
+        assert_eq!(
+            p.settings().end,
+            EndCriterion::EndChars {
+                first: 0x03,
+                second: None
+            }
+        );
+        assert_eq!(ascii.mailbox.overflow, Overflow::DropNew);
+        assert_eq!(ascii.max_len, 1024);
+
+        let drive = line(&demo, "drive");
+        assert_eq!(
+            TelegramLineSettings::from_config("drive", &drive, port()).unwrap_err(),
+            TelegramConfigError::NotATelegramLine("drive".into())
+        );
+    }
+}

@@ -1,0 +1,169 @@
+//! One surface over both telegram engines, so that one driver loop (the line task and the
+//! simulators) drives either: the 3964(R) procedure and the ASCII driver share their calls
+//! (`handle_*`, `poll_*`, `send`, `take_received`); only the ASCII driver has RS232 signals.
+//!
+//! `handle_line_error` is left out: the serial library hands over bytes only, never a parity,
+//! framing or overrun error or a BREAK per character, so the runtime has nothing to report (a
+//! real UART's errors stay invisible; the paced link and the simulators' fault modes test them).
+
+use proto_core::proc3964::{Params3964, Proc3964};
+use proto_core::telegram::{
+    Action, AsciiDriver, AsciiParams, FlowControl, SendError, Signals, TelegramEvent, TelegramId,
+};
+use proto_core::time::Instant;
+
+use crate::signals::OutputOwner;
+
+/// What the driver loop needs from a telegram engine. The call order is the engines' own (see
+/// [`Proc3964`] and [`AsciiDriver`]): after every input, drain `poll_action`, `poll_transmit`,
+/// `poll_event`, then ask `poll_timeout`.
+pub(crate) trait TelegramEngine: Send + 'static {
+    /// The protocol's name for logs ("3964R", "ASCII").
+    fn protocol(&self) -> &'static str;
+    /// Queues a telegram.
+    fn send(&mut self, now: Instant, telegram: Vec<u8>) -> Result<TelegramId, SendError>;
+    /// Received bytes.
+    fn handle_rx(&mut self, now: Instant, bytes: &[u8]);
+    /// The CTS and DSR inputs (ignored by engines without RS232 signals).
+    fn handle_signals(&mut self, now: Instant, signals: Signals);
+    /// The oldest buffer from `poll_transmit` left the line at `now`.
+    fn handle_tx_done(&mut self, now: Instant);
+    /// A deadline of `poll_timeout` has come.
+    fn handle_timeout(&mut self, now: Instant);
+    /// The next RS232 output to set (never for engines without RS232 signals).
+    fn poll_action(&mut self) -> Option<Action>;
+    /// The next bytes to write.
+    fn poll_transmit(&mut self) -> Option<Vec<u8>>;
+    /// The next event.
+    fn poll_event(&mut self) -> Option<TelegramEvent>;
+    /// The next deadline.
+    fn poll_timeout(&self) -> Option<Instant>;
+    /// Removes the oldest received telegram from the engine's receive buffer.
+    fn take_received(&mut self) -> Option<Vec<u8>>;
+    /// Whether nothing is being sent, received or queued.
+    fn is_idle(&self) -> bool;
+    /// Whether the engine reacts to CTS and DSR (they must be watched).
+    fn watches_signals(&self) -> bool;
+    /// Who drives DTR and RTS on this line (000 5.4).
+    fn output_owner(&self) -> OutputOwner;
+}
+
+impl TelegramEngine for Proc3964 {
+    fn protocol(&self) -> &'static str {
+        match self.params().settings().variant {
+            proto_core::proc3964::Variant::P3964 => "3964",
+            proto_core::proc3964::Variant::P3964R => "3964R",
+        }
+    }
+    fn send(&mut self, now: Instant, telegram: Vec<u8>) -> Result<TelegramId, SendError> {
+        Self::send(self, now, telegram)
+    }
+    fn handle_rx(&mut self, now: Instant, bytes: &[u8]) {
+        Self::handle_rx(self, now, bytes);
+    }
+    fn handle_signals(&mut self, _now: Instant, _signals: Signals) {}
+    fn handle_tx_done(&mut self, now: Instant) {
+        Self::handle_tx_done(self, now);
+    }
+    fn handle_timeout(&mut self, now: Instant) {
+        Self::handle_timeout(self, now);
+    }
+    fn poll_action(&mut self) -> Option<Action> {
+        None
+    }
+    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        Self::poll_transmit(self)
+    }
+    fn poll_event(&mut self) -> Option<TelegramEvent> {
+        Self::poll_event(self)
+    }
+    fn poll_timeout(&self) -> Option<Instant> {
+        Self::poll_timeout(self)
+    }
+    fn take_received(&mut self) -> Option<Vec<u8>> {
+        Self::take_received(self)
+    }
+    fn is_idle(&self) -> bool {
+        Self::is_idle(self)
+    }
+    fn watches_signals(&self) -> bool {
+        false
+    }
+    fn output_owner(&self) -> OutputOwner {
+        OutputOwner::Free
+    }
+}
+
+impl TelegramEngine for AsciiDriver {
+    fn protocol(&self) -> &'static str {
+        "ASCII"
+    }
+    fn send(&mut self, now: Instant, telegram: Vec<u8>) -> Result<TelegramId, SendError> {
+        Self::send(self, now, telegram)
+    }
+    fn handle_rx(&mut self, now: Instant, bytes: &[u8]) {
+        Self::handle_rx(self, now, bytes);
+    }
+    fn handle_signals(&mut self, now: Instant, signals: Signals) {
+        Self::handle_signals(self, now, signals);
+    }
+    fn handle_tx_done(&mut self, now: Instant) {
+        Self::handle_tx_done(self, now);
+    }
+    fn handle_timeout(&mut self, now: Instant) {
+        Self::handle_timeout(self, now);
+    }
+    fn poll_action(&mut self) -> Option<Action> {
+        Self::poll_action(self)
+    }
+    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        Self::poll_transmit(self)
+    }
+    fn poll_event(&mut self) -> Option<TelegramEvent> {
+        Self::poll_event(self)
+    }
+    fn poll_timeout(&self) -> Option<Instant> {
+        Self::poll_timeout(self)
+    }
+    fn take_received(&mut self) -> Option<Vec<u8>> {
+        Self::take_received(self)
+    }
+    fn is_idle(&self) -> bool {
+        Self::is_idle(self)
+    }
+    fn watches_signals(&self) -> bool {
+        matches!(
+            self.params().settings().flow,
+            FlowControl::RtsCts | FlowControl::AutoV24 { .. }
+        )
+    }
+    fn output_owner(&self) -> OutputOwner {
+        match self.params().settings().flow {
+            FlowControl::None | FlowControl::XonXoff { .. } => OutputOwner::Free,
+            FlowControl::RtsCts => OutputOwner::RtsCts,
+            FlowControl::AutoV24 { .. } => OutputOwner::AutoV24,
+        }
+    }
+}
+
+/// Builds a fresh engine for every opening of the port (nothing carries over a reopen).
+pub(crate) trait EngineFactory: Send + Sync + 'static {
+    /// The engine type.
+    type Engine: TelegramEngine;
+    /// A new engine.
+    fn build(&self) -> Self::Engine;
+}
+
+impl EngineFactory for Params3964 {
+    type Engine = Proc3964;
+    fn build(&self) -> Proc3964 {
+        Proc3964::new(self.clone())
+    }
+}
+
+impl EngineFactory for AsciiParams {
+    type Engine = AsciiDriver;
+    fn build(&self) -> AsciiDriver {
+        AsciiDriver::new(self.clone())
+    }
+}

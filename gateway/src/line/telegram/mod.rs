@@ -1,0 +1,351 @@
+//! Telegram lines: the ASCII driver (003 6.2) and the 3964(R) procedure (003 6.3) on a serial
+//! port, their received telegrams in a [`Mailbox`], their sends from any client.
+//!
+//! One task per line ([`spawn_telegram_line`]) owns the port and the engine; the same loop drives
+//! either engine. What a line offers:
+//! - [`TelegramLineHandle::mailbox_unit`]: the Modbus TCP mailbox ([`crate::mailbox`]);
+//! - [`TelegramLineHandle::client`]: send a telegram and wait for its result (REST, zenoh);
+//! - [`TelegramLineHandle::subscribe_rx`]: every received telegram with its sequence number and
+//!   receive time (zenoh `<prefix>/<line>/rx`);
+//! - [`TelegramLineHandle::signals`]: the RS232 signals (FC 5 V24_STAT, FC 6 V24_SET);
+//! - [`TelegramLineHandle::status`] and [`TelegramLineHandle::subscribe_events`]: diagnostic
+//!   buffer, event counters, STATUS word, telegram counters.
+//!
+//! The mailbox is the CP's receive buffer, so the engine's own buffer is kept small: under
+//! [`Overflow::Refuse`] the engine holds one telegram beyond the mailbox and then refuses
+//! (3964(R): NAK; ASCII under XON/XOFF or RTS/CTS: XOFF / RTS off after a few more; ASCII
+//! otherwise: the engine drops the telegram, 08 0Ah); under the other policies every telegram
+//! is taken from the engine at once. Received bytes go to the engine one at a time and each
+//! completed telegram moves to the mailbox at once, so the small engine buffer fills only while
+//! the mailbox is full.
+
+mod client;
+mod convert;
+pub(crate) mod engine;
+pub(crate) mod pump;
+mod task;
+
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use proto_core::event::{ids, EventId};
+use proto_core::proc3964::{Params3964, Settings3964};
+use proto_core::telegram::{AsciiParams, AsciiSettings, FlowControl, MAX_TELEGRAM};
+use tokio::sync::{broadcast, mpsc};
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+
+pub use crate::mailbox::TelegramRx;
+#[cfg(test)]
+pub(crate) use client::Command;
+pub use client::{PendingSend, SendResult, SignalsClient, TelegramClient, TelegramSendError};
+pub use convert::{params_3964, params_ascii, TelegramConfigError};
+
+use super::driver::Clock;
+use super::status::{self, LineEvent, LineStatus};
+use super::{DEFAULT_DIAG_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
+use crate::mailbox::{Mailbox, MailboxSettings, MailboxUnit, Overflow, TelegramCounters};
+use crate::serial::PortSettings;
+
+/// Commands (sends, signal requests) that may wait for the line task by default.
+pub const DEFAULT_SEND_QUEUE: usize = 16;
+/// How long a stopping line may finish the telegram it is sending or receiving by default.
+pub const DEFAULT_SHUTDOWN_GRACE: Duration = Duration::from_secs(2);
+/// Telegrams the ASCII driver holds beyond a full mailbox under XON/XOFF or RTS/CTS before it
+/// stops the partner (XOFF, RTS off): room for what the partner sends before it reacts (our
+/// choice; the manual gives no number).
+const ASCII_FLOW_SLACK: u16 = 4;
+/// The engine's buffer when the line takes every telegram at once (the manual's maximum).
+const ENGINE_BUFFER_MAX: u16 = 250;
+
+/// The protocol of a telegram line with its validated parameters.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum TelegramProtocol {
+    /// 3964 or 3964R (003 6.3).
+    P3964(Params3964),
+    /// ASCII telegrams (003 6.2).
+    Ascii(AsciiParams),
+}
+
+// === impl TelegramProtocol ===
+
+impl TelegramProtocol {
+    /// The protocol's name ("3964R", "3964", "ASCII").
+    pub fn name(&self) -> &'static str {
+        match self {
+            Self::P3964(p) => match p.settings().variant {
+                proto_core::proc3964::Variant::P3964 => "3964",
+                proto_core::proc3964::Variant::P3964R => "3964R",
+            },
+            Self::Ascii(_) => "ASCII",
+        }
+    }
+
+    /// The longest telegram the engine sends: 3964(R) its configured maximum, ASCII 1024 bytes.
+    pub fn max_len(&self) -> usize {
+        match self {
+            Self::P3964(p) => usize::from(p.settings().max_len),
+            Self::Ascii(_) => MAX_TELEGRAM,
+        }
+    }
+}
+
+/// Settings of one telegram line.
+#[derive(Clone, Debug)]
+pub struct TelegramLineSettings {
+    /// The line's name (logs, status, keys).
+    pub name: String,
+    /// The serial port.
+    pub port: PortSettings,
+    /// The protocol and its parameters. Their receive buffer settings are replaced by the
+    /// mailbox's (see the module doc).
+    pub protocol: TelegramProtocol,
+    /// The mailbox: queue depth and overflow policy.
+    pub mailbox: MailboxSettings,
+    /// The longest telegram sent; longer ones are refused (05 17h). At most the protocol's.
+    pub max_len: usize,
+    /// Commands that may wait for the line task (a full queue is refused at once).
+    pub send_queue: usize,
+    /// Depth of the diagnostic buffer (the CP keeps 9).
+    pub diag_depth: usize,
+    /// First delay before reopening a failed port.
+    pub reopen_min: Duration,
+    /// Longest delay between reopen attempts.
+    pub reopen_max: Duration,
+    /// How long a stopping line may finish the telegram in progress.
+    pub shutdown_grace: Duration,
+}
+
+// === impl TelegramLineSettings ===
+
+impl TelegramLineSettings {
+    /// A line on `port` speaking `protocol`, with the default mailbox and limits.
+    pub fn new(name: impl Into<String>, port: PortSettings, protocol: TelegramProtocol) -> Self {
+        let max_len = protocol.max_len();
+        Self {
+            name: name.into(),
+            port,
+            protocol,
+            mailbox: MailboxSettings::default(),
+            max_len,
+            send_queue: DEFAULT_SEND_QUEUE,
+            diag_depth: DEFAULT_DIAG_DEPTH,
+            reopen_min: DEFAULT_REOPEN_MIN,
+            reopen_max: DEFAULT_REOPEN_MAX,
+            shutdown_grace: DEFAULT_SHUTDOWN_GRACE,
+        }
+    }
+
+    /// The engine's parameters with the receive buffer the mailbox needs: one telegram under
+    /// [`Overflow::Refuse`] (ASCII under XON/XOFF or RTS/CTS: a few), the manual's maximum
+    /// otherwise; overwriting is always prevented in the engine (the mailbox decides).
+    fn engine_protocol(&self) -> TelegramProtocol {
+        let refuse = self.mailbox.overflow == Overflow::Refuse;
+        match &self.protocol {
+            TelegramProtocol::P3964(p) => {
+                let settings = Settings3964 {
+                    receive_buffers: if refuse { 1 } else { ENGINE_BUFFER_MAX },
+                    ..p.settings().clone()
+                };
+                TelegramProtocol::P3964(Params3964::try_new(settings).unwrap_or_else(|_| p.clone()))
+            }
+            TelegramProtocol::Ascii(p) => {
+                let flow = matches!(
+                    p.settings().flow,
+                    FlowControl::XonXoff { .. } | FlowControl::RtsCts
+                );
+                let settings = AsciiSettings {
+                    receive_buffers: match (refuse, flow) {
+                        (true, false) => 1,
+                        (true, true) => ASCII_FLOW_SLACK,
+                        (false, _) => ENGINE_BUFFER_MAX,
+                    },
+                    prevent_overwrite: true,
+                    ..p.settings().clone()
+                };
+                TelegramProtocol::Ascii(
+                    AsciiParams::try_new(settings).unwrap_or_else(|_| p.clone()),
+                )
+            }
+        }
+    }
+}
+
+/// A snapshot of a telegram line ([`TelegramLineHandle::status`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TelegramLineStatus {
+    /// Port, diagnostic buffer, event counters and STATUS word, as every line reports them
+    /// (`devices` empty, `commands_*` zero).
+    pub line: LineStatus,
+    /// "3964R", "3964" or "ASCII".
+    pub protocol: &'static str,
+    /// Telegrams and bytes received and sent, overflows, acknowledgements.
+    pub counters: TelegramCounters,
+    /// Telegrams waiting in the mailbox.
+    pub waiting: usize,
+    /// The mailbox's settings.
+    pub mailbox: MailboxSettings,
+    /// Why the data flow control cannot use the RS232 signals, if it cannot.
+    pub signals_error: Option<String>,
+}
+
+/// What the line task and its handle share.
+#[derive(Debug)]
+pub(crate) struct LineShared {
+    pub(crate) status: Arc<status::Shared>,
+    pub(crate) mailbox: Arc<Mailbox>,
+    protocol: &'static str,
+    signals_error: Mutex<Option<String>>,
+}
+
+// === impl LineShared ===
+
+impl LineShared {
+    /// Records an event: diagnostic buffer, counter, STATUS word (status and mailbox register),
+    /// log, subscribers; 08 0Ah also counts an overflow.
+    pub(crate) fn raise(&self, id: EventId, detail: Option<String>) {
+        if id == ids::NO_FREE_RECEIVE_BUFFER {
+            self.mailbox.count_overflow();
+        }
+        self.mailbox.set_status_word(id.status_word());
+        self.status.raise(id, None, detail);
+    }
+
+    /// Records why the signals cannot be used; returns whether it is new.
+    pub(crate) fn set_signals_error(&self, error: String) -> bool {
+        let mut slot = self
+            .signals_error
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let new = slot.as_deref() != Some(error.as_str());
+        *slot = Some(error);
+        new
+    }
+}
+
+/// A running telegram line.
+#[derive(Debug)]
+pub struct TelegramLineHandle {
+    name: String,
+    shared: Arc<LineShared>,
+    client: TelegramClient,
+    task: JoinHandle<()>,
+}
+
+// === impl TelegramLineHandle ===
+
+impl TelegramLineHandle {
+    /// The line's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// A snapshot of the line's state.
+    pub fn status(&self) -> TelegramLineStatus {
+        let mailbox = &self.shared.mailbox;
+        TelegramLineStatus {
+            line: self.shared.status.snapshot(),
+            protocol: self.shared.protocol,
+            counters: mailbox.counters(),
+            waiting: mailbox.len(),
+            mailbox: mailbox.settings(),
+            signals_error: self
+                .shared
+                .signals_error
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .clone(),
+        }
+    }
+
+    /// Sends telegrams on the line.
+    pub fn client(&self) -> TelegramClient {
+        self.client.clone()
+    }
+
+    /// The line's RS232 signals.
+    pub fn signals(&self) -> SignalsClient {
+        self.client.signals()
+    }
+
+    /// The line's mailbox (received telegrams, acknowledgements, counters).
+    pub fn mailbox(&self) -> Arc<Mailbox> {
+        Arc::clone(&self.shared.mailbox)
+    }
+
+    /// The mailbox as a Modbus TCP unit, to register under the line's unit id.
+    pub fn mailbox_unit(&self) -> MailboxUnit {
+        MailboxUnit::new(self.mailbox(), self.client())
+    }
+
+    /// Every received telegram with its sequence number and receive time (bounded; a lagging
+    /// receiver is told how many it missed).
+    pub fn subscribe_rx(&self) -> broadcast::Receiver<TelegramRx> {
+        self.shared.mailbox.subscribe()
+    }
+
+    /// The line's events as they happen.
+    pub fn subscribe_events(&self) -> broadcast::Receiver<LineEvent> {
+        self.shared.status.subscribe()
+    }
+
+    /// Waits for the line task to end (after the shutdown token was cancelled).
+    pub async fn join(self) {
+        if let Err(err) = self.task.await {
+            tracing::error!(line = %self.name, %err, "line task failed");
+        }
+    }
+}
+
+/// Starts a telegram line: opens its port (reopening with back-off), receives into its mailbox
+/// and sends for its clients until `shutdown` is cancelled. Must be called within a tokio
+/// runtime.
+pub fn spawn_telegram_line(
+    settings: TelegramLineSettings,
+    shutdown: CancellationToken,
+) -> TelegramLineHandle {
+    let settings = TelegramLineSettings {
+        max_len: settings.max_len.min(settings.protocol.max_len()),
+        send_queue: settings.send_queue.max(1),
+        ..settings
+    };
+    let name: Arc<str> = Arc::from(settings.name.as_str());
+    let (tx, rx) = mpsc::channel(settings.send_queue);
+    let status = LineStatus {
+        name: settings.name.clone(),
+        port_open: false,
+        port_error: None,
+        port_opens: 0,
+        status_word: 0,
+        diagnostics: Vec::new(),
+        last_event: None,
+        started: std::time::SystemTime::now(),
+        event_counts: std::collections::BTreeMap::new(),
+        devices: Vec::new(),
+        commands_answered: 0,
+        commands_failed: 0,
+    };
+    let shared = Arc::new(LineShared {
+        status: status::Shared::new(status, settings.diag_depth, Clock::start()),
+        mailbox: Mailbox::new(&settings.name, settings.mailbox, settings.max_len),
+        protocol: settings.protocol.name(),
+        signals_error: Mutex::new(None),
+    });
+    let client = TelegramClient::new(Arc::clone(&name), tx, settings.send_queue);
+    let task = match settings.engine_protocol() {
+        TelegramProtocol::P3964(params) => tokio::spawn(
+            task::TelegramTask::new(settings.clone(), params, Arc::clone(&shared), rx, shutdown)
+                .run(),
+        ),
+        TelegramProtocol::Ascii(params) => tokio::spawn(
+            task::TelegramTask::new(settings.clone(), params, Arc::clone(&shared), rx, shutdown)
+                .run(),
+        ),
+    };
+    TelegramLineHandle {
+        name: settings.name,
+        shared,
+        client,
+        task,
+    }
+}

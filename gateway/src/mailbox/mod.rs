@@ -1,0 +1,425 @@
+//! Telegram mailboxes: how the telegrams of an ASCII or 3964(R) line reach Modbus TCP clients,
+//! modeled on the CP's FB 7 P_RCV_RK and FB 8 P_SND_RK (SPEC "Republishing").
+//!
+//! The [`Mailbox`] of a line is the CP's receive ring buffer (003 6.2.1 "Receipt telegrams are
+//! buffered in the CP at a ring buffer"): every received telegram gets a sequence number and a
+//! receive time and waits in a queue of configured depth until a client acknowledges it. The
+//! oldest waiting telegram is always the one shown (FB 7 hands on the oldest first). When the
+//! queue is full, the [`Overflow`] policy decides, and every telegram dropped or refused is
+//! counted and raised as event 08 0Ah ("There is no free receive buffer available", remedy "Call
+//! FB P_RCV_RK more frequently"): nothing is lost silently.
+//!
+//! Sequence numbers count 1, 2, ... 65535, 1, ... (0 means "none"); every telegram taken from the
+//! line gets one, also a telegram the policy then drops, so a client sees a gap where telegrams
+//! were lost. Observers (zenoh, REST) get every telegram with its number
+//! ([`Mailbox::subscribe`]), independent of the acknowledgements.
+//!
+//! [`MailboxUnit`] serves the mailbox under the line's unit id; [`layout`] documents the
+//! registers.
+
+pub mod layout;
+mod send_block;
+mod unit;
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
+use std::time::SystemTime;
+
+use tokio::sync::{broadcast, Notify};
+
+pub use unit::MailboxUnit;
+
+use send_block::SendBlock;
+
+/// Telegrams a mailbox holds by default: the CP's default receive buffer (003 6.2.1 "Buffered
+/// receive message frames ... 250").
+pub const DEFAULT_QUEUE_DEPTH: usize = 250;
+/// The most telegrams a mailbox holds (003 6.2.1: "Range of values: 1 ... 250").
+pub const MAX_QUEUE_DEPTH: usize = 250;
+/// Capacity of the broadcast of received telegrams; a receiver that falls further behind is told
+/// how many it missed (tokio's `Lagged`).
+const RX_CHANNEL_CAPACITY: usize = 1024;
+
+/// What a full mailbox does with the next telegram.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Overflow {
+    /// Leave it with the protocol driver, which refuses further telegrams: 3964(R) answers STX
+    /// with NAK (003 6.3.1 "When the driver is not ready yet at reception of the STX, it sends a
+    /// NAK"), the ASCII driver stops the partner with XOFF or RTS = OFF under data flow control.
+    /// The partner sees the refusal; nothing is lost in the gateway. One telegram more than the
+    /// depth waits in the driver.
+    #[default]
+    Refuse,
+    /// 003 6.2.1 "Prevent overwriting": the new telegram is dropped.
+    DropNew,
+    /// The oldest waiting telegram is dropped to make room (003 6.2.1 allows overwriting only
+    /// with one buffer; the gateway allows it at any depth).
+    DropOldest,
+}
+
+// === impl Overflow ===
+
+impl Overflow {
+    /// The code of register 529.
+    pub const fn code(self) -> u16 {
+        match self {
+            Self::Refuse => 0,
+            Self::DropNew => 1,
+            Self::DropOldest => 2,
+        }
+    }
+
+    /// The policy's name for logs and status ("refuse", "drop-new", "drop-oldest").
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::Refuse => "refuse",
+            Self::DropNew => "drop-new",
+            Self::DropOldest => "drop-oldest",
+        }
+    }
+}
+
+/// The mailbox of one telegram line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct MailboxSettings {
+    /// Telegrams held until acknowledged (1..=250).
+    pub queue_depth: usize,
+    /// What a full queue does.
+    pub overflow: Overflow,
+}
+
+impl Default for MailboxSettings {
+    fn default() -> Self {
+        Self {
+            queue_depth: DEFAULT_QUEUE_DEPTH,
+            overflow: Overflow::Refuse,
+        }
+    }
+}
+
+/// A received telegram with its sequence number and receive time.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TelegramRx {
+    /// The line's name.
+    pub line: Arc<str>,
+    /// Its sequence number on the line (1..=65535, wrapping to 1).
+    pub seq: u16,
+    /// When the driver delivered it complete.
+    pub received: SystemTime,
+    /// The user data (3964(R): without control codes; ASCII: as received, end characters
+    /// included).
+    pub data: Arc<[u8]>,
+}
+
+/// What became of a telegram handed to the mailbox.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Delivery {
+    /// Queued under `seq`.
+    Kept {
+        /// Its sequence number.
+        seq: u16,
+    },
+    /// The queue was full: the new telegram `seq` was dropped.
+    DroppedNew {
+        /// The dropped telegram's number.
+        seq: u16,
+    },
+    /// The queue was full: the oldest telegram `dropped` made room for `seq`.
+    DroppedOldest {
+        /// The new telegram's number.
+        seq: u16,
+        /// The dropped telegram's number.
+        dropped: u16,
+    },
+}
+
+/// Why an acknowledgement was refused (exception 03 on Modbus TCP).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum AckError {
+    /// The number is not that of the oldest waiting telegram (nor the last one acknowledged).
+    #[error("sequence number {given} is not the oldest waiting telegram ({expected:?})")]
+    WrongSeq {
+        /// The number written.
+        given: u16,
+        /// The oldest waiting telegram's number, `None` when nothing waits.
+        expected: Option<u16>,
+    },
+}
+
+/// The counters of a telegram line, kept with its mailbox.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct TelegramCounters {
+    /// Telegrams received complete (each got a sequence number).
+    pub received: u64,
+    /// Bytes of those telegrams.
+    pub received_bytes: u64,
+    /// Telegrams dropped or refused because the mailbox was full (event 08 0Ah).
+    pub overflows: u64,
+    /// Telegrams acknowledged by a client.
+    pub acknowledged: u64,
+    /// Telegrams sent (3964(R): acknowledged by the partner).
+    pub sent: u64,
+    /// Bytes of those telegrams.
+    pub sent_bytes: u64,
+    /// Sends given up or refused.
+    pub send_failed: u64,
+}
+
+/// The mutable part of a mailbox.
+#[derive(Debug)]
+struct State {
+    /// Waiting telegrams, oldest first.
+    queue: VecDeque<TelegramRx>,
+    /// The last sequence number given (0 before the first).
+    last_seq: u16,
+    /// The last sequence number acknowledged (0 before the first).
+    last_acked: u16,
+    /// The STATUS word of the line's newest event.
+    status_word: u16,
+    /// Whether the line's port is open.
+    port_open: bool,
+    counters: TelegramCounters,
+    /// The Modbus send block (FB 8 P_SND_RK).
+    send: SendBlock,
+}
+
+/// The receive queue, counters and send block of one telegram line, shared by the line task,
+/// its [`MailboxUnit`] and observers.
+#[derive(Debug)]
+pub struct Mailbox {
+    line: Arc<str>,
+    settings: MailboxSettings,
+    /// The longest telegram the line sends.
+    max_send_len: usize,
+    state: Mutex<State>,
+    /// Woken when an acknowledgement makes room (the line moves a refused telegram in).
+    room: Notify,
+    rx: broadcast::Sender<TelegramRx>,
+}
+
+/// The sequence number after `seq`: 1..=65535, skipping 0.
+pub const fn next_seq(seq: u16) -> u16 {
+    if seq == u16::MAX {
+        1
+    } else {
+        seq + 1
+    }
+}
+
+// === impl Mailbox ===
+
+impl Mailbox {
+    /// An empty mailbox for `line`; the depth is clamped to 1..=250.
+    pub fn new(line: &str, settings: MailboxSettings, max_send_len: usize) -> Arc<Self> {
+        let settings = MailboxSettings {
+            queue_depth: settings.queue_depth.clamp(1, MAX_QUEUE_DEPTH),
+            ..settings
+        };
+        let (rx, _) = broadcast::channel(RX_CHANNEL_CAPACITY);
+        Arc::new(Self {
+            line: Arc::from(line),
+            settings,
+            max_send_len: max_send_len.min(layout::MAX_DATA_BYTES),
+            state: Mutex::new(State {
+                queue: VecDeque::with_capacity(settings.queue_depth),
+                last_seq: 0,
+                last_acked: 0,
+                status_word: 0,
+                port_open: false,
+                counters: TelegramCounters::default(),
+                send: SendBlock::default(),
+            }),
+            room: Notify::new(),
+            rx,
+        })
+    }
+
+    fn lock(&self) -> MutexGuard<'_, State> {
+        self.state.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The line's name.
+    pub fn line(&self) -> &str {
+        &self.line
+    }
+
+    /// The settings in use (depth clamped).
+    pub fn settings(&self) -> MailboxSettings {
+        self.settings
+    }
+
+    /// The longest telegram the line sends.
+    pub fn max_send_len(&self) -> usize {
+        self.max_send_len
+    }
+
+    /// Received telegrams as they arrive, with their sequence numbers.
+    pub fn subscribe(&self) -> broadcast::Receiver<TelegramRx> {
+        self.rx.subscribe()
+    }
+
+    /// Whether the line may take the next telegram from its driver now: always, except under
+    /// [`Overflow::Refuse`] with a full queue.
+    pub fn accepts(&self) -> bool {
+        self.settings.overflow != Overflow::Refuse
+            || self.lock().queue.len() < self.settings.queue_depth
+    }
+
+    /// Waits until an acknowledgement makes room. Create the future before checking
+    /// [`Mailbox::accepts`] so that no wake-up is missed.
+    pub(crate) fn room_freed(&self) -> tokio::sync::futures::Notified<'_> {
+        self.room.notified()
+    }
+
+    /// Takes a telegram from the line: gives it the next sequence number, sends it to
+    /// subscribers and queues it under the overflow policy. Under [`Overflow::Refuse`] the line
+    /// only calls this while [`Mailbox::accepts`]; a full queue then drops the new telegram.
+    pub fn deliver(&self, data: Vec<u8>, received: SystemTime) -> Delivery {
+        let mut state = self.lock();
+        let seq = next_seq(state.last_seq);
+        state.last_seq = seq;
+        state.counters.received += 1;
+        state.counters.received_bytes += data.len() as u64;
+        let telegram = TelegramRx {
+            line: Arc::clone(&self.line),
+            seq,
+            received,
+            data: Arc::from(data),
+        };
+        let delivery = if state.queue.len() < self.settings.queue_depth {
+            state.queue.push_back(telegram.clone());
+            Delivery::Kept { seq }
+        } else if self.settings.overflow == Overflow::DropOldest {
+            let dropped = state.queue.pop_front().map_or(0, |t| t.seq);
+            state.queue.push_back(telegram.clone());
+            Delivery::DroppedOldest { seq, dropped }
+        } else {
+            Delivery::DroppedNew { seq }
+        };
+        drop(state);
+        // No subscriber: nobody to lose it.
+        let _ = self.rx.send(telegram);
+        delivery
+    }
+
+    /// Counts one telegram dropped or refused for want of room (event 08 0Ah).
+    pub(crate) fn count_overflow(&self) {
+        self.lock().counters.overflows += 1;
+    }
+
+    /// The oldest waiting telegram.
+    pub fn head(&self) -> Option<TelegramRx> {
+        self.lock().queue.front().cloned()
+    }
+
+    /// Every waiting telegram, oldest first.
+    pub fn waiting(&self) -> Vec<TelegramRx> {
+        self.lock().queue.iter().cloned().collect()
+    }
+
+    /// How many telegrams wait.
+    pub fn len(&self) -> usize {
+        self.lock().queue.len()
+    }
+
+    /// Whether no telegram waits.
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The last sequence number acknowledged (0 before the first).
+    pub fn last_acknowledged(&self) -> u16 {
+        self.lock().last_acked
+    }
+
+    /// Releases the oldest waiting telegram if `seq` is its number. Repeating the last
+    /// acknowledged number is accepted and does nothing, so that a client may repeat a write
+    /// whose answer it lost.
+    ///
+    /// # Errors
+    ///
+    /// [`AckError::WrongSeq`] for any other number (0 included).
+    pub fn ack(&self, seq: u16) -> Result<(), AckError> {
+        let mut state = self.lock();
+        let head = state.queue.front().map(|t| t.seq);
+        if seq != 0 && head == Some(seq) {
+            state.queue.pop_front();
+            state.last_acked = seq;
+            state.counters.acknowledged += 1;
+            drop(state);
+            self.room.notify_one();
+            Ok(())
+        } else if seq != 0 && seq == state.last_acked {
+            Ok(())
+        } else {
+            Err(AckError::WrongSeq {
+                given: seq,
+                expected: head,
+            })
+        }
+    }
+
+    /// The line's counters.
+    pub fn counters(&self) -> TelegramCounters {
+        self.lock().counters
+    }
+
+    /// Records the STATUS word of the line's newest event.
+    pub(crate) fn set_status_word(&self, word: u16) {
+        self.lock().status_word = word;
+    }
+
+    /// Records whether the port is open.
+    pub(crate) fn set_port_open(&self, open: bool) {
+        self.lock().port_open = open;
+    }
+
+    /// Counts the result of a send (from any client).
+    pub(crate) fn count_send(&self, ok: bool, bytes: usize) {
+        let mut state = self.lock();
+        if ok {
+            state.counters.sent += 1;
+            state.counters.sent_bytes += bytes as u64;
+        } else {
+            state.counters.send_failed += 1;
+        }
+    }
+
+    /// The value of one register of the layout.
+    fn register(&self, state: &State, reg: layout::Reg) -> u16 {
+        use layout::{counter_word, data_word, Reg};
+        let head = state.queue.front();
+        let c = &state.counters;
+        match reg {
+            Reg::RxStatus => state.status_word,
+            Reg::RxSeq => head.map_or(0, |t| t.seq),
+            Reg::RxLen => head.map_or(0, |t| u16::try_from(t.data.len()).unwrap_or(u16::MAX)),
+            Reg::RxWaiting => u16::try_from(state.queue.len()).unwrap_or(u16::MAX),
+            Reg::RxData(n) => head.map_or(0, |t| data_word(&t.data, n)),
+            Reg::Received(high) => counter_word(c.received, high),
+            Reg::Overflows(high) => counter_word(c.overflows, high),
+            Reg::Sent(high) => counter_word(c.sent, high),
+            Reg::SendFailed(high) => counter_word(c.send_failed, high),
+            Reg::QueueDepth => u16::try_from(self.settings.queue_depth).unwrap_or(u16::MAX),
+            Reg::OverflowPolicy => self.settings.overflow.code(),
+            Reg::PortOpen => u16::from(state.port_open),
+            Reg::MaxLen => u16::try_from(self.max_send_len).unwrap_or(u16::MAX),
+            Reg::Ack => state.last_acked,
+            other => state.send.register(other),
+        }
+    }
+
+    /// Reads `quantity` holding registers at `address` in one consistent snapshot.
+    pub(crate) fn read_registers(
+        &self,
+        address: u16,
+        quantity: u16,
+    ) -> Result<Vec<u16>, proto_core::modbus::pdu::ExceptionCode> {
+        let regs = layout::read_span(address, quantity)?;
+        let state = self.lock();
+        Ok(regs.into_iter().map(|r| self.register(&state, r)).collect())
+    }
+}
+
+#[cfg(test)]
+mod tests;

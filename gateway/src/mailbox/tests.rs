@@ -1,0 +1,330 @@
+use std::time::{Duration, SystemTime};
+
+use proto_core::event::ids;
+use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
+use tokio::sync::mpsc;
+
+use super::layout::*;
+use super::*;
+use crate::line::telegram::{Command, TelegramClient, TelegramSendError};
+
+fn mailbox(depth: usize, overflow: Overflow) -> Arc<Mailbox> {
+    Mailbox::new(
+        "test",
+        MailboxSettings {
+            queue_depth: depth,
+            overflow,
+        },
+        250,
+    )
+}
+
+fn deliver(mailbox: &Mailbox, text: &str) -> Delivery {
+    mailbox.deliver(text.as_bytes().to_vec(), SystemTime::now())
+}
+
+fn read(mailbox: &Mailbox, address: u16, quantity: u16) -> Vec<u16> {
+    mailbox
+        .read_registers(address, quantity)
+        .expect("a read inside the layout")
+}
+
+#[test]
+fn sequence_numbers_start_at_one_and_skip_zero_when_they_wrap() {
+    assert_eq!(next_seq(0), 1);
+    assert_eq!(next_seq(41), 42);
+    assert_eq!(next_seq(u16::MAX), 1);
+}
+
+#[test]
+fn the_oldest_telegram_stays_until_its_number_is_acknowledged() {
+    let mb = mailbox(8, Overflow::Refuse);
+    assert_eq!(read(&mb, RX_SEQ, 3), [0, 0, 0], "nothing waits");
+    assert_eq!(deliver(&mb, "ABC"), Delivery::Kept { seq: 1 });
+    assert_eq!(deliver(&mb, "second"), Delivery::Kept { seq: 2 });
+    // SEQ, LEN, WAITING, then the data two bytes a register, high byte first.
+    assert_eq!(read(&mb, RX_SEQ, 5), [1, 3, 2, 0x4142, 0x4300]);
+    assert_eq!(
+        mb.ack(2),
+        Err(AckError::WrongSeq {
+            given: 2,
+            expected: Some(1)
+        })
+    );
+    assert!(mb.ack(0).is_err());
+    assert_eq!(mb.ack(1), Ok(()));
+    assert_eq!(
+        mb.ack(1),
+        Ok(()),
+        "repeating the last acknowledgement is harmless"
+    );
+    assert_eq!(read(&mb, RX_SEQ, 3), [2, 6, 1]);
+    assert_eq!(read(&mb, ACK, 1), [1]);
+    assert_eq!(mb.ack(2), Ok(()));
+    assert_eq!(read(&mb, RX_SEQ, 4), [0, 0, 0, 0], "old data does not show");
+    assert_eq!(mb.counters().acknowledged, 2);
+    assert_eq!(mb.counters().received, 2);
+}
+
+#[test]
+fn a_full_queue_follows_its_policy() {
+    let refuse = mailbox(2, Overflow::Refuse);
+    deliver(&refuse, "a");
+    assert!(refuse.accepts());
+    deliver(&refuse, "b");
+    assert!(
+        !refuse.accepts(),
+        "refuse: the line leaves the next one with the driver"
+    );
+
+    let new = mailbox(2, Overflow::DropNew);
+    deliver(&new, "a");
+    deliver(&new, "b");
+    assert!(new.accepts());
+    assert_eq!(deliver(&new, "c"), Delivery::DroppedNew { seq: 3 });
+    assert_eq!(
+        new.waiting().iter().map(|t| t.seq).collect::<Vec<_>>(),
+        [1, 2]
+    );
+
+    let oldest = mailbox(2, Overflow::DropOldest);
+    deliver(&oldest, "a");
+    deliver(&oldest, "b");
+    assert_eq!(
+        deliver(&oldest, "c"),
+        Delivery::DroppedOldest { seq: 3, dropped: 1 }
+    );
+    let waiting: Vec<_> = oldest.waiting().iter().map(|t| t.seq).collect();
+    assert_eq!(waiting, [2, 3]);
+    assert_eq!(
+        oldest.ack(1),
+        Err(AckError::WrongSeq {
+            given: 1,
+            expected: Some(2)
+        }),
+        "a dropped telegram cannot be acknowledged"
+    );
+}
+
+#[test]
+fn depth_is_clamped_to_the_manuals_range() {
+    assert_eq!(mailbox(0, Overflow::Refuse).settings().queue_depth, 1);
+    assert_eq!(mailbox(1000, Overflow::Refuse).settings().queue_depth, 250);
+}
+
+#[test]
+fn subscribers_see_every_telegram_with_its_number() {
+    let mb = mailbox(1, Overflow::DropNew);
+    let mut rx = mb.subscribe();
+    deliver(&mb, "a");
+    deliver(&mb, "b");
+    let first = rx.try_recv().expect("first");
+    let second = rx
+        .try_recv()
+        .expect("second, dropped from the queue but observed");
+    assert_eq!((first.seq, &*first.data), (1, &b"a"[..]));
+    assert_eq!((second.seq, &*second.line), (2, "test"));
+}
+
+#[test]
+fn counters_status_and_settings_are_registers() {
+    let mb = mailbox(5, Overflow::DropOldest);
+    for _ in 0..3 {
+        deliver(&mb, "x");
+    }
+    mb.count_overflow();
+    mb.count_send(true, 4);
+    mb.count_send(false, 4);
+    mb.set_status_word(ids::NO_FREE_RECEIVE_BUFFER.status_word());
+    mb.set_port_open(true);
+    assert_eq!(read(&mb, RX_STATUS, 1), [0x080A]);
+    assert_eq!(
+        read(&mb, DIAG_RECEIVED, DIAG_END - DIAG_RECEIVED),
+        [0, 3, 0, 1, 0, 1, 0, 1, 5, 2, 1, 250]
+    );
+    for (address, quantity) in [
+        (RX_END, 1),
+        (RX_END - 1, 2),
+        (DIAG_END, 1),
+        (ACK, 2),
+        (0, 600),
+    ] {
+        assert_eq!(
+            mb.read_registers(address, quantity),
+            Err(ExceptionCode::IllegalDataAddress),
+            "{address}+{quantity}"
+        );
+    }
+}
+
+/// A mailbox unit whose line is played by the test: sends arrive on the returned receiver.
+fn unit(max_len: usize) -> (MailboxUnit, mpsc::Receiver<Command>) {
+    let (tx, rx) = mpsc::channel(4);
+    let mb = Mailbox::new("test", MailboxSettings::default(), max_len);
+    let client = TelegramClient::new(Arc::from("test"), tx, 4);
+    (MailboxUnit::new(mb, client), rx)
+}
+
+fn write(unit: &MailboxUnit, address: u16, values: &[u16]) -> Result<Response, ExceptionCode> {
+    unit.answer(Request::WriteMultipleRegisters {
+        address,
+        values: values.to_vec(),
+    })
+}
+
+fn send_block(unit: &MailboxUnit) -> Vec<u16> {
+    read(unit.mailbox(), TX_DONE, 5)
+}
+
+async fn settle(unit: &MailboxUnit, req: u16) {
+    for _ in 0..100 {
+        if send_block(unit)[4] == req && send_block(unit)[3] == 0 {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    panic!("request {req} did not finish: {:?}", send_block(unit));
+}
+
+#[tokio::test]
+async fn the_send_block_sends_on_a_new_request_and_shows_the_result() {
+    let (unit, mut line) = unit(250);
+    // REQ, LEN, DATA in one write.
+    let answer = write(&unit, TX_REQ, &[1, 3, 0x4142, 0x4300]);
+    assert_eq!(
+        answer,
+        Ok(Response::WriteMultipleRegisters {
+            address: TX_REQ,
+            quantity: 4
+        })
+    );
+    assert_eq!(send_block(&unit), [0, 0, 0, 1, 0], "BUSY");
+    let Some(Command::Send { data, reply }) = line.recv().await else {
+        panic!("a send");
+    };
+    assert_eq!(data, b"ABC");
+
+    // A new request while busy is refused; the same value again starts nothing.
+    assert_eq!(
+        write(&unit, TX_REQ, &[2]),
+        Err(ExceptionCode::ServerDeviceBusy)
+    );
+    assert_eq!(
+        read(unit.mailbox(), TX_REQ, 1),
+        [1],
+        "the refused write changed nothing"
+    );
+    assert!(write(&unit, TX_REQ, &[1]).is_ok());
+    // DATA may be prepared while busy.
+    assert!(write(&unit, TX_LEN, &[2, 0x5859]).is_ok());
+
+    reply.send(Ok(())).expect("the mailbox waits");
+    settle(&unit, 1).await;
+    assert_eq!(send_block(&unit), [1, 0, 0, 0, 1], "DONE for request 1");
+
+    // The next request fails at the line: ERROR and the event's STATUS word.
+    assert!(unit
+        .answer(Request::WriteSingleRegister {
+            address: TX_REQ,
+            value: 2
+        })
+        .is_ok());
+    let Some(Command::Send { data, reply }) = line.recv().await else {
+        panic!("a send");
+    };
+    assert_eq!(data, b"XY");
+    let _ = reply.send(Err(TelegramSendError::Failed {
+        event: ids::SEND_ATTEMPTS_EXHAUSTED,
+        first: ids::SEND_END_TIMEOUT,
+    }));
+    settle(&unit, 2).await;
+    assert_eq!(send_block(&unit), [0, 1, 0x070A, 0, 2]);
+    assert!(line.try_recv().is_err(), "nothing else was sent");
+}
+
+#[tokio::test]
+async fn a_length_the_line_cannot_send_ends_in_error_without_sending() {
+    let (unit, mut line) = unit(4);
+    assert!(write(&unit, TX_REQ, &[1, 0]).is_ok());
+    assert_eq!(send_block(&unit), [0, 1, 0x1E41, 0, 1], "LEN 0: 1E 41h");
+    assert!(write(&unit, TX_REQ, &[2, 5]).is_ok());
+    assert_eq!(send_block(&unit), [0, 1, 0x0517, 0, 2], "LEN 5 > 4: 05 17h");
+    assert_eq!(
+        write(&unit, TX_LEN, &[1025]),
+        Err(ExceptionCode::IllegalDataValue)
+    );
+    assert_eq!(unit.mailbox().counters().send_failed, 2);
+    assert!(line.try_recv().is_err());
+}
+
+#[tokio::test]
+async fn a_full_line_queue_is_busy_and_changes_nothing() {
+    let (unit, _line) = unit(250);
+    let client = unit.client().clone();
+    for _ in 0..4 {
+        client.try_send(b"fill".to_vec()).expect("room");
+    }
+    assert_eq!(
+        write(&unit, TX_REQ, &[1, 1, 0x4100]),
+        Err(ExceptionCode::ServerDeviceBusy)
+    );
+    assert_eq!(read(unit.mailbox(), TX_REQ, 3), [0, 0, 0]);
+}
+
+#[test]
+fn acknowledge_by_write_and_fetch_the_next_in_one_exchange() {
+    let (unit, _line) = unit(250);
+    deliver(unit.mailbox(), "one");
+    deliver(unit.mailbox(), "two");
+    assert_eq!(
+        unit.answer(Request::WriteSingleRegister {
+            address: ACK,
+            value: 2
+        }),
+        Err(ExceptionCode::IllegalDataValue),
+        "not the oldest"
+    );
+    assert_eq!(
+        unit.answer(Request::WriteSingleRegister {
+            address: ACK,
+            value: 1
+        }),
+        Ok(Response::WriteSingleRegister {
+            address: ACK,
+            value: 1
+        })
+    );
+    // FC 23: acknowledge 2, read the receive block header: nothing left.
+    assert_eq!(
+        unit.answer(Request::ReadWriteMultipleRegisters {
+            read_address: RX_STATUS,
+            read_quantity: 4,
+            write_address: ACK,
+            values: vec![2],
+        }),
+        Ok(Response::ReadWriteMultipleRegisters(vec![0, 0, 0, 0]))
+    );
+    // A bad read part changes nothing.
+    deliver(unit.mailbox(), "three");
+    assert_eq!(
+        unit.answer(Request::ReadWriteMultipleRegisters {
+            read_address: RX_END,
+            read_quantity: 1,
+            write_address: ACK,
+            values: vec![3],
+        }),
+        Err(ExceptionCode::IllegalDataAddress)
+    );
+    assert_eq!(unit.mailbox().len(), 1);
+    assert_eq!(
+        unit.answer(Request::ReadInputRegisters {
+            address: 0,
+            quantity: 1
+        }),
+        Err(ExceptionCode::IllegalFunction)
+    );
+    assert_eq!(
+        write(&unit, RX_SEQ, &[1]),
+        Err(ExceptionCode::IllegalDataAddress)
+    );
+}

@@ -1,0 +1,108 @@
+//! A telegram mailbox as a Modbus TCP unit: FC 03 reads, FC 06 and FC 16 writes, FC 23 (write
+//! first, then read: acknowledge and fetch the next telegram in one exchange). Every other
+//! function answers 01.
+
+use std::sync::Arc;
+
+use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
+
+use super::layout::{self, WritePlan};
+use super::Mailbox;
+use crate::line::telegram::{PendingSend, TelegramClient};
+use crate::unit::{UnitFuture, UnitService};
+
+/// One telegram line's mailbox served under its unit id; cheap to clone.
+#[derive(Clone, Debug)]
+pub struct MailboxUnit {
+    mailbox: Arc<Mailbox>,
+    client: TelegramClient,
+}
+
+// === impl MailboxUnit ===
+
+impl MailboxUnit {
+    /// The mailbox of a line, sending through `client`.
+    pub fn new(mailbox: Arc<Mailbox>, client: TelegramClient) -> Self {
+        Self { mailbox, client }
+    }
+
+    /// The mailbox served.
+    pub fn mailbox(&self) -> &Arc<Mailbox> {
+        &self.mailbox
+    }
+
+    /// The line client its send block uses.
+    pub fn client(&self) -> &TelegramClient {
+        &self.client
+    }
+
+    /// Carries out a write of `values` at `address`.
+    fn write(&self, address: u16, values: &[u16]) -> Result<(), ExceptionCode> {
+        match layout::plan_write(address, values)? {
+            // A number other than the oldest telegram's is an illegal value (documented).
+            WritePlan::Ack(seq) => self
+                .mailbox
+                .ack(seq)
+                .map_err(|_| ExceptionCode::IllegalDataValue),
+            WritePlan::SendBlock { offset, values } => {
+                let client = &self.client;
+                let started = self.mailbox.write_send_block(offset, &values, |telegram| {
+                    client.try_send(telegram).map_err(|e| e.exception())
+                })?;
+                if let Some(started) = started {
+                    let mailbox = Arc::clone(&self.mailbox);
+                    tokio::spawn(wait_for_result(mailbox, started.req, started.pending));
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// Answers one request (what [`UnitService::call`] runs).
+    pub fn answer(&self, request: Request) -> Result<Response, ExceptionCode> {
+        match request {
+            Request::ReadHoldingRegisters { address, quantity } => self
+                .mailbox
+                .read_registers(address, quantity)
+                .map(Response::ReadHoldingRegisters),
+            Request::WriteSingleRegister { address, value } => {
+                self.write(address, &[value])?;
+                Ok(Response::WriteSingleRegister { address, value })
+            }
+            Request::WriteMultipleRegisters { address, values } => {
+                self.write(address, &values)?;
+                let quantity =
+                    u16::try_from(values.len()).map_err(|_| ExceptionCode::IllegalDataValue)?;
+                Ok(Response::WriteMultipleRegisters { address, quantity })
+            }
+            Request::ReadWriteMultipleRegisters {
+                read_address,
+                read_quantity,
+                write_address,
+                values,
+            } => {
+                // Modbus Application Protocol V1.1b3, 6.17: "The write operation is performed
+                // before the read." Check the read first so that a bad read changes nothing.
+                layout::read_span(read_address, read_quantity)?;
+                self.write(write_address, &values)?;
+                self.mailbox
+                    .read_registers(read_address, read_quantity)
+                    .map(Response::ReadWriteMultipleRegisters)
+            }
+            _ => Err(ExceptionCode::IllegalFunction),
+        }
+    }
+}
+
+/// Waits for the line's result of a send-block request and shows it.
+async fn wait_for_result(mailbox: Arc<Mailbox>, req: u16, pending: PendingSend) {
+    let failure = pending.await.err().map(|e| e.event());
+    mailbox.finish_send(req, failure);
+}
+
+impl UnitService for MailboxUnit {
+    fn call(&self, request: Request) -> UnitFuture {
+        let answer = self.answer(request);
+        Box::pin(async move { answer })
+    }
+}
