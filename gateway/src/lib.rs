@@ -11,6 +11,7 @@
 //! - [`signals`]: RS232 modem signals of a port (read DTR/DSR/RTS/CTS/DCD/RI, set DTR/RTS);
 //! - [`unit`]: the contract between the Modbus TCP server and whatever answers a unit id;
 //! - [`modbus_tcp`]: our own MBAP framing, validation and the TCP server;
+//! - [`paced`]: a paced link, a virtual serial cable with the timing of a real one;
 //! - [`sim`]: simulated devices on a serial port (`gateway sim`);
 //! - [`zenoh_bridge`]: telegrams, tag values, queries, writes, events and presence on zenoh;
 //! - [`app`]: wiring a config into running tasks (`gateway run`, `gateway demo`).
@@ -18,11 +19,14 @@
 pub mod app;
 pub mod config;
 pub mod cpmem;
+#[cfg(any(fuzzing, test))]
+pub mod fuzzing;
 pub mod image;
 pub mod line;
 pub mod mailbox;
 pub mod metrics;
 pub mod modbus_tcp;
+pub mod paced;
 pub mod serial;
 pub mod signals;
 pub mod sim;

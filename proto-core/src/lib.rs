@@ -15,6 +15,8 @@
 //! - [`checksum`]: CRC-16/Modbus, LRC, BCC;
 //! - [`codec`]: a cursor reader/writer that owns every length check;
 //! - [`modbus`]: the PDU codec, RTU and ASCII framing, the master and slave engines;
+//! - `fuzzing` (with `cfg(fuzzing)`, the `fuzzing` feature or in tests): the fuzz targets' entry
+//!   points;
 //! - [`event`]: the CP 341 event catalog (chapter 7.2), the STATUS word and the diagnostic buffer;
 //! - [`profiles`]: the register-map models of the supported devices;
 //! - [`proc3964`]: the 3964(R) procedure (6.3);
@@ -26,6 +28,8 @@ pub mod checksum;
 pub mod codec;
 pub mod cpmem;
 pub mod event;
+#[cfg(any(fuzzing, test, feature = "fuzzing"))]
+pub mod fuzzing;
 pub mod modbus;
 pub mod proc3964;
 pub mod profiles;
