@@ -1,1 +1,319 @@
-//! See the crate documentation.
+//! The gateway configuration (TOML): typed, validated at load time, every problem reported at once.
+//!
+//! ```toml
+//! [gateway]
+//! name = "plant-a"
+//!
+//! [modbus_tcp]
+//! listen = "0.0.0.0:502"
+//!
+//! [lines.drive]                 # the line name: [a-z0-9_-], used in metric labels and zenoh keys
+//! port = "/dev/ttyS1"
+//! interface = "rs485"
+//! baud = 19200
+//! protocol = "modbus-master-rtu"
+//!
+//! [lines.drive.devices.atv71]
+//! profile = "altivar71"
+//! address = 2
+//! ```
+//!
+//! `deploy/gateway.example.toml` lists every key with its default and the manual section it comes
+//! from. A `port` that starts with `pty:` (as in the embedded demo) names a pseudo-terminal that
+//! `gateway demo` creates and puts in its place.
+//!
+//! # How it reads
+//!
+//! [`parse`] reads the TOML into a `toml::Table` (a syntax error is one issue with line and
+//! column), then walks it table by table: each key is converted to its domain type
+//! (`SocketAddr`, `IpNet`, `Duration` through humantime, enums, [`Baud`]) and checked against the
+//! manual's range; keys nobody asked for are refused with their path. A bad value is reported and
+//! replaced by its default so that the walk goes on; then [`validate::validate`] runs the checks
+//! that span several keys. This is what serde's `deny_unknown_fields` would give, but with every
+//! problem of the file in one answer instead of the first one, and with the flat line tables
+//! (`port`, `baud` and the protocol's parameters side by side) that `#[serde(flatten)]` cannot
+//! combine with `deny_unknown_fields`. Serializing uses serde (`toml::to_string(&config)`), and
+//! parsing the output gives the same `Config` back.
+
+mod device;
+mod line;
+mod modbus;
+mod reader;
+mod serial;
+mod server;
+mod telegram;
+pub mod validate;
+
+use std::collections::BTreeMap;
+use std::fmt;
+use std::path::Path;
+
+use serde::{Deserialize, Deserializer, Serialize};
+
+pub use device::*;
+pub use line::*;
+pub use modbus::*;
+pub use serial::*;
+pub use server::*;
+pub use telegram::*;
+
+use reader::{check_name, Cx, Fields};
+
+/// `[gateway] name`: used as the zenoh prefix `gw/<name>` and in logs.
+pub const DEFAULT_GATEWAY_NAME: &str = "gateway";
+/// 003 7.3: "The diagnostic buffer is a ring buffer for a maximum of 9 diagnostic entries."
+pub const DEFAULT_DIAG_BUFFER_DEPTH: u16 = 9;
+/// Largest diagnostic buffer per line.
+pub const MAX_DIAG_BUFFER_DEPTH: u16 = 1000;
+
+pub fn default_gateway_name() -> String {
+    DEFAULT_GATEWAY_NAME.to_owned()
+}
+pub fn default_diag_buffer_depth() -> u16 {
+    DEFAULT_DIAG_BUFFER_DEPTH
+}
+
+/// The embedded demo configuration (`gateway demo`).
+const DEMO_TOML: &str = include_str!("demo.toml");
+
+/// The whole configuration.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Config {
+    pub gateway: GatewaySection,
+    pub modbus_tcp: ModbusTcpConfig,
+    /// Lines by name.
+    pub lines: BTreeMap<String, LineConfig>,
+}
+
+/// The `[gateway]` section.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct GatewaySection {
+    /// [a-z0-9_-], 1..=64 characters.
+    pub name: String,
+    /// Entries kept per line in the diagnostic buffer, newest first (003 7.3).
+    pub diag_buffer_depth: u16,
+}
+
+impl Default for GatewaySection {
+    fn default() -> Self {
+        Self {
+            name: default_gateway_name(),
+            diag_buffer_depth: DEFAULT_DIAG_BUFFER_DEPTH,
+        }
+    }
+}
+
+/// One problem in a configuration.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ConfigIssue {
+    /// Where: `lines.drive.baud`, `lines.kv.devices.ctrl.tags[2].scale`; empty for problems of
+    /// the whole file (syntax, I/O).
+    pub path: String,
+    /// What is wrong, with the manual section where a rule comes from.
+    pub message: String,
+}
+
+impl fmt::Display for ConfigIssue {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        if self.path.is_empty() {
+            f.write_str(&self.message)
+        } else {
+            write!(f, "{}: {}", self.path, self.message)
+        }
+    }
+}
+
+/// Every problem found in a configuration.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ConfigErrors {
+    pub issues: Vec<ConfigIssue>,
+}
+
+impl fmt::Display for ConfigErrors {
+    /// One line per issue: `path: message`.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        for (i, issue) in self.issues.iter().enumerate() {
+            if i > 0 {
+                f.write_str("\n")?;
+            }
+            write!(f, "{issue}")?;
+        }
+        Ok(())
+    }
+}
+
+impl std::error::Error for ConfigErrors {}
+
+impl Default for Config {
+    /// What an empty file gives: no lines.
+    fn default() -> Self {
+        Self {
+            gateway: GatewaySection::default(),
+            modbus_tcp: ModbusTcpConfig::default(),
+            lines: BTreeMap::new(),
+        }
+    }
+}
+
+// === impl Config ===
+
+impl Config {
+    /// Runs every rule of [`parse`] on a config built or changed in code (e.g. a line replaced
+    /// through the REST API): the config is written out and read back.
+    pub fn check(&self) -> Result<(), ConfigErrors> {
+        let table = toml::Table::try_from(self).map_err(|e| ConfigErrors {
+            issues: vec![ConfigIssue {
+                path: String::new(),
+                message: format!("cannot serialize the config: {e}"),
+            }],
+        })?;
+        Self::from_table(&table).map(drop)
+    }
+
+    /// The number of devices over all lines.
+    pub fn device_count(&self) -> usize {
+        self.lines.values().map(|l| l.devices().count()).sum()
+    }
+
+    /// A parsed `toml::Table` as a config.
+    pub fn from_table(table: &toml::Table) -> Result<Self, ConfigErrors> {
+        let mut cx = Cx::default();
+        let config = read_root(&mut cx, table);
+        validate::check(&mut cx, &config);
+        if cx.issues.is_empty() {
+            Ok(config)
+        } else {
+            Err(ConfigErrors { issues: cx.issues })
+        }
+    }
+}
+
+/// Reads a config through [`parse`]'s rules, so that `toml::from_str::<Config>` and other serde
+/// formats refuse unknown keys and report every problem too.
+impl<'de> Deserialize<'de> for Config {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        let table = toml::Table::deserialize(deserializer)?;
+        Self::from_table(&table).map_err(serde::de::Error::custom)
+    }
+}
+
+fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
+    let mut root = Fields::new(table, String::new());
+    let gateway = match root.table(cx, "gateway") {
+        None => GatewaySection::default(),
+        Some(mut f) => {
+            let name = f.string_or(cx, "name", DEFAULT_GATEWAY_NAME);
+            check_name(cx, &f.at("name"), &name);
+            let diag_buffer_depth = f.int_or(
+                cx,
+                "diag_buffer_depth",
+                1..=MAX_DIAG_BUFFER_DEPTH,
+                DEFAULT_DIAG_BUFFER_DEPTH,
+                "003 7.3",
+            );
+            f.finish(cx);
+            GatewaySection {
+                name,
+                diag_buffer_depth,
+            }
+        }
+    };
+    let modbus_tcp = match root.table(cx, "modbus_tcp") {
+        None => ModbusTcpConfig::default(),
+        Some(f) => ModbusTcpConfig::read(cx, f),
+    };
+    let mut lines = BTreeMap::new();
+    if table.get("lines").is_some_and(toml::Value::is_array) {
+        let _ = root.raw("lines");
+        cx.issue(
+            "lines",
+            "write each line as a table [lines.<name>], not as [[lines]]",
+        );
+    } else {
+        for (name, path, value) in root.named_tables(cx, "lines") {
+            if let Some(line) = LineConfig::read(cx, &name, &path, value) {
+                lines.insert(name, line);
+            }
+        }
+    }
+    root.finish(cx);
+    Config {
+        gateway,
+        modbus_tcp,
+        lines,
+    }
+}
+
+/// Parses and validates a configuration.
+pub fn parse(text: &str) -> Result<Config, ConfigErrors> {
+    let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
+        issues: vec![ConfigIssue {
+            path: String::new(),
+            message: syntax_message(text, &e),
+        }],
+    })?;
+    Config::from_table(&table)
+}
+
+/// Reads, parses and validates the configuration file at `path`.
+pub fn load(path: &Path) -> Result<Config, ConfigErrors> {
+    let text = std::fs::read_to_string(path).map_err(|e| ConfigErrors {
+        issues: vec![ConfigIssue {
+            path: String::new(),
+            message: format!("cannot read {}: {e}", path.display()),
+        }],
+    })?;
+    parse(&text)
+}
+
+/// The embedded demo configuration: lines `drive`, `ksvario`, `r3964`, `ascii` on `pty:` ports.
+pub fn demo() -> Config {
+    // The demo file is part of the binary and checked by tests; a failure is a build defect.
+    parse(DEMO_TOML).unwrap_or_else(|e| panic!("embedded demo.toml is invalid:\n{e}"))
+}
+
+/// The text of the embedded demo configuration.
+pub fn demo_toml() -> &'static str {
+    DEMO_TOML
+}
+
+/// `gateway check --config FILE`: prints `ok: N lines, M devices`, or every issue on its own
+/// line, to stdout; returns the exit code (0 valid, 1 not).
+pub fn check_command(path: &Path) -> i32 {
+    let (text, code) = check_report(path);
+    println!("{text}");
+    code
+}
+
+/// What [`check_command`] prints, and its exit code.
+pub fn check_report(path: &Path) -> (String, i32) {
+    match load(path) {
+        Ok(c) => (
+            format!("ok: {} lines, {} devices", c.lines.len(), c.device_count()),
+            0,
+        ),
+        Err(e) => (e.to_string(), 1),
+    }
+}
+
+/// `syntax error at line L, column C: <what>`.
+fn syntax_message(text: &str, e: &toml::de::Error) -> String {
+    let what = e.message().trim().replace('\n', "; ");
+    match e.span() {
+        Some(span) => {
+            let before = text.get(..span.start).unwrap_or(text);
+            let line = before.matches('\n').count() + 1;
+            let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+            let near = text
+                .get(span.clone())
+                .filter(|t| !t.is_empty() && t.len() <= 40 && !t.contains('\n'));
+            match near {
+                Some(t) => {
+                    format!("TOML syntax error at line {line}, column {column}: {what} (at `{t}`)")
+                }
+                None => format!("TOML syntax error at line {line}, column {column}: {what}"),
+            }
+        }
+        None => format!("TOML syntax error: {what}"),
+    }
+}

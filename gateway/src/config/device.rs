@@ -1,0 +1,510 @@
+//! Devices polled by a Modbus master line: profile, addresses, request limits, back-off, tags and
+//! poll groups (SPEC "Device profiles", "Polling").
+
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+use super::reader::{check_name, int_value, string_value, Cx, Fields};
+
+/// Modbus Application Protocol V1.1b3, 4.4 / Modbus over Serial Line V1.02 2.2: unicast
+/// addresses are 1..=247; 0 is broadcast. 002 (Altivar, "Adressen") agrees: 1..247.
+pub const MAX_DEVICE_ADDRESS: u8 = 247;
+/// First wait before a device that stopped answering is asked again.
+pub const DEFAULT_OFFLINE_BACKOFF_MIN: Duration = Duration::from_secs(1);
+/// Longest wait between attempts at a device that does not answer.
+pub const DEFAULT_OFFLINE_BACKOFF_MAX: Duration = Duration::from_secs(60);
+/// Back-off bounds accepted in the config.
+pub const BACKOFF_RANGE: (Duration, Duration) =
+    (Duration::from_millis(10), Duration::from_secs(3600));
+/// Shortest and longest poll period.
+pub const POLL_PERIOD_RANGE: (Duration, Duration) =
+    (Duration::from_millis(10), Duration::from_secs(86_400));
+/// A tag value is `raw * scale`, by default the raw value.
+pub const DEFAULT_SCALE: f64 = 1.0;
+/// Decimals shown for a tag (fix point), by default none.
+pub const DEFAULT_DECIMALS: u8 = 0;
+/// Most decimals a tag may declare.
+pub const MAX_DECIMALS: u8 = 9;
+/// 32-bit values: high word first, the Modbus convention (001: KS vario floats in "Motorola
+/// format").
+pub const DEFAULT_WORD_ORDER: WordOrder = WordOrder::HighFirst;
+
+pub fn default_offline_backoff_min() -> Duration {
+    DEFAULT_OFFLINE_BACKOFF_MIN
+}
+pub fn default_offline_backoff_max() -> Duration {
+    DEFAULT_OFFLINE_BACKOFF_MAX
+}
+
+/// The device types the gateway knows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Profile {
+    /// Schneider Altivar 61/71 (002).
+    Altivar71,
+    /// PMA KS vario (001).
+    Ksvario,
+    /// Any Modbus device described by the config's tag list.
+    Generic,
+}
+
+/// How much one request may carry. A profile fixes the device's maximum; the config may only
+/// lower it. 0 means the device does not support the function.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct DeviceLimits {
+    /// Registers per FC 03/04 read.
+    pub read_registers: u16,
+    /// Registers per FC 16 write.
+    pub write_registers: u16,
+    /// Registers read by one FC 23.
+    pub rw_read_registers: u16,
+    /// Registers written by one FC 23.
+    pub rw_write_registers: u16,
+    /// Bits per FC 01/02 read.
+    pub read_bits: u16,
+    /// Bits per FC 15 write.
+    pub write_bits: u16,
+}
+
+// === impl Profile ===
+
+impl Profile {
+    /// The device's own limits.
+    pub fn max_limits(self) -> DeviceLimits {
+        match self {
+            // 002 "Modbus-Funktionen": FC03 max. 63 words, FC16 max. 61, FC23 20 / 20; the
+            // drive serves no bit functions (codes 3, 6, 8, 16, 23, 43 only).
+            Self::Altivar71 => DeviceLimits {
+                read_registers: 63,
+                write_registers: 61,
+                rw_read_registers: 20,
+                rw_write_registers: 20,
+                read_bits: 0,
+                write_bits: 0,
+            },
+            // 001 3.1: "maximal 120 Integer- bzw. 60 Realdaten in einer Nachricht"; function
+            // codes 03, 04, 06, 08, 16 (no FC 23, no bit functions).
+            Self::Ksvario => DeviceLimits {
+                read_registers: 120,
+                write_registers: 120,
+                rw_read_registers: 0,
+                rw_write_registers: 0,
+                read_bits: 0,
+                write_bits: 0,
+            },
+            // Modbus Application Protocol V1.1b3: FC03/04 1..125 (6.3, 6.4), FC16 1..123
+            // (6.12), FC23 125 read / 121 write (6.17), FC01/02 1..2000 (6.1, 6.2), FC15 1..1968
+            // (6.11). The CP master itself goes to 127 registers / 2040 bits (003 6.4.3), but a
+            // device that follows the specification refuses more.
+            Self::Generic => DeviceLimits {
+                read_registers: 125,
+                write_registers: 123,
+                rw_read_registers: 125,
+                rw_write_registers: 121,
+                read_bits: 2000,
+                write_bits: 1968,
+            },
+        }
+    }
+
+    /// The tables the device serves.
+    pub fn tables(self) -> &'static [ModbusTable] {
+        match self {
+            Self::Altivar71 => &[ModbusTable::Holding],
+            Self::Ksvario => &[ModbusTable::Holding, ModbusTable::Input],
+            Self::Generic => &[
+                ModbusTable::Holding,
+                ModbusTable::Input,
+                ModbusTable::Coil,
+                ModbusTable::Discrete,
+            ],
+        }
+    }
+
+    /// Tag names the profile defines (lower-case mnemonics), which poll groups may name.
+    /// Altivar: the SPEC's list (ETA W3201, RFRD W8604, LCR W3204, OTR W3205, ULN W3207,
+    /// THD W3209, THR W9630, LFT W7121, CMD W8501, LFRD W8602, ACC W9001, DEC W9002) plus the
+    /// manual's example parameters SFr, tFr, HSP, LSP (W3102..W3105). The KS vario profile names
+    /// no tags yet: poll it by address ranges. Keep in step with `proto_core::profiles`.
+    pub fn tag_names(self) -> &'static [&'static str] {
+        match self {
+            Self::Altivar71 => &[
+                "eta", "rfrd", "lcr", "otr", "uln", "thd", "thr", "lft", "cmd", "lfrd", "acc",
+                "dec", "sfr", "tfr", "hsp", "lsp",
+            ],
+            Self::Ksvario | Self::Generic => &[],
+        }
+    }
+}
+
+/// A Modbus data table.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ModbusTable {
+    /// Holding registers (FC 03, 06, 16, 23).
+    Holding,
+    /// Input registers (FC 04).
+    Input,
+    /// Coils (FC 01, 05, 15).
+    Coil,
+    /// Discrete inputs (FC 02).
+    Discrete,
+}
+
+impl ModbusTable {
+    /// Registers (16-bit) rather than bits.
+    pub fn is_register(self) -> bool {
+        matches!(self, Self::Holding | Self::Input)
+    }
+}
+
+/// `count` consecutive addresses of one table from `start`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct AddressRange {
+    pub table: ModbusTable,
+    pub start: u16,
+    pub count: u32,
+}
+
+impl AddressRange {
+    /// Whether `[start, start + count)` lies inside this range.
+    pub fn covers(&self, table: ModbusTable, start: u16, count: u32) -> bool {
+        self.table == table
+            && start >= self.start
+            && u32::from(start) + count <= u32::from(self.start) + self.count
+    }
+}
+
+/// The type of a tag's value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DataType {
+    /// One coil or discrete input.
+    Bool,
+    U16,
+    I16,
+    /// Two registers.
+    U32,
+    /// Two registers.
+    I32,
+    /// Two registers, IEEE 754.
+    F32,
+}
+
+impl DataType {
+    /// Addresses the value occupies.
+    pub fn width(self) -> u32 {
+        match self {
+            Self::Bool | Self::U16 | Self::I16 => 1,
+            Self::U32 | Self::I32 | Self::F32 => 2,
+        }
+    }
+}
+
+/// Order of the two registers of a 32-bit value.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum WordOrder {
+    /// The register at `address` holds the high word.
+    HighFirst,
+    /// The register at `address` holds the low word.
+    LowFirst,
+}
+
+/// A named value of a device.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct TagConfig {
+    pub name: String,
+    pub table: ModbusTable,
+    pub address: u16,
+    /// Defaults to `bool` for coils and discrete inputs, `u16` for registers.
+    #[serde(rename = "type")]
+    pub data_type: DataType,
+    pub word_order: WordOrder,
+    /// The value is `raw * scale`.
+    pub scale: f64,
+    /// Decimals shown (fix point), 0..=9.
+    pub decimals: u8,
+    /// Engineering unit, free text.
+    pub unit: String,
+    /// Writes from Modbus TCP, zenoh or REST are accepted (holding registers and coils only).
+    pub writable: bool,
+}
+
+/// Addresses read together at one period.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct PollGroup {
+    pub name: String,
+    #[serde(with = "humantime_serde")]
+    pub period: Duration,
+    /// Tag names (the config's tags and the profile's).
+    pub tags: Vec<String>,
+    /// Address ranges read as they are.
+    pub ranges: Vec<AddressRange>,
+}
+
+/// One device on a Modbus master line.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct DeviceConfig {
+    pub profile: Profile,
+    /// Slave address on the serial line, 1..=247.
+    pub address: u8,
+    /// Unit id on Modbus TCP, 1..=255, unique in the gateway; defaults to `address`.
+    pub unit_id: u8,
+    /// Effective request limits: the profile's, lowered by the config.
+    pub limits: DeviceLimits,
+    /// First wait after the device stopped answering.
+    #[serde(with = "humantime_serde")]
+    pub offline_backoff_min: Duration,
+    /// The wait doubles up to this bound while the device stays silent.
+    #[serde(with = "humantime_serde")]
+    pub offline_backoff_max: Duration,
+    pub tags: Vec<TagConfig>,
+    pub poll: Vec<PollGroup>,
+}
+
+// === readers ===
+
+pub(crate) fn read_range(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<AddressRange> {
+    let mut f = Fields::of(cx, value, path.to_owned())?;
+    let r = range_fields(cx, &mut f);
+    f.finish(cx);
+    r
+}
+
+/// The `table`, `start` and `count` keys of a range table that may hold further keys.
+pub(crate) fn range_fields(cx: &mut Cx, f: &mut Fields<'_>) -> Option<AddressRange> {
+    let table = f.choice::<ModbusTable>(cx, "table");
+    if !f.has("table") {
+        cx.issue(f.at("table"), "missing required key");
+    }
+    let start = f.required_int::<u16>(cx, "start", 0..=u16::MAX, "");
+    let count = f.required_int::<u32>(cx, "count", 1..=65_536, "");
+    let r = AddressRange {
+        table: table?,
+        start: start?,
+        count: count?,
+    };
+    if u32::from(r.start) + r.count > 65_536 {
+        cx.issue(
+            f.at("count"),
+            format!("range {}+{} runs past address 65535", r.start, r.count),
+        );
+        return None;
+    }
+    Some(r)
+}
+
+fn read_limits(cx: &mut Cx, f: &mut Fields<'_>, profile: Profile) -> DeviceLimits {
+    let max = profile.max_limits();
+    let Some(mut t) = f.table(cx, "limits") else {
+        return max;
+    };
+    let cite = match profile {
+        Profile::Altivar71 => "the altivar71 profile, 002 Modbus-Funktionen",
+        Profile::Ksvario => "the ksvario profile, 001 3.1",
+        Profile::Generic => "Modbus Application Protocol V1.1b3",
+    };
+    let mut one = |cx: &mut Cx, key: &'static str, hi: u16, min: u16| -> u16 {
+        let lo = min.min(hi);
+        t.int_or(cx, key, lo..=hi, hi, cite)
+    };
+    let limits = DeviceLimits {
+        read_registers: one(cx, "read_registers", max.read_registers, 1),
+        write_registers: one(cx, "write_registers", max.write_registers, 1),
+        rw_read_registers: one(cx, "rw_read_registers", max.rw_read_registers, 0),
+        rw_write_registers: one(cx, "rw_write_registers", max.rw_write_registers, 0),
+        read_bits: one(cx, "read_bits", max.read_bits, 0),
+        write_bits: one(cx, "write_bits", max.write_bits, 0),
+    };
+    t.finish(cx);
+    limits
+}
+
+fn read_tag(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<TagConfig> {
+    let mut f = Fields::of(cx, value, path.to_owned())?;
+    let name = f.required_string(cx, "name");
+    if let Some(n) = &name {
+        check_name(cx, &f.at("name"), n);
+    }
+    let table = f.choice::<ModbusTable>(cx, "table");
+    if !f.has("table") {
+        cx.issue(f.at("table"), "missing required key");
+    }
+    let address = f.required_int::<u16>(cx, "address", 0..=u16::MAX, "");
+    let data_type = f.choice::<DataType>(cx, "type");
+    // A missing or bad table is reported above; the stand-in keeps the tag (so that poll groups
+    // naming it raise nothing more) and agrees with its type.
+    let table_or_standin = table.unwrap_or(match data_type {
+        Some(DataType::Bool) => ModbusTable::Coil,
+        _ => ModbusTable::Holding,
+    });
+    let tag = TagConfig {
+        table: table_or_standin,
+        address: address.unwrap_or_default(),
+        data_type: data_type.unwrap_or(if table_or_standin.is_register() {
+            DataType::U16
+        } else {
+            DataType::Bool
+        }),
+        word_order: f.choice_or(cx, "word_order", DEFAULT_WORD_ORDER),
+        scale: f.float_or(cx, "scale", DEFAULT_SCALE),
+        decimals: f.int_or(cx, "decimals", 0..=MAX_DECIMALS, DEFAULT_DECIMALS, ""),
+        unit: f.string_or(cx, "unit", ""),
+        writable: f.bool_or(cx, "writable", false),
+        name: name.clone().unwrap_or_default(),
+    };
+    f.finish(cx);
+    name.map(|_| tag)
+}
+
+fn read_poll(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<PollGroup> {
+    let mut f = Fields::of(cx, value, path.to_owned())?;
+    let name = f.required_string(cx, "name");
+    if let Some(n) = &name {
+        check_name(cx, &f.at("name"), n);
+    }
+    let (lo, hi) = POLL_PERIOD_RANGE;
+    let period = f.duration(cx, "period", lo..=hi, "");
+    if !f.has("period") {
+        cx.issue(f.at("period"), "missing required key");
+    }
+    let raw_tags = f.array(cx, "tags");
+    let raw_ranges = f.array(cx, "ranges");
+    if raw_tags.is_empty() && raw_ranges.is_empty() {
+        cx.issue(f.path().to_owned(), "a poll group needs tags or ranges");
+    }
+    let mut tags = Vec::new();
+    for (p, v) in raw_tags {
+        tags.extend(string_value(cx, v, &p));
+    }
+    let mut ranges = Vec::new();
+    for (p, v) in raw_ranges {
+        ranges.extend(read_range(cx, &p, v));
+    }
+    f.finish(cx);
+    Some(PollGroup {
+        name: name?,
+        period: period?,
+        tags,
+        ranges,
+    })
+}
+
+impl DeviceConfig {
+    pub(crate) fn read(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<Self> {
+        let mut f = Fields::of(cx, value, path.to_owned())?;
+        let profile = f.choice::<Profile>(cx, "profile");
+        if !f.has("profile") {
+            cx.issue(
+                f.at("profile"),
+                "missing required key (altivar71, ksvario or generic)",
+            );
+        }
+        let address = match f.raw("address") {
+            None => {
+                cx.issue(f.at("address"), "missing required key");
+                None
+            }
+            Some(toml::Value::Integer(0)) => {
+                cx.issue(
+                    f.at("address"),
+                    "0 is the broadcast address, not a device; use 1..247",
+                );
+                None
+            }
+            Some(v) => int_value(
+                cx,
+                v,
+                &f.at("address"),
+                1..=MAX_DEVICE_ADDRESS,
+                "Modbus over Serial Line V1.02 2.2",
+            ),
+        };
+        let unit_id = f.int(cx, "unit_id", 1..=u8::MAX, "");
+        let limits = read_limits(cx, &mut f, profile.unwrap_or(Profile::Generic));
+        let (lo, hi) = BACKOFF_RANGE;
+        let offline_backoff_min = f.duration_or(
+            cx,
+            "offline_backoff_min",
+            lo..=hi,
+            DEFAULT_OFFLINE_BACKOFF_MIN,
+            "",
+        );
+        let offline_backoff_max = f.duration_or(
+            cx,
+            "offline_backoff_max",
+            lo..=hi,
+            DEFAULT_OFFLINE_BACKOFF_MAX,
+            "",
+        );
+        let raw_tags = f.array(cx, "tags");
+        if profile == Some(Profile::Generic) && raw_tags.is_empty() {
+            cx.issue(f.at("tags"), "a generic device needs a tag list");
+        }
+        let mut tags = Vec::new();
+        for (p, v) in raw_tags {
+            tags.extend(read_tag(cx, &p, v));
+        }
+        let mut poll = Vec::new();
+        for (p, v) in f.array(cx, "poll") {
+            poll.extend(read_poll(cx, &p, v));
+        }
+        f.finish(cx);
+        let address = address?;
+        Some(Self {
+            // A bad profile is reported above; generic stands in (it accepts every table).
+            profile: profile.unwrap_or(Profile::Generic),
+            address,
+            unit_id: unit_id.unwrap_or(address),
+            limits,
+            offline_backoff_min,
+            offline_backoff_max,
+            tags,
+            poll,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn profile_limits_follow_the_manuals() {
+        // 002 "Modbus-Funktionen": FC03 63, FC16 61, FC23 20/20.
+        let a = Profile::Altivar71.max_limits();
+        assert_eq!(
+            (
+                a.read_registers,
+                a.write_registers,
+                a.rw_read_registers,
+                a.rw_write_registers
+            ),
+            (63, 61, 20, 20)
+        );
+        // 001 3.1: 120 integer values a message.
+        assert_eq!(Profile::Ksvario.max_limits().read_registers, 120);
+        // Modbus Application Protocol: 125 / 123.
+        let g = Profile::Generic.max_limits();
+        assert_eq!(
+            (g.read_registers, g.write_registers, g.read_bits),
+            (125, 123, 2000)
+        );
+    }
+
+    #[test]
+    fn range_cover() {
+        let r = AddressRange {
+            table: ModbusTable::Holding,
+            start: 100,
+            count: 10,
+        };
+        assert!(r.covers(ModbusTable::Holding, 100, 10));
+        assert!(r.covers(ModbusTable::Holding, 105, 5));
+        assert!(!r.covers(ModbusTable::Holding, 105, 6));
+        assert!(!r.covers(ModbusTable::Holding, 99, 1));
+        assert!(!r.covers(ModbusTable::Coil, 100, 1));
+    }
+}

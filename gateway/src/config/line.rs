@@ -1,0 +1,156 @@
+//! One serial line: its serial settings and its protocol with the protocol's parameters, in one
+//! flat TOML table `[lines.<name>]` (003 6.1: the CP runs one protocol driver per interface).
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use super::device::DeviceConfig;
+use super::modbus::{ModbusMasterAsciiConfig, ModbusMasterRtuConfig, ModbusSlaveRtuConfig};
+use super::reader::{check_name, Cx, Fields};
+use super::serial::{SerialConfig, DEFAULT_BAUD};
+use super::telegram::{AsciiConfig, Proc3964Config};
+
+/// A line: where and how to talk, and what protocol to speak.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct LineConfig {
+    #[serde(flatten)]
+    pub serial: SerialConfig,
+    #[serde(flatten)]
+    pub protocol: ProtocolConfig,
+}
+
+/// The protocol driver of a line (003 6.1) with its parameters; `protocol = "..."` in TOML.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(tag = "protocol")]
+pub enum ProtocolConfig {
+    #[serde(rename = "modbus-master-rtu")]
+    ModbusMasterRtu(ModbusMasterRtuConfig),
+    #[serde(rename = "modbus-master-ascii")]
+    ModbusMasterAscii(ModbusMasterAsciiConfig),
+    #[serde(rename = "modbus-slave-rtu")]
+    ModbusSlaveRtu(ModbusSlaveRtuConfig),
+    #[serde(rename = "3964r")]
+    Proc3964(Proc3964Config),
+    #[serde(rename = "ascii")]
+    Ascii(AsciiConfig),
+}
+
+/// The value of a line's `protocol` key.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum ProtocolKind {
+    #[serde(rename = "modbus-master-rtu")]
+    ModbusMasterRtu,
+    #[serde(rename = "modbus-master-ascii")]
+    ModbusMasterAscii,
+    #[serde(rename = "modbus-slave-rtu")]
+    ModbusSlaveRtu,
+    /// 3964 or 3964R, by `block_check`.
+    #[serde(rename = "3964r")]
+    Proc3964,
+    #[serde(rename = "ascii")]
+    Ascii,
+}
+
+// === impl ProtocolKind ===
+
+impl ProtocolKind {
+    /// The TOML spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::ModbusMasterRtu => "modbus-master-rtu",
+            Self::ModbusMasterAscii => "modbus-master-ascii",
+            Self::ModbusSlaveRtu => "modbus-slave-rtu",
+            Self::Proc3964 => "3964r",
+            Self::Ascii => "ascii",
+        }
+    }
+
+    /// Whether the line polls devices.
+    pub fn is_master(self) -> bool {
+        matches!(self, Self::ModbusMasterRtu | Self::ModbusMasterAscii)
+    }
+}
+
+// === impl ProtocolConfig ===
+
+impl ProtocolConfig {
+    pub fn kind(&self) -> ProtocolKind {
+        match self {
+            Self::ModbusMasterRtu(_) => ProtocolKind::ModbusMasterRtu,
+            Self::ModbusMasterAscii(_) => ProtocolKind::ModbusMasterAscii,
+            Self::ModbusSlaveRtu(_) => ProtocolKind::ModbusSlaveRtu,
+            Self::Proc3964(_) => ProtocolKind::Proc3964,
+            Self::Ascii(_) => ProtocolKind::Ascii,
+        }
+    }
+}
+
+// === impl LineConfig ===
+
+impl LineConfig {
+    /// The devices this line polls (empty unless it is a Modbus master).
+    pub fn devices(&self) -> impl Iterator<Item = (&String, &DeviceConfig)> {
+        static NONE: BTreeMap<String, DeviceConfig> = BTreeMap::new();
+        match &self.protocol {
+            ProtocolConfig::ModbusMasterRtu(m) => m.devices.iter(),
+            ProtocolConfig::ModbusMasterAscii(m) => m.devices.iter(),
+            _ => NONE.iter(),
+        }
+    }
+
+    /// The Modbus TCP unit id of the line itself (slave memory or telegram mailbox), if any.
+    pub fn unit_id(&self) -> Option<u8> {
+        match &self.protocol {
+            ProtocolConfig::ModbusSlaveRtu(s) => s.unit_id,
+            ProtocolConfig::Proc3964(p) => p.unit_id,
+            ProtocolConfig::Ascii(a) => a.unit_id,
+            ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => None,
+        }
+    }
+
+    /// Reads `[lines.<name>]` at `path`.
+    pub(crate) fn read(cx: &mut Cx, name: &str, path: &str, value: &toml::Value) -> Option<Self> {
+        check_name(cx, path, name);
+        let mut f = Fields::of(cx, value, path.to_owned())?;
+        let kind = f.choice::<ProtocolKind>(cx, "protocol");
+        if !f.has("protocol") {
+            cx.issue(
+                f.at("protocol"),
+                "missing required key (modbus-master-rtu, modbus-master-ascii, modbus-slave-rtu, 3964r or ascii)",
+            );
+        }
+        let serial = SerialConfig::read(cx, &mut f);
+        // Without a protocol the valid keys are unknown: report nothing more for this line.
+        let kind = kind?;
+        let baud = serial.as_ref().map_or(DEFAULT_BAUD, |s| s.baud);
+        let protocol = match kind {
+            ProtocolKind::ModbusMasterRtu => {
+                ProtocolConfig::ModbusMasterRtu(ModbusMasterRtuConfig::read(cx, &mut f))
+            }
+            ProtocolKind::ModbusMasterAscii => {
+                ProtocolConfig::ModbusMasterAscii(ModbusMasterAsciiConfig::read(cx, &mut f))
+            }
+            ProtocolKind::ModbusSlaveRtu => {
+                ProtocolConfig::ModbusSlaveRtu(ModbusSlaveRtuConfig::read(cx, &mut f))
+            }
+            ProtocolKind::Proc3964 => ProtocolConfig::Proc3964(Proc3964Config::read(cx, &mut f)),
+            ProtocolKind::Ascii => ProtocolConfig::Ascii(AsciiConfig::read(cx, &mut f, baud)),
+        };
+        if !kind.is_master() && f.has("devices") {
+            let _ = f.raw("devices");
+            cx.issue(
+                f.at("devices"),
+                format!(
+                    "devices are polled only by modbus-master-rtu and modbus-master-ascii lines, not by a {} line",
+                    kind.as_str()
+                ),
+            );
+        }
+        f.finish(cx);
+        Some(Self {
+            serial: serial?,
+            protocol,
+        })
+    }
+}

@@ -1,0 +1,372 @@
+//! Protocol parameters of the Modbus lines: master RTU (003 6.4.2.1), master ASCII (003 6.4.2.2)
+//! and slave RTU with the CP memory mapping (003 6.4.5, 6.4.8).
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use serde::{Deserialize, Serialize};
+
+use super::device::{self, AddressRange, DeviceConfig, ModbusTable};
+use super::reader::{check_name, Cx, Fields};
+
+/// 003 6.4.2.1/6.4.2.2 "Reply monitoring time ... Range: 5 ... 65500ms".
+pub const REPLY_TIMEOUT_RANGE: (Duration, Duration) =
+    (Duration::from_millis(5), Duration::from_millis(65_500));
+/// 003 6.4.2.1/6.4.2.2 "Reply monitoring time ... Default value 2000".
+pub const DEFAULT_REPLY_TIMEOUT: Duration = Duration::from_millis(2000);
+/// 003 6.4.2.1 "Operating mode ... Default value Normal operation".
+pub const DEFAULT_OPERATING_MODE: OperatingMode = OperatingMode::Normal;
+/// 003 6.4.2.1/6.4.5.1 "Multiplier character delay time ... Range: 1 ... 10", default 1.
+pub const DEFAULT_DELAY_MULTIPLIER: u8 = 1;
+/// 003 6.4.2.1: range of the multiplier.
+pub const MAX_DELAY_MULTIPLIER: u8 = 10;
+/// The seeds name no repetition for the Modbus master: a request is sent once (7.2 reports
+/// 08 30h "no reply" after the reply monitoring time).
+pub const DEFAULT_RETRIES: u8 = 0;
+/// Upper bound of retries so that one silent device cannot hold a line for minutes.
+pub const MAX_RETRIES: u8 = 10;
+/// The RTU master's wait after a broadcast. 003 names no such parameter for RTU; Modbus over
+/// Serial Line V1.02 2.4.1 gives the turnaround delay as "typically 100 ms to 200 ms".
+pub const DEFAULT_RTU_TURNAROUND_DELAY: Duration = Duration::from_millis(100);
+/// 003 6.4.2.2 "Turnaround Delay ... Range of values: 0 ... 65535ms", default 0 (deactivated).
+pub const DEFAULT_ASCII_TURNAROUND_DELAY: Duration = Duration::ZERO;
+/// 003 6.4.2.2: range of the turnaround delay (used for RTU too).
+pub const MAX_TURNAROUND_DELAY: Duration = Duration::from_millis(65_535);
+/// 003 6.4.2.2 "Character Delay Time ... Range of values: 1 ... 6500ms", default 1000.
+pub const DEFAULT_MASTER_ASCII_CHARACTER_DELAY: Duration = Duration::from_millis(1000);
+/// 003 6.4.2.2: range of the ASCII master's character delay time.
+pub const MASTER_ASCII_CHARACTER_DELAY_RANGE: (Duration, Duration) =
+    (Duration::from_millis(1), Duration::from_millis(6500));
+/// 003 6.4.2.2 "with 32-Bit Register ... deactivated".
+pub const DEFAULT_REGISTERS32: bool = false;
+
+/// 003 6.4.5.1 "Slave address ... Range of values: 1 ... 255", default 222.
+pub const DEFAULT_SLAVE_ADDRESS: u8 = 222;
+/// 003 6.4.8.3 example: "from 0 Data blocks commence at DB 800" (FC 03, 06, 16).
+pub const DEFAULT_HOLDING_DB: u16 = 800;
+/// FC 04 base DB. 003 6.4.5 lets FC 04 read "a further block of 128 DBs"; the gateway's memory is
+/// written only through FC 05/06/15/16, so by default FC 04 reads the same DBs as FC 03.
+pub const DEFAULT_INPUT_DB: u16 = 800;
+/// 003 6.4.5: "Up to 128 DB may be accessed in one block".
+pub const DBS_PER_BLOCK: u16 = 128;
+/// 003 6.4.8: "a maximum data block length of 512 data words".
+pub const WORDS_PER_DB: u16 = 512;
+
+pub fn default_reply_timeout() -> Duration {
+    DEFAULT_REPLY_TIMEOUT
+}
+pub fn default_operating_mode() -> OperatingMode {
+    DEFAULT_OPERATING_MODE
+}
+pub fn default_delay_multiplier() -> u8 {
+    DEFAULT_DELAY_MULTIPLIER
+}
+pub fn default_slave_address() -> u8 {
+    DEFAULT_SLAVE_ADDRESS
+}
+
+/// 003 6.4.2.1 "Operating mode": in interference suppression, transmission errors and breaks
+/// are ignored while the driver is idle.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OperatingMode {
+    Normal,
+    InterferenceSuppression,
+}
+
+/// Modbus master RTU (003 6.4.2.1), with the devices it polls.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ModbusMasterRtuConfig {
+    /// Reply monitoring time, 5 ms..=65500 ms.
+    #[serde(with = "humantime_serde")]
+    pub reply_timeout: Duration,
+    pub operating_mode: OperatingMode,
+    /// Multiplies the 3.5-character end-of-frame time, 1..=10.
+    pub delay_multiplier: u8,
+    /// Repetitions of a request that got no valid reply, 0..=10.
+    pub retries: u8,
+    /// Wait after a broadcast before the next request.
+    #[serde(with = "humantime_serde")]
+    pub turnaround_delay: Duration,
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub devices: BTreeMap<String, DeviceConfig>,
+}
+
+/// Modbus master ASCII (003 6.4.2.2), with the devices it polls.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ModbusMasterAsciiConfig {
+    /// Longest gap between two characters of a frame, 1 ms..=6500 ms.
+    #[serde(with = "humantime_serde")]
+    pub character_delay: Duration,
+    #[serde(with = "humantime_serde")]
+    pub reply_timeout: Duration,
+    #[serde(with = "humantime_serde")]
+    pub turnaround_delay: Duration,
+    pub operating_mode: OperatingMode,
+    /// 32-bit registers by bit 6 of the function code (43h/46h/50h).
+    pub registers32: bool,
+    pub retries: u8,
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub devices: BTreeMap<String, DeviceConfig>,
+}
+
+/// One area of the bit-addressed CP memory: Modbus bit addresses `start..start+count` map to the
+/// PLC area from byte (or timer/counter number) `plc` on (003 6.4.8.1: "Param-start-address" and
+/// "PLC-area"). `count = 0` switches the area off.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct BitArea {
+    pub start: u16,
+    pub count: u32,
+    pub plc: u16,
+}
+
+/// FC 01, 05, 15 areas (003 6.4.5 "FC 01, 05, 15, 02"); defaults are the manual's example
+/// (003 6.4.8.1): 0..1023 -> M 1000.0, 1024..2047 -> Q 100.0, 2048..4063 -> T 100,
+/// 4064..4111 -> C 200 (its table ends at start address 4096, C 202).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct CoilAreas {
+    pub memory: BitArea,
+    pub outputs: BitArea,
+    /// Read with FC 01 only, in 16-bit steps.
+    pub timers: BitArea,
+    /// Read with FC 01 only, in 16-bit steps.
+    pub counters: BitArea,
+}
+
+/// FC 02 areas; defaults from 003 6.4.8.2: 0..1023 -> M 1000.0, 1024..2047 -> I 100.0.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct InputAreas {
+    pub memory: BitArea,
+    pub inputs: BitArea,
+}
+
+impl Default for CoilAreas {
+    fn default() -> Self {
+        Self {
+            memory: BitArea {
+                start: 0,
+                count: 1024,
+                plc: 1000,
+            },
+            outputs: BitArea {
+                start: 1024,
+                count: 1024,
+                plc: 100,
+            },
+            timers: BitArea {
+                start: 2048,
+                count: 2016,
+                plc: 100,
+            },
+            counters: BitArea {
+                start: 4064,
+                count: 48,
+                plc: 200,
+            },
+        }
+    }
+}
+
+impl Default for InputAreas {
+    fn default() -> Self {
+        Self {
+            memory: BitArea {
+                start: 0,
+                count: 1024,
+                plc: 1000,
+            },
+            inputs: BitArea {
+                start: 1024,
+                count: 1024,
+                plc: 100,
+            },
+        }
+    }
+}
+
+/// Modbus slave RTU (003 6.4.5): the gateway answers a serial master from its own CP memory.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ModbusSlaveRtuConfig {
+    /// Own slave address, 1..=255.
+    pub address: u8,
+    pub operating_mode: OperatingMode,
+    pub delay_multiplier: u8,
+    /// The Modbus TCP unit id under which the same CP memory is served, if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub unit_id: Option<u8>,
+    pub coils: CoilAreas,
+    pub discrete_inputs: InputAreas,
+    /// FC 03, 06, 16: register 0 is DBW 0 of this DB; 512 words a DB, 128 DBs.
+    pub holding_db: u16,
+    /// FC 04: the base DB of the second block.
+    pub input_db: u16,
+    /// Write-enabled ranges ("Limits"); empty: nothing may be written (003 6.4.5).
+    pub write_enable: Vec<AddressRange>,
+}
+
+// === readers ===
+
+fn read_devices(cx: &mut Cx, f: &mut Fields<'_>) -> BTreeMap<String, DeviceConfig> {
+    let mut devices = BTreeMap::new();
+    for (name, path, value) in f.named_tables(cx, "devices") {
+        check_name(cx, &path, &name);
+        if let Some(d) = DeviceConfig::read(cx, &path, value) {
+            devices.insert(name, d);
+        }
+    }
+    devices
+}
+
+fn reply_timeout(cx: &mut Cx, f: &mut Fields<'_>, cite: &str) -> Duration {
+    let (lo, hi) = REPLY_TIMEOUT_RANGE;
+    f.duration_or(cx, "reply_timeout", lo..=hi, DEFAULT_REPLY_TIMEOUT, cite)
+}
+
+impl ModbusMasterRtuConfig {
+    pub(crate) fn read(cx: &mut Cx, f: &mut Fields<'_>) -> Self {
+        const CITE: &str = "003 6.4.2.1";
+        Self {
+            reply_timeout: reply_timeout(cx, f, CITE),
+            operating_mode: f.choice_or(cx, "operating_mode", DEFAULT_OPERATING_MODE),
+            delay_multiplier: f.int_or(
+                cx,
+                "delay_multiplier",
+                1..=MAX_DELAY_MULTIPLIER,
+                DEFAULT_DELAY_MULTIPLIER,
+                CITE,
+            ),
+            retries: f.int_or(cx, "retries", 0..=MAX_RETRIES, DEFAULT_RETRIES, ""),
+            turnaround_delay: f.duration_or(
+                cx,
+                "turnaround_delay",
+                Duration::ZERO..=MAX_TURNAROUND_DELAY,
+                DEFAULT_RTU_TURNAROUND_DELAY,
+                "003 6.4.2.2",
+            ),
+            devices: read_devices(cx, f),
+        }
+    }
+}
+
+impl ModbusMasterAsciiConfig {
+    pub(crate) fn read(cx: &mut Cx, f: &mut Fields<'_>) -> Self {
+        const CITE: &str = "003 6.4.2.2";
+        let (lo, hi) = MASTER_ASCII_CHARACTER_DELAY_RANGE;
+        Self {
+            character_delay: f.duration_or(
+                cx,
+                "character_delay",
+                lo..=hi,
+                DEFAULT_MASTER_ASCII_CHARACTER_DELAY,
+                CITE,
+            ),
+            reply_timeout: reply_timeout(cx, f, CITE),
+            turnaround_delay: f.duration_or(
+                cx,
+                "turnaround_delay",
+                Duration::ZERO..=MAX_TURNAROUND_DELAY,
+                DEFAULT_ASCII_TURNAROUND_DELAY,
+                CITE,
+            ),
+            operating_mode: f.choice_or(cx, "operating_mode", DEFAULT_OPERATING_MODE),
+            registers32: f.bool_or(cx, "registers32", DEFAULT_REGISTERS32),
+            retries: f.int_or(cx, "retries", 0..=MAX_RETRIES, DEFAULT_RETRIES, ""),
+            devices: read_devices(cx, f),
+        }
+    }
+}
+
+fn read_area(cx: &mut Cx, f: &mut Fields<'_>, key: &'static str, default: BitArea) -> BitArea {
+    let Some(mut t) = f.table(cx, key) else {
+        return default;
+    };
+    let area = BitArea {
+        start: t.int_or(cx, "start", 0..=u16::MAX, default.start, ""),
+        count: t.int_or(cx, "count", 0..=65_536, default.count, ""),
+        plc: t.int_or(cx, "plc", 0..=u16::MAX, default.plc, ""),
+    };
+    t.finish(cx);
+    area
+}
+
+impl ModbusSlaveRtuConfig {
+    pub(crate) fn read(cx: &mut Cx, f: &mut Fields<'_>) -> Self {
+        const CITE: &str = "003 6.4.5.1";
+        let address = f.int_or(cx, "address", 1..=u8::MAX, DEFAULT_SLAVE_ADDRESS, CITE);
+        let operating_mode = f.choice_or(cx, "operating_mode", DEFAULT_OPERATING_MODE);
+        let delay_multiplier = f.int_or(
+            cx,
+            "delay_multiplier",
+            1..=MAX_DELAY_MULTIPLIER,
+            DEFAULT_DELAY_MULTIPLIER,
+            CITE,
+        );
+        let unit_id = f.int(cx, "unit_id", 1..=u8::MAX, "");
+        let c = CoilAreas::default();
+        let coils = match f.table(cx, "coils") {
+            None => c,
+            Some(mut t) => {
+                let a = CoilAreas {
+                    memory: read_area(cx, &mut t, "memory", c.memory),
+                    outputs: read_area(cx, &mut t, "outputs", c.outputs),
+                    timers: read_area(cx, &mut t, "timers", c.timers),
+                    counters: read_area(cx, &mut t, "counters", c.counters),
+                };
+                t.finish(cx);
+                a
+            }
+        };
+        let i = InputAreas::default();
+        let discrete_inputs = match f.table(cx, "discrete_inputs") {
+            None => i,
+            Some(mut t) => {
+                let a = InputAreas {
+                    memory: read_area(cx, &mut t, "memory", i.memory),
+                    inputs: read_area(cx, &mut t, "inputs", i.inputs),
+                };
+                t.finish(cx);
+                a
+            }
+        };
+        // DB 0 does not exist; the block of 128 DBs must end at DB 65535.
+        let max_db = u16::MAX - (DBS_PER_BLOCK - 1);
+        let holding_db = f.int_or(
+            cx,
+            "holding_db",
+            1..=max_db,
+            DEFAULT_HOLDING_DB,
+            "003 6.4.8.3",
+        );
+        let input_db = f.int_or(cx, "input_db", 1..=max_db, DEFAULT_INPUT_DB, "003 6.4.8.4");
+        let mut write_enable = Vec::new();
+        for (path, v) in f.array(cx, "write_enable") {
+            if let Some(r) = device::read_range(cx, &path, v) {
+                if !r.table.is_writable() {
+                    cx.issue(
+                        path.clone() + ".table",
+                        "only \"coil\" (FC 05/15) and \"holding\" (FC 06/16) areas can be write-enabled (003 6.4.5 Limits)",
+                    );
+                }
+                write_enable.push(r);
+            }
+        }
+        Self {
+            address,
+            operating_mode,
+            delay_multiplier,
+            unit_id,
+            coils,
+            discrete_inputs,
+            holding_db,
+            input_db,
+            write_enable,
+        }
+    }
+}
+
+impl ModbusTable {
+    /// Whether Modbus can write this table (coils with FC 05/15, holding registers with FC 06/16).
+    pub fn is_writable(self) -> bool {
+        matches!(self, Self::Coil | Self::Holding)
+    }
+}

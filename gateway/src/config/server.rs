@@ -1,0 +1,181 @@
+//! The Modbus TCP server (SPEC "Republishing": limits on connections, idle time, client networks,
+//! read-only mode and write-enabled ranges).
+
+use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::time::Duration;
+
+use ipnet::IpNet;
+use serde::Serialize;
+
+use super::device::{self, ModbusTable};
+use super::reader::{parsed_value, Cx, Fields};
+
+/// The Modbus TCP port (Modbus Messaging on TCP/IP Implementation Guide V1.0b, 4.1: port 502)
+/// on every interface: the production default. The demo uses 127.0.0.1:5020.
+pub const DEFAULT_LISTEN: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::UNSPECIFIED), 502);
+/// Concurrent client connections; further clients are refused until one leaves.
+pub const DEFAULT_MAX_CONNECTIONS: u32 = 64;
+/// Upper bound of `max_connections`.
+pub const MAX_MAX_CONNECTIONS: u32 = 4096;
+/// A connection without a request for this long is closed.
+pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(60);
+/// A request that has no answer after this long is answered with an exception (SPEC: 0x0B for a
+/// device that does not answer).
+pub const DEFAULT_REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
+/// Accepted range of `idle_timeout`.
+pub const IDLE_TIMEOUT_RANGE: (Duration, Duration) =
+    (Duration::from_secs(1), Duration::from_secs(86_400));
+/// Accepted range of `request_timeout`.
+pub const REQUEST_TIMEOUT_RANGE: (Duration, Duration) =
+    (Duration::from_millis(10), Duration::from_secs(600));
+/// Writes are accepted unless `read_only` is set.
+pub const DEFAULT_READ_ONLY: bool = false;
+
+pub fn default_listen() -> SocketAddr {
+    DEFAULT_LISTEN
+}
+pub fn default_max_connections() -> u32 {
+    DEFAULT_MAX_CONNECTIONS
+}
+pub fn default_idle_timeout() -> Duration {
+    DEFAULT_IDLE_TIMEOUT
+}
+pub fn default_request_timeout() -> Duration {
+    DEFAULT_REQUEST_TIMEOUT
+}
+
+/// Addresses of one unit that Modbus TCP clients may write.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct UnitRange {
+    pub unit_id: u8,
+    /// `holding` or `coil`.
+    pub table: ModbusTable,
+    pub start: u16,
+    pub count: u32,
+}
+
+/// The `[modbus_tcp]` section.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct ModbusTcpConfig {
+    pub listen: SocketAddr,
+    pub max_connections: u32,
+    /// Close a connection without requests after this long.
+    #[serde(with = "humantime_serde")]
+    pub idle_timeout: Duration,
+    /// Answer with an exception when a request has no answer after this long.
+    #[serde(with = "humantime_serde")]
+    pub request_timeout: Duration,
+    /// Client networks accepted; empty: every client.
+    pub allowed_networks: Vec<IpNet>,
+    /// Refuse every write with an exception.
+    pub read_only: bool,
+    /// When not empty, writes are accepted only inside these ranges.
+    pub write_ranges: Vec<UnitRange>,
+}
+
+impl Default for ModbusTcpConfig {
+    fn default() -> Self {
+        Self {
+            listen: DEFAULT_LISTEN,
+            max_connections: DEFAULT_MAX_CONNECTIONS,
+            idle_timeout: DEFAULT_IDLE_TIMEOUT,
+            request_timeout: DEFAULT_REQUEST_TIMEOUT,
+            allowed_networks: Vec::new(),
+            read_only: DEFAULT_READ_ONLY,
+            write_ranges: Vec::new(),
+        }
+    }
+}
+
+// === impl ModbusTcpConfig ===
+
+impl ModbusTcpConfig {
+    /// Whether a client at `ip` may connect.
+    pub fn allows(&self, ip: IpAddr) -> bool {
+        self.allowed_networks.is_empty() || self.allowed_networks.iter().any(|n| n.contains(&ip))
+    }
+
+    /// Whether a write of `count` addresses from `start` of `table` of `unit` is allowed by
+    /// `read_only` and `write_ranges`.
+    pub fn allows_write(&self, unit: u8, table: ModbusTable, start: u16, count: u32) -> bool {
+        !self.read_only
+            && (self.write_ranges.is_empty()
+                || self.write_ranges.iter().any(|r| {
+                    r.unit_id == unit
+                        && r.table == table
+                        && start >= r.start
+                        && u32::from(start) + count <= u32::from(r.start) + r.count
+                }))
+    }
+
+    pub(crate) fn read(cx: &mut Cx, mut f: Fields<'_>) -> Self {
+        let (ilo, ihi) = IDLE_TIMEOUT_RANGE;
+        let (rlo, rhi) = REQUEST_TIMEOUT_RANGE;
+        let listen = f.parsed_or(
+            cx,
+            "listen",
+            "socket address (e.g. \"0.0.0.0:502\")",
+            DEFAULT_LISTEN,
+        );
+        let max_connections = f.int_or(
+            cx,
+            "max_connections",
+            1..=MAX_MAX_CONNECTIONS,
+            DEFAULT_MAX_CONNECTIONS,
+            "",
+        );
+        let idle_timeout = f.duration_or(cx, "idle_timeout", ilo..=ihi, DEFAULT_IDLE_TIMEOUT, "");
+        let request_timeout = f.duration_or(
+            cx,
+            "request_timeout",
+            rlo..=rhi,
+            DEFAULT_REQUEST_TIMEOUT,
+            "",
+        );
+        let mut allowed_networks = Vec::new();
+        for (path, v) in f.array(cx, "allowed_networks") {
+            allowed_networks.extend(parsed_value::<IpNet>(
+                cx,
+                v,
+                &path,
+                "network (e.g. \"10.0.0.0/8\")",
+            ));
+        }
+        let read_only = f.bool_or(cx, "read_only", DEFAULT_READ_ONLY);
+        let mut write_ranges = Vec::new();
+        for (path, v) in f.array(cx, "write_ranges") {
+            let Some(mut t) = Fields::of(cx, v, path.clone()) else {
+                continue;
+            };
+            let unit_id = t.required_int::<u8>(cx, "unit_id", 1..=u8::MAX, "");
+            let range = device::range_fields(cx, &mut t);
+            t.finish(cx);
+            if let Some(r) = range {
+                if !r.table.is_writable() {
+                    cx.issue(
+                        format!("{path}.table"),
+                        "only \"holding\" and \"coil\" can be written",
+                    );
+                }
+                if let Some(unit_id) = unit_id {
+                    write_ranges.push(UnitRange {
+                        unit_id,
+                        table: r.table,
+                        start: r.start,
+                        count: r.count,
+                    });
+                }
+            }
+        }
+        f.finish(cx);
+        Self {
+            listen,
+            max_connections,
+            idle_timeout,
+            request_timeout,
+            allowed_networks,
+            read_only,
+            write_ranges,
+        }
+    }
+}

@@ -1,0 +1,268 @@
+//! Checks that span several keys.
+
+use super::*;
+
+#[test]
+fn duplicates_across_the_gateway() {
+    let text = r#"
+[lines.a]
+port = "/dev/ttyS0"
+protocol = "modbus-master-rtu"
+[lines.a.devices.x]
+profile = "altivar71"
+address = 3
+[lines.a.devices.y]
+profile = "altivar71"
+address = 3
+unit_id = 4
+[lines.b]
+port = "/dev/ttyS0"
+protocol = "3964r"
+unit_id = 4
+"#;
+    let got = issues(text);
+    assert_eq!(
+        got,
+        [
+            ("lines.a.devices.y.address".to_owned(), "slave address 3 is already used by lines.a.devices.x on this line".to_owned()),
+            ("lines.b.port".to_owned(), "port \"/dev/ttyS0\" is already used by lines.a".to_owned()),
+            (
+                "lines.b.unit_id".to_owned(),
+                "unit id 4 is already used by lines.a.devices.y; unit ids must be unique in the gateway".to_owned()
+            ),
+        ]
+    );
+}
+
+#[test]
+fn protocol_and_interface_rules() {
+    one_issue(
+        &one_line("3964r", "interface = \"rs485\""),
+        "lines.a.interface",
+        "not possible in two-wire",
+    );
+    one_issue(
+        &one_line("modbus-master-rtu", "data_bits = 7"),
+        "lines.a.data_bits",
+        "8 data bits (003 6.4.2.1",
+    );
+    one_issue(
+        &one_line("modbus-slave-rtu", "data_bits = 7"),
+        "lines.a.data_bits",
+        "8 data bits",
+    );
+    // Modbus ASCII: 7 data bits are the serial line standard.
+    parse(&one_line("modbus-master-ascii", "data_bits = 7"));
+    one_issue(
+        &one_line(
+            "ascii",
+            "interface = \"rs485\"\nflow_control = \"xon-xoff\"",
+        ),
+        "lines.a.flow_control",
+        "half-duplex RS485",
+    );
+    one_issue(
+        &one_line("ascii", "flow_control = \"rts-cts\""),
+        "lines.a.flow_control",
+        "interface = \"rs232\" (000 5.4)",
+    );
+    parse(&one_line(
+        "ascii",
+        "interface = \"rs232\"\nflow_control = \"auto-v24\"",
+    ));
+    one_issue(
+        &one_line("ascii", "flow_control = \"xon-xoff\"\nxoff_code = 0x11"),
+        "lines.a.xoff_code",
+        "different",
+    );
+    one_issue(
+        &one_line("ascii", "data_bits = 7\nend_chars = [0x83]"),
+        "lines.a.end_chars[0]",
+        "0x83 does not fit in 7 data bits",
+    );
+    one_issue(
+        &one_line("ascii", "prevent_overwrite = false"),
+        "lines.a.prevent_overwrite",
+        "only with receive_buffer = 1",
+    );
+    parse(&one_line(
+        "ascii",
+        "prevent_overwrite = false\nreceive_buffer = 1",
+    ));
+    one_issue(
+        &one_line(
+            "ascii",
+            "end_criterion = \"fixed-length\"\nfixed_length = 600\nmax_telegram_len = 500",
+        ),
+        "lines.a.fixed_length",
+        "longer than max_telegram_len",
+    );
+    // per-baud minimums: 003 6.2.1 (ASCII 300 baud: 130 ms), 003 6.3.3 (3964 300 baud: 60 ms)
+    one_issue(
+        &one_line("ascii", "baud = 300\ncharacter_delay = \"100ms\""),
+        "lines.a.character_delay",
+        "at 300 baud must be at least 130ms (003 6.2.1)",
+    );
+    one_issue(
+        &one_line("3964r", "baud = 300\nack_delay = \"50ms\""),
+        "lines.a.ack_delay",
+        "at 300 baud must be at least 60ms (003 6.3.3)",
+    );
+    one_issue(
+        &one_line("3964r", "devices = {}"),
+        "lines.a.devices",
+        "only by modbus-master-rtu and modbus-master-ascii lines, not by a 3964r line",
+    );
+    one_issue(
+        &one_line("modbus-master-rtu", "unit_id = 3"),
+        "lines.a.unit_id",
+        "unknown key",
+    );
+}
+
+#[test]
+fn slave_memory_rules() {
+    one_issue(
+        &one_line(
+            "modbus-slave-rtu",
+            "[lines.a.coils]\noutputs = { start = 1000, count = 100, plc = 100 }",
+        ),
+        "lines.a.coils.outputs.start",
+        "overlaps the memory area",
+    );
+    one_issue(
+        &one_line(
+            "modbus-slave-rtu",
+            "[lines.a.coils]\ntimers = { start = 2048, count = 20, plc = 100 }",
+        ),
+        "lines.a.coils.timers.count",
+        "multiple of 16 (003 6.4.8.1)",
+    );
+    one_issue(
+        &one_line(
+            "modbus-slave-rtu",
+            "[lines.a.discrete_inputs]\ninputs = { start = 1024, count = 1024, plc = 65530 }",
+        ),
+        "lines.a.discrete_inputs.inputs.plc",
+        "runs past PLC address 65535",
+    );
+    one_issue(
+        &one_line(
+            "modbus-slave-rtu",
+            "write_enable = [{ table = \"input\", start = 0, count = 1 }]",
+        ),
+        "lines.a.write_enable[0].table",
+        "003 6.4.5 Limits",
+    );
+    // switching an area off removes it from the overlap check
+    parse(&one_line("modbus-slave-rtu", "[lines.a.coils]\nmemory = { start = 0, count = 0, plc = 0 }\noutputs = { start = 0, count = 2048, plc = 100 }"));
+}
+
+#[test]
+fn device_rules() {
+    let dev = |keys: &str| {
+        one_line(
+            "modbus-master-rtu",
+            &format!("[lines.a.devices.d]\naddress = 1\n{keys}\n"),
+        )
+    };
+    one_issue(
+        &dev("profile = \"generic\""),
+        "lines.a.devices.d.tags",
+        "needs a tag list",
+    );
+    one_issue(
+        &dev("profile = \"altivar71\"\noffline_backoff_min = \"2m\""),
+        "lines.a.devices.d.offline_backoff_min",
+        "longer than offline_backoff_max",
+    );
+    let generic = |tags: &str, poll: &str| {
+        dev(&format!(
+            "profile = \"generic\"\ntags = [{tags}]\npoll = [{poll}]"
+        ))
+    };
+    let t = "{ name = \"t\", table = \"holding\", address = 0 }";
+    one_issue(
+        &generic(&format!("{t}, {t}"), ""),
+        "lines.a.devices.d.tags[1].name",
+        "defined twice",
+    );
+    one_issue(
+        &generic(
+            "{ name = \"t\", table = \"coil\", address = 0, type = \"u16\" }",
+            "",
+        ),
+        "lines.a.devices.d.tags[0].type",
+        "a coil tag must be bool",
+    );
+    one_issue(
+        &generic(
+            "{ name = \"t\", table = \"input\", address = 0, type = \"bool\" }",
+            "",
+        ),
+        "lines.a.devices.d.tags[0].type",
+        "must be u16, i16",
+    );
+    one_issue(
+        &generic(
+            "{ name = \"t\", table = \"input\", address = 0, writable = true }",
+            "",
+        ),
+        "lines.a.devices.d.tags[0].writable",
+        "cannot be written",
+    );
+    one_issue(
+        &generic(
+            "{ name = \"t\", table = \"holding\", address = 65535, type = \"f32\" }",
+            "",
+        ),
+        "lines.a.devices.d.tags[0].address",
+        "past address 65535",
+    );
+    one_issue(
+        &generic(t, "{ name = \"p\", period = \"1s\", tags = [\"nope\"] }"),
+        "lines.a.devices.d.poll[0].tags[0]",
+        "no tag \"nope\"",
+    );
+    one_issue(
+        &generic(t, "{ name = \"p\", period = \"1s\" }"),
+        "lines.a.devices.d.poll[0]",
+        "needs tags or ranges",
+    );
+    one_issue(
+        &generic(t, "{ name = \"p\", period = \"1s\", tags = [\"t\"] }, { name = \"p\", period = \"2s\", tags = [\"t\"] }"),
+        "lines.a.devices.d.poll[1].name",
+        "defined twice",
+    );
+    // the Altivar serves holding registers only (002: functions 3, 6, 8, 16, 23, 43)
+    one_issue(
+        &dev("profile = \"altivar71\"\npoll = [{ name = \"p\", period = \"1s\", ranges = [{ table = \"coil\", start = 0, count = 1 }] }]"),
+        "lines.a.devices.d.poll[0].ranges[0].table",
+        "the altivar71 profile has no coil table",
+    );
+    // profile tag names may be polled
+    parse(&dev("profile = \"altivar71\"\npoll = [{ name = \"p\", period = \"1s\", tags = [\"eta\", \"rfrd\"] }]"));
+    let c = parse(&generic(
+        t,
+        "{ name = \"p\", period = \"250ms\", tags = [\"t\"] }",
+    ));
+    let (_, d) = line(&c).devices().next().expect("device");
+    assert_eq!(d.poll[0].period, ms(250));
+    assert_eq!(d.tags[0].table, ModbusTable::Holding);
+}
+
+#[test]
+fn write_ranges_must_name_a_served_unit() {
+    one_issue("[modbus_tcp]\nwrite_ranges = [{ unit_id = 9, table = \"holding\", start = 0, count = 1 }]\n", "modbus_tcp.write_ranges[0].unit_id", "no device or line is served as unit id 9");
+    one_issue(
+        "[modbus_tcp]\nwrite_ranges = [{ unit_id = 9, table = \"input\", start = 0, count = 1 }]\n[lines.a]\nport = \"x\"\nprotocol = \"ascii\"\nunit_id = 9\n",
+        "modbus_tcp.write_ranges[0].table",
+        "only \"holding\" and \"coil\"",
+    );
+    let c = parse(EXAMPLE);
+    assert!(c.modbus_tcp.allows_write(2, ModbusTable::Holding, 8501, 1));
+    assert!(!c.modbus_tcp.allows_write(2, ModbusTable::Holding, 8502, 1));
+    assert!(!c.modbus_tcp.allows_write(2, ModbusTable::Holding, 9001, 3));
+    assert!(c.modbus_tcp.allows("10.1.2.3".parse().unwrap()));
+    assert!(!c.modbus_tcp.allows("192.168.1.1".parse().unwrap()));
+}
