@@ -9,13 +9,17 @@
 //! - [`unit`]: the contract between the Modbus TCP server and whatever answers a unit id;
 //! - [`modbus_tcp`]: our own MBAP framing, validation and the TCP server;
 //! - [`sim`]: simulated devices on a serial port (`gateway sim`);
+//! - [`api`]: the REST API under `/api/v1`, health, readiness and the OpenAPI document;
+//! - [`persist`]: the configuration file, replaced atomically with the previous version kept;
 //! - [`app`]: wiring a config into running tasks (`gateway run`, `gateway demo`).
 
+pub mod api;
 pub mod app;
 pub mod config;
 pub mod image;
 pub mod line;
 pub mod modbus_tcp;
+pub mod persist;
 pub mod serial;
 pub mod sim;
 pub mod unit;

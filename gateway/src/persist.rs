@@ -11,6 +11,9 @@
 //! 3. the temporary file is renamed over `path` (`rename(2)` replaces the name atomically);
 //! 4. the directory is flushed, so that the renames themselves survive a power loss.
 //!
+//! A crash between steps 2 and 3 leaves `<name>.prev` equal to the current file; it is never
+//! newer than it.
+//!
 //! Only one writer may save at a time: [`ConfigStore::save_atomic`] holds an in-process lock, and
 //! the gateway is the only process that writes its configuration. A temporary file left by a
 //! crash is overwritten by the next save and never read.
@@ -86,7 +89,10 @@ impl ConfigStore {
 
     /// Writes `text` in place of the file, keeping the current file as `<file>.prev`.
     pub fn save_atomic(&self, text: &str) -> Result<(), PersistError> {
-        let _guard = self.write_lock.lock().unwrap_or_else(PoisonError::into_inner);
+        let _guard = self
+            .write_lock
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
         let dir = parent_dir(&self.path);
         let tmp = sibling(&self.path, ".", ".tmp");
         write_synced(&tmp, text.as_bytes(), permissions_of(&self.path))?;
@@ -157,7 +163,8 @@ fn write_synced(
         file.set_permissions(p)
             .map_err(io_err("cannot set permissions of", path))?;
     }
-    file.write_all(bytes).map_err(io_err("cannot write", path))?;
+    file.write_all(bytes)
+        .map_err(io_err("cannot write", path))?;
     file.sync_all().map_err(io_err("cannot flush", path))
 }
 
