@@ -52,6 +52,9 @@ pub struct LineStatusView {
     /// The serial port's path.
     pub port: String,
     pub state: LineState,
+    /// When the line's task started: a configuration change that restarts the line moves it,
+    /// one that leaves the line alone does not.
+    pub started: Timestamp,
     /// Why the port last failed to open or was lost.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub port_error: Option<String>,
