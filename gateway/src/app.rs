@@ -1,1 +1,227 @@
-//! Wiring a config into running tasks.
+//! Wiring a config into running tasks: `gateway run` and `gateway demo`.
+//!
+//! [`run`] is the testable entry point (mini-redis `run(listener, shutdown)`): it builds the
+//! process image, starts one task per line, registers every device under its unit id, binds the
+//! Modbus TCP listener, and serves until `shutdown` is cancelled; then it drains within
+//! [`GRACE_PERIOD`] and says whether the stop was graceful or forced.
+
+use std::collections::BTreeMap;
+use std::net::SocketAddr;
+use std::sync::{Arc, RwLock};
+use std::time::Duration;
+
+use tokio_util::sync::CancellationToken;
+use tracing::{info, warn};
+
+use crate::config::{self, Config, LineConfig, ProtocolConfig};
+use crate::image::{ImageConfig, ProcessImage};
+use crate::line::{self, LineHandle};
+use crate::modbus_tcp::{self, ServerOptions, ServerStats, SharedUnits};
+use crate::unit::UnitMap;
+
+mod build;
+mod demo;
+
+pub use demo::demo;
+
+/// How long a stopping gateway waits for lines to finish their transaction in flight and for
+/// Modbus TCP connections to finish their request (systemd's TimeoutStopSec must be longer).
+pub const GRACE_PERIOD: Duration = Duration::from_secs(10);
+
+/// Settings given on the command line that take precedence over the config.
+#[derive(Clone, Debug, Default)]
+pub struct Overrides {
+    /// Listen for Modbus TCP here instead of `modbus_tcp.listen`.
+    pub modbus_tcp: Option<SocketAddr>,
+}
+
+/// Why the gateway could not start or stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum AppError {
+    /// The configuration is unusable.
+    #[error("invalid configuration:\n{0}")]
+    Config(#[from] config::ConfigErrors),
+    /// A listener could not be bound.
+    #[error("cannot listen for {what} on {addr}: {source}")]
+    Bind {
+        what: &'static str,
+        addr: SocketAddr,
+        source: std::io::Error,
+    },
+    /// A simulated device or a virtual line could not be set up.
+    #[error("{0}")]
+    Setup(String),
+    /// Anything else from the operating system.
+    #[error(transparent)]
+    Io(#[from] std::io::Error),
+}
+
+// === impl AppError ===
+
+impl AppError {
+    /// The process exit code (sysexits.h): 64 for configuration errors, 70 otherwise.
+    pub fn exit_code(&self) -> u8 {
+        match self {
+            Self::Config(_) => 64,
+            _ => 70,
+        }
+    }
+}
+
+impl From<crate::sim::SimError> for AppError {
+    fn from(e: crate::sim::SimError) -> Self {
+        Self::Setup(e.to_string())
+    }
+}
+
+/// Logs through tracing to stderr; `RUST_LOG` selects the level (default `info`).
+pub fn init_logging() {
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+    let _ = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
+        .try_init();
+}
+
+/// Cancels `shutdown` on SIGINT or SIGTERM.
+pub async fn cancel_on_signal(shutdown: CancellationToken) {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        let (Ok(mut term), Ok(mut int)) = (
+            signal(SignalKind::terminate()),
+            signal(SignalKind::interrupt()),
+        ) else {
+            warn!("cannot install signal handlers; stop the gateway with SIGKILL");
+            return;
+        };
+        tokio::select! {
+            _ = term.recv() => info!("SIGTERM received, stopping"),
+            _ = int.recv() => info!("SIGINT received, stopping"),
+            () = shutdown.cancelled() => return,
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => info!("Ctrl-C received, stopping"),
+            () = shutdown.cancelled() => return,
+        }
+    }
+    shutdown.cancel();
+}
+
+/// The running parts of a gateway.
+#[derive(Debug)]
+pub struct Running {
+    /// The process image shared by lines and servers.
+    pub image: ProcessImage,
+    /// The Modbus master lines by name.
+    pub lines: BTreeMap<String, LineHandle>,
+    /// What answers each Modbus TCP unit id.
+    pub units: SharedUnits,
+    /// Modbus TCP server counters.
+    pub tcp_stats: Arc<ServerStats>,
+}
+
+/// Runs `config` until `shutdown` is cancelled.
+pub async fn run(
+    config: Config,
+    overrides: Overrides,
+    shutdown: CancellationToken,
+) -> Result<(), AppError> {
+    let lines_token = shutdown.child_token();
+    let running = start_lines(&config, &lines_token);
+
+    let addr = overrides.modbus_tcp.unwrap_or(config.modbus_tcp.listen);
+    let listener = modbus_tcp::bind(addr).map_err(|source| AppError::Bind {
+        what: "Modbus TCP",
+        addr,
+        source,
+    })?;
+    let local = listener.local_addr()?;
+    info!(%local, units = ?running.units.read().map(|u| u.unit_ids()).unwrap_or_default(), "Modbus TCP listening");
+    // A fixed line on stdout that scripts and tests wait for.
+    println!("modbus-tcp listening on {local}");
+
+    let server_token = shutdown.child_token();
+    let server = tokio::spawn(modbus_tcp::serve(
+        listener,
+        Arc::clone(&running.units),
+        server_options(&config.modbus_tcp),
+        server_token.clone(),
+        Arc::clone(&running.tcp_stats),
+    ));
+
+    shutdown.cancelled().await;
+    info!(grace = ?GRACE_PERIOD, "draining: lines finish their transaction in flight, connections their request");
+    lines_token.cancel();
+    server_token.cancel();
+    let drain = async {
+        for (_, line) in running.lines {
+            line.join().await;
+        }
+        match server.await {
+            Ok(Ok(())) => {}
+            Ok(Err(e)) => warn!(error = %e, "Modbus TCP server ended with an error"),
+            Err(e) => warn!(error = %e, "Modbus TCP server task failed"),
+        }
+    };
+    if tokio::time::timeout(GRACE_PERIOD, drain).await.is_ok() {
+        info!("stopped gracefully");
+    } else {
+        warn!(grace = ?GRACE_PERIOD, "grace period over: stopping forcibly");
+    }
+    Ok(())
+}
+
+/// Starts every line of `config` and registers its devices as Modbus TCP units.
+fn start_lines(config: &Config, shutdown: &CancellationToken) -> Running {
+    let image = ProcessImage::new(ImageConfig::default());
+    let mut units = UnitMap::new();
+    let mut lines = BTreeMap::new();
+    for (name, line) in &config.lines {
+        match &line.protocol {
+            ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => {
+                let Some((settings, devices)) = build::master_line(name, line, config) else {
+                    continue;
+                };
+                let handle = line::spawn_modbus_master_line(
+                    settings,
+                    devices,
+                    image.clone(),
+                    shutdown.child_token(),
+                );
+                for (unit, device) in handle.device_units() {
+                    units.insert(unit, Arc::new(device));
+                }
+                lines.insert(name.clone(), handle);
+            }
+            other => not_served(name, line, other.kind().as_str()),
+        }
+    }
+    Running {
+        image,
+        lines,
+        units: Arc::new(RwLock::new(units)),
+        tcp_stats: Arc::new(ServerStats::new()),
+    }
+}
+
+fn not_served(name: &str, line: &LineConfig, protocol: &str) {
+    warn!(line = name, port = %line.serial.port, protocol, "this protocol is not served by this build; the line stays closed");
+}
+
+/// The Modbus TCP server options of the config.
+fn server_options(cfg: &config::ModbusTcpConfig) -> ServerOptions {
+    ServerOptions {
+        max_connections: usize::try_from(cfg.max_connections).unwrap_or(usize::MAX),
+        idle_timeout: cfg.idle_timeout,
+        allowed_networks: cfg.allowed_networks.clone(),
+        read_only: cfg.read_only,
+        write_ranges: build::write_ranges(cfg),
+        request_timeout: cfg.request_timeout,
+    }
+}

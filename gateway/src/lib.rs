@@ -5,6 +5,7 @@
 //! - [`config`]: the TOML configuration, its validation and `gateway check`;
 //! - [`serial`]: opening ports with line settings, RS485 mode, reopen with back-off;
 //! - [`line`]: one task per line driving an engine, the poll scheduler;
+//! - [`cpmem`]: the CP memory (M, Q, I, T, C, DBs) shared by slave lines, Modbus TCP and the image;
 //! - [`image`]: the process image (value, quality, timestamp per register);
 //! - [`unit`]: the contract between the Modbus TCP server and whatever answers a unit id;
 //! - [`modbus_tcp`]: our own MBAP framing, validation and the TCP server;
@@ -16,10 +17,12 @@
 pub mod api;
 pub mod app;
 pub mod config;
+pub mod cpmem;
 pub mod image;
 pub mod line;
 pub mod modbus_tcp;
 pub mod persist;
 pub mod serial;
 pub mod sim;
+pub mod tags;
 pub mod unit;

@@ -61,6 +61,8 @@ impl UnitMap {
 
 impl std::fmt::Debug for UnitMap {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("UnitMap").field("units", &self.unit_ids()).finish()
+        f.debug_struct("UnitMap")
+            .field("units", &self.unit_ids())
+            .finish()
     }
 }

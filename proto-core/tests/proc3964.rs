@@ -692,6 +692,33 @@ fn a_corrupted_byte_is_repaired_by_repetition() {
 }
 
 #[test]
+fn a_line_that_always_corrupts_exhausts_the_transmission_attempts() {
+    let mut pair = Pair::new(station(|_| {}), station(|_| {}));
+    // Every 'A' arrives as '@': each BCC check fails.
+    pair.fault_a = Box::new(|_, byte| Some(if byte == b'A' { b'@' } else { byte }));
+    let id = pair.a.station.send(at(0), b"A".to_vec()).expect("accepted");
+    pair.drive();
+    let mut sender = vec![ids::SEND_END_REJECTED, ids::SEND_REPETITION];
+    sender.extend([ids::SEND_END_REJECTED; 5]);
+    sender.push(ids::SEND_ATTEMPTS_EXHAUSTED);
+    assert_eq!(end_raised(&pair.a), sender);
+    let mut receiver = vec![ids::BCC_ERROR, ids::RECEIVE_REPETITION];
+    receiver.extend([ids::BCC_ERROR; 5]);
+    assert_eq!(
+        end_raised(&pair.b),
+        receiver,
+        "equal attempts on both sides: no 08 15h"
+    );
+    assert!(pair.a.events.iter().any(|(_, e)| *e
+        == Event3964::SendFailed {
+            id,
+            event: ids::SEND_ATTEMPTS_EXHAUSTED,
+            first: ids::SEND_END_REJECTED
+        }));
+    assert!(received(&pair.b).is_empty());
+}
+
+#[test]
 fn a_deaf_partner_exhausts_the_setup_attempts_in_the_manuals_time() {
     let mut pair = Pair::new(station(|_| {}), station(|_| {}));
     pair.fault_a = Box::new(|_, _| None);
@@ -713,6 +740,25 @@ fn a_deaf_partner_exhausts_the_setup_attempts_in_the_manuals_time() {
     );
     // 6 x (one STX on the wire + QVZ 2000 ms).
     assert_eq!(*when, Instant::ZERO + (pair.char_time + ms(2000)) * 6);
+}
+
+/// One thing that can happen to a station.
+#[derive(Clone, Debug)]
+enum Op {
+    Rx(Vec<u8>),
+    LineError(LineError),
+    Send(Vec<u8>),
+    Wait(u16),
+}
+
+fn op() -> impl Strategy<Value = Op> {
+    let byte = prop_oneof![Just(STX), Just(DLE), Just(ETX), Just(NAK), any::<u8>()];
+    prop_oneof![
+        4 => prop::collection::vec(byte, 1..12).prop_map(Op::Rx),
+        1 => prop_oneof![Just(LineError::Parity), Just(LineError::Break)].prop_map(Op::LineError),
+        1 => prop::collection::vec(any::<u8>(), 0..300).prop_map(Op::Send),
+        2 => (0u16..3000).prop_map(Op::Wait),
+    ]
 }
 
 fn payload() -> impl Strategy<Value = Vec<u8>> {
@@ -765,6 +811,40 @@ proptest! {
         let whole = run(&[&frame]);
         prop_assert_eq!(run(&chunks), whole.clone());
         prop_assert_eq!(whole.0, if bad { vec![DLE, NAK] } else { vec![DLE, DLE] });
+    }
+
+    #[test]
+    fn any_input_comes_to_rest(ops in prop::collection::vec(op(), 0..40), low in any::<bool>()) {
+        let mut p = station(|s| if low { s.priority = Priority::Low });
+        let mut now = at(0);
+        for op in ops {
+            match op {
+                Op::Rx(bytes) => p.handle_rx(now, &bytes),
+                Op::LineError(e) => p.handle_line_error(now, e),
+                Op::Send(data) => { let _ = p.send(now, data); }
+                Op::Wait(n) => {
+                    now += ms(n.into());
+                    if p.poll_timeout().is_some_and(|t| t <= now) { p.handle_timeout(now); }
+                }
+            }
+            out(&mut p, now);
+            events(&mut p);
+            p.take_received();
+        }
+        // Silence from now on: every job and reception ends by its own timers.
+        for _ in 0..10_000 {
+            out(&mut p, now);
+            events(&mut p);
+            match p.poll_timeout() {
+                Some(t) => {
+                    prop_assert!(t >= now, "a deadline in the past");
+                    now = t;
+                    p.handle_timeout(now);
+                }
+                None => break,
+            }
+        }
+        prop_assert!(p.is_idle());
     }
 
     #[test]

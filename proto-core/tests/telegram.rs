@@ -634,6 +634,38 @@ fn flow_control_keeps_a_slow_receiver_from_losing_telegrams() {
     assert!(!raised_b.is_empty() && raised_b.iter().all(|&e| e == ids::NO_FREE_RECEIVE_BUFFER));
 }
 
+/// One thing that can happen to a driver.
+#[derive(Clone, Debug)]
+enum Op {
+    Rx(Vec<u8>),
+    LineError(LineError),
+    Signals(bool, bool),
+    Send(Vec<u8>),
+    Take,
+    Wait(u16),
+}
+
+fn op() -> impl Strategy<Value = Op> {
+    let byte = prop_oneof![Just(XON), Just(XOFF), Just(ETX), any::<u8>()];
+    prop_oneof![
+        4 => prop::collection::vec(byte, 1..12).prop_map(Op::Rx),
+        1 => prop_oneof![Just(LineError::Overrun), Just(LineError::Break)].prop_map(Op::LineError),
+        1 => (any::<bool>(), any::<bool>()).prop_map(|(c, d)| Op::Signals(c, d)),
+        1 => prop::collection::vec(0u8..0x80, 0..40).prop_map(Op::Send),
+        1 => Just(Op::Take),
+        2 => (0u16..30_000).prop_map(Op::Wait),
+    ]
+}
+
+fn flows() -> impl Strategy<Value = FlowControl> {
+    prop_oneof![
+        Just(FlowControl::None),
+        Just(FlowControl::XON_XOFF),
+        Just(FlowControl::RtsCts),
+        Just(FlowControl::AUTO_V24)
+    ]
+}
+
 fn criteria() -> impl Strategy<Value = EndCriterion> {
     prop_oneof![
         (1u16..20).prop_map(EndCriterion::FixedLength),
@@ -672,6 +704,48 @@ proptest! {
         };
         let chunks: Vec<&[u8]> = points.windows(2).filter_map(|w| bytes.get(w[0]..w[1])).collect();
         prop_assert_eq!(run(chunks, spread), run(vec![&bytes], false));
+    }
+
+    #[test]
+    fn any_input_comes_to_rest(ops in prop::collection::vec(op(), 0..40), flow in flows(), end in criteria()) {
+        let mut d = driver(|s| {
+            s.interface = Interface::Rs232;
+            s.flow = flow;
+            s.end = end;
+            s.receive_buffers = 2;
+        });
+        let mut now = at(0);
+        let mut drain = |d: &mut AsciiDriver, now: Instant| {
+            actions(d);
+            out(d, now);
+            events(d);
+        };
+        for op in ops {
+            match op {
+                Op::Rx(bytes) => d.handle_rx(now, &bytes),
+                Op::LineError(e) => d.handle_line_error(now, e),
+                Op::Signals(cts, dsr) => d.handle_signals(now, Signals { cts, dsr }),
+                Op::Send(data) => { let _ = d.send(now, data); }
+                Op::Take => { d.take_received(); }
+                Op::Wait(n) => {
+                    now += ms(n.into());
+                    if d.poll_timeout().is_some_and(|t| t <= now) { d.handle_timeout(now); }
+                }
+            }
+            drain(&mut d, now);
+        }
+        for _ in 0..10_000 {
+            drain(&mut d, now);
+            match d.poll_timeout() {
+                Some(t) => {
+                    now = now.max(t);
+                    d.handle_timeout(now);
+                }
+                None => break,
+            }
+        }
+        prop_assert!(d.is_idle());
+        prop_assert_eq!(d.poll_timeout(), None);
     }
 
     #[test]

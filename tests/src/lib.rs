@@ -22,7 +22,10 @@ pub fn gateway_bin() -> PathBuf {
     BIN.get_or_init(|| {
         let exe = std::env::current_exe().expect("test executable path");
         // target/<profile>/deps/<test> -> target/<profile>/gateway
-        let profile_dir = exe.parent().and_then(Path::parent).expect("target/<profile> directory");
+        let profile_dir = exe
+            .parent()
+            .and_then(Path::parent)
+            .expect("target/<profile> directory");
         let bin = profile_dir.join("gateway");
         if !bin.exists() {
             let status = Command::new(std::env::var("CARGO").unwrap_or_else(|_| "cargo".into()))
@@ -31,7 +34,11 @@ pub fn gateway_bin() -> PathBuf {
                 .expect("run cargo build -p gateway");
             assert!(status.success(), "cargo build -p gateway failed");
         }
-        assert!(bin.exists(), "gateway binary not found at {}", bin.display());
+        assert!(
+            bin.exists(),
+            "gateway binary not found at {}",
+            bin.display()
+        );
         bin
     })
     .clone()
@@ -65,7 +72,10 @@ impl Gateway {
     pub fn start(args: &[&str]) -> Self {
         let mut child = Command::new(gateway_bin())
             .args(args)
-            .env("RUST_LOG", std::env::var("RUST_LOG").unwrap_or_else(|_| "info".into()))
+            .env(
+                "RUST_LOG",
+                std::env::var("RUST_LOG").unwrap_or_else(|_| "info".into()),
+            )
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -86,10 +96,21 @@ impl Gateway {
                 }
             });
         }
-        let mut gw = Self { child, modbus_tcp: "0.0.0.0:0".parse().expect("addr"), output, lines };
+        let mut gw = Self {
+            child,
+            modbus_tcp: "0.0.0.0:0".parse().expect("addr"),
+            output,
+            lines,
+        };
         let line = gw.wait_for("modbus-tcp listening on ", START_TIMEOUT);
-        let addr = line.rsplit("modbus-tcp listening on ").next().expect("address").trim();
-        gw.modbus_tcp = addr.parse().unwrap_or_else(|e| panic!("bad address {addr:?}: {e}"));
+        let addr = line
+            .rsplit("modbus-tcp listening on ")
+            .next()
+            .expect("address")
+            .trim();
+        gw.modbus_tcp = addr
+            .parse()
+            .unwrap_or_else(|e| panic!("bad address {addr:?}: {e}"));
         gw
     }
 
@@ -102,7 +123,10 @@ impl Gateway {
             match self.lines.recv_timeout(left) {
                 Ok(line) if line.contains(needle) => return line,
                 Ok(_) => {}
-                Err(_) => panic!("no line containing {needle:?} within {timeout:?}; output:\n{}", self.output()),
+                Err(_) => panic!(
+                    "no line containing {needle:?} within {timeout:?}; output:\n{}",
+                    self.output()
+                ),
             }
         }
     }
@@ -119,7 +143,9 @@ impl Gateway {
 
     /// Sends SIGTERM and waits up to `timeout` for the exit status.
     pub fn terminate(&mut self, timeout: Duration) -> Option<std::process::ExitStatus> {
-        let _ = Command::new("kill").args(["-TERM", &self.child.id().to_string()]).status();
+        let _ = Command::new("kill")
+            .args(["-TERM", &self.child.id().to_string()])
+            .status();
         let deadline = Instant::now() + timeout;
         while Instant::now() < deadline {
             if let Ok(Some(status)) = self.child.try_wait() {
@@ -144,4 +170,90 @@ impl Drop for Gateway {
             assert!(!out.contains("panicked at"), "the gateway panicked:\n{out}");
         }
     }
+}
+
+/// A fresh directory under the system temp dir for one test.
+pub fn temp_dir(test: &str) -> PathBuf {
+    static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = COUNTER.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("gateway-e2e-{}-{test}-{n}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("create temp dir");
+    dir
+}
+
+/// A child process killed (by its PID, SIGKILL) and reaped when dropped.
+#[derive(Debug)]
+pub struct ChildGuard(pub Child);
+
+impl ChildGuard {
+    /// Kills the process now and waits for it.
+    pub fn kill(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+impl Drop for ChildGuard {
+    fn drop(&mut self) {
+        self.kill();
+    }
+}
+
+/// A virtual null-modem cable: two pseudo-terminals joined by socat, reachable at `a` and `b`.
+#[derive(Debug)]
+pub struct SocatLink {
+    /// One end (give it to the gateway).
+    pub a: PathBuf,
+    /// The other end (give it to the device).
+    pub b: PathBuf,
+    _socat: ChildGuard,
+}
+
+impl SocatLink {
+    /// Creates the link in `dir` as `<name>-a` and `<name>-b`.
+    pub fn new(dir: &Path, name: &str) -> Self {
+        let a = dir.join(format!("{name}-a"));
+        let b = dir.join(format!("{name}-b"));
+        let child = Command::new("socat")
+            .arg("-d")
+            .arg(format!("pty,raw,echo=0,link={}", a.display()))
+            .arg(format!("pty,raw,echo=0,link={}", b.display()))
+            .stdin(Stdio::null())
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap_or_else(|e| {
+                panic!("socat is needed (apt install socat; .ci/run installs it): {e}")
+            });
+        let guard = ChildGuard(child);
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !(a.exists() && b.exists()) {
+            assert!(
+                Instant::now() < deadline,
+                "socat did not create {} and {}",
+                a.display(),
+                b.display()
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        Self {
+            a,
+            b,
+            _socat: guard,
+        }
+    }
+}
+
+/// Starts `gateway sim` with `args` (stdout and stderr discarded).
+pub fn start_sim(args: &[&str]) -> ChildGuard {
+    let child = Command::new(gateway_bin())
+        .arg("sim")
+        .args(args)
+        .stdin(Stdio::null())
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("start gateway sim");
+    ChildGuard(child)
 }

@@ -13,7 +13,10 @@ pub const MAX_DEVICE_ADDRESS: u8 = 247;
 /// First wait before a device that stopped answering is asked again.
 pub const DEFAULT_OFFLINE_BACKOFF_MIN: Duration = Duration::from_secs(1);
 /// Longest wait between attempts at a device that does not answer.
-pub const DEFAULT_OFFLINE_BACKOFF_MAX: Duration = Duration::from_secs(60);
+pub const DEFAULT_OFFLINE_BACKOFF_MAX: Duration = Duration::from_secs(30);
+/// Unpolled addresses a merged read may include: none by default, because the Altivar and the
+/// KS vario answer exception 02 when the first word of a read is undefined (002, 001).
+pub const DEFAULT_BRIDGE_GAP: u16 = 0;
 /// Back-off bounds accepted in the config.
 pub const BACKOFF_RANGE: (Duration, Duration) =
     (Duration::from_millis(10), Duration::from_secs(3600));
@@ -260,6 +263,8 @@ pub struct DeviceConfig {
     /// The wait doubles up to this bound while the device stays silent.
     #[serde(with = "humantime_serde")]
     pub offline_backoff_max: Duration,
+    /// Largest run of addresses nobody polls that a merged read may include (0: never).
+    pub bridge_gap: u16,
     pub tags: Vec<TagConfig>,
     pub poll: Vec<PollGroup>,
 }
@@ -439,6 +444,7 @@ impl DeviceConfig {
             DEFAULT_OFFLINE_BACKOFF_MAX,
             "",
         );
+        let bridge_gap = f.int_or(cx, "bridge_gap", 0..=u16::MAX, DEFAULT_BRIDGE_GAP, "");
         let raw_tags = f.array(cx, "tags");
         if profile == Some(Profile::Generic) && raw_tags.is_empty() {
             cx.issue(f.at("tags"), "a generic device needs a tag list");
@@ -461,6 +467,7 @@ impl DeviceConfig {
             limits,
             offline_backoff_min,
             offline_backoff_max,
+            bridge_gap,
             tags,
             poll,
         })

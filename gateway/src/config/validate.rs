@@ -283,6 +283,15 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
             ),
         );
     }
+    if dev.bridge_gap >= dev.limits.read_registers {
+        cx.issue(
+            format!("{path}.bridge_gap"),
+            format!(
+                "must be below the read limit of {} registers, found {}",
+                dev.limits.read_registers, dev.bridge_gap
+            ),
+        );
+    }
     let tables = dev.profile.tables();
     let profile = serde_name(dev.profile);
     let mut names: BTreeSet<&str> = dev.profile.tag_names().iter().copied().collect();

@@ -11,6 +11,7 @@
 //! - `status`: diagnostic buffer, event counters, STATUS word, device states;
 //! - `driver`: clock conversion and timer helpers of the driver loop;
 //! - `modbus_master`: the line task itself;
+//! - `modbus_slave`: the Modbus slave RTU line serving the CP memory ([`spawn_modbus_slave_line`]);
 //! - `writeback`: the image refresh after a confirmed write, the broadcast echo;
 //! - `device_unit`: a polled device as a Modbus TCP unit.
 
@@ -18,6 +19,7 @@ mod command;
 mod device_unit;
 mod driver;
 mod modbus_master;
+mod modbus_slave;
 pub mod plan;
 mod scheduler;
 mod status;
@@ -36,6 +38,9 @@ pub use command::{
 };
 pub use device_unit::DeviceUnit;
 pub use modbus_master::{EVENT_PORT_LOST, EVENT_PORT_SETUP};
+pub use modbus_slave::{
+    spawn_modbus_slave_line, SlaveCounters, SlaveLineHandle, SlaveLineSettings,
+};
 pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
 pub use status::{DeviceStatus, LineEvent, LineStatus, DEFAULT_DIAG_DEPTH};
 

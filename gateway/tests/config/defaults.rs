@@ -182,7 +182,8 @@ fn device_defaults_come_from_the_profile() {
         (20, 20)
     );
     assert_eq!(atv.offline_backoff_min, Duration::from_secs(1));
-    assert_eq!(atv.offline_backoff_max, Duration::from_secs(60));
+    assert_eq!(atv.offline_backoff_max, Duration::from_secs(30));
+    assert_eq!(atv.bridge_gap, 0);
     let (_, kv) = devices[1];
     // 001 3.1: at most 120 integer values a message.
     assert_eq!(kv.limits.read_registers, 120);

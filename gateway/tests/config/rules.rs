@@ -172,6 +172,11 @@ fn device_rules() {
         "needs a tag list",
     );
     one_issue(
+        &dev("profile = \"altivar71\"\nbridge_gap = 20\nlimits = { read_registers = 20 }"),
+        "lines.a.devices.d.bridge_gap",
+        "below the read limit of 20 registers",
+    );
+    one_issue(
         &dev("profile = \"altivar71\"\noffline_backoff_min = \"2m\""),
         "lines.a.devices.d.offline_backoff_min",
         "longer than offline_backoff_max",

@@ -181,7 +181,11 @@ impl Deframer {
         self.error
     }
 
-    /// The user data, or the first fault ([`FrameError::Incomplete`] before the end).
+    /// The user data.
+    ///
+    /// # Errors
+    ///
+    /// The first fault seen, or [`FrameError::Incomplete`] before the end.
     pub fn finish(self) -> Result<Vec<u8>, FrameError> {
         match (self.error, self.phase) {
             (Some(error), _) => Err(error),

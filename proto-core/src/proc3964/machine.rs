@@ -145,8 +145,10 @@ impl Proc3964 {
 
     /// Queues `telegram` (user data, without control codes) for sending.
     ///
-    /// Refused when empty, longer than the configured maximum (003 6.3.1: 250 bytes unless
-    /// configured up to 1024) or when the send queue is full.
+    /// # Errors
+    ///
+    /// [`SendError::Empty`], [`SendError::TooLong`] beyond the configured maximum (003 6.3.1: 250
+    /// bytes unless configured up to 1024), [`SendError::QueueFull`].
     pub fn send(&mut self, now: Instant, telegram: Vec<u8>) -> Result<TelegramId, SendError> {
         let _ = now; // no timer starts here: the STX goes out first (handle_tx_done)
         let max = usize::from(self.settings().max_len);

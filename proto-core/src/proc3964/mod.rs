@@ -153,6 +153,10 @@ pub struct Params3964 {
 
 impl Params3964 {
     /// Checks `settings` against the ranges of 003 6.3.3.
+    ///
+    /// # Errors
+    ///
+    /// The first parameter the manual does not allow, as a [`ConfigError`] for the operator.
     pub fn try_new(settings: Settings3964) -> Result<Self, ConfigError> {
         if !settings.interface.is_full_duplex() {
             return Err(ConfigError::TwoWireNotSupported);

@@ -176,6 +176,10 @@ pub struct AsciiParams {
 
 impl AsciiParams {
     /// Checks `settings` against the ranges of 003 6.2.1 and 000 6.2.1.
+    ///
+    /// # Errors
+    ///
+    /// The first parameter the manual does not allow, as a [`ConfigError`] for the operator.
     pub fn try_new(settings: AsciiSettings) -> Result<Self, ConfigError> {
         let s = &settings;
         check_baud(s.baud)?;

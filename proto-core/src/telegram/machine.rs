@@ -175,6 +175,11 @@ impl AsciiDriver {
     }
 
     /// Queues `telegram` for sending, as given (with end characters, if the partner expects them).
+    ///
+    /// # Errors
+    ///
+    /// [`SendError::Empty`], [`SendError::TooLong`] beyond 1024 bytes, [`SendError::EighthBit`]
+    /// with 7 data bits, [`SendError::QueueFull`].
     pub fn send(&mut self, now: Instant, telegram: Vec<u8>) -> Result<TelegramId, SendError> {
         let capacity = usize::from(self.settings().send_queue);
         if telegram.is_empty() {

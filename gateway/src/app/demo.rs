@@ -1,0 +1,83 @@
+//! `gateway demo`: the embedded config on virtual serial lines with simulated devices.
+//!
+//! Every line whose port is `pty:<name>` gets a pseudo-terminal pair: the simulated device serves
+//! one end in this process, the gateway opens the other end by its path like any serial port.
+//! Nothing is needed but the binary.
+
+use proto_core::modbus::rtu::CharTiming;
+use tokio_serial::{SerialPort, SerialStream};
+use tokio_util::sync::CancellationToken;
+use tracing::info;
+
+use super::{run, AppError, Overrides};
+use crate::config::{self, LineConfig, Profile, ProtocolConfig};
+use crate::sim::{self, altivar::AltivarSim, ksvario::KsVarioSim, ModbusDevice};
+
+/// Runs the demo until `shutdown` is cancelled.
+pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(), AppError> {
+    let mut config = config::demo();
+    // The gateway's ends of the pty pairs: kept open for the whole run so that the paths stay
+    // valid while the gateway reopens them.
+    let mut keep = Vec::new();
+    let sims = shutdown.child_token();
+    for (name, line) in &mut config.lines {
+        if line.serial.pty_name().is_none() {
+            continue;
+        }
+        let (device_end, gateway_end) = SerialStream::pair().map_err(|e| {
+            AppError::Setup(format!(
+                "line {name}: cannot create a pseudo-terminal pair: {e}"
+            ))
+        })?;
+        let path = gateway_end.name().ok_or_else(|| {
+            AppError::Setup(format!("line {name}: the pseudo-terminal has no path"))
+        })?;
+        info!(line = %name, port = %path, "demo line on a pseudo-terminal");
+        start_simulator(name, line, device_end, &sims)?;
+        line.serial.port = path;
+        keep.push(gateway_end);
+    }
+    let result = run(config, overrides, shutdown).await;
+    sims.cancel();
+    drop(keep);
+    result
+}
+
+/// Starts the simulated device of a demo line on `stream`.
+fn start_simulator(
+    name: &str,
+    line: &LineConfig,
+    stream: SerialStream,
+    shutdown: &CancellationToken,
+) -> Result<(), AppError> {
+    let timing = CharTiming::new(line.serial.baud.get(), line.serial.bits_per_char());
+    match &line.protocol {
+        ProtocolConfig::ModbusMasterRtu(m) => {
+            let Some((_, device)) = m.devices.iter().next() else {
+                return Ok(());
+            };
+            let sim: Box<dyn ModbusDevice> = match device.profile {
+                Profile::Altivar71 => Box::new(AltivarSim::new(device.address)),
+                Profile::Ksvario => Box::new(KsVarioSim::new(device.address)),
+                Profile::Generic => {
+                    return Err(AppError::Setup(format!(
+                        "line {name}: the demo has no simulator for generic devices"
+                    )))
+                }
+            };
+            let token = shutdown.clone();
+            let line_name = name.to_owned();
+            tokio::spawn(async move {
+                if let Err(e) = sim::serve_modbus(stream, sim, timing, token).await {
+                    tracing::error!(line = %line_name, error = %e, "simulated device stopped");
+                }
+            });
+            Ok(())
+        }
+        _ => {
+            // Telegram partners and serial masters are started by their own modules.
+            drop(stream);
+            Ok(())
+        }
+    }
+}

@@ -1,0 +1,318 @@
+//! A simulated serial Modbus master for the demo: it polls the gateway's Modbus slave RTU line
+//! over a pty the way a legacy HMI would, so that the slave line's counters and the CP memory's
+//! values move without hardware.
+//!
+//! Each cycle reads every area the slave's address map reaches (FC 01 on the M, Q, T and C rows,
+//! FC 02 on the M and I rows, FC 03 and FC 04 from the first register) and writes the cycle
+//! counter into one holding register (FC 06, a DB word), then waits for the next period. It runs
+//! proto-core's [`Master`] engine, the same one the gateway's master lines use, on any byte stream
+//! (one end of `tokio_serial::SerialStream::pair()` in the demo).
+
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use proto_core::cpmem::{AddressMap, SlaveParams};
+use proto_core::modbus::master::{Master, MasterConfig, MasterEvent, Outcome};
+use proto_core::modbus::pdu::Request;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::task::JoinHandle;
+use tokio::time::Instant;
+use tokio_util::sync::CancellationToken;
+
+/// Pause between two poll cycles by default.
+pub const DEFAULT_PERIOD: Duration = Duration::from_millis(500);
+/// How long the simulated master waits for an answer by default (shorter than the CP's 2000 ms,
+/// 003 6.4.2.1, so that a stopped gateway shows in the counters quickly).
+pub const DEFAULT_REPLY_TIMEOUT: Duration = Duration::from_millis(500);
+/// Bits read from each bit-table row: one timer or counter word (003 6.4.8.1: timers and
+/// counters are read in steps of 16 bits).
+const BITS_PER_READ: u16 = 16;
+/// Registers read with FC 03 and FC 04 each cycle.
+const REGISTERS_PER_READ: u16 = 8;
+
+/// What the simulated master does.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SimMasterSettings {
+    /// The slave address polled (the gateway's, 222 by default: 003 6.4.5.1).
+    pub slave: u8,
+    /// Baud rate and bits per character of the line, for the engine's timing.
+    pub baud: u32,
+    /// Start, data, parity and stop bits (11 for 8E1).
+    pub bits_per_char: u8,
+    /// Pause between the start of two cycles.
+    pub period: Duration,
+    /// Reply monitoring time.
+    pub reply_timeout: Duration,
+    /// The reads of one cycle.
+    pub reads: Vec<Request>,
+    /// The holding register the cycle counter is written to (FC 06), if any.
+    pub counter_register: Option<u16>,
+}
+
+// === impl SimMasterSettings ===
+
+impl SimMasterSettings {
+    /// Polling a slave with `params` at 9600 Bd 8E1 (the CP's defaults, 003 6.4.5.1): every row of
+    /// its map once a cycle, and the counter into holding register `counter_register`.
+    pub fn for_slave(params: &SlaveParams, counter_register: Option<u16>) -> Self {
+        Self {
+            slave: params.address(),
+            baud: SlaveParams::DEFAULT_BAUD_RATE,
+            bits_per_char: 11,
+            period: DEFAULT_PERIOD,
+            reply_timeout: DEFAULT_REPLY_TIMEOUT,
+            reads: reads_for(params.map()),
+            counter_register,
+        }
+    }
+}
+
+/// One read of each area that `map` reaches: 16 bits from the start of each bit-table row, 8
+/// registers from register 0 of both register tables.
+pub fn reads_for(map: &AddressMap) -> Vec<Request> {
+    let mut reads: Vec<Request> = map
+        .coils()
+        .iter()
+        .map(|row| Request::ReadCoils {
+            address: row.modbus_start,
+            quantity: BITS_PER_READ,
+        })
+        .collect();
+    reads.extend(map.inputs().iter().map(|row| Request::ReadDiscreteInputs {
+        address: row.modbus_start,
+        quantity: BITS_PER_READ,
+    }));
+    reads.push(Request::ReadHoldingRegisters {
+        address: 0,
+        quantity: REGISTERS_PER_READ,
+    });
+    reads.push(Request::ReadInputRegisters {
+        address: 0,
+        quantity: REGISTERS_PER_READ,
+    });
+    reads
+}
+
+/// What the simulated master has seen.
+#[derive(Debug, Default)]
+pub struct SimMasterStats {
+    cycles: AtomicU64,
+    responses: AtomicU64,
+    exceptions: AtomicU64,
+    failures: AtomicU64,
+    last_counter: AtomicU64,
+}
+
+/// A copy of [`SimMasterStats`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct SimMasterCounts {
+    /// Cycles started.
+    pub cycles: u64,
+    /// Requests answered with data.
+    pub responses: u64,
+    /// Requests answered with an exception.
+    pub exceptions: u64,
+    /// Requests without a usable answer.
+    pub failures: u64,
+    /// The counter value last confirmed written.
+    pub last_counter: u64,
+}
+
+impl SimMasterStats {
+    /// The counts now.
+    pub fn counts(&self) -> SimMasterCounts {
+        SimMasterCounts {
+            cycles: self.cycles.load(Ordering::Relaxed),
+            responses: self.responses.load(Ordering::Relaxed),
+            exceptions: self.exceptions.load(Ordering::Relaxed),
+            failures: self.failures.load(Ordering::Relaxed),
+            last_counter: self.last_counter.load(Ordering::Relaxed),
+        }
+    }
+}
+
+/// A running simulated master.
+#[derive(Debug)]
+pub struct SimMasterHandle {
+    stats: Arc<SimMasterStats>,
+    task: JoinHandle<()>,
+}
+
+impl SimMasterHandle {
+    /// What it has seen so far.
+    pub fn counts(&self) -> SimMasterCounts {
+        self.stats.counts()
+    }
+
+    /// Waits for the task to end (after the shutdown token was cancelled or the port failed).
+    pub async fn join(self) {
+        if let Err(err) = self.task.await {
+            tracing::error!(%err, "simulated master failed");
+        }
+    }
+}
+
+/// Starts the simulated master on `port` until `shutdown` is cancelled or the port fails.
+pub fn spawn_sim_master<P>(
+    port: P,
+    settings: SimMasterSettings,
+    shutdown: CancellationToken,
+) -> SimMasterHandle
+where
+    P: AsyncRead + AsyncWrite + Unpin + Send + 'static,
+{
+    let stats = Arc::new(SimMasterStats::default());
+    let task = tokio::spawn(run(port, settings, Arc::clone(&stats), shutdown));
+    SimMasterHandle { stats, task }
+}
+
+async fn run<P: AsyncRead + AsyncWrite + Unpin>(
+    mut port: P,
+    settings: SimMasterSettings,
+    stats: Arc<SimMasterStats>,
+    shutdown: CancellationToken,
+) {
+    let mut config = MasterConfig::rtu(settings.baud, settings.bits_per_char);
+    config.reply_timeout = settings.reply_timeout;
+    let char_time = Duration::from_nanos(
+        u64::from(settings.bits_per_char) * 1_000_000_000 / u64::from(settings.baud.max(1)),
+    );
+    let mut master = Master::new(config);
+    let base = Instant::now();
+    let engine = |at: Instant| {
+        let micros = at.saturating_duration_since(base).as_micros();
+        proto_core::time::Instant::from_micros(u64::try_from(micros).unwrap_or(u64::MAX))
+    };
+    let tokio_at = |at: proto_core::time::Instant| base + Duration::from_micros(at.as_micros());
+    let mut queue: VecDeque<Request> = VecDeque::new();
+    let mut in_flight = false;
+    let mut counter: u16 = 0;
+    let mut next_cycle = Instant::now();
+    let mut buf = [0u8; 512];
+    loop {
+        let now = Instant::now();
+        if master.poll_timeout().is_some_and(|t| tokio_at(t) <= now) {
+            master.handle_timeout(engine(now));
+        }
+        if !in_flight && master.is_idle() {
+            if queue.is_empty() && now >= next_cycle {
+                counter = counter.wrapping_add(1);
+                queue.extend(settings.reads.iter().cloned());
+                if let Some(address) = settings.counter_register {
+                    queue.push_back(Request::WriteSingleRegister {
+                        address,
+                        value: counter,
+                    });
+                }
+                stats.cycles.fetch_add(1, Ordering::Relaxed);
+                next_cycle = now + settings.period;
+            }
+            if let Some(request) = queue.pop_front() {
+                match master.submit(engine(now), settings.slave, request) {
+                    Ok(_) => in_flight = true,
+                    Err(err) => {
+                        tracing::warn!(%err, "simulated master: request refused by the engine");
+                        stats.failures.fetch_add(1, Ordering::Relaxed);
+                    }
+                }
+            }
+        }
+        while let Some(frame) = master.poll_transmit() {
+            if let Err(err) = port.write_all(&frame).await {
+                tracing::warn!(%err, "simulated master: port failed");
+                return;
+            }
+            let len = u32::try_from(frame.len()).unwrap_or(u32::MAX);
+            master.handle_tx_done(engine(Instant::now() + char_time.saturating_mul(len)));
+        }
+        while let Some(event) = master.poll_event() {
+            if let MasterEvent::Completed {
+                request, outcome, ..
+            } = event
+            {
+                in_flight = false;
+                let counter = match outcome {
+                    Outcome::Response(_) => {
+                        stats.responses.fetch_add(1, Ordering::Relaxed);
+                        match request {
+                            Request::WriteSingleRegister { value, .. } => Some(value),
+                            _ => None,
+                        }
+                    }
+                    Outcome::Exception(code) => {
+                        tracing::debug!(?code, ?request, "simulated master: exception");
+                        stats.exceptions.fetch_add(1, Ordering::Relaxed);
+                        None
+                    }
+                    Outcome::Broadcast | Outcome::Failed(_) => {
+                        stats.failures.fetch_add(1, Ordering::Relaxed);
+                        None
+                    }
+                };
+                if let Some(value) = counter {
+                    stats
+                        .last_counter
+                        .store(u64::from(value), Ordering::Relaxed);
+                }
+            }
+        }
+        let deadline = master.poll_timeout().map(tokio_at);
+        let idle = !in_flight && master.is_idle() && queue.is_empty();
+        let cycle = idle.then_some(next_cycle);
+        tokio::select! {
+            biased;
+            () = shutdown.cancelled() => return,
+            read = port.read(&mut buf) => match read {
+                Ok(0) | Err(_) => {
+                    tracing::warn!("simulated master: port closed");
+                    return;
+                }
+                Ok(n) => master.handle_rx(engine(Instant::now()), buf.get(..n).unwrap_or_default()),
+            },
+            () = sleep_until(deadline) => master.handle_timeout(engine(Instant::now())),
+            () = sleep_until(cycle) => {}
+        }
+    }
+}
+
+async fn sleep_until(deadline: Option<Instant>) {
+    match deadline {
+        Some(at) => tokio::time::sleep_until(at).await,
+        None => std::future::pending().await,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn one_read_per_row_and_register_table() {
+        let reads = reads_for(&AddressMap::manual_example());
+        let starts: Vec<(u8, u16)> = reads
+            .iter()
+            .map(|r| match r {
+                Request::ReadCoils { address, .. } => (1, *address),
+                Request::ReadDiscreteInputs { address, .. } => (2, *address),
+                Request::ReadHoldingRegisters { address, .. } => (3, *address),
+                Request::ReadInputRegisters { address, .. } => (4, *address),
+                _ => (0, 0),
+            })
+            .collect();
+        assert_eq!(
+            starts,
+            vec![
+                (1, 0),
+                (1, 1024),
+                (1, 2048),
+                (1, 4064),
+                (2, 0),
+                (2, 1024),
+                (3, 0),
+                (4, 0)
+            ]
+        );
+    }
+}

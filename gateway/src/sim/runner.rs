@@ -1,0 +1,273 @@
+//! Running a simulated device on a serial port or any byte stream (`gateway sim`).
+//!
+//! Requests are framed as a slave does (003 6.4.3; Modbus over Serial Line V1.02, 2.5.1.1): the
+//! function code and byte counts give the frame's length
+//! ([`rtu::expected_request_len`]), so a frame ends with its last byte; where the length cannot
+//! be known (an unknown function, the free-length FC 08 echo), or bytes stop arriving before it is
+//! complete, 3.5 character times of silence end the frame. The answer goes out after the t3.5
+//! turnaround (001 3.5: "Eine Antwort wird jedoch frühestens nach 3,5 Zeichen gestartet").
+
+use std::time::Duration;
+
+use proto_core::modbus::rtu::{self, CharTiming, FrameLen};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::time::{sleep, sleep_until, Instant};
+use tokio_serial::SerialPortBuilderExt;
+use tokio_util::sync::CancellationToken;
+
+use super::altivar::AltivarSim;
+use super::ksvario::KsVarioSim;
+use super::ModbusDevice;
+
+/// How often the device's own clock advances (the drive's ramps, the time-out).
+const TICK: Duration = Duration::from_millis(100);
+/// Bytes kept while a frame is incomplete: more than any RTU frame (the longest the codec takes
+/// is 264 bytes); beyond that the bytes are noise and are dropped at the next silence.
+const MAX_PENDING: usize = 1024;
+/// Slave addresses a device may have (Modbus over Serial Line V1.02, 2.2: 1..247; 001 3.1 and
+/// 002 "Adressen" say the same).
+const SLAVE_ADDRESSES: core::ops::RangeInclusive<u8> = 1..=247;
+
+/// Which device to simulate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum)]
+pub enum DeviceKind {
+    /// Schneider Altivar 71 (Modbus RTU, default slave 2).
+    #[value(name = "altivar71")]
+    Altivar71,
+    /// PMA KS vario (Modbus RTU, default slave 17).
+    #[value(name = "ksvario")]
+    KsVario,
+    /// A 3964(R) partner that echoes telegrams.
+    #[value(name = "3964r")]
+    Proc3964r,
+    /// An ASCII partner that echoes telegrams.
+    #[value(name = "ascii")]
+    Ascii,
+}
+
+impl core::fmt::Display for DeviceKind {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            Self::Altivar71 => "altivar71",
+            Self::KsVario => "ksvario",
+            Self::Proc3964r => "3964r",
+            Self::Ascii => "ascii",
+        })
+    }
+}
+
+/// The parity of the serial line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum)]
+pub enum Parity {
+    /// No parity bit.
+    None,
+    /// Odd parity.
+    Odd,
+    /// Even parity (the default of both devices: 001 3.3 offers it, 002 factory setting 8-E-1).
+    Even,
+}
+
+/// `gateway sim` arguments.
+#[derive(Clone, Debug, clap::Args)]
+pub struct SimArgs {
+    /// The device to simulate.
+    #[arg(long, value_enum)]
+    pub device: DeviceKind,
+    /// The serial port (a pty end or a real port).
+    #[arg(long)]
+    pub port: String,
+    /// The slave address (default: the device's, Altivar 2, KS vario 17).
+    #[arg(long)]
+    pub address: Option<u8>,
+    /// Baud rate.
+    #[arg(long, default_value_t = 19_200)]
+    pub baud: u32,
+    /// Parity.
+    #[arg(long, value_enum, default_value_t = Parity::Even)]
+    pub parity: Parity,
+    /// Data bits (7 or 8; Modbus RTU needs 8).
+    #[arg(long, default_value_t = 8, value_parser = clap::value_parser!(u8).range(7..=8))]
+    pub data_bits: u8,
+    /// Stop bits (1 or 2).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..=2))]
+    pub stop_bits: u8,
+    /// Telegram devices: send a telegram of their own this often (0 = never).
+    #[arg(long, default_value = "1s", value_parser = humantime::parse_duration)]
+    pub every: Duration,
+}
+
+/// Why a simulator stopped or could not start.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// The device exists in the command line but not yet in the simulator.
+    #[error("the {0} simulator is not yet available")]
+    NotYetAvailable(DeviceKind),
+    /// A slave address outside 1..=247.
+    #[error("slave address {0} is outside 1..=247")]
+    InvalidAddress(u8),
+    /// Line settings the device cannot use.
+    #[error("invalid line settings: {0}")]
+    InvalidSettings(&'static str),
+    /// The port could not be opened.
+    #[error("cannot open serial port {port}: {source}")]
+    Open {
+        /// The port's path.
+        port: String,
+        /// What the serial layer said.
+        #[source]
+        source: tokio_serial::Error,
+    },
+    /// Reading or writing the port failed.
+    #[error("serial I/O failed: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+// === impl SimArgs ===
+
+impl SimArgs {
+    /// Bits on the wire a character: start, data, parity, stop.
+    pub fn bits_per_char(&self) -> u8 {
+        1 + self.data_bits + u8::from(self.parity != Parity::None) + self.stop_bits
+    }
+
+    /// The RTU timing of the line.
+    pub fn timing(&self) -> CharTiming {
+        CharTiming::new(self.baud, self.bits_per_char())
+    }
+
+    /// The device the arguments describe.
+    pub fn device(&self) -> Result<Box<dyn ModbusDevice>, SimError> {
+        let address = |default: u8| {
+            let address = self.address.unwrap_or(default);
+            if SLAVE_ADDRESSES.contains(&address) {
+                Ok(address)
+            } else {
+                Err(SimError::InvalidAddress(address))
+            }
+        };
+        match self.device {
+            DeviceKind::Altivar71 => Ok(Box::new(AltivarSim::new(address(2)?))),
+            DeviceKind::KsVario => Ok(Box::new(KsVarioSim::new(address(17)?))),
+            other => Err(SimError::NotYetAvailable(other)),
+        }
+    }
+}
+
+/// Runs the simulator the arguments describe until `shutdown` is cancelled.
+pub async fn run(args: SimArgs, shutdown: CancellationToken) -> Result<(), SimError> {
+    let device = args.device()?;
+    if args.data_bits != 8 {
+        // Modbus over Serial Line V1.02, 2.5.1: RTU characters have 8 data bits.
+        return Err(SimError::InvalidSettings("Modbus RTU needs 8 data bits"));
+    }
+    let port = tokio_serial::new(args.port.as_str(), args.baud)
+        .parity(match args.parity {
+            Parity::None => tokio_serial::Parity::None,
+            Parity::Odd => tokio_serial::Parity::Odd,
+            Parity::Even => tokio_serial::Parity::Even,
+        })
+        .data_bits(tokio_serial::DataBits::Eight)
+        .stop_bits(if args.stop_bits == 2 {
+            tokio_serial::StopBits::Two
+        } else {
+            tokio_serial::StopBits::One
+        })
+        .open_native_async()
+        .map_err(|source| SimError::Open {
+            port: args.port.clone(),
+            source,
+        })?;
+    tracing::info!(device = %args.device, port = %args.port, baud = args.baud, "simulator serving");
+    serve_modbus(port, device, args.timing(), shutdown).await
+}
+
+/// Serves `device` on `stream` until `shutdown` is cancelled or the stream ends.
+///
+/// The demo runs a simulator in-process on one end of a `tokio_serial::SerialStream::pair()`;
+/// tests do the same and talk to the other end.
+pub async fn serve_modbus<S>(
+    mut stream: S,
+    mut device: impl ModbusDevice,
+    timing: CharTiming,
+    shutdown: CancellationToken,
+) -> Result<(), SimError>
+where
+    S: AsyncRead + AsyncWrite + Unpin,
+{
+    let mut pending: Vec<u8> = Vec::new();
+    let mut chunk = [0u8; 512];
+    let mut silence_at: Option<Instant> = None;
+    let mut ticker = tokio::time::interval(TICK);
+    ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut last_tick = Instant::now();
+    loop {
+        while let Some(frame) = take_frame(&mut pending) {
+            if !answer(&mut stream, &mut device, &frame, timing, &shutdown).await? {
+                return Ok(());
+            }
+        }
+        if pending.is_empty() {
+            silence_at = None;
+        }
+        tokio::select! {
+            biased;
+            () = shutdown.cancelled() => return Ok(()),
+            read = stream.read(&mut chunk) => {
+                let n = read?;
+                if n == 0 {
+                    return Ok(());
+                }
+                pending.extend_from_slice(chunk.get(..n).unwrap_or_default());
+                silence_at = Some(Instant::now() + timing.t3_5());
+            }
+            () = sleep_until(silence_at.unwrap_or_else(Instant::now)), if silence_at.is_some() => {
+                silence_at = None;
+                let frame = std::mem::take(&mut pending);
+                if frame.len() > MAX_PENDING {
+                    tracing::debug!(len = frame.len(), "dropping noise");
+                    continue;
+                }
+                if !answer(&mut stream, &mut device, &frame, timing, &shutdown).await? {
+                    return Ok(());
+                }
+            }
+            now = ticker.tick() => {
+                device.tick(now.saturating_duration_since(last_tick));
+                last_tick = now;
+            }
+        }
+    }
+}
+
+/// Cuts the first complete frame off `pending`, if its length is known and all of it is there.
+fn take_frame(pending: &mut Vec<u8>) -> Option<Vec<u8>> {
+    match rtu::expected_request_len(pending) {
+        FrameLen::Complete(len) if len <= pending.len() => Some(pending.drain(..len).collect()),
+        _ => None,
+    }
+}
+
+/// Lets the device handle one frame and sends its answer after the turnaround. Returns false
+/// when shutdown came during the wait.
+async fn answer<S>(
+    stream: &mut S,
+    device: &mut impl ModbusDevice,
+    frame: &[u8],
+    timing: CharTiming,
+    shutdown: &CancellationToken,
+) -> Result<bool, SimError>
+where
+    S: AsyncWrite + Unpin,
+{
+    let Some(reply) = device.handle_frame(frame) else {
+        return Ok(true);
+    };
+    let wait = timing.t3_5() + device.faults().delay;
+    tokio::select! {
+        () = shutdown.cancelled() => return Ok(false),
+        () = sleep(wait) => {}
+    }
+    stream.write_all(&reply).await?;
+    stream.flush().await?;
+    Ok(true)
+}

@@ -1,0 +1,331 @@
+//! Named tags over the process image: which device datum lives at which registers, and its
+//! engineering value, unit and quality.
+//!
+//! The image keeps raw registers with the quality of the communication (good, stale, comm
+//! failure). A tag adds the device's meaning: data type, fix point and scale, unit, and the
+//! device's special values (KS vario 31000 "not defined", 32000 "off", 0x8000 "out of range";
+//! Altivar 0x8000 "not available"), decoded by the device profile in proto-core. The reported
+//! quality is the worse of the two.
+//!
+//! The directory is built once from the config; zenoh and REST read tags through it, and write
+//! them through the same unit service as a Modbus TCP write.
+
+use std::sync::Arc;
+use std::time::SystemTime;
+
+use proto_core::modbus::pdu::{ExceptionCode, Request};
+use proto_core::profiles::{self, DeviceProfile, Tag, Value};
+
+use crate::config::{self, Config, DeviceConfig};
+use crate::image::{ProcessImage, Quality, Table};
+
+/// One tag of one device on one line.
+#[derive(Clone, Debug)]
+pub struct TagEntry {
+    /// The line's name.
+    pub line: String,
+    /// The device's name.
+    pub device: String,
+    /// The unit id the device is kept under.
+    pub unit_id: u8,
+    /// The device's profile (shared by its tags).
+    pub profile: Arc<DeviceProfile>,
+    /// The tag.
+    pub tag: Tag,
+}
+
+/// A tag's current value.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TagReading {
+    /// The engineering value (the raw number when the quality is not good).
+    pub value: Value,
+    /// The engineering unit, empty for plain numbers.
+    pub unit: String,
+    /// The worse of the image's quality and the device's special-value quality.
+    pub quality: &'static str,
+    /// When the oldest register of the tag was read from the device.
+    pub timestamp: SystemTime,
+}
+
+/// Why a tag could not be written.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum TagWriteError {
+    /// No such tag.
+    #[error("no tag {0}")]
+    UnknownTag(String),
+    /// The tag is read-only.
+    #[error("tag {0} is read-only")]
+    ReadOnly(String),
+    /// The value does not fit the tag.
+    #[error("value {value} does not fit tag {tag}: {reason}")]
+    Value {
+        tag: String,
+        value: f64,
+        reason: String,
+    },
+    /// The device (or the gateway's policy) answered with an exception.
+    #[error("the write was answered with exception {0:?}")]
+    Exception(ExceptionCode),
+}
+
+/// Every tag of the configured devices.
+#[derive(Clone, Debug, Default)]
+pub struct TagDirectory {
+    entries: Vec<TagEntry>,
+}
+
+// === impl TagDirectory ===
+
+impl TagDirectory {
+    /// The tags of every polled device in `config`: the profile's tags, or the config's tag list
+    /// for generic devices (plus any config tags on a profiled device).
+    pub fn from_config(config: &Config) -> Self {
+        let mut entries = Vec::new();
+        for (line_name, line) in &config.lines {
+            for (device_name, device) in line.devices() {
+                let profile = Arc::new(profile_of(device_name, device));
+                for tag in &profile.tags {
+                    entries.push(TagEntry {
+                        line: line_name.clone(),
+                        device: device_name.clone(),
+                        unit_id: device.unit_id,
+                        profile: Arc::clone(&profile),
+                        tag: tag.clone(),
+                    });
+                }
+            }
+        }
+        Self { entries }
+    }
+
+    /// All tags.
+    pub fn iter(&self) -> impl Iterator<Item = &TagEntry> {
+        self.entries.iter()
+    }
+
+    /// One tag by line, device and name (names compare without case: `eta` finds `ETA`).
+    pub fn find(&self, line: &str, device: &str, tag: &str) -> Option<&TagEntry> {
+        self.entries
+            .iter()
+            .find(|e| e.line == line && e.device == device && e.tag.name.eq_ignore_ascii_case(tag))
+    }
+
+    /// The tags that overlap registers `start..start + count` of `table` of `unit`.
+    pub fn overlapping(
+        &self,
+        unit: u8,
+        table: Table,
+        start: u16,
+        count: u16,
+    ) -> impl Iterator<Item = &TagEntry> {
+        let end = u32::from(start) + u32::from(count);
+        self.entries.iter().filter(move |e| {
+            let t_start = u32::from(e.tag.address);
+            let t_end = t_start + u32::from(e.tag.data_type.words());
+            e.unit_id == unit
+                && image_table(e.tag.table) == table
+                && t_start < end
+                && u32::from(start) < t_end
+        })
+    }
+
+    /// The tag's value from the image; `None` while its registers are not in the image (nobody
+    /// polls them, or no poll has answered yet).
+    pub fn read(&self, image: &ProcessImage, entry: &TagEntry) -> Option<TagReading> {
+        let table = image_table(entry.tag.table);
+        let words = entry.tag.data_type.words();
+        let read = match table {
+            Table::Coils | Table::DiscreteInputs => {
+                let r = image
+                    .read_bits(entry.unit_id, table, entry.tag.address, words)
+                    .ok()?;
+                crate::image::RangeRead {
+                    values: r.values.iter().map(|&b| u16::from(b)).collect(),
+                    quality: r.quality,
+                    oldest: r.oldest,
+                    oldest_at: r.oldest_at,
+                }
+            }
+            Table::HoldingRegisters | Table::InputRegisters => image
+                .read_words(entry.unit_id, table, entry.tag.address, words)
+                .ok()?,
+        };
+        let (value, device_quality) = entry.profile.decode(&entry.tag, &read.values);
+        let quality = read.quality.worst(from_profile(device_quality));
+        Some(TagReading {
+            value,
+            unit: entry.tag.unit.clone(),
+            quality: quality.as_str(),
+            timestamp: read.oldest,
+        })
+    }
+
+    /// The Modbus request that writes `value` (engineering units) to the tag, checked against
+    /// the tag's type, range and write permission.
+    pub fn write_request(entry: &TagEntry, value: f64) -> Result<Request, TagWriteError> {
+        let name = || format!("{}/{}/{}", entry.line, entry.device, entry.tag.name);
+        if !entry.tag.writable {
+            return Err(TagWriteError::ReadOnly(name()));
+        }
+        let words = entry
+            .profile
+            .encode(&entry.tag, value)
+            .map_err(|e| TagWriteError::Value {
+                tag: name(),
+                value,
+                reason: e.to_string(),
+            })?;
+        let address = entry.tag.address;
+        Ok(match (entry.tag.table, words.as_slice()) {
+            (profiles::Table::Coils, [w]) => Request::WriteSingleCoil {
+                address,
+                value: *w != 0,
+            },
+            (profiles::Table::HoldingRegisters, [w]) => {
+                Request::WriteSingleRegister { address, value: *w }
+            }
+            (profiles::Table::HoldingRegisters, _) => Request::WriteMultipleRegisters {
+                address,
+                values: words,
+            },
+            _ => return Err(TagWriteError::ReadOnly(name())),
+        })
+    }
+}
+
+/// The profile of a configured device, with the config's own tags added.
+fn profile_of(name: &str, device: &DeviceConfig) -> DeviceProfile {
+    let config_tags: Vec<Tag> = device.tags.iter().map(tag_of).collect();
+    let mut profile = match device.profile {
+        config::Profile::Altivar71 => DeviceProfile::altivar71(),
+        config::Profile::Ksvario => DeviceProfile::ksvario(),
+        config::Profile::Generic => {
+            return DeviceProfile::generic(name, device.address, config_tags)
+        }
+    };
+    profile.tags.extend(config_tags);
+    profile
+}
+
+/// A config tag as a profile tag.
+fn tag_of(t: &config::TagConfig) -> Tag {
+    use profiles::{DataType as D, Table as T, WordOrder as W};
+    let order = match t.word_order {
+        config::WordOrder::HighFirst => W::HighFirst,
+        config::WordOrder::LowFirst => W::LowFirst,
+    };
+    let data_type = match t.data_type {
+        config::DataType::Bool => D::Bool,
+        config::DataType::U16 => D::U16,
+        config::DataType::I16 => D::I16,
+        config::DataType::U32 => D::U32(order),
+        config::DataType::I32 => D::I32(order),
+        config::DataType::F32 => D::F32(order),
+    };
+    let table = match t.table {
+        config::ModbusTable::Holding => T::HoldingRegisters,
+        config::ModbusTable::Input => T::InputRegisters,
+        config::ModbusTable::Coil => T::Coils,
+        config::ModbusTable::Discrete => T::DiscreteInputs,
+    };
+    let mut tag = Tag::new(t.name.clone(), table, t.address, data_type)
+        .decimals(t.decimals)
+        .scale(t.scale)
+        .unit(t.unit.clone());
+    if t.writable {
+        tag = tag.writable();
+    }
+    tag
+}
+
+/// The image table of a profile table.
+pub fn image_table(t: profiles::Table) -> Table {
+    match t {
+        profiles::Table::Coils => Table::Coils,
+        profiles::Table::DiscreteInputs => Table::DiscreteInputs,
+        profiles::Table::InputRegisters => Table::InputRegisters,
+        profiles::Table::HoldingRegisters => Table::HoldingRegisters,
+    }
+}
+
+/// The image quality of a profile's special-value quality.
+fn from_profile(q: profiles::Quality) -> Quality {
+    match q {
+        profiles::Quality::Good => Quality::Good,
+        profiles::Quality::Stale => Quality::Stale,
+        profiles::Quality::NotDefined => Quality::NotDefined,
+        profiles::Quality::Off => Quality::Off,
+        profiles::Quality::OutOfRange => Quality::OutOfRange,
+        profiles::Quality::CommFailure => Quality::CommFailure,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use super::*;
+    use crate::image::ImageConfig;
+
+    #[tokio::test]
+    async fn demo_tags_decode_values_units_and_special_values() {
+        let config = config::demo();
+        let dir = TagDirectory::from_config(&config);
+        let eta = dir
+            .find("drive", "atv71", "eta")
+            .expect("ETA in the Altivar profile");
+        assert_eq!(eta.tag.address, 3201);
+        assert_eq!(eta.unit_id, 2);
+
+        let image = ProcessImage::new(ImageConfig::default());
+        assert_eq!(dir.read(&image, eta), None, "nothing polled yet");
+
+        let acc = dir.find("drive", "atv71", "ACC").expect("ACC");
+        image.store_words(
+            2,
+            Table::HoldingRegisters,
+            acc.tag.address,
+            &[13],
+            Some(Duration::from_secs(5)),
+        );
+        let reading = dir.read(&image, acc).expect("ACC in the image");
+        assert_eq!(reading.quality, "good");
+        assert!(
+            (reading.value.as_f64() - 13.0 * acc.tag.factor()).abs() < 1e-9,
+            "{reading:?}"
+        );
+        assert_eq!(reading.unit, acc.tag.unit);
+
+        // 0x8000 is the Altivar's "not available".
+        image.store_words(
+            2,
+            Table::HoldingRegisters,
+            eta.tag.address,
+            &[0x8000],
+            Some(Duration::from_secs(5)),
+        );
+        assert_ne!(dir.read(&image, eta).expect("ETA").quality, "good");
+
+        let hits: Vec<_> = dir
+            .overlapping(2, Table::HoldingRegisters, 9000, 3)
+            .map(|e| e.tag.name.as_str())
+            .collect();
+        assert!(hits.contains(&"ACC") && hits.contains(&"DEC"), "{hits:?}");
+    }
+
+    #[test]
+    fn writes_are_checked_against_the_tag() {
+        let dir = TagDirectory::from_config(&config::demo());
+        let eta = dir.find("drive", "atv71", "ETA").expect("ETA");
+        assert!(matches!(
+            TagDirectory::write_request(eta, 1.0),
+            Err(TagWriteError::ReadOnly(_))
+        ));
+        let acc = dir.find("drive", "atv71", "ACC").expect("ACC");
+        let request = TagDirectory::write_request(acc, 1.3).expect("ACC is writable");
+        assert!(
+            matches!(request, Request::WriteSingleRegister { address: 9001, .. }),
+            "{request:?}"
+        );
+    }
+}

@@ -1,1 +1,0 @@
-//! Register-map models of the supported devices (SPEC "Device profiles").

@@ -1,0 +1,176 @@
+//! End to end on the binary: `gateway demo` serves the simulated Altivar 71 (unit 2) and KS vario
+//! (unit 17) over Modbus TCP; tokio-modbus and mbpoll read and write them.
+
+use std::process::Command;
+use std::time::Duration;
+
+use gateway_tests::Gateway;
+use tokio_modbus::client::{tcp, Context, Reader, Writer};
+use tokio_modbus::prelude::{ExceptionCode, Slave, SlaveContext};
+
+/// How long the first polls may take after start-up on a loaded machine.
+const FIRST_POLL: Duration = Duration::from_secs(20);
+
+async fn connect(gw: &Gateway, unit: u8) -> Context {
+    tcp::connect_slave(gw.modbus_tcp, Slave(unit))
+        .await
+        .expect("connect to the gateway")
+}
+
+/// Reads until the first poll has filled the image (the gateway answers 0x0B before that).
+async fn read_holding_eventually(ctx: &mut Context, addr: u16, count: u16) -> Vec<u16> {
+    let deadline = tokio::time::Instant::now() + FIRST_POLL;
+    loop {
+        match ctx
+            .read_holding_registers(addr, count)
+            .await
+            .expect("transport")
+        {
+            Ok(values) => return values,
+            Err(e) if tokio::time::Instant::now() < deadline => {
+                eprintln!("not yet: {e:?}");
+                tokio::time::sleep(Duration::from_millis(200)).await;
+            }
+            Err(e) => panic!("holding {addr}+{count}: exception {e:?}"),
+        }
+    }
+}
+
+async fn read_input_eventually(ctx: &mut Context, addr: u16, count: u16) -> Vec<u16> {
+    let deadline = tokio::time::Instant::now() + FIRST_POLL;
+    loop {
+        match ctx
+            .read_input_registers(addr, count)
+            .await
+            .expect("transport")
+        {
+            Ok(values) => return values,
+            Err(_) if tokio::time::Instant::now() < deadline => {
+                tokio::time::sleep(Duration::from_millis(200)).await;
+            }
+            Err(e) => panic!("input {addr}+{count}: exception {e:?}"),
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn demo_serves_both_devices_and_writes_through() {
+    let gw = Gateway::demo(&[]);
+
+    // Altivar 71, unit 2: SFr, tFr, HSP, LSP (002, the manual's FC03 example).
+    let mut drive = connect(&gw, 2).await;
+    assert_eq!(
+        read_holding_eventually(&mut drive, 3102, 4).await,
+        vec![40, 600, 500, 0]
+    );
+
+    // KS vario, unit 17: FC04 1004..1006 (001 chapter 4 example).
+    let mut ks = connect(&gw, 17).await;
+    assert_eq!(
+        read_input_eventually(&mut ks, 1004, 3).await,
+        vec![1066, 140, 4158]
+    );
+
+    // A write of ACC (W9001) goes through to the drive and is answered with the drive's echo.
+    drive
+        .write_single_register(9001, 13)
+        .await
+        .expect("transport")
+        .expect("write W9001");
+    // Read W9001 together with W9003, which nobody polls: the gateway asks the drive itself, so
+    // the value comes from the simulator, not from the cache.
+    let values = drive
+        .read_holding_registers(9001, 3)
+        .await
+        .expect("transport")
+        .expect("read W9001..9003");
+    assert_eq!(values[0], 13, "W9001 after the write: {values:?}");
+    // And the cached read agrees.
+    assert_eq!(
+        drive
+            .read_holding_registers(9001, 1)
+            .await
+            .expect("transport")
+            .expect("read W9001"),
+        vec![13]
+    );
+
+    // ETA (W3201) is read-only on the drive: the drive's own exception 04 comes back.
+    let refused = drive
+        .write_single_register(3201, 1)
+        .await
+        .expect("transport");
+    assert_eq!(refused, Err(ExceptionCode::ServerDeviceFailure));
+
+    // An unknown unit answers 0x0A.
+    drive.set_slave(Slave(99));
+    let unknown = drive.read_holding_registers(0, 1).await.expect("transport");
+    assert_eq!(unknown, Err(ExceptionCode::GatewayPathUnavailable));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn sigterm_stops_the_demo_gracefully() {
+    let mut gw = Gateway::demo(&[]);
+    let mut drive = connect(&gw, 2).await;
+    read_holding_eventually(&mut drive, 3102, 4).await;
+    let status = gw
+        .terminate(Duration::from_secs(15))
+        .expect("the gateway did not stop within 15 s of SIGTERM");
+    assert!(status.success(), "exit status {status:?}");
+    gw.wait_for("stopped gracefully", Duration::from_secs(5));
+}
+
+/// Runs mbpoll once against the gateway (`-0`: the device's own addresses); `write` values come
+/// after the host, as mbpoll wants them.
+fn mbpoll(gw: &Gateway, args: &[&str], write: &[&str]) -> String {
+    let port = gw.modbus_tcp.port().to_string();
+    let mut cmd = Command::new("mbpoll");
+    cmd.args(["-m", "tcp", "-p", &port, "-0", "-1", "-o", "3"])
+        .args(args)
+        .arg(gw.modbus_tcp.ip().to_string())
+        .args(write);
+    let out = cmd.output().unwrap_or_else(|e| {
+        panic!("mbpoll is needed for this test (apt install mbpoll; .ci/run installs it): {e}")
+    });
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "mbpoll {args:?} failed: {stdout}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    stdout
+}
+
+/// The values mbpoll prints as `[addr]: value` lines.
+fn mbpoll_values(out: &str) -> Vec<i64> {
+    out.lines()
+        .filter_map(|l| l.trim().strip_prefix('[').and_then(|r| r.split_once("]:")))
+        .map(|(_, v)| {
+            v.trim()
+                .split_whitespace()
+                .next()
+                .expect("value")
+                .parse()
+                .expect("number")
+        })
+        .collect()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn mbpoll_reads_the_demo() {
+    let gw = Gateway::demo(&[]);
+    // Wait for the first polls through tokio-modbus, then ask mbpoll.
+    let mut drive = connect(&gw, 2).await;
+    read_holding_eventually(&mut drive, 3102, 4).await;
+    let mut ks = connect(&gw, 17).await;
+    read_input_eventually(&mut ks, 1004, 3).await;
+
+    let out = mbpoll(&gw, &["-a", "2", "-t", "4", "-r", "3102", "-c", "4"], &[]);
+    assert_eq!(mbpoll_values(&out), vec![40, 600, 500, 0], "{out}");
+    let out = mbpoll(&gw, &["-a", "17", "-t", "3", "-r", "1004", "-c", "3"], &[]);
+    assert_eq!(mbpoll_values(&out), vec![1066, 140, 4158], "{out}");
+    // mbpoll writes DEC (W9002) and reads it back.
+    mbpoll(&gw, &["-a", "2", "-t", "4", "-r", "9002"], &["25"]);
+    let out = mbpoll(&gw, &["-a", "2", "-t", "4", "-r", "9002", "-c", "1"], &[]);
+    assert_eq!(mbpoll_values(&out), vec![25], "{out}");
+}
