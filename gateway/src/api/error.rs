@@ -15,6 +15,9 @@ use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 use crate::config::ConfigIssue;
+use crate::line::{CommandError, QueueError};
+use crate::tags::TagWriteError;
+use proto_core::modbus::pdu::ExceptionCode;
 
 /// The body of every error response.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
@@ -332,6 +335,56 @@ impl From<QueryRejection> for ApiError {
     }
 }
 
+/// What a device (or the gateway's own Modbus policy) answered: 504 when the target did not
+/// respond (0Bh), 503 when it is busy (06h), otherwise 502 with the code.
+impl From<ExceptionCode> for ApiError {
+    fn from(code: ExceptionCode) -> Self {
+        match code {
+            ExceptionCode::GatewayTargetFailedToRespond => {
+                Self::device_timeout("the device did not respond (exception 0Bh)")
+            }
+            ExceptionCode::ServerDeviceBusy => Self::busy("the device is busy (exception 06h)"),
+            other => Self::new(
+                StatusCode::BAD_GATEWAY,
+                "device_exception",
+                format!("the device answered exception {other}"),
+            ),
+        }
+    }
+}
+
+/// A command on a line that got no answer.
+impl From<CommandError> for ApiError {
+    fn from(e: CommandError) -> Self {
+        match e {
+            CommandError::NoReply { .. } | CommandError::Offline(_) => {
+                Self::device_timeout(e.to_string())
+            }
+            CommandError::PortClosed | CommandError::ShuttingDown => Self::busy(e.to_string()),
+            CommandError::Refused(_) => Self::invalid_body(e.to_string()),
+        }
+    }
+}
+
+/// A command that could not be queued: back-pressure is 503, never an unbounded wait.
+impl From<QueueError> for ApiError {
+    fn from(e: QueueError) -> Self {
+        Self::busy(e.to_string())
+    }
+}
+
+/// A tag write the directory or the device refused.
+impl From<TagWriteError> for ApiError {
+    fn from(e: TagWriteError) -> Self {
+        match e {
+            TagWriteError::UnknownTag(t) => Self::not_found("tag", &t),
+            TagWriteError::ReadOnly(_) => Self::conflict(e.to_string()),
+            TagWriteError::Value { .. } => Self::invalid_body(e.to_string()),
+            TagWriteError::Exception(code) => code.into(),
+        }
+    }
+}
+
 /// A failure to read the body: 413 when it is over the limit.
 pub(crate) fn body_error(status: StatusCode, text: String) -> ApiError {
     if status == StatusCode::PAYLOAD_TOO_LARGE {
@@ -378,6 +431,44 @@ mod tests {
             let e = ApiError::from_status(status);
             assert_eq!(e.code(), code, "{status}");
         }
+    }
+
+    #[test]
+    fn device_answers_map_to_statuses() {
+        let e = ApiError::from(ExceptionCode::IllegalDataValue);
+        assert_eq!(
+            (e.status(), e.code()),
+            (StatusCode::BAD_GATEWAY, "device_exception")
+        );
+        assert_eq!(
+            e.message(),
+            "the device answered exception 03h (illegal data value)"
+        );
+        let e = ApiError::from(ExceptionCode::GatewayTargetFailedToRespond);
+        assert_eq!(e.code(), "device_timeout");
+        assert_eq!(
+            ApiError::from(ExceptionCode::ServerDeviceBusy).code(),
+            "busy"
+        );
+        assert_eq!(
+            ApiError::from(QueueError::Full).status(),
+            StatusCode::SERVICE_UNAVAILABLE
+        );
+        assert_eq!(
+            ApiError::from(CommandError::Offline(2)).code(),
+            "device_timeout"
+        );
+        assert_eq!(ApiError::from(CommandError::PortClosed).code(), "busy");
+        assert_eq!(
+            ApiError::from(TagWriteError::ReadOnly("eta".into())).code(),
+            "conflict"
+        );
+        assert_eq!(
+            ApiError::from(TagWriteError::UnknownTag("x".into())).code(),
+            "not_found"
+        );
+        let e = ApiError::from(TagWriteError::Exception(ExceptionCode::IllegalDataAddress));
+        assert_eq!(e.code(), "device_exception");
     }
 
     #[test]

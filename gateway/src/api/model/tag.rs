@@ -4,6 +4,8 @@ use serde::{Deserialize, Serialize};
 use utoipa::{IntoParams, ToSchema};
 
 use super::Timestamp;
+use crate::image::Quality;
+use crate::tags::TagReading;
 
 /// A value: a number or a bit.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ToSchema)]
@@ -42,10 +44,80 @@ pub enum TagQuality {
     Off,
     /// The device reports the value as out of range (KS vario 8000h).
     OutOfRange,
+    /// The device answered the poll of the value with an exception.
+    Rejected,
     /// The device does not answer.
     CommFailure,
     /// Never read.
     Unknown,
+}
+
+// === impl TagQuality ===
+
+impl TagQuality {
+    /// The quality named `name` (the image's [`Quality::as_str`] names); `Unknown` otherwise.
+    pub fn from_name(name: &str) -> Self {
+        match name {
+            "good" => Self::Good,
+            "stale" => Self::Stale,
+            "not_defined" => Self::NotDefined,
+            "off" => Self::Off,
+            "out_of_range" => Self::OutOfRange,
+            "rejected" => Self::Rejected,
+            "comm_failure" => Self::CommFailure,
+            _ => Self::Unknown,
+        }
+    }
+}
+
+impl From<Quality> for TagQuality {
+    fn from(q: Quality) -> Self {
+        match q {
+            Quality::Good => Self::Good,
+            Quality::OutOfRange => Self::OutOfRange,
+            Quality::Off => Self::Off,
+            Quality::NotDefined => Self::NotDefined,
+            Quality::Rejected => Self::Rejected,
+            Quality::Stale => Self::Stale,
+            Quality::CommFailure => Self::CommFailure,
+        }
+    }
+}
+
+impl From<proto_core::profiles::Value> for ScalarValue {
+    fn from(v: proto_core::profiles::Value) -> Self {
+        use proto_core::profiles::Value;
+        match v {
+            Value::Int(i) => Self::Int(i),
+            Value::Float(f) => Self::Float(f),
+            Value::Bool(b) => Self::Bool(b),
+        }
+    }
+}
+
+// === impl TagValue ===
+
+impl TagValue {
+    /// The value of `line/device/tag` from a reading of the tag directory; a value that is not
+    /// live (stale, rejected, comm failure) is still shown, with its quality saying so.
+    pub fn from_reading(
+        line: &str,
+        device: &str,
+        tag: &str,
+        writable: bool,
+        reading: TagReading,
+    ) -> Self {
+        Self {
+            line: line.to_owned(),
+            device: device.to_owned(),
+            tag: tag.to_owned(),
+            value: Some(reading.value.into()),
+            unit: reading.unit,
+            quality: TagQuality::from_name(reading.quality),
+            timestamp: Some(Timestamp(reading.timestamp)),
+            writable,
+        }
+    }
 }
 
 /// One tag's value.
@@ -126,5 +198,23 @@ mod tests {
         assert_eq!(v.value.as_f64(), 1.0);
         assert!(serde_json::from_str::<TagWrite>(r#"{"value": "5"}"#).is_err());
         assert!(serde_json::from_str::<SignalsPatch>(r#"{"dsr": true}"#).is_err());
+    }
+
+    #[test]
+    fn image_qualities_keep_their_names() {
+        for q in [
+            Quality::Good,
+            Quality::OutOfRange,
+            Quality::Off,
+            Quality::NotDefined,
+            Quality::Rejected,
+            Quality::Stale,
+            Quality::CommFailure,
+        ] {
+            let t = TagQuality::from(q);
+            assert_eq!(TagQuality::from_name(q.as_str()), t);
+            assert_eq!(serde_json::to_value(t).unwrap(), q.as_str());
+        }
+        assert_eq!(TagQuality::from_name("bogus"), TagQuality::Unknown);
     }
 }
