@@ -7,6 +7,7 @@
 //! insecure_allow_unauthenticated_changes = false
 //! body_limit = 1048576                      # bytes
 //! request_timeout = "30s"
+//! max_connections = 64
 //! ```
 //!
 //! Changes (PUT, POST, DELETE) need `Authorization: Bearer <token>`. The token itself never
@@ -34,6 +35,8 @@ pub const DEFAULT_HTTP_REQUEST_TIMEOUT: Duration = Duration::from_secs(30);
 /// Accepted range of `request_timeout`.
 pub const HTTP_REQUEST_TIMEOUT_RANGE: (Duration, Duration) =
     (Duration::from_millis(100), Duration::from_secs(600));
+/// Accepted range of `max_connections`.
+pub const MAX_CONNECTIONS_RANGE: (u32, u32) = (1, 4096);
 /// Changes are refused without a token unless this is set.
 pub const DEFAULT_INSECURE: bool = false;
 
@@ -45,6 +48,9 @@ pub fn default_body_limit() -> u64 {
 }
 pub fn default_http_request_timeout() -> Duration {
     DEFAULT_HTTP_REQUEST_TIMEOUT
+}
+pub fn default_http_max_connections() -> u32 {
+    super::DEFAULT_MAX_CONNECTIONS
 }
 
 /// The `[http]` section.
@@ -68,6 +74,9 @@ pub struct HttpConfig {
     /// A request that takes longer is answered 504.
     #[serde(default = "default_http_request_timeout", with = "humantime_serde")]
     pub request_timeout: Duration,
+    /// Connections served at once; further clients wait in the listen backlog.
+    #[serde(default = "default_http_max_connections")]
+    pub max_connections: u32,
 }
 
 impl Default for HttpConfig {
@@ -79,6 +88,7 @@ impl Default for HttpConfig {
             insecure_allow_unauthenticated_changes: DEFAULT_INSECURE,
             body_limit: DEFAULT_BODY_LIMIT,
             request_timeout: DEFAULT_HTTP_REQUEST_TIMEOUT,
+            max_connections: super::DEFAULT_MAX_CONNECTIONS,
         }
     }
 }
@@ -121,6 +131,11 @@ impl HttpConfig {
                         config.body_limit = x;
                     }
                 }
+                "max_connections" => {
+                    if let Some(x) = typed(&mut issues, &at, v, "a number of connections") {
+                        config.max_connections = x;
+                    }
+                }
                 "request_timeout" => {
                     let text: Option<String> = typed(&mut issues, &at, v, "a duration (e.g. \"30s\")");
                     match text.map(|t| humantime::parse_duration(&t)) {
@@ -131,7 +146,7 @@ impl HttpConfig {
                 }
                 _ => issues.push(issue(
                     &at,
-                    "unknown key (listen, token_file, token_env, insecure_allow_unauthenticated_changes, body_limit, request_timeout)",
+                    "unknown key (listen, token_file, token_env, insecure_allow_unauthenticated_changes, body_limit, request_timeout, max_connections)",
                 )),
             }
         }
@@ -163,6 +178,13 @@ impl HttpConfig {
                     humantime::format_duration(lo),
                     humantime::format_duration(hi)
                 ),
+            ));
+        }
+        let (lo, hi) = MAX_CONNECTIONS_RANGE;
+        if !(lo..=hi).contains(&self.max_connections) {
+            issues.push(issue(
+                &format!("{path}.max_connections"),
+                format!("{} is out of range {lo}..={hi}", self.max_connections),
             ));
         }
         if self.token_file.is_some() && self.token_env.is_some() {
@@ -250,7 +272,8 @@ mod tests {
     fn every_key_reads() {
         let c = read(
             "listen = \"0.0.0.0:9000\"\ntoken_env = \"API_TOKEN\"\n\
-             insecure_allow_unauthenticated_changes = true\nbody_limit = 4096\nrequest_timeout = \"2s\"",
+             insecure_allow_unauthenticated_changes = true\nbody_limit = 4096\nrequest_timeout = \"2s\"\n\
+             max_connections = 8",
         )
         .unwrap();
         assert_eq!(c.listen.port(), 9000);
@@ -258,13 +281,14 @@ mod tests {
         assert!(c.insecure_allow_unauthenticated_changes);
         assert_eq!(c.body_limit, 4096);
         assert_eq!(c.request_timeout, Duration::from_secs(2));
+        assert_eq!(c.max_connections, 8);
     }
 
     #[test]
     fn every_problem_is_reported_at_once() {
         let issues = read(
             "listen = \"nowhere\"\ntoken_file = \"/a\"\ntoken_env = \"1X\"\nbody_limit = 10\n\
-             request_timeout = \"soon\"\ncolour = \"blue\"",
+             request_timeout = \"soon\"\ncolour = \"blue\"\nmax_connections = 0",
         )
         .unwrap_err();
         let mut paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
@@ -275,6 +299,7 @@ mod tests {
                 "http.body_limit",
                 "http.colour",
                 "http.listen",
+                "http.max_connections",
                 "http.request_timeout",
                 "http.token_env",
                 "http.token_env",

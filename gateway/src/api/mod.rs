@@ -27,6 +27,7 @@
 //! PUT    /api/v1/lines/{line}/devices/{device}/tags/{tag}  write it through to the device
 //! ```
 //!
+//! [`serve`] runs the accept loop (connection limit, header read timeout, graceful stop).
 //! Layers, outermost first: a panic becomes a 500 in the error shape; any error answer some
 //! layer made without a JSON body gets one ([`error`]); the request timeout (504); the bearer
 //! token check for changes ([`auth`]); the body limit (413). The service implements
@@ -41,6 +42,7 @@ pub mod error;
 mod handlers;
 pub mod model;
 mod openapi;
+mod server;
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -50,7 +52,6 @@ use axum::http::{header, HeaderValue, StatusCode, Uri};
 use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::{Extension, Router};
-use tokio::net::TcpListener;
 use tower_http::catch_panic::CatchPanicLayer;
 use utoipa::OpenApi as _;
 use utoipa_axum::router::OpenApiRouter;
@@ -62,6 +63,7 @@ pub use body::{etag, TOML_MEDIA_TYPE};
 pub use config::HttpConfig;
 pub use diff::ConfigDiff;
 pub use error::{ApiError, ErrorBody, ErrorDetail, Issue};
+pub use server::{serve, DEFAULT_HEADER_READ_TIMEOUT, DEFAULT_MAX_CONNECTIONS};
 
 use crate::persist::ConfigStore;
 
@@ -76,6 +78,10 @@ pub struct ApiState {
     store: Option<Arc<ConfigStore>>,
     body_limit: usize,
     request_timeout: Duration,
+    /// Connections served at once.
+    max_connections: usize,
+    /// Longest wait for a request head.
+    header_read_timeout: Duration,
     /// Configuration changes run one at a time.
     change_lock: Arc<tokio::sync::Mutex<()>>,
 }
@@ -90,6 +96,7 @@ impl std::fmt::Debug for ApiState {
             )
             .field("body_limit", &self.body_limit)
             .field("request_timeout", &self.request_timeout)
+            .field("max_connections", &self.max_connections)
             .finish_non_exhaustive()
     }
 }
@@ -105,6 +112,8 @@ impl ApiState {
             store: None,
             body_limit: usize::try_from(config::DEFAULT_BODY_LIMIT).unwrap_or(usize::MAX),
             request_timeout: config::DEFAULT_HTTP_REQUEST_TIMEOUT,
+            max_connections: DEFAULT_MAX_CONNECTIONS as usize,
+            header_read_timeout: DEFAULT_HEADER_READ_TIMEOUT,
             change_lock: Arc::default(),
         }
     }
@@ -117,7 +126,8 @@ impl ApiState {
         store: Option<ConfigStore>,
     ) -> Result<Self, TokenError> {
         let state = Self::new(backend, Auth::from_config(http)?)
-            .with_limits(http.body_limit, http.request_timeout);
+            .with_limits(http.body_limit, http.request_timeout)
+            .with_connections(http.max_connections, DEFAULT_HEADER_READ_TIMEOUT);
         Ok(match store {
             Some(s) => state.with_store(s),
             None => state,
@@ -134,6 +144,13 @@ impl ApiState {
     pub fn with_limits(mut self, body_limit: u64, request_timeout: Duration) -> Self {
         self.body_limit = usize::try_from(body_limit).unwrap_or(usize::MAX);
         self.request_timeout = request_timeout;
+        self
+    }
+
+    /// The most connections served at once (at least 1) and the longest wait for a request head.
+    pub fn with_connections(mut self, max_connections: u32, header_read_timeout: Duration) -> Self {
+        self.max_connections = usize::try_from(max_connections.max(1)).unwrap_or(usize::MAX);
+        self.header_read_timeout = header_read_timeout;
         self
     }
 
@@ -210,22 +227,6 @@ pub fn router(state: ApiState) -> Router {
         .layer(middleware::from_fn(json_errors))
         .layer(CatchPanicLayer::custom(panic_response))
         .with_state(state)
-}
-
-/// Serves `router(state)` on `listener` until `shutdown` completes, then lets requests in flight
-/// finish.
-pub async fn serve(
-    listener: TcpListener,
-    state: ApiState,
-    shutdown: impl std::future::Future<Output = ()> + Send + 'static,
-) -> std::io::Result<()> {
-    state.auth.log_mode();
-    if let Ok(addr) = listener.local_addr() {
-        tracing::info!(%addr, "REST API listening");
-    }
-    axum::serve(listener, router(state))
-        .with_graceful_shutdown(shutdown)
-        .await
 }
 
 async fn no_route(uri: Uri) -> ApiError {

@@ -281,3 +281,77 @@ async fn a_change_runs_to_the_end_even_when_the_client_gives_up() {
         c.lines
     });
 }
+
+/// Reads from `s` until the peer closes; the bytes read.
+async fn read_until_closed(s: &mut TcpStream, within: Duration) -> Option<Vec<u8>> {
+    let mut out = Vec::new();
+    match tokio::time::timeout(within, s.read_to_end(&mut out)).await {
+        Ok(Ok(_)) => Some(out),
+        Ok(Err(_)) => Some(out), // reset by the server: closed too
+        Err(_) => None,
+    }
+}
+
+#[tokio::test]
+async fn a_trickled_request_head_and_an_idle_connection_are_closed() {
+    let api = start_with(Setup {
+        header_read_timeout: Duration::from_millis(300),
+        ..Setup::default()
+    })
+    .await;
+    let addr = api.base.trim_start_matches("http://").to_owned();
+
+    let mut trickle = TcpStream::connect(&addr).await.unwrap();
+    trickle
+        .write_all(b"GET /healthz HTTP/1.1\r\nHo")
+        .await
+        .unwrap();
+    let closed = read_until_closed(&mut trickle, Duration::from_secs(10)).await;
+    assert!(
+        closed.is_some(),
+        "a connection that never completes its head stays open"
+    );
+
+    // A kept-alive connection: one answer, then closed when no next request comes.
+    let mut idle = TcpStream::connect(&addr).await.unwrap();
+    idle.write_all(format!("GET /healthz HTTP/1.1\r\nHost: {addr}\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
+    let answer = read_until_closed(&mut idle, Duration::from_secs(10))
+        .await
+        .expect("closed when idle");
+    assert!(String::from_utf8_lossy(&answer).starts_with("HTTP/1.1 200"));
+}
+
+#[tokio::test]
+async fn connections_beyond_the_limit_wait_for_a_free_one() {
+    let api = start_with(Setup {
+        max_connections: 1,
+        ..Setup::default()
+    })
+    .await;
+    let addr = api.base.trim_start_matches("http://").to_owned();
+    let request = format!("GET /healthz HTTP/1.1\r\nHost: {addr}\r\n\r\n");
+
+    let mut first = TcpStream::connect(&addr).await.unwrap();
+    first.write_all(request.as_bytes()).await.unwrap();
+    let mut buf = [0u8; 512];
+    let n = first.read(&mut buf).await.unwrap();
+    assert!(buf[..n].starts_with(b"HTTP/1.1 200"));
+
+    // The second connection is accepted by the kernel but not served while the first is open.
+    let mut second = TcpStream::connect(&addr).await.unwrap();
+    second.write_all(request.as_bytes()).await.unwrap();
+    let early = tokio::time::timeout(Duration::from_millis(500), second.read(&mut buf)).await;
+    assert!(early.is_err(), "served beyond the limit");
+    drop(first);
+    let n = tokio::time::timeout(Duration::from_secs(10), second.read(&mut buf))
+        .await
+        .unwrap()
+        .unwrap();
+    assert!(
+        buf[..n].starts_with(b"HTTP/1.1 200"),
+        "{}",
+        String::from_utf8_lossy(&buf[..n])
+    );
+}

@@ -73,6 +73,8 @@ pub(crate) struct Setup {
     pub(crate) store: bool,
     pub(crate) body_limit: u64,
     pub(crate) request_timeout: Duration,
+    pub(crate) max_connections: u32,
+    pub(crate) header_read_timeout: Duration,
     pub(crate) config: Config,
 }
 
@@ -83,6 +85,8 @@ impl Default for Setup {
             store: true,
             body_limit: api::config::DEFAULT_BODY_LIMIT,
             request_timeout: Duration::from_secs(10),
+            max_connections: api::DEFAULT_MAX_CONNECTIONS,
+            header_read_timeout: api::DEFAULT_HEADER_READ_TIMEOUT,
             config: test_config(),
         }
     }
@@ -174,8 +178,9 @@ pub(crate) async fn start() -> TestApi {
 
 pub(crate) async fn start_with(setup: Setup) -> TestApi {
     let gw = Arc::new(MemGateway::new(setup.config.clone(), test_tags()));
-    let mut state =
-        ApiState::new(gw.clone(), setup.auth).with_limits(setup.body_limit, setup.request_timeout);
+    let mut state = ApiState::new(gw.clone(), setup.auth)
+        .with_limits(setup.body_limit, setup.request_timeout)
+        .with_connections(setup.max_connections, setup.header_read_timeout);
     let (dir, store_path) = if setup.store {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("gateway.toml");
