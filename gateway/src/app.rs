@@ -14,8 +14,9 @@ use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
 use crate::config::{self, Config, LineConfig, ProtocolConfig};
+use crate::cpmem::{self, SharedCpMemory};
 use crate::image::{ImageConfig, ProcessImage};
-use crate::line::{self, LineHandle};
+use crate::line::{self, LineHandle, SlaveLineHandle, SlaveLineSettings};
 use crate::modbus_tcp::{self, ServerOptions, ServerStats, SharedUnits};
 use crate::unit::UnitMap;
 
@@ -120,6 +121,12 @@ pub struct Running {
     pub image: ProcessImage,
     /// The Modbus master lines by name.
     pub lines: BTreeMap<String, LineHandle>,
+    /// The Modbus slave lines by name.
+    pub slave_lines: BTreeMap<String, SlaveLineHandle>,
+    /// The CP memory the slave lines serve, if any line does.
+    pub cp_memory: Option<SharedCpMemory>,
+    /// Saves the CP memory; stopped (with a last save) after the lines and servers.
+    persistence: Option<(CancellationToken, tokio::task::JoinHandle<()>)>,
     /// What answers each Modbus TCP unit id.
     pub units: SharedUnits,
     /// Modbus TCP server counters.
@@ -133,7 +140,7 @@ pub async fn run(
     shutdown: CancellationToken,
 ) -> Result<(), AppError> {
     let lines_token = shutdown.child_token();
-    let running = start_lines(&config, &lines_token);
+    let running = start_lines(&config, &lines_token)?;
 
     let addr = overrides.modbus_tcp.unwrap_or(config.modbus_tcp.listen);
     let listener = modbus_tcp::bind(addr).map_err(|source| AppError::Bind {
@@ -163,10 +170,18 @@ pub async fn run(
         for (_, line) in running.lines {
             line.join().await;
         }
+        for (_, line) in running.slave_lines {
+            line.join().await;
+        }
         match server.await {
             Ok(Ok(())) => {}
             Ok(Err(e)) => warn!(error = %e, "Modbus TCP server ended with an error"),
             Err(e) => warn!(error = %e, "Modbus TCP server task failed"),
+        }
+        // Last: the final save sees every write the lines and the server carried out.
+        if let Some((token, task)) = running.persistence {
+            token.cancel();
+            let _ = task.await;
         }
     };
     if tokio::time::timeout(GRACE_PERIOD, drain).await.is_ok() {
@@ -177,11 +192,17 @@ pub async fn run(
     Ok(())
 }
 
-/// Starts every line of `config` and registers its devices as Modbus TCP units.
-fn start_lines(config: &Config, shutdown: &CancellationToken) -> Running {
+/// Starts every line of `config` and registers its devices, memory and mailboxes as Modbus TCP
+/// units.
+fn start_lines(config: &Config, shutdown: &CancellationToken) -> Result<Running, AppError> {
     let image = ProcessImage::new(ImageConfig::default());
     let mut units = UnitMap::new();
     let mut lines = BTreeMap::new();
+    let mut slave_lines = BTreeMap::new();
+    let (cp_memory, persistence) = match open_cp_memory(config)? {
+        Some((memory, persistence)) => (Some(memory), persistence),
+        None => (None, None),
+    };
     for (name, line) in &config.lines {
         match &line.protocol {
             ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => {
@@ -199,15 +220,81 @@ fn start_lines(config: &Config, shutdown: &CancellationToken) -> Running {
                 }
                 lines.insert(name.clone(), handle);
             }
+            ProtocolConfig::ModbusSlaveRtu(cfg) => {
+                let memory = cp_memory.clone().ok_or_else(|| {
+                    AppError::Setup(format!("line {name}: no CP memory was set up"))
+                })?;
+                let params =
+                    cpmem::config::slave_params(cfg, memory.layout()).map_err(|issues| {
+                        let text: Vec<String> =
+                            issues.iter().map(|i| format!("lines.{name}.{i}")).collect();
+                        AppError::Setup(text.join("\n"))
+                    })?;
+                let mut settings = SlaveLineSettings::new(
+                    name.clone(),
+                    build::port_settings(&line.serial),
+                    params,
+                );
+                settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
+                let handle =
+                    line::spawn_modbus_slave_line(settings, memory.clone(), shutdown.child_token());
+                if let Some(unit) = cfg.unit_id {
+                    units.insert(unit, Arc::new(handle.unit()));
+                    memory.mirror_to(image.clone(), unit, handle.map().clone());
+                }
+                slave_lines.insert(name.clone(), handle);
+            }
             other => not_served(name, line, other.kind().as_str()),
         }
     }
-    Running {
+    Ok(Running {
         image,
         lines,
+        slave_lines,
+        cp_memory,
+        persistence,
         units: Arc::new(RwLock::new(units)),
         tcp_stats: Arc::new(ServerStats::new()),
+    })
+}
+
+type Persistence = Option<(CancellationToken, tokio::task::JoinHandle<()>)>;
+
+/// The CP memory of the slave lines, loaded from its file when it is persisted; `None` when no
+/// line serves it.
+fn open_cp_memory(config: &Config) -> Result<Option<(SharedCpMemory, Persistence)>, AppError> {
+    let slaves: Vec<_> = config
+        .lines
+        .values()
+        .filter_map(|l| match &l.protocol {
+            ProtocolConfig::ModbusSlaveRtu(cfg) => Some(cfg),
+            _ => None,
+        })
+        .collect();
+    if slaves.is_empty() {
+        return Ok(None);
     }
+    let blocks: Vec<(u16, u16)> = config
+        .cp_memory
+        .data_blocks
+        .iter()
+        .map(|b| (b.db, b.words))
+        .collect();
+    let layout =
+        cpmem::config::memory_layout(slaves, (!blocks.is_empty()).then_some(blocks.as_slice()));
+    let Some(path) = &config.cp_memory.persist_file else {
+        return Ok(Some((SharedCpMemory::new(layout), None)));
+    };
+    let (memory, report) = SharedCpMemory::open(layout, path)
+        .map_err(|e| AppError::Setup(format!("CP memory file {}: {e}", path.display())))?;
+    info!(file = %path.display(), ?report, "CP memory loaded");
+    let token = CancellationToken::new();
+    let settings = cpmem::PersistSettings {
+        path: path.clone(),
+        interval: config.cp_memory.save_interval,
+    };
+    let task = cpmem::spawn_persistence(memory.clone(), settings, token.clone());
+    Ok(Some((memory, Some((token, task)))))
 }
 
 fn not_served(name: &str, line: &LineConfig, protocol: &str) {

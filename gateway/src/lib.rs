@@ -20,6 +20,7 @@ pub mod config;
 pub mod cpmem;
 pub mod image;
 pub mod line;
+pub mod metrics;
 pub mod modbus_tcp;
 pub mod persist;
 pub mod serial;

@@ -174,3 +174,80 @@ async fn mbpoll_reads_the_demo() {
     let out = mbpoll(&gw, &["-a", "2", "-t", "4", "-r", "9002", "-c", "1"], &[]);
     assert_eq!(mbpoll_values(&out), vec![25], "{out}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_demo_hmi_polls_the_slave_line_and_tcp_shares_its_memory() {
+    let gw = Gateway::demo(&[]);
+    let mut cp = connect(&gw, 50).await;
+    // The simulated serial master writes its cycle counter into holding register 10 (DB 800,
+    // DBW 20) of the gateway's slave line: over TCP the value moves.
+    let first = read_holding_eventually(&mut cp, 10, 1).await[0];
+    let deadline = tokio::time::Instant::now() + FIRST_POLL;
+    loop {
+        let now = cp
+            .read_holding_registers(10, 1)
+            .await
+            .expect("transport")
+            .expect("read DBW 20")[0];
+        if now != first {
+            break;
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the serial master's counter never moved from {first}"
+        );
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    // A write over TCP lands in the same memory (write-enabled in the demo) and reads back.
+    cp.write_multiple_registers(100, &[1234, 5678])
+        .await
+        .expect("transport")
+        .expect("write DB 800");
+    assert_eq!(
+        cp.read_holding_registers(100, 2).await.expect("transport"),
+        Ok(vec![1234, 5678])
+    );
+    // M 1000.0.. through FC05/FC01 (coils 0..1023 are write-enabled in the demo).
+    cp.write_single_coil(3, true)
+        .await
+        .expect("transport")
+        .expect("write M 1000.3");
+    let bits = cp
+        .read_coils(0, 8)
+        .await
+        .expect("transport")
+        .expect("read M 1000.0..7");
+    assert!(bits[3], "{bits:?}");
+}
+
+#[test]
+fn gateway_check_accepts_the_example_and_lists_every_mistake() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
+    let example = root.join("deploy/gateway.example.toml");
+    let out = Command::new(gateway_tests::gateway_bin())
+        .args(["check", "--config", example.to_str().expect("path")])
+        .output()
+        .expect("gateway check");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
+
+    let dir = gateway_tests::temp_dir("check");
+    let bad = dir.join("bad.toml");
+    std::fs::write(
+        &bad,
+        "[modbus_tcp]\nlisten = \"nowhere\"\n\n[lines.a]\nport = \"/dev/ttyS1\"\nprotocol = \"modbus-master-rtu\"\nbaud = 12345\ncolour = \"red\"\n",
+    )
+    .expect("write");
+    let out = Command::new(gateway_tests::gateway_bin())
+        .args(["check", "--config", bad.to_str().expect("path")])
+        .output()
+        .expect("gateway check");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(1), "{text}");
+    for path in ["modbus_tcp.listen", "lines.a.baud", "lines.a.colour"] {
+        assert!(text.contains(path), "{path} missing from:\n{text}");
+    }
+}

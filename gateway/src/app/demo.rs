@@ -74,8 +74,24 @@ fn start_simulator(
             });
             Ok(())
         }
-        _ => {
-            // Telegram partners and serial masters are started by their own modules.
+        ProtocolConfig::ModbusSlaveRtu(cfg) => {
+            // A simulated HMI polls the gateway's slave line and writes a cycle counter into
+            // holding register 10 (DB 800, DBW 20), so that values and counters move.
+            let layout = crate::cpmem::config::memory_layout([cfg], None);
+            let params = crate::cpmem::config::slave_params(cfg, &layout).map_err(|issues| {
+                let text: Vec<String> = issues.iter().map(ToString::to_string).collect();
+                AppError::Setup(format!("line {name}: {}", text.join("; ")))
+            })?;
+            let mut settings = sim::master::SimMasterSettings::for_slave(&params, Some(10));
+            settings.baud = line.serial.baud.get();
+            settings.bits_per_char = line.serial.bits_per_char();
+            sim::master::spawn_sim_master(stream, settings, shutdown.clone());
+            Ok(())
+        }
+        ProtocolConfig::ModbusMasterAscii(_)
+        | ProtocolConfig::Proc3964(_)
+        | ProtocolConfig::Ascii(_) => {
+            // Telegram partners are started by their own module.
             drop(stream);
             Ok(())
         }

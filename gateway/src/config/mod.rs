@@ -35,6 +35,7 @@
 //! combine with `deny_unknown_fields`. Serializing uses serde (`toml::to_string(&config)`), and
 //! parsing the output gives the same `Config` back.
 
+mod cpmem;
 mod device;
 mod line;
 mod modbus;
@@ -50,6 +51,7 @@ use std::path::Path;
 
 use serde::{Deserialize, Deserializer, Serialize};
 
+pub use cpmem::*;
 pub use device::*;
 pub use line::*;
 pub use modbus::*;
@@ -81,6 +83,8 @@ const DEMO_TOML: &str = include_str!("demo.toml");
 pub struct Config {
     pub gateway: GatewaySection,
     pub modbus_tcp: ModbusTcpConfig,
+    /// The CP memory served by `modbus-slave-rtu` lines and their unit ids.
+    pub cp_memory: CpMemoryConfig,
     /// Lines by name.
     pub lines: BTreeMap<String, LineConfig>,
 }
@@ -150,6 +154,7 @@ impl Default for Config {
         Self {
             gateway: GatewaySection::default(),
             modbus_tcp: ModbusTcpConfig::default(),
+            cp_memory: CpMemoryConfig::new(),
             lines: BTreeMap::new(),
         }
     }
@@ -222,6 +227,10 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         None => ModbusTcpConfig::default(),
         Some(f) => ModbusTcpConfig::read(cx, f),
     };
+    let cp_memory = match root.table(cx, "cp_memory") {
+        None => CpMemoryConfig::new(),
+        Some(f) => CpMemoryConfig::read(cx, f),
+    };
     let mut lines = BTreeMap::new();
     if table.get("lines").is_some_and(toml::Value::is_array) {
         let _ = root.raw("lines");
@@ -240,6 +249,7 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
     Config {
         gateway,
         modbus_tcp,
+        cp_memory,
         lines,
     }
 }

@@ -13,7 +13,8 @@ fn demo_follows_the_spec() {
         "127.0.0.1:5020".parse::<SocketAddr>().unwrap()
     );
     let names: Vec<_> = c.lines.keys().map(String::as_str).collect();
-    assert_eq!(names, ["ascii", "drive", "ksvario", "r3964"]);
+    // The four lines SPEC.md fixes, and `hmi`, the slave line a simulated serial master polls.
+    assert_eq!(names, ["ascii", "drive", "hmi", "ksvario", "r3964"]);
     let frame = |l: &LineConfig| {
         (
             l.serial.baud.get(),

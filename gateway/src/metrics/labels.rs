@@ -1,0 +1,259 @@
+//! Label values of the metric families, each from a closed set.
+//!
+//! No label carries a value a client or a device chooses freely: function codes outside the known
+//! set count as `"other"`, exception codes outside the Modbus set as `"exception_other"`, and the
+//! remaining labels are enums. The free-text labels `line` and `device` come from the
+//! configuration, so their number is bounded by it.
+
+use proto_core::modbus::pdu::ExceptionCode;
+
+/// Direction of telegrams and bytes on a serial line, as seen from the gateway.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Direction {
+    /// Received from the partner or device.
+    Rx,
+    /// Sent by the gateway.
+    Tx,
+}
+
+// === impl Direction ===
+
+impl Direction {
+    /// Both directions, for pre-creating series.
+    pub const ALL: [Self; 2] = [Self::Rx, Self::Tx];
+
+    /// The `direction` label value.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::Rx => "rx",
+            Self::Tx => "tx",
+        }
+    }
+}
+
+/// The outcome of one Modbus request, on a serial line or from a Modbus TCP client.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RequestResult {
+    /// A normal response.
+    Ok,
+    /// An exception response with this code.
+    Exception(ExceptionCode),
+    /// No reply within the reply monitoring time (003 7.2, event 08 30h).
+    Timeout,
+    /// A reply that could not be used (wrong slave, CRC, length, echo: 003 7.2, 08 31h and
+    /// 0E 50h..0E 58h), or a local failure (port lost, queue closed).
+    Error,
+}
+
+/// Exception codes with a label of their own: the codes of the Modbus Application Protocol
+/// V1.1b3 (7, "MODBUS Exception Responses") plus 07, which the CP 341 reports as 0E 67h (003 7.2).
+const EXCEPTION_LABELS: [(u8, &str); 10] = [
+    (0x01, "exception_01"),
+    (0x02, "exception_02"),
+    (0x03, "exception_03"),
+    (0x04, "exception_04"),
+    (0x05, "exception_05"),
+    (0x06, "exception_06"),
+    (0x07, "exception_07"),
+    (0x08, "exception_08"),
+    (0x0A, "exception_0A"),
+    (0x0B, "exception_0B"),
+];
+
+/// The `result` label of a code outside [`EXCEPTION_LABELS`].
+const EXCEPTION_OTHER: &str = "exception_other";
+
+// === impl RequestResult ===
+
+impl RequestResult {
+    /// The `result` label value: `ok`, `exception_NN` (two upper-case hex digits),
+    /// `exception_other`, `timeout` or `error`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Ok => "ok",
+            Self::Exception(code) => {
+                let code = u8::from(code);
+                EXCEPTION_LABELS
+                    .iter()
+                    .find(|(known, _)| *known == code)
+                    .map_or(EXCEPTION_OTHER, |(_, label)| label)
+            }
+            Self::Timeout => "timeout",
+            Self::Error => "error",
+        }
+    }
+}
+
+/// Function codes with a label of their own: every function the gateway speaks as master or
+/// server (003 6.4.2 "Function codes", 6.4.6 for the slave; 002 for 23 = 17h and 43 = 2Bh), the
+/// 32-bit register variants of the Modbus master ASCII (003 6.4: bit 6 set, 43h, 46h, 50h), and the
+/// diagnostics functions 0Bh/0Ch of the Modbus specification.
+const FUNCTION_LABELS: [(u8, &str); 18] = [
+    (0x01, "01"),
+    (0x02, "02"),
+    (0x03, "03"),
+    (0x04, "04"),
+    (0x05, "05"),
+    (0x06, "06"),
+    (0x07, "07"),
+    (0x08, "08"),
+    (0x0B, "0B"),
+    (0x0C, "0C"),
+    (0x0F, "0F"),
+    (0x10, "10"),
+    (0x11, "11"),
+    (0x17, "17"),
+    (0x2B, "2B"),
+    (0x43, "43"),
+    (0x46, "46"),
+    (0x50, "50"),
+];
+
+/// The `function` label of a code outside [`FUNCTION_LABELS`].
+const FUNCTION_OTHER: &str = "other";
+
+/// The `function` label value of a request's function code: two upper-case hex digits (`"03"`,
+/// `"2B"`) for the known functions, `"other"` for the rest (a code with bit 7 set included: that is
+/// no request). Pass the request's code, also when the answer was an exception.
+pub fn function_label(function: u8) -> &'static str {
+    FUNCTION_LABELS
+        .iter()
+        .find(|(known, _)| *known == function)
+        .map_or(FUNCTION_OTHER, |(_, label)| label)
+}
+
+/// Why the Modbus TCP server closed a connection at accept, or failed to accept one.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum RejectReason {
+    /// The connection limit was reached.
+    Limit,
+    /// The client is outside the allowed networks.
+    Network,
+    /// `accept()` failed (out of file descriptors, connection aborted, ...).
+    AcceptError,
+}
+
+// === impl RejectReason ===
+
+impl RejectReason {
+    /// Every reason, for pre-creating series.
+    pub const ALL: [Self; 3] = [Self::Limit, Self::Network, Self::AcceptError];
+
+    /// The `reason` label value.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::Limit => "limit",
+            Self::Network => "network",
+            Self::AcceptError => "accept_error",
+        }
+    }
+}
+
+/// What a zenoh publication carried.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum PublicationKind {
+    /// A received telegram on `<prefix>/<line>/rx`.
+    Telegram,
+    /// The result of a telegram sent on request of `<prefix>/<line>/tx`.
+    SendResult,
+    /// A tag value that changed, on `<prefix>/<line>/<device>/<tag>`.
+    Tag,
+    /// A diagnostic event on `<prefix>/<line>/events`.
+    Event,
+    /// A reply of a queryable (tag value, gateway status).
+    Reply,
+}
+
+// === impl PublicationKind ===
+
+impl PublicationKind {
+    /// Every kind, for pre-creating series.
+    pub const ALL: [Self; 5] = [
+        Self::Telegram,
+        Self::SendResult,
+        Self::Tag,
+        Self::Event,
+        Self::Reply,
+    ];
+
+    /// The `kind` label value.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::Telegram => "telegram",
+            Self::SendResult => "send_result",
+            Self::Tag => "tag",
+            Self::Event => "event",
+            Self::Reply => "reply",
+        }
+    }
+}
+
+/// Why an update (tag change, telegram, event) was dropped instead of delivered.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum DropReason {
+    /// A bounded channel was full (`try_send` refused it).
+    QueueFull,
+    /// A broadcast receiver fell behind and lost the oldest updates.
+    Lagged,
+    /// The receiving side had gone (shutdown or restart of a task).
+    Closed,
+}
+
+// === impl DropReason ===
+
+impl DropReason {
+    /// Every reason, for pre-creating series.
+    pub const ALL: [Self; 3] = [Self::QueueFull, Self::Lagged, Self::Closed];
+
+    /// The `reason` label value.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::QueueFull => "queue_full",
+            Self::Lagged => "lagged",
+            Self::Closed => "closed",
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::BTreeSet;
+
+    use super::*;
+
+    #[test]
+    fn function_labels_are_two_hex_digits_or_other() {
+        let labels: BTreeSet<_> = (0..=u8::MAX).map(function_label).collect();
+        assert_eq!(labels.len(), FUNCTION_LABELS.len() + 1);
+        assert_eq!(function_label(0x03), "03");
+        assert_eq!(function_label(0x83), "other", "no request has bit 7 set");
+        assert_eq!(function_label(0x2B), "2B");
+        assert_eq!(function_label(0x42), "other");
+        for (code, label) in FUNCTION_LABELS {
+            assert_eq!(label, format!("{code:02X}"));
+        }
+    }
+
+    #[test]
+    fn result_labels_are_bounded() {
+        let labels: BTreeSet<_> = (0..=u8::MAX)
+            .map(|code| RequestResult::Exception(ExceptionCode::from(code)).as_str())
+            .collect();
+        assert_eq!(labels.len(), EXCEPTION_LABELS.len() + 1);
+        let gateway_target = ExceptionCode::GatewayTargetFailedToRespond;
+        assert_eq!(
+            RequestResult::Exception(gateway_target).as_str(),
+            "exception_0B"
+        );
+        assert_eq!(
+            RequestResult::Exception(ExceptionCode::Other(0x09)).as_str(),
+            "exception_other"
+        );
+        assert_eq!(RequestResult::Ok.as_str(), "ok");
+        assert_eq!(RequestResult::Timeout.as_str(), "timeout");
+        assert_eq!(RequestResult::Error.as_str(), "error");
+        for (code, label) in EXCEPTION_LABELS {
+            assert_eq!(label, format!("exception_{code:02X}"));
+        }
+    }
+}

@@ -1,0 +1,509 @@
+//! Prometheus metrics of the gateway: typed families in one registry, created in `main` and passed
+//! down; no global registry, no default registry.
+//!
+//! [`Metrics::register`] registers every family of [`METRIC_NAMES`] in the registry it is given
+//! and returns a cheap-to-clone handle; the serial lines, the Modbus TCP server and the zenoh
+//! bridge call its small typed methods. [`encode_text`] renders the registry for `/metrics`, and
+//! [`serve_metrics`] is a minimal HTTP/1.1 listener answering `GET /metrics`.
+//!
+//! Label sets are bounded:
+//! - `line`, `device`, `protocol` come from the configuration (line and device names, the
+//!   `protocol` key), so there are as many as the configuration has;
+//! - `class`, `event`, `class_name` come from the event catalog of 003 7.2 (`class` two upper-case
+//!   hex digits such as `"08"`, `event` four such as `"0830"`, `class_name` the manual's class title
+//!   in lower case, `"unknown"` for a class the catalog does not list);
+//! - `function` is two upper-case hex digits for the functions the gateway knows and `"other"`
+//!   for the rest, `result` is `ok`, `exception_NN`, `exception_other`, `timeout` or `error`
+//!   (see [`labels`]);
+//! - `direction`, `reason`, `kind` are enums.
+//!
+//! No label carries a client address, a register address or a telegram's content.
+//!
+//! Wiring, in `main` or `app`:
+//!
+//! ```no_run
+//! # async fn wire() -> Result<(), Box<dyn std::error::Error>> {
+//! use gateway::metrics::{serve_metrics, Metrics};
+//!
+//! let registry = prometheus::Registry::new();
+//! let metrics = Metrics::register(&registry)?; // clone it into every task
+//! metrics.init_line("drive", "modbus-master-rtu");
+//! metrics.init_device("drive", "atv71");
+//! let shutdown = tokio_util::sync::CancellationToken::new();
+//! let listener = tokio::net::TcpListener::bind("127.0.0.1:8080").await?;
+//! let server = tokio::spawn(serve_metrics(listener, registry.clone(), shutdown.clone()));
+//! metrics.line_started("drive", "modbus-master-rtu"); // line up, event 00 03h
+//! // ... on SIGTERM:
+//! shutdown.cancel();
+//! server.await?;
+//! # Ok(()) }
+//! ```
+
+use std::time::{Duration, Instant};
+
+use prometheus::{
+    Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, IntGaugeVec, Opts,
+    Registry, TextEncoder,
+};
+use proto_core::event::{self, EventId};
+
+mod http;
+mod image_age;
+pub mod labels;
+
+pub use http::serve_metrics;
+pub use labels::{
+    function_label, Direction, DropReason, PublicationKind, RejectReason, RequestResult,
+};
+
+use image_age::ImageAge;
+
+/// Every metric family the gateway exports. Dashboards use only these names (checked by a test).
+pub const METRIC_NAMES: &[&str] = &[
+    BUILD_INFO,
+    EVENTS,
+    TELEGRAMS,
+    BYTES,
+    LINE_UP,
+    MODBUS_REQUESTS,
+    POLL_DURATION,
+    DEVICE_UP,
+    DEVICE_IMAGE_AGE,
+    TCP_CONNECTIONS,
+    TCP_CONNECTIONS_ACCEPTED,
+    TCP_CONNECTIONS_REJECTED,
+    TCP_REQUESTS,
+    ZENOH_PUBLICATIONS,
+    DROPPED_UPDATES,
+];
+
+const BUILD_INFO: &str = "gateway_build_info";
+const EVENTS: &str = "gateway_events_total";
+const TELEGRAMS: &str = "gateway_telegrams_total";
+const BYTES: &str = "gateway_bytes_total";
+const LINE_UP: &str = "gateway_line_up";
+const MODBUS_REQUESTS: &str = "gateway_modbus_requests_total";
+const POLL_DURATION: &str = "gateway_poll_duration_seconds";
+const DEVICE_UP: &str = "gateway_device_up";
+const DEVICE_IMAGE_AGE: &str = "gateway_device_image_age_seconds";
+const TCP_CONNECTIONS: &str = "gateway_modbus_tcp_connections";
+const TCP_CONNECTIONS_ACCEPTED: &str = "gateway_modbus_tcp_connections_accepted_total";
+const TCP_CONNECTIONS_REJECTED: &str = "gateway_modbus_tcp_connections_rejected_total";
+const TCP_REQUESTS: &str = "gateway_modbus_tcp_requests_total";
+const ZENOH_PUBLICATIONS: &str = "gateway_zenoh_publications_total";
+const DROPPED_UPDATES: &str = "gateway_dropped_updates_total";
+
+/// Buckets of `gateway_poll_duration_seconds`, 1 ms .. 5 s.
+///
+/// One serial exchange takes from about 2 ms (a short FC03 at 115200 baud) over 15..40 ms (the
+/// demo's polls at 19200 baud) to over a second (a long read at 300 baud); the reply monitoring
+/// time is 2 s by default (003 6.4.3), so a timeout lands in the 2 s or 5 s bucket, and one above
+/// 5 s (up to the manual's maximum of 65.5 s) in `+Inf`.
+pub const POLL_DURATION_BUCKETS: &[f64] = &[
+    0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0,
+];
+
+/// The `class_name` label of a class the event catalog does not list.
+const UNKNOWN_CLASS: &str = "unknown";
+
+/// The typed metric families of the gateway. Clones share the same series.
+#[derive(Clone, Debug)]
+pub struct Metrics {
+    /// `gateway_events_total{line,class,event,class_name}`: every event raised on a line.
+    events: IntCounterVec,
+    /// `gateway_telegrams_total{line,direction}`: telegrams and Modbus frames.
+    telegrams: IntCounterVec,
+    /// `gateway_bytes_total{line,direction}`: every byte on the wire, control characters included.
+    bytes: IntCounterVec,
+    /// `gateway_line_up{line,protocol}`: 1 while the line's port is open and its driver runs.
+    line_up: IntGaugeVec,
+    /// `gateway_modbus_requests_total{line,device,function,result}`: master requests on a line.
+    modbus_requests: IntCounterVec,
+    /// `gateway_poll_duration_seconds{line,device}`: request sent .. reply checked or timed out.
+    poll_duration: HistogramVec,
+    /// `gateway_device_up{line,device}`: 1 while the device answers (not backed off).
+    device_up: IntGaugeVec,
+    /// `gateway_device_image_age_seconds{line,device}`: computed at scrape time.
+    image_age: ImageAge,
+    /// `gateway_modbus_tcp_connections`: connections being served now.
+    tcp_connections: IntGauge,
+    /// `gateway_modbus_tcp_connections_accepted_total`.
+    tcp_accepted: IntCounter,
+    /// `gateway_modbus_tcp_connections_rejected_total{reason}`.
+    tcp_rejected: IntCounterVec,
+    /// `gateway_modbus_tcp_requests_total{function,result}`.
+    tcp_requests: IntCounterVec,
+    /// `gateway_zenoh_publications_total{kind}`.
+    zenoh_publications: IntCounterVec,
+    /// `gateway_dropped_updates_total{reason}`.
+    dropped_updates: IntCounterVec,
+}
+
+// === impl Metrics ===
+
+impl Metrics {
+    /// Registers every family of [`METRIC_NAMES`] in `registry`, sets `gateway_build_info` and
+    /// creates the series of the fixed label sets at 0 so that `rate()` works from the first scrape.
+    ///
+    /// Fails if `registry` already holds one of the families (registering twice).
+    pub fn register(registry: &Registry) -> Result<Self, prometheus::Error> {
+        let build_info = IntGaugeVec::new(
+            Opts::new(BUILD_INFO, "Build of the running gateway; always 1."),
+            &["version"],
+        )?;
+        let metrics = Self {
+            events: IntCounterVec::new(
+                Opts::new(
+                    EVENTS,
+                    "Diagnostic events raised on a line, by CP 341 event class and number (manual 7.2).",
+                ),
+                &["line", "class", "event", "class_name"],
+            )?,
+            telegrams: IntCounterVec::new(
+                Opts::new(TELEGRAMS, "Telegrams and Modbus frames received and sent on a line."),
+                &["line", "direction"],
+            )?,
+            bytes: IntCounterVec::new(
+                Opts::new(BYTES, "Bytes received and sent on a line, control characters included."),
+                &["line", "direction"],
+            )?,
+            line_up: IntGaugeVec::new(
+                Opts::new(LINE_UP, "1 while the line's port is open and its driver runs, else 0."),
+                &["line", "protocol"],
+            )?,
+            modbus_requests: IntCounterVec::new(
+                Opts::new(
+                    MODBUS_REQUESTS,
+                    "Modbus master requests on a line, by device, function code and result.",
+                ),
+                &["line", "device", "function", "result"],
+            )?,
+            poll_duration: HistogramVec::new(
+                HistogramOpts::new(
+                    POLL_DURATION,
+                    "Time from sending a Modbus request to the checked reply or the timeout.",
+                )
+                .buckets(POLL_DURATION_BUCKETS.to_vec()),
+                &["line", "device"],
+            )?,
+            device_up: IntGaugeVec::new(
+                Opts::new(DEVICE_UP, "1 while the device answers its polls, else 0."),
+                &["line", "device"],
+            )?,
+            image_age: ImageAge::new(
+                DEVICE_IMAGE_AGE,
+                "Seconds since the device's image was last updated from a reply.",
+            )?,
+            tcp_connections: IntGauge::new(
+                TCP_CONNECTIONS,
+                "Modbus TCP connections being served now.",
+            )?,
+            tcp_accepted: IntCounter::new(
+                TCP_CONNECTIONS_ACCEPTED,
+                "Modbus TCP connections accepted and served.",
+            )?,
+            tcp_rejected: IntCounterVec::new(
+                Opts::new(
+                    TCP_CONNECTIONS_REJECTED,
+                    "Modbus TCP connections refused at accept, and failed accepts, by reason.",
+                ),
+                &["reason"],
+            )?,
+            tcp_requests: IntCounterVec::new(
+                Opts::new(TCP_REQUESTS, "Modbus TCP requests by function code and result."),
+                &["function", "result"],
+            )?,
+            zenoh_publications: IntCounterVec::new(
+                Opts::new(ZENOH_PUBLICATIONS, "zenoh publications and replies, by kind."),
+                &["kind"],
+            )?,
+            dropped_updates: IntCounterVec::new(
+                Opts::new(
+                    DROPPED_UPDATES,
+                    "Updates dropped instead of delivered (full bounded channel, lag, closed).",
+                ),
+                &["reason"],
+            )?,
+        };
+
+        registry.register(Box::new(build_info.clone()))?;
+        registry.register(Box::new(metrics.events.clone()))?;
+        registry.register(Box::new(metrics.telegrams.clone()))?;
+        registry.register(Box::new(metrics.bytes.clone()))?;
+        registry.register(Box::new(metrics.line_up.clone()))?;
+        registry.register(Box::new(metrics.modbus_requests.clone()))?;
+        registry.register(Box::new(metrics.poll_duration.clone()))?;
+        registry.register(Box::new(metrics.device_up.clone()))?;
+        registry.register(Box::new(metrics.image_age.clone()))?;
+        registry.register(Box::new(metrics.tcp_connections.clone()))?;
+        registry.register(Box::new(metrics.tcp_accepted.clone()))?;
+        registry.register(Box::new(metrics.tcp_rejected.clone()))?;
+        registry.register(Box::new(metrics.tcp_requests.clone()))?;
+        registry.register(Box::new(metrics.zenoh_publications.clone()))?;
+        registry.register(Box::new(metrics.dropped_updates.clone()))?;
+
+        build_info
+            .with_label_values(&[env!("CARGO_PKG_VERSION")])
+            .set(1);
+        for reason in RejectReason::ALL {
+            metrics.tcp_rejected.with_label_values(&[reason.as_str()]);
+        }
+        for kind in PublicationKind::ALL {
+            metrics
+                .zenoh_publications
+                .with_label_values(&[kind.as_str()]);
+        }
+        for reason in DropReason::ALL {
+            metrics
+                .dropped_updates
+                .with_label_values(&[reason.as_str()]);
+        }
+        Ok(metrics)
+    }
+
+    // --- serial lines ---
+
+    /// Creates the series of a configured line at 0 (line down, no telegrams, no bytes), so that it
+    /// shows on the dashboards before its port opens. `protocol` is the line's `protocol` key.
+    pub fn init_line(&self, line: &str, protocol: &str) {
+        self.line_up.with_label_values(&[line, protocol]).set(0);
+        for direction in Direction::ALL {
+            self.telegrams
+                .with_label_values(&[line, direction.as_str()]);
+            self.bytes.with_label_values(&[line, direction.as_str()]);
+        }
+    }
+
+    /// A line has taken its parameters and runs: `gateway_line_up` 1 and event 00 03h "PtP
+    /// parameters accepted" counted, as the CP reports at start-up (003 7.2, class 00h).
+    pub fn line_started(&self, line: &str, protocol: &str) {
+        self.set_line_up(line, protocol, true);
+        self.event(line, event::ids::PTP_PARAMS_ACCEPTED);
+    }
+
+    /// Whether the line's port is open and its driver runs.
+    pub fn set_line_up(&self, line: &str, protocol: &str, up: bool) {
+        self.line_up
+            .with_label_values(&[line, protocol])
+            .set(i64::from(up));
+    }
+
+    /// Removes the series of a line that left the configuration (its event counters stay).
+    pub fn forget_line(&self, line: &str, protocol: &str) {
+        // Series never created cannot be removed; that is not an error here.
+        let _ = self.line_up.remove_label_values(&[line, protocol]);
+        for direction in Direction::ALL {
+            let _ = self
+                .telegrams
+                .remove_label_values(&[line, direction.as_str()]);
+            let _ = self.bytes.remove_label_values(&[line, direction.as_str()]);
+        }
+    }
+
+    /// Counts one event raised on `line` (every event of 003 7.2, start-up included).
+    pub fn event(&self, line: &str, id: EventId) {
+        let class = format!("{:02X}", id.class);
+        let number = format!("{:02X}{:02X}", id.class, id.number);
+        let class_name = event::class_name(id.class).unwrap_or(UNKNOWN_CLASS);
+        self.events
+            .with_label_values(&[line, &class, &number, class_name])
+            .inc();
+    }
+
+    /// Counts one telegram (or Modbus frame) received or sent on `line`.
+    pub fn telegram(&self, line: &str, direction: Direction) {
+        self.telegrams
+            .with_label_values(&[line, direction.as_str()])
+            .inc();
+    }
+
+    /// Counts `count` bytes received or sent on `line`.
+    pub fn bytes(&self, line: &str, direction: Direction, count: usize) {
+        self.bytes
+            .with_label_values(&[line, direction.as_str()])
+            .inc_by(u64::try_from(count).unwrap_or(u64::MAX));
+    }
+
+    // --- polled devices ---
+
+    /// Creates the series of a configured device at 0 (down, empty histogram).
+    pub fn init_device(&self, line: &str, device: &str) {
+        self.device_up.with_label_values(&[line, device]).set(0);
+        self.poll_duration.with_label_values(&[line, device]);
+    }
+
+    /// Counts one Modbus master request to `device` with function code `function`.
+    pub fn modbus_request(&self, line: &str, device: &str, function: u8, result: RequestResult) {
+        self.modbus_requests
+            .with_label_values(&[line, device, function_label(function), result.as_str()])
+            .inc();
+    }
+
+    /// Records the duration of one poll exchange (timeouts included: they show as the reply
+    /// monitoring time).
+    pub fn poll_duration(&self, line: &str, device: &str, duration: Duration) {
+        self.poll_histogram(line, device)
+            .observe(duration.as_secs_f64());
+    }
+
+    /// The histogram of one device, for callers that want to keep it (e.g. with a timer).
+    pub fn poll_histogram(&self, line: &str, device: &str) -> Histogram {
+        self.poll_duration.with_label_values(&[line, device])
+    }
+
+    /// Whether the device answers.
+    pub fn set_device_up(&self, line: &str, device: &str, up: bool) {
+        self.device_up
+            .with_label_values(&[line, device])
+            .set(i64::from(up));
+    }
+
+    /// The device's image was updated from a reply at `at`; its age is computed at each scrape.
+    /// A device whose image was never updated has no age series.
+    pub fn device_image_updated(&self, line: &str, device: &str, at: Instant) {
+        self.image_age.updated(line, device, at);
+    }
+
+    /// Removes the gauges and the histogram of a device that left the configuration (its request
+    /// counters stay).
+    pub fn forget_device(&self, line: &str, device: &str) {
+        let _ = self.device_up.remove_label_values(&[line, device]);
+        let _ = self.poll_duration.remove_label_values(&[line, device]);
+        self.image_age.forget(line, device);
+    }
+
+    // --- Modbus TCP server ---
+
+    /// A connection was accepted: counts it and keeps `gateway_modbus_tcp_connections` up until
+    /// the returned guard is dropped (move it into the connection task).
+    pub fn tcp_connection_accepted(&self) -> TcpConnectionGuard {
+        self.tcp_accepted.inc();
+        self.tcp_connections.inc();
+        TcpConnectionGuard {
+            open: self.tcp_connections.clone(),
+        }
+    }
+
+    /// A connection was refused at accept, or `accept()` failed.
+    pub fn tcp_connection_rejected(&self, reason: RejectReason) {
+        self.tcp_rejected
+            .with_label_values(&[reason.as_str()])
+            .inc();
+    }
+
+    /// Counts one Modbus TCP request with function code `function` and its answer.
+    pub fn tcp_request(&self, function: u8, result: RequestResult) {
+        self.tcp_requests
+            .with_label_values(&[function_label(function), result.as_str()])
+            .inc();
+    }
+
+    // --- zenoh ---
+
+    /// Counts one zenoh publication or reply.
+    pub fn zenoh_published(&self, kind: PublicationKind) {
+        self.zenoh_publications
+            .with_label_values(&[kind.as_str()])
+            .inc();
+    }
+
+    /// Counts one update dropped instead of delivered.
+    pub fn dropped_update(&self, reason: DropReason) {
+        self.dropped_updates
+            .with_label_values(&[reason.as_str()])
+            .inc();
+    }
+}
+
+/// Keeps one Modbus TCP connection counted in `gateway_modbus_tcp_connections` while it lives.
+#[derive(Debug)]
+#[must_use = "the connection counts as open only while the guard lives"]
+pub struct TcpConnectionGuard {
+    open: IntGauge,
+}
+
+impl Drop for TcpConnectionGuard {
+    fn drop(&mut self) {
+        self.open.dec();
+    }
+}
+
+/// The registry in the Prometheus text exposition format 0.0.4, for `/metrics`.
+///
+/// Encoding the families this module registers cannot fail; should it fail anyway, the error is
+/// logged and returned as a comment line, which scrapers skip.
+pub fn encode_text(registry: &Registry) -> String {
+    match TextEncoder::new().encode_to_string(&registry.gather()) {
+        Ok(text) => text,
+        Err(error) => {
+            tracing::error!(%error, "encoding the metrics failed");
+            format!("# encoding the metrics failed: {error}\n")
+        }
+    }
+}
+
+/// The `Content-Type` of [`encode_text`]'s output.
+pub const TEXT_CONTENT_TYPE: &str = "text/plain; version=0.0.4; charset=utf-8";
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn registering_twice_in_one_registry_fails() {
+        let registry = Registry::new();
+        Metrics::register(&registry).expect("first registration");
+        assert!(Metrics::register(&registry).is_err());
+    }
+
+    #[test]
+    fn every_family_is_exported_under_its_listed_name() {
+        let registry = Registry::new();
+        let metrics = Metrics::register(&registry).expect("register");
+        // Families without fixed label sets appear once they have a series.
+        metrics.init_line("drive", "modbus-master-rtu");
+        metrics.line_started("drive", "modbus-master-rtu");
+        metrics.init_device("drive", "atv71");
+        metrics.modbus_request("drive", "atv71", 0x03, RequestResult::Ok);
+        metrics.device_image_updated("drive", "atv71", Instant::now());
+        metrics.tcp_request(0x03, RequestResult::Ok);
+        let mut names: Vec<_> = registry
+            .gather()
+            .iter()
+            .map(|family| family.name().to_owned())
+            .collect();
+        names.sort();
+        let mut expected: Vec<_> = METRIC_NAMES.iter().map(|&n| n.to_owned()).collect();
+        expected.sort();
+        assert_eq!(names, expected);
+    }
+
+    #[test]
+    fn start_up_counts_parameters_accepted() {
+        let registry = Registry::new();
+        let metrics = Metrics::register(&registry).expect("register");
+        metrics.line_started("r3964", "3964r");
+        let text = encode_text(&registry);
+        assert!(
+            text.contains(
+                r#"gateway_events_total{class="00",class_name="cp start-up",event="0003",line="r3964"} 1"#
+            ),
+            "{text}"
+        );
+        assert!(text.contains(r#"gateway_line_up{line="r3964",protocol="3964r"} 1"#));
+    }
+
+    #[test]
+    fn connection_guard_counts_open_connections() {
+        let registry = Registry::new();
+        let metrics = Metrics::register(&registry).expect("register");
+        let first = metrics.tcp_connection_accepted();
+        let second = metrics.tcp_connection_accepted();
+        assert_eq!(metrics.tcp_connections.get(), 2);
+        drop(first);
+        assert_eq!(metrics.tcp_connections.get(), 1);
+        drop(second);
+        assert_eq!(metrics.tcp_connections.get(), 0);
+        assert_eq!(metrics.tcp_accepted.get(), 2);
+    }
+}
