@@ -3,7 +3,7 @@
 use proto_core::event::EventId;
 use serde_json::json;
 
-use super::support::start;
+use super::support::{start, test_config};
 
 #[tokio::test]
 async fn gateway_and_line_status() {
@@ -13,7 +13,11 @@ async fn gateway_and_line_status() {
     assert_eq!(r.status, 200);
     assert_eq!(r.json["name"], "demo");
     assert_eq!(r.json["ready"], true);
-    assert_eq!(r.json["lines"].as_array().unwrap().len(), 4);
+    let config = test_config();
+    assert_eq!(
+        r.json["lines"].as_array().unwrap().len(),
+        config.lines.len()
+    );
     assert_eq!(r.json["modbus_tcp"]["listen"], "127.0.0.1:5020");
     assert_eq!(r.json["zenoh"]["up"], true);
 
@@ -26,7 +30,8 @@ async fn gateway_and_line_status() {
         .iter()
         .map(|l| l["name"].as_str().unwrap())
         .collect();
-    assert_eq!(names, ["ascii", "drive", "ksvario", "r3964"]);
+    let expected: Vec<&str> = config.lines.keys().map(String::as_str).collect();
+    assert_eq!(names, expected);
 
     let r = api.get("/api/v1/lines/drive").await;
     assert_eq!(r.status, 200);
