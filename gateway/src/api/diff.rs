@@ -4,7 +4,10 @@
 //! A line whose only change is in its `devices` table keeps its port and its other devices;
 //! only the devices added, removed or changed are (re)started. A change of
 //! `[gateway] diag_buffer_depth` restarts every line (the buffer is sized at start); a change of
-//! `[gateway] name` renames the zenoh prefix, so zenoh restarts.
+//! `[gateway] name` renames the zenoh prefix, so zenoh restarts. Every other top-level section
+//! (`[cp_memory]`, `[http]`, `[zenoh]`, ...) is compared as a whole and named in
+//! `sections_changed`; [`ConfigDiff::report`] lists those as pending a restart of the process,
+//! and a backend that applies one of them live says so in its own report.
 
 use std::collections::BTreeMap;
 
@@ -24,6 +27,8 @@ pub struct ConfigDiff {
     pub modbus_tcp_changed: bool,
     /// `[gateway] name` changed (the zenoh prefix).
     pub name_changed: bool,
+    /// Other top-level sections that changed, by name, sorted.
+    pub sections_changed: Vec<String>,
 }
 
 // === impl ConfigDiff ===
@@ -52,6 +57,7 @@ impl ConfigDiff {
                 }
             }
         }
+        diff.sections_changed = other_sections_changed(old, new);
         diff.lines_removed = old
             .lines
             .keys()
@@ -69,6 +75,7 @@ impl ConfigDiff {
             && self.devices_changed.is_empty()
             && !self.modbus_tcp_changed
             && !self.name_changed
+            && self.sections_changed.is_empty()
     }
 
     /// The report of applying exactly these changes.
@@ -90,9 +97,26 @@ impl ConfigDiff {
                 .map(|(l, d)| format!("{l}/{d}"))
                 .collect(),
             servers_restarted: servers,
-            pending_restart: Vec::new(),
+            pending_restart: self.sections_changed.clone(),
         }
     }
+}
+
+/// Top-level sections other than `gateway`, `modbus_tcp` and `lines` whose contents differ.
+fn other_sections_changed(old: &Config, new: &Config) -> Vec<String> {
+    const OWN_RULES: [&str; 3] = ["gateway", "modbus_tcp", "lines"];
+    let (Ok(old), Ok(new)) = (toml::Table::try_from(old), toml::Table::try_from(new)) else {
+        return Vec::new();
+    };
+    let mut names: Vec<String> = old
+        .keys()
+        .chain(new.keys())
+        .filter(|k| !OWN_RULES.contains(&k.as_str()) && old.get(*k) != new.get(*k))
+        .cloned()
+        .collect();
+    names.sort();
+    names.dedup();
+    names
 }
 
 fn devices(line: &LineConfig) -> &BTreeMap<String, DeviceConfig> {
@@ -174,6 +198,17 @@ mod tests {
         let r = d.report();
         assert_eq!(r.devices_restarted, ["ksvario/ksvario"]);
         assert_eq!(r.servers_restarted, ["modbus_tcp"]);
+    }
+
+    #[test]
+    fn other_sections_are_named_and_pending() {
+        let old = demo();
+        let mut new = old.clone();
+        new.cp_memory.persist_file = Some("/var/lib/gateway/cp.bin".into());
+        let d = ConfigDiff::between(&old, &new);
+        assert_eq!(d.sections_changed, ["cp_memory"]);
+        assert!(!d.is_empty());
+        assert_eq!(d.report().pending_restart, ["cp_memory"]);
     }
 
     #[test]
