@@ -14,8 +14,11 @@
 //! - [`paced`]: a paced link, a virtual serial cable with the timing of a real one;
 //! - [`sim`]: simulated devices on a serial port (`gateway sim`);
 //! - [`zenoh_bridge`]: telegrams, tag values, queries, writes, events and presence on zenoh;
+//! - [`api`]: the REST API under `/api/v1`, health, readiness and the OpenAPI document;
+//! - [`persist`]: the configuration file, replaced atomically with the previous version kept;
 //! - [`app`]: wiring a config into running tasks (`gateway run`, `gateway demo`).
 
+pub mod api;
 pub mod app;
 pub mod config;
 pub mod cpmem;
@@ -27,6 +30,7 @@ pub mod mailbox;
 pub mod metrics;
 pub mod modbus_tcp;
 pub mod paced;
+pub mod persist;
 pub mod serial;
 pub mod signals;
 pub mod sim;

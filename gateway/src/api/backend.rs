@@ -1,0 +1,96 @@
+//! What the API needs from the running gateway.
+//!
+//! The service implements [`ApiBackend`] over its supervisor, lines, process image and servers;
+//! the tests implement it over an in-memory gateway. Methods that read a snapshot are plain
+//! functions and must not block; methods that wait for a device or restart tasks return a boxed
+//! future. A method answers [`ApiError`]s made by its constructors (`not_found`, `conflict`,
+//! `busy`, `device_timeout`, `device_exception`), which the API sends as they are.
+
+use std::future::Future;
+use std::pin::Pin;
+
+use super::error::ApiError;
+use super::model::{
+    ApplyReport, DiagSnapshot, GatewayStatus, LineStatusView, Readiness, ScalarValue, SendResult,
+    Signals, SignalsPatch, TagValue, TelegramQueue,
+};
+use crate::config::{Config, ConfigIssue};
+
+/// A boxed future that can move between threads.
+pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
+
+/// The running gateway as the API sees it.
+pub trait ApiBackend: Send + Sync + 'static {
+    /// The configuration in force.
+    fn config(&self) -> Config;
+
+    /// Checks that need the running system on a configuration the parser already accepted
+    /// (e.g. a serial port that does not exist); every problem with its path. The parser's own
+    /// rules have run before this is called.
+    fn validate(&self, config: &Config) -> Result<(), Vec<ConfigIssue>> {
+        let _ = config;
+        Ok(())
+    }
+
+    /// Puts `config` in force, restarting only the lines, devices and servers that changed.
+    /// Called one change at a time, after the configuration was validated and persisted.
+    fn apply(&self, config: Config) -> BoxFuture<'_, Result<ApplyReport, ApiError>>;
+
+    /// The whole gateway.
+    fn gateway_status(&self) -> GatewayStatus;
+
+    /// One line; `not_found` for an unknown line.
+    fn line_status(&self, line: &str) -> Result<LineStatusView, ApiError>;
+
+    /// A line's diagnostic buffer, newest first.
+    fn diag(&self, line: &str) -> Result<DiagSnapshot, ApiError>;
+
+    /// Empties a line's diagnostic buffer.
+    fn clear_diag(&self, line: &str) -> Result<(), ApiError>;
+
+    /// A line's received telegrams waiting for acknowledgement, oldest first; `conflict` for a
+    /// line without telegrams (a Modbus line).
+    fn telegrams(&self, line: &str) -> Result<TelegramQueue, ApiError>;
+
+    /// Acknowledges (removes) the oldest queued telegram, which must have sequence number `seq`:
+    /// `not_found` when no queued telegram has it, `conflict` when it is not the oldest.
+    fn ack_telegram(&self, line: &str, seq: u32) -> Result<(), ApiError>;
+
+    /// Sends a telegram and waits for its outcome.
+    fn send_telegram(
+        &self,
+        line: &str,
+        data: Vec<u8>,
+    ) -> BoxFuture<'_, Result<SendResult, ApiError>>;
+
+    /// Every tag, or those of one line and/or devices of one name; `not_found` for an unknown
+    /// line.
+    fn tags(&self, line: Option<&str>, device: Option<&str>) -> Result<Vec<TagValue>, ApiError>;
+
+    /// One tag (from the image, or read on demand when nobody polls it).
+    fn tag(&self, line: &str, device: &str, tag: &str)
+        -> BoxFuture<'_, Result<TagValue, ApiError>>;
+
+    /// Writes one tag through to the device and answers with the value after the write;
+    /// `conflict` for a tag that is not writable.
+    fn write_tag(
+        &self,
+        line: &str,
+        device: &str,
+        tag: &str,
+        value: ScalarValue,
+    ) -> BoxFuture<'_, Result<TagValue, ApiError>>;
+
+    /// The RS232 signals of a line; `conflict` for a line without them (RS422/RS485).
+    fn signals(&self, line: &str) -> Result<Signals, ApiError>;
+
+    /// Sets DTR and/or RTS and answers with the signals after the change.
+    fn set_signals(
+        &self,
+        line: &str,
+        patch: SignalsPatch,
+    ) -> BoxFuture<'_, Result<Signals, ApiError>>;
+
+    /// What `/readyz` checks.
+    fn readiness(&self) -> Readiness;
+}

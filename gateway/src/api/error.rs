@@ -1,0 +1,485 @@
+//! Every error of the API as one JSON shape, and the one place where errors become responses.
+//!
+//! ```json
+//! {"error": {"code": "validation_failed", "message": "3 problems in the configuration",
+//!            "issues": [{"path": "lines.drive.baud", "message": "..."}]}}
+//! ```
+//!
+//! `code` is a stable snake_case word clients can match on; `message` is for people; `issues` is
+//! present only where a request had several problems (configuration validation, readiness).
+
+use axum::extract::rejection::{JsonRejection, PathRejection, QueryRejection};
+use axum::http::{header, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use crate::config::ConfigIssue;
+use crate::line::{CommandError, QueueError};
+use crate::tags::TagWriteError;
+use proto_core::modbus::pdu::ExceptionCode;
+
+/// The body of every error response.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+pub struct ErrorBody {
+    pub error: ErrorDetail,
+}
+
+/// What went wrong.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+pub struct ErrorDetail {
+    /// Stable, snake_case: `bad_request`, `unsupported_media_type`, `invalid_body`,
+    /// `unauthorized`, `forbidden`, `not_found`, `method_not_allowed`, `conflict`,
+    /// `precondition_failed`, `payload_too_large`, `validation_failed`, `device_exception`,
+    /// `busy`, `not_ready`, `device_timeout`, `timeout`, `persist_failed`, `internal`.
+    pub code: String,
+    /// For people; may change between versions.
+    pub message: String,
+    /// Every problem found, each with where it is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub issues: Option<Vec<Issue>>,
+}
+
+/// One problem with its place: a config key path (`lines.drive.baud`), or a component for
+/// readiness (`lines.drive`, `modbus_tcp`, `zenoh`).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+pub struct Issue {
+    /// Empty for a problem of the whole document (e.g. a syntax error).
+    pub path: String,
+    pub message: String,
+}
+
+impl From<ConfigIssue> for Issue {
+    fn from(i: ConfigIssue) -> Self {
+        Self {
+            path: i.path,
+            message: i.message,
+        }
+    }
+}
+
+/// An error answer: its status, its stable code and what to tell the client.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ApiError {
+    status: StatusCode,
+    code: &'static str,
+    message: String,
+    issues: Option<Vec<Issue>>,
+    /// `WWW-Authenticate` (RFC 6750 3) on a 401.
+    challenge: Option<&'static str>,
+    /// `Retry-After` in seconds on a 503.
+    retry_after: Option<u32>,
+}
+
+// === impl ApiError ===
+
+impl ApiError {
+    fn new(status: StatusCode, code: &'static str, message: impl Into<String>) -> Self {
+        Self {
+            status,
+            code,
+            message: message.into(),
+            issues: None,
+            challenge: None,
+            retry_after: None,
+        }
+    }
+
+    /// 400: a body that is not JSON, a path or query that does not parse.
+    pub fn bad_request(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::BAD_REQUEST, "bad_request", message)
+    }
+
+    /// 401 without `Authorization`; `challenge` is the `WWW-Authenticate` value.
+    pub fn unauthorized(message: impl Into<String>, challenge: &'static str) -> Self {
+        Self {
+            challenge: Some(challenge),
+            ..Self::new(StatusCode::UNAUTHORIZED, "unauthorized", message)
+        }
+    }
+
+    /// 403: the request is understood and authenticated (or cannot be) but not allowed.
+    pub fn forbidden(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::FORBIDDEN, "forbidden", message)
+    }
+
+    /// 404 for the `kind` (`line`, `device`, `tag`, ...) named `name`.
+    pub fn not_found(kind: &str, name: &str) -> Self {
+        Self::new(
+            StatusCode::NOT_FOUND,
+            "not_found",
+            format!("no {kind} {name:?}"),
+        )
+    }
+
+    /// 404 for a path no route serves.
+    pub fn no_route(path: &str) -> Self {
+        Self::new(
+            StatusCode::NOT_FOUND,
+            "not_found",
+            format!("no route {path}"),
+        )
+    }
+
+    /// 405.
+    pub fn method_not_allowed() -> Self {
+        Self::new(
+            StatusCode::METHOD_NOT_ALLOWED,
+            "method_not_allowed",
+            "method not allowed on this path",
+        )
+    }
+
+    /// 409: the request does not fit the current state (a telegram request on a line that has no
+    /// telegrams, an acknowledge of a telegram that is not the oldest).
+    pub fn conflict(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::CONFLICT, "conflict", message)
+    }
+
+    /// 412: `If-Match` names another version of the configuration.
+    pub fn precondition_failed(message: impl Into<String>) -> Self {
+        Self::new(
+            StatusCode::PRECONDITION_FAILED,
+            "precondition_failed",
+            message,
+        )
+    }
+
+    /// 413: the body is larger than `[http] body_limit`.
+    pub fn payload_too_large(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large", message)
+    }
+
+    /// 415: the body is not `application/json` (or TOML where TOML is accepted).
+    pub fn unsupported_media_type(message: impl Into<String>) -> Self {
+        Self::new(
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+            "unsupported_media_type",
+            message,
+        )
+    }
+
+    /// 422: well-formed JSON that is not what the endpoint takes.
+    pub fn invalid_body(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_body", message)
+    }
+
+    /// 422 with every problem of a configuration.
+    pub fn validation(issues: Vec<Issue>) -> Self {
+        let message = match issues.len() {
+            1 => "1 problem in the configuration".to_owned(),
+            n => format!("{n} problems in the configuration"),
+        };
+        Self {
+            issues: Some(issues),
+            ..Self::new(
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "validation_failed",
+                message,
+            )
+        }
+    }
+
+    /// 502: the device answered with a Modbus exception (`code` 01h..0Bh).
+    pub fn device_exception(code: u8, message: impl Into<String>) -> Self {
+        let message = format!("exception {code:02X}h: {}", message.into());
+        Self::new(StatusCode::BAD_GATEWAY, "device_exception", message)
+    }
+
+    /// 503: the line's queue is full or the line is restarting; try again shortly.
+    pub fn busy(message: impl Into<String>) -> Self {
+        Self {
+            retry_after: Some(1),
+            ..Self::new(StatusCode::SERVICE_UNAVAILABLE, "busy", message)
+        }
+    }
+
+    /// 503 from `/readyz`, each component that is not up as an issue.
+    pub fn not_ready(issues: Vec<Issue>) -> Self {
+        Self {
+            issues: Some(issues),
+            retry_after: Some(1),
+            ..Self::new(StatusCode::SERVICE_UNAVAILABLE, "not_ready", "not ready")
+        }
+    }
+
+    /// 504: the device did not answer within the line's reply monitoring and retries.
+    pub fn device_timeout(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::GATEWAY_TIMEOUT, "device_timeout", message)
+    }
+
+    /// 504: the request took longer than `[http] request_timeout`.
+    pub fn timeout(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::GATEWAY_TIMEOUT, "timeout", message)
+    }
+
+    /// 500: a valid configuration could not be written; nothing was applied.
+    pub fn persist_failed(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::INTERNAL_SERVER_ERROR, "persist_failed", message)
+    }
+
+    /// 500: a defect; the message is logged and kept short for the client.
+    pub fn internal(message: impl Into<String>) -> Self {
+        Self::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", message)
+    }
+
+    /// An error for a bare status that some layer produced without a body.
+    pub fn from_status(status: StatusCode) -> Self {
+        match status {
+            StatusCode::NOT_FOUND => Self::new(status, "not_found", "not found"),
+            StatusCode::METHOD_NOT_ALLOWED => Self::method_not_allowed(),
+            StatusCode::PAYLOAD_TOO_LARGE => Self::payload_too_large("request body too large"),
+            StatusCode::UNSUPPORTED_MEDIA_TYPE => {
+                Self::unsupported_media_type("expected Content-Type: application/json")
+            }
+            StatusCode::REQUEST_TIMEOUT | StatusCode::GATEWAY_TIMEOUT => {
+                Self::timeout("request timed out")
+            }
+            s if s.is_client_error() => Self::bad_request(reason(s)),
+            s => Self::new(s, "internal", reason(s)),
+        }
+    }
+
+    pub fn status(&self) -> StatusCode {
+        self.status
+    }
+
+    pub fn code(&self) -> &'static str {
+        self.code
+    }
+
+    pub fn message(&self) -> &str {
+        &self.message
+    }
+
+    pub fn issues(&self) -> &[Issue] {
+        self.issues.as_deref().unwrap_or_default()
+    }
+
+    /// The JSON body.
+    pub fn body(&self) -> ErrorBody {
+        ErrorBody {
+            error: ErrorDetail {
+                code: self.code.to_owned(),
+                message: self.message.clone(),
+                issues: self.issues.clone(),
+            },
+        }
+    }
+}
+
+fn reason(status: StatusCode) -> String {
+    status
+        .canonical_reason()
+        .unwrap_or("error")
+        .to_ascii_lowercase()
+}
+
+impl std::fmt::Display for ApiError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} {}: {}",
+            self.status.as_u16(),
+            self.code,
+            self.message
+        )
+    }
+}
+
+impl std::error::Error for ApiError {}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        if self.status.is_server_error() {
+            tracing::warn!(status = self.status.as_u16(), code = self.code, message = %self.message, "api error");
+        }
+        let mut response = (self.status, axum::Json(self.body())).into_response();
+        let headers = response.headers_mut();
+        if let Some(challenge) = self.challenge {
+            headers.insert(
+                header::WWW_AUTHENTICATE,
+                HeaderValue::from_static(challenge),
+            );
+        }
+        if let Some(secs) = self.retry_after {
+            headers.insert(header::RETRY_AFTER, HeaderValue::from(secs));
+        }
+        response
+    }
+}
+
+impl From<JsonRejection> for ApiError {
+    fn from(r: JsonRejection) -> Self {
+        match r {
+            JsonRejection::JsonSyntaxError(e) => Self::bad_request(e.body_text()),
+            JsonRejection::JsonDataError(e) => Self::invalid_body(e.body_text()),
+            JsonRejection::MissingJsonContentType(_) => {
+                Self::unsupported_media_type("expected Content-Type: application/json")
+            }
+            JsonRejection::BytesRejection(e) => body_error(e.status(), e.body_text()),
+            other => body_error(other.status(), other.body_text()),
+        }
+    }
+}
+
+impl From<PathRejection> for ApiError {
+    fn from(r: PathRejection) -> Self {
+        Self::bad_request(r.body_text())
+    }
+}
+
+impl From<QueryRejection> for ApiError {
+    fn from(r: QueryRejection) -> Self {
+        Self::bad_request(r.body_text())
+    }
+}
+
+/// What a device (or the gateway's own Modbus policy) answered: 504 when the target did not
+/// respond (0Bh), 503 when it is busy (06h), otherwise 502 with the code.
+impl From<ExceptionCode> for ApiError {
+    fn from(code: ExceptionCode) -> Self {
+        match code {
+            ExceptionCode::GatewayTargetFailedToRespond => {
+                Self::device_timeout("the device did not respond (exception 0Bh)")
+            }
+            ExceptionCode::ServerDeviceBusy => Self::busy("the device is busy (exception 06h)"),
+            other => Self::new(
+                StatusCode::BAD_GATEWAY,
+                "device_exception",
+                format!("the device answered exception {other}"),
+            ),
+        }
+    }
+}
+
+/// A command on a line that got no answer.
+impl From<CommandError> for ApiError {
+    fn from(e: CommandError) -> Self {
+        match e {
+            CommandError::NoReply { .. } | CommandError::Offline(_) => {
+                Self::device_timeout(e.to_string())
+            }
+            CommandError::PortClosed | CommandError::ShuttingDown => Self::busy(e.to_string()),
+            CommandError::Refused(_) => Self::invalid_body(e.to_string()),
+        }
+    }
+}
+
+/// A command that could not be queued: back-pressure is 503, never an unbounded wait.
+impl From<QueueError> for ApiError {
+    fn from(e: QueueError) -> Self {
+        Self::busy(e.to_string())
+    }
+}
+
+/// A tag write the directory or the device refused.
+impl From<TagWriteError> for ApiError {
+    fn from(e: TagWriteError) -> Self {
+        match e {
+            TagWriteError::UnknownTag(t) => Self::not_found("tag", &t),
+            TagWriteError::ReadOnly(_) => Self::conflict(e.to_string()),
+            TagWriteError::Value { .. } => Self::invalid_body(e.to_string()),
+            TagWriteError::Exception(code) => code.into(),
+        }
+    }
+}
+
+/// A failure to read the body: 413 when it is over the limit.
+pub(crate) fn body_error(status: StatusCode, text: String) -> ApiError {
+    if status == StatusCode::PAYLOAD_TOO_LARGE {
+        ApiError::payload_too_large(text)
+    } else {
+        ApiError::bad_request(text)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_json_shape_is_stable() {
+        let e = ApiError::validation(vec![Issue {
+            path: "lines.drive.baud".into(),
+            message: "bad".into(),
+        }]);
+        let v = serde_json::to_value(e.body()).unwrap();
+        assert_eq!(
+            v,
+            serde_json::json!({"error": {"code": "validation_failed",
+                "message": "1 problem in the configuration",
+                "issues": [{"path": "lines.drive.baud", "message": "bad"}]}})
+        );
+        let v = serde_json::to_value(ApiError::not_found("line", "x").body()).unwrap();
+        assert_eq!(
+            v,
+            serde_json::json!({"error": {"code": "not_found", "message": "no line \"x\""}})
+        );
+    }
+
+    #[test]
+    fn bare_statuses_get_a_code() {
+        for (status, code) in [
+            (StatusCode::NOT_FOUND, "not_found"),
+            (StatusCode::METHOD_NOT_ALLOWED, "method_not_allowed"),
+            (StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large"),
+            (StatusCode::REQUEST_TIMEOUT, "timeout"),
+            (StatusCode::IM_A_TEAPOT, "bad_request"),
+            (StatusCode::BAD_GATEWAY, "internal"),
+        ] {
+            let e = ApiError::from_status(status);
+            assert_eq!(e.code(), code, "{status}");
+        }
+    }
+
+    #[test]
+    fn device_answers_map_to_statuses() {
+        let e = ApiError::from(ExceptionCode::IllegalDataValue);
+        assert_eq!(
+            (e.status(), e.code()),
+            (StatusCode::BAD_GATEWAY, "device_exception")
+        );
+        assert_eq!(
+            e.message(),
+            "the device answered exception 03h (illegal data value)"
+        );
+        let e = ApiError::from(ExceptionCode::GatewayTargetFailedToRespond);
+        assert_eq!(e.code(), "device_timeout");
+        assert_eq!(
+            ApiError::from(ExceptionCode::ServerDeviceBusy).code(),
+            "busy"
+        );
+        assert_eq!(
+            ApiError::from(QueueError::Full).status(),
+            StatusCode::SERVICE_UNAVAILABLE
+        );
+        assert_eq!(
+            ApiError::from(CommandError::Offline(2)).code(),
+            "device_timeout"
+        );
+        assert_eq!(ApiError::from(CommandError::PortClosed).code(), "busy");
+        assert_eq!(
+            ApiError::from(TagWriteError::ReadOnly("eta".into())).code(),
+            "conflict"
+        );
+        assert_eq!(
+            ApiError::from(TagWriteError::UnknownTag("x".into())).code(),
+            "not_found"
+        );
+        let e = ApiError::from(TagWriteError::Exception(ExceptionCode::IllegalDataAddress));
+        assert_eq!(e.code(), "device_exception");
+    }
+
+    #[test]
+    fn challenges_and_retry_after_become_headers() {
+        let r = ApiError::unauthorized("no token", "Bearer realm=\"gateway\"").into_response();
+        assert_eq!(r.status(), StatusCode::UNAUTHORIZED);
+        assert_eq!(
+            r.headers().get(header::WWW_AUTHENTICATE).unwrap(),
+            "Bearer realm=\"gateway\""
+        );
+        let r = ApiError::busy("queue full").into_response();
+        assert_eq!(r.headers().get(header::RETRY_AFTER).unwrap(), "1");
+    }
+}

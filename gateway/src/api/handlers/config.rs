@@ -1,0 +1,314 @@
+//! `/api/v1/config`: read, replace and validate the configuration, or one line of it.
+//!
+//! A change is validated whole (the configuration's own rules, then the backend's), written to
+//! the configuration file atomically, and then applied; changes run one at a time. `If-Match`
+//! with the `ETag` of `GET /config` makes a change conditional on the version it was made from.
+//! A change keeps running when the client goes away or the request times out: a configuration
+//! is never half persisted or half applied because of the HTTP side.
+
+// utoipa's expansion of responses with `headers(...)` names the body types by their full path.
+#![allow(unused_qualifications)]
+
+use axum::body::Bytes;
+use axum::extract::{FromRequest, Request, State};
+use axum::http::{header, HeaderMap, HeaderValue};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use utoipa::openapi::schema::{ObjectBuilder, Schema, Type};
+use utoipa::openapi::RefOr;
+use utoipa::{PartialSchema, ToSchema};
+
+use super::ApiPath;
+use crate::api::body::{self, TOML_MEDIA_TYPE};
+use crate::api::error::{body_error, ApiError, ErrorBody, Issue};
+use crate::api::model::{ConfigChangeResult, ValidationResult};
+use crate::api::ApiState;
+use crate::config::Config;
+
+/// The configuration as JSON: the TOML file's tables and keys (see
+/// `deploy/gateway.example.toml`). Also accepted and returned as TOML (`application/toml`).
+pub(crate) struct ConfigDocument;
+
+impl PartialSchema for ConfigDocument {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::Object)
+            .description(Some(
+                "The gateway configuration: the TOML file's tables ([gateway], [modbus_tcp], \
+                 [lines.<name>] ...) as a JSON object. Keys left out take their defaults.",
+            ))
+            .into()
+    }
+}
+impl ToSchema for ConfigDocument {}
+
+/// One line's table `[lines.<name>]` as JSON (`port`, `protocol`, serial settings, the
+/// protocol's parameters, `devices`).
+pub(crate) struct LineDocument;
+
+impl PartialSchema for LineDocument {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::Object)
+            .description(Some(
+                "One line's table [lines.<name>] as a JSON object: port, protocol, serial \
+                 settings, the protocol's parameters and, for Modbus masters, devices.",
+            ))
+            .into()
+    }
+}
+impl ToSchema for LineDocument {}
+
+/// The request body as bytes; over the limit answers 413.
+pub(crate) struct ApiBytes(Bytes);
+
+impl<S: Send + Sync> FromRequest<S> for ApiBytes {
+    type Rejection = ApiError;
+
+    async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
+        Bytes::from_request(req, state)
+            .await
+            .map(Self)
+            .map_err(|e| body_error(e.status(), e.body_text()))
+    }
+}
+
+/// The whole configuration in force.
+#[utoipa::path(
+    get,
+    path = "/config",
+    tag = "config",
+    responses(
+        (status = 200, description = "The configuration (TOML with `Accept: application/toml`)",
+         body = ConfigDocument, headers(("ETag" = String, description = "The configuration's version"))),
+    )
+)]
+pub(crate) async fn get_config(State(state): State<ApiState>, headers: HeaderMap) -> Response {
+    let config = state.backend().config();
+    let etag = body::etag(&config);
+    let mut response = if body::wants_toml(&headers) {
+        match toml::to_string(&config) {
+            Ok(text) => ([(header::CONTENT_TYPE, TOML_MEDIA_TYPE)], text).into_response(),
+            Err(e) => return ApiError::internal(format!("cannot write TOML: {e}")).into_response(),
+        }
+    } else {
+        Json(&config).into_response()
+    };
+    set_etag(&mut response, &etag);
+    response
+}
+
+/// Replaces the whole configuration.
+#[utoipa::path(
+    put,
+    path = "/config",
+    tag = "config",
+    request_body(content(
+        (ConfigDocument = "application/json"),
+        (String = "application/toml")
+    )),
+    params(("If-Match" = Option<String>, Header, description = "Apply only if the configuration in force has this ETag")),
+    responses(
+        (status = 200, description = "Validated, persisted and applied", body = ConfigChangeResult,
+         headers(("ETag" = String, description = "The new configuration's version"))),
+        (status = 412, description = "If-Match does not name the configuration in force", body = ErrorBody),
+        (status = 422, description = "Every problem of the configuration, each with its path", body = ErrorBody),
+    )
+)]
+pub(crate) async fn put_config(
+    State(state): State<ApiState>,
+    headers: HeaderMap,
+    ApiBytes(bytes): ApiBytes,
+) -> Result<Response, ApiError> {
+    let new = body::config(body::content_format(&headers)?, &bytes)?;
+    change(state, &headers, move |_| Ok(new)).await
+}
+
+/// Validates a configuration without applying it.
+#[utoipa::path(
+    post,
+    path = "/config/validate",
+    tag = "config",
+    request_body(content(
+        (ConfigDocument = "application/json"),
+        (String = "application/toml")
+    )),
+    responses(
+        (status = 200, description = "The configuration is valid", body = ValidationResult),
+        (status = 422, description = "Every problem of the configuration, each with its path", body = ErrorBody),
+    )
+)]
+pub(crate) async fn validate_config(
+    State(state): State<ApiState>,
+    headers: HeaderMap,
+    ApiBytes(bytes): ApiBytes,
+) -> Result<Json<ValidationResult>, ApiError> {
+    let config = body::config(body::content_format(&headers)?, &bytes)?;
+    state.backend().validate(&config).map_err(backend_issues)?;
+    Ok(Json(ValidationResult {
+        valid: true,
+        lines: config.lines.len(),
+        devices: config.device_count(),
+    }))
+}
+
+/// One line's configuration.
+#[utoipa::path(
+    get,
+    path = "/config/lines/{line}",
+    tag = "config",
+    params(("line" = String, Path, description = "The line's name")),
+    responses(
+        (status = 200, description = "The line's table", body = LineDocument,
+         headers(("ETag" = String, description = "The whole configuration's version"))),
+        (status = 404, description = "No such line", body = ErrorBody),
+    )
+)]
+pub(crate) async fn get_line_config(
+    State(state): State<ApiState>,
+    ApiPath(line): ApiPath<String>,
+) -> Result<Response, ApiError> {
+    let config = state.backend().config();
+    let table = config
+        .lines
+        .get(&line)
+        .ok_or_else(|| ApiError::not_found("line", &line))?;
+    let mut response = Json(table).into_response();
+    set_etag(&mut response, &body::etag(&config));
+    Ok(response)
+}
+
+/// Replaces (or adds) one line; the other lines keep running untouched.
+#[utoipa::path(
+    put,
+    path = "/config/lines/{line}",
+    tag = "config",
+    params(
+        ("line" = String, Path, description = "The line's name"),
+        ("If-Match" = Option<String>, Header, description = "Apply only if the configuration in force has this ETag"),
+    ),
+    request_body(content(
+        (LineDocument = "application/json"),
+        (String = "application/toml")
+    )),
+    responses(
+        (status = 200, description = "Validated, persisted and applied", body = ConfigChangeResult,
+         headers(("ETag" = String, description = "The new configuration's version"))),
+        (status = 412, description = "If-Match does not name the configuration in force", body = ErrorBody),
+        (status = 422, description = "Every problem, with paths under lines.<line>", body = ErrorBody),
+    )
+)]
+pub(crate) async fn put_line_config(
+    State(state): State<ApiState>,
+    ApiPath(line): ApiPath<String>,
+    headers: HeaderMap,
+    ApiBytes(bytes): ApiBytes,
+) -> Result<Response, ApiError> {
+    let table = body::table(body::content_format(&headers)?, &bytes)?;
+    change(state, &headers, move |current| {
+        let mut root = body::to_table(current)?;
+        let lines = root
+            .entry("lines")
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        if let toml::Value::Table(lines) = lines {
+            lines.insert(line, toml::Value::Table(table));
+        }
+        Config::from_table(&root).map_err(body::validation)
+    })
+    .await
+}
+
+/// Removes one line and stops it.
+#[utoipa::path(
+    delete,
+    path = "/config/lines/{line}",
+    tag = "config",
+    params(
+        ("line" = String, Path, description = "The line's name"),
+        ("If-Match" = Option<String>, Header, description = "Apply only if the configuration in force has this ETag"),
+    ),
+    responses(
+        (status = 200, description = "Persisted and applied", body = ConfigChangeResult,
+         headers(("ETag" = String, description = "The new configuration's version"))),
+        (status = 404, description = "No such line", body = ErrorBody),
+        (status = 412, description = "If-Match does not name the configuration in force", body = ErrorBody),
+        (status = 422, description = "The configuration without the line is not valid", body = ErrorBody),
+    )
+)]
+pub(crate) async fn delete_line_config(
+    State(state): State<ApiState>,
+    ApiPath(line): ApiPath<String>,
+    headers: HeaderMap,
+) -> Result<Response, ApiError> {
+    change(state, &headers, move |current| {
+        let mut new = current.clone();
+        if new.lines.remove(&line).is_none() {
+            return Err(ApiError::not_found("line", &line));
+        }
+        // Rules across lines (unit ids, ports) still hold after a removal, but run them anyway.
+        new.check().map_err(body::validation)?;
+        Ok(new)
+    })
+    .await
+}
+
+/// Runs a change to completion in its own task: lock, `If-Match`, edit, validate, persist,
+/// apply. The task goes on if the request is dropped (timeout, client gone).
+async fn change<F>(state: ApiState, headers: &HeaderMap, edit: F) -> Result<Response, ApiError>
+where
+    F: FnOnce(&Config) -> Result<Config, ApiError> + Send + 'static,
+{
+    let if_match = headers.clone();
+    let task = tokio::spawn(async move {
+        let _one_at_a_time = state.change_lock().lock().await;
+        let backend = state.backend();
+        let current = backend.config();
+        if !body::if_match_admits(&if_match, &body::etag(&current)) {
+            return Err(ApiError::precondition_failed(
+                "the configuration changed since it was read (If-Match)",
+            ));
+        }
+        let new = edit(&current)?;
+        backend.validate(&new).map_err(backend_issues)?;
+        let etag = body::etag(&new);
+        let persisted = state.store().is_some();
+        if new == current {
+            return Ok(ConfigChangeResult {
+                etag,
+                persisted,
+                applied: Default::default(),
+            });
+        }
+        if let Some(store) = state.store() {
+            let to_save = new.clone();
+            tokio::task::spawn_blocking(move || store.save(&to_save))
+                .await
+                .map_err(|e| ApiError::internal(format!("the save task failed: {e}")))?
+                .map_err(|e| ApiError::persist_failed(format!("not applied: {e}")))?;
+            tracing::info!(file = %state.store().map(|s| s.path().display().to_string()).unwrap_or_default(), %etag, "configuration saved");
+        }
+        let applied = backend.apply(new).await?;
+        tracing::info!(%etag, ?applied, "configuration applied");
+        Ok(ConfigChangeResult {
+            etag,
+            persisted,
+            applied,
+        })
+    });
+    let result = task
+        .await
+        .map_err(|e| ApiError::internal(format!("the change task failed: {e}")))??;
+    let mut response = Json(&result).into_response();
+    set_etag(&mut response, &result.etag);
+    Ok(response)
+}
+
+fn backend_issues(issues: Vec<crate::config::ConfigIssue>) -> ApiError {
+    ApiError::validation(issues.into_iter().map(Issue::from).collect())
+}
+
+fn set_etag(response: &mut Response, etag: &str) {
+    if let Ok(v) = HeaderValue::from_str(etag) {
+        response.headers_mut().insert(header::ETAG, v);
+    }
+}

@@ -1,0 +1,286 @@
+//! The REST API (axum, JSON) under `/api/v1`, with `/healthz`, `/readyz` and the OpenAPI document
+//! at `/api/v1/openapi.json`.
+//!
+//! ```text
+//! GET    /healthz                                        alive
+//! GET    /readyz                                         ready (lines opened, Modbus TCP, zenoh)
+//! GET    /api/v1/openapi.json                            this API, generated from the code
+//! GET    /api/v1/status                                  the gateway and every line
+//! GET    /api/v1/config                                  the configuration (ETag; TOML on Accept)
+//! PUT    /api/v1/config                                  replace it: validate, persist, apply
+//! POST   /api/v1/config/validate                         validate without applying
+//! GET    /api/v1/config/lines/{line}                     one line's table
+//! PUT    /api/v1/config/lines/{line}                     replace or add one line
+//! DELETE /api/v1/config/lines/{line}                     remove one line
+//! GET    /api/v1/lines                                   every line's status
+//! GET    /api/v1/lines/{line}                            one line's status
+//! GET    /api/v1/lines/{line}/diag                       diagnostic buffer, newest first
+//! DELETE /api/v1/lines/{line}/diag                       clear it
+//! GET    /api/v1/lines/{line}/telegrams                  received telegrams, oldest first
+//! POST   /api/v1/lines/{line}/telegrams/{seq}/ack        acknowledge the oldest
+//! POST   /api/v1/lines/{line}/send                       send a telegram
+//! GET    /api/v1/lines/{line}/signals                    RS232 signals
+//! PUT    /api/v1/lines/{line}/signals                    set DTR / RTS
+//! GET    /api/v1/tags?line=&device=                      tag values
+//! GET    /api/v1/lines/{line}/devices/{device}/tags      one device's tags
+//! GET    /api/v1/lines/{line}/devices/{device}/tags/{tag}  one tag
+//! PUT    /api/v1/lines/{line}/devices/{device}/tags/{tag}  write it through to the device
+//! ```
+//!
+//! [`serve`] runs the accept loop (connection limit, header read timeout, graceful stop).
+//! Layers, outermost first: a panic becomes a 500 in the error shape; any error answer some
+//! layer made without a JSON body gets one ([`error`]); the request timeout (504); the bearer
+//! token check for changes ([`auth`]); the body limit (413). The service implements
+//! [`ApiBackend`]; [`router`] turns it into an `axum::Router`.
+
+pub mod auth;
+pub mod backend;
+mod body;
+pub mod config;
+pub mod diff;
+pub mod error;
+mod handlers;
+pub mod model;
+mod openapi;
+mod server;
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::extract::{DefaultBodyLimit, Request, State};
+use axum::http::{header, HeaderValue, StatusCode, Uri};
+use axum::middleware::{self, Next};
+use axum::response::{IntoResponse, Response};
+use axum::{Extension, Router};
+use tower_http::catch_panic::CatchPanicLayer;
+use utoipa::OpenApi as _;
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+
+pub use auth::{Auth, AuthMode, Token, TokenError};
+pub use backend::{ApiBackend, BoxFuture};
+pub use body::{etag, TOML_MEDIA_TYPE};
+pub use config::HttpConfig;
+pub use diff::ConfigDiff;
+pub use error::{ApiError, ErrorBody, ErrorDetail, Issue};
+pub use server::{serve, DEFAULT_HEADER_READ_TIMEOUT, DEFAULT_MAX_CONNECTIONS};
+
+use crate::persist::ConfigStore;
+
+/// The prefix of the versioned API.
+pub const API_PREFIX: &str = "/api/v1";
+
+/// What the handlers share: the gateway, the auth policy, the config file, the limits.
+#[derive(Clone)]
+pub struct ApiState {
+    backend: Arc<dyn ApiBackend>,
+    auth: Arc<Auth>,
+    store: Option<Arc<ConfigStore>>,
+    body_limit: usize,
+    request_timeout: Duration,
+    /// Connections served at once.
+    max_connections: usize,
+    /// Longest wait for a request head.
+    header_read_timeout: Duration,
+    /// Configuration changes run one at a time.
+    change_lock: Arc<tokio::sync::Mutex<()>>,
+}
+
+impl std::fmt::Debug for ApiState {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ApiState")
+            .field("auth", &self.auth.mode())
+            .field(
+                "store",
+                &self.store.as_ref().map(|s| s.path().to_path_buf()),
+            )
+            .field("body_limit", &self.body_limit)
+            .field("request_timeout", &self.request_timeout)
+            .field("max_connections", &self.max_connections)
+            .finish_non_exhaustive()
+    }
+}
+
+// === impl ApiState ===
+
+impl ApiState {
+    /// The API over `backend` with `auth`, the default limits and no configuration file.
+    pub fn new(backend: Arc<dyn ApiBackend>, auth: Auth) -> Self {
+        Self {
+            backend,
+            auth: Arc::new(auth),
+            store: None,
+            body_limit: usize::try_from(config::DEFAULT_BODY_LIMIT).unwrap_or(usize::MAX),
+            request_timeout: config::DEFAULT_HTTP_REQUEST_TIMEOUT,
+            max_connections: DEFAULT_MAX_CONNECTIONS as usize,
+            header_read_timeout: DEFAULT_HEADER_READ_TIMEOUT,
+            change_lock: Arc::default(),
+        }
+    }
+
+    /// The API as `[http]` says: the token from its file or variable, the limits; changes are
+    /// written to `store` when there is one.
+    pub fn from_config(
+        backend: Arc<dyn ApiBackend>,
+        http: &HttpConfig,
+        store: Option<ConfigStore>,
+    ) -> Result<Self, TokenError> {
+        let state = Self::new(backend, Auth::from_config(http)?)
+            .with_limits(http.body_limit, http.request_timeout)
+            .with_connections(http.max_connections, DEFAULT_HEADER_READ_TIMEOUT);
+        Ok(match store {
+            Some(s) => state.with_store(s),
+            None => state,
+        })
+    }
+
+    /// Accepted changes are written to `store` before they are applied.
+    pub fn with_store(mut self, store: ConfigStore) -> Self {
+        self.store = Some(Arc::new(store));
+        self
+    }
+
+    /// The largest body (bytes) and the longest time of a request.
+    pub fn with_limits(mut self, body_limit: u64, request_timeout: Duration) -> Self {
+        self.body_limit = usize::try_from(body_limit).unwrap_or(usize::MAX);
+        self.request_timeout = request_timeout;
+        self
+    }
+
+    /// The most connections served at once (at least 1) and the longest wait for a request head.
+    pub fn with_connections(mut self, max_connections: u32, header_read_timeout: Duration) -> Self {
+        self.max_connections = usize::try_from(max_connections.max(1)).unwrap_or(usize::MAX);
+        self.header_read_timeout = header_read_timeout;
+        self
+    }
+
+    pub(crate) fn backend(&self) -> &Arc<dyn ApiBackend> {
+        &self.backend
+    }
+
+    pub(crate) fn auth(&self) -> &Auth {
+        &self.auth
+    }
+
+    pub(crate) fn store(&self) -> Option<Arc<ConfigStore>> {
+        self.store.clone()
+    }
+
+    pub(crate) fn change_lock(&self) -> &tokio::sync::Mutex<()> {
+        &self.change_lock
+    }
+}
+
+/// Every route with its OpenAPI operation.
+fn routes() -> OpenApiRouter<ApiState> {
+    use handlers::{config as c, health as h, lines as l, tags as t};
+    let v1 = OpenApiRouter::new()
+        .routes(routes!(h::openapi_json))
+        .routes(routes!(h::gateway_status))
+        .routes(routes!(c::get_config, c::put_config))
+        .routes(routes!(c::validate_config))
+        .routes(routes!(
+            c::get_line_config,
+            c::put_line_config,
+            c::delete_line_config
+        ))
+        .routes(routes!(l::list_lines))
+        .routes(routes!(l::get_line))
+        .routes(routes!(l::get_diag, l::clear_diag))
+        .routes(routes!(l::get_telegrams))
+        .routes(routes!(l::ack_telegram))
+        .routes(routes!(l::send_telegram))
+        .routes(routes!(l::get_signals, l::set_signals))
+        .routes(routes!(t::list_tags))
+        .routes(routes!(t::device_tags))
+        .routes(routes!(t::get_tag, t::put_tag));
+    OpenApiRouter::with_openapi(openapi::ApiDoc::openapi())
+        .routes(routes!(h::healthz))
+        .routes(routes!(h::readyz))
+        .nest(API_PREFIX, v1)
+}
+
+/// The OpenAPI document of [`router`] (e.g. to write it to a file).
+pub fn openapi() -> utoipa::openapi::OpenApi {
+    openapi::finish(routes().into_openapi())
+}
+
+/// The API as a router, ready for `axum::serve`.
+pub fn router(state: ApiState) -> Router {
+    let (routes, doc) = routes().split_for_parts();
+    let doc = openapi::finish(doc);
+    let doc_json = doc.to_json().unwrap_or_else(|e| {
+        // The document is built from our own types; failing to render it is a defect.
+        tracing::error!(error = %e, "cannot render the OpenAPI document");
+        "{}".to_owned()
+    });
+    routes
+        .fallback(no_route)
+        .method_not_allowed_fallback(method_not_allowed)
+        .layer(Extension(handlers::health::OpenApiJson(Arc::new(doc_json))))
+        .layer(DefaultBodyLimit::max(state.body_limit))
+        .layer(middleware::from_fn_with_state(
+            state.clone(),
+            auth::require_auth,
+        ))
+        .layer(middleware::from_fn_with_state(state.clone(), timeout))
+        .layer(middleware::from_fn(json_errors))
+        .layer(CatchPanicLayer::custom(panic_response))
+        .with_state(state)
+}
+
+async fn no_route(uri: Uri) -> ApiError {
+    ApiError::no_route(uri.path())
+}
+
+async fn method_not_allowed() -> ApiError {
+    ApiError::method_not_allowed()
+}
+
+/// 504 when the handler takes longer than the request timeout. Configuration changes run in
+/// their own task and complete anyway.
+async fn timeout(State(state): State<ApiState>, req: Request, next: Next) -> Response {
+    match tokio::time::timeout(state.request_timeout, next.run(req)).await {
+        Ok(response) => response,
+        Err(_) => ApiError::timeout(format!(
+            "no answer within {}",
+            humantime::format_duration(state.request_timeout)
+        ))
+        .into_response(),
+    }
+}
+
+/// Gives an error answer that has no JSON body (from axum or a layer) the API's error shape.
+async fn json_errors(req: Request, next: Next) -> Response {
+    let response = next.run(req).await;
+    let status = response.status();
+    let is_json = response
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .is_some_and(|v| v.as_bytes().starts_with(b"application/json"));
+    if !(status.is_client_error() || status.is_server_error()) || is_json {
+        return response;
+    }
+    let (parts, _) = response.into_parts();
+    let mut fixed = ApiError::from_status(status).into_response();
+    for name in [header::ALLOW, header::WWW_AUTHENTICATE, header::RETRY_AFTER] {
+        if let Some(v) = parts.headers.get(&name) {
+            fixed.headers_mut().insert(name, v.clone());
+        }
+    }
+    fixed
+}
+
+fn panic_response(panic: Box<dyn std::any::Any + Send + 'static>) -> Response {
+    let what = panic
+        .downcast_ref::<&str>()
+        .map(|s| (*s).to_owned())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_default();
+    tracing::error!(panic = %what, "a request handler panicked");
+    let mut r = ApiError::internal("internal error").into_response();
+    r.headers_mut()
+        .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
+    *r.status_mut() = StatusCode::INTERNAL_SERVER_ERROR;
+    r
+}

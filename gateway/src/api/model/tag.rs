@@ -1,0 +1,220 @@
+//! Tags (named device values) and the RS232 signals of a line.
+
+use serde::{Deserialize, Serialize};
+use utoipa::{IntoParams, ToSchema};
+
+use super::Timestamp;
+use crate::image::Quality;
+use crate::tags::TagReading;
+
+/// A value: a number or a bit.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(untagged)]
+pub enum ScalarValue {
+    Bool(bool),
+    Int(i64),
+    Float(f64),
+}
+
+// === impl ScalarValue ===
+
+impl ScalarValue {
+    /// The value as a number (a bit as 0 or 1).
+    pub fn as_f64(self) -> f64 {
+        match self {
+            Self::Bool(b) => f64::from(u8::from(b)),
+            // Tags are at most 32 bits wide; the conversion is exact there.
+            #[allow(clippy::cast_precision_loss)]
+            Self::Int(i) => i as f64,
+            Self::Float(f) => f,
+        }
+    }
+}
+
+/// How far a value can be trusted (SPEC "Polling"; the KS vario's special values).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum TagQuality {
+    Good,
+    /// Not refreshed within its poll period.
+    Stale,
+    /// The device reports the value as not defined (KS vario 31000 / 1.5E37, Altivar 8000h).
+    NotDefined,
+    /// The device reports the function as off (KS vario 32000).
+    Off,
+    /// The device reports the value as out of range (KS vario 8000h).
+    OutOfRange,
+    /// The device answered the poll of the value with an exception.
+    Rejected,
+    /// The device does not answer.
+    CommFailure,
+    /// Never read.
+    Unknown,
+}
+
+// === impl TagQuality ===
+
+impl TagQuality {
+    /// The quality named `name` (the image's [`Quality::as_str`] names); `Unknown` otherwise.
+    pub fn from_name(name: &str) -> Self {
+        match name {
+            "good" => Self::Good,
+            "stale" => Self::Stale,
+            "not_defined" => Self::NotDefined,
+            "off" => Self::Off,
+            "out_of_range" => Self::OutOfRange,
+            "rejected" => Self::Rejected,
+            "comm_failure" => Self::CommFailure,
+            _ => Self::Unknown,
+        }
+    }
+}
+
+impl From<Quality> for TagQuality {
+    fn from(q: Quality) -> Self {
+        match q {
+            Quality::Good => Self::Good,
+            Quality::OutOfRange => Self::OutOfRange,
+            Quality::Off => Self::Off,
+            Quality::NotDefined => Self::NotDefined,
+            Quality::Rejected => Self::Rejected,
+            Quality::Stale => Self::Stale,
+            Quality::CommFailure => Self::CommFailure,
+        }
+    }
+}
+
+impl From<proto_core::profiles::Value> for ScalarValue {
+    fn from(v: proto_core::profiles::Value) -> Self {
+        use proto_core::profiles::Value;
+        match v {
+            Value::Int(i) => Self::Int(i),
+            Value::Float(f) => Self::Float(f),
+            Value::Bool(b) => Self::Bool(b),
+        }
+    }
+}
+
+// === impl TagValue ===
+
+impl TagValue {
+    /// The value of `line/device/tag` from a reading of the tag directory; a value that is not
+    /// live (stale, rejected, comm failure) is still shown, with its quality saying so.
+    pub fn from_reading(
+        line: &str,
+        device: &str,
+        tag: &str,
+        writable: bool,
+        reading: TagReading,
+    ) -> Self {
+        Self {
+            line: line.to_owned(),
+            device: device.to_owned(),
+            tag: tag.to_owned(),
+            value: Some(reading.value.into()),
+            unit: reading.unit,
+            quality: TagQuality::from_name(reading.quality),
+            timestamp: Some(Timestamp(reading.timestamp)),
+            writable,
+        }
+    }
+}
+
+/// One tag's value.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct TagValue {
+    pub line: String,
+    pub device: String,
+    pub tag: String,
+    /// Scaled value; null when there is none (never read, or a special value).
+    pub value: Option<ScalarValue>,
+    /// Engineering unit (`Hz`, `%`, `°C`), empty when none.
+    pub unit: String,
+    pub quality: TagQuality,
+    /// When the value was read from the device.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub timestamp: Option<Timestamp>,
+    /// Whether `PUT` may write it.
+    pub writable: bool,
+}
+
+/// The body of a tag write.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct TagWrite {
+    /// In the tag's engineering unit; the gateway scales and encodes it.
+    pub value: ScalarValue,
+}
+
+/// Filters of `GET /api/v1/tags`.
+#[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize, IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+pub struct TagQuery {
+    /// Only the tags of this line.
+    pub line: Option<String>,
+    /// Only the tags of devices of this name.
+    pub device: Option<String>,
+}
+
+/// The RS232 signals of a line (000 5.4: DTR, DSR, RTS, CTS, DCD, RI).
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+pub struct Signals {
+    /// Data terminal ready (output).
+    pub dtr: bool,
+    /// Request to send (output).
+    pub rts: bool,
+    /// Data set ready (input).
+    pub dsr: bool,
+    /// Clear to send (input).
+    pub cts: bool,
+    /// Data carrier detect (input).
+    pub dcd: bool,
+    /// Ring indicator (input).
+    pub ri: bool,
+}
+
+/// Outputs to set; an absent one is left as it is. The inputs cannot be set.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct SignalsPatch {
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dtr: Option<bool>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rts: Option<bool>,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn scalar_values_read_as_bits_integers_or_floats() {
+        let v: TagWrite = serde_json::from_str(r#"{"value": 5}"#).unwrap();
+        assert_eq!(v.value, ScalarValue::Int(5));
+        let v: TagWrite = serde_json::from_str(r#"{"value": 5.5}"#).unwrap();
+        assert_eq!(v.value, ScalarValue::Float(5.5));
+        let v: TagWrite = serde_json::from_str(r#"{"value": true}"#).unwrap();
+        assert_eq!(v.value.as_f64(), 1.0);
+        assert!(serde_json::from_str::<TagWrite>(r#"{"value": "5"}"#).is_err());
+        assert!(serde_json::from_str::<SignalsPatch>(r#"{"dsr": true}"#).is_err());
+    }
+
+    #[test]
+    fn image_qualities_keep_their_names() {
+        for q in [
+            Quality::Good,
+            Quality::OutOfRange,
+            Quality::Off,
+            Quality::NotDefined,
+            Quality::Rejected,
+            Quality::Stale,
+            Quality::CommFailure,
+        ] {
+            let t = TagQuality::from(q);
+            assert_eq!(TagQuality::from_name(q.as_str()), t);
+            assert_eq!(serde_json::to_value(t).unwrap(), q.as_str());
+        }
+        assert_eq!(TagQuality::from_name("bogus"), TagQuality::Unknown);
+    }
+}

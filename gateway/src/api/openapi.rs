@@ -1,0 +1,120 @@
+//! The OpenAPI document, generated from the handlers' `#[utoipa::path]` attributes and the
+//! models' `ToSchema` derives as the router is built ([`super::routes`]), so the document lists
+//! exactly the routes the router serves.
+//!
+//! A modifier adds what every operation shares and the middleware guarantees: the bearer
+//! security scheme and the 401/403 answers on every change, 413/415 on every body, and the
+//! timeout and internal-error answers everywhere, all in the one error shape.
+
+use utoipa::openapi::path::{Operation, PathItem};
+use utoipa::openapi::response::ResponseBuilder;
+use utoipa::openapi::security::{Http, HttpAuthScheme, SecurityRequirement, SecurityScheme};
+use utoipa::openapi::{ContentBuilder, OpenApi as OpenApiDoc, Ref, RefOr};
+use utoipa::{Modify, OpenApi};
+
+use super::error::{ErrorBody, ErrorDetail, Issue};
+use super::handlers::BEARER;
+
+/// The document's fixed part; the paths come from the router.
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "CP 341 gateway",
+        description = "Configuration, status, diagnostics, telegrams, tags and RS232 signals of the \
+                       serial gateway. Changes (PUT, POST, DELETE) need `Authorization: Bearer <token>`. \
+                       Every error answers `{\"error\": {\"code\", \"message\", \"issues\"?}}`."
+    ),
+    components(schemas(ErrorBody, ErrorDetail, Issue)),
+    tags(
+        (name = "config", description = "Read, replace and validate the configuration"),
+        (name = "status", description = "The gateway"),
+        (name = "lines", description = "Line status, diagnostic buffer, RS232 signals"),
+        (name = "telegrams", description = "Received telegrams and sending (ASCII, 3964(R))"),
+        (name = "tags", description = "Device values by name"),
+        (name = "health", description = "Liveness and readiness"),
+        (name = "meta", description = "This document"),
+    ),
+    modifiers(&CommonAnswers)
+)]
+pub(crate) struct ApiDoc;
+
+/// Adds the bearer scheme and the answers every operation shares.
+struct CommonAnswers;
+
+impl Modify for CommonAnswers {
+    fn modify(&self, doc: &mut OpenApiDoc) {
+        doc.components
+            .get_or_insert_with(Default::default)
+            .add_security_scheme(
+                BEARER,
+                SecurityScheme::Http(Http::new(HttpAuthScheme::Bearer)),
+            );
+    }
+}
+
+/// Completes the document once every route is in it (the derive's modifiers run before the
+/// router adds its paths).
+pub(crate) fn finish(mut doc: OpenApiDoc) -> OpenApiDoc {
+    for item in doc.paths.paths.values_mut() {
+        for (changes, op) in operations(item) {
+            common_answers(op, changes);
+        }
+    }
+    doc
+}
+
+fn operations(item: &mut PathItem) -> Vec<(bool, &mut Operation)> {
+    let mut ops = Vec::new();
+    for (changes, op) in [
+        (false, &mut item.get),
+        (false, &mut item.head),
+        (true, &mut item.put),
+        (true, &mut item.post),
+        (true, &mut item.delete),
+        (true, &mut item.patch),
+    ] {
+        if let Some(op) = op.as_mut() {
+            ops.push((changes, op));
+        }
+    }
+    ops
+}
+
+fn common_answers(op: &mut Operation, changes: bool) {
+    let mut add = |status: &str, description: &str| {
+        op.responses
+            .responses
+            .entry(status.to_owned())
+            .or_insert_with(|| error_response(description));
+    };
+    if changes {
+        add(
+            "401",
+            "No token, another scheme, or a wrong token (WWW-Authenticate says which)",
+        );
+        add("403", "Changes are disabled: no token is configured");
+    }
+    if op.request_body.is_some() {
+        add("400", "The body is not JSON (or TOML)");
+        add("413", "The body is larger than [http] body_limit");
+        add("415", "The body's Content-Type is not accepted");
+    }
+    add("500", "An internal error");
+    add("504", "The request took longer than [http] request_timeout");
+    if changes {
+        op.security = Some(vec![SecurityRequirement::new(BEARER, Vec::<String>::new())]);
+    }
+}
+
+fn error_response(description: &str) -> RefOr<utoipa::openapi::Response> {
+    ResponseBuilder::new()
+        .description(description)
+        .content(
+            "application/json",
+            ContentBuilder::new()
+                .schema(Some(Ref::from_schema_name("ErrorBody")))
+                .build(),
+        )
+        .build()
+        .into()
+}

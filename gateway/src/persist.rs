@@ -1,0 +1,188 @@
+//! The configuration file on disk, replaced atomically.
+//!
+//! A change made over the REST API is written so that a crash (power loss, `SIGKILL`) at any
+//! moment leaves at `path` either the complete previous file or the complete new one, never a
+//! mixture or an empty file:
+//!
+//! 1. the new text goes to a temporary file in the same directory (`.<name>.tmp`), which is
+//!    flushed to the disk (`fsync`);
+//! 2. the current file is linked (or, where links are refused, copied and flushed) to
+//!    `.<name>.prev.tmp` and renamed over `<name>.prev`, so the previous version stays at hand;
+//! 3. the temporary file is renamed over `path` (`rename(2)` replaces the name atomically);
+//! 4. the directory is flushed, so that the renames themselves survive a power loss.
+//!
+//! A crash between steps 2 and 3 leaves `<name>.prev` equal to the current file; it is never
+//! newer than it.
+//!
+//! Only one writer may save at a time: [`ConfigStore::save_atomic`] holds an in-process lock, and
+//! the gateway is the only process that writes its configuration. A temporary file left by a
+//! crash is overwritten by the next save and never read.
+
+use std::fs::{self, File, OpenOptions};
+use std::io::{self, Write};
+use std::path::{Path, PathBuf};
+use std::sync::{Mutex, PoisonError};
+
+use crate::config::{self, Config, ConfigErrors};
+
+/// Where the running configuration is kept.
+#[derive(Debug)]
+pub struct ConfigStore {
+    /// The configuration file.
+    path: PathBuf,
+    /// Serializes the writers of this store.
+    write_lock: Mutex<()>,
+}
+
+/// What failed while saving; the file at the store's path is unchanged unless the error says the
+/// new file is in place.
+#[derive(Debug, thiserror::Error)]
+pub enum PersistError {
+    #[error("cannot serialize the configuration: {0}")]
+    Serialize(String),
+    #[error("{step} {}: {source}", path.display())]
+    Io {
+        /// What was being done.
+        step: &'static str,
+        /// The file concerned.
+        path: PathBuf,
+        source: io::Error,
+    },
+}
+
+// === impl ConfigStore ===
+
+impl ConfigStore {
+    /// A store for the file at `path` (which need not exist yet).
+    pub fn new(path: impl Into<PathBuf>) -> Self {
+        Self {
+            path: path.into(),
+            write_lock: Mutex::new(()),
+        }
+    }
+
+    /// The configuration file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Where the version before the last save is kept: `<file>.prev`.
+    pub fn previous_path(&self) -> PathBuf {
+        sibling(&self.path, "", ".prev")
+    }
+
+    /// Reads, parses and validates the configuration file.
+    pub fn load(&self) -> Result<Config, ConfigErrors> {
+        config::load(&self.path)
+    }
+
+    /// Reads, parses and validates the version before the last save.
+    pub fn load_previous(&self) -> Result<Config, ConfigErrors> {
+        config::load(&self.previous_path())
+    }
+
+    /// Writes `config` as TOML in place of the file (see the module documentation).
+    pub fn save(&self, config: &Config) -> Result<(), PersistError> {
+        let text = toml::to_string(config).map_err(|e| PersistError::Serialize(e.to_string()))?;
+        self.save_atomic(&text)
+    }
+
+    /// Writes `text` in place of the file, keeping the current file as `<file>.prev`.
+    pub fn save_atomic(&self, text: &str) -> Result<(), PersistError> {
+        let _guard = self
+            .write_lock
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let dir = parent_dir(&self.path);
+        let tmp = sibling(&self.path, ".", ".tmp");
+        write_synced(&tmp, text.as_bytes(), permissions_of(&self.path))?;
+        if self.path.exists() {
+            self.keep_previous()?;
+        }
+        fs::rename(&tmp, &self.path).map_err(io_err("cannot rename over", &self.path))?;
+        sync_dir(&dir)
+    }
+
+    /// Puts the current file at `<file>.prev` without a moment where `.prev` is incomplete.
+    fn keep_previous(&self) -> Result<(), PersistError> {
+        let prev = self.previous_path();
+        let prev_tmp = sibling(&self.path, ".", ".prev.tmp");
+        match fs::remove_file(&prev_tmp) {
+            Ok(()) => {}
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+            Err(e) => return Err(io_err("cannot remove", &prev_tmp)(e)),
+        }
+        if fs::hard_link(&self.path, &prev_tmp).is_err() {
+            // A file system without hard links: a copy, flushed before it takes the name.
+            let text = fs::read(&self.path).map_err(io_err("cannot read", &self.path))?;
+            write_synced(&prev_tmp, &text, permissions_of(&self.path))?;
+        }
+        fs::rename(&prev_tmp, &prev).map_err(io_err("cannot rename over", &prev))
+    }
+}
+
+/// `<dir>/<prefix><file name><suffix>`.
+fn sibling(path: &Path, prefix: &str, suffix: &str) -> PathBuf {
+    let name = path
+        .file_name()
+        .map_or_else(|| "config".into(), |n| n.to_string_lossy().into_owned());
+    parent_dir(path).join(format!("{prefix}{name}{suffix}"))
+}
+
+/// The directory of `path` (`.` for a bare file name).
+fn parent_dir(path: &Path) -> PathBuf {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+fn io_err(step: &'static str, path: &Path) -> impl FnOnce(io::Error) -> PersistError {
+    let path = path.to_path_buf();
+    move |source| PersistError::Io { step, path, source }
+}
+
+/// The permissions of the file at `path`, if it exists.
+fn permissions_of(path: &Path) -> Option<fs::Permissions> {
+    fs::metadata(path).ok().map(|m| m.permissions())
+}
+
+/// Creates or truncates `path`, writes `bytes` and flushes them to the disk.
+fn write_synced(
+    path: &Path,
+    bytes: &[u8],
+    permissions: Option<fs::Permissions>,
+) -> Result<(), PersistError> {
+    let mut file = OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .open(path)
+        .map_err(io_err("cannot create", path))?;
+    if let Some(p) = permissions {
+        file.set_permissions(p)
+            .map_err(io_err("cannot set permissions of", path))?;
+    }
+    file.write_all(bytes)
+        .map_err(io_err("cannot write", path))?;
+    file.sync_all().map_err(io_err("cannot flush", path))
+}
+
+/// Flushes the directory entry changes (the renames) of `dir` to the disk.
+fn sync_dir(dir: &Path) -> Result<(), PersistError> {
+    #[cfg(unix)]
+    {
+        File::open(dir)
+            .and_then(|d| d.sync_all())
+            .map_err(io_err("cannot flush directory", dir))
+    }
+    #[cfg(not(unix))]
+    {
+        // Directories cannot be opened for flushing here; the rename is still atomic.
+        let _ = (dir, File::open);
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,357 @@
+//! Who may change things, and the limits: body size, time, unknown routes and methods, panics.
+
+use std::time::{Duration, Instant};
+
+use gateway::api::Auth;
+use reqwest::Method;
+use serde_json::{json, Value};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpStream;
+
+use super::support::{assert_error_shape, start, start_with, test_config, Setup, TestApi, TOKEN};
+
+/// Every change the API offers, with a body it accepts.
+async fn changes(api: &TestApi) -> Vec<(Method, &'static str, Option<Value>)> {
+    let config = api.get("/api/v1/config").await.json;
+    let line = config["lines"]["ascii"].clone();
+    api.gw.receive("ascii", b"x");
+    vec![
+        (Method::PUT, "/api/v1/config", Some(config.clone())),
+        (Method::POST, "/api/v1/config/validate", Some(config)),
+        (Method::PUT, "/api/v1/config/lines/ascii", Some(line)),
+        (Method::DELETE, "/api/v1/lines/drive/diag", None),
+        (Method::POST, "/api/v1/lines/ascii/telegrams/1/ack", None),
+        (
+            Method::POST,
+            "/api/v1/lines/ascii/send",
+            Some(json!({"text": "x"})),
+        ),
+        (
+            Method::PUT,
+            "/api/v1/lines/ascii/signals",
+            Some(json!({"rts": true})),
+        ),
+        (
+            Method::PUT,
+            "/api/v1/lines/drive/devices/atv71/tags/lfrd",
+            Some(json!({"value": 5})),
+        ),
+        (Method::DELETE, "/api/v1/config/lines/r3964", None),
+    ]
+}
+
+#[tokio::test]
+async fn no_token_401_wrong_token_401_right_token_2xx() {
+    let api = start().await;
+    for (method, path, body) in changes(&api).await {
+        let r = api.request(method.clone(), path, None, body.as_ref()).await;
+        assert_eq!(
+            (r.status, r.code()),
+            (401, "unauthorized"),
+            "{method} {path} without a token"
+        );
+        assert_eq!(
+            r.header("www-authenticate"),
+            Some("Bearer realm=\"gateway\"")
+        );
+
+        let r = api
+            .request(
+                method.clone(),
+                path,
+                Some("wrong-token-0123456789"),
+                body.as_ref(),
+            )
+            .await;
+        assert_eq!(
+            (r.status, r.code()),
+            (401, "unauthorized"),
+            "{method} {path} with a wrong token"
+        );
+        assert!(r
+            .header("www-authenticate")
+            .unwrap()
+            .contains("invalid_token"));
+
+        let basic = api
+            .http
+            .request(method.clone(), api.url(path))
+            .basic_auth("admin", Some(TOKEN));
+        let r = api.send(basic).await;
+        assert_eq!(r.status, 401, "{method} {path} with Basic");
+
+        let r = api
+            .request(method.clone(), path, Some(TOKEN), body.as_ref())
+            .await;
+        assert!(
+            (200..300).contains(&r.status),
+            "{method} {path} with the token: {} {}",
+            r.status,
+            r.text
+        );
+    }
+    // Reads need no token.
+    assert_eq!(api.get("/api/v1/config").await.status, 200);
+}
+
+#[tokio::test]
+async fn without_a_configured_token_changes_are_forbidden_unless_insecure() {
+    let locked = start_with(Setup {
+        auth: Auth::locked(),
+        ..Setup::default()
+    })
+    .await;
+    for (method, path, body) in changes(&locked).await {
+        for token in [None, Some(TOKEN)] {
+            let r = locked
+                .request(method.clone(), path, token, body.as_ref())
+                .await;
+            assert_eq!((r.status, r.code()), (403, "forbidden"), "{method} {path}");
+        }
+    }
+    assert_eq!(locked.get("/api/v1/status").await.status, 200);
+
+    let open = start_with(Setup {
+        auth: Auth::insecure(),
+        ..Setup::default()
+    })
+    .await;
+    for (method, path, body) in changes(&open).await {
+        let r = open
+            .request(method.clone(), path, None, body.as_ref())
+            .await;
+        assert!(
+            (200..300).contains(&r.status),
+            "{method} {path}: {} {}",
+            r.status,
+            r.text
+        );
+    }
+}
+
+#[tokio::test]
+async fn the_token_never_appears_in_a_read() {
+    let api = start().await;
+    for path in [
+        "/api/v1/config",
+        "/api/v1/status",
+        "/api/v1/lines",
+        "/api/v1/lines/drive",
+        "/api/v1/tags",
+        "/api/v1/openapi.json",
+        "/healthz",
+        "/readyz",
+    ] {
+        let r = api.get(path).await;
+        assert_eq!(r.status, 200, "{path}");
+        assert!(!r.text.contains(TOKEN), "{path} shows the token");
+    }
+}
+
+#[tokio::test]
+async fn a_body_over_the_limit_is_refused_with_413() {
+    let api = start_with(Setup {
+        body_limit: 2048,
+        ..Setup::default()
+    })
+    .await;
+    let mut big = api.get("/api/v1/config").await.json;
+    big["gateway"]["padding"] = json!("x".repeat(4096));
+    let r = api.put("/api/v1/config", &big).await;
+    assert_eq!(
+        (r.status, r.code()),
+        (413, "payload_too_large"),
+        "{}",
+        r.text
+    );
+
+    // The same without Content-Length, chunked, on a raw connection.
+    let addr = api.base.trim_start_matches("http://").to_owned();
+    let mut s = TcpStream::connect(&addr).await.unwrap();
+    let chunk = "x".repeat(1000);
+    let mut req = format!(
+        "PUT /api/v1/config HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {TOKEN}\r\n\
+         Content-Type: application/json\r\nTransfer-Encoding: chunked\r\nConnection: close\r\n\r\n"
+    );
+    for _ in 0..4 {
+        req.push_str(&format!("{:x}\r\n{chunk}\r\n", chunk.len()));
+    }
+    req.push_str("0\r\n\r\n");
+    s.write_all(req.as_bytes()).await.unwrap();
+    let mut answer = Vec::new();
+    tokio::time::timeout(Duration::from_secs(10), s.read_to_end(&mut answer))
+        .await
+        .unwrap()
+        .unwrap();
+    let answer = String::from_utf8_lossy(&answer);
+    assert!(answer.starts_with("HTTP/1.1 413"), "{answer}");
+    let body = answer.split("\r\n\r\n").nth(1).unwrap_or_default();
+    let json: Value = serde_json::from_str(body).unwrap_or_else(|_| panic!("not JSON: {answer}"));
+    assert_error_shape(&json);
+    assert_eq!(json["error"]["code"], "payload_too_large");
+
+    // A body within the limit goes through.
+    let r = api
+        .post("/api/v1/lines/ascii/send", &json!({"text": "small"}))
+        .await;
+    assert_eq!(r.status, 200);
+}
+
+#[tokio::test]
+async fn a_request_over_the_time_limit_answers_504() {
+    let api = start_with(Setup {
+        request_timeout: Duration::from_millis(300),
+        ..Setup::default()
+    })
+    .await;
+    let started = Instant::now();
+    let r = api.get("/api/v1/lines/drive/devices/slow/tags/x").await;
+    assert_eq!((r.status, r.code()), (504, "timeout"), "{}", r.text);
+    assert!(started.elapsed() < Duration::from_secs(10));
+    // The server still answers.
+    assert_eq!(api.get("/healthz").await.status, 200);
+}
+
+#[tokio::test]
+async fn unknown_routes_wrong_methods_and_panics_answer_in_the_error_shape() {
+    let api = start().await;
+    let r = api.get("/api/v1/nothing").await;
+    assert_eq!((r.status, r.code()), (404, "not_found"));
+    let r = api.get("/api/v2/config").await;
+    assert_eq!((r.status, r.code()), (404, "not_found"));
+
+    let r = api
+        .request(Method::PATCH, "/api/v1/status", Some(TOKEN), None)
+        .await;
+    assert_eq!(
+        (r.status, r.code()),
+        (405, "method_not_allowed"),
+        "{}",
+        r.text
+    );
+    assert!(
+        r.header("allow").is_some_and(|a| a.contains("GET")),
+        "{:?}",
+        r.headers
+    );
+    let r = api
+        .request(Method::DELETE, "/api/v1/config", Some(TOKEN), None)
+        .await;
+    assert_eq!((r.status, r.code()), (405, "method_not_allowed"));
+
+    let r = api.get("/api/v1/lines/panic").await;
+    assert_eq!((r.status, r.code()), (500, "internal"));
+    assert!(
+        !r.text.contains("a handler panic"),
+        "panic text leaked: {}",
+        r.text
+    );
+    assert_eq!(api.get("/api/v1/lines/drive").await.status, 200);
+}
+
+#[tokio::test]
+async fn a_change_runs_to_the_end_even_when_the_client_gives_up() {
+    let api = start().await;
+    let mut body = api.get("/api/v1/config").await.json;
+    body["lines"]["drive"]["baud"] = json!(9600);
+    // A client that sends the whole request and hangs up at once, before the answer.
+    let text = body.to_string();
+    let addr = api.base.trim_start_matches("http://").to_owned();
+    let mut s = TcpStream::connect(&addr).await.unwrap();
+    let req = format!(
+        "PUT /api/v1/config HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {TOKEN}\r\n\
+         Content-Type: application/json\r\nContent-Length: {}\r\n\r\n{text}",
+        text.len()
+    );
+    s.write_all(req.as_bytes()).await.unwrap();
+    drop(s);
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        if api.get("/api/v1/config").await.json["lines"]["drive"]["baud"] == 9600 {
+            break;
+        }
+        assert!(Instant::now() < deadline, "the change did not complete");
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert_eq!(api.stored().lines["drive"].serial.baud.get(), 9600);
+    assert_eq!(api.stored().lines, {
+        let mut c = test_config();
+        c.lines.get_mut("drive").unwrap().serial.baud =
+            gateway::config::Baud::try_new(9600).unwrap();
+        c.lines
+    });
+}
+
+/// Reads from `s` until the peer closes; the bytes read.
+async fn read_until_closed(s: &mut TcpStream, within: Duration) -> Option<Vec<u8>> {
+    let mut out = Vec::new();
+    match tokio::time::timeout(within, s.read_to_end(&mut out)).await {
+        Ok(Ok(_)) => Some(out),
+        Ok(Err(_)) => Some(out), // reset by the server: closed too
+        Err(_) => None,
+    }
+}
+
+#[tokio::test]
+async fn a_trickled_request_head_and_an_idle_connection_are_closed() {
+    let api = start_with(Setup {
+        header_read_timeout: Duration::from_millis(300),
+        ..Setup::default()
+    })
+    .await;
+    let addr = api.base.trim_start_matches("http://").to_owned();
+
+    let mut trickle = TcpStream::connect(&addr).await.unwrap();
+    trickle
+        .write_all(b"GET /healthz HTTP/1.1\r\nHo")
+        .await
+        .unwrap();
+    let closed = read_until_closed(&mut trickle, Duration::from_secs(10)).await;
+    assert!(
+        closed.is_some(),
+        "a connection that never completes its head stays open"
+    );
+
+    // A kept-alive connection: one answer, then closed when no next request comes.
+    let mut idle = TcpStream::connect(&addr).await.unwrap();
+    idle.write_all(format!("GET /healthz HTTP/1.1\r\nHost: {addr}\r\n\r\n").as_bytes())
+        .await
+        .unwrap();
+    let answer = read_until_closed(&mut idle, Duration::from_secs(10))
+        .await
+        .expect("closed when idle");
+    assert!(String::from_utf8_lossy(&answer).starts_with("HTTP/1.1 200"));
+}
+
+#[tokio::test]
+async fn connections_beyond_the_limit_wait_for_a_free_one() {
+    let api = start_with(Setup {
+        max_connections: 1,
+        ..Setup::default()
+    })
+    .await;
+    let addr = api.base.trim_start_matches("http://").to_owned();
+    let request = format!("GET /healthz HTTP/1.1\r\nHost: {addr}\r\n\r\n");
+
+    let mut first = TcpStream::connect(&addr).await.unwrap();
+    first.write_all(request.as_bytes()).await.unwrap();
+    let mut buf = [0u8; 512];
+    let n = first.read(&mut buf).await.unwrap();
+    assert!(buf[..n].starts_with(b"HTTP/1.1 200"));
+
+    // The second connection is accepted by the kernel but not served while the first is open.
+    let mut second = TcpStream::connect(&addr).await.unwrap();
+    second.write_all(request.as_bytes()).await.unwrap();
+    let early = tokio::time::timeout(Duration::from_millis(500), second.read(&mut buf)).await;
+    assert!(early.is_err(), "served beyond the limit");
+    drop(first);
+    let n = tokio::time::timeout(Duration::from_secs(10), second.read(&mut buf))
+        .await
+        .unwrap()
+        .unwrap();
+    assert!(
+        buf[..n].starts_with(b"HTTP/1.1 200"),
+        "{}",
+        String::from_utf8_lossy(&buf[..n])
+    );
+}

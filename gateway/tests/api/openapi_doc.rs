@@ -1,0 +1,140 @@
+//! The OpenAPI document: valid JSON, every route of the router in it and nothing else, each
+//! listed operation served, the changes marked as needing the bearer token.
+
+use std::collections::BTreeSet;
+
+use reqwest::Method;
+use serde_json::Value;
+
+use super::support::{start, TOKEN};
+
+/// Every route the API serves.
+const ROUTES: &[(&str, &str)] = &[
+    ("get", "/healthz"),
+    ("get", "/readyz"),
+    ("get", "/api/v1/openapi.json"),
+    ("get", "/api/v1/status"),
+    ("get", "/api/v1/config"),
+    ("put", "/api/v1/config"),
+    ("post", "/api/v1/config/validate"),
+    ("get", "/api/v1/config/lines/{line}"),
+    ("put", "/api/v1/config/lines/{line}"),
+    ("delete", "/api/v1/config/lines/{line}"),
+    ("get", "/api/v1/lines"),
+    ("get", "/api/v1/lines/{line}"),
+    ("get", "/api/v1/lines/{line}/diag"),
+    ("delete", "/api/v1/lines/{line}/diag"),
+    ("get", "/api/v1/lines/{line}/telegrams"),
+    ("post", "/api/v1/lines/{line}/telegrams/{seq}/ack"),
+    ("post", "/api/v1/lines/{line}/send"),
+    ("get", "/api/v1/lines/{line}/signals"),
+    ("put", "/api/v1/lines/{line}/signals"),
+    ("get", "/api/v1/tags"),
+    ("get", "/api/v1/lines/{line}/devices/{device}/tags"),
+    ("get", "/api/v1/lines/{line}/devices/{device}/tags/{tag}"),
+    ("put", "/api/v1/lines/{line}/devices/{device}/tags/{tag}"),
+];
+
+fn operations(doc: &Value) -> BTreeSet<(String, String)> {
+    let mut ops = BTreeSet::new();
+    for (path, item) in doc["paths"].as_object().expect("paths") {
+        for method in item.as_object().expect("path item").keys() {
+            if ["get", "put", "post", "delete", "patch", "head"].contains(&method.as_str()) {
+                ops.insert((method.clone(), path.clone()));
+            }
+        }
+    }
+    ops
+}
+
+#[tokio::test]
+async fn the_document_lists_exactly_the_routes() {
+    let api = start().await;
+    let r = api.get("/api/v1/openapi.json").await;
+    assert_eq!(r.status, 200);
+    assert_eq!(r.header("content-type"), Some("application/json"));
+    let doc: Value = serde_json::from_str(&r.text).expect("the document is JSON");
+    assert!(
+        doc["openapi"].as_str().is_some_and(|v| v.starts_with("3.")),
+        "{}",
+        doc["openapi"]
+    );
+    assert_eq!(doc["info"]["version"], env!("CARGO_PKG_VERSION"));
+
+    let expected: BTreeSet<(String, String)> = ROUTES
+        .iter()
+        .map(|(m, p)| ((*m).to_owned(), (*p).to_owned()))
+        .collect();
+    assert_eq!(operations(&doc), expected);
+
+    // The same document is available without a server.
+    let offline = serde_json::to_value(gateway::api::openapi()).unwrap();
+    assert_eq!(offline, doc);
+}
+
+#[tokio::test]
+async fn changes_need_the_bearer_token_in_the_document() {
+    let api = start().await;
+    let doc = api.get("/api/v1/openapi.json").await.json;
+    assert_eq!(
+        doc["components"]["securitySchemes"]["bearer"]["scheme"],
+        "bearer"
+    );
+    assert!(doc["components"]["schemas"]["ErrorBody"].is_object());
+    for (method, path) in operations(&doc) {
+        let op = &doc["paths"][&path][&method];
+        let responses = op["responses"].as_object().unwrap();
+        assert!(responses.contains_key("504"), "{method} {path}");
+        if method == "get" {
+            assert!(op.get("security").is_none(), "{method} {path}");
+            continue;
+        }
+        assert_eq!(
+            op["security"][0]["bearer"],
+            Value::Array(vec![]),
+            "{method} {path}"
+        );
+        for status in ["401", "403"] {
+            let schema = &responses[status]["content"]["application/json"]["schema"]["$ref"];
+            assert_eq!(
+                schema, "#/components/schemas/ErrorBody",
+                "{method} {path} {status}"
+            );
+        }
+    }
+}
+
+/// Each operation of the document answers on the router: no "no route" and no 405.
+#[tokio::test]
+async fn every_documented_operation_is_served() {
+    let api = start().await;
+    api.gw.receive("ascii", b"x");
+    for (method, path) in ROUTES {
+        let concrete = path
+            .replace(
+                "{line}",
+                if path.contains("{device}") {
+                    "drive"
+                } else {
+                    "ascii"
+                },
+            )
+            .replace("{device}", "atv71")
+            .replace("{tag}", "lfrd")
+            .replace("{seq}", "1");
+        let method = Method::from_bytes(method.to_uppercase().as_bytes()).unwrap();
+        let r = api
+            .request(method.clone(), &concrete, Some(TOKEN), None)
+            .await;
+        assert_ne!(r.status, 405, "{method} {concrete}: {}", r.text);
+        if r.status == 404 {
+            assert!(
+                !r.json["error"]["message"]
+                    .as_str()
+                    .unwrap_or_default()
+                    .starts_with("no route"),
+                "{method} {concrete} is not routed"
+            );
+        }
+    }
+}
