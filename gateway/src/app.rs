@@ -43,6 +43,8 @@ pub struct Overrides {
     /// The zenoh session listens on this endpoint only (e.g. `tcp/127.0.0.1:7447`), with
     /// multicast scouting off, instead of the config's `[zenoh]` endpoints.
     pub zenoh_listen: Option<String>,
+    /// `gateway demo`: how often the simulated telegram partners send a telegram of their own.
+    pub telegram_every: Option<Duration>,
     /// Serve HTTP (`/metrics`) here; `None`: no HTTP listener.
     pub http: Option<SocketAddr>,
     /// The registry `/metrics` serves and its families, created in `main`; `None`: [`run`]

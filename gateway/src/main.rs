@@ -54,6 +54,10 @@ enum Command {
         /// The zenoh peer listens on this endpoint (multicast scouting off).
         #[arg(long, value_name = "ENDPOINT", default_value = "tcp/127.0.0.1:7447")]
         zenoh_listen: String,
+        /// How often the simulated 3964R and ASCII partners send a telegram of their own
+        /// (0 = never).
+        #[arg(long, value_name = "DURATION", default_value = "1s", value_parser = humantime::parse_duration)]
+        telegram_every: std::time::Duration,
         /// Serve HTTP (`/metrics`) here.
         #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:8080")]
         http: SocketAddr,
@@ -114,6 +118,7 @@ async fn async_main(command: Command) -> ExitCode {
                 let overrides = Overrides {
                     modbus_tcp,
                     zenoh_listen,
+                    telegram_every: None,
                     http,
                     metrics: Some(metrics),
                 };
@@ -131,6 +136,7 @@ async fn async_main(command: Command) -> ExitCode {
             modbus_tcp,
             zenoh_listen,
             http,
+            telegram_every,
         } => {
             let metrics = match metrics_registry() {
                 Ok(metrics) => metrics,
@@ -139,6 +145,7 @@ async fn async_main(command: Command) -> ExitCode {
             let overrides = Overrides {
                 modbus_tcp: Some(modbus_tcp),
                 zenoh_listen: Some(zenoh_listen),
+                telegram_every: Some(telegram_every),
                 http: Some(http),
                 metrics: Some(metrics),
             };

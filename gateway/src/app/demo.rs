@@ -33,7 +33,7 @@ pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(
             AppError::Setup(format!("line {name}: the pseudo-terminal has no path"))
         })?;
         info!(line = %name, port = %path, "demo line on a pseudo-terminal");
-        start_simulator(name, line, device_end, &sims)?;
+        start_simulator(name, line, device_end, overrides.telegram_every, &sims)?;
         line.serial.port = path;
         keep.push(gateway_end);
     }
@@ -48,6 +48,7 @@ fn start_simulator(
     name: &str,
     line: &LineConfig,
     stream: SerialStream,
+    telegram_every: Option<std::time::Duration>,
     shutdown: &CancellationToken,
 ) -> Result<(), AppError> {
     let timing = CharTiming::new(line.serial.baud.get(), line.serial.bits_per_char());
@@ -94,6 +95,10 @@ fn start_simulator(
             let partner = sim::telegram::TelegramSim::for_line(line)
                 .ok_or_else(|| AppError::Setup(format!("line {name}: no telegram partner")))?
                 .map_err(|e| AppError::Setup(format!("line {name}: {e}")))?;
+            let partner = match telegram_every {
+                Some(every) => partner.every(every),
+                None => partner,
+            };
             let token = shutdown.clone();
             let line_name = name.to_owned();
             tokio::spawn(async move {
