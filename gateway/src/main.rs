@@ -3,7 +3,8 @@
 //! A thin main (linkerd2-proxy order): parse the command line, set up logging, load and validate
 //! the config (exit 64 before any port is opened when it is wrong), create the Prometheus registry
 //! of the process, then hand over to [`gateway::app`], which runs until SIGINT or SIGTERM and
-//! drains within a grace period.
+//! drains within a grace period. `gateway run` saves configuration changes made over the REST API
+//! to its `--config` file; `gateway demo` keeps them in memory.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -42,7 +43,7 @@ enum Command {
         /// The zenoh session listens on this endpoint only, multicast scouting off.
         #[arg(long, value_name = "ENDPOINT")]
         zenoh_listen: Option<String>,
-        /// Serve HTTP (`/metrics`) here; without it, no HTTP listener.
+        /// Serve HTTP (REST API, /healthz, /readyz, /metrics) here instead of `[http] listen`.
         #[arg(long, value_name = "ADDR")]
         http: Option<SocketAddr>,
     },
@@ -58,9 +59,10 @@ enum Command {
         /// (0 = never).
         #[arg(long, value_name = "DURATION", default_value = "1s", value_parser = humantime::parse_duration)]
         telegram_every: std::time::Duration,
-        /// Serve HTTP (`/metrics`) here.
-        #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:8080")]
-        http: SocketAddr,
+        /// Serve HTTP (REST API, /healthz, /readyz, /metrics) here instead of the demo
+        /// config's 127.0.0.1:8080.
+        #[arg(long, value_name = "ADDR")]
+        http: Option<SocketAddr>,
     },
     /// Run one simulated device on a serial port (a pty end, or a real port).
     Sim(gateway::sim::SimArgs),
@@ -120,6 +122,7 @@ async fn async_main(command: Command) -> ExitCode {
                     zenoh_listen,
                     telegram_every: None,
                     http,
+                    config_file: Some(config.clone()),
                     metrics: Some(metrics),
                 };
                 gateway::app::run(cfg, overrides, shutdown).await
@@ -146,7 +149,8 @@ async fn async_main(command: Command) -> ExitCode {
                 modbus_tcp: Some(modbus_tcp),
                 zenoh_listen: Some(zenoh_listen),
                 telegram_every: Some(telegram_every),
-                http: Some(http),
+                http,
+                config_file: None,
                 metrics: Some(metrics),
             };
             gateway::app::demo(overrides, shutdown).await

@@ -81,8 +81,9 @@ pub trait ApiBackend: Send + Sync + 'static {
         value: ScalarValue,
     ) -> BoxFuture<'_, Result<TagValue, ApiError>>;
 
-    /// The RS232 signals of a line; `conflict` for a line without them (RS422/RS485).
-    fn signals(&self, line: &str) -> Result<Signals, ApiError>;
+    /// The RS232 signals of a line (read from the port by the line's task); `conflict` for a
+    /// line without them (RS422/RS485, a pseudo-terminal).
+    fn signals(&self, line: &str) -> BoxFuture<'_, Result<Signals, ApiError>>;
 
     /// Sets DTR and/or RTS and answers with the signals after the change.
     fn set_signals(

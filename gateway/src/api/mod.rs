@@ -84,6 +84,9 @@ pub struct ApiState {
     header_read_timeout: Duration,
     /// Configuration changes run one at a time.
     change_lock: Arc<tokio::sync::Mutex<()>>,
+    /// Routes served beside the API on the same listener (e.g. `/metrics`), outside its
+    /// OpenAPI document.
+    extra: Option<Router>,
 }
 
 impl std::fmt::Debug for ApiState {
@@ -115,6 +118,7 @@ impl ApiState {
             max_connections: DEFAULT_MAX_CONNECTIONS as usize,
             header_read_timeout: DEFAULT_HEADER_READ_TIMEOUT,
             change_lock: Arc::default(),
+            extra: None,
         }
     }
 
@@ -151,6 +155,13 @@ impl ApiState {
     pub fn with_connections(mut self, max_connections: u32, header_read_timeout: Duration) -> Self {
         self.max_connections = usize::try_from(max_connections.max(1)).unwrap_or(usize::MAX);
         self.header_read_timeout = header_read_timeout;
+        self
+    }
+
+    /// Serves `routes` beside the API (same listener, same layers: limits, timeout, JSON
+    /// errors; GET needs no token). The paths must not clash with the API's.
+    pub fn with_routes(mut self, routes: Router) -> Self {
+        self.extra = Some(routes);
         self
     }
 
@@ -214,6 +225,10 @@ pub fn router(state: ApiState) -> Router {
         tracing::error!(error = %e, "cannot render the OpenAPI document");
         "{}".to_owned()
     });
+    let routes = match state.extra.clone() {
+        Some(extra) => routes.merge(extra.with_state::<ApiState>(())),
+        None => routes,
+    };
     routes
         .fallback(no_route)
         .method_not_allowed_fallback(method_not_allowed)

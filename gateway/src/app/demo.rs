@@ -37,6 +37,13 @@ pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(
         line.serial.port = path;
         keep.push(gateway_end);
     }
+    if config.http.insecure_allow_unauthenticated_changes && config.http.token_source().is_none() {
+        tracing::warn!(
+            "demo: INSECURE: the REST API accepts configuration and device changes without a token \
+             (insecure_allow_unauthenticated_changes = true in the demo config); never expose it"
+        );
+    }
+    info!("demo: no configuration file; changes over the REST API are kept in memory until exit");
     let result = run(config, overrides, shutdown).await;
     sims.cancel();
     drop(keep);

@@ -1,98 +1,174 @@
 //! The zenoh bridge wired to the running gateway: the backend that answers queries and commands
-//! from the image, the tags and the lines, and the tasks that feed publications (tag values on
-//! change, events, device presence).
+//! from the supervisor's snapshot (image, tags, lines), and the tasks that feed publications
+//! (tag values on change, events, received telegrams, device presence).
 //!
-//! A write from zenoh takes the same path and the same checks as a Modbus TCP write: the tag is
-//! encoded by its profile, the server's read-only mode and write ranges are applied, and the
-//! request goes to the device's unit service, which answers with the device's answer.
+//! Lines come and go with configuration changes: the feeds of one line (its events, its
+//! telegrams) run under that line's token and stop with it; a line started later gets its own.
+//! A write from zenoh takes the same path and checks as a Modbus TCP write ([`super::tag_io`]).
 
-use std::collections::{BTreeMap, BTreeSet};
-use std::sync::Arc;
+use std::collections::BTreeSet;
+use std::sync::{Arc, PoisonError, Weak};
 use std::time::Duration;
 
 use proto_core::event;
-use proto_core::modbus::pdu::ExceptionCode;
 use proto_core::profiles::Value;
 use serde_json::{json, Value as Json};
 use tokio::sync::broadcast::error::RecvError;
 use tokio_util::sync::CancellationToken;
-use tracing::{debug, warn};
+use tracing::{debug, info, warn};
 
-use super::Running;
+use super::lines::{LineKind, RunningLine};
+use super::supervisor::{Snapshot, Supervisor};
+use super::tag_io;
+use super::AppError;
 use crate::image::ProcessImage;
-use crate::line::telegram::TelegramLineHandle;
-use crate::line::{LineEvent, LineHandle, LineStatus, SlaveLineHandle};
-use crate::modbus_tcp::{ServerOptions, SharedUnits};
+use crate::line::{LineEvent, LineStatus};
 use crate::tags::{TagDirectory, TagEntry, TagWriteError};
-use crate::zenoh_bridge::{BackendFuture, BridgeBackend, BridgeHandle, TagValue};
+use crate::zenoh_bridge::{
+    BackendFuture, Bridge, BridgeBackend, BridgeHandle, BridgeStats, TagValue, ZenohConfig,
+};
 
 /// How often device presence is compared with the last published state.
 const PRESENCE_PERIOD: Duration = Duration::from_millis(500);
 
+/// A running bridge.
+pub(crate) struct ZenohRun {
+    bridge: Bridge,
+    handle: BridgeHandle,
+    token: CancellationToken,
+}
+
+/// What status and readiness show of zenoh.
+#[derive(Clone)]
+pub(crate) struct ZenohState {
+    /// The running bridge's counters; `None` while it is down.
+    pub(crate) stats: Option<Arc<BridgeStats>>,
+    /// `peer` or `client`.
+    pub(crate) mode: &'static str,
+}
+
+/// The bridge's session settings: the command line's endpoint, or the config's `[zenoh]`;
+/// `None` when the gateway joins no zenoh fabric.
+fn session_config(sup: &Supervisor, snapshot: &Snapshot) -> Result<Option<ZenohConfig>, AppError> {
+    Ok(
+        match (&sup.overrides.zenoh_listen, &snapshot.config.zenoh) {
+            (Some(endpoint), base) => {
+                let mut cfg = ZenohConfig::loopback_peer(endpoint).map_err(AppError::Setup)?;
+                if let Some(base) = base {
+                    cfg.prefix.clone_from(&base.prefix);
+                }
+                Some(cfg)
+            }
+            (None, Some(cfg)) if cfg.enabled => Some(cfg.clone()),
+            (None, _) => None,
+        },
+    )
+}
+
+/// Starts the bridge when the config has a `[zenoh]` section (or the command line names an
+/// endpoint), with its feeds.
+pub(crate) async fn start(sup: &Arc<Supervisor>) -> Result<(), AppError> {
+    let snapshot = sup.snapshot();
+    let Some(cfg) = session_config(sup, &snapshot)? else {
+        info!("no [zenoh] section: the gateway joins no zenoh fabric");
+        return Ok(());
+    };
+    let mode = cfg.mode.map_or("peer", |m| m.as_str());
+    *sup.zenoh_state
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner) = Some(ZenohState { stats: None, mode });
+    let listen = cfg.listen.clone().unwrap_or_default();
+    let token = sup.root.child_token();
+    let backend = ZenohBackend {
+        sup: Arc::downgrade(sup),
+    };
+    let (bridge, handle) = Bridge::start(
+        cfg,
+        &snapshot.config.gateway.name,
+        Arc::new(backend),
+        token.clone(),
+    )
+    .await
+    .map_err(|e| AppError::Setup(format!("zenoh: {e}")))?;
+    spawn_feeds(sup, &handle, &token);
+    for (name, line) in &snapshot.lines {
+        spawn_line_feeds(&handle, name, line, &token);
+    }
+    let endpoints: Vec<&str> = listen
+        .iter()
+        .map(crate::zenoh_bridge::Endpoint::as_str)
+        .collect();
+    info!(prefix = %handle.prefix(), ?endpoints, "zenoh session open");
+    println!("zenoh session open, prefix {}", handle.prefix());
+    *sup.zenoh_state
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner) = Some(ZenohState {
+        stats: Some(Arc::clone(bridge.stats())),
+        mode,
+    });
+    *sup.zenoh.lock().await = Some(ZenohRun {
+        bridge,
+        handle,
+        token,
+    });
+    Ok(())
+}
+
+/// Stops the bridge: pending publications sent, tokens undeclared, session closed.
+pub(crate) async fn stop(sup: &Supervisor) {
+    let run = sup.zenoh.lock().await.take();
+    if let Some(run) = run {
+        run.token.cancel();
+        run.bridge.join().await;
+    }
+    if let Some(state) = sup
+        .zenoh_state
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner)
+        .as_mut()
+    {
+        state.stats = None;
+    }
+}
+
+/// Restarts a running bridge under the gateway's new name (its key prefix); whether it runs
+/// again.
+pub(crate) async fn restart(sup: &Arc<Supervisor>) -> bool {
+    if sup.zenoh.lock().await.is_none() {
+        return false;
+    }
+    stop(sup).await;
+    match start(sup).await {
+        Ok(()) => true,
+        Err(e) => {
+            warn!(error = %e, "zenoh did not restart");
+            false
+        }
+    }
+}
+
+/// Starts the feeds of lines started by a configuration change.
+pub(crate) async fn lines_started(sup: &Supervisor, snapshot: &Snapshot, names: &[String]) {
+    let run = sup.zenoh.lock().await;
+    let Some(run) = run.as_ref() else { return };
+    for name in names {
+        if let Some(line) = snapshot.lines.get(name) {
+            spawn_line_feeds(&run.handle, name, line, &run.token);
+        }
+    }
+}
+
 /// What the bridge asks of the gateway.
-pub(crate) struct GatewayBackend {
-    pub(crate) name: String,
-    pub(crate) image: ProcessImage,
-    pub(crate) tags: Arc<TagDirectory>,
-    pub(crate) lines: BTreeMap<String, LineHandle>,
-    pub(crate) slave_lines: BTreeMap<String, SlaveLineHandle>,
-    pub(crate) telegram_lines: BTreeMap<String, TelegramLineHandle>,
-    pub(crate) protocols: BTreeMap<String, &'static str>,
-    pub(crate) units: SharedUnits,
-    pub(crate) server: ServerOptions,
+struct ZenohBackend {
+    sup: Weak<Supervisor>,
 }
 
-// === impl GatewayBackend ===
-
-impl GatewayBackend {
-    /// The backend over `running`.
-    pub(crate) fn new(
-        name: &str,
-        running: &Running,
-        tags: Arc<TagDirectory>,
-        protocols: BTreeMap<String, &'static str>,
-        server: ServerOptions,
-    ) -> Self {
-        Self {
-            name: name.to_owned(),
-            image: running.image.clone(),
-            tags,
-            lines: running.lines.clone(),
-            slave_lines: running.slave_lines.clone(),
-            telegram_lines: running.telegram_lines.clone(),
-            protocols,
-            units: Arc::clone(&running.units),
-            server,
-        }
-    }
-
-    /// A second backend over the same parts (one goes to the bridge, one feeds it).
-    pub(crate) fn clone_for_bridge(&self) -> Self {
-        Self {
-            name: self.name.clone(),
-            image: self.image.clone(),
-            tags: Arc::clone(&self.tags),
-            lines: self.lines.clone(),
-            slave_lines: self.slave_lines.clone(),
-            telegram_lines: self.telegram_lines.clone(),
-            protocols: self.protocols.clone(),
-            units: Arc::clone(&self.units),
-            server: self.server.clone(),
-        }
-    }
-
-    fn status_of(&self, line: &str) -> Option<LineStatus> {
-        self.lines
-            .get(line)
-            .map(LineHandle::status)
-            .or_else(|| self.slave_lines.get(line).map(SlaveLineHandle::status))
-            .or_else(|| self.telegram_lines.get(line).map(|t| t.status().line))
-    }
-}
-
-impl BridgeBackend for GatewayBackend {
+impl BridgeBackend for ZenohBackend {
     fn lines(&self) -> Vec<String> {
-        self.protocols.keys().cloned().collect()
+        self.sup
+            .upgrade()
+            .map(|s| s.snapshot().lines.keys().cloned().collect())
+            .unwrap_or_default()
     }
 
     fn query_tags(
@@ -101,45 +177,56 @@ impl BridgeBackend for GatewayBackend {
         device: Option<&str>,
         tag: Option<&str>,
     ) -> Vec<(String, String, String, TagValue)> {
-        self.tags
+        let Some(sup) = self.sup.upgrade() else {
+            return Vec::new();
+        };
+        let snapshot = sup.snapshot();
+        snapshot
+            .tags
             .iter()
             .filter(|e| line.is_none_or(|l| l == e.line))
             .filter(|e| device.is_none_or(|d| d == e.device))
             .filter(|e| tag.is_none_or(|t| t.eq_ignore_ascii_case(&e.tag.name)))
             .filter_map(|e| {
-                let value = tag_value(&self.tags, &self.image, e)?;
+                let value = tag_value(&snapshot.tags, &sup.image, e)?;
                 Some((e.line.clone(), e.device.clone(), e.tag.name.clone(), value))
             })
             .collect()
     }
 
     fn line_status(&self, line: &str) -> Option<Json> {
-        let protocol = *self.protocols.get(line)?;
-        Some(match self.status_of(line) {
-            Some(status) => status_json(&status, protocol),
-            None => json!({ "name": line, "protocol": protocol, "served": false }),
-        })
+        let sup = self.sup.upgrade()?;
+        let snapshot = sup.snapshot();
+        let running = snapshot.lines.get(line)?;
+        Some(status_json(&running.kind.status(), running.protocol))
     }
 
     fn gateway_status(&self) -> Json {
-        let lines: Vec<Json> = self
-            .protocols
-            .keys()
-            .filter_map(|l| self.line_status(l))
+        let Some(sup) = self.sup.upgrade() else {
+            return json!({});
+        };
+        let snapshot = sup.snapshot();
+        let lines: Vec<Json> = snapshot
+            .lines
+            .values()
+            .map(|l| status_json(&l.kind.status(), l.protocol))
             .collect();
         json!({
-            "name": self.name,
+            "name": snapshot.config.gateway.name,
             "version": env!("CARGO_PKG_VERSION"),
             "lines": lines,
         })
     }
 
     fn send_telegram(&self, line: &str, bytes: Vec<u8>) -> BackendFuture<Result<Json, String>> {
-        let Some(client) = self
-            .telegram_lines
-            .get(line)
-            .map(TelegramLineHandle::client)
-        else {
+        let client =
+            self.sup
+                .upgrade()
+                .and_then(|s| match s.snapshot().lines.get(line).map(|l| &l.kind) {
+                    Some(LineKind::Telegram(h)) => Some(h.client()),
+                    _ => None,
+                });
+        let Some(client) = client else {
             let answer = Err(format!("line {line} does not send telegrams"));
             return Box::pin(async move { answer });
         };
@@ -161,8 +248,8 @@ impl BridgeBackend for GatewayBackend {
     ) -> BackendFuture<Result<Json, String>> {
         let prepared = self.prepare_write(line, device, tag, &value);
         Box::pin(async move {
-            let (service, request, name) = prepared?;
-            match service.call(request).await {
+            let (write, name) = prepared?;
+            match write.service.call(write.request).await {
                 Ok(_) => Ok(json!({ "tag": name, "written": value })),
                 Err(code) => Err(TagWriteError::Exception(code).to_string()),
             }
@@ -170,25 +257,16 @@ impl BridgeBackend for GatewayBackend {
     }
 }
 
-type PreparedWrite = (
-    Arc<dyn crate::unit::UnitService>,
-    proto_core::modbus::pdu::Request,
-    String,
-);
-
-impl GatewayBackend {
-    /// The unit service and the checked request of a tag write, or why there is none.
+impl ZenohBackend {
+    /// The checked write of a JSON value, or why there is none.
     fn prepare_write(
         &self,
         line: &str,
         device: &str,
         tag: &str,
         value: &Json,
-    ) -> Result<PreparedWrite, String> {
-        let entry = self
-            .tags
-            .find(line, device, tag)
-            .ok_or_else(|| format!("no tag {line}/{device}/{tag}"))?;
+    ) -> Result<(tag_io::PreparedWrite, String), String> {
+        let sup = self.sup.upgrade().ok_or("the gateway is stopping")?;
         let number = match value {
             Json::Number(n) => n.as_f64(),
             Json::Bool(b) => Some(f64::from(u8::from(*b))),
@@ -196,27 +274,10 @@ impl GatewayBackend {
             _ => None,
         }
         .ok_or_else(|| format!("value {value} is not a number (send a JSON number)"))?;
-        let request = TagDirectory::write_request(entry, number).map_err(|e| e.to_string())?;
-        if self.server.read_only {
-            return Err(
-                TagWriteError::Exception(ExceptionCode::IllegalFunction).to_string()
-                    + " (read-only gateway)",
-            );
-        }
-        if let Some(code) = self.server.check_write(entry.unit_id, &request) {
-            return Err(TagWriteError::Exception(code).to_string() + " (outside the write ranges)");
-        }
-        let service = self
-            .units
-            .read()
-            .ok()
-            .and_then(|u| u.get(entry.unit_id).cloned())
-            .ok_or_else(|| format!("unit {} is not served", entry.unit_id))?;
-        Ok((
-            service,
-            request,
-            format!("{line}/{device}/{}", entry.tag.name),
-        ))
+        let write = tag_io::prepare_write(&sup.snapshot(), &sup.units, line, device, tag, number)
+            .map_err(|e| e.to_string())?;
+        let name = format!("{line}/{device}/{}", write.entry.tag.name);
+        Ok((write, name))
     }
 }
 
@@ -270,27 +331,25 @@ fn event_json(id: event::EventId) -> Json {
     })
 }
 
-/// Starts the tasks that feed the bridge: tag values on change, line events, device presence.
-pub(crate) fn spawn_feeds(
-    bridge: &BridgeHandle,
-    backend: &GatewayBackend,
-    shutdown: &CancellationToken,
-) {
-    // Tag values on change: every image change maps to the tags it overlaps.
+/// The feeds of the whole gateway: tag values on change (every image change maps to the tags
+/// it overlaps in the directory in force) and device presence.
+fn spawn_feeds(sup: &Arc<Supervisor>, bridge: &BridgeHandle, token: &CancellationToken) {
     {
         let bridge = bridge.clone();
-        let tags = Arc::clone(&backend.tags);
-        let image = backend.image.clone();
+        let weak = Arc::downgrade(sup);
+        let image = sup.image.clone();
         let mut changes = image.subscribe();
-        let shutdown = shutdown.clone();
+        let token = token.clone();
         tokio::spawn(async move {
             loop {
                 let change = tokio::select! {
-                    () = shutdown.cancelled() => return,
+                    () = token.cancelled() => return,
                     change = changes.recv() => change,
                 };
                 match change {
                     Ok(change) => {
+                        let Some(sup) = weak.upgrade() else { return };
+                        let tags = Arc::clone(&sup.snapshot().tags);
                         let count = u16::try_from(change.values.len()).unwrap_or(u16::MAX);
                         for entry in
                             tags.overlapping(change.unit, change.table, change.start, count)
@@ -317,60 +376,56 @@ pub(crate) fn spawn_feeds(
             }
         });
     }
-    // Events of every line.
-    let receivers: Vec<_> = backend
-        .lines
-        .values()
-        .map(LineHandle::subscribe_events)
-        .chain(
-            backend
-                .slave_lines
-                .values()
-                .map(SlaveLineHandle::subscribe_events),
-        )
-        .chain(
-            backend
-                .telegram_lines
-                .values()
-                .map(TelegramLineHandle::subscribe_events),
-        )
-        .collect();
-    // Received telegrams, in order, each once (the bridge's queue counts what it must drop).
-    for line in backend.telegram_lines.values() {
-        let bridge = bridge.clone();
-        let shutdown = shutdown.clone();
-        let mut rx = line.subscribe_rx();
-        tokio::spawn(async move {
-            loop {
-                let received = tokio::select! {
-                    () = shutdown.cancelled() => return,
-                    t = rx.recv() => t,
-                };
-                match received {
-                    Ok(t) => {
-                        let data = t.data.to_vec();
-                        if bridge
-                            .publish_telegram(&t.line, u64::from(t.seq), t.received, data)
-                            .is_err()
-                        {
-                            debug!(line = %t.line, seq = t.seq, "zenoh telegram queue full; the drop is counted");
-                        }
+    // Device presence: a liveliness token per online device of the lines in force.
+    let bridge = bridge.clone();
+    let weak = Arc::downgrade(sup);
+    let token = token.clone();
+    tokio::spawn(async move {
+        let mut online: BTreeSet<(String, String)> = BTreeSet::new();
+        let mut ticker = tokio::time::interval(PRESENCE_PERIOD);
+        loop {
+            tokio::select! {
+                () = token.cancelled() => return,
+                _ = ticker.tick() => {}
+            }
+            let Some(sup) = weak.upgrade() else { return };
+            let mut now: BTreeSet<(String, String)> = BTreeSet::new();
+            for line in sup.snapshot().lines.values() {
+                if let LineKind::Master(h) = &line.kind {
+                    let status = h.status();
+                    for d in status.devices.iter().filter(|d| d.online) {
+                        now.insert((status.name.clone(), d.name.clone()));
                     }
-                    Err(RecvError::Lagged(n)) => {
-                        warn!(missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
-                    }
-                    Err(RecvError::Closed) => return,
                 }
             }
-        });
-    }
-    for mut events in receivers {
+            for key in online.difference(&now) {
+                bridge.device_online(&key.0, &key.1, false);
+            }
+            for key in now.difference(&online) {
+                bridge.device_online(&key.0, &key.1, true);
+            }
+            online = now;
+        }
+    });
+}
+
+/// The feeds of one line: its events and its received telegrams (in order, each once; the
+/// bridge's queue counts what it must drop). They end with the line or the bridge.
+fn spawn_line_feeds(
+    bridge: &BridgeHandle,
+    name: &str,
+    line: &RunningLine,
+    token: &CancellationToken,
+) {
+    let mut events = line.kind.subscribe_events();
+    {
         let bridge = bridge.clone();
-        let shutdown = shutdown.clone();
+        let (token, line_token) = (token.clone(), line.token.clone());
         tokio::spawn(async move {
             loop {
                 let received = tokio::select! {
-                    () = shutdown.cancelled() => return,
+                    () = token.cancelled() => return,
+                    () = line_token.cancelled() => return,
                     e = events.recv() => e,
                 };
                 match received {
@@ -383,28 +438,34 @@ pub(crate) fn spawn_feeds(
             }
         });
     }
-    // Device presence: a liveliness token per online device.
+    let LineKind::Telegram(handle) = &line.kind else {
+        return;
+    };
+    let mut rx = handle.subscribe_rx();
     let bridge = bridge.clone();
-    let lines: Vec<LineHandle> = backend.lines.values().cloned().collect();
-    let shutdown = shutdown.clone();
+    let (token, line_token) = (token.clone(), line.token.clone());
+    let name = name.to_owned();
     tokio::spawn(async move {
-        let mut online: BTreeSet<(String, String)> = BTreeSet::new();
-        let mut ticker = tokio::time::interval(PRESENCE_PERIOD);
         loop {
-            tokio::select! {
-                () = shutdown.cancelled() => return,
-                _ = ticker.tick() => {}
-            }
-            for line in &lines {
-                let status = line.status();
-                for d in &status.devices {
-                    let key = (status.name.clone(), d.name.clone());
-                    if d.online && online.insert(key.clone()) {
-                        bridge.device_online(&key.0, &key.1, true);
-                    } else if !d.online && online.remove(&key) {
-                        bridge.device_online(&key.0, &key.1, false);
+            let received = tokio::select! {
+                () = token.cancelled() => return,
+                () = line_token.cancelled() => return,
+                t = rx.recv() => t,
+            };
+            match received {
+                Ok(t) => {
+                    let data = t.data.to_vec();
+                    if bridge
+                        .publish_telegram(&t.line, u64::from(t.seq), t.received, data)
+                        .is_err()
+                    {
+                        debug!(line = %t.line, seq = t.seq, "zenoh telegram queue full; the drop is counted");
                     }
                 }
+                Err(RecvError::Lagged(n)) => {
+                    warn!(line = %name, missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
+                }
+                Err(RecvError::Closed) => return,
             }
         }
     });

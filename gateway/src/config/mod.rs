@@ -88,6 +88,8 @@ pub struct Config {
     /// The zenoh session (`[zenoh]`); none: the gateway joins no zenoh fabric.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub zenoh: Option<crate::zenoh_bridge::ZenohConfig>,
+    /// The REST API and `/metrics` (`[http]`): where they listen, the token, the limits.
+    pub http: crate::api::HttpConfig,
     /// Lines by name.
     pub lines: BTreeMap<String, LineConfig>,
 }
@@ -159,6 +161,7 @@ impl Default for Config {
             modbus_tcp: ModbusTcpConfig::default(),
             cp_memory: CpMemoryConfig::new(),
             zenoh: None,
+            http: crate::api::HttpConfig::default(),
             lines: BTreeMap::new(),
         }
     }
@@ -246,6 +249,14 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
             }
         }
     });
+    // The `[http]` section reads itself and reports every problem with its path.
+    let http = match root.raw("http") {
+        None => crate::api::HttpConfig::default(),
+        Some(value) => crate::api::HttpConfig::from_toml(value, "http").unwrap_or_else(|issues| {
+            cx.issues.extend(issues);
+            crate::api::HttpConfig::default()
+        }),
+    };
     let mut lines = BTreeMap::new();
     if table.get("lines").is_some_and(toml::Value::is_array) {
         let _ = root.raw("lines");
@@ -266,6 +277,7 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         modbus_tcp,
         cp_memory,
         zenoh,
+        http,
         lines,
     }
 }

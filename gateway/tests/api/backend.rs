@@ -563,11 +563,12 @@ impl ApiBackend for MemGateway {
         })
     }
 
-    fn signals(&self, line: &str) -> Result<Signals, ApiError> {
-        self.with_line(line, |rt| {
+    fn signals(&self, line: &str) -> BoxFuture<'_, Result<Signals, ApiError>> {
+        let r = self.with_line(line, |rt| {
             rt.signals
                 .ok_or_else(|| ApiError::conflict(format!("line {line} is not RS232")))
-        })
+        });
+        Box::pin(async move { r })
     }
 
     fn set_signals(

@@ -162,7 +162,7 @@ pub(crate) async fn get_signals(
     State(state): State<ApiState>,
     ApiPath(line): ApiPath<String>,
 ) -> Result<Json<Signals>, ApiError> {
-    state.backend().signals(&line).map(Json)
+    state.backend().signals(&line).await.map(Json)
 }
 
 /// Sets DTR and/or RTS; answers with the signals after the change.

@@ -1,0 +1,217 @@
+//! Starting one line of the config: its task with its own cancellation token, the Modbus TCP
+//! units it answers, and the CP memory mirror of a slave line.
+//!
+//! The supervisor starts every line through [`start_line`] at start-up and again for each line a
+//! configuration change adds or changes; it stops a line by cancelling its token and joining it.
+
+use std::collections::BTreeSet;
+use std::sync::{Arc, Mutex, PoisonError};
+
+use tokio::sync::broadcast;
+use tokio_util::sync::CancellationToken;
+
+use super::{build, AppError};
+use crate::config::{Config, LineConfig, ProtocolConfig};
+use crate::cpmem::{self, SharedCpMemory};
+use crate::image::ProcessImage;
+use crate::line::telegram::{TelegramLineHandle, TelegramLineSettings};
+use crate::line::{self, LineEvent, LineHandle, LineStatus, SlaveLineHandle, SlaveLineSettings};
+use crate::metrics::Metrics;
+use crate::unit::UnitService;
+
+/// The task of a line, by protocol.
+#[derive(Clone, Debug)]
+pub(crate) enum LineKind {
+    /// Modbus master RTU or ASCII.
+    Master(LineHandle),
+    /// Modbus slave RTU over the CP memory.
+    Slave(SlaveLineHandle),
+    /// 3964(R) or ASCII telegrams.
+    Telegram(TelegramLineHandle),
+}
+
+// === impl LineKind ===
+
+impl LineKind {
+    /// Port, diagnostic buffer, counters, STATUS word, devices.
+    pub(crate) fn status(&self) -> LineStatus {
+        match self {
+            Self::Master(h) => h.status(),
+            Self::Slave(h) => h.status(),
+            Self::Telegram(h) => h.status().line,
+        }
+    }
+
+    /// The line's events as they happen.
+    pub(crate) fn subscribe_events(&self) -> broadcast::Receiver<LineEvent> {
+        match self {
+            Self::Master(h) => h.subscribe_events(),
+            Self::Slave(h) => h.subscribe_events(),
+            Self::Telegram(h) => h.subscribe_events(),
+        }
+    }
+
+    /// Waits for the task to end (after its token was cancelled).
+    pub(crate) async fn join(self) {
+        match self {
+            Self::Master(h) => h.join().await,
+            Self::Slave(h) => h.join().await,
+            Self::Telegram(h) => h.join().await,
+        }
+    }
+}
+
+/// A running line and what it registered.
+#[derive(Clone)]
+pub(crate) struct RunningLine {
+    pub(crate) kind: LineKind,
+    /// Cancels this line only (a child of the gateway's lines token).
+    pub(crate) token: CancellationToken,
+    /// The config's protocol name (`modbus-master-rtu`, `3964r`, ...).
+    pub(crate) protocol: &'static str,
+    /// The serial port's path.
+    pub(crate) port: String,
+    /// The Modbus TCP units the line answers.
+    pub(crate) units: Vec<(u8, Arc<dyn UnitService>)>,
+}
+
+impl std::fmt::Debug for RunningLine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("RunningLine")
+            .field("kind", &self.kind)
+            .field("protocol", &self.protocol)
+            .field("port", &self.port)
+            .field(
+                "units",
+                &self.units.iter().map(|(u, _)| *u).collect::<Vec<_>>(),
+            )
+            .finish_non_exhaustive()
+    }
+}
+
+/// What starting a line needs from the gateway.
+pub(crate) struct LineDeps<'a> {
+    /// The whole configuration (gateway-wide settings such as the buffer depth).
+    pub(crate) config: &'a Config,
+    pub(crate) image: &'a ProcessImage,
+    pub(crate) metrics: &'a Metrics,
+    /// The CP memory slave lines serve.
+    pub(crate) cp_memory: Option<&'a SharedCpMemory>,
+    /// The parent of the line's own token.
+    pub(crate) parent: &'a CancellationToken,
+    /// CP memory mirrors already set up, by unit id and address map: a restarted slave line
+    /// does not mirror the memory into the image a second time.
+    pub(crate) mirrored: &'a Mutex<BTreeSet<(u8, String)>>,
+}
+
+/// Starts line `name` of `deps.config` under its own token.
+pub(crate) fn start_line(
+    name: &str,
+    line: &LineConfig,
+    deps: &LineDeps<'_>,
+) -> Result<RunningLine, AppError> {
+    let token = deps.parent.child_token();
+    let config = deps.config;
+    let protocol = line.protocol.kind().as_str();
+    let mut units: Vec<(u8, Arc<dyn UnitService>)> = Vec::new();
+    let kind = match &line.protocol {
+        ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => {
+            let (mut settings, devices) = build::master_line(name, line, config)
+                .ok_or_else(|| AppError::Setup(format!("line {name}: not a Modbus master")))?;
+            settings.metrics = Some(deps.metrics.clone());
+            let handle = line::spawn_modbus_master_line(
+                settings,
+                devices,
+                deps.image.clone(),
+                token.clone(),
+            );
+            for (unit, device) in handle.device_units() {
+                units.push((unit, Arc::new(device)));
+            }
+            LineKind::Master(handle)
+        }
+        ProtocolConfig::ModbusSlaveRtu(cfg) => {
+            let memory = deps
+                .cp_memory
+                .ok_or_else(|| AppError::Setup(format!("line {name}: no CP memory was set up")))?;
+            let params = cpmem::config::slave_params(cfg, memory.layout()).map_err(|issues| {
+                let text: Vec<String> =
+                    issues.iter().map(|i| format!("lines.{name}.{i}")).collect();
+                AppError::Setup(text.join("\n"))
+            })?;
+            let mut settings =
+                SlaveLineSettings::new(name.to_owned(), build::port_settings(&line.serial), params);
+            settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
+            settings.metrics = Some(deps.metrics.clone());
+            let handle = line::spawn_modbus_slave_line(settings, memory.clone(), token.clone());
+            if let Some(unit) = cfg.unit_id {
+                units.push((unit, Arc::new(handle.unit())));
+                let key = (unit, format!("{:?}", handle.map()));
+                let new = deps
+                    .mirrored
+                    .lock()
+                    .unwrap_or_else(PoisonError::into_inner)
+                    .insert(key);
+                if new {
+                    memory.mirror_to(deps.image.clone(), unit, handle.map().clone());
+                }
+            }
+            LineKind::Slave(handle)
+        }
+        ProtocolConfig::Proc3964(_) | ProtocolConfig::Ascii(_) => {
+            let port = build::port_settings(&line.serial);
+            let mut settings = TelegramLineSettings::from_config(name, line, port)
+                .map_err(|e| AppError::Setup(format!("line {name}: {e}")))?;
+            settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
+            settings.metrics = Some(deps.metrics.clone());
+            let handle = line::telegram::spawn_telegram_line(settings, token.clone());
+            if let Some(unit) = line.unit_id() {
+                units.push((unit, Arc::new(handle.mailbox_unit())));
+            }
+            LineKind::Telegram(handle)
+        }
+    };
+    Ok(RunningLine {
+        kind,
+        token,
+        protocol,
+        port: line.serial.port.clone(),
+        units,
+    })
+}
+
+/// The checks of [`start_line`] that need no task: what would make a line of `config` fail to
+/// start, each with its path.
+pub(crate) fn start_issues(
+    config: &Config,
+    layout: Option<&proto_core::cpmem::MemoryLayout>,
+) -> Vec<crate::config::ConfigIssue> {
+    let mut issues = Vec::new();
+    for (name, line) in &config.lines {
+        match &line.protocol {
+            ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => {}
+            ProtocolConfig::ModbusSlaveRtu(cfg) => {
+                if let Some(layout) = layout {
+                    if let Err(found) = cpmem::config::slave_params(cfg, layout) {
+                        for i in found {
+                            issues.push(crate::config::ConfigIssue {
+                                path: format!("lines.{name}"),
+                                message: i.to_string(),
+                            });
+                        }
+                    }
+                }
+            }
+            ProtocolConfig::Proc3964(_) | ProtocolConfig::Ascii(_) => {
+                let port = build::port_settings(&line.serial);
+                if let Err(e) = TelegramLineSettings::from_config(name, line, port) {
+                    issues.push(crate::config::ConfigIssue {
+                        path: format!("lines.{name}"),
+                        message: e.to_string(),
+                    });
+                }
+            }
+        }
+    }
+    issues
+}

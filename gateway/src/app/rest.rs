@@ -1,0 +1,411 @@
+//! The REST API's backend over the running gateway ([`ApiBackend`] for the supervisor).
+//!
+//! Status and diagnostics come from the line handles of the snapshot in force; telegrams from the
+//! telegram line's mailbox (the same queue Modbus TCP clients acknowledge through), sends through
+//! its `TelegramClient`, signals through its `SignalsClient`; tags from the tag directory over
+//! the process image, tag writes through the device's unit service with the Modbus TCP server's
+//! checks ([`super::tag_io`]).
+
+use std::sync::{Arc, PoisonError};
+
+use crate::api::model::{
+    ApplyReport, DiagRecord, DiagSnapshot, GatewayStatus, LineStatusView, ModbusTcpStatus,
+    Readiness, ScalarValue, SendResult, Signals, SignalsPatch, TagQuality, TagValue, Telegram,
+    TelegramQueue, Timestamp, ZenohStatus,
+};
+use crate::api::{ApiBackend, ApiError, BoxFuture};
+use crate::config::{Config, ConfigIssue};
+use crate::line::telegram::{TelegramLineHandle, TelegramSendError};
+use crate::signals::{Output, SignalError};
+use crate::tags::TagEntry;
+
+use super::lines::{LineKind, RunningLine};
+use super::status::{self, line_view};
+use super::supervisor::{Snapshot, Supervisor};
+use super::tag_io::{self, WriteRefused};
+
+/// The API's view of the running gateway.
+pub(crate) struct RestBackend {
+    sup: Arc<Supervisor>,
+}
+
+// === impl RestBackend ===
+
+impl RestBackend {
+    pub(crate) fn new(sup: Arc<Supervisor>) -> Self {
+        Self { sup }
+    }
+
+    fn line<'a>(snapshot: &'a Snapshot, line: &str) -> Result<&'a RunningLine, ApiError> {
+        snapshot
+            .lines
+            .get(line)
+            .ok_or_else(|| ApiError::not_found("line", line))
+    }
+
+    fn telegram_line(snapshot: &Snapshot, line: &str) -> Result<TelegramLineHandle, ApiError> {
+        match &Self::line(snapshot, line)?.kind {
+            LineKind::Telegram(h) => Ok(h.clone()),
+            LineKind::Master(_) | LineKind::Slave(_) => Err(ApiError::conflict(format!(
+                "line {line} is a Modbus line: it carries no telegrams (3964(R) and ASCII lines do)"
+            ))),
+        }
+    }
+
+    fn view(
+        &self,
+        name: &str,
+        line: &RunningLine,
+        wire: &status::WireCountersByLine,
+    ) -> LineStatusView {
+        let counts = wire
+            .get(name)
+            .copied()
+            .unwrap_or_default()
+            .since(self.sup.baseline(name));
+        line_view(name, line, &line.kind.status(), counts)
+    }
+
+    /// A tag's value from the image; `None` while its registers are not in the image.
+    fn image_value(&self, snapshot: &Snapshot, entry: &TagEntry) -> Option<TagValue> {
+        let reading = snapshot.tags.read(&self.sup.image, entry)?;
+        Some(TagValue::from_reading(
+            &entry.line,
+            &entry.device,
+            &entry.tag.name,
+            entry.tag.writable,
+            reading,
+        ))
+    }
+
+    /// The value of a tag, read from the device when the image does not have it.
+    async fn read_tag(&self, line: &str, device: &str, tag: &str) -> Result<TagValue, ApiError> {
+        let snapshot = self.sup.snapshot();
+        Self::line(&snapshot, line)?;
+        let entry = snapshot
+            .tags
+            .find(line, device, tag)
+            .ok_or_else(|| ApiError::not_found("tag", &format!("{line}/{device}/{tag}")))?
+            .clone();
+        if let Some(value) = self.image_value(&snapshot, &entry) {
+            return Ok(value);
+        }
+        let service = tag_io::service(&self.sup.units, entry.unit_id).ok_or_else(|| {
+            ApiError::conflict(format!(
+                "unit {} of {line}/{device} is not served",
+                entry.unit_id
+            ))
+        })?;
+        let response = service.call(tag_io::read_request(&entry)).await?;
+        let reading = tag_io::reading_from(&entry, &response).ok_or_else(|| {
+            ApiError::internal(format!(
+                "the device answered the read of {tag} with another function"
+            ))
+        })?;
+        Ok(TagValue::from_reading(
+            line,
+            device,
+            &entry.tag.name,
+            entry.tag.writable,
+            reading,
+        ))
+    }
+}
+
+fn refused(e: WriteRefused) -> ApiError {
+    match e {
+        WriteRefused::Tag(t) => t.into(),
+        other => ApiError::conflict(other.to_string()),
+    }
+}
+
+fn signal_error(e: SignalError) -> ApiError {
+    match e {
+        SignalError::PortClosed { .. } | SignalError::ShuttingDown { .. } => {
+            ApiError::busy(e.to_string())
+        }
+        SignalError::Unsupported { .. }
+        | SignalError::NotRs232 { .. }
+        | SignalError::DrivenByDriver { .. } => ApiError::conflict(e.to_string()),
+    }
+}
+
+fn signals_view(s: crate::signals::ModemSignals) -> Signals {
+    Signals {
+        dtr: s.dtr.unwrap_or(false),
+        rts: s.rts.unwrap_or(false),
+        dsr: s.dsr,
+        cts: s.cts,
+        dcd: s.dcd,
+        ri: s.ri,
+    }
+}
+
+impl ApiBackend for RestBackend {
+    fn config(&self) -> Config {
+        self.sup.snapshot().config.clone()
+    }
+
+    fn validate(&self, config: &Config) -> Result<(), Vec<ConfigIssue>> {
+        self.sup.validate(config)
+    }
+
+    fn apply(&self, config: Config) -> BoxFuture<'_, Result<ApplyReport, ApiError>> {
+        Box::pin(self.sup.apply(config))
+    }
+
+    fn gateway_status(&self) -> GatewayStatus {
+        let snapshot = self.sup.snapshot();
+        let wire = status::wire_counters(&self.sup.exported.registry);
+        let lines = snapshot
+            .lines
+            .iter()
+            .map(|(name, line)| self.view(name, line, &wire))
+            .collect();
+        let (listen, up) = self.sup.tcp_listen();
+        let stats = &self.sup.tcp_stats;
+        let requests = stats.requests();
+        let zenoh = self
+            .sup
+            .zenoh_state
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
+            .map(|z| ZenohStatus {
+                up: z.stats.as_ref().is_some_and(|s| s.session_open()),
+                mode: z.mode.to_owned(),
+                publications_total: z
+                    .stats
+                    .as_ref()
+                    .map_or(0, |s| s.publication_counts().iter().map(|(_, n)| n).sum()),
+            });
+        GatewayStatus {
+            name: snapshot.config.gateway.name.clone(),
+            version: env!("CARGO_PKG_VERSION").to_owned(),
+            started: Timestamp(self.sup.started),
+            uptime_seconds: self.sup.started.elapsed().map_or(0, |d| d.as_secs()),
+            ready: self.readiness().is_ready(),
+            lines,
+            modbus_tcp: ModbusTcpStatus {
+                listen: listen.to_string(),
+                up,
+                connections: stats.connections_open(),
+                requests_total: requests.iter().map(|r| r.count).sum(),
+                exceptions_total: requests
+                    .iter()
+                    .filter(|r| r.result != "ok")
+                    .map(|r| r.count)
+                    .sum(),
+            },
+            zenoh,
+        }
+    }
+
+    fn line_status(&self, line: &str) -> Result<LineStatusView, ApiError> {
+        let snapshot = self.sup.snapshot();
+        let running = Self::line(&snapshot, line)?;
+        let wire = status::wire_counters(&self.sup.exported.registry);
+        Ok(self.view(line, running, &wire))
+    }
+
+    fn diag(&self, line: &str) -> Result<DiagSnapshot, ApiError> {
+        let snapshot = self.sup.snapshot();
+        let status = Self::line(&snapshot, line)?.kind.status();
+        let mark = self.sup.diag_mark(line, status.started);
+        Ok(DiagSnapshot {
+            depth: usize::from(snapshot.config.gateway.diag_buffer_depth),
+            entries: status
+                .diagnostics
+                .iter()
+                .filter(|e| mark.is_none_or(|m| e.at > m))
+                .map(|e| DiagRecord::from_entry(e, status.started))
+                .collect(),
+        })
+    }
+
+    fn clear_diag(&self, line: &str) -> Result<(), ApiError> {
+        let snapshot = self.sup.snapshot();
+        let status = Self::line(&snapshot, line)?.kind.status();
+        // Newest first: the first entry's last occurrence is the newest instant.
+        if let Some(newest) = status.diagnostics.iter().map(|e| e.at).max() {
+            self.sup.set_diag_mark(line, status.started, newest);
+        }
+        Ok(())
+    }
+
+    fn telegrams(&self, line: &str) -> Result<TelegramQueue, ApiError> {
+        let handle = Self::telegram_line(&self.sup.snapshot(), line)?;
+        let mailbox = handle.mailbox();
+        Ok(TelegramQueue {
+            line: line.to_owned(),
+            capacity: mailbox.settings().queue_depth,
+            dropped: mailbox.counters().overflows,
+            telegrams: mailbox
+                .waiting()
+                .iter()
+                .map(|t| Telegram::new(u32::from(t.seq), t.received, &t.data))
+                .collect(),
+        })
+    }
+
+    fn ack_telegram(&self, line: &str, seq: u32) -> Result<(), ApiError> {
+        let handle = Self::telegram_line(&self.sup.snapshot(), line)?;
+        let mailbox = handle.mailbox();
+        let waiting = mailbox.waiting();
+        let Some(seq16) = u16::try_from(seq)
+            .ok()
+            .filter(|s| waiting.iter().any(|t| t.seq == *s))
+        else {
+            return Err(ApiError::not_found("telegram", &seq.to_string()));
+        };
+        mailbox.ack(seq16).map_err(|_| {
+            ApiError::conflict(format!(
+                "telegram {seq} is not the oldest; acknowledge {} first",
+                waiting.first().map_or(0, |t| t.seq)
+            ))
+        })
+    }
+
+    fn send_telegram(
+        &self,
+        line: &str,
+        data: Vec<u8>,
+    ) -> BoxFuture<'_, Result<SendResult, ApiError>> {
+        let handle = Self::telegram_line(&self.sup.snapshot(), line);
+        Box::pin(async move {
+            let client = handle?.client();
+            let len = data.len();
+            match client.send(data).await {
+                Ok(()) => Ok(SendResult::done(len)),
+                Err(
+                    e @ (TelegramSendError::QueueFull { .. } | TelegramSendError::ShuttingDown),
+                ) => Err(ApiError::busy(e.to_string())),
+                Err(e @ TelegramSendError::Refused(_)) => {
+                    Err(ApiError::invalid_body(e.to_string()))
+                }
+                Err(e @ (TelegramSendError::Failed { .. } | TelegramSendError::PortClosed)) => {
+                    Ok(SendResult::failed(e.event().status_word(), len))
+                }
+            }
+        })
+    }
+
+    fn tags(&self, line: Option<&str>, device: Option<&str>) -> Result<Vec<TagValue>, ApiError> {
+        let snapshot = self.sup.snapshot();
+        if let Some(l) = line {
+            Self::line(&snapshot, l)?;
+        }
+        Ok(snapshot
+            .tags
+            .iter()
+            .filter(|e| line.is_none_or(|l| l == e.line) && device.is_none_or(|d| d == e.device))
+            .map(|e| {
+                self.image_value(&snapshot, e).unwrap_or_else(|| TagValue {
+                    line: e.line.clone(),
+                    device: e.device.clone(),
+                    tag: e.tag.name.clone(),
+                    value: None,
+                    unit: e.tag.unit.clone(),
+                    quality: TagQuality::Unknown,
+                    timestamp: None,
+                    writable: e.tag.writable,
+                })
+            })
+            .collect())
+    }
+
+    fn tag(
+        &self,
+        line: &str,
+        device: &str,
+        tag: &str,
+    ) -> BoxFuture<'_, Result<TagValue, ApiError>> {
+        let (line, device, tag) = (line.to_owned(), device.to_owned(), tag.to_owned());
+        Box::pin(async move { self.read_tag(&line, &device, &tag).await })
+    }
+
+    fn write_tag(
+        &self,
+        line: &str,
+        device: &str,
+        tag: &str,
+        value: ScalarValue,
+    ) -> BoxFuture<'_, Result<TagValue, ApiError>> {
+        let snapshot = self.sup.snapshot();
+        let prepared = Self::line(&snapshot, line).and_then(|_| {
+            tag_io::prepare_write(
+                &snapshot,
+                &self.sup.units,
+                line,
+                device,
+                tag,
+                value.as_f64(),
+            )
+            .map_err(refused)
+        });
+        let (line, device) = (line.to_owned(), device.to_owned());
+        Box::pin(async move {
+            let write = prepared?;
+            let name = write.entry.tag.name.clone();
+            write.service.call(write.request).await?;
+            tracing::info!(%line, %device, tag = %name, value = value.as_f64(), "tag written");
+            self.read_tag(&line, &device, &name).await
+        })
+    }
+
+    fn signals(&self, line: &str) -> BoxFuture<'_, Result<Signals, ApiError>> {
+        let handle = self.signals_client(line);
+        Box::pin(async move {
+            let client = handle?;
+            client.read().await.map(signals_view).map_err(signal_error)
+        })
+    }
+
+    fn set_signals(
+        &self,
+        line: &str,
+        patch: SignalsPatch,
+    ) -> BoxFuture<'_, Result<Signals, ApiError>> {
+        let handle = self.signals_client(line);
+        Box::pin(async move {
+            let client = handle?;
+            for (output, on) in [(Output::Dtr, patch.dtr), (Output::Rts, patch.rts)] {
+                if let Some(on) = on {
+                    client.set(output, on).await.map_err(signal_error)?;
+                }
+            }
+            client.read().await.map(signals_view).map_err(signal_error)
+        })
+    }
+
+    fn readiness(&self) -> Readiness {
+        let snapshot = self.sup.snapshot();
+        Readiness {
+            lines: snapshot
+                .lines
+                .iter()
+                .map(|(n, l)| (n.clone(), l.kind.status().port_opens > 0))
+                .collect(),
+            modbus_tcp: self.sup.tcp_listen().1,
+            zenoh: self
+                .sup
+                .zenoh_state
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .as_ref()
+                .map(|z| z.stats.as_ref().is_some_and(|s| s.session_open())),
+        }
+    }
+}
+
+impl RestBackend {
+    fn signals_client(&self, line: &str) -> Result<crate::line::telegram::SignalsClient, ApiError> {
+        let snapshot = self.sup.snapshot();
+        match &Self::line(&snapshot, line)?.kind {
+            LineKind::Telegram(h) => Ok(h.signals()),
+            LineKind::Master(_) | LineKind::Slave(_) => Err(ApiError::conflict(format!(
+                "line {line}: the RS232 signals are served on 3964(R) and ASCII lines only"
+            ))),
+        }
+    }
+}

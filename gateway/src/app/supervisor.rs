@@ -1,0 +1,579 @@
+//! The supervisor of a running gateway: its lines (each with its own cancellation token), the
+//! Modbus TCP server, the zenoh bridge, and the configuration in force.
+//!
+//! A configuration change is applied by [`Supervisor::apply`]: [`ConfigDiff`] says what changed,
+//! and only that is stopped and started again. A line whose serial or protocol settings or
+//! devices changed is restarted as a whole (a line task takes its device list at start); a line
+//! that did not change keeps its task, its open port, its counters and its diagnostic buffer, and
+//! the Modbus TCP clients of its units keep their connections. The Modbus TCP server restarts
+//! only when `[modbus_tcp]` changed; the zenoh session only when the gateway's name (its key
+//! prefix) changed. Other sections (`[cp_memory]`, `[http]`, `[zenoh]`) take effect at the next
+//! start of the process and are reported as pending.
+//!
+//! Readers (the REST API, zenoh, the feeds) take a [`Snapshot`]: the configuration, the lines and
+//! the tag directory in force, swapped as a whole when a change is applied.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::net::SocketAddr;
+use std::path::Path;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError, RwLock};
+use std::time::SystemTime;
+
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+use tracing::{info, warn};
+
+use super::lines::{self, LineDeps, RunningLine};
+use super::status::{self, WireCounters};
+use super::{server_options, AppError, MetricsRegistry, Overrides, GRACE_PERIOD};
+use crate::api::model::ApplyReport;
+use crate::api::{ApiError, ConfigDiff};
+use crate::config::{Config, ConfigIssue, ProtocolConfig};
+use crate::cpmem::{self, SharedCpMemory};
+use crate::image::{ImageConfig, ProcessImage};
+use crate::modbus_tcp::{self, ServerOptions, ServerStats, SharedUnits};
+use crate::tags::TagDirectory;
+use crate::unit::UnitMap;
+
+/// What is in force: read as a whole, replaced as a whole.
+#[derive(Debug)]
+pub(crate) struct Snapshot {
+    pub(crate) config: Config,
+    pub(crate) lines: BTreeMap<String, RunningLine>,
+    pub(crate) tags: Arc<TagDirectory>,
+    /// The Modbus TCP server's options (its write checks apply to REST and zenoh writes too).
+    pub(crate) server: ServerOptions,
+}
+
+/// The running Modbus TCP server.
+struct TcpServer {
+    token: CancellationToken,
+    task: JoinHandle<()>,
+    local: SocketAddr,
+    up: Arc<AtomicBool>,
+}
+
+/// The state of the CP memory the slave lines serve.
+#[derive(Default)]
+struct CpState {
+    memory: Option<SharedCpMemory>,
+    /// Saves the memory; stopped (with a last save) after the lines and servers.
+    persistence: Option<(CancellationToken, JoinHandle<()>)>,
+}
+
+/// The running gateway.
+pub(crate) struct Supervisor {
+    pub(crate) started: SystemTime,
+    pub(crate) image: ProcessImage,
+    pub(crate) units: SharedUnits,
+    pub(crate) exported: MetricsRegistry,
+    pub(crate) overrides: Overrides,
+    /// The process's shutdown token: the parent of the servers' tokens.
+    pub(crate) root: CancellationToken,
+    /// The parent of every line's token.
+    lines_token: CancellationToken,
+    state: RwLock<Arc<Snapshot>>,
+    cp: Mutex<CpState>,
+    mirrored: Mutex<BTreeSet<(u8, String)>>,
+    tcp: tokio::sync::Mutex<Option<TcpServer>>,
+    /// The address the Modbus TCP server listens on and whether it is up.
+    tcp_state: Mutex<(SocketAddr, Arc<AtomicBool>)>,
+    pub(crate) tcp_stats: Arc<ServerStats>,
+    /// The zenoh bridge, when one runs.
+    pub(crate) zenoh: tokio::sync::Mutex<Option<super::zenoh::ZenohRun>>,
+    /// What status and readiness show of zenoh; `None` when it is not configured.
+    pub(crate) zenoh_state: Mutex<Option<super::zenoh::ZenohState>>,
+    /// Per line: when the buffer was cleared (the line's start time and the newest entry then).
+    diag_marks: Mutex<BTreeMap<String, (SystemTime, proto_core::time::Instant)>>,
+    /// Per line: the Prometheus frame and byte counts when the line started.
+    baselines: Mutex<BTreeMap<String, WireCounters>>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
+// === impl Supervisor ===
+
+impl Supervisor {
+    /// Starts every line of `config` and the Modbus TCP server (bound, serving).
+    pub(crate) fn start(
+        config: Config,
+        overrides: Overrides,
+        shutdown: &CancellationToken,
+        exported: MetricsRegistry,
+    ) -> Result<Arc<Self>, AppError> {
+        let image = ProcessImage::new(ImageConfig::default());
+        let (memory, persistence) = match open_cp_memory(&config)? {
+            Some((memory, persistence)) => (Some(memory), persistence),
+            None => (None, None),
+        };
+        let lines_token = shutdown.child_token();
+        let mirrored = Mutex::new(BTreeSet::new());
+        let baselines_now = status::wire_counters(&exported.registry);
+        let mut lines = BTreeMap::new();
+        let mut baselines = BTreeMap::new();
+        {
+            let deps = LineDeps {
+                config: &config,
+                image: &image,
+                metrics: &exported.metrics,
+                cp_memory: memory.as_ref(),
+                parent: &lines_token,
+                mirrored: &mirrored,
+            };
+            for (name, line) in &config.lines {
+                match lines::start_line(name, line, &deps) {
+                    Ok(running) => {
+                        lines.insert(name.clone(), running);
+                        let base = baselines_now.get(name).copied().unwrap_or_default();
+                        baselines.insert(name.clone(), base);
+                    }
+                    Err(e) => {
+                        lines_token.cancel();
+                        return Err(e);
+                    }
+                }
+            }
+        }
+        let units = Arc::new(RwLock::new(unit_map(&lines)));
+        let addr = overrides.modbus_tcp.unwrap_or(config.modbus_tcp.listen);
+        let listener = modbus_tcp::bind(addr).map_err(|source| AppError::Bind {
+            what: "Modbus TCP",
+            addr,
+            source,
+        })?;
+        let snapshot = Snapshot {
+            tags: Arc::new(TagDirectory::from_config(&config)),
+            server: server_options(&config.modbus_tcp),
+            config,
+            lines,
+        };
+        let sup = Arc::new(Self {
+            started: SystemTime::now(),
+            image,
+            units,
+            tcp_stats: Arc::new(ServerStats::with_metrics(exported.metrics.clone())),
+            exported,
+            overrides,
+            root: shutdown.clone(),
+            lines_token,
+            state: RwLock::new(Arc::new(snapshot)),
+            cp: Mutex::new(CpState {
+                memory,
+                persistence,
+            }),
+            mirrored,
+            tcp: tokio::sync::Mutex::new(None),
+            tcp_state: Mutex::new((addr, Arc::new(AtomicBool::new(false)))),
+            zenoh: tokio::sync::Mutex::new(None),
+            zenoh_state: Mutex::new(None),
+            diag_marks: Mutex::new(BTreeMap::new()),
+            baselines: Mutex::new(baselines),
+        });
+        let server = sup.spawn_tcp(listener)?;
+        *sup.tcp
+            .try_lock()
+            .map_err(|_| AppError::Setup("Modbus TCP state busy".into()))? = Some(server);
+        Ok(sup)
+    }
+
+    /// What is in force now.
+    pub(crate) fn snapshot(&self) -> Arc<Snapshot> {
+        Arc::clone(&self.state.read().unwrap_or_else(PoisonError::into_inner))
+    }
+
+    /// The address the Modbus TCP server listens on and whether it is up.
+    pub(crate) fn tcp_listen(&self) -> (SocketAddr, bool) {
+        let state = lock(&self.tcp_state);
+        (state.0, state.1.load(Ordering::Acquire))
+    }
+
+    /// The Prometheus frame and byte counts of `line` at its start.
+    pub(crate) fn baseline(&self, line: &str) -> WireCounters {
+        lock(&self.baselines).get(line).copied().unwrap_or_default()
+    }
+
+    /// The newest diagnostic entry at the last clear of `line`, while the line runs the task
+    /// that was cleared.
+    pub(crate) fn diag_mark(
+        &self,
+        line: &str,
+        started: SystemTime,
+    ) -> Option<proto_core::time::Instant> {
+        lock(&self.diag_marks)
+            .get(line)
+            .filter(|(s, _)| *s == started)
+            .map(|(_, at)| *at)
+    }
+
+    /// Hides the entries of `line`'s buffer up to its newest one.
+    pub(crate) fn set_diag_mark(
+        &self,
+        line: &str,
+        started: SystemTime,
+        newest: proto_core::time::Instant,
+    ) {
+        lock(&self.diag_marks).insert(line.to_owned(), (started, newest));
+    }
+
+    /// Binds the listener's server task under its own token.
+    fn spawn_tcp(&self, listener: tokio::net::TcpListener) -> Result<TcpServer, AppError> {
+        let local = listener.local_addr()?;
+        let token = self.root.child_token();
+        let up = Arc::new(AtomicBool::new(true));
+        let options = server_options(&self.snapshot().config.modbus_tcp);
+        let serve = modbus_tcp::serve(
+            listener,
+            Arc::clone(&self.units),
+            options,
+            token.clone(),
+            Arc::clone(&self.tcp_stats),
+        );
+        let flag = Arc::clone(&up);
+        let task = tokio::spawn(async move {
+            match serve.await {
+                Ok(()) => {}
+                Err(e) => warn!(error = %e, "Modbus TCP server ended with an error"),
+            }
+            flag.store(false, Ordering::Release);
+        });
+        *lock(&self.tcp_state) = (local, Arc::clone(&up));
+        Ok(TcpServer {
+            token,
+            task,
+            local,
+            up,
+        })
+    }
+
+    /// Checks that need the running system: the serial ports of added or changed lines exist,
+    /// a new Modbus TCP address can be bound, the slave lines fit the CP memory, every line's
+    /// settings convert to its runtime's.
+    pub(crate) fn validate(&self, new: &Config) -> Result<(), Vec<ConfigIssue>> {
+        let old = self.snapshot();
+        let mut issues = Vec::new();
+        for (name, line) in &new.lines {
+            let port = &line.serial.port;
+            let changed = old
+                .config
+                .lines
+                .get(name)
+                .is_none_or(|o| &o.serial.port != port);
+            if !changed {
+                continue;
+            }
+            let path = format!("lines.{name}.port");
+            if line.serial.pty_name().is_some() {
+                issues.push(issue(
+                    &path,
+                    "a pty: port is created by `gateway demo` at start only; name an existing port",
+                ));
+            } else if !Path::new(port).exists() {
+                issues.push(issue(&path, format!("no such serial port {port}")));
+            }
+        }
+        if self.overrides.modbus_tcp.is_none()
+            && new.modbus_tcp.listen != old.config.modbus_tcp.listen
+        {
+            if let Err(e) = std::net::TcpListener::bind(new.modbus_tcp.listen) {
+                issues.push(issue(
+                    "modbus_tcp.listen",
+                    format!("cannot listen on {}: {e}", new.modbus_tcp.listen),
+                ));
+            }
+        }
+        let layout = slave_layout(new);
+        let (current, persisted) = {
+            let cp = lock(&self.cp);
+            (
+                cp.memory.as_ref().map(|m| m.layout().clone()),
+                cp.persistence.is_some(),
+            )
+        };
+        if let Some(layout) = &layout {
+            if persisted && current.as_ref() != Some(layout) {
+                issues.push(issue(
+                    "cp_memory",
+                    "the slave lines need another CP memory layout; a persisted CP memory \
+                     (persist_file) takes a new layout only at a restart of the gateway",
+                ));
+            }
+        }
+        issues.extend(lines::start_issues(new, layout.as_ref()));
+        if issues.is_empty() {
+            Ok(())
+        } else {
+            Err(issues)
+        }
+    }
+
+    /// Puts `new` in force, restarting only what changed; reports what was restarted.
+    pub(crate) async fn apply(self: &Arc<Self>, new: Config) -> Result<ApplyReport, ApiError> {
+        let old = self.snapshot();
+        let diff = ConfigDiff::between(&old.config, &new);
+        let mut report = diff.report();
+        // A line task takes its devices at start: a device change restarts its line.
+        let mut restart: BTreeSet<String> = diff.lines_changed.iter().cloned().collect();
+        restart.extend(diff.devices_changed.iter().map(|(line, _)| line.clone()));
+        let memory = self.memory_for(&new, &old.config, &mut restart);
+        report.devices_restarted.clear();
+        report.lines_restarted = restart.iter().cloned().collect();
+
+        // Stop the removed and the changed lines; their ports close before they reopen.
+        let mut lines = old.lines.clone();
+        for name in diff.lines_removed.iter().chain(&restart) {
+            let Some(line) = lines.remove(name) else {
+                continue;
+            };
+            stop_line(name, line).await;
+            let kept: BTreeSet<&String> = new
+                .lines
+                .get(name)
+                .map(|l| l.devices().map(|(d, _)| d).collect())
+                .unwrap_or_default();
+            if let Some(before) = old.config.lines.get(name) {
+                for (device, _) in before.devices().filter(|(d, _)| !kept.contains(d)) {
+                    self.exported.metrics.forget_device(name, device);
+                }
+                if !new.lines.contains_key(name) {
+                    self.exported
+                        .metrics
+                        .forget_line(name, before.protocol.kind().as_str());
+                    lock(&self.baselines).remove(name);
+                }
+            }
+        }
+
+        // Start the added and the changed lines.
+        let mut failures = Vec::new();
+        let mut started = Vec::new();
+        {
+            let deps = LineDeps {
+                config: &new,
+                image: &self.image,
+                metrics: &self.exported.metrics,
+                cp_memory: memory.as_ref(),
+                parent: &self.lines_token,
+                mirrored: &self.mirrored,
+            };
+            let counts = status::wire_counters(&self.exported.registry);
+            for name in diff.lines_added.iter().chain(&restart) {
+                let Some(line) = new.lines.get(name) else {
+                    continue;
+                };
+                match lines::start_line(name, line, &deps) {
+                    Ok(running) => {
+                        let base = counts.get(name).copied().unwrap_or_default();
+                        lock(&self.baselines).insert(name.clone(), base);
+                        info!(line = %name, port = %running.port, "line started");
+                        lines.insert(name.clone(), running);
+                        started.push(name.clone());
+                    }
+                    Err(e) => {
+                        warn!(line = %name, error = %e, "line did not start");
+                        failures.push(format!("line {name}: {e}"));
+                    }
+                }
+            }
+        }
+
+        // The units of every line, then the new snapshot, in one swap each.
+        let map = unit_map(&lines);
+        *self.units.write().unwrap_or_else(PoisonError::into_inner) = map;
+        let snapshot = Arc::new(Snapshot {
+            tags: Arc::new(TagDirectory::from_config(&new)),
+            server: server_options(&new.modbus_tcp),
+            config: new,
+            lines,
+        });
+        *self.state.write().unwrap_or_else(PoisonError::into_inner) = Arc::clone(&snapshot);
+        super::zenoh::lines_started(self, &snapshot, &started).await;
+
+        report.servers_restarted.clear();
+        if diff.modbus_tcp_changed {
+            match self.restart_tcp().await {
+                Ok(()) => report.servers_restarted.push("modbus_tcp".into()),
+                Err(e) => failures.push(e),
+            }
+        }
+        if diff.name_changed && super::zenoh::restart(self).await {
+            report.servers_restarted.push("zenoh".into());
+        }
+        if failures.is_empty() {
+            Ok(report)
+        } else {
+            Err(ApiError::internal(format!(
+                "the configuration was saved but not every part started: {}",
+                failures.join("; ")
+            )))
+        }
+    }
+
+    /// The CP memory the slave lines of `new` serve: the running one when its layout fits,
+    /// otherwise a new one, and then every slave line restarts on it.
+    fn memory_for(
+        &self,
+        new: &Config,
+        old: &Config,
+        restart: &mut BTreeSet<String>,
+    ) -> Option<SharedCpMemory> {
+        let layout = slave_layout(new)?;
+        let mut cp = lock(&self.cp);
+        if let Some(memory) = cp.memory.as_ref().filter(|m| m.layout() == &layout) {
+            return Some(memory.clone());
+        }
+        // Only an unpersisted memory gets here (validate refuses the other case).
+        info!("the slave lines need another CP memory layout: a new memory, every slave line restarts");
+        let memory = SharedCpMemory::new(layout);
+        cp.memory = Some(memory.clone());
+        lock(&self.mirrored).clear();
+        for (name, line) in &new.lines {
+            if matches!(line.protocol, ProtocolConfig::ModbusSlaveRtu(_))
+                && old.lines.contains_key(name)
+            {
+                restart.insert(name.clone());
+            }
+        }
+        Some(memory)
+    }
+
+    /// Stops the Modbus TCP server and starts it with the configuration in force. A port 0
+    /// address keeps the port the server had.
+    async fn restart_tcp(&self) -> Result<(), String> {
+        let config = self.snapshot().config.modbus_tcp.clone();
+        let mut slot = self.tcp.lock().await;
+        let want = self.overrides.modbus_tcp.unwrap_or(config.listen);
+        let old_local = slot.as_ref().map(|s| s.local);
+        let addr = match old_local {
+            Some(local) if want.port() == 0 && want.ip() == local.ip() => local,
+            _ => want,
+        };
+        let bind = |addr| {
+            modbus_tcp::bind(addr).map_err(|e| format!("Modbus TCP cannot listen on {addr}: {e}"))
+        };
+        // A new address is bound before the old server stops: a failure leaves it running.
+        let early = if Some(addr) == old_local {
+            None
+        } else {
+            Some(bind(addr)?)
+        };
+        if let Some(old) = slot.take() {
+            old.token.cancel();
+            if tokio::time::timeout(GRACE_PERIOD, old.task).await.is_err() {
+                warn!("the old Modbus TCP server did not stop within the grace period");
+            }
+            old.up.store(false, Ordering::Release);
+        }
+        let listener = match early {
+            Some(l) => l,
+            None => bind(addr)?,
+        };
+        let server = self.spawn_tcp(listener).map_err(|e| e.to_string())?;
+        info!(local = %server.local, "Modbus TCP server restarted");
+        *slot = Some(server);
+        Ok(())
+    }
+
+    /// Stops everything: lines finish their transaction in flight, connections their request;
+    /// the CP memory is saved last.
+    pub(crate) async fn stop(&self) {
+        self.lines_token.cancel();
+        let tcp = self.tcp.lock().await.take();
+        if let Some(server) = &tcp {
+            server.token.cancel();
+        }
+        super::zenoh::stop(self).await;
+        for (_, line) in self.snapshot().lines.clone() {
+            line.kind.join().await;
+        }
+        if let Some(server) = tcp {
+            let _ = server.task.await;
+        }
+        let persistence = lock(&self.cp).persistence.take();
+        if let Some((token, task)) = persistence {
+            token.cancel();
+            let _ = task.await;
+        }
+    }
+}
+
+/// Cancels a line and waits (bounded) for its task, which closes its port.
+async fn stop_line(name: &str, line: RunningLine) {
+    line.token.cancel();
+    if tokio::time::timeout(GRACE_PERIOD, line.kind.join())
+        .await
+        .is_err()
+    {
+        warn!(line = %name, grace = ?GRACE_PERIOD, "line did not stop within the grace period");
+    } else {
+        info!(line = %name, "line stopped");
+    }
+}
+
+/// The unit map of `lines`.
+fn unit_map(lines: &BTreeMap<String, RunningLine>) -> UnitMap {
+    let mut map = UnitMap::new();
+    for line in lines.values() {
+        for (unit, service) in &line.units {
+            map.insert(*unit, Arc::clone(service));
+        }
+    }
+    map
+}
+
+fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
+    ConfigIssue {
+        path: path.to_owned(),
+        message: message.into(),
+    }
+}
+
+/// The CP memory layout the slave lines of `config` need; `None` without slave lines.
+fn slave_layout(config: &Config) -> Option<proto_core::cpmem::MemoryLayout> {
+    let slaves: Vec<_> = config
+        .lines
+        .values()
+        .filter_map(|l| match &l.protocol {
+            ProtocolConfig::ModbusSlaveRtu(cfg) => Some(cfg),
+            _ => None,
+        })
+        .collect();
+    if slaves.is_empty() {
+        return None;
+    }
+    let blocks: Vec<(u16, u16)> = config
+        .cp_memory
+        .data_blocks
+        .iter()
+        .map(|b| (b.db, b.words))
+        .collect();
+    Some(cpmem::config::memory_layout(
+        slaves,
+        (!blocks.is_empty()).then_some(blocks.as_slice()),
+    ))
+}
+
+type Persistence = Option<(CancellationToken, JoinHandle<()>)>;
+
+/// The CP memory of the slave lines, loaded from its file when it is persisted; `None` when no
+/// line serves it.
+fn open_cp_memory(config: &Config) -> Result<Option<(SharedCpMemory, Persistence)>, AppError> {
+    let Some(layout) = slave_layout(config) else {
+        return Ok(None);
+    };
+    let Some(path) = &config.cp_memory.persist_file else {
+        return Ok(Some((SharedCpMemory::new(layout), None)));
+    };
+    let (memory, report) = SharedCpMemory::open(layout, path)
+        .map_err(|e| AppError::Setup(format!("CP memory file {}: {e}", path.display())))?;
+    info!(file = %path.display(), ?report, "CP memory loaded");
+    let token = CancellationToken::new();
+    let settings = cpmem::PersistSettings {
+        path: path.clone(),
+        interval: config.cp_memory.save_interval,
+    };
+    let task = cpmem::spawn_persistence(memory.clone(), settings, token.clone());
+    Ok(Some((memory, Some((token, task)))))
+}

@@ -1,0 +1,124 @@
+//! Reading and writing tags through the units, shared by REST and zenoh.
+//!
+//! A write takes the same path and the same checks as a Modbus TCP write: the tag is encoded by
+//! its profile, the server's read-only mode and write ranges are applied, and the request goes to
+//! the device's unit service, which answers with the device's answer. A read of a tag that is not
+//! in the image (nobody polls it) asks the unit, which reads it from the device on demand.
+
+use std::sync::{Arc, PoisonError};
+use std::time::SystemTime;
+
+use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
+use proto_core::profiles;
+
+use super::supervisor::Snapshot;
+use crate::modbus_tcp::SharedUnits;
+use crate::tags::{TagDirectory, TagEntry, TagReading, TagWriteError};
+use crate::unit::UnitService;
+
+/// Why a tag write was not sent to the device.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub(crate) enum WriteRefused {
+    /// The directory or the profile refused (unknown tag, read-only tag, value out of range).
+    #[error(transparent)]
+    Tag(#[from] TagWriteError),
+    /// `[modbus_tcp] read_only`: every write is refused (Modbus TCP answers exception 01).
+    #[error(
+        "the gateway is read-only ([modbus_tcp] read_only): Modbus TCP would answer exception 01"
+    )]
+    ReadOnlyGateway,
+    /// Outside `[modbus_tcp] write_ranges`.
+    #[error("tag {tag} is outside [modbus_tcp] write_ranges: Modbus TCP would answer exception {code:?}")]
+    OutsideRanges { tag: String, code: ExceptionCode },
+    /// No unit answers the tag's unit id.
+    #[error("unit {0} is not served")]
+    NotServed(u8),
+}
+
+/// A checked write, ready to send.
+pub(crate) struct PreparedWrite {
+    pub(crate) service: Arc<dyn UnitService>,
+    pub(crate) request: Request,
+    pub(crate) entry: TagEntry,
+}
+
+/// The unit service of `unit`.
+pub(crate) fn service(units: &SharedUnits, unit: u8) -> Option<Arc<dyn UnitService>> {
+    units
+        .read()
+        .unwrap_or_else(PoisonError::into_inner)
+        .get(unit)
+        .cloned()
+}
+
+/// The checked request of a write of `value` (engineering units) to `line/device/tag`.
+pub(crate) fn prepare_write(
+    snapshot: &Snapshot,
+    units: &SharedUnits,
+    line: &str,
+    device: &str,
+    tag: &str,
+    value: f64,
+) -> Result<PreparedWrite, WriteRefused> {
+    let entry = snapshot
+        .tags
+        .find(line, device, tag)
+        .ok_or_else(|| TagWriteError::UnknownTag(format!("{line}/{device}/{tag}")))?;
+    let request = TagDirectory::write_request(entry, value)?;
+    if snapshot.server.read_only {
+        return Err(WriteRefused::ReadOnlyGateway);
+    }
+    if let Some(code) = snapshot.server.check_write(entry.unit_id, &request) {
+        return Err(WriteRefused::OutsideRanges {
+            tag: format!("{line}/{device}/{}", entry.tag.name),
+            code,
+        });
+    }
+    let service = service(units, entry.unit_id).ok_or(WriteRefused::NotServed(entry.unit_id))?;
+    Ok(PreparedWrite {
+        service,
+        request,
+        entry: entry.clone(),
+    })
+}
+
+/// The request that reads the tag's registers or bits.
+pub(crate) fn read_request(entry: &TagEntry) -> Request {
+    let address = entry.tag.address;
+    let quantity = entry.tag.data_type.words();
+    match entry.tag.table {
+        profiles::Table::Coils => Request::ReadCoils { address, quantity },
+        profiles::Table::DiscreteInputs => Request::ReadDiscreteInputs { address, quantity },
+        profiles::Table::InputRegisters => Request::ReadInputRegisters { address, quantity },
+        profiles::Table::HoldingRegisters => Request::ReadHoldingRegisters { address, quantity },
+    }
+}
+
+/// The tag's value from the device's answer to [`read_request`]; `None` for an answer of
+/// another shape.
+pub(crate) fn reading_from(entry: &TagEntry, response: &Response) -> Option<TagReading> {
+    let words: Vec<u16> = match response {
+        Response::ReadCoils(bits) | Response::ReadDiscreteInputs(bits) => {
+            bits.iter().map(|&b| u16::from(b)).collect()
+        }
+        Response::ReadHoldingRegisters(w) | Response::ReadInputRegisters(w) => w.clone(),
+        _ => return None,
+    };
+    let want = usize::from(entry.tag.data_type.words());
+    let words = words.get(..want)?;
+    let (value, quality) = entry.profile.decode(&entry.tag, words);
+    let quality = match quality {
+        profiles::Quality::Good => "good",
+        profiles::Quality::Stale => "stale",
+        profiles::Quality::NotDefined => "not_defined",
+        profiles::Quality::Off => "off",
+        profiles::Quality::OutOfRange => "out_of_range",
+        profiles::Quality::CommFailure => "comm_failure",
+    };
+    Some(TagReading {
+        value,
+        unit: entry.tag.unit.clone(),
+        quality,
+        timestamp: SystemTime::now(),
+    })
+}
