@@ -56,7 +56,7 @@ pub struct Gateway {
     child: Child,
     /// The Modbus TCP address the gateway announced.
     pub modbus_tcp: SocketAddr,
-    /// The HTTP address (`/metrics`) the gateway announced, if it serves HTTP.
+    /// The HTTP address (REST API, `/metrics`) the gateway announced, if it serves HTTP.
     pub http: Option<SocketAddr>,
     /// Every line the process wrote to stdout and stderr so far.
     output: Arc<Mutex<Vec<String>>>,
@@ -82,9 +82,16 @@ impl Gateway {
         Self::start(&args)
     }
 
-    /// Starts `gateway run --config FILE`.
+    /// Starts `gateway run --config FILE`, HTTP (REST API, `/metrics`) on an ephemeral port
+    /// (never the config's `[http] listen`, which tests running in parallel would share).
     pub fn run(config: &Path) -> Self {
-        Self::start(&["run", "--config", config.to_str().expect("utf-8 path")])
+        Self::start(&[
+            "run",
+            "--config",
+            config.to_str().expect("utf-8 path"),
+            "--http",
+            "127.0.0.1:0",
+        ])
     }
 
     /// Starts the binary with `args` and waits for its Modbus TCP announcement (printed last,
@@ -174,6 +181,12 @@ impl Gateway {
     /// The process id.
     pub fn pid(&self) -> u32 {
         self.child.id()
+    }
+
+    /// Kills the process with SIGKILL (no chance to clean up) and waits for it.
+    pub fn kill(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
     }
 
     /// Sends SIGTERM and waits up to `timeout` for the exit status.
