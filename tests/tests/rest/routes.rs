@@ -4,7 +4,7 @@ use std::time::Duration;
 
 use reqwest::{Method, StatusCode};
 use serde_json::json;
-use tokio_modbus::client::{tcp, Reader};
+use tokio_modbus::client::{tcp, Reader, Writer};
 use tokio_modbus::prelude::Slave;
 
 use super::support::Plant;
@@ -293,6 +293,55 @@ async fn every_line_route_answers_on_a_running_gateway() {
         "one error shape: {:#}",
         read_only.body
     );
+
+    // A change of [modbus_tcp] restarts the server only, on the same address (a port 0 keeps
+    // its port); read-only now, a tag write is refused with the Modbus TCP server's check.
+    let mut config = api.get_ok("/api/v1/config").await;
+    config["modbus_tcp"]["read_only"] = json!(true);
+    let a = api
+        .change(Method::PUT, "/api/v1/config", Some(&config))
+        .await;
+    assert_eq!(a.status, StatusCode::OK, "{:#}", a.body);
+    assert_eq!(
+        a.body["applied"]["servers_restarted"],
+        json!(["modbus_tcp"])
+    );
+    assert_eq!(a.body["applied"]["lines_restarted"], json!([]));
+    let status = api.get_ok("/api/v1/status").await;
+    assert_eq!(
+        status["modbus_tcp"]["listen"],
+        plant.gw.modbus_tcp.to_string()
+    );
+    assert_eq!(status["modbus_tcp"]["up"], true);
+    assert_eq!(api.get_ok("/readyz").await["status"], "ready");
+    let mut again = tcp::connect_slave(plant.gw.modbus_tcp, Slave(2))
+        .await
+        .expect("the restarted server accepts");
+    assert_eq!(
+        again
+            .read_holding_registers(3104, 1)
+            .await
+            .expect("transport"),
+        Ok(vec![455])
+    );
+    assert_eq!(
+        again
+            .write_single_register(3104, 400)
+            .await
+            .expect("transport"),
+        Err(tokio_modbus::prelude::ExceptionCode::IllegalFunction)
+    );
+    let refused = api
+        .change(
+            Method::PUT,
+            "/api/v1/lines/drive/devices/atv71/tags/HSP",
+            Some(&json!({ "value": 40 })),
+        )
+        .await;
+    assert_eq!(refused.status, StatusCode::CONFLICT, "{:#}", refused.body);
+    assert!(refused.body["error"]["message"]
+        .as_str()
+        .is_some_and(|m| m.contains("read-only")));
 
     // Unknown routes and methods answer in the same shape.
     let none = api.get("/api/v1/nothing").await;
