@@ -186,6 +186,19 @@ async fn a_config_with_three_mistakes_gets_all_three() {
         missing.body
     );
     assert_eq!(missing.body["error"]["issues"][0]["path"], "lines.x.port");
+    // A body over `[http] body_limit` (1 MiB by default) is refused before it is read whole.
+    let big = json!({ "gateway": { "name": "x".repeat(2 * 1024 * 1024) } });
+    let too_big = api
+        .change(Method::POST, "/api/v1/config/validate", Some(&big))
+        .await;
+    assert_eq!(
+        too_big.status,
+        StatusCode::PAYLOAD_TOO_LARGE,
+        "{:#}",
+        too_big.body
+    );
+    assert_eq!(too_big.body["error"]["code"], "payload_too_large");
+
     // A valid configuration validates.
     let ok = api
         .change(Method::POST, "/api/v1/config/validate", Some(&before.body))

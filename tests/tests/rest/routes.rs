@@ -237,6 +237,20 @@ async fn every_line_route_answers_on_a_running_gateway() {
     assert_eq!(hsp["unit"], "Hz");
     assert_eq!(hsp["quality"], "good");
     assert_eq!(hsp["writable"], true);
+    // ACC is not polled: the list has no value for it, one GET reads it from the device.
+    let acc = tags
+        .as_array()
+        .and_then(|t| t.iter().find(|t| t["tag"] == "ACC"))
+        .cloned()
+        .unwrap_or_else(|| panic!("no ACC in {tags:#}"));
+    assert_eq!(acc["quality"], "unknown", "{acc:#}");
+    assert_eq!(acc["value"], json!(null));
+    let acc = api
+        .get_ok("/api/v1/lines/drive/devices/atv71/tags/ACC")
+        .await;
+    assert_eq!(acc["value"], 3.0, "the simulator's 3.0 s ramp: {acc:#}");
+    assert_eq!(acc["unit"], "s");
+    assert_eq!(acc["quality"], "good");
     let device = api.get_ok("/api/v1/lines/ksvario/devices/ks/tags").await;
     assert!(device
         .as_array()
