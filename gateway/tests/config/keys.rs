@@ -8,7 +8,7 @@ use super::*;
 fn unknown_keys_are_refused_with_their_path() {
     let cases: &[(&str, &str)] = &[
         ("[http]\nlisten = \"x\"\n", "http"),
-        ("[zenoh]\nmode = \"peer\"\n", "zenoh"),
+        ("[zenoh]\nmode = \"peer\"\nlisen = []\n", "zenoh.lisen"),
         ("[gateway]\nnmae = \"x\"\n", "gateway.nmae"),
         ("[modbus_tcp]\nwrite_ranges = [{ unit_id = 1, table = \"coil\", start = 0, count = 1, x = 1 }]\n", "modbus_tcp.write_ranges[0].x"),
     ];
