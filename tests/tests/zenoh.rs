@@ -181,6 +181,36 @@ async fn a_zenoh_session_receives_gets_sends_and_sets() {
         .expect("sample");
     assert_eq!(json(&r)["ok"], Value::Bool(false), "{}", json(&r));
 
+    // The CP memory of the slave line is tags too (DB 800 word w = register w of unit 50).
+    let replies = s.get("gw/demo/hmi/memory/DB800.DBW20").await.expect("get");
+    let reply = tokio::time::timeout(Duration::from_secs(10), replies.recv_async())
+        .await
+        .expect("a reply")
+        .expect("reply");
+    let value = json(reply.result().expect("the memory word"));
+    assert!(value["value"].is_number(), "{value}");
+    let result = s
+        .declare_subscriber("gw/demo/hmi/memory/DB800.DBW200/set/result")
+        .await
+        .expect("subscribe");
+    s.put("gw/demo/hmi/memory/DB800.DBW200/set", "99")
+        .await
+        .expect("put");
+    let r = tokio::time::timeout(Duration::from_secs(20), result.recv_async())
+        .await
+        .expect("a result")
+        .expect("sample");
+    assert_eq!(json(&r)["ok"], Value::Bool(true), "{}", json(&r));
+    let mut cp = tcp::connect_slave(gw.modbus_tcp, Slave(50))
+        .await
+        .expect("connect");
+    let words = cp
+        .read_holding_registers(100, 1)
+        .await
+        .expect("transport")
+        .expect("read");
+    assert_eq!(words, vec![99], "DBW 200 of DB 800 after the zenoh write");
+
     // Presence: the gateway and its online devices hold liveliness tokens.
     let mut tokens = Vec::new();
     let replies = s
