@@ -82,6 +82,9 @@ impl TagDirectory {
     pub fn from_config(config: &Config) -> Self {
         let mut entries = Vec::new();
         for (line_name, line) in &config.lines {
+            if let config::ProtocolConfig::ModbusSlaveRtu(slave) = &line.protocol {
+                entries.extend(cp_memory_tags(config, line_name, slave));
+            }
             for (device_name, device) in line.devices() {
                 let profile = Arc::new(profile_of(device_name, device));
                 for tag in &profile.tags {
@@ -191,6 +194,78 @@ impl TagDirectory {
             _ => return Err(TagWriteError::ReadOnly(name())),
         })
     }
+}
+
+/// The device name of a slave line's CP memory in tag keys (`<line>/memory/DB800.DBW20`).
+pub const CP_MEMORY_DEVICE: &str = "memory";
+
+/// The data words of the CP memory a slave line serves under its unit id, as tags named the
+/// PLC way (`DB800.DBW20`): register `(n - base) x 512 + w` of the holding table is word `w` of
+/// DB `n` (003 6.4.8). Writable where the line's write enables ("Limits") allow FC 06/16.
+fn cp_memory_tags(
+    config: &Config,
+    line: &str,
+    slave: &config::ModbusSlaveRtuConfig,
+) -> Vec<TagEntry> {
+    let Some(unit_id) = slave.unit_id else {
+        return Vec::new();
+    };
+    let blocks: Vec<(u16, u16)> = config
+        .cp_memory
+        .data_blocks
+        .iter()
+        .map(|b| (b.db, b.words))
+        .collect();
+    let layout = crate::cpmem::config::memory_layout(
+        [slave],
+        (!blocks.is_empty()).then_some(blocks.as_slice()),
+    );
+    let words_per_db = u32::from(proto_core::cpmem::WORDS_PER_DB);
+    let writable = |register: u32| {
+        slave.write_enable.iter().any(|r| {
+            r.table == config::ModbusTable::Holding
+                && register >= u32::from(r.start)
+                && register < u32::from(r.start) + r.count
+        })
+    };
+    let mut tags = Vec::new();
+    for &(db, words) in &layout.data_blocks {
+        let Some(offset) = db.checked_sub(slave.holding_db) else {
+            continue;
+        };
+        let base = u32::from(offset) * words_per_db;
+        for w in 0..u32::from(words).min(words_per_db) {
+            let Ok(address) = u16::try_from(base + w) else {
+                break;
+            };
+            let mut tag = Tag::new(
+                format!("DB{db}.DBW{}", w * 2),
+                profiles::Table::HoldingRegisters,
+                address,
+                profiles::DataType::U16,
+            );
+            if writable(base + w) {
+                tag = tag.writable();
+            }
+            tags.push(tag);
+        }
+    }
+    let profile = Arc::new(DeviceProfile::generic(
+        CP_MEMORY_DEVICE,
+        slave.address,
+        tags,
+    ));
+    profile
+        .tags
+        .iter()
+        .map(|tag| TagEntry {
+            line: line.to_owned(),
+            device: CP_MEMORY_DEVICE.to_owned(),
+            unit_id,
+            profile: Arc::clone(&profile),
+            tag: tag.clone(),
+        })
+        .collect()
 }
 
 /// The profile of a configured device, with the config's own tags added.
@@ -311,6 +386,31 @@ mod tests {
             .map(|e| e.tag.name.as_str())
             .collect();
         assert!(hits.contains(&"ACC") && hits.contains(&"DEC"), "{hits:?}");
+    }
+
+    #[tokio::test]
+    async fn the_cp_memory_of_a_slave_line_is_tags_named_the_plc_way() {
+        let config = config::demo();
+        let dir = TagDirectory::from_config(&config);
+        let word = dir
+            .find("hmi", CP_MEMORY_DEVICE, "DB800.DBW20")
+            .expect("DB 800 word 10");
+        assert_eq!((word.unit_id, word.tag.address), (50, 10));
+        assert!(word.tag.writable, "the demo write-enables DB 800");
+        let image = ProcessImage::new(ImageConfig::default());
+        image.store_words(50, Table::HoldingRegisters, 10, &[1234], None);
+        assert_eq!(
+            dir.read(&image, word).expect("in the image").value,
+            Value::Int(1234)
+        );
+        let request = TagDirectory::write_request(word, 7.0).expect("writable");
+        assert_eq!(
+            request,
+            Request::WriteSingleRegister {
+                address: 10,
+                value: 7
+            }
+        );
     }
 
     #[test]

@@ -63,6 +63,9 @@ mod tests {
         let t = Instant::from_millis(5);
         assert_eq!((t + Duration::from_micros(250)).as_micros(), 5250);
         assert_eq!(Instant::ZERO.saturating_duration_since(t), Duration::ZERO);
-        assert_eq!(Instant::from_micros(u64::MAX) + Duration::from_secs(1), Instant::from_micros(u64::MAX));
+        assert_eq!(
+            Instant::from_micros(u64::MAX) + Duration::from_secs(1),
+            Instant::from_micros(u64::MAX)
+        );
     }
 }

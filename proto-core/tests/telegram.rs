@@ -715,7 +715,7 @@ proptest! {
             s.receive_buffers = 2;
         });
         let mut now = at(0);
-        let mut drain = |d: &mut AsciiDriver, now: Instant| {
+        let drain = |d: &mut AsciiDriver, now: Instant| {
             actions(d);
             out(d, now);
             events(d);

@@ -73,6 +73,12 @@ def main():
     parser.add_argument("--prefix", required=True, help="e.g. gw/demo")
     parser.add_argument("--mode", default="client", choices=["client", "peer"])
     parser.add_argument("--timeout", type=float, default=20.0)
+    # The keys below the prefix (defaults: the bridge test's backend; the demo passes its own).
+    parser.add_argument("--tag-key", default="drive/atv/speed")
+    parser.add_argument("--get-key", default="drive/*/*")
+    parser.add_argument("--set-key", default="drive/atv/cmd")
+    parser.add_argument("--set-value", default="42")
+    parser.add_argument("--tx-line", default="r3964")
     args = parser.parse_args()
     prefix = args.prefix
 
@@ -88,7 +94,7 @@ def main():
     emit({"kind": "ready", "zenoh": "eclipse-zenoh"})
 
     # 2. Publications from the gateway.
-    wanted = {f"{prefix}/drive/atv/speed", f"{prefix}/r3964/rx"}
+    wanted = {f"{prefix}/{args.tag_key}", f"{prefix}/{args.tx_line}/rx"}
     seen = set()
     deadline = time.monotonic() + args.timeout
     while seen != wanted:
@@ -106,7 +112,7 @@ def main():
 
     # 3. Tag values by query, with wildcards.
     count = 0
-    for reply in session.get(f"{prefix}/drive/*/*", timeout=args.timeout):
+    for reply in session.get(f"{prefix}/{args.get_key}", timeout=args.timeout):
         if reply.ok is None:
             fail(f"error reply: {reply.err.payload.to_string()}")
         emit({"kind": "get", **sample_to_json(reply.ok)})
@@ -114,13 +120,13 @@ def main():
     emit({"kind": "get_done", "count": count})
 
     # 4. A telegram to send.
-    session.put(f"{prefix}/r3964/tx", b"\x02PY\x03", attachment=b"py-1")
-    result = wait_for(samples, f"{prefix}/r3964/tx/result", args.timeout)
+    session.put(f"{prefix}/{args.tx_line}/tx", b"\x02PY\x03", attachment=b"py-1")
+    result = wait_for(samples, f"{prefix}/{args.tx_line}/tx/result", args.timeout)
     emit({"kind": "tx_result", **sample_to_json(result)})
 
     # 5. A value to write.
-    session.put(f"{prefix}/drive/atv/cmd/set", "42")
-    result = wait_for(samples, f"{prefix}/drive/atv/cmd/set/result", args.timeout)
+    session.put(f"{prefix}/{args.set_key}/set", args.set_value)
+    result = wait_for(samples, f"{prefix}/{args.set_key}/set/result", args.timeout)
     emit({"kind": "set_result", **sample_to_json(result)})
 
     # 6. Presence.

@@ -58,6 +58,8 @@ pub struct Gateway {
     pub modbus_tcp: SocketAddr,
     /// The HTTP address (REST API, `/metrics`) the gateway announced, if it serves HTTP.
     pub http: Option<SocketAddr>,
+    /// The zenoh port of a demo (`tcp/127.0.0.1:<port>`).
+    pub zenoh_port: Option<u16>,
     /// Every line the process wrote to stdout and stderr so far.
     output: Arc<Mutex<Vec<String>>>,
     lines: mpsc::Receiver<String>,
@@ -76,10 +78,13 @@ impl Gateway {
             "--zenoh-listen",
         ];
         // Tests run in parallel: every demo gets its own zenoh port.
-        let zenoh = format!("tcp/127.0.0.1:{}", free_port());
+        let zenoh_port = free_port();
+        let zenoh = format!("tcp/127.0.0.1:{zenoh_port}");
         args.push(&zenoh);
         args.extend_from_slice(extra);
-        Self::start(&args)
+        let mut gw = Self::start(&args);
+        gw.zenoh_port = Some(zenoh_port);
+        gw
     }
 
     /// Starts `gateway run --config FILE`, HTTP (REST API, `/metrics`) on an ephemeral port
@@ -129,6 +134,7 @@ impl Gateway {
             child,
             modbus_tcp: "0.0.0.0:0".parse().expect("addr"),
             http: None,
+            zenoh_port: None,
             output,
             lines,
         };

@@ -146,8 +146,7 @@ fn mbpoll_values(out: &str) -> Vec<i64> {
     out.lines()
         .filter_map(|l| l.trim().strip_prefix('[').and_then(|r| r.split_once("]:")))
         .map(|(_, v)| {
-            v.trim()
-                .split_whitespace()
+            v.split_whitespace()
                 .next()
                 .expect("value")
                 .parse()

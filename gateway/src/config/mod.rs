@@ -244,7 +244,20 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         match crate::zenoh_bridge::ZenohConfig::deserialize(value.clone()) {
             Ok(z) => Some(z),
             Err(e) => {
-                cx.issue("zenoh", e.to_string());
+                let text = e.to_string();
+                let text = text.trim_end();
+                // serde names an unknown key "unknown field `x`, expected one of ...": report it
+                // at its path with the reader's wording.
+                match text
+                    .strip_prefix("unknown field `")
+                    .and_then(|rest| rest.split_once('`'))
+                {
+                    Some((key, rest)) => cx.issue(
+                        format!("zenoh.{key}"),
+                        format!("unknown key{}", rest.trim_start_matches(',')),
+                    ),
+                    None => cx.issue("zenoh", text.to_owned()),
+                }
                 None
             }
         }

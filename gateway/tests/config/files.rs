@@ -10,7 +10,7 @@ fn demo_follows_the_spec() {
     assert_eq!(c.gateway.name, "demo");
     assert_eq!(
         c.modbus_tcp.listen,
-        "127.0.0.1:5020".parse::<SocketAddr>().unwrap()
+        "127.0.0.1:5020".parse::<SocketAddr>().unwrap() // the demo address SPEC.md fixes; not bound here
     );
     let names: Vec<_> = c.lines.keys().map(String::as_str).collect();
     // The four lines SPEC.md fixes, and `hmi`, the slave line a simulated serial master polls.

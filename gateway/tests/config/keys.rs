@@ -9,6 +9,7 @@ fn unknown_keys_are_refused_with_their_path() {
     let cases: &[(&str, &str)] = &[
         ("[http]\nlisten = \"127.0.0.1:8080\"\ncolour = 1\n", "http.colour"),
         ("[htpp]\nlisten = \"x\"\n", "htpp"),
+        ("[zenoh]\nmode = \"peer\"\nlisen = []\n", "zenoh.lisen"),
         ("[gateway]\nnmae = \"x\"\n", "gateway.nmae"),
         ("[modbus_tcp]\nwrite_ranges = [{ unit_id = 1, table = \"coil\", start = 0, count = 1, x = 1 }]\n", "modbus_tcp.write_ranges[0].x"),
     ];

@@ -229,20 +229,41 @@ async fn run_opens_a_port_by_path() {
 }
 
 #[tokio::test]
-async fn telegram_devices_are_not_yet_available() {
-    for device in [DeviceKind::Proc3964r, DeviceKind::Ascii] {
+async fn gateway_sim_runs_the_telegram_partners_on_a_port_path() {
+    // 3964R: the partner's own telegram starts with STX (02h); ASCII: it ends with ETX (03h).
+    for (device, marker) in [(DeviceKind::Proc3964r, 0x02u8), (DeviceKind::Ascii, 0x03u8)] {
+        let (mut master, slave) = SerialStream::pair().unwrap();
+        let path = SerialPort::name(&slave).unwrap();
         let args = SimArgs {
             device,
-            port: "/nonexistent".to_owned(),
+            port: path,
             address: None,
             baud: 9600,
             parity: Parity::Even,
             data_bits: 8,
             stop_bits: 1,
-            every: Duration::from_secs(1),
+            every: Duration::from_millis(50),
         };
-        let error = run(args, CancellationToken::new()).await.unwrap_err();
-        assert!(matches!(error, SimError::NotYetAvailable(d) if d == device));
-        assert!(error.to_string().contains("not yet available"), "{error}");
+        let shutdown = CancellationToken::new();
+        let sim = tokio::spawn(run(args, shutdown.clone()));
+        let mut seen = Vec::new();
+        let found = timeout(Duration::from_secs(10), async {
+            let mut buf = [0u8; 64];
+            loop {
+                let n = master.read(&mut buf).await.unwrap();
+                seen.extend_from_slice(&buf[..n]);
+                if seen.contains(&marker) {
+                    return;
+                }
+            }
+        })
+        .await;
+        assert!(
+            found.is_ok(),
+            "{device}: no telegram from the partner: {seen:02X?}"
+        );
+        shutdown.cancel();
+        let _ = sim.await;
+        drop(slave);
     }
 }
