@@ -294,6 +294,24 @@ async fn the_demo_accepts_changes_without_a_token_and_says_so() {
     let status = api.get_ok("/api/v1/status").await;
     assert_eq!(status["zenoh"]["up"], true, "{status:#}");
 
+    // The slave line's CP memory words are tags too; the simulated HMI counts in DB 800 DBW 20.
+    let memory = api
+        .wait_for(
+            "/api/v1/lines/hmi/devices/memory/tags",
+            Duration::from_secs(20),
+            "the HMI's counter",
+            |t| {
+                t.as_array().is_some_and(|t| {
+                    t.iter()
+                        .any(|t| t["tag"] == "DB800.DBW20" && t["quality"] == "good")
+                })
+            },
+        )
+        .await;
+    assert!(memory
+        .as_array()
+        .is_some_and(|t| t.iter().all(|t| t["device"] == "memory")));
+
     let mut ks = api.get_ok("/api/v1/config/lines/ksvario").await;
     ks["baud"] = json!(9600);
     let a = api

@@ -54,12 +54,15 @@ pub(crate) async fn device_tags(
         .lines
         .get(&line)
         .map(|l| l.devices().any(|(name, _)| *name == device));
-    match known {
-        None => return Err(ApiError::not_found("line", &line)),
-        Some(false) => return Err(ApiError::not_found("device", &format!("{line}/{device}"))),
-        Some(true) => {}
+    if known.is_none() {
+        return Err(ApiError::not_found("line", &line));
     }
     let tags = backend.tags(Some(&line), Some(&device))?;
+    // A device of the line's table, or a tag group the gateway adds itself (the CP memory of a
+    // slave line, device `memory`).
+    if known == Some(false) && tags.is_empty() {
+        return Err(ApiError::not_found("device", &format!("{line}/{device}")));
+    }
     Ok(Json(tags))
 }
 
