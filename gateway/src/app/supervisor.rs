@@ -337,10 +337,15 @@ impl Supervisor {
                 for (device, _) in before.devices().filter(|(d, _)| !kept.contains(d)) {
                     self.exported.metrics.forget_device(name, device);
                 }
-                if !new.lines.contains_key(name) {
-                    self.exported
-                        .metrics
-                        .forget_line(name, before.protocol.kind().as_str());
+                // A removed line, or one under another protocol: its series (labelled with the
+                // old protocol) go; the new line's start from zero.
+                let protocol = before.protocol.kind().as_str();
+                let same_protocol = new
+                    .lines
+                    .get(name)
+                    .is_some_and(|l| l.protocol.kind().as_str() == protocol);
+                if !same_protocol {
+                    self.exported.metrics.forget_line(name, protocol);
                     lock(&self.baselines).remove(name);
                 }
             }

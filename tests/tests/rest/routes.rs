@@ -357,6 +357,53 @@ async fn every_line_route_answers_on_a_running_gateway() {
         .as_str()
         .is_some_and(|m| m.contains("read-only")));
 
+    // A line removed stops, its unit goes; added again, it starts and receives again.
+    let ascii = api.get_ok("/api/v1/config/lines/ascii").await;
+    let removed = api
+        .change(Method::DELETE, "/api/v1/config/lines/ascii", None)
+        .await;
+    assert_eq!(removed.status, StatusCode::OK, "{:#}", removed.body);
+    assert_eq!(removed.body["applied"]["lines_stopped"], json!(["ascii"]));
+    assert_eq!(removed.body["applied"]["lines_restarted"], json!([]));
+    assert_eq!(
+        api.get("/api/v1/lines/ascii").await.status,
+        StatusCode::NOT_FOUND
+    );
+    let mut mailbox = tcp::connect_slave(plant.gw.modbus_tcp, Slave(101))
+        .await
+        .expect("connect");
+    assert_eq!(
+        mailbox
+            .read_holding_registers(0, 1)
+            .await
+            .expect("transport"),
+        Err(tokio_modbus::prelude::ExceptionCode::GatewayPathUnavailable),
+        "unit 101 is gone with its line"
+    );
+    let added = api
+        .change(Method::PUT, "/api/v1/config/lines/ascii", Some(&ascii))
+        .await;
+    assert_eq!(added.status, StatusCode::OK, "{:#}", added.body);
+    assert_eq!(added.body["applied"]["lines_started"], json!(["ascii"]));
+    api.wait_for(
+        "/api/v1/lines/ascii/telegrams",
+        Duration::from_secs(20),
+        "telegrams on the added line",
+        |q| q["telegrams"].as_array().is_some_and(|t| !t.is_empty()),
+    )
+    .await;
+    assert!(mailbox
+        .read_holding_registers(0, 1)
+        .await
+        .expect("transport")
+        .is_ok());
+    assert_eq!(
+        api.change(Method::DELETE, "/api/v1/config/lines/nope", None)
+            .await
+            .status,
+        StatusCode::NOT_FOUND
+    );
+
     // Unknown routes and methods answer in the same shape.
     let none = api.get("/api/v1/nothing").await;
     assert_eq!(none.status, StatusCode::NOT_FOUND);
