@@ -198,6 +198,8 @@ async fn run_opens_a_port_by_path() {
         data_bits: 8,
         stop_bits: 1,
         every: Duration::from_secs(1),
+        fault: None,
+        fault_delay: Duration::from_secs(1),
     };
     let shutdown = CancellationToken::new();
     let task = tokio::spawn(run(args, shutdown.clone()));
@@ -240,6 +242,8 @@ async fn telegram_devices_are_not_yet_available() {
             data_bits: 8,
             stop_bits: 1,
             every: Duration::from_secs(1),
+            fault: None,
+            fault_delay: Duration::from_secs(1),
         };
         let error = run(args, CancellationToken::new()).await.unwrap_err();
         assert!(matches!(error, SimError::NotYetAvailable(d) if d == device));
