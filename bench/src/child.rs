@@ -26,6 +26,14 @@ pub(crate) fn gateway_bin(given: Option<&Path>) -> PathBuf {
         .unwrap_or_else(|| PathBuf::from("gateway"))
 }
 
+/// Memory figures of a process, in KiB.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct MemoryKib {
+    pub(crate) rss: u64,
+    pub(crate) anon: u64,
+    pub(crate) hwm: u64,
+}
+
 /// A running gateway process.
 pub(crate) struct Gateway {
     child: std::process::Child,
@@ -104,8 +112,8 @@ impl Gateway {
         }
     }
 
-    /// Resident memory (VmRSS) and its peak (VmHWM) in KiB.
-    pub(crate) fn memory_kib(&self) -> Option<(u64, u64)> {
+    /// Resident memory (VmRSS), its anonymous part (RssAnon) and its peak (VmHWM), in KiB.
+    pub(crate) fn memory_kib(&self) -> Option<MemoryKib> {
         let status = std::fs::read_to_string(format!("/proc/{}/status", self.child.id())).ok()?;
         let field = |name: &str| {
             status
@@ -114,7 +122,11 @@ impl Gateway {
                 .and_then(|v| v.split_whitespace().next())
                 .and_then(|v| v.parse::<u64>().ok())
         };
-        Some((field("VmRSS:")?, field("VmHWM:")?))
+        Some(MemoryKib {
+            rss: field("VmRSS:")?,
+            anon: field("RssAnon:")?,
+            hwm: field("VmHWM:")?,
+        })
     }
 
     /// Everything it printed so far.

@@ -32,7 +32,7 @@ use tokio_util::sync::CancellationToken;
 use crate::device::{Bus, FlatDevice};
 use crate::report::{Row, Target};
 use crate::stats::{mean, ms};
-use crate::tap::{lock, DeviceLog, DeviceTap, MasterTap};
+use crate::tap::{device_relay, lock, DeviceLog, MasterTap};
 use crate::Plan;
 
 /// Bits a character: start, 8 data, even parity, stop (003 6.4.2.1 counts 11 for 8E1).
@@ -74,7 +74,7 @@ pub(crate) async fn rig(
     let port = tokio_serial::new(link.b.as_str(), baud)
         .open_native_async()
         .map_err(std::io::Error::from)?;
-    let (port, device_log) = DeviceTap::new(port);
+    let (port, device_log) = device_relay(port, shutdown.clone());
     tokio::spawn(serve_modbus(port, device, timing, shutdown.clone()));
     let master = MasterTap::spawn(
         &link.a,
@@ -155,7 +155,10 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
     let wire = timing.char_time * (13 + 2 * u32::from(n));
     if !warm_up(&rig.line, 3, Duration::from_secs(10)).await {
         return Ok(PollRun {
-            row: failed(name, "the line never polled"),
+            row: failed(
+                name,
+                &format!("the line never polled{}", trouble(&rig.line)),
+            ),
             violations: 0,
             requests: 0,
         });
@@ -172,37 +175,47 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
     let d0 = lock(&rig.device).turnarounds.len();
     tokio::time::sleep(window).await;
     let (p1, t1) = (polls_ok(&rig.line, 0..1), Instant::now());
-    let (serial, violations, requests, gap) = {
+    let (serial, violations, requests, gap, cycle) = {
         let log = lock(&rig.master.log);
-        let serial: Vec<Duration> = log
-            .exchanges
-            .get(ex0..)
-            .unwrap_or_default()
+        let window = log.exchanges.get(ex0..).unwrap_or_default();
+        let serial: Vec<Duration> = window
             .iter()
             .filter_map(|e| e.answered.map(|a| a.saturating_duration_since(e.sent)))
             .collect();
+        // The mean time from one request to the next, over the whole window.
+        let cycle = match (window.first(), window.last()) {
+            (Some(first), Some(last)) if window.len() > 1 => {
+                let intervals = u32::try_from(window.len() - 1).unwrap_or(u32::MAX);
+                last.sent.saturating_duration_since(first.sent) / intervals
+            }
+            _ => Duration::MAX,
+        };
         let gaps = log.gaps.get(g0..).unwrap_or_default();
         (
             mean(&serial),
             log.violations - v0,
-            (log.exchanges.len() - ex0) as u64,
+            window.len() as u64,
             mean(gaps),
+            cycle,
         )
     };
     let turnaround = mean(lock(&rig.device).turnarounds.get(d0..).unwrap_or_default());
+    let trouble = trouble(&rig.line);
     drop(rig);
 
     let elapsed = t1.saturating_duration_since(t0).as_secs_f64();
-    let achieved = (p1 - p0) as f64 / elapsed;
+    let polls = p1 - p0;
+    let achieved = 1.0 / cycle.as_secs_f64();
     let best_cycle = wire + t35 + turnaround;
     let best = 1.0 / best_cycle.as_secs_f64();
     let link_excess = serial.saturating_sub(wire + turnaround);
+    let without_link = best_cycle.as_secs_f64() / cycle.saturating_sub(link_excess).as_secs_f64();
     let note = format!(
-        "{} polls in {elapsed:.1} s; cycle {} = wire {} + device {} (t3.5 {} + its own {}) + link \
-         and tap lateness {} + master gap {} (t3.5 {}); frames < t3.5 after the previous: {violations}; \
-         without the link's lateness the ratio would be {:.3}",
-        p1 - p0,
-        ms(Duration::from_secs_f64(1.0 / achieved.max(1e-9))),
+        "{polls} polls answered in {elapsed:.1} s ({requests} requests); cycle {} = wire {} + \
+         device {} (t3.5 {} + its own {}) + link and tap lateness {} + master gap {} (t3.5 {}); \
+         frames < t3.5 after the previous: {violations}; without the link's lateness the ratio \
+         would be {without_link:.3}{trouble}",
+        ms(cycle),
         ms(wire),
         ms(turnaround),
         ms(t35),
@@ -210,14 +223,19 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
         ms(link_excess),
         ms(gap),
         ms(t35),
-        best_cycle.as_secs_f64() * achieved / (1.0 - link_excess.as_secs_f64() * achieved),
     );
+    // Every request answered: a failed poll would make the rate meaningless.
+    let score = if polls + 1 >= requests && requests > 1 {
+        achieved / best
+    } else {
+        f64::NAN
+    };
     Ok(PollRun {
         row: Row {
             name,
             measured: format!("{achieved:.2}/s"),
             reference: format!("{best:.2}/s"),
-            score: achieved / best,
+            score,
             target: Target::at_least(0.95),
             note,
         },
@@ -235,6 +253,7 @@ pub(crate) async fn dead_device(plan: &Plan) -> std::io::Result<Row> {
     const REPLY_TIMEOUT: Duration = Duration::from_millis(200);
     let name = "1 dead device of 10: others' polls/s / none dead".to_owned();
     let mut rates = [0.0f64; 2];
+    let mut dead_trouble = String::new();
     for (dead, rate) in [false, true].into_iter().zip(rates.iter_mut()) {
         let bus: Vec<FlatDevice> = (1..=DEVICES)
             .map(|slave| {
@@ -257,6 +276,9 @@ pub(crate) async fn dead_device(plan: &Plan) -> std::io::Result<Row> {
         tokio::time::sleep(plan.dead_window).await;
         let (p1, t1) = (polls_ok(&rig.line, others), Instant::now());
         *rate = (p1 - p0) as f64 / t1.saturating_duration_since(t0).as_secs_f64();
+        if dead {
+            dead_trouble = trouble(&rig.line);
+        }
     }
     let [alive, with_dead] = rates;
     let expected = f64::from(DEVICES - 1) / PERIOD.as_secs_f64();
@@ -270,12 +292,37 @@ pub(crate) async fn dead_device(plan: &Plan) -> std::io::Result<Row> {
             "{DEVICES} devices x {COUNT} registers every {} ms at {BAUD} Bd 8E1 (the line about \
              half busy; nine devices should make {expected:.0} polls/s), reply monitoring time \
              {} ms, offline back-off 1 s doubling to 30 s (defaults); windows of {:.0} s after \
-             1.5 s of warm-up, run back to back",
+             1.5 s of warm-up, run back to back; with the dead device{dead_trouble}",
             PERIOD.as_millis(),
             REPLY_TIMEOUT.as_millis(),
             plan.dead_window.as_secs_f64(),
         ),
     })
+}
+
+/// Failed polls and events of the line, if any (", failed polls 3, events 0830 x3").
+fn trouble(line: &LineHandle) -> String {
+    let status = line.status();
+    let failed: u64 = status
+        .devices
+        .iter()
+        .map(|d| d.polls_failed + d.polls_exception)
+        .sum();
+    // Class 00 (start-up) events are not trouble.
+    let events: Vec<String> = status
+        .event_counts
+        .iter()
+        .filter(|(id, _)| id.class != 0)
+        .map(|(id, n)| format!("{id} x{n}"))
+        .collect();
+    let mut out = String::new();
+    if failed > 0 {
+        out.push_str(&format!("; failed polls {failed}"));
+    }
+    if !events.is_empty() {
+        out.push_str(&format!("; events {}", events.join(", ")));
+    }
+    out
 }
 
 /// A row for a run that could not measure.

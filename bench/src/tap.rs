@@ -1,7 +1,7 @@
 //! Instruments on both ends of a paced line.
 //!
 //! ```text
-//!  master line ═ pty ═ MasterTap ═ paced link (a ⇄ b) ═ DeviceTap ─ simulated device
+//!  master line ═ pty ═ MasterTap ═ paced link (a ⇄ b) ═ device_relay ─ simulated device
 //! ```
 //!
 //! - [`MasterTap`] sits between the gateway's line and the paced link, on a pty pair of its own.
@@ -9,21 +9,29 @@
 //!   handed to the master, so it measures what the master itself does: the silence it leaves
 //!   after a response before its next request (which must be at least t3.5), and the time a
 //!   request spent on the serial side (wire, device, link) until its answer was back.
-//! - [`DeviceTap`] wraps the device's end of the link: the time from the last byte of a request
-//!   to the first byte of the answer is the device's turnaround.
+//!   The tap hands the master each answer whole, at the moment its last byte arrived (the length
+//!   comes from the function code and byte count). The paced relay writes on the tokio timer's
+//!   millisecond ticks, and later still when the shared machine is busy, so it can leave a gap of
+//!   more than t3.5 inside a frame, which a real line does not; the master would take such a gap
+//!   for the end of the frame. A real UART's receive FIFO delivers in bursts the same way.
+//! - [`device_relay`] sits between the link's `b` end and the simulated device (an in-process
+//!   stream): it hands the device each request whole, and the time from there to the first byte
+//!   of the answer is the device's turnaround.
 //!
 //! The tap's own latency (a pty read and write, tens of microseconds) only ever lengthens the
 //! silences it measures, so a master that leaves too short a gap cannot look correct by it, except
 //! by less than that latency.
 
-use std::pin::Pin;
 use std::sync::{Arc, Mutex, PoisonError};
-use std::task::{Context, Poll};
 use std::time::{Duration, Instant};
 
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
+use proto_core::modbus::rtu::{self, FrameLen};
+use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 use tokio_serial::{SerialPortBuilderExt, SerialStream};
 use tokio_util::sync::CancellationToken;
+
+/// How long the tap waits for the rest of an answer whose length it cannot know yet.
+const FLUSH_AFTER: Duration = Duration::from_millis(50);
 
 /// One request and its answer as the master saw them.
 #[derive(Clone, Copy, Debug)]
@@ -111,16 +119,32 @@ impl MasterTap {
         });
         tokio::spawn(async move {
             let mut buf = [0u8; 512];
+            let mut pending: Vec<u8> = Vec::new();
             loop {
-                let n = tokio::select! {
-                    () = shutdown.cancelled() => return,
-                    read = from_link.read(&mut buf) => match read { Ok(0) | Err(_) => return, Ok(n) => n },
+                // Bytes of an unfinished answer are handed on after a long silence all the same.
+                let limit = if pending.is_empty() {
+                    Duration::MAX
+                } else {
+                    FLUSH_AFTER
                 };
-                if to_master
-                    .write_all(buf.get(..n).unwrap_or_default())
-                    .await
-                    .is_err()
-                {
+                let read = tokio::select! {
+                    () = shutdown.cancelled() => return,
+                    read = tokio::time::timeout(limit, from_link.read(&mut buf)) => read,
+                };
+                let whole = match read {
+                    Ok(Ok(0) | Err(_)) => return,
+                    Ok(Ok(n)) => {
+                        pending.extend_from_slice(buf.get(..n).unwrap_or_default());
+                        match rtu::expected_response_len(&pending) {
+                            FrameLen::Complete(len) => len,
+                            FrameLen::NeedMore(_) => continue,
+                            FrameLen::Unknown => pending.len(),
+                        }
+                    }
+                    Err(_) => pending.len(),
+                };
+                let answer: Vec<u8> = pending.drain(..whole.min(pending.len())).collect();
+                if to_master.write_all(&answer).await.is_err() {
                     return;
                 }
                 lock(&down_log).answer_bytes(Instant::now());
@@ -181,62 +205,73 @@ pub(crate) struct DeviceLog {
     pending: Option<Instant>,
 }
 
-/// A device's end of a link that records the device's turnaround.
-pub(crate) struct DeviceTap<S> {
-    inner: S,
-    log: Arc<Mutex<DeviceLog>>,
-}
-
-// === impl DeviceTap ===
-
-impl<S> DeviceTap<S> {
-    pub(crate) fn new(inner: S) -> (Self, Arc<Mutex<DeviceLog>>) {
-        let log: Arc<Mutex<DeviceLog>> = Arc::default();
-        (
-            Self {
-                inner,
-                log: Arc::clone(&log),
-            },
-            log,
-        )
-    }
-}
-
-impl<S: AsyncRead + Unpin> AsyncRead for DeviceTap<S> {
-    fn poll_read(
-        mut self: Pin<&mut Self>,
-        cx: &mut Context<'_>,
-        buf: &mut ReadBuf<'_>,
-    ) -> Poll<std::io::Result<()>> {
-        let before = buf.filled().len();
-        let result = Pin::new(&mut self.inner).poll_read(cx, buf);
-        if matches!(result, Poll::Ready(Ok(()))) && buf.filled().len() > before {
-            lock(&self.log).pending = Some(Instant::now());
+/// Relays between the device's end of a link and an in-process stream the simulated device serves
+/// on: hands the device each request whole, as the master tap hands the master each answer, and
+/// records the device's turnaround.
+pub(crate) fn device_relay(
+    link: SerialStream,
+    shutdown: CancellationToken,
+) -> (DuplexStream, Arc<Mutex<DeviceLog>>) {
+    let (device, ours) = tokio::io::duplex(4096);
+    let log: Arc<Mutex<DeviceLog>> = Arc::default();
+    let (mut from_link, mut to_link) = tokio::io::split(link);
+    let (mut from_device, mut to_device) = tokio::io::split(ours);
+    let down_log = Arc::clone(&log);
+    let down_stop = shutdown.clone();
+    tokio::spawn(async move {
+        let mut buf = [0u8; 512];
+        let mut pending: Vec<u8> = Vec::new();
+        loop {
+            let limit = if pending.is_empty() {
+                Duration::MAX
+            } else {
+                FLUSH_AFTER
+            };
+            let read = tokio::select! {
+                () = down_stop.cancelled() => return,
+                read = tokio::time::timeout(limit, from_link.read(&mut buf)) => read,
+            };
+            let whole = match read {
+                Ok(Ok(0) | Err(_)) => return,
+                Ok(Ok(n)) => {
+                    pending.extend_from_slice(buf.get(..n).unwrap_or_default());
+                    match rtu::expected_request_len(&pending) {
+                        FrameLen::Complete(len) => len,
+                        FrameLen::NeedMore(_) => continue,
+                        FrameLen::Unknown => pending.len(),
+                    }
+                }
+                Err(_) => pending.len(),
+            };
+            let request: Vec<u8> = pending.drain(..whole.min(pending.len())).collect();
+            if to_device.write_all(&request).await.is_err() {
+                return;
+            }
+            lock(&down_log).pending = Some(Instant::now());
         }
-        result
-    }
-}
-
-impl<S: AsyncWrite + Unpin> AsyncWrite for DeviceTap<S> {
-    fn poll_write(
-        mut self: Pin<&mut Self>,
-        cx: &mut Context<'_>,
-        buf: &[u8],
-    ) -> Poll<std::io::Result<usize>> {
-        {
-            let mut log = lock(&self.log);
-            if let Some(at) = log.pending.take() {
-                log.turnarounds.push(at.elapsed());
+    });
+    let up_log = Arc::clone(&log);
+    tokio::spawn(async move {
+        let mut buf = [0u8; 512];
+        loop {
+            let n = tokio::select! {
+                () = shutdown.cancelled() => return,
+                read = from_device.read(&mut buf) => match read { Ok(0) | Err(_) => return, Ok(n) => n },
+            };
+            {
+                let mut log = lock(&up_log);
+                if let Some(at) = log.pending.take() {
+                    log.turnarounds.push(at.elapsed());
+                }
+            }
+            if to_link
+                .write_all(buf.get(..n).unwrap_or_default())
+                .await
+                .is_err()
+            {
+                return;
             }
         }
-        Pin::new(&mut self.inner).poll_write(cx, buf)
-    }
-
-    fn poll_flush(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
-        Pin::new(&mut self.inner).poll_flush(cx)
-    }
-
-    fn poll_shutdown(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<std::io::Result<()>> {
-        Pin::new(&mut self.inner).poll_shutdown(cx)
-    }
+    });
+    (device, log)
 }

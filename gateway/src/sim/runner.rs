@@ -402,3 +402,52 @@ where
     stream.flush().await?;
     Ok(true)
 }
+
+#[cfg(test)]
+mod tests {
+    use proto_core::modbus::rtu::decode_frame;
+
+    use super::*;
+
+    fn args(fault: Option<SimFault>) -> SimArgs {
+        SimArgs {
+            device: DeviceKind::KsVario,
+            port: String::new(),
+            address: None,
+            baud: 19_200,
+            parity: Parity::Even,
+            data_bits: 8,
+            stop_bits: 1,
+            every: Duration::from_secs(1),
+            fault,
+            fault_delay: Duration::from_millis(700),
+        }
+    }
+
+    /// FC 04 at 1004, three registers, of slave 17 (001's example).
+    fn request() -> Vec<u8> {
+        let mut frame = Vec::new();
+        rtu::encode_frame(17, &[0x04, 0x03, 0xEC, 0x00, 0x03], &mut frame);
+        frame
+    }
+
+    #[test]
+    fn each_fault_changes_the_answer_as_named() {
+        let answer = |fault| args(fault).device().unwrap().handle_frame(&request());
+        let good = answer(None).expect("an answer");
+        assert!(decode_frame(&good).is_ok());
+
+        assert_eq!(answer(Some(SimFault::Silent)), None);
+        let bad_crc = answer(Some(SimFault::BadCrc)).expect("an answer");
+        assert!(decode_frame(&bad_crc).is_err());
+        let wrong = answer(Some(SimFault::WrongAddress)).expect("an answer");
+        assert_eq!(decode_frame(&wrong).map(|f| f.address), Ok(18));
+        let noisy = answer(Some(SimFault::Noise)).expect("an answer");
+        assert_eq!(noisy.get(..good.len()), Some(&good[..]));
+        assert_eq!(noisy.len(), good.len() + NOISE_LEN);
+
+        let slow = args(Some(SimFault::Slow));
+        assert_eq!(slow.device().unwrap().faults().delay, slow.fault_delay);
+        assert_eq!(answer(Some(SimFault::Slow)), Some(good));
+    }
+}
