@@ -17,7 +17,7 @@ use tokio_util::sync::CancellationToken;
 
 use super::altivar::AltivarSim;
 use super::ksvario::KsVarioSim;
-use super::ModbusDevice;
+use super::{Faults, ModbusDevice};
 
 /// How often the device's own clock advances (the drive's ramps, the time-out).
 const TICK: Duration = Duration::from_millis(100);
@@ -67,6 +67,22 @@ pub enum Parity {
     Even,
 }
 
+/// A fault a simulated Modbus device injects into its answers (`gateway sim --fault`), for
+/// end-to-end tests of the gateway's error handling.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum)]
+pub enum SimFault {
+    /// Never answer (the master counts 003 7.2 08 30h "no reply").
+    Silent,
+    /// Answer `--fault-delay` late, on top of the t3.5 turnaround.
+    Slow,
+    /// Answer with a wrong CRC (003 7.2 0E 57h).
+    BadCrc,
+    /// Answer with the next slave address (003 7.2 08 31h).
+    WrongAddress,
+    /// Answer correctly, then send a burst of bytes nobody asked for (003 7.2 0E 53h).
+    Noise,
+}
+
 /// `gateway sim` arguments.
 #[derive(Clone, Debug, clap::Args)]
 pub struct SimArgs {
@@ -94,6 +110,12 @@ pub struct SimArgs {
     /// Telegram devices: send a telegram of their own this often (0 = never).
     #[arg(long, default_value = "1s", value_parser = humantime::parse_duration)]
     pub every: Duration,
+    /// Modbus devices: inject this fault into every answer (for tests).
+    #[arg(long, value_enum)]
+    pub fault: Option<SimFault>,
+    /// How late `--fault slow` answers.
+    #[arg(long, default_value = "1s", value_parser = humantime::parse_duration)]
+    pub fault_delay: Duration,
 }
 
 /// Why a simulator stopped or could not start.
@@ -148,11 +170,37 @@ impl SimArgs {
                 Err(SimError::InvalidAddress(address))
             }
         };
-        match self.device {
-            DeviceKind::Altivar71 => Ok(Box::new(AltivarSim::new(address(2)?))),
-            DeviceKind::KsVario => Ok(Box::new(KsVarioSim::new(address(17)?))),
-            other => Err(SimError::NotYetAvailable(other)),
+        let faults = self.faults();
+        let device: Box<dyn ModbusDevice> = match self.device {
+            DeviceKind::Altivar71 => {
+                let mut device = AltivarSim::new(address(2)?);
+                device.set_faults(faults);
+                Box::new(device)
+            }
+            DeviceKind::KsVario => {
+                let mut device = KsVarioSim::new(address(17)?);
+                device.set_faults(faults);
+                Box::new(device)
+            }
+            other => return Err(SimError::NotYetAvailable(other)),
+        };
+        Ok(match self.fault {
+            Some(SimFault::Noise) => Box::new(Noisy::new(device)),
+            _ => device,
+        })
+    }
+
+    /// The faults `--fault` injects into the device's answers (noise is added by [`Noisy`]).
+    pub fn faults(&self) -> Faults {
+        let mut faults = Faults::default();
+        match self.fault {
+            Some(SimFault::Silent) => faults.silent = true,
+            Some(SimFault::Slow) => faults.delay = self.fault_delay,
+            Some(SimFault::BadCrc) => faults.bad_crc = true,
+            Some(SimFault::WrongAddress) => faults.wrong_address = true,
+            Some(SimFault::Noise) | None => {}
         }
+        faults
     }
 }
 
@@ -269,6 +317,59 @@ where
     }
 }
 
+/// Bytes of noise after each answer of a [`Noisy`] device.
+const NOISE_LEN: usize = 12;
+
+/// A device whose every answer is followed by a burst of pseudo-random bytes (`--fault noise`):
+/// a line picking up interference after the frame. The master has its complete answer by then,
+/// so the burst reaches it while it awaits nothing.
+pub struct Noisy {
+    inner: Box<dyn ModbusDevice>,
+    /// State of a xorshift generator (never 0).
+    state: u32,
+}
+
+// === impl Noisy ===
+
+impl Noisy {
+    /// `inner` with noise after each answer.
+    pub fn new(inner: Box<dyn ModbusDevice>) -> Self {
+        Self {
+            inner,
+            state: 0x9E37_79B9,
+        }
+    }
+
+    fn next_byte(&mut self) -> u8 {
+        // xorshift32 (Marsaglia 2003).
+        let mut x = self.state;
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        self.state = x;
+        x.to_le_bytes()[0]
+    }
+}
+
+impl ModbusDevice for Noisy {
+    fn handle_frame(&mut self, adu: &[u8]) -> Option<Vec<u8>> {
+        let mut answer = self.inner.handle_frame(adu)?;
+        for _ in 0..NOISE_LEN {
+            let byte = self.next_byte();
+            answer.push(byte);
+        }
+        Some(answer)
+    }
+
+    fn tick(&mut self, elapsed: Duration) {
+        self.inner.tick(elapsed);
+    }
+
+    fn faults(&self) -> Faults {
+        self.inner.faults()
+    }
+}
+
 /// Cuts the first complete frame off `pending`, if its length is known and all of it is there.
 fn take_frame(pending: &mut Vec<u8>) -> Option<Vec<u8>> {
     match rtu::expected_request_len(pending) {
@@ -300,4 +401,53 @@ where
     stream.write_all(&reply).await?;
     stream.flush().await?;
     Ok(true)
+}
+
+#[cfg(test)]
+mod tests {
+    use proto_core::modbus::rtu::decode_frame;
+
+    use super::*;
+
+    fn args(fault: Option<SimFault>) -> SimArgs {
+        SimArgs {
+            device: DeviceKind::KsVario,
+            port: String::new(),
+            address: None,
+            baud: 19_200,
+            parity: Parity::Even,
+            data_bits: 8,
+            stop_bits: 1,
+            every: Duration::from_secs(1),
+            fault,
+            fault_delay: Duration::from_millis(700),
+        }
+    }
+
+    /// FC 04 at 1004, three registers, of slave 17 (001's example).
+    fn request() -> Vec<u8> {
+        let mut frame = Vec::new();
+        rtu::encode_frame(17, &[0x04, 0x03, 0xEC, 0x00, 0x03], &mut frame);
+        frame
+    }
+
+    #[test]
+    fn each_fault_changes_the_answer_as_named() {
+        let answer = |fault| args(fault).device().unwrap().handle_frame(&request());
+        let good = answer(None).expect("an answer");
+        assert!(decode_frame(&good).is_ok());
+
+        assert_eq!(answer(Some(SimFault::Silent)), None);
+        let bad_crc = answer(Some(SimFault::BadCrc)).expect("an answer");
+        assert!(decode_frame(&bad_crc).is_err());
+        let wrong = answer(Some(SimFault::WrongAddress)).expect("an answer");
+        assert_eq!(decode_frame(&wrong).map(|f| f.address), Ok(18));
+        let noisy = answer(Some(SimFault::Noise)).expect("an answer");
+        assert_eq!(noisy.get(..good.len()), Some(&good[..]));
+        assert_eq!(noisy.len(), good.len() + NOISE_LEN);
+
+        let slow = args(Some(SimFault::Slow));
+        assert_eq!(slow.device().unwrap().faults().delay, slow.fault_delay);
+        assert_eq!(answer(Some(SimFault::Slow)), Some(good));
+    }
 }

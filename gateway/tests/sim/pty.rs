@@ -198,6 +198,8 @@ async fn run_opens_a_port_by_path() {
         data_bits: 8,
         stop_bits: 1,
         every: Duration::from_secs(1),
+        fault: None,
+        fault_delay: Duration::from_secs(1),
     };
     let shutdown = CancellationToken::new();
     let task = tokio::spawn(run(args, shutdown.clone()));
@@ -243,6 +245,8 @@ async fn gateway_sim_runs_the_telegram_partners_on_a_port_path() {
             data_bits: 8,
             stop_bits: 1,
             every: Duration::from_millis(50),
+            fault: None,
+            fault_delay: Duration::from_secs(1),
         };
         let shutdown = CancellationToken::new();
         let sim = tokio::spawn(run(args, shutdown.clone()));

@@ -1,0 +1,286 @@
+//! `gateway-bench`: measures the gateway and prints one table of ratios, each measured against its
+//! reference in the same run, back to back.
+//!
+//! Rows (targets from the issue "Measure and harden"):
+//! - poll rate of a master line / the physical best case, N = 1, 10, 60, 125 registers at 9600,
+//!   19200, 38400 and 115200 Bd over a paced link (`poll`), and the requests started less than
+//!   t3.5 after the previous frame;
+//! - one dead device among ten: the others' poll rate / their rate with none dead (`poll`);
+//! - Modbus TCP cached FC 03 of 125 registers: throughput and p99 against a bare tokio-modbus
+//!   server, 1 and 16 connections (`tcp`);
+//! - a write through Modbus TCP to a device: latency minus its serial time (`tcp`);
+//! - zenoh: serial frame end to subscriber p99, sustained samples/s (`process`, real binary);
+//! - resident memory with 4 lines, 32 devices, 10 000 points (`process`, real binary).
+//!
+//! Run `cargo build --release` first (the zenoh and memory rows start `target/release/gateway`),
+//! then `target/release/gateway-bench` (about 5 minutes) or `--quick` (about a minute). Progress
+//! goes to stderr, the table to stdout.
+
+mod child;
+mod device;
+mod mbap;
+mod poll;
+mod process;
+mod report;
+mod stats;
+mod tap;
+mod tcp;
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use clap::{Parser, ValueEnum};
+
+use report::Row;
+
+/// Command line.
+#[derive(Debug, Parser)]
+#[command(
+    name = "gateway-bench",
+    about = "Measures the gateway against the physical best case and a bare reference server"
+)]
+struct Args {
+    /// A short run (about a minute): fewer cycles, shorter windows, wider noise.
+    #[arg(long)]
+    quick: bool,
+    /// The gateway binary for the zenoh and memory rows (default: next to this executable).
+    #[arg(long, value_name = "PATH")]
+    gateway: Option<PathBuf>,
+    /// Only these groups of rows (comma separated; default: all).
+    #[arg(long, value_enum, value_delimiter = ',')]
+    only: Vec<Group>,
+}
+
+/// Groups of rows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+enum Group {
+    /// Poll rate against the best case (16 rows and the t3.5 row).
+    Poll,
+    /// One dead device among ten.
+    Dead,
+    /// Cached Modbus TCP reads against the bare server.
+    Tcp,
+    /// Writes through Modbus TCP.
+    Write,
+    /// zenoh latency and throughput.
+    Zenoh,
+    /// Resident memory.
+    Memory,
+}
+
+/// How long each measurement runs.
+#[derive(Clone, Debug)]
+pub(crate) struct Plan {
+    /// Shortest window of a poll-rate run.
+    pub(crate) poll_window: Duration,
+    /// Poll cycles a poll-rate run lasts at least.
+    pub(crate) poll_cycles: u32,
+    /// Window of each half of the dead-device row.
+    pub(crate) dead_window: Duration,
+    /// Rounds of the cached-read rows (each server once a round).
+    pub(crate) tcp_rounds: usize,
+    /// Length of one server's turn in a round.
+    pub(crate) tcp_slice: Duration,
+    /// Writes of the write-latency row.
+    pub(crate) writes: usize,
+    /// Telegrams of the zenoh latency row.
+    pub(crate) telegrams: usize,
+    /// Window of the zenoh throughput row.
+    pub(crate) zenoh_window: Duration,
+    /// How long the memory row samples.
+    pub(crate) memory_window: Duration,
+}
+
+impl Plan {
+    fn full() -> Self {
+        Self {
+            poll_window: Duration::from_secs(3),
+            poll_cycles: 40,
+            dead_window: Duration::from_secs(30),
+            tcp_rounds: 4,
+            tcp_slice: Duration::from_secs(2),
+            writes: 500,
+            telegrams: 1000,
+            zenoh_window: Duration::from_secs(5),
+            memory_window: Duration::from_secs(3),
+        }
+    }
+
+    fn quick() -> Self {
+        Self {
+            poll_window: Duration::from_millis(500),
+            poll_cycles: 8,
+            dead_window: Duration::from_secs(4),
+            tcp_rounds: 2,
+            tcp_slice: Duration::from_millis(500),
+            writes: 60,
+            telegrams: 100,
+            zenoh_window: Duration::from_secs(2),
+            memory_window: Duration::from_secs(1),
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    let args = Args::parse();
+    let runtime = match tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(rt) => rt,
+        Err(e) => {
+            eprintln!("gateway-bench: cannot start the runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let rows = runtime.block_on(run(&args));
+    println!("{}", machine(args.quick));
+    print!("{}", report::render(&rows));
+    if rows.iter().all(Row::passed) {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    }
+}
+
+async fn run(args: &Args) -> Vec<Row> {
+    let plan = if args.quick {
+        Plan::quick()
+    } else {
+        Plan::full()
+    };
+    let wanted = |g: Group| args.only.is_empty() || args.only.contains(&g);
+    let bin = child::gateway_bin(args.gateway.as_deref());
+    let mut rows = Vec::new();
+    let failed = |name: &str, e: std::io::Error| poll::failed(name.to_owned(), &e.to_string());
+
+    if wanted(Group::Poll) {
+        eprintln!("poll rate against the best case");
+        let (mut violations, mut requests) = (0, 0);
+        for baud in poll::BAUDS {
+            for n in poll::REGISTERS {
+                match poll::poll_rate(baud, n, &plan).await {
+                    Ok(run) => {
+                        violations += run.violations;
+                        requests += run.requests;
+                        push(&mut rows, run.row);
+                    }
+                    Err(e) => push(&mut rows, failed(&format!("poll rate {baud} Bd, N={n}"), e)),
+                }
+            }
+        }
+        push(
+            &mut rows,
+            Row {
+                name: "requests started < t3.5 after the previous frame".into(),
+                measured: violations.to_string(),
+                reference: format!("of {requests}"),
+                score: violations as f64,
+                target: report::Target::at_most(0.0),
+                note: "every request of the 16 poll-rate runs, as the tap between line and link \
+                       saw it (master's write after the answer's last byte reached it)"
+                    .into(),
+            },
+        );
+    }
+    if wanted(Group::Dead) {
+        eprintln!("one dead device among ten");
+        let row = poll::dead_device(&plan)
+            .await
+            .unwrap_or_else(|e| failed("1 dead device of 10", e));
+        push(&mut rows, row);
+    }
+    if wanted(Group::Tcp) {
+        eprintln!("Modbus TCP cached reads against a bare tokio-modbus server");
+        match tcp::cached_reads(&plan).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(&mut rows, failed("TCP FC03 x125 cached", e)),
+        }
+    }
+    if wanted(Group::Write) {
+        eprintln!("writes through Modbus TCP");
+        let row = tcp::write_latency(&plan)
+            .await
+            .unwrap_or_else(|e| failed("TCP write to a device", e));
+        push(&mut rows, row);
+    }
+    if wanted(Group::Zenoh) {
+        eprintln!("zenoh (gateway binary {})", bin.display());
+        let row = process::zenoh_latency(&bin, &plan)
+            .await
+            .unwrap_or_else(|e| failed("zenoh: serial frame end -> subscriber", e));
+        push(&mut rows, row);
+        let row = process::zenoh_throughput(&bin, &plan)
+            .await
+            .unwrap_or_else(|e| failed("zenoh: tag samples/s", e));
+        push(&mut rows, row);
+    }
+    if wanted(Group::Memory) {
+        eprintln!("resident memory (gateway binary {})", bin.display());
+        let row = process::memory(&bin, &plan)
+            .await
+            .unwrap_or_else(|e| failed("RSS, 4 lines / 32 devices / 10 000 points", e));
+        push(&mut rows, row);
+    }
+    rows
+}
+
+/// Adds a row and shows it on stderr as progress.
+fn push(rows: &mut Vec<Row>, row: Row) {
+    eprintln!(
+        "  {} {}: {} ({:.3})",
+        if row.passed() { "PASS" } else { "FAIL" },
+        row.name,
+        row.measured,
+        row.score
+    );
+    rows.push(row);
+}
+
+/// The run's date and machine: `uname -a`, CPUs, CPU model.
+fn machine(quick: bool) -> String {
+    let uname = std::process::Command::new("uname")
+        .arg("-a")
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_owned())
+        .unwrap_or_else(|_| "?".into());
+    let cpus = std::thread::available_parallelism().map_or(0, std::num::NonZero::get);
+    let model = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|c| {
+            c.lines()
+                .find_map(|l| l.strip_prefix("model name"))
+                .map(|v| v.trim_start_matches([' ', '\t', ':']).to_owned())
+        })
+        .unwrap_or_else(|| "?".into());
+    format!(
+        "gateway-bench {} run, {}\nmachine: {uname}\nCPUs: {cpus}, model: {model}\n",
+        if quick { "quick" } else { "full" },
+        utc_now(),
+    )
+}
+
+/// Now as `YYYY-MM-DD HH:MM:SS UTC` (civil date from days since 1970, Howard Hinnant's method).
+fn utc_now() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let days = (secs / 86_400) as i64;
+    let rem = secs % 86_400;
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let day = doy - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = yoe + era * 400 + i64::from(month <= 2);
+    format!(
+        "{year:04}-{month:02}-{day:02} {:02}:{:02}:{:02} UTC",
+        rem / 3600,
+        rem % 3600 / 60,
+        rem % 60
+    )
+}

@@ -1,0 +1,338 @@
+//! Serial rows: the poll rate of a master line against the physical best case, and the poll rate
+//! of nine devices when a tenth is dead.
+//!
+//! Each run puts the gateway's master line (the library, in-process) on a [`paced`] link to a
+//! simulated device, with a [`MasterTap`] between line and link and a [`DeviceTap`] on the device's
+//! end.
+//!
+//! The physical best case of one poll of N registers: the request (8 characters) and the response
+//! (5 + 2N characters) on the wire, 11 bits a character (8E1), t3.5 of silence before the device may
+//! answer, t3.5 of silence before the next request, and whatever the device takes beyond its t3.5:
+//!
+//! ```text
+//! T_cycle = (13 + 2N) x 11 / baud + 2 x t3.5 + turnaround
+//!         = (13 + 2N) x 11 / baud + t3.5 + (request end -> answer start, measured at the device)
+//! ```
+
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use gateway::image::{ImageConfig, ProcessImage, Table};
+use gateway::line::{
+    spawn_modbus_master_line, AddrRange, DeviceLimits, DeviceSettings, LineHandle, LineSettings,
+    PollGroup,
+};
+use gateway::paced::{self, PacedSettings};
+use gateway::serial::PortSettings;
+use gateway::sim::{serve_modbus, ModbusDevice};
+use proto_core::modbus::rtu::CharTiming;
+use tokio_serial::SerialPortBuilderExt;
+use tokio_util::sync::CancellationToken;
+
+use crate::device::{Bus, FlatDevice};
+use crate::report::{Row, Target};
+use crate::stats::{mean, ms};
+use crate::tap::{device_relay, lock, DeviceLog, MasterTap};
+use crate::Plan;
+
+/// Bits a character: start, 8 data, even parity, stop (003 6.4.2.1 counts 11 for 8E1).
+const BITS_PER_CHAR: u8 = 11;
+/// Baud rates of the poll-rate rows.
+pub(crate) const BAUDS: [u32; 4] = [9600, 19_200, 38_400, 115_200];
+/// Registers a poll of the poll-rate rows.
+pub(crate) const REGISTERS: [u16; 4] = [1, 10, 60, 125];
+/// The poll period of the poll-rate rows: shorter than any cycle, so the line never rests.
+const FLAT_OUT: Duration = Duration::from_millis(1);
+
+/// A master line on a tapped paced link to a simulated device; stopped when dropped.
+pub(crate) struct Rig {
+    pub(crate) line: LineHandle,
+    pub(crate) master: MasterTap,
+    pub(crate) device: Arc<Mutex<DeviceLog>>,
+    pub(crate) timing: CharTiming,
+    shutdown: CancellationToken,
+}
+
+impl Drop for Rig {
+    fn drop(&mut self) {
+        self.shutdown.cancel();
+    }
+}
+
+/// Starts a paced link at `baud` (8E1), `device` on its far end, and a master line polling
+/// `devices` through a tap on its near end.
+pub(crate) async fn rig(
+    baud: u32,
+    device: impl ModbusDevice + 'static,
+    devices: Vec<DeviceSettings>,
+    reply_timeout: Option<Duration>,
+) -> std::io::Result<Rig> {
+    let shutdown = CancellationToken::new();
+    let settings = PacedSettings::from_frame(baud, 8, true, 1);
+    let (link, _relay) = paced::spawn(settings, shutdown.clone()).await?;
+    let timing = CharTiming::new(baud, BITS_PER_CHAR);
+    let port = tokio_serial::new(link.b.as_str(), baud)
+        .open_native_async()
+        .map_err(std::io::Error::from)?;
+    let (port, device_log) = device_relay(port, shutdown.clone());
+    tokio::spawn(serve_modbus(port, device, timing, shutdown.clone()));
+    let master = MasterTap::spawn(
+        &link.a,
+        baud,
+        timing.char_time,
+        timing.t3_5(),
+        shutdown.clone(),
+    )?;
+    let mut line = LineSettings::rtu("bench", PortSettings::new(master.path.clone(), baud));
+    if let Some(timeout) = reply_timeout {
+        line.master.reply_timeout = timeout;
+    }
+    let image = ProcessImage::new(ImageConfig::default());
+    let line = spawn_modbus_master_line(line, devices, image, shutdown.clone());
+    Ok(Rig {
+        line,
+        master,
+        device: device_log,
+        timing,
+        shutdown,
+    })
+}
+
+/// A device polling `count` holding registers from 0 every `period`.
+pub(crate) fn polled(name: &str, slave: u8, count: u16, period: Duration) -> DeviceSettings {
+    DeviceSettings {
+        limits: DeviceLimits::CP341,
+        groups: vec![PollGroup {
+            period,
+            table: Table::HoldingRegisters,
+            ranges: vec![AddrRange::new(0, count)],
+        }],
+        ..DeviceSettings::new(name, slave, slave)
+    }
+}
+
+/// Answered polls of the devices `which` of the line.
+fn polls_ok(line: &LineHandle, which: std::ops::Range<usize>) -> u64 {
+    line.status()
+        .devices
+        .get(which)
+        .map_or(0, |d| d.iter().map(|d| d.polls_ok).sum())
+}
+
+/// Waits until the line has `n` answered polls of its first device, at most `limit`.
+async fn warm_up(line: &LineHandle, n: u64, limit: Duration) -> bool {
+    let deadline = Instant::now() + limit;
+    while polls_ok(line, 0..1) < n {
+        if Instant::now() > deadline {
+            return false;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    true
+}
+
+/// The result of one poll-rate run.
+pub(crate) struct PollRun {
+    pub(crate) row: Row,
+    /// Requests that started less than t3.5 after the previous frame.
+    pub(crate) violations: u64,
+    /// Requests seen.
+    pub(crate) requests: u64,
+}
+
+/// Polls `n` registers flat out at `baud` and compares the rate with the best case.
+pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result<PollRun> {
+    let name = format!("poll rate {baud} Bd, N={n}: polls/s / best case");
+    let rig = rig(
+        baud,
+        FlatDevice::new(1),
+        vec![polled("d1", 1, n, FLAT_OUT)],
+        None,
+    )
+    .await?;
+    let timing = rig.timing;
+    let t35 = timing.t3_5();
+    let wire = timing.char_time * (13 + 2 * u32::from(n));
+    if !warm_up(&rig.line, 3, Duration::from_secs(10)).await {
+        return Ok(PollRun {
+            row: failed(
+                name,
+                &format!("the line never polled{}", trouble(&rig.line)),
+            ),
+            violations: 0,
+            requests: 0,
+        });
+    }
+    // Long enough for the plan's number of cycles (estimated with a 1 ms turnaround).
+    let estimate = wire + t35 * 3 + Duration::from_millis(2);
+    let window = plan.poll_window.max(estimate * plan.poll_cycles);
+
+    let (p0, t0) = (polls_ok(&rig.line, 0..1), Instant::now());
+    let (ex0, v0, g0) = {
+        let log = lock(&rig.master.log);
+        (log.exchanges.len(), log.violations, log.gaps.len())
+    };
+    let d0 = lock(&rig.device).turnarounds.len();
+    tokio::time::sleep(window).await;
+    let (p1, t1) = (polls_ok(&rig.line, 0..1), Instant::now());
+    let (serial, violations, requests, gap, cycle) = {
+        let log = lock(&rig.master.log);
+        let window = log.exchanges.get(ex0..).unwrap_or_default();
+        let serial: Vec<Duration> = window
+            .iter()
+            .filter_map(|e| e.answered.map(|a| a.saturating_duration_since(e.sent)))
+            .collect();
+        // The mean time from one request to the next, over the whole window.
+        let cycle = match (window.first(), window.last()) {
+            (Some(first), Some(last)) if window.len() > 1 => {
+                let intervals = u32::try_from(window.len() - 1).unwrap_or(u32::MAX);
+                last.sent.saturating_duration_since(first.sent) / intervals
+            }
+            _ => Duration::MAX,
+        };
+        let gaps = log.gaps.get(g0..).unwrap_or_default();
+        (
+            mean(&serial),
+            log.violations - v0,
+            window.len() as u64,
+            mean(gaps),
+            cycle,
+        )
+    };
+    let turnaround = mean(lock(&rig.device).turnarounds.get(d0..).unwrap_or_default());
+    let trouble = trouble(&rig.line);
+    drop(rig);
+
+    let elapsed = t1.saturating_duration_since(t0).as_secs_f64();
+    let polls = p1 - p0;
+    let achieved = 1.0 / cycle.as_secs_f64();
+    let best_cycle = wire + t35 + turnaround;
+    let best = 1.0 / best_cycle.as_secs_f64();
+    let link_excess = serial.saturating_sub(wire + turnaround);
+    let without_link = best_cycle.as_secs_f64() / cycle.saturating_sub(link_excess).as_secs_f64();
+    let note = format!(
+        "{polls} polls answered in {elapsed:.1} s ({requests} requests); cycle {} = wire {} + \
+         device {} (t3.5 {} + its own {}) + link and tap lateness {} + master gap {} (t3.5 {}); \
+         frames < t3.5 after the previous: {violations}; without the link's lateness the ratio \
+         would be {without_link:.3}{trouble}",
+        ms(cycle),
+        ms(wire),
+        ms(turnaround),
+        ms(t35),
+        ms(turnaround.saturating_sub(t35)),
+        ms(link_excess),
+        ms(gap),
+        ms(t35),
+    );
+    // Every request answered: a failed poll would make the rate meaningless.
+    let score = if polls + 1 >= requests && requests > 1 {
+        achieved / best
+    } else {
+        f64::NAN
+    };
+    Ok(PollRun {
+        row: Row {
+            name,
+            measured: format!("{achieved:.2}/s"),
+            reference: format!("{best:.2}/s"),
+            score,
+            target: Target::at_least(0.95),
+            note,
+        },
+        violations,
+        requests,
+    })
+}
+
+/// Nine devices' poll rate with a tenth dead, over their rate with none dead.
+pub(crate) async fn dead_device(plan: &Plan) -> std::io::Result<Row> {
+    const BAUD: u32 = 19_200;
+    const DEVICES: u8 = 10;
+    const COUNT: u16 = 10;
+    const PERIOD: Duration = Duration::from_millis(500);
+    const REPLY_TIMEOUT: Duration = Duration::from_millis(200);
+    let name = "1 dead device of 10: others' polls/s / none dead".to_owned();
+    let mut rates = [0.0f64; 2];
+    let mut dead_trouble = String::new();
+    for (dead, rate) in [false, true].into_iter().zip(rates.iter_mut()) {
+        let bus: Vec<FlatDevice> = (1..=DEVICES)
+            .map(|slave| {
+                let d = FlatDevice::new(slave);
+                if dead && slave == DEVICES {
+                    d.dead()
+                } else {
+                    d
+                }
+            })
+            .collect();
+        let devices = (1..=DEVICES)
+            .map(|slave| polled(&format!("d{slave}"), slave, COUNT, PERIOD))
+            .collect();
+        let rig = rig(BAUD, Bus(bus), devices, Some(REPLY_TIMEOUT)).await?;
+        // Every device polled once, the dead one declared offline.
+        tokio::time::sleep(Duration::from_millis(1500)).await;
+        let others = 0..usize::from(DEVICES - 1);
+        let (p0, t0) = (polls_ok(&rig.line, others.clone()), Instant::now());
+        tokio::time::sleep(plan.dead_window).await;
+        let (p1, t1) = (polls_ok(&rig.line, others), Instant::now());
+        *rate = (p1 - p0) as f64 / t1.saturating_duration_since(t0).as_secs_f64();
+        if dead {
+            dead_trouble = trouble(&rig.line);
+        }
+    }
+    let [alive, with_dead] = rates;
+    let expected = f64::from(DEVICES - 1) / PERIOD.as_secs_f64();
+    Ok(Row {
+        name,
+        measured: format!("{with_dead:.2}/s"),
+        reference: format!("{alive:.2}/s"),
+        score: with_dead / alive,
+        target: Target::at_least(0.95),
+        note: format!(
+            "{DEVICES} devices x {COUNT} registers every {} ms at {BAUD} Bd 8E1 (the line about \
+             half busy; nine devices should make {expected:.0} polls/s), reply monitoring time \
+             {} ms, offline back-off 1 s doubling to 30 s (defaults); windows of {:.0} s after \
+             1.5 s of warm-up, run back to back; with the dead device{dead_trouble}",
+            PERIOD.as_millis(),
+            REPLY_TIMEOUT.as_millis(),
+            plan.dead_window.as_secs_f64(),
+        ),
+    })
+}
+
+/// Failed polls and events of the line, if any (", failed polls 3, events 0830 x3").
+fn trouble(line: &LineHandle) -> String {
+    let status = line.status();
+    let failed: u64 = status
+        .devices
+        .iter()
+        .map(|d| d.polls_failed + d.polls_exception)
+        .sum();
+    // Class 00 (start-up) events are not trouble.
+    let events: Vec<String> = status
+        .event_counts
+        .iter()
+        .filter(|(id, _)| id.class != 0)
+        .map(|(id, n)| format!("{id} x{n}"))
+        .collect();
+    let mut out = String::new();
+    if failed > 0 {
+        out.push_str(&format!("; failed polls {failed}"));
+    }
+    if !events.is_empty() {
+        out.push_str(&format!("; events {}", events.join(", ")));
+    }
+    out
+}
+
+/// A row for a run that could not measure.
+pub(crate) fn failed(name: String, why: &str) -> Row {
+    Row {
+        name,
+        measured: "-".into(),
+        reference: "-".into(),
+        score: f64::NAN,
+        target: Target::at_least(0.95),
+        note: why.to_owned(),
+    }
+}

@@ -1,0 +1,430 @@
+//! Rows measured on the real `gateway` binary with generated configs: zenoh delivery latency and
+//! sustained samples, and resident memory with 4 lines, 32 devices and 10 000 points.
+//!
+//! The serial lines of the child gateway are plain pty pairs; the benchmark holds the other ends
+//! and runs the simulated devices on them, or writes telegrams into them.
+
+use std::fmt::Write as _;
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use gateway::sim::serve_modbus;
+use proto_core::modbus::rtu::CharTiming;
+use tokio::io::AsyncWriteExt;
+use tokio_serial::SerialStream;
+use tokio_util::sync::CancellationToken;
+
+use crate::child::{free_port, Gateway};
+use crate::device::{Bus, FlatDevice};
+use crate::mbap::Client;
+use crate::report::{Row, Target};
+use crate::stats::{ms, percentile};
+use crate::Plan;
+
+/// The baud rate of every generated line (the pty ignores it; the engines time by it).
+const BAUD: u32 = 115_200;
+/// The unit id of the telegram line's mailbox.
+const MAILBOX_UNIT: u8 = 100;
+/// The mailbox's acknowledge register (gateway::mailbox::layout::ACK).
+const ACK: u16 = gateway::mailbox::layout::ACK;
+
+/// A plain pty pair: the path for the gateway, the other end for the benchmark. The gateway's end
+/// is kept open until `shutdown` so that the benchmark's end never hangs up.
+fn pty(shutdown: &CancellationToken) -> std::io::Result<(String, SerialStream)> {
+    let (ours, theirs) = SerialStream::pair().map_err(std::io::Error::from)?;
+    let path = tokio_serial::SerialPort::name(&theirs)
+        .ok_or_else(|| std::io::Error::other("the pty has no path"))?;
+    let stop = shutdown.clone();
+    tokio::spawn(async move {
+        let _keep = theirs;
+        stop.cancelled().await;
+    });
+    Ok((path, ours))
+}
+
+fn head(name: &str) -> String {
+    format!("[gateway]\nname = \"{name}\"\n\n[modbus_tcp]\nlisten = \"127.0.0.1:0\"\nmax_connections = 64\n\n")
+}
+
+/// A Modbus master line with generic devices, each with `tags[i]` u16 tags on holding registers
+/// from 0, all in one poll group of `period`.
+fn master_line(name: &str, path: &str, devices: &[(u8, u8, usize)], period: &str) -> String {
+    let mut s = format!(
+        "[lines.{name}]\nport = \"{path}\"\nprotocol = \"modbus-master-rtu\"\nbaud = {BAUD}\n\
+         parity = \"even\"\nreply_timeout = \"200ms\"\n\n"
+    );
+    for &(slave, unit, tags) in devices {
+        let device = format!("lines.{name}.devices.d{slave}");
+        let _ = writeln!(
+            s,
+            "[{device}]\nprofile = \"generic\"\naddress = {slave}\nunit_id = {unit}"
+        );
+        s.push_str("tags = [\n");
+        for t in 0..tags {
+            let _ = writeln!(
+                s,
+                "  {{ name = \"t{t}\", table = \"holding\", address = {t} }},"
+            );
+        }
+        s.push_str("]\n\n");
+        let _ = writeln!(
+            s,
+            "[[{device}.poll]]\nname = \"all\"\nperiod = \"{period}\""
+        );
+        s.push_str("tags = [");
+        for t in 0..tags {
+            let _ = write!(s, "\"t{t}\",");
+        }
+        s.push_str("]\n\n");
+    }
+    s
+}
+
+/// Starts the gateway on a written config with zenoh on `endpoint` (blocking start on a worker
+/// that may block).
+async fn start(
+    bin: &Path,
+    name: &str,
+    config: String,
+    extra: &[String],
+) -> std::io::Result<Gateway> {
+    let dir = std::env::temp_dir().join(format!("gateway-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let file = dir.join(format!("{name}.toml"));
+    std::fs::write(&file, config)?;
+    let mut args = vec![
+        "run".to_owned(),
+        "--config".to_owned(),
+        file.display().to_string(),
+    ];
+    args.extend_from_slice(extra);
+    let bin = bin.to_owned();
+    tokio::task::spawn_blocking(move || Gateway::start(&bin, &args))
+        .await
+        .map_err(std::io::Error::other)?
+}
+
+/// A zenoh client session connected to `endpoint`, multicast scouting off.
+async fn zenoh_client(endpoint: &str) -> std::io::Result<zenoh::Session> {
+    let err = |e: zenoh::Error| std::io::Error::other(e.to_string());
+    let mut config = zenoh::Config::default();
+    config.insert_json5("mode", "\"client\"").map_err(err)?;
+    config
+        .insert_json5("connect/endpoints", &format!("[\"{endpoint}\"]"))
+        .map_err(err)?;
+    config
+        .insert_json5("scouting/multicast/enabled", "false")
+        .map_err(err)?;
+    zenoh::open(config).await.map_err(err)
+}
+
+/// A received telegram: when, its bytes, its sequence number.
+type Received = (Instant, Vec<u8>, Option<u16>);
+
+/// The `"seq": N` of a telegram's attachment.
+fn seq_of(attachment: &str) -> Option<u16> {
+    let rest = attachment.split("\"seq\":").nth(1)?;
+    let digits: String = rest
+        .trim_start()
+        .chars()
+        .take_while(char::is_ascii_digit)
+        .collect();
+    digits.parse().ok()
+}
+
+/// Serial frame end (the telegram's end character written into the pty) to the subscriber's
+/// callback, p99.
+pub(crate) async fn zenoh_latency(bin: &Path, plan: &Plan) -> std::io::Result<Row> {
+    let name = "zenoh: serial frame end -> subscriber, p99".to_owned();
+    let shutdown = CancellationToken::new();
+    let _stop = shutdown.clone().drop_guard();
+    let (path, mut port) = pty(&shutdown)?;
+    let config = format!(
+        "{}[lines.tg]\nport = \"{path}\"\nprotocol = \"ascii\"\nbaud = {BAUD}\ndata_bits = 8\n\
+         parity = \"none\"\nstop_bits = 1\nend_criterion = \"end-chars\"\nend_chars = [0x03]\n\
+         unit_id = {MAILBOX_UNIT}\n",
+        head("bench")
+    );
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
+    let gw = start(
+        bin,
+        "zenoh-latency",
+        config,
+        &["--zenoh-listen".to_owned(), endpoint.clone()],
+    )
+    .await?;
+    let session = zenoh_client(&endpoint).await?;
+    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Received>();
+    let _subscriber = session
+        .declare_subscriber("gw/bench/tg/rx")
+        .callback(move |sample| {
+            let at = Instant::now();
+            let seq = sample
+                .attachment()
+                .and_then(|a| a.try_to_string().ok().and_then(|s| seq_of(&s)));
+            let _ = tx.send((at, sample.payload().to_bytes().into_owned(), seq));
+        })
+        .await
+        .map_err(|e| std::io::Error::other(e.to_string()))?;
+    let mut mailbox = Client::connect(gw.modbus_tcp).await?;
+
+    // Until the subscription has reached the gateway.
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let first = loop {
+        port.write_all(b"W\x03").await?;
+        if let Ok(Some(r)) = tokio::time::timeout(Duration::from_millis(200), rx.recv()).await {
+            break r;
+        }
+        if Instant::now() > deadline {
+            return Err(std::io::Error::other(format!(
+                "no telegram reached the subscriber:\n{}",
+                gw.output()
+            )));
+        }
+    };
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let mut last_seq = first.2;
+    while let Ok(r) = rx.try_recv() {
+        last_seq = r.2.or(last_seq);
+    }
+    if let Some(seq) = last_seq {
+        mailbox.write_one(MAILBOX_UNIT, ACK, seq).await?;
+    }
+
+    let mut latencies = Vec::with_capacity(plan.telegrams);
+    let mut lost = 0usize;
+    for i in 0..plan.telegrams {
+        let telegram = format!("T{i:06}\x03");
+        port.write_all(telegram.as_bytes()).await?;
+        let sent = Instant::now();
+        let wanted = format!("T{i:06}");
+        let got = loop {
+            match tokio::time::timeout(Duration::from_secs(2), rx.recv()).await {
+                Ok(Some(r)) if r.1.starts_with(wanted.as_bytes()) => break Some(r),
+                Ok(Some(_)) => continue,
+                _ => break None,
+            }
+        };
+        match got {
+            Some((at, _, seq)) => {
+                latencies.push(at.saturating_duration_since(sent));
+                // Release the telegram from the mailbox, so that it never fills up.
+                if let Some(seq) = seq {
+                    mailbox.write_one(MAILBOX_UNIT, ACK, seq).await?;
+                }
+            }
+            None => lost += 1,
+        }
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+    let p99 = percentile(&latencies, 99.0);
+    let panicked = gw.panicked();
+    drop(gw);
+    Ok(Row {
+        name,
+        measured: ms(p99),
+        reference: "-".into(),
+        score: if lost == 0 && !panicked {
+            p99.as_secs_f64() * 1e3
+        } else {
+            f64::NAN
+        },
+        target: Target::at_most(2.0).with_unit(" ms"),
+        note: format!(
+            "{} telegrams of 8 bytes on an ASCII line (end character ETX), one at a time, each \
+             acknowledged in the mailbox; p50 {}, max {}; lost {lost}; subscriber: zenoh client \
+             on tcp/127.0.0.1, scouting off",
+            latencies.len(),
+            ms(percentile(&latencies, 50.0)),
+            ms(percentile(&latencies, 100.0)),
+        ),
+    })
+}
+
+/// Tag samples per second a subscriber receives while two lines poll 125 changing registers as
+/// fast as they can.
+pub(crate) async fn zenoh_throughput(bin: &Path, plan: &Plan) -> std::io::Result<Row> {
+    const LINES: u8 = 2;
+    const TAGS: usize = 125;
+    let name = "zenoh: tag samples/s sustained".to_owned();
+    let shutdown = CancellationToken::new();
+    let _stop = shutdown.clone().drop_guard();
+    let mut config = head("bench");
+    let mut reads = Vec::new();
+    for line in 0..LINES {
+        let (path, port) = pty(&shutdown)?;
+        let device = FlatDevice::new(1).changing();
+        reads.push(device.reads());
+        tokio::spawn(serve_modbus(
+            port,
+            device,
+            CharTiming::new(BAUD, 11),
+            shutdown.clone(),
+        ));
+        config.push_str(&master_line(
+            &format!("m{line}"),
+            &path,
+            &[(1, line + 1, TAGS)],
+            "10ms",
+        ));
+    }
+    let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
+    let gw = start(
+        bin,
+        "zenoh-throughput",
+        config,
+        &["--zenoh-listen".to_owned(), endpoint.clone()],
+    )
+    .await?;
+    let session = zenoh_client(&endpoint).await?;
+    let count = Arc::new(AtomicU64::new(0));
+    let counter = Arc::clone(&count);
+    let _subscriber = session
+        .declare_subscriber("gw/bench/*/d1/*")
+        .callback(move |_| {
+            counter.fetch_add(1, Ordering::Relaxed);
+        })
+        .await
+        .map_err(|e| std::io::Error::other(e.to_string()))?;
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let offered = || reads.iter().map(|r| r.load(Ordering::Relaxed)).sum::<u64>();
+    let (c0, r0, t0) = (count.load(Ordering::Relaxed), offered(), Instant::now());
+    tokio::time::sleep(plan.zenoh_window).await;
+    let (c1, r1, t1) = (count.load(Ordering::Relaxed), offered(), Instant::now());
+    let elapsed = t1.saturating_duration_since(t0).as_secs_f64();
+    let rate = (c1 - c0) as f64 / elapsed;
+    let changes = (r1 - r0) as f64 * TAGS as f64 / elapsed;
+    let panicked = gw.panicked();
+    drop(gw);
+    Ok(Row {
+        name,
+        measured: format!("{rate:.0}/s"),
+        reference: "-".into(),
+        score: if panicked { f64::NAN } else { rate },
+        target: Target::at_least(10_000.0).with_unit("/s"),
+        note: format!(
+            "{LINES} lines x 1 device x {TAGS} u16 tags polled every 10 ms on plain ptys, every \
+             poll changing every tag: {changes:.0} tag changes/s offered in {elapsed:.1} s, \
+             {:.1} % of them received (a newer value replaces one not yet published, so the \
+             figure is what the bridge sustained at this offer)",
+            100.0 * rate / changes.max(1.0)
+        ),
+    })
+}
+
+/// Resident memory of the gateway with 4 lines, 32 devices and 10 000 tags, all polled; once
+/// with the zenoh bridge (the row) and once without (the note), back to back.
+pub(crate) async fn memory(bin: &Path, plan: &Plan) -> std::io::Result<Row> {
+    let name = "RSS, 4 lines / 32 devices / 10 000 points".to_owned();
+    let with = measure_memory(bin, plan, true).await?;
+    let without = measure_memory(bin, plan, false).await?;
+    let mib = |kib: u64| kib as f64 / 1024.0;
+    Ok(Row {
+        name,
+        measured: format!("{:.1} MiB", mib(with.rss)),
+        reference: "-".into(),
+        score: if with.panicked || without.panicked || with.rss == 0 {
+            f64::NAN
+        } else {
+            mib(with.rss)
+        },
+        target: Target::at_most(32.0).with_unit(" MiB"),
+        note: format!(
+            "VmRSS of the gateway process, largest of the samples over {:.1} s once every device \
+             was polled twice; {MEMORY_LINES} Modbus master lines on plain ptys, {MEMORY_DEVICES} \
+             generic devices each, {MEMORY_POINTS} u16 tags polled every second, values changing, \
+             published on zenoh (peer on loopback), /metrics served. Of it: anonymous {:.1} MiB, \
+             file-backed (the binary's code) {:.1} MiB, peak {:.1} MiB. The same without zenoh \
+             and HTTP: {:.1} MiB (anonymous {:.1} MiB)",
+            plan.memory_window.as_secs_f64(),
+            mib(with.anon),
+            mib(with.rss.saturating_sub(with.anon)),
+            mib(with.hwm),
+            mib(without.rss),
+            mib(without.anon),
+        ),
+    })
+}
+
+const MEMORY_LINES: u8 = 4;
+const MEMORY_DEVICES: u8 = 8;
+const MEMORY_POINTS: usize = 10_000;
+
+/// What the memory row read from `/proc/PID/status`, in KiB.
+struct Memory {
+    rss: u64,
+    anon: u64,
+    hwm: u64,
+    panicked: bool,
+}
+
+async fn measure_memory(bin: &Path, plan: &Plan, zenoh: bool) -> std::io::Result<Memory> {
+    let shutdown = CancellationToken::new();
+    let _stop = shutdown.clone().drop_guard();
+    let mut config = head("bench");
+    let mut reads = Vec::new();
+    let devices_total = usize::from(MEMORY_LINES * MEMORY_DEVICES);
+    let per_device = MEMORY_POINTS / devices_total;
+    let mut extra = MEMORY_POINTS % devices_total;
+    for line in 0..MEMORY_LINES {
+        let (path, port) = pty(&shutdown)?;
+        let mut bus = Vec::new();
+        let mut devices = Vec::new();
+        for slave in 1..=MEMORY_DEVICES {
+            let device = FlatDevice::new(slave).changing();
+            reads.push(device.reads());
+            bus.push(device);
+            let tags = per_device + usize::from(extra > 0);
+            extra = extra.saturating_sub(1);
+            devices.push((slave, line * MEMORY_DEVICES + slave, tags));
+        }
+        tokio::spawn(serve_modbus(
+            port,
+            Bus(bus),
+            CharTiming::new(BAUD, 11),
+            shutdown.clone(),
+        ));
+        config.push_str(&master_line(&format!("l{line}"), &path, &devices, "1s"));
+    }
+    let extra_args = if zenoh {
+        vec![
+            "--zenoh-listen".to_owned(),
+            format!("tcp/127.0.0.1:{}", free_port()?),
+            "--http".to_owned(),
+            "127.0.0.1:0".to_owned(),
+        ]
+    } else {
+        Vec::new()
+    };
+    let gw = start(bin, "memory", config, &extra_args).await?;
+    // Every device read completely at least twice (at most 125 registers a read).
+    let blocks = (per_device + 1).div_ceil(125) as u64;
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while reads.iter().any(|r| r.load(Ordering::Relaxed) < 2 * blocks) {
+        if Instant::now() > deadline {
+            return Err(std::io::Error::other("not every device was polled"));
+        }
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let mut memory = Memory {
+        rss: 0,
+        anon: 0,
+        hwm: 0,
+        panicked: false,
+    };
+    let samples = (plan.memory_window.as_millis() / 200).max(1);
+    for _ in 0..samples {
+        if let Some(now) = gw.memory_kib() {
+            if now.rss > memory.rss {
+                memory.rss = now.rss;
+                memory.anon = now.anon;
+            }
+            memory.hwm = memory.hwm.max(now.hwm);
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    }
+    memory.panicked = gw.panicked();
+    Ok(memory)
+}

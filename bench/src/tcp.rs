@@ -1,0 +1,327 @@
+//! Modbus TCP rows: cached FC 03 reads of the gateway against a bare tokio-modbus server serving
+//! a flat image, and the latency a write through the gateway adds to the serial exchange.
+//!
+//! Both servers run on the bench's multi-threaded runtime (two workers, as the gateway binary on
+//! this machine); the clients run on a runtime of their own on a separate thread and are the same
+//! raw MBAP loop for both. The servers take turns (bare, gateway, gateway, bare, ...) so that a
+//! change of the machine's load hits both.
+
+use std::net::SocketAddr;
+use std::sync::{Arc, RwLock};
+use std::time::{Duration, Instant};
+
+use gateway::image::{ImageConfig, ProcessImage};
+use gateway::line::{spawn_modbus_master_line, DeviceSettings, LineHandle, LineSettings};
+use gateway::modbus_tcp::{self, ServerOptions, ServerStats};
+use gateway::serial::PortSettings;
+use gateway::sim::serve_modbus;
+use gateway::unit::UnitMap;
+use proto_core::modbus::rtu::CharTiming;
+use tokio_serial::SerialStream;
+use tokio_util::sync::CancellationToken;
+
+use crate::device::FlatDevice;
+use crate::mbap::Client;
+use crate::poll::{polled, rig};
+use crate::report::{Row, Target};
+use crate::stats::{mean, ms, percentile};
+use crate::tap::lock;
+use crate::Plan;
+
+/// The unit id of the benchmark's device.
+const UNIT: u8 = 1;
+
+/// Serves `line`'s devices over Modbus TCP on an ephemeral loopback port until `shutdown`.
+async fn serve_gateway(
+    line: &LineHandle,
+    shutdown: CancellationToken,
+) -> std::io::Result<SocketAddr> {
+    let mut units = UnitMap::new();
+    for (id, unit) in line.device_units() {
+        units.insert(id, Arc::new(unit));
+    }
+    let listener = modbus_tcp::bind(SocketAddr::from(([127, 0, 0, 1], 0)))?;
+    let addr = listener.local_addr()?;
+    let options = ServerOptions {
+        max_connections: 64,
+        ..ServerOptions::default()
+    };
+    tokio::spawn(modbus_tcp::serve(
+        listener,
+        Arc::new(RwLock::new(units)),
+        options,
+        shutdown,
+        Arc::new(ServerStats::new()),
+    ));
+    Ok(addr)
+}
+
+/// The gateway with a device polled (125 registers every 100 ms) on a plain pty pair, so that the
+/// image stays fresh, served over Modbus TCP.
+async fn cached_gateway(shutdown: &CancellationToken) -> std::io::Result<SocketAddr> {
+    const BAUD: u32 = 115_200;
+    let (device_end, line_end) = SerialStream::pair().map_err(std::io::Error::from)?;
+    let path = tokio_serial::SerialPort::name(&line_end)
+        .ok_or_else(|| std::io::Error::other("the pty has no path"))?;
+    let stop = shutdown.clone();
+    tokio::spawn(async move {
+        // Keeps the line's end open until the end, so the device's end never hangs up.
+        let _keep = line_end;
+        stop.cancelled().await;
+    });
+    tokio::spawn(serve_modbus(
+        device_end,
+        FlatDevice::new(UNIT),
+        CharTiming::new(BAUD, 11),
+        shutdown.clone(),
+    ));
+    let line = spawn_modbus_master_line(
+        LineSettings::rtu("tcp", PortSettings::new(path, BAUD)),
+        vec![polled("d1", UNIT, 125, Duration::from_millis(100))],
+        ProcessImage::new(ImageConfig::default()),
+        shutdown.clone(),
+    );
+    serve_gateway(&line, shutdown.clone()).await
+}
+
+/// A tokio-modbus server answering FC 03 from a flat image of 65536 registers.
+#[derive(Clone)]
+struct FlatService(Arc<Vec<u16>>);
+
+impl tokio_modbus::server::Service for FlatService {
+    type Request = tokio_modbus::Request<'static>;
+    type Response = tokio_modbus::Response;
+    type Exception = tokio_modbus::ExceptionCode;
+    type Future = std::future::Ready<Result<Self::Response, Self::Exception>>;
+
+    fn call(&self, request: Self::Request) -> Self::Future {
+        std::future::ready(match request {
+            tokio_modbus::Request::ReadHoldingRegisters(address, count) => {
+                let start = usize::from(address);
+                self.0
+                    .get(start..start + usize::from(count))
+                    .map(|v| tokio_modbus::Response::ReadHoldingRegisters(v.to_vec()))
+                    .ok_or(tokio_modbus::ExceptionCode::IllegalDataAddress)
+            }
+            _ => Err(tokio_modbus::ExceptionCode::IllegalFunction),
+        })
+    }
+}
+
+/// The bare reference server on an ephemeral loopback port, until `shutdown`.
+async fn bare_server(shutdown: &CancellationToken) -> std::io::Result<SocketAddr> {
+    let listener = tokio::net::TcpListener::bind(SocketAddr::from(([127, 0, 0, 1], 0))).await?;
+    let addr = listener.local_addr()?;
+    let image = Arc::new((0..=u16::MAX).collect::<Vec<u16>>());
+    let server = tokio_modbus::server::tcp::Server::new(listener);
+    let stop = shutdown.clone();
+    tokio::spawn(async move {
+        let on_connected = |stream, peer| {
+            let service = FlatService(Arc::clone(&image));
+            async move {
+                tokio_modbus::server::tcp::accept_tcp_connection(stream, peer, |_| {
+                    Ok(Some(service.clone()))
+                })
+            }
+        };
+        tokio::select! {
+            _ = server.serve(&on_connected, |_err| {}) => {}
+            () = stop.cancelled() => {}
+        }
+    });
+    Ok(addr)
+}
+
+/// What a load run measured.
+#[derive(Default)]
+struct Load {
+    requests: u64,
+    elapsed: Duration,
+    latencies: Vec<Duration>,
+}
+
+/// `connections` clients reading 125 registers as fast as answers come, for `duration`, on a
+/// runtime of their own on a separate thread.
+async fn load(addr: SocketAddr, connections: usize, duration: Duration) -> std::io::Result<Load> {
+    let (tx, rx) = tokio::sync::oneshot::channel();
+    std::thread::spawn(move || {
+        let result = tokio::runtime::Builder::new_current_thread()
+            .enable_all()
+            .build()
+            .and_then(|rt| rt.block_on(load_on_this_thread(addr, connections, duration)));
+        let _ = tx.send(result);
+    });
+    rx.await
+        .map_err(|_| std::io::Error::other("the load thread stopped"))?
+}
+
+async fn load_on_this_thread(
+    addr: SocketAddr,
+    connections: usize,
+    duration: Duration,
+) -> std::io::Result<Load> {
+    let mut clients = Vec::with_capacity(connections);
+    for _ in 0..connections {
+        let mut client = Client::connect(addr).await?;
+        client.read_125(UNIT).await?;
+        clients.push(client);
+    }
+    let start = Instant::now();
+    let until = start + duration;
+    let tasks: Vec<_> = clients
+        .into_iter()
+        .map(|mut client| {
+            tokio::spawn(async move {
+                let mut latencies = Vec::with_capacity(65_536);
+                while Instant::now() < until {
+                    let t = Instant::now();
+                    client.read_125(UNIT).await?;
+                    latencies.push(t.elapsed());
+                }
+                Ok::<_, std::io::Error>(latencies)
+            })
+        })
+        .collect();
+    let mut out = Load::default();
+    for task in tasks {
+        let latencies = task.await.map_err(std::io::Error::other)??;
+        out.requests += latencies.len() as u64;
+        out.latencies.extend(latencies);
+    }
+    out.elapsed = start.elapsed();
+    Ok(out)
+}
+
+/// Waits until `addr` answers a read of 125 registers from unit 1 (the image is filled).
+async fn until_answers(addr: SocketAddr) -> std::io::Result<()> {
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let result = async { Client::connect(addr).await?.read_125(UNIT).await }.await;
+        match result {
+            Ok(()) => return Ok(()),
+            Err(e) if Instant::now() > deadline => return Err(e),
+            Err(_) => tokio::time::sleep(Duration::from_millis(50)).await,
+        }
+    }
+}
+
+/// Throughput and p99 rows for 1 and 16 connections.
+pub(crate) async fn cached_reads(plan: &Plan) -> std::io::Result<Vec<Row>> {
+    let shutdown = CancellationToken::new();
+    let _stop = shutdown.clone().drop_guard();
+    let gateway = cached_gateway(&shutdown).await?;
+    let bare = bare_server(&shutdown).await?;
+    until_answers(gateway).await?;
+    until_answers(bare).await?;
+    let mut rows = Vec::new();
+    for connections in [1usize, 16] {
+        let (mut gw, mut reference) = (Load::default(), Load::default());
+        for round in 0..plan.tcp_rounds {
+            let order = if round % 2 == 0 {
+                [(bare, false), (gateway, true)]
+            } else {
+                [(gateway, true), (bare, false)]
+            };
+            for (addr, is_gateway) in order {
+                let run = load(addr, connections, plan.tcp_slice).await?;
+                let into = if is_gateway { &mut gw } else { &mut reference };
+                into.requests += run.requests;
+                into.elapsed += run.elapsed;
+                into.latencies.extend(run.latencies);
+            }
+        }
+        let rate = |l: &Load| l.requests as f64 / l.elapsed.as_secs_f64().max(1e-9);
+        let (gw_rate, bare_rate) = (rate(&gw), rate(&reference));
+        let (gw_p50, gw_p99) = (
+            percentile(&gw.latencies, 50.0),
+            percentile(&gw.latencies, 99.0),
+        );
+        let (bare_p50, bare_p99) = (
+            percentile(&reference.latencies, 50.0),
+            percentile(&reference.latencies, 99.0),
+        );
+        let conditions = format!(
+            "{} rounds of {:.1} s each, servers alternating; p50 gateway {} / bare {} = {:.2}",
+            plan.tcp_rounds,
+            plan.tcp_slice.as_secs_f64(),
+            ms(gw_p50),
+            ms(bare_p50),
+            gw_p50.as_secs_f64() / bare_p50.as_secs_f64().max(1e-12),
+        );
+        rows.push(Row {
+            name: format!("TCP FC03 x125 cached, {connections} conn: requests/s / bare"),
+            measured: format!("{gw_rate:.0}/s"),
+            reference: format!("{bare_rate:.0}/s"),
+            score: gw_rate / bare_rate,
+            target: Target::at_least(1.0),
+            note: conditions,
+        });
+        rows.push(Row {
+            name: format!("TCP FC03 x125 cached, {connections} conn: p99 / bare p99"),
+            measured: ms(gw_p99),
+            reference: ms(bare_p99),
+            score: gw_p99.as_secs_f64() / bare_p99.as_secs_f64().max(1e-12),
+            target: Target::at_most(2.0),
+            note: String::new(),
+        });
+    }
+    Ok(rows)
+}
+
+/// A write (FC 06) through Modbus TCP to a device on a paced 19200 Bd line: the client's latency
+/// minus the time the exchange spent on the serial side (request written by the master to answer
+/// back at the master, measured by the tap).
+pub(crate) async fn write_latency(plan: &Plan) -> std::io::Result<Row> {
+    const BAUD: u32 = 19_200;
+    let name = "TCP write to a device: latency - serial time, p99".to_owned();
+    let rig = rig(
+        BAUD,
+        FlatDevice::new(UNIT),
+        vec![DeviceSettings::new("d1", UNIT, UNIT)],
+        None,
+    )
+    .await?;
+    let shutdown = CancellationToken::new();
+    let _stop = shutdown.clone().drop_guard();
+    let addr = serve_gateway(&rig.line, shutdown).await?;
+    let mut client = Client::connect(addr).await?;
+    client.write_one(UNIT, 100, 0).await?;
+    let mut overheads = Vec::with_capacity(plan.writes);
+    let mut serial_times = Vec::with_capacity(plan.writes);
+    for i in 0..plan.writes {
+        // The line is idle and its t3.5 gap over before each write.
+        tokio::time::sleep(Duration::from_millis(5)).await;
+        let before = lock(&rig.master.log).exchanges.len();
+        let t = Instant::now();
+        client.write_one(UNIT, 100, i as u16).await?;
+        let latency = t.elapsed();
+        tokio::time::sleep(Duration::from_millis(1)).await;
+        let exchange = lock(&rig.master.log).exchanges.get(before).copied();
+        let Some(serial) = exchange.and_then(|e| e.answered.map(|a| a - e.sent)) else {
+            return Err(std::io::Error::other(
+                "the tap did not see the write's exchange",
+            ));
+        };
+        serial_times.push(serial);
+        overheads.push(latency.saturating_sub(serial));
+    }
+    let p99 = percentile(&overheads, 99.0);
+    let wire = rig.timing.char_time * 16;
+    let turnaround = mean(&lock(&rig.device).turnarounds);
+    Ok(Row {
+        name,
+        measured: ms(p99),
+        reference: "-".into(),
+        score: p99.as_secs_f64() * 1e3,
+        target: Target::at_most(1.0).with_unit(" ms"),
+        note: format!(
+            "{} writes of one register at {BAUD} Bd 8E1, one at a time; p50 {}; serial side mean {} \
+             (wire {} + device {} + link lateness)",
+            plan.writes,
+            ms(percentile(&overheads, 50.0)),
+            ms(mean(&serial_times)),
+            ms(wire),
+            ms(turnaround),
+        ),
+    })
+}
