@@ -49,6 +49,8 @@ pub struct Overrides {
     pub zenoh_listen: Option<String>,
     /// `gateway demo`: how often the simulated telegram partners send a telegram of their own.
     pub telegram_every: Option<Duration>,
+    /// `gateway demo --paced`: every line on a paced link with the timing of a real cable.
+    pub paced: bool,
     /// Serve HTTP (REST API, `/metrics`) here instead of `[http] listen`.
     pub http: Option<SocketAddr>,
     /// The configuration file: changes made over the REST API are saved there (atomically, the

@@ -59,6 +59,10 @@ enum Command {
         /// (0 = never).
         #[arg(long, value_name = "DURATION", default_value = "1s", value_parser = humantime::parse_duration)]
         telegram_every: std::time::Duration,
+        /// Put every line on a paced link: each byte is delivered after its character time at the
+        /// line's baud rate and frame, as on a cable.
+        #[arg(long)]
+        paced: bool,
         /// Serve HTTP (REST API, /healthz, /readyz, /metrics) here instead of the demo
         /// config's 127.0.0.1:8080.
         #[arg(long, value_name = "ADDR")]
@@ -121,6 +125,7 @@ async fn async_main(command: Command) -> ExitCode {
                     modbus_tcp,
                     zenoh_listen,
                     telegram_every: None,
+                    paced: false,
                     http,
                     config_file: Some(config.clone()),
                     metrics: Some(metrics),
@@ -140,6 +145,7 @@ async fn async_main(command: Command) -> ExitCode {
             zenoh_listen,
             http,
             telegram_every,
+            paced,
         } => {
             let metrics = match metrics_registry() {
                 Ok(metrics) => metrics,
@@ -149,6 +155,7 @@ async fn async_main(command: Command) -> ExitCode {
                 modbus_tcp: Some(modbus_tcp),
                 zenoh_listen: Some(zenoh_listen),
                 telegram_every: Some(telegram_every),
+                paced,
                 http,
                 config_file: None,
                 metrics: Some(metrics),

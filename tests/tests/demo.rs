@@ -250,3 +250,30 @@ fn gateway_check_accepts_the_example_and_lists_every_mistake() {
         assert!(text.contains(path), "{path} missing from:\n{text}");
     }
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_paced_demo_serves_its_devices_with_cable_timing() {
+    // Every line on a paced link: bytes take their character time, as on a cable.
+    let gw = Gateway::demo(&["--paced"]);
+    let mut drive = connect(&gw, 2).await;
+    assert_eq!(
+        read_holding_eventually(&mut drive, 3102, 4).await,
+        vec![40, 600, 500, 0]
+    );
+    let mut ks = connect(&gw, 17).await;
+    assert_eq!(
+        read_input_eventually(&mut ks, 1004, 3).await,
+        vec![1066, 140, 4158]
+    );
+    drive
+        .write_single_register(9001, 21)
+        .await
+        .expect("transport")
+        .expect("write ACC");
+    let values = drive
+        .read_holding_registers(9001, 3)
+        .await
+        .expect("transport")
+        .expect("read");
+    assert_eq!(values[0], 21);
+}

@@ -3,15 +3,23 @@
 //! Every line whose port is `pty:<name>` gets a pseudo-terminal pair: the simulated device serves
 //! one end in this process, the gateway opens the other end by its path like any serial port.
 //! Nothing is needed but the binary.
+//!
+//! With `--paced`, each line is a paced link instead (two pty pairs joined by a relay that delivers
+//! every byte after its character time at the line's baud rate and frame, see
+//! [`crate::paced`]), so the virtual line has the timing of a cable: t3.5 gaps, wire time and
+//! throughput are those of the real line.
 
 use proto_core::modbus::rtu::CharTiming;
-use tokio_serial::{SerialPort, SerialStream};
+use tokio_serial::{SerialPort, SerialPortBuilderExt, SerialStream};
 use tokio_util::sync::CancellationToken;
 use tracing::info;
 
 use super::{run, AppError, Overrides};
 use crate::config::{self, LineConfig, Profile, ProtocolConfig};
 use crate::sim::{self, altivar::AltivarSim, ksvario::KsVarioSim, ModbusDevice};
+
+/// The delay-time multiplier of the Modbus lines of `gateway demo --paced` (003 6.4.2.1: 1..10).
+const PACED_DELAY_MULTIPLIER: u8 = 10;
 
 /// Runs the demo until `shutdown` is cancelled.
 pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(), AppError> {
@@ -24,18 +32,50 @@ pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(
         if line.serial.pty_name().is_none() {
             continue;
         }
-        let (device_end, gateway_end) = SerialStream::pair().map_err(|e| {
-            AppError::Setup(format!(
-                "line {name}: cannot create a pseudo-terminal pair: {e}"
-            ))
-        })?;
-        let path = gateway_end.name().ok_or_else(|| {
-            AppError::Setup(format!("line {name}: the pseudo-terminal has no path"))
-        })?;
-        info!(line = %name, port = %path, "demo line on a pseudo-terminal");
+        if overrides.paced {
+            // The relay delivers on the runtime's millisecond timer and can be late by several
+            // milliseconds on a loaded machine, more than t3.5 at 19200 Bd (1.75 ms): frames would
+            // be cut. The CP's "multiplier character delay time" exists for partners that cannot
+            // keep the Modbus timing (003 6.4.2.1, 1..10); the paced demo uses its maximum.
+            match &mut line.protocol {
+                ProtocolConfig::ModbusMasterRtu(m) => m.delay_multiplier = PACED_DELAY_MULTIPLIER,
+                ProtocolConfig::ModbusSlaveRtu(s) => s.delay_multiplier = PACED_DELAY_MULTIPLIER,
+                _ => {}
+            }
+        }
+        let (device_end, path) = if overrides.paced {
+            let settings = crate::paced::PacedSettings {
+                baud: line.serial.baud.get(),
+                bits_per_char: line.serial.bits_per_char(),
+            };
+            let (link, _relay) =
+                crate::paced::spawn(settings, sims.clone())
+                    .await
+                    .map_err(|e| {
+                        AppError::Setup(format!("line {name}: cannot create a paced link: {e}"))
+                    })?;
+            let device_end = tokio_serial::new(link.b.as_str(), line.serial.baud.get())
+                .open_native_async()
+                .map_err(|e| {
+                    AppError::Setup(format!("line {name}: cannot open {}: {e}", link.b))
+                })?;
+            info!(line = %name, port = %link.a, baud = settings.baud, "demo line on a paced link");
+            (device_end, link.a)
+        } else {
+            let (device_end, gateway_end) = SerialStream::pair().map_err(|e| {
+                AppError::Setup(format!(
+                    "line {name}: cannot create a pseudo-terminal pair: {e}"
+                ))
+            })?;
+            let path = gateway_end.name().ok_or_else(|| {
+                AppError::Setup(format!("line {name}: the pseudo-terminal has no path"))
+            })?;
+            info!(line = %name, port = %path, "demo line on a pseudo-terminal");
+            keep.push(gateway_end);
+            (device_end, path)
+        };
         start_simulator(name, line, device_end, overrides.telegram_every, &sims)?;
         line.serial.port = path;
-        keep.push(gateway_end);
     }
     if config.http.insecure_allow_unauthenticated_changes && config.http.token_source().is_none() {
         tracing::warn!(
@@ -59,6 +99,10 @@ fn start_simulator(
     shutdown: &CancellationToken,
 ) -> Result<(), AppError> {
     let timing = CharTiming::new(line.serial.baud.get(), line.serial.bits_per_char());
+    let timing = match &line.protocol {
+        ProtocolConfig::ModbusMasterRtu(m) => timing.with_multiplier(m.delay_multiplier),
+        _ => timing,
+    };
     match &line.protocol {
         ProtocolConfig::ModbusMasterRtu(m) => {
             let Some((_, device)) = m.devices.iter().next() else {

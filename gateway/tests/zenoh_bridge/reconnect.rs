@@ -90,7 +90,10 @@ async fn a_client_retries_until_its_router_appears() {
     // The token can reach the router a moment before the bridge marks its session open.
     let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
     while !handle.stats().session_open() {
-        assert!(tokio::time::Instant::now() < deadline, "the session never opened");
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the session never opened"
+        );
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     let (_sub, mut rx) = subscribe(&remote, "gw/test/**").await;
