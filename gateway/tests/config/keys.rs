@@ -7,7 +7,7 @@ use super::*;
 #[test]
 fn unknown_keys_are_refused_with_their_path() {
     let cases: &[(&str, &str)] = &[
-        ("[http]\nlisten = \"127.0.0.1:8080\"\ncolour = 1\n", "http.colour"),
+        ("[http]\nlisten = \"127.0.0.1:0\"\ncolour = 1\n", "http.colour"),
         ("[htpp]\nlisten = \"x\"\n", "htpp"),
         ("[zenoh]\nmode = \"peer\"\nlisen = []\n", "zenoh.lisen"),
         ("[gateway]\nnmae = \"x\"\n", "gateway.nmae"),
