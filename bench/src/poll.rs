@@ -244,14 +244,17 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
     })
 }
 
-/// Nine devices' poll rate with a tenth dead, over their rate with none dead.
-pub(crate) async fn dead_device(plan: &Plan) -> std::io::Result<Row> {
+/// Nine devices' poll rate with a tenth dead, over their rate with none dead, with a reply
+/// monitoring time of `reply_timeout`.
+pub(crate) async fn dead_device(plan: &Plan, reply_timeout: Duration) -> std::io::Result<Row> {
     const BAUD: u32 = 19_200;
     const DEVICES: u8 = 10;
     const COUNT: u16 = 10;
     const PERIOD: Duration = Duration::from_millis(500);
-    const REPLY_TIMEOUT: Duration = Duration::from_millis(200);
-    let name = "1 dead device of 10: others' polls/s / none dead".to_owned();
+    let name = format!(
+        "1 dead of 10, reply timeout {} ms: others' polls/s / none dead",
+        reply_timeout.as_millis()
+    );
     let mut rates = [0.0f64; 2];
     let mut dead_trouble = String::new();
     for (dead, rate) in [false, true].into_iter().zip(rates.iter_mut()) {
@@ -268,9 +271,9 @@ pub(crate) async fn dead_device(plan: &Plan) -> std::io::Result<Row> {
         let devices = (1..=DEVICES)
             .map(|slave| polled(&format!("d{slave}"), slave, COUNT, PERIOD))
             .collect();
-        let rig = rig(BAUD, Bus(bus), devices, Some(REPLY_TIMEOUT)).await?;
+        let rig = rig(BAUD, Bus(bus), devices, Some(reply_timeout)).await?;
         // Every device polled once, the dead one declared offline.
-        tokio::time::sleep(Duration::from_millis(1500)).await;
+        tokio::time::sleep(reply_timeout + Duration::from_millis(1500)).await;
         let others = 0..usize::from(DEVICES - 1);
         let (p0, t0) = (polls_ok(&rig.line, others.clone()), Instant::now());
         tokio::time::sleep(plan.dead_window).await;
@@ -292,10 +295,11 @@ pub(crate) async fn dead_device(plan: &Plan) -> std::io::Result<Row> {
             "{DEVICES} devices x {COUNT} registers every {} ms at {BAUD} Bd 8E1 (the line about \
              half busy; nine devices should make {expected:.0} polls/s), reply monitoring time \
              {} ms, offline back-off 1 s doubling to 30 s (defaults); windows of {:.0} s after \
-             1.5 s of warm-up, run back to back; with the dead device{dead_trouble}",
+             {:.1} s of warm-up, run back to back; with the dead device{dead_trouble}",
             PERIOD.as_millis(),
-            REPLY_TIMEOUT.as_millis(),
+            reply_timeout.as_millis(),
             plan.dead_window.as_secs_f64(),
+            (reply_timeout + Duration::from_millis(1500)).as_secs_f64(),
         ),
     })
 }

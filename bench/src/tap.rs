@@ -30,8 +30,9 @@ use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 use tokio_serial::{SerialPortBuilderExt, SerialStream};
 use tokio_util::sync::CancellationToken;
 
-/// How long the tap waits for the rest of an answer whose length it cannot know yet.
-const FLUSH_AFTER: Duration = Duration::from_millis(50);
+/// How long a tap waits for the rest of a frame it cannot see the end of yet (far longer than
+/// any stall of the shared machine; only a truncated frame waits this long).
+const FLUSH_AFTER: Duration = Duration::from_secs(1);
 
 /// One request and its answer as the master saw them.
 #[derive(Clone, Copy, Debug)]
