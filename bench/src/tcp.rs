@@ -306,6 +306,10 @@ pub(crate) async fn write_latency(plan: &Plan) -> std::io::Result<Row> {
         overheads.push(latency.saturating_sub(serial));
     }
     let p99 = percentile(&overheads, 99.0);
+    let over = overheads
+        .iter()
+        .filter(|o| **o > Duration::from_millis(1))
+        .count();
     let wire = rig.timing.char_time * 16;
     let turnaround = mean(&lock(&rig.device).turnarounds);
     Ok(Row {
@@ -315,10 +319,12 @@ pub(crate) async fn write_latency(plan: &Plan) -> std::io::Result<Row> {
         score: p99.as_secs_f64() * 1e3,
         target: Target::at_most(1.0).with_unit(" ms"),
         note: format!(
-            "{} writes of one register at {BAUD} Bd 8E1, one at a time; p50 {}; serial side mean {} \
-             (wire {} + device {} + link lateness)",
+            "{} writes of one register at {BAUD} Bd 8E1, one at a time; p50 {}, p95 {}, max {}, \
+             {over} above 1 ms; serial side mean {} (wire {} + device {} + link lateness)",
             plan.writes,
             ms(percentile(&overheads, 50.0)),
+            ms(percentile(&overheads, 95.0)),
+            ms(percentile(&overheads, 100.0)),
             ms(mean(&serial_times)),
             ms(wire),
             ms(turnaround),
