@@ -320,3 +320,82 @@ pub fn start_sim(args: &[&str]) -> ChildGuard {
         .expect("start gateway sim");
     ChildGuard(child)
 }
+
+/// Starts `gateway sim --device DEVICE --port PORT` with the simulator's defaults.
+pub fn device_sim(device: &str, port: &Path) -> ChildGuard {
+    start_sim(&[
+        "--device",
+        device,
+        "--port",
+        port.to_str().expect("utf-8 path"),
+    ])
+}
+
+/// The two Modbus master lines several end-to-end tests share, as configuration sections:
+/// `drive` on `drive` (the Altivar 71 at address 2, unit 2, holding 3102..3105 polled every 200 ms)
+/// and `ksvario` on `ks` (the KS vario at address 17, unit 17, input 1004..1006 every 200 ms), both
+/// 19200 Bd 8E1 with the reply monitoring time `reply_timeout`, and the drive's offline back-off
+/// `(min, max)` when given.
+pub fn two_device_lines(
+    drive: &Path,
+    ks: &Path,
+    reply_timeout: &str,
+    drive_backoff: Option<(&str, &str)>,
+) -> String {
+    let backoff = drive_backoff
+        .map(|(min, max)| {
+            format!("offline_backoff_min = \"{min}\"\noffline_backoff_max = \"{max}\"\n")
+        })
+        .unwrap_or_default();
+    format!(
+        r#"
+[lines.drive]
+port = "{drive}"
+protocol = "modbus-master-rtu"
+baud = 19200
+parity = "even"
+reply_timeout = "{reply_timeout}"
+
+[lines.drive.devices.atv71]
+profile = "altivar71"
+address = 2
+unit_id = 2
+{backoff}
+[[lines.drive.devices.atv71.poll]]
+name = "settings"
+period = "200ms"
+ranges = [{{ table = "holding", start = 3102, count = 4 }}]
+
+[lines.ksvario]
+port = "{ks}"
+protocol = "modbus-master-rtu"
+baud = 19200
+parity = "even"
+reply_timeout = "{reply_timeout}"
+
+[lines.ksvario.devices.ks]
+profile = "ksvario"
+address = 17
+unit_id = 17
+
+[[lines.ksvario.devices.ks.poll]]
+name = "process"
+period = "200ms"
+ranges = [{{ table = "input", start = 1004, count = 3 }}]
+"#,
+        drive = drive.display(),
+        ks = ks.display()
+    )
+}
+
+/// `gateway check --config FILE`: whether it passed, and what it printed on stdout.
+pub fn check_config(config: &Path) -> (bool, String) {
+    let out = Command::new(gateway_bin())
+        .args(["check", "--config", config.to_str().expect("utf-8 path")])
+        .output()
+        .expect("gateway check");
+    (
+        out.status.success(),
+        String::from_utf8_lossy(&out.stdout).into_owned(),
+    )
+}

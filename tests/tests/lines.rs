@@ -3,7 +3,7 @@
 
 use std::time::{Duration, Instant};
 
-use gateway_tests::{start_sim, temp_dir, Gateway, SocatLink};
+use gateway_tests::{check_config, device_sim, temp_dir, two_device_lines, Gateway, SocatLink};
 use tokio_modbus::client::{tcp, Reader};
 use tokio_modbus::prelude::{ExceptionCode, Slave};
 
@@ -11,6 +11,7 @@ use tokio_modbus::prelude::{ExceptionCode, Slave};
 const REPLY_TIMEOUT: Duration = Duration::from_millis(500);
 
 fn config(drive: &std::path::Path, ks: &std::path::Path) -> String {
+    let lines = two_device_lines(drive, ks, "500ms", Some(("1s", "2s")));
     format!(
         r#"
 [gateway]
@@ -18,45 +19,7 @@ name = "e2e"
 
 [modbus_tcp]
 listen = "127.0.0.1:0"
-
-[lines.drive]
-port = "{drive}"
-protocol = "modbus-master-rtu"
-baud = 19200
-parity = "even"
-reply_timeout = "500ms"
-
-[lines.drive.devices.atv71]
-profile = "altivar71"
-address = 2
-unit_id = 2
-offline_backoff_min = "1s"
-offline_backoff_max = "2s"
-
-[[lines.drive.devices.atv71.poll]]
-name = "settings"
-period = "200ms"
-ranges = [{{ table = "holding", start = 3102, count = 4 }}]
-
-[lines.ksvario]
-port = "{ks}"
-protocol = "modbus-master-rtu"
-baud = 19200
-parity = "even"
-reply_timeout = "500ms"
-
-[lines.ksvario.devices.ks]
-profile = "ksvario"
-address = 17
-unit_id = 17
-
-[[lines.ksvario.devices.ks.poll]]
-name = "process"
-period = "200ms"
-ranges = [{{ table = "input", start = 1004, count = 3 }}]
-"#,
-        drive = drive.display(),
-        ks = ks.display()
+{lines}"#
     )
 }
 
@@ -65,30 +28,13 @@ async fn a_stopped_simulator_answers_0x0b_while_the_other_line_keeps_answering()
     let dir = temp_dir("stopped-sim");
     let drive = SocatLink::new(&dir, "drive");
     let ks = SocatLink::new(&dir, "ks");
-    let mut drive_sim = start_sim(&[
-        "--device",
-        "altivar71",
-        "--port",
-        drive.b.to_str().expect("path"),
-    ]);
-    let _ks_sim = start_sim(&[
-        "--device",
-        "ksvario",
-        "--port",
-        ks.b.to_str().expect("path"),
-    ]);
+    let mut drive_sim = device_sim("altivar71", &drive.b);
+    let _ks_sim = device_sim("ksvario", &ks.b);
     let cfg = dir.join("gateway.toml");
     std::fs::write(&cfg, config(&drive.a, &ks.a)).expect("write config");
 
-    let check = std::process::Command::new(gateway_tests::gateway_bin())
-        .args(["check", "--config", cfg.to_str().expect("path")])
-        .output()
-        .expect("gateway check");
-    assert!(
-        check.status.success(),
-        "{}",
-        String::from_utf8_lossy(&check.stdout)
-    );
+    let (passed, report) = check_config(&cfg);
+    assert!(passed, "{report}");
 
     let gw = Gateway::run(&cfg);
     let mut drive_ctx = tcp::connect_slave(gw.modbus_tcp, Slave(2))
@@ -156,12 +102,7 @@ async fn a_stopped_simulator_answers_0x0b_while_the_other_line_keeps_answering()
 
     // The drive comes back: a new simulator on the same link, and the unit answers again without
     // a restart of the gateway.
-    let _drive_sim = start_sim(&[
-        "--device",
-        "altivar71",
-        "--port",
-        drive.b.to_str().expect("path"),
-    ]);
+    let _drive_sim = device_sim("altivar71", &drive.b);
     let deadline = Instant::now() + Duration::from_secs(15);
     loop {
         let d = drive_ctx

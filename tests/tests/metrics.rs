@@ -8,7 +8,7 @@ use std::net::SocketAddr;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use gateway_tests::{start_sim, temp_dir, Gateway, SocatLink};
+use gateway_tests::{device_sim, temp_dir, two_device_lines, Gateway, SocatLink};
 use tokio_modbus::client::{tcp, Reader};
 use tokio_modbus::prelude::{ExceptionCode, Slave};
 
@@ -205,6 +205,7 @@ fn prometheus_scrapes_the_demo_sees_every_line_start_and_evaluates_every_dashboa
 }
 
 fn offline_config(drive: &std::path::Path, ks: &std::path::Path) -> String {
+    let lines = two_device_lines(drive, ks, "300ms", Some(("500ms", "1s")));
     format!(
         r#"
 [gateway]
@@ -212,45 +213,7 @@ name = "e2e-metrics"
 
 [modbus_tcp]
 listen = "127.0.0.1:0"
-
-[lines.drive]
-port = "{drive}"
-protocol = "modbus-master-rtu"
-baud = 19200
-parity = "even"
-reply_timeout = "300ms"
-
-[lines.drive.devices.atv71]
-profile = "altivar71"
-address = 2
-unit_id = 2
-offline_backoff_min = "500ms"
-offline_backoff_max = "1s"
-
-[[lines.drive.devices.atv71.poll]]
-name = "settings"
-period = "200ms"
-ranges = [{{ table = "holding", start = 3102, count = 4 }}]
-
-[lines.ksvario]
-port = "{ks}"
-protocol = "modbus-master-rtu"
-baud = 19200
-parity = "even"
-reply_timeout = "300ms"
-
-[lines.ksvario.devices.ks]
-profile = "ksvario"
-address = 17
-unit_id = 17
-
-[[lines.ksvario.devices.ks.poll]]
-name = "process"
-period = "200ms"
-ranges = [{{ table = "input", start = 1004, count = 3 }}]
-"#,
-        drive = drive.display(),
-        ks = ks.display()
+{lines}"#
     )
 }
 
@@ -275,14 +238,8 @@ fn a_device_that_stops_answering_is_down_in_the_metrics_and_up_again_when_it_is_
     let dir = temp_dir("metrics-offline");
     let drive = SocatLink::new(&dir, "drive");
     let ks = SocatLink::new(&dir, "ks");
-    let drive_port = drive.b.to_str().expect("path");
-    let mut drive_sim = start_sim(&["--device", "altivar71", "--port", drive_port]);
-    let _ks_sim = start_sim(&[
-        "--device",
-        "ksvario",
-        "--port",
-        ks.b.to_str().expect("path"),
-    ]);
+    let mut drive_sim = device_sim("altivar71", &drive.b);
+    let _ks_sim = device_sim("ksvario", &ks.b);
     let cfg = dir.join("gateway.toml");
     std::fs::write(&cfg, offline_config(&drive.a, &ks.a)).expect("write config");
     let gw = Gateway::start(&[
@@ -339,7 +296,7 @@ fn a_device_that_stops_answering_is_down_in_the_metrics_and_up_again_when_it_is_
         "{text}"
     );
 
-    let _drive_sim = start_sim(&["--device", "altivar71", "--port", drive_port]);
+    let _drive_sim = device_sim("altivar71", &drive.b);
     scrape_until(http, Duration::from_secs(15), "the drive up again", |t| {
         drive_up(t) == Some(1.0)
     });

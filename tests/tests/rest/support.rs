@@ -5,7 +5,9 @@ use std::net::SocketAddr;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use gateway_tests::{start_sim, temp_dir, ChildGuard, Gateway, SocatLink};
+use gateway_tests::{
+    check_config, device_sim, start_sim, temp_dir, two_device_lines, ChildGuard, Gateway, SocatLink,
+};
 use reqwest::{Method, StatusCode};
 use serde_json::Value;
 
@@ -170,6 +172,7 @@ pub(crate) fn sample(exposition: &str, name: &str) -> Option<f64> {
 
 /// The plant's configuration.
 pub(crate) fn plant_config(drive: &Path, ks: &Path, ascii: &Path, token_file: &Path) -> String {
+    let lines = two_device_lines(drive, ks, "500ms", None);
     format!(
         r#"
 [gateway]
@@ -182,40 +185,7 @@ listen = "127.0.0.1:0"
 listen = "127.0.0.1:0"
 token_file = "{token}"
 
-[lines.drive]
-port = "{drive}"
-protocol = "modbus-master-rtu"
-baud = 19200
-parity = "even"
-reply_timeout = "500ms"
-
-[lines.drive.devices.atv71]
-profile = "altivar71"
-address = 2
-unit_id = 2
-
-[[lines.drive.devices.atv71.poll]]
-name = "settings"
-period = "200ms"
-ranges = [{{ table = "holding", start = 3102, count = 4 }}]
-
-[lines.ksvario]
-port = "{ks}"
-protocol = "modbus-master-rtu"
-baud = 19200
-parity = "even"
-reply_timeout = "500ms"
-
-[lines.ksvario.devices.ks]
-profile = "ksvario"
-address = 17
-unit_id = 17
-
-[[lines.ksvario.devices.ks.poll]]
-name = "process"
-period = "200ms"
-ranges = [{{ table = "input", start = 1004, count = 3 }}]
-
+{lines}
 [lines.ascii]
 port = "{ascii}"
 protocol = "ascii"
@@ -226,8 +196,6 @@ end_chars = [0x03]
 unit_id = 101
 "#,
         token = token_file.display(),
-        drive = drive.display(),
-        ks = ks.display(),
         ascii = ascii.display(),
     )
 }
@@ -255,8 +223,8 @@ impl Plant {
         let drive = SocatLink::new(&dir, "drive");
         let ks = SocatLink::new(&dir, "ks");
         let ascii = SocatLink::new(&dir, "ascii");
-        let drive_sim = start_sim(&["--device", "altivar71", "--port", path(&drive.b)]);
-        let ks_sim = start_sim(&["--device", "ksvario", "--port", path(&ks.b)]);
+        let drive_sim = device_sim("altivar71", &drive.b);
+        let ks_sim = device_sim("ksvario", &ks.b);
         let ascii_sim = start_sim(&[
             "--device",
             "ascii",
@@ -303,12 +271,5 @@ pub(crate) fn path(p: &Path) -> &str {
 
 /// `gateway check --config FILE`: its exit code and output.
 pub(crate) fn check(config: &Path) -> (bool, String) {
-    let out = std::process::Command::new(gateway_tests::gateway_bin())
-        .args(["check", "--config", path(config)])
-        .output()
-        .expect("gateway check");
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-    )
+    check_config(config)
 }
