@@ -88,6 +88,16 @@ if have systemd-analyze; then
     [ -n "$t" ] && [ "$t" -gt 10 ] || { echo "TimeoutStopSec=${t:-?}s is not above 10 s"; return 1; }
   }
   run "gateway.service stop timeout above the 10 s grace period" unit_grace
+  unit_config_writable() {
+    # The REST API saves the configuration next to itself: the --config file's directory must be
+    # writable for the service under ProtectSystem=strict.
+    local cfg dir
+    cfg="$(sed -n 's/^ExecStart=.* --config \([^ ]*\).*$/\1/p' "$DEPLOY/gateway.service")"
+    dir="$(dirname "$cfg")"
+    grep -qx "ReadWritePaths=$dir" "$DEPLOY/gateway.service" \
+      || { echo "ExecStart's config $cfg: no ReadWritePaths=$dir"; return 1; }
+  }
+  run "gateway.service may save its configuration (ReadWritePaths)" unit_config_writable
 else
   skip "systemd-analyze not installed: deploy/gateway.service not verified"
 fi
@@ -118,13 +128,18 @@ build = gateway.get("build", {})
 dockerfile = os.path.join(base, build.get("context", "."), build.get("dockerfile", "Dockerfile"))
 if not os.path.isfile(dockerfile):
     problems.append(f"build dockerfile {dockerfile} missing")
-# Bind mounts: every relative source must exist, except the operator's own gateway.toml.
+# The gateway's configuration directory is mounted whole and writable, so that the REST API can
+# save a change (rename(2) over a single bind-mounted file fails with EBUSY).
+config_mounts = [v for v in gateway.get("volumes", []) if v.split(":")[1:2] == ["/etc/gateway"]]
+if len(config_mounts) != 1 or config_mounts[0].endswith(":ro"):
+    problems.append(f"gateway: /etc/gateway must be one writable directory mount, not {config_mounts}")
+# Bind mounts: every relative source must exist, except the operator's own configuration directory.
 for sname, svc in services.items():
     for vol in svc.get("volumes", []):
         src = vol.split(":")[0]
         if src.startswith("."):
             full = os.path.normpath(os.path.join(base, src))
-            if os.path.basename(full) == "gateway.toml":
+            if os.path.basename(full) in ("gateway.toml", "etc-gateway"):
                 continue
             if not os.path.exists(full):
                 problems.append(f"{sname}: bind mount source {src} does not exist")
