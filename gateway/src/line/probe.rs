@@ -27,8 +27,10 @@
 //!    a garbled answer arrive while a reply to a short probe could still have started, that
 //!    reply may have been the device's, late: its next probe waits the full time at once.
 //! 5. **Back-off** between probes: `offline_backoff_min` doubling to `offline_backoff_max` (1 s
-//!    to 5 s by default, [`crate::serial::Backoff`]). With short probes a probe costs the line
-//!    about the floor (100 ms by default) every 5 s, and a drive that is back answers within 5 s.
+//!    to 5 s by default, [`crate::serial::Backoff`]). A short probe holds the line about the
+//!    floor (100 ms by default) every 5 s; with the full probe once a minute a dead drive holds
+//!    it about 3.4 s a minute (2 s every 32 s before, with every probe full and the back-off at
+//!    30 s), and a drive that is back is polled again within 5 s.
 //!
 //! Half duplex: a short probe gives up while a reply that is merely slow could still come. The
 //! bet is bounded by what the device itself showed (four times its slowest recent reply delay,
