@@ -6,7 +6,7 @@
 //! Altivar and KS vario simulators ([`gateway::sim::serve_modbus`]): the same framing, the same
 //! t3.5 turnaround before an answer.
 
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
 use gateway::sim::{Faults, ModbusDevice};
@@ -24,6 +24,8 @@ pub(crate) struct FlatDevice {
     /// every poll changes every tag.
     changing: bool,
     faults: Faults,
+    /// While set, the device answers nothing (the benchmark switches it).
+    silent: Arc<AtomicBool>,
     /// Reads answered, shared with the benchmark.
     reads: Arc<AtomicU64>,
 }
@@ -38,6 +40,7 @@ impl FlatDevice {
             registers: (0..REGISTERS).map(|i| i as u16).collect(),
             changing: false,
             faults: Faults::default(),
+            silent: Arc::new(AtomicBool::new(false)),
             reads: Arc::new(AtomicU64::new(0)),
         }
     }
@@ -48,10 +51,9 @@ impl FlatDevice {
         self
     }
 
-    /// A device that never answers.
-    pub(crate) fn dead(mut self) -> Self {
-        self.faults.silent = true;
-        self
+    /// The switch that silences the device while it is set (shared with the benchmark).
+    pub(crate) fn silence_switch(&self) -> Arc<AtomicBool> {
+        Arc::clone(&self.silent)
     }
 
     /// The counter of reads answered.
@@ -110,7 +112,7 @@ impl ModbusDevice for FlatDevice {
     fn handle_frame(&mut self, adu: &[u8]) -> Option<Vec<u8>> {
         // A bad CRC or another address: silence, as every device of the seeds.
         let frame = rtu::decode_frame(adu).ok()?;
-        if frame.address != self.address {
+        if frame.address != self.address || self.silent.load(Ordering::Relaxed) {
             return None;
         }
         let function = FunctionCode(*frame.pdu.first()?);

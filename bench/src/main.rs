@@ -5,7 +5,8 @@
 //! - poll rate of a master line / the physical best case, N = 1, 10, 60, 125 registers at 9600,
 //!   19200, 38400 and 115200 Bd over a paced link (`poll`), and the requests started less than
 //!   t3.5 after the previous frame;
-//! - one dead device among ten: the others' poll rate / their rate with none dead (`poll`);
+//! - one dead device among ten: the others' poll rate once it is offline / their rate with none
+//!   dead, and how soon it is polled again once it answers (`dead`);
 //! - Modbus TCP cached FC 03 of 125 registers: throughput and p99 against a bare tokio-modbus
 //!   server, 1 and 16 connections (`tcp`);
 //! - a write through Modbus TCP to a device: latency minus its serial time (`tcp`);
@@ -13,10 +14,11 @@
 //! - resident memory with 4 lines, 32 devices, 10 000 points (`process`, real binary).
 //!
 //! Run `cargo build --release` first (the zenoh and memory rows start `target/release/gateway`),
-//! then `target/release/gateway-bench` (about 5 minutes) or `--quick` (about a minute). Progress
+//! then `target/release/gateway-bench` (about 6.5 minutes) or `--quick` (about a minute). Progress
 //! goes to stderr, the table to stdout.
 
 mod child;
+mod dead;
 mod device;
 mod mbap;
 mod poll;
@@ -76,8 +78,12 @@ pub(crate) struct Plan {
     pub(crate) poll_window: Duration,
     /// Poll cycles a poll-rate run lasts at least.
     pub(crate) poll_cycles: u32,
-    /// Window of each half of the dead-device row.
+    /// Window of the dead-device rows with none dead.
+    pub(crate) alive_window: Duration,
+    /// Window of the dead-device rows with one dead, from the moment it was declared offline.
     pub(crate) dead_window: Duration,
+    /// How often the dead device answers again in the recovery row.
+    pub(crate) recoveries: usize,
     /// Rounds of the cached-read rows (each server once a round).
     pub(crate) tcp_rounds: usize,
     /// Length of one server's turn in a round.
@@ -97,7 +103,11 @@ impl Plan {
         Self {
             poll_window: Duration::from_secs(3),
             poll_cycles: 40,
-            dead_window: Duration::from_secs(30),
+            alive_window: Duration::from_secs(30),
+            // One minute: twelve probes at the default back-off, one of them waiting the full
+            // reply monitoring time, as in every following minute.
+            dead_window: Duration::from_secs(60),
+            recoveries: 3,
             tcp_rounds: 10,
             tcp_slice: Duration::from_secs(1),
             writes: 500,
@@ -111,7 +121,9 @@ impl Plan {
         Self {
             poll_window: Duration::from_millis(500),
             poll_cycles: 8,
+            alive_window: Duration::from_secs(4),
             dead_window: Duration::from_secs(4),
+            recoveries: 1,
             tcp_rounds: 2,
             tcp_slice: Duration::from_millis(500),
             writes: 60,
@@ -186,12 +198,16 @@ async fn run(args: &Args) -> Vec<Row> {
     }
     if wanted(Group::Dead) {
         eprintln!("one dead device among ten");
-        // A reply monitoring time set for the line's devices, and the CP's default (003 6.4.2.1).
-        for timeout in [Duration::from_millis(200), Duration::from_secs(2)] {
-            let row = poll::dead_device(&plan, timeout)
-                .await
-                .unwrap_or_else(|e| failed("1 dead device of 10", e));
-            push(&mut rows, row);
+        // A reply monitoring time set for the line's devices, and the CP's default (003 6.4.2.1)
+        // with the recovery row.
+        for (timeout, recover) in [
+            (Duration::from_millis(200), false),
+            (Duration::from_secs(2), true),
+        ] {
+            match dead::dead_device(&plan, timeout, recover).await {
+                Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+                Err(e) => push(&mut rows, failed("1 dead device of 10", e)),
+            }
         }
     }
     if wanted(Group::Tcp) {

@@ -1,5 +1,5 @@
-//! Serial rows: the poll rate of a master line against the physical best case, and the poll rate
-//! of nine devices when a tenth is dead.
+//! Serial rows: the poll rate of a master line against the physical best case (the dead-device
+//! rows in [`crate::dead`] use the same rig).
 //!
 //! Each run puts the gateway's master line (the library, in-process) on a [`paced`] link to a
 //! simulated device, with a [`MasterTap`] between line and link and a [`DeviceTap`] on the device's
@@ -29,7 +29,7 @@ use proto_core::modbus::rtu::CharTiming;
 use tokio_serial::SerialPortBuilderExt;
 use tokio_util::sync::CancellationToken;
 
-use crate::device::{Bus, FlatDevice};
+use crate::device::FlatDevice;
 use crate::report::{Row, Target};
 use crate::stats::{mean, ms};
 use crate::tap::{device_relay, lock, DeviceLog, MasterTap};
@@ -112,7 +112,7 @@ pub(crate) fn polled(name: &str, slave: u8, count: u16, period: Duration) -> Dev
 }
 
 /// Answered polls of the devices `which` of the line.
-fn polls_ok(line: &LineHandle, which: std::ops::Range<usize>) -> u64 {
+pub(crate) fn polls_ok(line: &LineHandle, which: std::ops::Range<usize>) -> u64 {
     line.status()
         .devices
         .get(which)
@@ -244,68 +244,8 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
     })
 }
 
-/// Nine devices' poll rate with a tenth dead, over their rate with none dead, with a reply
-/// monitoring time of `reply_timeout`.
-pub(crate) async fn dead_device(plan: &Plan, reply_timeout: Duration) -> std::io::Result<Row> {
-    const BAUD: u32 = 19_200;
-    const DEVICES: u8 = 10;
-    const COUNT: u16 = 10;
-    const PERIOD: Duration = Duration::from_millis(500);
-    let name = format!(
-        "1 dead of 10, reply timeout {} ms: others' polls/s / none dead",
-        reply_timeout.as_millis()
-    );
-    let mut rates = [0.0f64; 2];
-    let mut dead_trouble = String::new();
-    for (dead, rate) in [false, true].into_iter().zip(rates.iter_mut()) {
-        let bus: Vec<FlatDevice> = (1..=DEVICES)
-            .map(|slave| {
-                let d = FlatDevice::new(slave);
-                if dead && slave == DEVICES {
-                    d.dead()
-                } else {
-                    d
-                }
-            })
-            .collect();
-        let devices = (1..=DEVICES)
-            .map(|slave| polled(&format!("d{slave}"), slave, COUNT, PERIOD))
-            .collect();
-        let rig = rig(BAUD, Bus(bus), devices, Some(reply_timeout)).await?;
-        // Every device polled once, the dead one declared offline.
-        tokio::time::sleep(reply_timeout + Duration::from_millis(1500)).await;
-        let others = 0..usize::from(DEVICES - 1);
-        let (p0, t0) = (polls_ok(&rig.line, others.clone()), Instant::now());
-        tokio::time::sleep(plan.dead_window).await;
-        let (p1, t1) = (polls_ok(&rig.line, others), Instant::now());
-        *rate = (p1 - p0) as f64 / t1.saturating_duration_since(t0).as_secs_f64();
-        if dead {
-            dead_trouble = trouble(&rig.line);
-        }
-    }
-    let [alive, with_dead] = rates;
-    let expected = f64::from(DEVICES - 1) / PERIOD.as_secs_f64();
-    Ok(Row {
-        name,
-        measured: format!("{with_dead:.2}/s"),
-        reference: format!("{alive:.2}/s"),
-        score: with_dead / alive,
-        target: Target::at_least(0.95),
-        note: format!(
-            "{DEVICES} devices x {COUNT} registers every {} ms at {BAUD} Bd 8E1 (the line about \
-             half busy; nine devices should make {expected:.0} polls/s), reply monitoring time \
-             {} ms, offline back-off 1 s doubling to 30 s (defaults); windows of {:.0} s after \
-             {:.1} s of warm-up, run back to back; with the dead device{dead_trouble}",
-            PERIOD.as_millis(),
-            reply_timeout.as_millis(),
-            plan.dead_window.as_secs_f64(),
-            (reply_timeout + Duration::from_millis(1500)).as_secs_f64(),
-        ),
-    })
-}
-
 /// Failed polls and events of the line, if any (", failed polls 3, events 0830 x3").
-fn trouble(line: &LineHandle) -> String {
+pub(crate) fn trouble(line: &LineHandle) -> String {
     let status = line.status();
     let failed: u64 = status
         .devices

@@ -39,6 +39,8 @@ const FLUSH_AFTER: Duration = Duration::from_secs(1);
 pub(crate) struct Exchange {
     /// When the master wrote the request.
     pub(crate) sent: Instant,
+    /// The slave address it was sent to (its first byte).
+    pub(crate) slave: Option<u8>,
     /// When the last byte of the answer reached the master, if one came.
     pub(crate) answered: Option<Instant>,
 }
@@ -108,7 +110,8 @@ impl MasterTap {
                     read = from_master.read(&mut buf) => match read { Ok(0) | Err(_) => return, Ok(n) => n },
                 };
                 let now = Instant::now();
-                lock(&up_log).request_bytes(now, n, char_time, t35);
+                let first = buf.first().copied().filter(|_| n > 0);
+                lock(&up_log).request_bytes(now, n, first, char_time, t35);
                 if to_link
                     .write_all(buf.get(..n).unwrap_or_default())
                     .await
@@ -158,8 +161,15 @@ impl MasterTap {
 // === impl MasterLog ===
 
 impl MasterLog {
-    /// `n` request bytes written by the master at `now`.
-    fn request_bytes(&mut self, now: Instant, n: usize, char_time: Duration, t35: Duration) {
+    /// `n` request bytes written by the master at `now`, the first of them `first`.
+    fn request_bytes(
+        &mut self,
+        now: Instant,
+        n: usize,
+        first: Option<u8>,
+        char_time: Duration,
+        t35: Duration,
+    ) {
         let on_wire = char_time * u32::try_from(n).unwrap_or(u32::MAX);
         // Bytes that come while the request is still on the wire are the rest of it.
         if !self.last_was_answer && self.request_end.is_some_and(|end| now < end) {
@@ -182,6 +192,7 @@ impl MasterLog {
         }
         self.exchanges.push(Exchange {
             sent: now,
+            slave: first,
             answered: None,
         });
         self.request_end = Some(now + on_wire);

@@ -3,10 +3,12 @@
 //! is needed.
 //!
 //! Modules: `support` (the simulated line and the test slave), `submit` (the job checks), `ascii`
-//! (the ASCII master); the RTU master is tested here.
+//! (the ASCII master), `attempts` (per-request attempts); the RTU master is tested here.
 
 #[path = "master/ascii.rs"]
 mod ascii;
+#[path = "master/attempts.rs"]
+mod attempts;
 #[path = "master/submit.rs"]
 mod submit;
 #[path = "master/support.rs"]

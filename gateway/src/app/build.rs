@@ -11,7 +11,9 @@ use proto_core::modbus::rtu::CharTiming;
 
 use crate::config::{self, Config, DeviceConfig, LineConfig, ModbusTable, ProtocolConfig};
 use crate::image::Table;
-use crate::line::{AddrRange, DeviceLimits, DeviceSettings, LineSettings, PollGroup};
+use crate::line::{
+    AddrRange, DeviceLimits, DeviceSettings, LineSettings, PollGroup, ProbeSettings,
+};
 use crate::modbus_tcp::{WriteRange, WriteTable};
 use crate::serial::{self, PortSettings};
 
@@ -125,6 +127,10 @@ pub(crate) fn device_settings(name: &str, device: &DeviceConfig) -> DeviceSettin
     };
     settings.backoff_min = device.offline_backoff_min;
     settings.backoff_max = device.offline_backoff_max;
+    settings.probe = ProbeSettings {
+        timeout_min: device.probe_timeout_min,
+        full_every: device.full_probe_every,
+    };
     for group in &device.poll {
         let mut by_table: BTreeMap<Table, Vec<AddrRange>> = BTreeMap::new();
         for range in &group.ranges {

@@ -10,10 +10,20 @@ use super::reader::{check_name, int_value, string_value, Cx, Fields};
 /// Modbus Application Protocol V1.1b3, 4.4 / Modbus over Serial Line V1.02 2.2: unicast
 /// addresses are 1..=247; 0 is broadcast. 002 (Altivar, "Adressen") agrees: 1..247.
 pub const MAX_DEVICE_ADDRESS: u8 = 247;
-/// First wait before a device that stopped answering is asked again.
-pub const DEFAULT_OFFLINE_BACKOFF_MIN: Duration = Duration::from_secs(1);
-/// Longest wait between attempts at a device that does not answer.
-pub const DEFAULT_OFFLINE_BACKOFF_MAX: Duration = Duration::from_secs(30);
+/// First wait before a device that stopped answering is probed (the seeds are silent on offline
+/// devices; the policy is the gateway's, `line::probe`).
+pub const DEFAULT_OFFLINE_BACKOFF_MIN: Duration = crate::line::DEFAULT_DEVICE_BACKOFF_MIN;
+/// Longest wait between probes of a device that does not answer: most probes wait only a short
+/// time, so the device is asked every 5 s and found again within 5 s of its return.
+pub const DEFAULT_OFFLINE_BACKOFF_MAX: Duration = crate::line::DEFAULT_DEVICE_BACKOFF_MAX;
+/// The least a short probe of an offline device waits for the start of a reply.
+pub const DEFAULT_PROBE_TIMEOUT_MIN: Duration = crate::line::DEFAULT_PROBE_TIMEOUT_MIN;
+/// Range of `probe_timeout_min`: the reply monitoring time's (003 6.4.2.1 "5 ... 65500ms").
+pub const PROBE_TIMEOUT_MIN_RANGE: (Duration, Duration) = crate::line::PROBE_TIMEOUT_MIN_RANGE;
+/// Every this many probes of an offline device, one waits the line's full reply monitoring time.
+pub const DEFAULT_FULL_PROBE_EVERY: u32 = crate::line::DEFAULT_FULL_PROBE_EVERY;
+/// Range of `full_probe_every` (1: every probe waits the full time).
+pub const FULL_PROBE_EVERY_RANGE: (u32, u32) = crate::line::FULL_PROBE_EVERY_RANGE;
 /// Unpolled addresses a merged read may include: none by default, because the Altivar and the
 /// KS vario answer exception 02 when the first word of a read is undefined (002, 001).
 pub const DEFAULT_BRIDGE_GAP: u16 = 0;
@@ -263,6 +273,12 @@ pub struct DeviceConfig {
     /// The wait doubles up to this bound while the device stays silent.
     #[serde(with = "humantime_serde")]
     pub offline_backoff_max: Duration,
+    /// The least a short probe waits: it waits 4 x the device's slowest recent reply delay (and
+    /// 4 x t3.5), at least this, at most the line's `reply_timeout`.
+    #[serde(with = "humantime_serde")]
+    pub probe_timeout_min: Duration,
+    /// Every this many probes, one waits the line's full `reply_timeout` (1: every probe).
+    pub full_probe_every: u32,
     /// Largest run of addresses nobody polls that a merged read may include (0: never).
     pub bridge_gap: u16,
     pub tags: Vec<TagConfig>,
@@ -444,6 +460,22 @@ impl DeviceConfig {
             DEFAULT_OFFLINE_BACKOFF_MAX,
             "",
         );
+        let (lo, hi) = PROBE_TIMEOUT_MIN_RANGE;
+        let probe_timeout_min = f.duration_or(
+            cx,
+            "probe_timeout_min",
+            lo..=hi,
+            DEFAULT_PROBE_TIMEOUT_MIN,
+            "003 6.4.2.1",
+        );
+        let (lo, hi) = FULL_PROBE_EVERY_RANGE;
+        let full_probe_every = f.int_or(
+            cx,
+            "full_probe_every",
+            lo..=hi,
+            DEFAULT_FULL_PROBE_EVERY,
+            "",
+        );
         let bridge_gap = f.int_or(cx, "bridge_gap", 0..=u16::MAX, DEFAULT_BRIDGE_GAP, "");
         let raw_tags = f.array(cx, "tags");
         if profile == Some(Profile::Generic) && raw_tags.is_empty() {
@@ -467,6 +499,8 @@ impl DeviceConfig {
             limits,
             offline_backoff_min,
             offline_backoff_max,
+            probe_timeout_min,
+            full_probe_every,
             bridge_gap,
             tags,
             poll,

@@ -7,6 +7,8 @@
 //! Modules:
 //! - [`plan`]: merging polled ranges into the fewest reads within a device's limits (pure);
 //! - `scheduler`: which request goes next (writes, on-demand reads, due polls, offline back-off);
+//! - `probe`: how a device that stopped answering is probed (one attempt, a short wait derived
+//!   from its own reply delay, every n-th probe the full reply monitoring time);
 //! - `command`: the bounded command queue and the error-to-exception mapping;
 //! - `status`: diagnostic buffer, event counters, STATUS word, device states;
 //! - `line_metrics`: the line's Prometheus metrics (events, port state, traffic, requests);
@@ -24,6 +26,7 @@ mod line_metrics;
 mod modbus_master;
 mod modbus_slave;
 pub mod plan;
+mod probe;
 mod scheduler;
 mod status;
 pub mod telegram;
@@ -46,6 +49,10 @@ pub use modbus_slave::{
     spawn_modbus_slave_line, SlaveCounters, SlaveLineHandle, SlaveLineSettings,
 };
 pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
+pub use probe::{
+    ProbeSettings, DEFAULT_FULL_PROBE_EVERY, DEFAULT_PROBE_TIMEOUT_MIN, FULL_PROBE_EVERY_RANGE,
+    PROBE_TIMEOUT_FACTOR, PROBE_TIMEOUT_MIN_RANGE,
+};
 pub use status::{DeviceStatus, LineEvent, LineStatus, DEFAULT_DIAG_DEPTH};
 
 use crate::image::{ProcessImage, Table};
@@ -121,10 +128,12 @@ impl LineSettings {
     }
 }
 
-/// Default back-off before the first retry of a device that stopped answering.
+/// Default back-off before the first probe of a device that stopped answering.
 pub const DEFAULT_DEVICE_BACKOFF_MIN: Duration = Duration::from_secs(1);
-/// Default longest back-off of a device that stopped answering.
-pub const DEFAULT_DEVICE_BACKOFF_MAX: Duration = Duration::from_secs(30);
+/// Default longest back-off between probes of a device that stopped answering: a short probe
+/// costs the line about [`DEFAULT_PROBE_TIMEOUT_MIN`], so the device can be asked every 5 s and
+/// is found again within 5 s of its return (see `probe`).
+pub const DEFAULT_DEVICE_BACKOFF_MAX: Duration = Duration::from_secs(5);
 
 /// A set of ranges of one table polled at one period.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -150,16 +159,18 @@ pub struct DeviceSettings {
     pub limits: DeviceLimits,
     /// What is polled and how often.
     pub groups: Vec<PollGroup>,
-    /// First delay before retrying the device after it stopped answering.
+    /// First delay before probing the device after it stopped answering.
     pub backoff_min: Duration,
-    /// Longest delay between retries of an offline device.
+    /// Longest delay between probes of an offline device.
     pub backoff_max: Duration,
+    /// How an offline device is probed.
+    pub probe: ProbeSettings,
 }
 
 // === impl DeviceSettings ===
 
 impl DeviceSettings {
-    /// A device with no poll groups, the CP's limits and the default back-off.
+    /// A device with no poll groups, the CP's limits and the default back-off and probes.
     pub fn new(name: impl Into<String>, slave: u8, unit_id: u8) -> Self {
         Self {
             name: name.into(),
@@ -169,6 +180,7 @@ impl DeviceSettings {
             groups: Vec::new(),
             backoff_min: DEFAULT_DEVICE_BACKOFF_MIN,
             backoff_max: DEFAULT_DEVICE_BACKOFF_MAX,
+            probe: ProbeSettings::default(),
         }
     }
 
@@ -204,7 +216,8 @@ impl DeviceSettings {
     /// Every problem of the settings, all at once (empty: valid): slave address 1..247 (003 6.4.3
     /// "ADDR": 0 is broadcast, which is never polled), limits within the CP's (1..127 registers,
     /// 1..2040 bits, 003 6.4.4), periods above zero, ranges inside the address space and the
-    /// back-off bounds ordered.
+    /// back-off bounds ordered, probes with a wait of at least 5 ms (the shortest reply monitoring
+    /// time, 003 6.4.2.1) and a full probe at least every 1000.
     pub fn validate(&self) -> Vec<String> {
         let mut issues = Vec::new();
         let name = &self.name;
@@ -255,6 +268,20 @@ impl DeviceSettings {
         }
         if let Err(err) = crate::serial::Backoff::try_new(self.backoff_min, self.backoff_max) {
             issues.push(format!("device {name}: back-off: {err}"));
+        }
+        let (lo, hi) = PROBE_TIMEOUT_MIN_RANGE;
+        if !(lo..=hi).contains(&self.probe.timeout_min) {
+            issues.push(format!(
+                "device {name}: probe_timeout_min {:?} is outside 5..65500 ms",
+                self.probe.timeout_min
+            ));
+        }
+        let (lo, hi) = FULL_PROBE_EVERY_RANGE;
+        if !(lo..=hi).contains(&self.probe.full_every) {
+            issues.push(format!(
+                "device {name}: full_probe_every {} is outside {lo}..{hi}",
+                self.probe.full_every
+            ));
         }
         issues
     }

@@ -234,6 +234,9 @@ impl LineTask {
                     // Slave 0: raised while the line was idle.
                     MasterEvent::Raised { id, slave } => {
                         self.shared.raise(id, (slave != 0).then_some(slave), None);
+                        if id == ids::MODBUS_BYTE_OVERFLOW {
+                            self.sched.unexpected_reply(Instant::now());
+                        }
                     }
                     MasterEvent::Completed {
                         id,
@@ -244,7 +247,8 @@ impl LineTask {
                         completed = true;
                         match self.inflight.take() {
                             Some((expected, job)) if expected == id => {
-                                self.complete(job, slave, &request, outcome);
+                                let delay = master.reply_delay();
+                                self.complete(job, slave, &request, outcome, delay);
                             }
                             other => {
                                 tracing::error!(line = %self.settings.name, slave, "completion of a request not in flight");
@@ -321,7 +325,10 @@ impl LineTask {
                     let Some(device) = self.devices.get(poll.device) else {
                         continue;
                     };
-                    match master.submit(engine_now, device.slave, poll.read.request()) {
+                    // A probe of an offline device is one attempt with its own wait (`probe`).
+                    let attempts = self.sched.poll_attempts(poll.device, &self.settings.master);
+                    let request = poll.read.request();
+                    match master.submit_with(engine_now, device.slave, request, attempts) {
                         Ok(id) => {
                             self.sent_at = None;
                             self.inflight = Some((id, InFlight::Poll(poll)));
@@ -348,8 +355,16 @@ impl LineTask {
         }
     }
 
-    /// Handles the end of the request in flight.
-    fn complete(&mut self, job: InFlight, slave: u8, request: &Request, outcome: Outcome) {
+    /// Handles the end of the request in flight; `reply_delay` is the master's, from the end of
+    /// the request to the first byte of the answer.
+    fn complete(
+        &mut self,
+        job: InFlight,
+        slave: u8,
+        request: &Request,
+        outcome: Outcome,
+        reply_delay: Option<std::time::Duration>,
+    ) {
         let now = Instant::now();
         let duration = self
             .sent_at
@@ -358,6 +373,10 @@ impl LineTask {
         let result = master_result(&outcome);
         if matches!(outcome, Outcome::Response(_) | Outcome::Exception(_)) {
             self.shared.metrics().received_telegram();
+        }
+        // A garbled answer may be a late reply to a short probe that ran into this request.
+        if matches!(outcome, Outcome::Failed(event) if event != ids::MODBUS_NO_REPLY) {
+            self.sched.unexpected_reply(now);
         }
         let index = match &job {
             InFlight::Poll(poll) => Some(poll.device),
@@ -402,6 +421,7 @@ impl LineTask {
                 };
                 if answered {
                     self.shared.metrics().device_up(&device.name, true);
+                    self.sched.heard(poll.device, reply_delay);
                 }
                 let transition = self.sched.poll_done(poll, answered, now);
                 self.apply(poll.device, transition);
@@ -437,6 +457,7 @@ impl LineTask {
                 if let Some(d) = device {
                     if answered {
                         self.device_stat(d, |s| s.last_answer = Some(SystemTime::now()));
+                        self.sched.heard(d, reply_delay);
                     }
                     let transition = self.sched.observe(d, answered, now);
                     self.apply(d, transition);

@@ -2,15 +2,19 @@
 //!
 //! Order: queued writes first, then on-demand reads, then the poll that has been due longest.
 //! A device that does not answer goes offline: its polls stop and one probe is sent after a
-//! back-off that doubles up to its maximum, so a silent device costs the line one reply timeout
-//! per back-off period and the other devices keep their rate. The scheduler has no clock and no
-//! I/O: `now` is an argument, which keeps it testable.
+//! back-off that doubles up to its maximum. A probe is a single attempt that mostly waits a short
+//! time derived from the device's own reply delay, and every n-th probe the full reply
+//! monitoring time ([`super::probe`]), so a silent device costs the line little and the other
+//! devices keep their rate. The scheduler has no clock and no I/O: `now` is an argument, which
+//! keeps it testable.
 
 use std::collections::VecDeque;
 use std::time::Duration;
 
+use proto_core::modbus::master::{Attempts, MasterConfig};
 use tokio::time::Instant;
 
+use super::probe::{Probe, Prober};
 use super::{DeviceSettings, ReadBlock};
 use crate::serial::Backoff;
 
@@ -67,6 +71,10 @@ struct DeviceState {
     backoff: Backoff,
     /// When an offline device is probed next.
     retry_at: Instant,
+    /// How it is probed while offline.
+    prober: Prober,
+    /// The probe in flight, if the request in flight is one.
+    probe: Option<Probe>,
 }
 
 /// The poll schedule and command queues of one line.
@@ -75,6 +83,8 @@ pub(crate) struct Scheduler<C> {
     devices: Vec<DeviceState>,
     writes: VecDeque<C>,
     reads: VecDeque<C>,
+    /// The device of the last failed short probe, and until when its reply could still start.
+    late_watch: Option<(usize, Instant)>,
 }
 
 // === impl Scheduler ===
@@ -100,12 +110,15 @@ impl<C> Scheduler<C> {
                 online: true,
                 backoff: Backoff::clamped(d.backoff_min, d.backoff_max),
                 retry_at: now,
+                prober: Prober::new(d.probe),
+                probe: None,
             })
             .collect();
         Self {
             devices,
             writes: VecDeque::new(),
             reads: VecDeque::new(),
+            late_watch: None,
         }
     }
 
@@ -171,6 +184,41 @@ impl<C> Scheduler<C> {
         best.map(|(_, job)| Job::Poll(job))
     }
 
+    /// How the master tries a poll of `device` on a line with the master settings `line`: as
+    /// configured while the device answers, as its next probe while it is offline (one attempt,
+    /// remembered until [`Self::observe`]). Commands always go as configured.
+    pub(crate) fn poll_attempts(&mut self, device: usize, line: &MasterConfig) -> Attempts {
+        match self.devices.get_mut(device) {
+            Some(d) if !d.online => {
+                let probe = d.prober.next(line);
+                d.probe = Some(probe);
+                probe.attempts()
+            }
+            _ => Attempts::default(),
+        }
+    }
+
+    /// `device` answered (a response or an exception) after `reply_delay`, from the end of the
+    /// request to the first byte of the answer, if known.
+    pub(crate) fn heard(&mut self, device: usize, reply_delay: Option<Duration>) {
+        if let Some(d) = self.devices.get_mut(device) {
+            d.prober.answered(reply_delay);
+        }
+    }
+
+    /// Bytes nobody awaited (003 7.2 0E 53h), or an answer that failed its checks, arrived at
+    /// `now`: if a reply to the last short probe could still have started by then, it may have
+    /// been that device's, late, and its next probe waits the full reply monitoring time.
+    pub(crate) fn unexpected_reply(&mut self, now: Instant) {
+        if let Some((device, until)) = self.late_watch.take() {
+            if now <= until {
+                if let Some(d) = self.devices.get_mut(device) {
+                    d.prober.late_reply_suspected();
+                }
+            }
+        }
+    }
+
     /// When the next poll falls due (`None`: nothing is polled). Queued commands are due now.
     pub(crate) fn next_wake(&self) -> Option<Instant> {
         self.devices
@@ -194,6 +242,7 @@ impl<C> Scheduler<C> {
         let Some(d) = self.devices.get_mut(device) else {
             return Transition::Unchanged;
         };
+        let probe = d.probe.take();
         match (d.online, answered) {
             (true, true) => Transition::Unchanged,
             (false, true) => {
@@ -205,6 +254,16 @@ impl<C> Scheduler<C> {
                 Transition::CameBack
             }
             (online, false) => {
+                match probe {
+                    Some(probe) if !online => {
+                        d.prober.probe_failed(probe);
+                        if !probe.full {
+                            self.late_watch = Some((device, now + probe.cut));
+                        }
+                    }
+                    // The poll that put it offline, or a command: the full time, in vain.
+                    _ => d.prober.full_wait_failed(),
+                }
                 let retry_in = d.backoff.next_delay();
                 d.online = false;
                 d.retry_at = now + retry_in;
@@ -219,11 +278,11 @@ impl<C> Scheduler<C> {
 
     /// Puts a poll that could not be sent off by one period from `now`.
     pub(crate) fn postpone(&mut self, job: PollJob, now: Instant) {
-        if let Some(b) = self
-            .devices
-            .get_mut(job.device)
-            .and_then(|d| d.blocks.get_mut(job.block))
-        {
+        let Some(d) = self.devices.get_mut(job.device) else {
+            return;
+        };
+        d.probe = None;
+        if let Some(b) = d.blocks.get_mut(job.block) {
             b.next_due = now + job.read.period;
         }
     }
@@ -242,5 +301,7 @@ impl<C> Scheduler<C> {
     }
 }
 
+#[cfg(test)]
+mod probing;
 #[cfg(test)]
 mod tests;

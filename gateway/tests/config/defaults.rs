@@ -182,7 +182,9 @@ fn device_defaults_come_from_the_profile() {
         (20, 20)
     );
     assert_eq!(atv.offline_backoff_min, Duration::from_secs(1));
-    assert_eq!(atv.offline_backoff_max, Duration::from_secs(30));
+    assert_eq!(atv.offline_backoff_max, Duration::from_secs(5));
+    assert_eq!(atv.probe_timeout_min, Duration::from_millis(100));
+    assert_eq!(atv.full_probe_every, 12);
     assert_eq!(atv.bridge_gap, 0);
     let (_, kv) = devices[1];
     // 001 3.1: at most 120 integer values a message.

@@ -440,6 +440,17 @@ fn device_range_checks() {
         "lines.a.devices.d.offline_backoff_min",
         "between 10ms and 3600s",
     );
+    // 003 6.4.2.1: a reply monitoring time is 5..65500 ms, and so is a probe's floor.
+    one_issue(
+        &dev("profile = \"altivar71\"\naddress = 1\nprobe_timeout_min = \"4ms\""),
+        "lines.a.devices.d.probe_timeout_min",
+        "between 5ms and",
+    );
+    one_issue(
+        &dev("profile = \"altivar71\"\naddress = 1\nfull_probe_every = 0"),
+        "lines.a.devices.d.full_probe_every",
+        "between 1 and 1000",
+    );
     one_issue(
         &dev("profile = \"altivar71\"\naddress = 1\npoll = [{ name = \"p\", period = \"1ms\", ranges = [{ table = \"holding\", start = 0, count = 1 }] }]"),
         "lines.a.devices.d.poll[0].period",

@@ -44,7 +44,9 @@
 //! - **Repetitions**: the CP never repeats a Modbus request; [`MasterConfig::retries`] (default
 //!   0) repeats an attempt that failed for any reason but an exception response, which is a valid
 //!   answer. Each failed attempt raises its event; the outcome carries the last attempt's first
-//!   error.
+//!   error. [`Master::submit_with`] sets them and the reply monitoring time for one request (the
+//!   seeds know one time per interface, 003 6.4.2.1); a reply after a shortened time is a late
+//!   reply ("bytes while idle" above).
 //! - **ASCII character delay time** exceeded inside a reply: "the message is ignored and an error
 //!   is indicated" (003 6.4.2.2) -> 08 06h "character delay time exceeded" (003 7.2), the attempt
 //!   fails.
@@ -72,7 +74,7 @@ pub use self::job::JobError;
 pub use self::registers32::{
     Request32, Response32, FC_READ_32, FC_WRITE_MULTIPLE_32, FC_WRITE_SINGLE_32,
 };
-pub use self::types::{MasterEvent, Outcome, RequestId, SubmitError};
+pub use self::types::{Attempts, MasterEvent, Outcome, RequestId, SubmitError};
 /// The UART errors every engine of the crate takes (003 7.2: 08 0Ch parity, stop bit and
 /// overflow errors, 08 0Dh break).
 pub use crate::telegram::LineError;
@@ -97,6 +99,8 @@ pub struct Master {
     last_activity: Option<Instant>,
     /// Whether the current burst of unexpected bytes has been reported.
     stray_reported: bool,
+    /// From the end of transmission to the first byte of the reply, in the current transaction.
+    reply_delay: Option<core::time::Duration>,
 }
 
 /// How many timer steps one [`Master::handle_timeout`] call takes at most (each step changes the
@@ -116,6 +120,7 @@ impl Master {
             events: VecDeque::new(),
             last_activity: None,
             stray_reported: false,
+            reply_delay: None,
         }
     }
 
@@ -135,7 +140,19 @@ impl Master {
         slave: u8,
         request: Request,
     ) -> Result<RequestId, SubmitError> {
-        self.submit_job(now, slave, Job::Standard(request))
+        self.submit_job(now, slave, Job::Standard(request), Attempts::default())
+    }
+
+    /// [`Master::submit`] with its own reply monitoring time or repetitions (e.g. one short
+    /// attempt at a device that stopped answering); the inter-frame gap is the same.
+    pub fn submit_with(
+        &mut self,
+        now: Instant,
+        slave: u8,
+        request: Request,
+        attempts: Attempts,
+    ) -> Result<RequestId, SubmitError> {
+        self.submit_job(now, slave, Job::Standard(request), attempts)
     }
 
     /// Queues a 32-bit register job of the ASCII master (003 6.4.4 "32bit access with Modbus
@@ -147,12 +164,19 @@ impl Master {
         slave: u8,
         request: Request32,
     ) -> Result<RequestId, SubmitError> {
-        self.submit_job(now, slave, Job::Registers32(request))
+        self.submit_job(now, slave, Job::Registers32(request), Attempts::default())
     }
 
     /// Whether no transaction is in flight or queued and the inter-frame gap has elapsed.
     pub fn is_idle(&self) -> bool {
         matches!(self.state, State::Idle)
+    }
+
+    /// From the end of the request's transmission to the first byte of the reply, in the last
+    /// attempt of the current or last transaction that received one: the span the reply
+    /// monitoring time watches (003 7.2 08 30h). `None` when no byte came.
+    pub fn reply_delay(&self) -> Option<core::time::Duration> {
+        self.reply_delay
     }
 
     /// Bytes received from the line at `now`.
@@ -184,13 +208,15 @@ impl Master {
             }
             State::Sending(Sending { tx, error, .. }) => {
                 // The reply started before the runtime reported the end of transmission.
+                self.reply_delay = Some(core::time::Duration::ZERO);
                 let mut receiving = Receiving::new(tx, now);
                 if let Some(error) = error {
                     receiving.fail(error, now + self.config.reply_timeout);
                 }
                 self.receive(now, receiving, bytes);
             }
-            State::AwaitReply(AwaitReply { tx, .. }) => {
+            State::AwaitReply(AwaitReply { tx, sent_end, .. }) => {
+                self.reply_delay = Some(now.saturating_duration_since(sent_end));
                 self.receive(now, Receiving::new(tx, now), bytes)
             }
             State::Receiving(receiving) => self.receive(now, receiving, bytes),
@@ -222,8 +248,12 @@ impl Master {
                         queued: None,
                     });
                 } else {
-                    let deadline = now + self.config.reply_timeout;
-                    self.state = State::AwaitReply(AwaitReply { tx, deadline });
+                    let deadline = now + tx.reply_timeout;
+                    self.state = State::AwaitReply(AwaitReply {
+                        tx,
+                        deadline,
+                        sent_end: now,
+                    });
                 }
             }
             other => {
@@ -318,7 +348,13 @@ impl Master {
         core::mem::replace(&mut self.state, State::Idle)
     }
 
-    fn submit_job(&mut self, now: Instant, slave: u8, job: Job) -> Result<RequestId, SubmitError> {
+    fn submit_job(
+        &mut self,
+        now: Instant,
+        slave: u8,
+        job: Job,
+        attempts: Attempts,
+    ) -> Result<RequestId, SubmitError> {
         let queue_free = match &self.state {
             State::Idle => true,
             State::Gap(quiet) | State::Turnaround(quiet) => quiet.queued.is_none(),
@@ -340,7 +376,10 @@ impl Master {
             job,
             adu,
             attempt: 0,
+            reply_timeout: attempts.reply_timeout.unwrap_or(self.config.reply_timeout),
+            retries: attempts.retries.unwrap_or(self.config.retries),
         };
+        self.reply_delay = None;
         let limit = now + self.config.reply_timeout;
         self.state = match self.take_state() {
             State::Gap(quiet) => State::Gap(Quiet {
@@ -509,7 +548,7 @@ impl Master {
 
     /// An attempt failed with `event` (already raised): repeat it or give up.
     fn attempt_failed(&mut self, now: Instant, mut tx: Transaction, event: EventId) {
-        if tx.attempt < self.config.retries {
+        if tx.attempt < tx.retries {
             tx.attempt += 1;
             self.state = self.quiet_after(now, Some(tx));
         } else {

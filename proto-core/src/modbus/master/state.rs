@@ -1,5 +1,7 @@
 //! The states of the master; each holds only what it needs.
 
+use core::time::Duration;
+
 use super::job::Job;
 use super::rx::Receiving;
 use super::RequestId;
@@ -19,6 +21,10 @@ pub(super) struct Transaction {
     pub(super) adu: Vec<u8>,
     /// Attempts made before this one (0 for the first).
     pub(super) attempt: u8,
+    /// The reply monitoring time of each attempt (the config's unless the submit chose another).
+    pub(super) reply_timeout: Duration,
+    /// Repetitions after a failed attempt (the config's unless the submit chose others).
+    pub(super) retries: u8,
 }
 
 /// A wait for line silence (after a frame, after a broadcast) with possibly a request queued.
@@ -49,6 +55,8 @@ pub(super) struct AwaitReply {
     pub(super) tx: Transaction,
     /// End of the reply monitoring time (003 6.4.2.1), counted from the end of transmission.
     pub(super) deadline: Instant,
+    /// The end of transmission (the reply delay is measured from here).
+    pub(super) sent_end: Instant,
 }
 
 /// The states of the master; each holds only what it needs.

@@ -1,6 +1,8 @@
 //! The public vocabulary of the master: request ids, line errors, submit errors, outcomes and
 //! events.
 
+use core::time::Duration;
+
 use super::job::JobError;
 use super::registers32::{Request32, Response32};
 use crate::event::EventId;
@@ -9,6 +11,22 @@ use crate::modbus::pdu::{ExceptionCode, Request, Response};
 /// Identifies one submitted request in its [`MasterEvent::Completed`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct RequestId(pub u64);
+
+/// How one request is tried where it differs from the line's
+/// [`MasterConfig`](super::MasterConfig), for [`Master::submit_with`](super::Master::submit_with).
+/// The default changes nothing.
+///
+/// The CP has one reply monitoring time per interface (003 6.4.2.1); a per-request value is the
+/// gateway's own addition, for a runtime that probes a device known to be silent with a shorter
+/// wait than its normal polls.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Attempts {
+    /// The reply monitoring time of each attempt (`None`: the configured one). Used as given,
+    /// like the config's; the caller keeps it within 5..65500 ms (003 6.4.2.1).
+    pub reply_timeout: Option<Duration>,
+    /// Repetitions after a failed attempt (`None`: the configured ones).
+    pub retries: Option<u8>,
+}
 
 /// Why [`Master::submit`](super::Master::submit) refused a request.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
