@@ -194,6 +194,8 @@ pub async fn run(
     // A fixed line on stdout that scripts and tests wait for; printed last, when everything
     // listens.
     println!("modbus-tcp listening on {local}");
+    // What start-up freed (above all the configuration document) goes back to the system.
+    crate::heap::release_free_memory();
 
     shutdown.cancelled().await;
     info!(grace = ?GRACE_PERIOD, "draining: lines finish their transaction in flight, connections their request");

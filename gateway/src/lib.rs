@@ -24,6 +24,7 @@ pub mod config;
 pub mod cpmem;
 #[cfg(any(fuzzing, test))]
 pub mod fuzzing;
+mod heap;
 pub mod image;
 pub mod line;
 pub mod mailbox;

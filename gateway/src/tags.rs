@@ -28,7 +28,8 @@ pub struct TagEntry {
     pub device: String,
     /// The unit id the device is kept under.
     pub unit_id: u8,
-    /// The device's profile (shared by its tags).
+    /// The device's profile (shared by its tags), for decoding and encoding; its tag list is
+    /// empty (each entry holds its own tag).
     pub profile: Arc<DeviceProfile>,
     /// The tag.
     pub tag: Tag,
@@ -86,18 +87,18 @@ impl TagDirectory {
                 entries.extend(cp_memory_tags(config, line_name, slave));
             }
             for (device_name, device) in line.devices() {
-                let profile = Arc::new(profile_of(device_name, device));
-                for tag in &profile.tags {
-                    entries.push(TagEntry {
-                        line: line_name.clone(),
-                        device: device_name.clone(),
-                        unit_id: device.unit_id,
-                        profile: Arc::clone(&profile),
-                        tag: tag.clone(),
-                    });
-                }
+                let (profile, tags) = shared(profile_of(device_name, device));
+                entries.extend(tags.into_iter().map(|tag| TagEntry {
+                    line: line_name.clone(),
+                    device: device_name.clone(),
+                    unit_id: device.unit_id,
+                    profile: Arc::clone(&profile),
+                    tag,
+                }));
             }
         }
+        // Kept for the life of the config: no spare capacity (10 000 tags, 2 MiB).
+        entries.shrink_to_fit();
         Self { entries }
     }
 
@@ -250,22 +251,28 @@ fn cp_memory_tags(
             tags.push(tag);
         }
     }
-    let profile = Arc::new(DeviceProfile::generic(
+    let (profile, tags) = shared(DeviceProfile::generic(
         CP_MEMORY_DEVICE,
         slave.address,
         tags,
     ));
-    profile
-        .tags
-        .iter()
+    tags.into_iter()
         .map(|tag| TagEntry {
             line: line.to_owned(),
             device: CP_MEMORY_DEVICE.to_owned(),
             unit_id,
             profile: Arc::clone(&profile),
-            tag: tag.clone(),
+            tag,
         })
         .collect()
+}
+
+/// The profile shared by a device's entries, and its tags for the entries to own: each entry
+/// holds its tag, and the profile is only asked to decode and encode (its special values), so
+/// it keeps no second copy of them.
+fn shared(mut profile: DeviceProfile) -> (Arc<DeviceProfile>, Vec<Tag>) {
+    let tags = std::mem::take(&mut profile.tags);
+    (Arc::new(profile), tags)
 }
 
 /// The profile of a configured device, with the config's own tags added.

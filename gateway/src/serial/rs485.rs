@@ -1,8 +1,9 @@
 //! Switching a port to RS485 two-wire mode with the kernel's `TIOCSRS485` ioctl
 //! (Linux `Documentation/driver-api/serial/serial-rs485.rst`).
 //!
-//! The only `unsafe` code of the gateway lives here: one `ioctl` call on a file descriptor the
-//! caller owns, with a pointer to a properly initialised `#[repr(C)]` struct.
+//! `unsafe` code of the gateway lives here (one `ioctl` call on a file descriptor the caller
+//! owns, with a pointer to a properly initialised `#[repr(C)]` struct) and in `heap.rs` (one
+//! `malloc_trim` call).
 #![allow(unsafe_code)]
 
 use std::io;

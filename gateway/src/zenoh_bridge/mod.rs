@@ -34,6 +34,11 @@
 //!   `"ok": false` and `"error": "<text>"` instead of `result` on failure (bad payload, unknown
 //!   line, `busy`, or the backend's refusal). The command's attachment is copied to its result.
 //!
+//! Order: the publications of one key keep their order (a newer tag value may replace one not
+//! yet published). Between keys there is none: a write's result and the tag value the write
+//! changed come in either order, so a subscriber waiting for both must not skip the other key's
+//! samples while it waits for one.
+//!
 //! Session: peer by default; `Bridge::start` fails if a peer cannot open its session (a listen
 //! endpoint in use, a bad config file). A client keeps retrying its first connection in the
 //! background (1 s doubling to 30 s) and publishes once connected; after a loss zenoh itself
@@ -64,6 +69,7 @@ use std::time::{Duration, SystemTime};
 use serde_json::{json, Value};
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
+use zenoh::key_expr::OwnedKeyExpr;
 use zenoh::pubsub::Subscriber;
 use zenoh::query::Queryable;
 use zenoh::Session;
@@ -205,11 +211,18 @@ impl BridgeHandle {
     }
 
     /// Queues a tag value for `<prefix>/<line>/<device>/<tag>`; a newer value of the same tag
-    /// replaces one not yet published.
+    /// replaces one not yet published. The key expression is checked here, once per value, and
+    /// published as it is.
     pub fn publish_tag(&self, line: &str, device: &str, tag: &str, value: TagValue) {
-        if self.check(&[line, device, tag]).is_ok() {
-            self.outbox
-                .push_tag(self.keys.tag(line, device, tag), value);
+        if self.check(&[line, device, tag]).is_err() {
+            return;
+        }
+        match OwnedKeyExpr::try_from(self.keys.tag(line, device, tag)) {
+            Ok(key) => self.outbox.push_tag(key, value),
+            Err(e) => {
+                self.stats.dropped(DropReason::BadKey);
+                tracing::warn!(%line, %device, %tag, error = %e, "tag value not published on zenoh");
+            }
         }
     }
 

@@ -5,8 +5,16 @@
 //!   BridgeHandle::publish_*  --try, never waits-->  Outbox { telegrams, events, results: FIFO,
 //!                                                            tags: newest value per key,
 //!                                                            presence: latest state per device }
-//!                                                       --> Publisher::put().wait()
+//!                                                       --> Publisher::put / Session::put
 //! ```
+//!
+//! Telegrams and events go through a declared publisher per key (two keys per line). Tag
+//! values and command results are plain session puts with the options given per call: a
+//! declared publisher holds state in the session and in zenoh's routing tables (its interest in
+//! matching subscribers), about 3 KiB each, 35 MiB for 10 000 tags; a put keeps nothing between
+//! samples and sends the same message. A tag's key expression is checked once, when its value
+//! is queued ([`BridgeHandle::publish_tag`](super::BridgeHandle::publish_tag)), and published as
+//! it is.
 //!
 //! A zenoh put with `CongestionControl::Block` waits while the network is congested; that wait
 //! happens on the publisher thread only, so a slow subscriber slows the outbox, never a serial
@@ -20,6 +28,7 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, SystemTime};
 
 use zenoh::bytes::Encoding;
+use zenoh::key_expr::OwnedKeyExpr;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::{Session, Wait};
@@ -60,8 +69,8 @@ struct Pending {
     events: VecDeque<Message>,
     results: VecDeque<Message>,
     /// Newest value per tag key, and the order in which keys became pending.
-    tags: HashMap<String, TagValue>,
-    tag_order: VecDeque<String>,
+    tags: HashMap<OwnedKeyExpr, TagValue>,
+    tag_order: VecDeque<OwnedKeyExpr>,
     /// Latest online state per device token key, in order of first change.
     presence: HashMap<String, bool>,
     presence_order: VecDeque<String>,
@@ -79,6 +88,28 @@ impl Pending {
             && self.tag_order.is_empty()
             && self.presence_order.is_empty()
     }
+
+    /// Takes everything pending, tags and presence changes in the order their keys became
+    /// pending.
+    fn drain(&mut self) -> Batch {
+        let mut presence_map = std::mem::take(&mut self.presence);
+        let presence = std::mem::take(&mut self.presence_order)
+            .into_iter()
+            .filter_map(|k| presence_map.remove(&k).map(|on| (k, on)))
+            .collect();
+        let mut tag_map = std::mem::take(&mut self.tags);
+        let tags = std::mem::take(&mut self.tag_order)
+            .into_iter()
+            .filter_map(|k| tag_map.remove(&k).map(|v| (k, v)))
+            .collect();
+        Batch {
+            presence,
+            results: std::mem::take(&mut self.results),
+            telegrams: std::mem::take(&mut self.telegrams),
+            events: std::mem::take(&mut self.events),
+            tags,
+        }
+    }
 }
 
 /// Everything taken from the outbox in one go.
@@ -87,7 +118,7 @@ struct Batch {
     results: VecDeque<Message>,
     telegrams: VecDeque<Message>,
     events: VecDeque<Message>,
-    tags: Vec<(String, TagValue)>,
+    tags: Vec<(OwnedKeyExpr, TagValue)>,
 }
 
 /// The bounded hand-over between producers and the publisher thread.
@@ -157,7 +188,7 @@ impl Outbox {
 
     /// Sets the pending value of a tag key; a pending older value is replaced (counted as
     /// superseded).
-    pub(crate) fn push_tag(&self, key: String, value: TagValue) {
+    pub(crate) fn push_tag(&self, key: OwnedKeyExpr, value: TagValue) {
         let mut p = self.lock();
         if p.closed {
             drop(p);
@@ -231,31 +262,16 @@ impl Outbox {
             }
         }
         let session = p.session.clone()?;
-        let mut presence_map = std::mem::take(&mut p.presence);
-        let presence = std::mem::take(&mut p.presence_order)
-            .into_iter()
-            .filter_map(|k| presence_map.remove(&k).map(|on| (k, on)))
-            .collect();
-        let mut tag_map = std::mem::take(&mut p.tags);
-        let tags = std::mem::take(&mut p.tag_order)
-            .into_iter()
-            .filter_map(|k| tag_map.remove(&k).map(|v| (k, v)))
-            .collect();
-        let batch = Batch {
-            presence,
-            results: std::mem::take(&mut p.results),
-            telegrams: std::mem::take(&mut p.telegrams),
-            events: std::mem::take(&mut p.events),
-            tags,
-        };
-        Some((session, batch))
+        Some((session, p.drain()))
     }
 }
 
-/// The publisher thread: declared publishers per key, liveliness tokens, the drain loop.
+/// The publisher thread: declared publishers of telegram and event keys, liveliness tokens, the
+/// drain loop.
 pub(crate) struct PublisherThread {
     outbox: Arc<Outbox>,
     stats: Arc<BridgeStats>,
+    /// One per telegram or event key (`<line>/rx`, `<line>/events`): a bounded set.
     publishers: HashMap<String, Publisher<'static>>,
     presence: Presence,
 }
@@ -287,8 +303,7 @@ impl PublisherThread {
                 self.publish_message(&session, msg);
             }
             for (key, value) in batch.tags {
-                let payload = value.to_json().to_string().into_bytes();
-                self.put(&session, PublicationKind::Tag, key, payload, true, None);
+                self.put_tag(&session, &key, &value);
             }
         }
         // Undeclare in order: tokens first (peers see the devices and the gateway go), then
@@ -297,6 +312,20 @@ impl PublisherThread {
         self.publishers.clear();
     }
 
+    /// A tag value: a session put with the options a tag publisher had (congestion control
+    /// drop, default priority, not express), JSON, the session's timestamp.
+    fn put_tag(&self, session: &Session, key: &OwnedKeyExpr, value: &TagValue) {
+        let payload = value.to_json().to_string().into_bytes();
+        let result = session
+            .put(key, payload)
+            .congestion_control(congestion(PublicationKind::Tag))
+            .encoding(Encoding::APPLICATION_JSON)
+            .timestamp(session.new_timestamp())
+            .wait();
+        self.count(PublicationKind::Tag, key.as_str(), result);
+    }
+
+    /// A telegram, an event (declared publisher) or a command result (session put).
     fn publish_message(&mut self, session: &Session, msg: Message) {
         let Message {
             kind,
@@ -305,24 +334,12 @@ impl PublisherThread {
             json,
             attachment,
         } = msg;
-        self.put(session, kind, key, payload, json, attachment);
-    }
-
-    fn put(
-        &mut self,
-        session: &Session,
-        kind: PublicationKind,
-        key: String,
-        payload: Vec<u8>,
-        json: bool,
-        attachment: Option<Vec<u8>>,
-    ) {
         let encoding = if json {
             Encoding::APPLICATION_JSON
         } else {
             Encoding::APPLICATION_OCTET_STREAM
         };
-        let result = if kind.key_from_config() {
+        let result = if kind.declared_publisher() {
             let publisher = match self.publishers.get(&key) {
                 Some(p) => p,
                 None => match declare(session, &key, kind) {
@@ -351,6 +368,10 @@ impl PublisherThread {
                 .attachment(attachment)
                 .wait()
         };
+        self.count(kind, &key, result);
+    }
+
+    fn count(&self, kind: PublicationKind, key: &str, result: zenoh::Result<()>) {
         match result {
             Ok(()) => self.stats.published(kind),
             Err(e) => {
@@ -389,6 +410,8 @@ pub(crate) fn rfc3339(t: SystemTime) -> String {
 
 #[cfg(test)]
 mod tests {
+    use proptest::prelude::*;
+
     use super::*;
 
     fn outbox(limit: usize) -> (Arc<BridgeStats>, Outbox) {
@@ -410,6 +433,10 @@ mod tests {
             json: false,
             attachment: None,
         }
+    }
+
+    fn ke(key: &str) -> OwnedKeyExpr {
+        OwnedKeyExpr::try_from(key.to_owned()).unwrap()
     }
 
     fn value(v: i64) -> TagValue {
@@ -440,15 +467,93 @@ mod tests {
     #[test]
     fn newest_tag_value_wins_and_keys_keep_their_order() {
         let (stats, o) = outbox(2);
-        o.push_tag("k/a".into(), value(1));
-        o.push_tag("k/b".into(), value(2));
-        o.push_tag("k/a".into(), value(3));
-        o.push_tag("k/c".into(), value(4));
+        o.push_tag(ke("k/a"), value(1));
+        o.push_tag(ke("k/b"), value(2));
+        o.push_tag(ke("k/a"), value(3));
+        o.push_tag(ke("k/c"), value(4));
         assert_eq!(stats.drops(DropReason::TagSuperseded), 1);
         assert_eq!(stats.drops(DropReason::TagQueueFull), 1);
         let p = o.lock();
-        assert_eq!(p.tag_order, ["k/a", "k/b"]);
-        assert_eq!(p.tags["k/a"].value, 3);
+        assert_eq!(p.tag_order, [ke("k/a"), ke("k/b")]);
+        assert_eq!(p.tags[&ke("k/a")].value, 3);
+    }
+
+    #[derive(Clone, Debug)]
+    enum Op {
+        /// A value for tag key `k/<n>`.
+        Tag(u8, i64),
+        /// A command result.
+        Result(u8),
+        /// The publisher thread takes what is pending.
+        Drain,
+    }
+
+    fn op() -> impl Strategy<Value = Op> {
+        prop_oneof![
+            4 => (0u8..6, any::<i64>()).prop_map(|(k, v)| Op::Tag(k, v)),
+            2 => any::<u8>().prop_map(Op::Result),
+            1 => Just(Op::Drain),
+        ]
+    }
+
+    /// What a drain must give: keys in the order they became pending, newest value each; the
+    /// results in order.
+    #[derive(Default)]
+    struct Model {
+        tags: Vec<(String, i64)>,
+        results: Vec<u8>,
+    }
+
+    fn check_drain(o: &Outbox, model: &mut Model) -> Result<(), TestCaseError> {
+        let batch = o.lock().drain();
+        let tags: Vec<(String, i64)> = batch
+            .tags
+            .iter()
+            .map(|(k, v)| (k.as_str().to_owned(), v.value.as_i64().unwrap_or(i64::MIN)))
+            .collect();
+        let results: Vec<u8> = batch.results.iter().map(|m| m.payload[0]).collect();
+        prop_assert_eq!(tags, std::mem::take(&mut model.tags));
+        prop_assert_eq!(results, std::mem::take(&mut model.results));
+        prop_assert!(o.lock().is_empty());
+        Ok(())
+    }
+
+    proptest! {
+        /// Tag values of several keys, results and the thread's takes in any interleaving: each
+        /// key's newest value is taken once, no key is lost or overwritten by another's value.
+        #[test]
+        fn no_key_loses_its_value_whatever_the_interleaving(
+            ops in prop::collection::vec(op(), 0..200)
+        ) {
+            let (stats, o) = outbox(256);
+            let mut model = Model::default();
+            let mut superseded = 0u64;
+            for op in ops {
+                match op {
+                    Op::Tag(k, v) => {
+                        let key = format!("k/{k}");
+                        o.push_tag(ke(&key), value(v));
+                        match model.tags.iter_mut().find(|(m, _)| *m == key) {
+                            Some(slot) => {
+                                slot.1 = v;
+                                superseded += 1;
+                            }
+                            None => model.tags.push((key, v)),
+                        }
+                    }
+                    Op::Result(n) => {
+                        let mut m = msg(PublicationKind::SetResult, n);
+                        m.key = format!("k/{n}/set/result");
+                        prop_assert!(o.push(m).is_ok());
+                        model.results.push(n);
+                    }
+                    Op::Drain => check_drain(&o, &mut model)?,
+                }
+            }
+            check_drain(&o, &mut model)?;
+            prop_assert_eq!(stats.drops(DropReason::TagSuperseded), superseded);
+            prop_assert_eq!(stats.drops(DropReason::TagQueueFull), 0);
+        }
     }
 
     #[test]
@@ -459,7 +564,7 @@ mod tests {
             o.push(msg(PublicationKind::Event, 1)),
             Err(DropReason::BridgeClosed)
         );
-        o.push_tag("k".into(), value(1));
+        o.push_tag(ke("k"), value(1));
         assert_eq!(stats.drops(DropReason::BridgeClosed), 2);
         assert!(o.take().is_none());
     }

@@ -27,10 +27,11 @@ impl PublicationKind {
         Self::SetResult,
     ];
 
-    /// Whether the key is built from configured names only (a bounded set), rather than from
-    /// what a command named.
-    pub(crate) fn key_from_config(self) -> bool {
-        matches!(self, Self::Telegram | Self::Tag | Self::Event)
+    /// Whether the kind is published through a declared publisher kept per key: telegrams and
+    /// events, two keys per line. Tag values (one key per tag, thousands of them) and results
+    /// (keys named by commands) are plain session puts.
+    pub(crate) fn declared_publisher(self) -> bool {
+        matches!(self, Self::Telegram | Self::Event)
     }
 
     /// The metric label.

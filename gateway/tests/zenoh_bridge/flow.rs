@@ -167,3 +167,42 @@ async fn a_stuck_subscriber_never_makes_the_producer_wait() {
     bridge.join().await;
     session.close().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn every_write_publishes_its_value_and_its_result() {
+    // A write queues the tag's new value, then its result: two keys, published in whichever
+    // order the publisher thread takes them. Neither may be lost, whatever the order. Writes
+    // alternate between tags of two lines (two command workers).
+    const N: i64 = 100;
+    let backend = TestBackend::new();
+    let (bridge, handle, shutdown, port) = start_listening(backend.clone()).await;
+    let session = peer(&[endpoint(port)], &[]).await;
+    let (_sub, mut rx) = subscribe(&session, "gw/test/**").await;
+    publish_until_seen(&handle, &mut rx, 6).await;
+
+    for i in 0..N {
+        let key = if i % 2 == 0 {
+            "gw/test/drive/atv/cmd"
+        } else {
+            "gw/test/ksvario/ks/w1"
+        };
+        let result_key = format!("{key}/set/result");
+        session
+            .put(format!("{key}/set"), i.to_string())
+            .await
+            .unwrap();
+        let got = recv_keys(&mut rx, LIMIT, &[key, &result_key]).await;
+        assert_eq!(json_of(&got[key])["value"], i, "write {i}");
+        let r = json_of(&got[&result_key]);
+        assert_eq!(
+            (r["ok"].clone(), r["value"].clone()),
+            (json!(true), json!(i))
+        );
+    }
+    assert_eq!(backend.writes.lock().unwrap().len(), N as usize);
+    assert_eq!(handle.stats().drops(DropReason::PublishError), 0);
+
+    shutdown.cancel();
+    bridge.join().await;
+    session.close().await.unwrap();
+}

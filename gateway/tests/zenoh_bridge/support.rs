@@ -227,6 +227,34 @@ pub(crate) async fn recv_until(
     .expect("expected sample within the limit")
 }
 
+/// Receives until a sample of every key in `keys` has come, in any order, within `limit`: the
+/// first sample of each, by key. Samples of other keys are skipped. (The bridge keeps the order
+/// of publications per key only: waiting for one key with [`recv_until`] skips what another key
+/// published meanwhile.)
+pub(crate) async fn recv_keys(
+    rx: &mut mpsc::UnboundedReceiver<Sample>,
+    limit: Duration,
+    keys: &[&str],
+) -> BTreeMap<String, Sample> {
+    let mut got = BTreeMap::new();
+    let all = tokio::time::timeout(limit, async {
+        while got.len() < keys.len() {
+            let s = rx.recv().await.expect("subscriber open");
+            let key = s.key_expr().as_str();
+            if keys.contains(&key) && !got.contains_key(key) {
+                got.insert(key.to_owned(), s);
+            }
+        }
+    })
+    .await;
+    assert!(
+        all.is_ok(),
+        "expected samples of {keys:?} within {limit:?}, got {:?}",
+        got.keys().collect::<Vec<_>>()
+    );
+    got
+}
+
 /// Publishes a tag value over and over until the subscriber sees it: the way to know routes
 /// are in place after a (re)connection. Returns the sample.
 pub(crate) async fn publish_until_seen(
