@@ -2,8 +2,8 @@
 //! rows in [`crate::dead`] use the same rig).
 //!
 //! Each run puts the gateway's master line (the library, in-process) on a [`paced`] link to a
-//! simulated device, with a [`MasterTap`] between line and link and a [`DeviceTap`] on the device's
-//! end.
+//! simulated device, with a [`MasterTap`] between line and link and a [`device_relay`] on the
+//! device's end (see [`crate::tap`]).
 //!
 //! The physical best case of one poll of N registers: the request (8 characters) and the response
 //! (5 + 2N characters) on the wire, 11 bits a character (8E1), t3.5 of silence before the device may
@@ -22,11 +22,10 @@ use gateway::line::{
     spawn_modbus_master_line, AddrRange, DeviceLimits, DeviceSettings, LineHandle, LineSettings,
     PollGroup,
 };
-use gateway::paced::{self, PacedSettings};
+use gateway::paced::{self, Direction, LinkCounters, PacedDuplex, PacedSettings};
 use gateway::serial::PortSettings;
 use gateway::sim::{serve_modbus, ModbusDevice};
 use proto_core::modbus::rtu::CharTiming;
-use tokio_serial::SerialPortBuilderExt;
 use tokio_util::sync::CancellationToken;
 
 use crate::device::FlatDevice;
@@ -50,6 +49,8 @@ pub(crate) struct Rig {
     pub(crate) master: MasterTap,
     pub(crate) device: Arc<Mutex<DeviceLog>>,
     pub(crate) timing: CharTiming,
+    /// The paced link's counters (bytes, the latest delivery).
+    pub(crate) link: Arc<LinkCounters>,
     shutdown: CancellationToken,
 }
 
@@ -60,7 +61,8 @@ impl Drop for Rig {
 }
 
 /// Starts a paced link at `baud` (8E1), `device` on its far end, and a master line polling
-/// `devices` through a tap on its near end.
+/// `devices` through a tap on its near end. The line opens a pty of its own; the link's ends are
+/// in-process streams (see [`crate::tap`]).
 pub(crate) async fn rig(
     baud: u32,
     device: impl ModbusDevice + 'static,
@@ -69,20 +71,12 @@ pub(crate) async fn rig(
 ) -> std::io::Result<Rig> {
     let shutdown = CancellationToken::new();
     let settings = PacedSettings::from_frame(baud, 8, true, 1);
-    let (link, _relay) = paced::spawn(settings, shutdown.clone()).await?;
+    let (link, _relay) = paced::paced_duplex(settings, None, shutdown.clone())?;
+    let PacedDuplex { a, b, counters } = link;
     let timing = CharTiming::new(baud, BITS_PER_CHAR);
-    let port = tokio_serial::new(link.b.as_str(), baud)
-        .open_native_async()
-        .map_err(std::io::Error::from)?;
-    let (port, device_log) = device_relay(port, shutdown.clone());
+    let (port, device_log) = device_relay(b, shutdown.clone());
     tokio::spawn(serve_modbus(port, device, timing, shutdown.clone()));
-    let master = MasterTap::spawn(
-        &link.a,
-        baud,
-        timing.char_time,
-        timing.t3_5(),
-        shutdown.clone(),
-    )?;
+    let master = MasterTap::spawn(a, timing.char_time, timing.t3_5(), shutdown.clone())?;
     let mut line = LineSettings::rtu("bench", PortSettings::new(master.path.clone(), baud));
     if let Some(timeout) = reply_timeout {
         line.master.reply_timeout = timeout;
@@ -94,6 +88,7 @@ pub(crate) async fn rig(
         master,
         device: device_log,
         timing,
+        link: counters,
         shutdown,
     })
 }
@@ -201,6 +196,10 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
     };
     let turnaround = mean(lock(&rig.device).turnarounds.get(d0..).unwrap_or_default());
     let trouble = trouble(&rig.line);
+    // The latest the relay delivered a byte after its time, over the whole run (a gap inside a
+    // frame is at most one character time plus this).
+    let to_device = rig.link.direction(Direction::AToB).max_lateness;
+    let to_master = rig.link.direction(Direction::BToA).max_lateness;
     drop(rig);
 
     let elapsed = t1.saturating_duration_since(t0).as_secs_f64();
@@ -214,7 +213,8 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
         "{polls} polls answered in {elapsed:.1} s ({requests} requests); cycle {} = wire {} + \
          device {} (t3.5 {} + its own {}) + link and tap lateness {} + master gap {} (t3.5 {}); \
          frames < t3.5 after the previous: {violations}; without the link's lateness the ratio \
-         would be {without_link:.3}{trouble}",
+         would be {without_link:.3}; the relay's latest byte {} to the device, {} to the master\
+         {trouble}",
         ms(cycle),
         ms(wire),
         ms(turnaround),
@@ -223,6 +223,8 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
         ms(link_excess),
         ms(gap),
         ms(t35),
+        ms(to_device),
+        ms(to_master),
     );
     // Every request answered: a failed poll would make the rate meaningless.
     let score = if polls + 1 >= requests && requests > 1 {

@@ -1,22 +1,26 @@
 //! Instruments on both ends of a paced line.
 //!
 //! ```text
-//!  master line ═ pty ═ MasterTap ═ paced link (a ⇄ b) ═ device_relay ─ simulated device
+//!  master line ═ pty ═ MasterTap ─ paced link (in-process a ⇄ b) ─ device_relay ─ simulated device
 //! ```
 //!
-//! - [`MasterTap`] sits between the gateway's line and the paced link, on a pty pair of its own.
-//!   It sees the moment the master wrote a request and the moment a response's last byte was
-//!   handed to the master, so it measures what the master itself does: the silence it leaves
-//!   after a response before its next request (which must be at least t3.5), and the time a
-//!   request spent on the serial side (wire, device, link) until its answer was back.
-//!   The tap hands the master each answer whole, at the moment its last byte arrived (the length
-//!   comes from the function code and byte count). The paced relay writes on the tokio timer's
-//!   millisecond ticks, and later still when the shared machine is busy, so it can leave a gap of
-//!   more than t3.5 inside a frame, which a real line does not; the master would take such a gap
-//!   for the end of the frame. A real UART's receive FIFO delivers in bursts the same way.
+//! - [`MasterTap`] sits between the gateway's line and the paced link: the line opens the slave end
+//!   of a pty pair of its own, as it would open a real serial port, and the tap relays its master
+//!   end to the link's `a` end. It sees the moment the master wrote a request and the moment a
+//!   response's last byte was handed to the master, so it measures what the master itself does:
+//!   the silence it leaves after a response before its next request (which must be at least t3.5),
+//!   and the time a request spent on the serial side (wire, device, link) until its answer was
+//!   back. The tap hands the master each answer whole, at the moment its last byte arrived (the
+//!   length comes from the function code and byte count), as a UART's receive FIFO delivers in
+//!   bursts; the master ends a reply by its length, not by a gap.
 //! - [`device_relay`] sits between the link's `b` end and the simulated device (an in-process
 //!   stream): it hands the device each request whole, and the time from there to the first byte
 //!   of the answer is the device's turnaround.
+//!
+//! The link's ends are in-process streams ([`gateway::paced::paced_duplex`]), not two more pty
+//! pairs: a pty hop is a kernel worker and a reader to wake, which on the shared machine cost
+//! tenths of a millisecond each way that belong to neither the gateway nor the wire. The pty
+//! between the line and the tap is the gateway's own port and stays.
 //!
 //! The tap's own latency (a pty read and write, tens of microseconds) only ever lengthens the
 //! silences it measures, so a master that leaves too short a gap cannot look correct by it, except
@@ -26,8 +30,8 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use proto_core::modbus::rtu::{self, FrameLen};
-use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
-use tokio_serial::{SerialPortBuilderExt, SerialStream};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, DuplexStream};
+use tokio_serial::SerialStream;
 use tokio_util::sync::CancellationToken;
 
 /// How long a tap waits for the rest of a frame it cannot see the end of yet (far longer than
@@ -80,21 +84,20 @@ pub(crate) struct MasterTap {
 // === impl MasterTap ===
 
 impl MasterTap {
-    /// Relays between a new pty pair and `link_a` until `shutdown`. `char_time` is the line's
-    /// character time and `t35` its end-of-frame silence.
-    pub(crate) fn spawn(
-        link_a: &str,
-        baud: u32,
+    /// Relays between a new pty pair and the link's `a` end until `shutdown`. `char_time` is the
+    /// line's character time and `t35` its end-of-frame silence.
+    pub(crate) fn spawn<L>(
+        link: L,
         char_time: Duration,
         t35: Duration,
         shutdown: CancellationToken,
-    ) -> std::io::Result<Self> {
+    ) -> std::io::Result<Self>
+    where
+        L: AsyncRead + AsyncWrite + Send + 'static,
+    {
         let (master, slave) = SerialStream::pair().map_err(std::io::Error::from)?;
         let path = tokio_serial::SerialPort::name(&slave)
             .ok_or_else(|| std::io::Error::other("the pty has no path"))?;
-        let link = tokio_serial::new(link_a, baud)
-            .open_native_async()
-            .map_err(std::io::Error::from)?;
         let log: SharedLog = Arc::default();
         let (mut from_master, mut to_master) = tokio::io::split(master);
         let (mut from_link, mut to_link) = tokio::io::split(link);
@@ -220,10 +223,13 @@ pub(crate) struct DeviceLog {
 /// Relays between the device's end of a link and an in-process stream the simulated device serves
 /// on: hands the device each request whole, as the master tap hands the master each answer, and
 /// records the device's turnaround.
-pub(crate) fn device_relay(
-    link: SerialStream,
+pub(crate) fn device_relay<L>(
+    link: L,
     shutdown: CancellationToken,
-) -> (DuplexStream, Arc<Mutex<DeviceLog>>) {
+) -> (DuplexStream, Arc<Mutex<DeviceLog>>)
+where
+    L: AsyncRead + AsyncWrite + Send + 'static,
+{
     let (device, ours) = tokio::io::duplex(4096);
     let log: Arc<Mutex<DeviceLog>> = Arc::default();
     let (mut from_link, mut to_link) = tokio::io::split(link);

@@ -13,6 +13,7 @@
 //! - [`modbus_tcp`]: our own MBAP framing, validation and the TCP server;
 //! - [`paced`]: a paced link, a virtual serial cable with the timing of a real one;
 //! - [`sim`]: simulated devices on a serial port (`gateway sim`);
+//! - [`timer`]: a timer finer than tokio's milliseconds for the lines' t3.5 and the paced link;
 //! - [`zenoh_bridge`]: telegrams, tag values, queries, writes, events and presence on zenoh;
 //! - [`api`]: the REST API under `/api/v1`, health, readiness and the OpenAPI document;
 //! - [`persist`]: the configuration file, replaced atomically with the previous version kept;
@@ -36,5 +37,6 @@ pub mod serial;
 pub mod signals;
 pub mod sim;
 pub mod tags;
+pub mod timer;
 pub mod unit;
 pub mod zenoh_bridge;

@@ -28,6 +28,7 @@ use super::{DeviceSettings, LineSettings};
 use crate::image::{ProcessImage, Quality, Table};
 use crate::metrics::RequestResult;
 use crate::serial::{self, Backoff};
+use crate::timer::LineTimer;
 
 /// The port could not be opened or set up: 003 7.2 event 02 0Fh "Interface could not be
 /// parameterized" (also for RS485 mode refused by the driver).
@@ -198,6 +199,10 @@ impl LineTask {
     async fn drive(&mut self, mut port: SerialStream) -> PortExit {
         let mut master = Master::new(self.settings.master);
         let char_time = self.settings.port.char_time();
+        // The master's deadlines are fractions of a millisecond apart: the t3.5 gap before each
+        // request (003 6.4.3), the end of a reply by t3.5 of silence, the turnaround after a
+        // broadcast (003 6.4.2.2). tokio's millisecond timer would add 1.2 ms to each.
+        let mut timer = LineTimer::new();
         let mut stopping = false;
         let mut buf = [0u8; 512];
         loop {
@@ -286,7 +291,7 @@ impl LineTask {
                     }
                     Err(err) => return PortExit::Lost(format!("read from {} failed: {err}", self.settings.port.path)),
                 },
-                () = sleep_until_opt(master_deadline) => {
+                () = timer.sleep_until_opt(master_deadline) => {
                     let (_, engine_now) = self.clock.now();
                     master.handle_timeout(engine_now);
                 }

@@ -23,7 +23,7 @@ use tokio::sync::broadcast;
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
-use super::driver::{sleep_until_opt, Clock};
+use super::driver::Clock;
 use super::line_metrics::{slave_result, LineMetrics, SLAVE_LINE_PARTNER};
 use super::modbus_master::{EVENT_PORT_LOST, EVENT_PORT_SETUP};
 use super::status::{LineEvent, LineStatus, Shared, DEFAULT_DIAG_DEPTH};
@@ -31,6 +31,7 @@ use super::{DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::cpmem::{CpMemoryUnit, SharedCpMemory};
 use crate::metrics::Metrics;
 use crate::serial::{self, Backoff, PortSettings};
+use crate::timer::LineTimer;
 
 /// Settings of one Modbus slave RTU line.
 #[derive(Clone, Debug)]
@@ -287,6 +288,9 @@ impl SlaveTask {
             self.settings.timing(),
             self.memory.clone(),
         );
+        // The slave's deadlines are fractions of a millisecond: the end of a request by t3.5 of
+        // silence (003 6.4.3) and the t3.5 before its answer; tokio's timer would add 1.2 ms.
+        let mut timer = LineTimer::new();
         let mut stopping = false;
         let mut buf = [0u8; 512];
         loop {
@@ -316,7 +320,7 @@ impl SlaveTask {
             tokio::select! {
                 biased;
                 () = self.shutdown.cancelled(), if !stopping => stopping = true,
-                () = sleep_until_opt(deadline) => {
+                () = timer.sleep_until_opt(deadline) => {
                     let (_, engine_now) = self.clock.now();
                     slave.handle_timeout(engine_now);
                 }

@@ -5,20 +5,25 @@
 //!   channel: when the writer's queue is full the reader stops reading, so the sender's writes
 //!   block as a full UART buffer would block them);
 //! - the writer schedules each byte ([`Schedule`]), sleeps until the first one is due and then
-//!   writes every byte whose delivery time has passed, in one write. The tokio timer wakes up to
-//!   about a millisecond late, so at high baud rates several bytes go out together; none goes out
-//!   before its time, because the writer compares with the clock itself, not with the timer.
+//!   writes every byte whose delivery time has passed, in one write. It sleeps on a
+//!   [`LineTimer`] (a timerfd on Linux), which wakes within tens of microseconds of the deadline
+//!   when a core is free, so each byte goes out on its own at its time and a gap inside a frame
+//!   is one character time plus that jitter (tokio's millisecond timer left gaps longer than
+//!   t3.5 inside a frame at high baud rates). When the writer wakes late (a busy machine), the
+//!   bytes due by then go out together; none goes out before its time, because the writer
+//!   compares with the clock itself, not with the timer.
 
 use std::collections::VecDeque;
 use std::sync::Arc;
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::mpsc;
-use tokio::time::{sleep_until, Instant};
+use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
 use super::schedule::Schedule;
 use super::{Direction, DirectionCounters, FaultAction, FaultHook, PacedSettings};
+use crate::timer::LineTimer;
 
 /// The largest chunk read at once.
 const READ_CHUNK: usize = 1024;
@@ -98,6 +103,7 @@ async fn write_side<W: AsyncWrite + Unpin>(
     let mut out = Vec::with_capacity(READ_CHUNK);
     let mut index: u64 = 0;
     let mut source_open = true;
+    let mut timer = LineTimer::new();
     loop {
         let head = pending.front().map(|&(due, _)| due);
         if !source_open && head.is_none() {
@@ -106,7 +112,7 @@ async fn write_side<W: AsyncWrite + Unpin>(
         tokio::select! {
             biased;
             () = parts.shutdown.cancelled() => return Ok(()),
-            () = sleep_until(head.unwrap_or_else(Instant::now)), if head.is_some() => {
+            () = timer.sleep_until_opt(head), if head.is_some() => {
                 collect_due(&mut pending, &mut out, &mut index, &parts);
                 if !out.is_empty() {
                     dst.write_all(&out).await?;

@@ -21,6 +21,8 @@ use tokio::task::JoinHandle;
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
+use crate::timer::LineTimer;
+
 /// Pause between two poll cycles by default.
 pub const DEFAULT_PERIOD: Duration = Duration::from_millis(500);
 /// How long the simulated master waits for an answer by default (shorter than the CP's 2000 ms,
@@ -191,6 +193,8 @@ async fn run<P: AsyncRead + AsyncWrite + Unpin>(
     let mut counter: u16 = 0;
     let mut next_cycle = Instant::now();
     let mut buf = [0u8; 512];
+    // The master's t3.5 gap and end of reply: finer than tokio's millisecond timer.
+    let mut timer = LineTimer::new();
     loop {
         let now = Instant::now();
         if master.poll_timeout().is_some_and(|t| tokio_at(t) <= now) {
@@ -271,7 +275,7 @@ async fn run<P: AsyncRead + AsyncWrite + Unpin>(
                 }
                 Ok(n) => master.handle_rx(engine(Instant::now()), buf.get(..n).unwrap_or_default()),
             },
-            () = sleep_until(deadline) => master.handle_timeout(engine(Instant::now())),
+            () = timer.sleep_until_opt(deadline) => master.handle_timeout(engine(Instant::now())),
             () = sleep_until(cycle) => {}
         }
     }

@@ -11,13 +11,14 @@ use std::time::Duration;
 
 use proto_core::modbus::rtu::{self, CharTiming, FrameLen};
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
-use tokio::time::{sleep, sleep_until, Instant};
+use tokio::time::Instant;
 use tokio_serial::SerialPortBuilderExt;
 use tokio_util::sync::CancellationToken;
 
 use super::altivar::AltivarSim;
 use super::ksvario::KsVarioSim;
 use super::{Faults, ModbusDevice};
+use crate::timer::LineTimer;
 
 /// How often the device's own clock advances (the drive's ramps, the time-out).
 const TICK: Duration = Duration::from_millis(100);
@@ -274,19 +275,35 @@ where
 {
     let mut pending: Vec<u8> = Vec::new();
     let mut chunk = [0u8; 512];
-    let mut silence_at: Option<Instant> = None;
+    // When the last bytes arrived, while a frame is incomplete.
+    let mut last_rx: Option<Instant> = None;
     let mut ticker = tokio::time::interval(TICK);
     ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
     let mut last_tick = Instant::now();
+    // The end of a frame by silence and the turnaround are t3.5 (1.75 ms at 115200 Bd): tokio's
+    // millisecond timer would make the device 1.2 ms slower than a real one.
+    let mut timer = LineTimer::new();
     loop {
         while let Some(frame) = take_frame(&mut pending) {
-            if !answer(&mut stream, &mut device, &frame, timing, &shutdown).await? {
+            // The frame's last byte just arrived: the answer starts t3.5 later at the earliest.
+            let not_before = Instant::now() + timing.t3_5();
+            if !answer(
+                &mut stream,
+                &mut device,
+                &frame,
+                not_before,
+                &mut timer,
+                &shutdown,
+            )
+            .await?
+            {
                 return Ok(());
             }
         }
         if pending.is_empty() {
-            silence_at = None;
+            last_rx = None;
         }
+        let silence_at = last_rx.map(|at| at + timing.t3_5());
         tokio::select! {
             biased;
             () = shutdown.cancelled() => return Ok(()),
@@ -296,16 +313,18 @@ where
                     return Ok(());
                 }
                 pending.extend_from_slice(chunk.get(..n).unwrap_or_default());
-                silence_at = Some(Instant::now() + timing.t3_5());
+                last_rx = Some(Instant::now());
             }
-            () = sleep_until(silence_at.unwrap_or_else(Instant::now)), if silence_at.is_some() => {
-                silence_at = None;
+            () = timer.sleep_until_opt(silence_at), if silence_at.is_some() => {
+                last_rx = None;
                 let frame = std::mem::take(&mut pending);
                 if frame.len() > MAX_PENDING {
                     tracing::debug!(len = frame.len(), "dropping noise");
                     continue;
                 }
-                if !answer(&mut stream, &mut device, &frame, timing, &shutdown).await? {
+                // t3.5 of silence has passed since the last byte: the answer may start now.
+                let not_before = Instant::now();
+                if !answer(&mut stream, &mut device, &frame, not_before, &mut timer, &shutdown).await? {
                     return Ok(());
                 }
             }
@@ -378,13 +397,15 @@ fn take_frame(pending: &mut Vec<u8>) -> Option<Vec<u8>> {
     }
 }
 
-/// Lets the device handle one frame and sends its answer after the turnaround. Returns false
-/// when shutdown came during the wait.
+/// Lets the device handle one frame and sends its answer at `not_before` (the end of the
+/// frame plus t3.5: 001 3.5 "Eine Antwort wird jedoch frühestens nach 3,5 Zeichen gestartet"),
+/// plus the fault delay. Returns false when shutdown came during the wait.
 async fn answer<S>(
     stream: &mut S,
     device: &mut impl ModbusDevice,
     frame: &[u8],
-    timing: CharTiming,
+    not_before: Instant,
+    timer: &mut LineTimer,
     shutdown: &CancellationToken,
 ) -> Result<bool, SimError>
 where
@@ -393,10 +414,10 @@ where
     let Some(reply) = device.handle_frame(frame) else {
         return Ok(true);
     };
-    let wait = timing.t3_5() + device.faults().delay;
+    let at = not_before + device.faults().delay;
     tokio::select! {
         () = shutdown.cancelled() => return Ok(false),
-        () = sleep(wait) => {}
+        () = timer.sleep_until(at) => {}
     }
     stream.write_all(&reply).await?;
     stream.flush().await?;
