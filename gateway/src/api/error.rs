@@ -305,6 +305,12 @@ impl IntoResponse for ApiError {
         if let Some(secs) = self.retry_after {
             headers.insert(header::RETRY_AFTER, HeaderValue::from(secs));
         }
+        if self.status == StatusCode::PAYLOAD_TOO_LARGE {
+            // The rest of the body was never read, so the server closes the connection after this
+            // answer; saying so keeps a client from sending its next request on a connection that
+            // is about to close (RFC 9110 15.5.14, RFC 9112 9.6).
+            headers.insert(header::CONNECTION, HeaderValue::from_static("close"));
+        }
         response
     }
 }

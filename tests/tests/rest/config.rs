@@ -198,6 +198,11 @@ async fn a_config_with_three_mistakes_gets_all_three() {
         too_big.body
     );
     assert_eq!(too_big.body["error"]["code"], "payload_too_large");
+    // The unread rest of the body ends the connection, and the answer says so.
+    assert_eq!(
+        too_big.headers.get("connection").map(|v| v.as_bytes()),
+        Some(&b"close"[..])
+    );
 
     // A valid configuration validates.
     let ok = api
