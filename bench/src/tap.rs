@@ -127,30 +127,15 @@ impl MasterTap {
         tokio::spawn(async move {
             let mut buf = [0u8; 512];
             let mut pending: Vec<u8> = Vec::new();
-            loop {
-                // Bytes of an unfinished answer are handed on after a long silence all the same.
-                let limit = if pending.is_empty() {
-                    Duration::MAX
-                } else {
-                    FLUSH_AFTER
-                };
-                let read = tokio::select! {
-                    () = shutdown.cancelled() => return,
-                    read = tokio::time::timeout(limit, from_link.read(&mut buf)) => read,
-                };
-                let whole = match read {
-                    Ok(Ok(0) | Err(_)) => return,
-                    Ok(Ok(n)) => {
-                        pending.extend_from_slice(buf.get(..n).unwrap_or_default());
-                        match rtu::expected_response_len(&pending) {
-                            FrameLen::Complete(len) => len,
-                            FrameLen::NeedMore(_) => continue,
-                            FrameLen::Unknown => pending.len(),
-                        }
-                    }
-                    Err(_) => pending.len(),
-                };
-                let answer: Vec<u8> = pending.drain(..whole.min(pending.len())).collect();
+            while let Some(answer) = next_frame(
+                &mut from_link,
+                &mut buf,
+                &mut pending,
+                &shutdown,
+                rtu::expected_response_len,
+            )
+            .await
+            {
                 if to_master.write_all(&answer).await.is_err() {
                     return;
                 }
@@ -239,29 +224,15 @@ where
     tokio::spawn(async move {
         let mut buf = [0u8; 512];
         let mut pending: Vec<u8> = Vec::new();
-        loop {
-            let limit = if pending.is_empty() {
-                Duration::MAX
-            } else {
-                FLUSH_AFTER
-            };
-            let read = tokio::select! {
-                () = down_stop.cancelled() => return,
-                read = tokio::time::timeout(limit, from_link.read(&mut buf)) => read,
-            };
-            let whole = match read {
-                Ok(Ok(0) | Err(_)) => return,
-                Ok(Ok(n)) => {
-                    pending.extend_from_slice(buf.get(..n).unwrap_or_default());
-                    match rtu::expected_request_len(&pending) {
-                        FrameLen::Complete(len) => len,
-                        FrameLen::NeedMore(_) => continue,
-                        FrameLen::Unknown => pending.len(),
-                    }
-                }
-                Err(_) => pending.len(),
-            };
-            let request: Vec<u8> = pending.drain(..whole.min(pending.len())).collect();
+        while let Some(request) = next_frame(
+            &mut from_link,
+            &mut buf,
+            &mut pending,
+            &down_stop,
+            rtu::expected_request_len,
+        )
+        .await
+        {
             if to_device.write_all(&request).await.is_err() {
                 return;
             }
@@ -292,4 +263,40 @@ where
         }
     });
     (device, log)
+}
+
+/// The next whole RTU frame read from `from`, its length told by `frame_len` (the function code
+/// and byte count); bytes of an unfinished frame are handed on after a silence of `FLUSH_AFTER`
+/// all the same. `None` when the stream ends or fails, or `stop` fires.
+async fn next_frame<R: AsyncRead + Unpin>(
+    from: &mut R,
+    buf: &mut [u8],
+    pending: &mut Vec<u8>,
+    stop: &CancellationToken,
+    frame_len: fn(&[u8]) -> FrameLen,
+) -> Option<Vec<u8>> {
+    loop {
+        let limit = if pending.is_empty() {
+            Duration::MAX
+        } else {
+            FLUSH_AFTER
+        };
+        let read = tokio::select! {
+            () = stop.cancelled() => return None,
+            read = tokio::time::timeout(limit, from.read(buf)) => read,
+        };
+        let whole = match read {
+            Ok(Ok(0) | Err(_)) => return None,
+            Ok(Ok(n)) => {
+                pending.extend_from_slice(buf.get(..n).unwrap_or_default());
+                match frame_len(pending) {
+                    FrameLen::Complete(len) => len,
+                    FrameLen::NeedMore(_) => continue,
+                    FrameLen::Unknown => pending.len(),
+                }
+            }
+            Err(_) => pending.len(),
+        };
+        return Some(pending.drain(..whole.min(pending.len())).collect());
+    }
 }
