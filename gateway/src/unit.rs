@@ -25,6 +25,21 @@ pub trait UnitService: Send + Sync + 'static {
     /// that does not answer gives `GatewayTargetFailedToRespond` (0x0B), a full write queue
     /// `ServerDeviceBusy` (0x06).
     fn call(&self, request: Request) -> UnitFuture;
+
+    /// Answers `request` at once when that needs no waiting (a read served from the process
+    /// image): appends the response PDU, function code first, to `out` and gives `Some(Ok(()))`,
+    /// or gives `Some(Err(code))` for an exception, with nothing appended. `None` (the default,
+    /// and nothing appended either) means the answer takes [`Self::call`]. An answer given here
+    /// must be the one `call` would give; the Modbus TCP server tries this first on every request
+    /// and saves the boxed future, the response's allocations and the request timer.
+    fn answer_now(
+        &self,
+        request: &Request,
+        out: &mut Vec<u8>,
+    ) -> Option<Result<(), ExceptionCode>> {
+        let _ = (request, out);
+        None
+    }
 }
 
 /// The unit ids the server knows, each with its service.

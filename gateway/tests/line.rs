@@ -184,6 +184,23 @@ fn event_count(line: &LineHandle, id: EventId) -> u64 {
     line.status().event_counts.get(&id).copied().unwrap_or(0)
 }
 
+/// The unit's answer given at once (`UnitService::answer_now`): the response PDU or exception.
+fn answer_now(unit: &dyn UnitService, request: &Request) -> Option<Result<Vec<u8>, ExceptionCode>> {
+    let mut out = Vec::new();
+    let answer = unit.answer_now(request, &mut out)?;
+    if answer.is_err() {
+        assert!(out.is_empty(), "nothing appended with an exception");
+    }
+    Some(answer.map(|()| out))
+}
+
+/// A response PDU as the Modbus TCP server sends it.
+fn encoded(response: &Response) -> Vec<u8> {
+    let mut out = Vec::new();
+    response.encode(&mut out);
+    out
+}
+
 async fn stop(line: LineHandle, shutdown: CancellationToken) {
     shutdown.cancel();
     tokio::time::timeout(Duration::from_secs(5), line.join())
@@ -263,6 +280,31 @@ async fn the_line_polls_the_device_and_the_image_fills() {
         })
         .await;
     assert_eq!(answer, Ok(Response::ReadHoldingRegisters(vec![600, 500])));
+    // The same answer at once, encoded from the image; what is not a polled read takes `call`.
+    let read = Request::ReadHoldingRegisters {
+        address: 3103,
+        quantity: 2,
+    };
+    assert_eq!(
+        answer_now(&unit, &read),
+        Some(Ok(encoded(&Response::ReadHoldingRegisters(vec![600, 500]))))
+    );
+    for request in [
+        Request::ReadHoldingRegisters {
+            address: 3105,
+            quantity: 2,
+        },
+        Request::ReadInputRegisters {
+            address: 3103,
+            quantity: 2,
+        },
+        Request::WriteSingleRegister {
+            address: 3103,
+            value: 1,
+        },
+    ] {
+        assert_eq!(answer_now(&unit, &request), None, "{request:?}");
+    }
     stop(line, shutdown).await;
 }
 
@@ -443,6 +485,14 @@ async fn a_silent_device_goes_offline_answers_0x0b_and_the_other_keeps_its_rate(
         })
         .await;
     assert_eq!(answer, Err(ExceptionCode::GatewayTargetFailedToRespond));
+    let read = Request::ReadHoldingRegisters {
+        address: 3201,
+        quantity: 1,
+    };
+    assert_eq!(
+        answer_now(&flaky_unit, &read),
+        Some(Err(ExceptionCode::GatewayTargetFailedToRespond))
+    );
     let answer = flaky_unit
         .call(Request::WriteSingleRegister {
             address: 3201,
@@ -459,6 +509,10 @@ async fn a_silent_device_goes_offline_answers_0x0b_and_the_other_keeps_its_rate(
             })
             .await,
         Ok(Response::ReadHoldingRegisters(vec![7]))
+    );
+    assert_eq!(
+        answer_now(&good_unit, &read),
+        Some(Ok(encoded(&Response::ReadHoldingRegisters(vec![7]))))
     );
 
     // Over 2 s at a 50 ms period the good device is polled about 40 times. The silent one costs a

@@ -13,8 +13,10 @@
 //! how many from `RecvError::Lagged` (tokio's broadcast policy), so nothing is dropped silently.
 
 mod quality;
+mod read;
+mod runs;
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::HashMap;
 use std::sync::{Arc, PoisonError, RwLock};
 use std::time::{Duration, SystemTime};
 
@@ -22,6 +24,7 @@ use tokio::sync::broadcast;
 use tokio::time::Instant;
 
 pub use quality::{Quality, Table};
+use runs::Runs;
 
 /// How many poll periods a value stays fresh by default.
 pub const DEFAULT_STALE_FACTOR: u32 = 3;
@@ -80,15 +83,15 @@ impl Slot {
 /// The four tables of one unit.
 #[derive(Debug, Default)]
 struct UnitImage {
-    tables: [BTreeMap<u16, Slot>; 4],
+    tables: [Runs; 4],
 }
 
 impl UnitImage {
-    fn table(&self, table: Table) -> &BTreeMap<u16, Slot> {
+    fn table(&self, table: Table) -> &Runs {
         &self.tables[table_index(table)]
     }
 
-    fn table_mut(&mut self, table: Table) -> &mut BTreeMap<u16, Slot> {
+    fn table_mut(&mut self, table: Table) -> &mut Runs {
         &mut self.tables[table_index(table)]
     }
 }
@@ -310,6 +313,9 @@ impl ProcessImage {
         let now = Instant::now();
         let wall = SystemTime::now();
         let max_age = period.map(|p| p.saturating_mul(self.inner.stale_factor));
+        // Stores stop at the last address instead of wrapping.
+        let values: Vec<u16> = (start..=u16::MAX).zip(values).map(|(_, v)| v).collect();
+        let end = u32::from(start) + u32::try_from(values.len()).unwrap_or(u32::MAX);
         let mut changes: Vec<Change> = Vec::new();
         {
             let mut units = self
@@ -321,28 +327,43 @@ impl ProcessImage {
                 return;
             }
             let slots = units.entry(unit).or_default().table_mut(table);
-            // The run of consecutive stored addresses being built, and whether it changed.
-            let mut run: Option<(Change, bool)> = None;
-            for (address, value) in (start..=u16::MAX).zip(values) {
-                let old = slots.get(&address).copied();
-                let max_age = match old {
-                    Some(old) if existing_only => old.max_age,
-                    None if existing_only => {
-                        changes.extend(run.take().filter(|(_, changed)| *changed).map(|(c, _)| c));
-                        continue;
-                    }
-                    _ => max_age,
-                };
-                slots.insert(
-                    address,
-                    Slot {
+            let old = slots.stored(start, values.len());
+            let new: Vec<Option<Slot>> = values
+                .iter()
+                .zip(&old)
+                .map(|(&value, old)| {
+                    let max_age = match old {
+                        Some(old) if existing_only => old.max_age,
+                        None if existing_only => return None,
+                        _ => max_age,
+                    };
+                    Some(Slot {
                         value,
                         quality,
                         updated: wall,
                         at: now,
                         max_age,
-                    },
-                );
+                    })
+                })
+                .collect();
+            if existing_only {
+                for (address, slot) in slots.stored_mut(start, end) {
+                    if let Some(Some(new)) = new.get(usize::from(address - start)) {
+                        *slot = *new;
+                    }
+                }
+            } else {
+                let new: Vec<Slot> = new.iter().flatten().copied().collect();
+                slots.put(start, &new);
+            }
+            // The run of consecutive stored addresses being built, and whether it changed.
+            let mut run: Option<(Change, bool)> = None;
+            for ((address, new), old) in (start..=u16::MAX).zip(&new).zip(&old) {
+                let Some(new) = new else {
+                    changes.extend(run.take().filter(|(_, changed)| *changed).map(|(c, _)| c));
+                    continue;
+                };
+                let value = new.value;
                 let changed =
                     old.is_none_or(|o| o.value != value || o.effective_quality(now) != quality);
                 match run.as_mut() {
@@ -406,7 +427,7 @@ impl ProcessImage {
             for table in Table::ALL {
                 // Collect runs of consecutive changed addresses into one change each.
                 let mut run: Option<Change> = None;
-                for (&address, slot) in image.table_mut(table).iter_mut() {
+                for (address, slot) in image.table_mut(table).iter_mut() {
                     if !select(table, address) || slot.effective_quality(now) == quality {
                         continue;
                     }
@@ -443,88 +464,6 @@ impl ProcessImage {
         let _ = self.inner.changes.send(change);
     }
 
-    /// Reads a range of registers: all values, the worst quality and the oldest time.
-    pub fn read_words(
-        &self,
-        unit: u8,
-        table: Table,
-        start: u16,
-        count: u16,
-    ) -> Result<RangeRead<u16>, ImageError> {
-        self.read(unit, table, start, count, |v| v)
-    }
-
-    /// Reads a range of bits (see [`Self::read_words`]).
-    pub fn read_bits(
-        &self,
-        unit: u8,
-        table: Table,
-        start: u16,
-        count: u16,
-    ) -> Result<RangeRead<bool>, ImageError> {
-        self.read(unit, table, start, count, |v| v != 0)
-    }
-
-    fn read<T>(
-        &self,
-        unit: u8,
-        table: Table,
-        start: u16,
-        count: u16,
-        convert: impl Fn(u16) -> T,
-    ) -> Result<RangeRead<T>, ImageError> {
-        let invalid = ImageError::InvalidRange { start, count };
-        let last = (u32::from(start) + u32::from(count))
-            .checked_sub(1)
-            .ok_or(invalid.clone())?;
-        let last = u16::try_from(last).map_err(|_| invalid.clone())?;
-        if count == 0 {
-            return Err(invalid);
-        }
-        let now = Instant::now();
-        let units = self
-            .inner
-            .units
-            .read()
-            .unwrap_or_else(PoisonError::into_inner);
-        let slots = units
-            .get(&unit)
-            .ok_or(ImageError::UnknownUnit(unit))?
-            .table(table);
-        let mut values = Vec::with_capacity(usize::from(count));
-        let mut quality = Quality::Good;
-        let mut oldest: Option<(Instant, SystemTime)> = None;
-        let mut expected = start;
-        for (&address, slot) in slots.range(start..=last) {
-            if address != expected {
-                return Err(ImageError::Missing {
-                    unit,
-                    table,
-                    address: expected,
-                });
-            }
-            values.push(convert(slot.value));
-            quality = quality.worst(slot.effective_quality(now));
-            if oldest.is_none_or(|(at, _)| slot.at < at) {
-                oldest = Some((slot.at, slot.updated));
-            }
-            expected = expected.wrapping_add(1);
-        }
-        match oldest {
-            Some((oldest_at, oldest)) if values.len() == usize::from(count) => Ok(RangeRead {
-                values,
-                quality,
-                oldest,
-                oldest_at,
-            }),
-            _ => Err(ImageError::Missing {
-                unit,
-                table,
-                address: expected,
-            }),
-        }
-    }
-
     /// Every stored value of one table of a unit, in address order (for REST and diagnostics).
     pub fn snapshot(&self, unit: u8, table: Table) -> Vec<SlotView> {
         let now = Instant::now();
@@ -537,7 +476,7 @@ impl ProcessImage {
             image
                 .table(table)
                 .iter()
-                .map(|(&address, slot)| SlotView {
+                .map(|(address, slot)| SlotView {
                     address,
                     value: slot.value,
                     quality: slot.effective_quality(now),

@@ -266,3 +266,124 @@ async fn refresh_updates_only_values_already_in_the_image_and_keeps_their_period
     image.refresh_bits(3, Table::Coils, 0, &[true]);
     assert_eq!(image.units(), vec![2]);
 }
+
+/// A read response's PDU (0xEE for the function code) and quality, or why there is none.
+type Encoded = Result<(Vec<u8>, Quality), ImageError>;
+
+/// `encode_read` of a range: the response data and quality, checked against `read_words` or
+/// `read_bits` encoded by proto-core.
+fn encoded_and_expected(
+    image: &ProcessImage,
+    table: Table,
+    start: u16,
+    count: u16,
+) -> (Encoded, Encoded) {
+    use proto_core::modbus::pdu::Response;
+    let mut out = vec![0xEE];
+    let encoded = image
+        .encode_read(7, table, start, count, &mut out)
+        .map(|quality| (out.clone(), quality));
+    if encoded.is_err() {
+        assert_eq!(out, [0xEE], "nothing appended on an error");
+    }
+    let expected = if table.is_bits() {
+        image.read_bits(7, table, start, count).map(|r| {
+            let mut pdu = Vec::new();
+            Response::ReadCoils(r.values).encode(&mut pdu);
+            (pdu, r.quality)
+        })
+    } else {
+        image.read_words(7, table, start, count).map(|r| {
+            let mut pdu = Vec::new();
+            Response::ReadHoldingRegisters(r.values).encode(&mut pdu);
+            (pdu, r.quality)
+        })
+    };
+    // The function code in front: 0xEE stood for it.
+    let expected = expected.map(|(mut pdu, quality)| {
+        pdu[0] = 0xEE;
+        (pdu, quality)
+    });
+    (encoded, expected)
+}
+
+#[tokio::test(start_paused = true)]
+async fn encoded_reads_are_the_responses_of_the_range_reads() {
+    let image = ProcessImage::new(ImageConfig {
+        stale_factor: 2,
+        notify_capacity: 8,
+    });
+    let fast = Some(Duration::from_millis(100));
+    let slow = Some(Duration::from_millis(1000));
+    let words: Vec<u16> = (0..135).map(|v| (v * 0x0101) ^ 0x8000).collect();
+    image.store_words(7, Table::InputRegisters, 0, &words, fast);
+    image.store_words(7, Table::InputRegisters, 200, &[1, 2, 3], slow);
+    image.store_words(7, Table::InputRegisters, 203, &[4, 5], fast);
+    image.store_with_quality(
+        7,
+        Table::InputRegisters,
+        300,
+        &[9, 9],
+        Quality::OutOfRange,
+        fast,
+    );
+    image.store_words(7, Table::InputRegisters, 302, &[8], None);
+    let bits: Vec<bool> = (0..2041).map(|i| i % 3 == 0 || i % 7 == 0).collect();
+    image.store_bits(7, Table::Coils, 10, &bits, fast);
+    image.set_quality(7, Table::Coils, 20, 1, Quality::Rejected);
+
+    let ranges = [
+        (Table::InputRegisters, 0, 125),
+        (Table::InputRegisters, 5, 127),
+        (Table::InputRegisters, 200, 5),
+        (Table::InputRegisters, 300, 3),
+        (Table::Coils, 10, 1),
+        (Table::Coils, 10, 9),
+        (Table::Coils, 11, 2000),
+        (Table::Coils, 21, 2000),
+    ];
+    for step in [0, 150, 100, 1000] {
+        tokio::time::advance(Duration::from_millis(step)).await;
+        for (table, start, count) in ranges {
+            let (encoded, expected) = encoded_and_expected(&image, table, start, count);
+            assert!(expected.is_ok(), "{table} {start}+{count}");
+            assert_eq!(encoded, expected, "{table} {start}+{count} after {step} ms");
+        }
+    }
+    // After 1250 ms the good values polled are stale; a special value keeps its quality.
+    let quality = |start, count| {
+        let (encoded, _) = encoded_and_expected(&image, Table::InputRegisters, start, count);
+        encoded.map(|(_, q)| q)
+    };
+    assert_eq!(quality(0, 125), Ok(Quality::Stale));
+    assert_eq!(quality(300, 3), Ok(Quality::OutOfRange));
+
+    for (table, start, count) in [
+        (Table::InputRegisters, 133, 5),
+        (Table::InputRegisters, 199, 2),
+        (Table::HoldingRegisters, 0, 1),
+        (Table::InputRegisters, 0xFFFF, 2),
+        (Table::InputRegisters, 0, 0),
+    ] {
+        let (encoded, expected) = encoded_and_expected(&image, table, start, count);
+        assert!(expected.is_err());
+        assert_eq!(
+            encoded.map(|_| ()),
+            expected.map(|_| ()),
+            "{table} {start}+{count}"
+        );
+    }
+    let mut out = Vec::new();
+    assert_eq!(
+        image.encode_read(8, Table::InputRegisters, 0, 1, &mut out),
+        Err(ImageError::UnknownUnit(8))
+    );
+    // Byte counts that do not fit their byte.
+    for (table, count) in [(Table::InputRegisters, 128), (Table::Coils, 2041)] {
+        assert_eq!(
+            image.encode_read(7, table, 0, count, &mut out),
+            Err(ImageError::InvalidRange { start: 0, count })
+        );
+    }
+    assert!(out.is_empty());
+}

@@ -15,18 +15,72 @@ use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 use super::command::LineClient;
 use super::status::Shared;
 use super::{AddrRange, DeviceSettings};
-use crate::image::{ImageError, ProcessImage, Table};
+use crate::image::{ImageError, ProcessImage, Quality, Table};
 use crate::unit::{UnitFuture, UnitService};
 
 /// One polled device served under its unit id; cheap to clone.
 #[derive(Clone, Debug)]
 pub struct DeviceUnit {
     device: Arc<DeviceSettings>,
+    /// What the device's poll groups cover, for the read of every request.
+    polled: Arc<Polled>,
     /// Index of the device in its line's status.
     index: usize,
     shared: Arc<Shared>,
     client: LineClient,
     image: ProcessImage,
+}
+
+/// The addresses polled in each table, as sorted intervals `start..end` that neither overlap nor
+/// touch: [`DeviceSettings::is_polled`] with one binary search instead of a walk over the groups
+/// for every address.
+#[derive(Debug, PartialEq)]
+struct Polled {
+    tables: [Vec<(u32, u32)>; 4],
+}
+
+// === impl Polled ===
+
+impl Polled {
+    fn new(device: &DeviceSettings) -> Self {
+        let tables = Table::ALL.map(|table| {
+            let mut ranges: Vec<(u32, u32)> = device
+                .groups
+                .iter()
+                .filter(|g| g.table == table)
+                .flat_map(|g| g.ranges.iter())
+                .filter(|r| r.count > 0)
+                .map(|r| (u32::from(r.start), r.end()))
+                .collect();
+            ranges.sort_unstable();
+            let mut merged: Vec<(u32, u32)> = Vec::with_capacity(ranges.len());
+            for (start, end) in ranges {
+                match merged.last_mut() {
+                    Some(last) if start <= last.1 => last.1 = last.1.max(end),
+                    _ => merged.push((start, end)),
+                }
+            }
+            merged
+        });
+        Self { tables }
+    }
+
+    /// Whether every address of `range` in `table` is polled.
+    fn covers(&self, table: Table, range: AddrRange) -> bool {
+        let [coils, discrete_inputs, holding_registers, input_registers] = &self.tables;
+        let intervals = match table {
+            Table::Coils => coils,
+            Table::DiscreteInputs => discrete_inputs,
+            Table::HoldingRegisters => holding_registers,
+            Table::InputRegisters => input_registers,
+        };
+        let start = u32::from(range.start);
+        // The last interval starting at or before `start`.
+        let at = intervals.partition_point(|&(first, _)| first <= start);
+        at.checked_sub(1)
+            .and_then(|i| intervals.get(i))
+            .is_some_and(|&(_, end)| range.end() <= end)
+    }
 }
 
 /// How a read is answered.
@@ -51,6 +105,7 @@ impl DeviceUnit {
         image: ProcessImage,
     ) -> Self {
         Self {
+            polled: Arc::new(Polled::new(&device)),
             device,
             index,
             shared,
@@ -69,7 +124,9 @@ impl DeviceUnit {
         self.device.unit_id
     }
 
-    fn answer_from_image(&self, request: &Request) -> ImageAnswer {
+    /// The table and range of a read of polled addresses; `None` for anything else (it goes to
+    /// the device).
+    fn polled_read(&self, request: &Request) -> Option<(Table, u16, u16)> {
         let (table, address, quantity) = match *request {
             Request::ReadCoils { address, quantity } => (Table::Coils, address, quantity),
             Request::ReadDiscreteInputs { address, quantity } => {
@@ -81,15 +138,16 @@ impl DeviceUnit {
             Request::ReadInputRegisters { address, quantity } => {
                 (Table::InputRegisters, address, quantity)
             }
-            _ => return ImageAnswer::OnDemand,
+            _ => return None,
         };
-        if quantity == 0
-            || !self
-                .device
-                .is_polled(table, AddrRange::new(address, quantity))
-        {
+        (quantity > 0 && self.polled.covers(table, AddrRange::new(address, quantity)))
+            .then_some((table, address, quantity))
+    }
+
+    fn answer_from_image(&self, request: &Request) -> ImageAnswer {
+        let Some((table, address, quantity)) = self.polled_read(request) else {
             return ImageAnswer::OnDemand;
-        }
+        };
         let unit = self.device.unit_id;
         let online = self.shared.device_online(self.index);
         let read = if table.is_bits() {
@@ -118,7 +176,7 @@ impl DeviceUnit {
         match read {
             Ok((response, quality)) if online && quality.is_live() => ImageAnswer::Answer(response),
             // The poll of this range was answered with an exception: let the device answer.
-            Ok((_, crate::image::Quality::Rejected)) if online => ImageAnswer::OnDemand,
+            Ok((_, Quality::Rejected)) if online => ImageAnswer::OnDemand,
             Ok(_) => ImageAnswer::Fail(ExceptionCode::GatewayTargetFailedToRespond),
             // Polled but not read yet: ask the device unless it is known to be offline.
             Err(ImageError::Missing { .. } | ImageError::UnknownUnit(_)) if online => {
@@ -130,6 +188,36 @@ impl DeviceUnit {
 }
 
 impl UnitService for DeviceUnit {
+    /// A read of polled addresses encoded straight from the image, with the same answers as
+    /// [`Self::call`]: the values while live and the device online, 0x0B when stale or offline;
+    /// `None` (the device answers) when the poll was refused or has not been read yet, and for
+    /// everything that is not such a read.
+    fn answer_now(
+        &self,
+        request: &Request,
+        out: &mut Vec<u8>,
+    ) -> Option<Result<(), ExceptionCode>> {
+        let (table, address, quantity) = self.polled_read(request)?;
+        let online = self.shared.device_online(self.index);
+        let mark = out.len();
+        out.push(request.function().0);
+        let answer =
+            match self
+                .image
+                .encode_read(self.device.unit_id, table, address, quantity, out)
+            {
+                Ok(quality) if online && quality.is_live() => return Some(Ok(())),
+                Ok(Quality::Rejected) if online => None,
+                Ok(_) => Some(Err(ExceptionCode::GatewayTargetFailedToRespond)),
+                Err(ImageError::Missing { .. } | ImageError::UnknownUnit(_)) if online => None,
+                // Past the address space or the byte count: `call` decides.
+                Err(ImageError::InvalidRange { .. }) => None,
+                Err(_) => Some(Err(ExceptionCode::GatewayTargetFailedToRespond)),
+            };
+        out.truncate(mark);
+        answer
+    }
+
     fn call(&self, request: Request) -> UnitFuture {
         match self.answer_from_image(&request) {
             ImageAnswer::Answer(response) => Box::pin(std::future::ready(Ok(response))),
@@ -138,6 +226,43 @@ impl UnitService for DeviceUnit {
                 let client = self.client.clone();
                 let slave = self.device.slave;
                 Box::pin(async move { client.request(slave, request).await })
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::Duration;
+
+    use super::*;
+    use crate::line::PollGroup;
+
+    #[test]
+    fn polled_intervals_answer_as_the_poll_groups_do() {
+        let group = |ms, table, ranges: &[(u16, u16)]| PollGroup {
+            period: Duration::from_millis(ms),
+            table,
+            ranges: ranges.iter().map(|&(s, c)| AddrRange::new(s, c)).collect(),
+        };
+        let mut device = DeviceSettings::new("d", 1, 1);
+        device.groups = vec![
+            group(100, Table::HoldingRegisters, &[(0, 10), (10, 10), (30, 5)]),
+            group(500, Table::HoldingRegisters, &[(32, 8), (100, 100)]),
+            group(100, Table::InputRegisters, &[(5, 1)]),
+            group(100, Table::Coils, &[(65_500, 36)]),
+        ];
+        let polled = Polled::new(&device);
+        for table in Table::ALL {
+            for start in (0..=210).chain(65_490..=65_535) {
+                for count in [1, 2, 5, 10, 20, 36, 125] {
+                    let range = AddrRange::new(start, count);
+                    assert_eq!(
+                        polled.covers(table, range),
+                        device.is_polled(table, range),
+                        "{table} {start}+{count}"
+                    );
+                }
             }
         }
     }

@@ -393,9 +393,14 @@ impl Metrics {
 
     /// Counts one Modbus TCP request with function code `function` and its answer.
     pub fn tcp_request(&self, function: u8, result: RequestResult) {
+        self.tcp_request_series(function, result).inc();
+    }
+
+    /// The series [`Self::tcp_request`] counts into, to keep and count into without looking it
+    /// up (by its labels, under the family's lock) for every request.
+    pub fn tcp_request_series(&self, function: u8, result: RequestResult) -> IntCounter {
         self.tcp_requests
             .with_label_values(&[function_label(function), result.as_str()])
-            .inc();
     }
 
     // --- zenoh ---

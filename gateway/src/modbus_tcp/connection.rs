@@ -4,6 +4,9 @@
 //! [`FrameReader`] and their responses leave in the order the requests came. The idle deadline
 //! moves only when a request has been answered, so a client that trickles bytes without finishing
 //! a frame is closed as idle as well.
+//!
+//! The response is built in one buffer per connection (header room, then the PDU the unit writes)
+//! and leaves in one write.
 
 use std::net::SocketAddr;
 use std::sync::Arc;
@@ -11,11 +14,11 @@ use std::sync::Arc;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::sync::OwnedSemaphorePermit;
-use tokio::time::{timeout_at, Instant};
+use tokio::time::{sleep_until, Instant};
 use tokio_util::sync::CancellationToken;
 use tracing::{debug, warn};
 
-use super::mbap::{encode_frame, FrameReader, MbapError, MAX_ADU_LEN};
+use super::mbap::{complete_frame, FrameReader, MbapError, HEADER_LEN, MAX_ADU_LEN};
 use super::request::{answer, Shared};
 use super::stats::{CloseReason, FrameReject, OpenConnection};
 
@@ -35,6 +38,9 @@ pub(crate) async fn run(
     _permit: OwnedSemaphorePermit,
     _open: OpenConnection,
 ) {
+    // A token of its own: the connection asks it after every request and waits on it, which on
+    // the server's token would take a lock that every connection shares.
+    let shutdown = shutdown.child_token();
     let reason = serve(&mut stream, peer, &shared, &shutdown).await;
     debug!(%peer, ?reason, "connection closed");
     shared.stats.count_closed(reason);
@@ -51,9 +57,16 @@ async fn serve(
     let idle = shared.options.idle_timeout;
     let mut reader = FrameReader::new();
     let mut chunk = [0u8; READ_CHUNK];
-    let mut pdu = Vec::with_capacity(MAX_ADU_LEN);
+    // The response ADU: the header's room, then the PDU written by `answer`.
     let mut adu = Vec::with_capacity(MAX_ADU_LEN);
     let mut deadline = deadline_after(idle);
+    // One timer and one shutdown waiter for the connection's life, not one per request: the
+    // timer is armed for the deadline it had when armed, and when it fires early (the deadline
+    // moved since) it is set again.
+    let idle_timer = sleep_until(deadline);
+    tokio::pin!(idle_timer);
+    let cancelled = shutdown.cancelled();
+    tokio::pin!(cancelled);
     loop {
         // Answer every complete frame already received, in order.
         loop {
@@ -70,52 +83,84 @@ async fn serve(
                 }
             };
             let header = frame.header;
-            if let Err(reject) = answer(shared, header.unit_id, frame.pdu, &mut pdu).await {
+            adu.clear();
+            adu.resize(HEADER_LEN, 0);
+            if let Err(reject) = answer(shared, header.unit_id, frame.pdu, &mut adu).await {
                 warn!(%peer, transaction_id = header.transaction_id, "frame without function code, closing the connection");
                 shared.stats.count_frame_rejected(reject);
                 return CloseReason::BadFrame;
             }
-            adu.clear();
             // `answer` never gives more than `MAX_PDU_LEN` bytes.
-            if !encode_frame(header, &pdu, &mut adu) {
+            if !complete_frame(header, &mut adu) {
                 return CloseReason::BadFrame;
             }
-            match tokio::time::timeout(idle, stream.write_all(&adu)).await {
-                Ok(Ok(())) => {}
-                Ok(Err(error)) => {
-                    debug!(%peer, %error, "write failed");
-                    return CloseReason::Io;
-                }
-                Err(_) => {
-                    debug!(%peer, "client does not take its responses");
-                    return CloseReason::Idle;
-                }
+            if let Err(reason) = write_response(stream, peer, &adu, idle).await {
+                return reason;
             }
             deadline = deadline_after(idle);
             if shutdown.is_cancelled() {
                 return CloseReason::Shutdown;
             }
         }
+        // A request that is there is read before a shutdown is noticed: it is answered, and the
+        // check after the answer closes the connection.
         let read = tokio::select! {
-            () = shutdown.cancelled() => return CloseReason::Shutdown,
-            read = timeout_at(deadline, stream.read(&mut chunk)) => read,
+            biased;
+            read = stream.read(&mut chunk) => read,
+            () = &mut cancelled => return CloseReason::Shutdown,
+            () = &mut idle_timer => {
+                if idle_timer.deadline() >= deadline {
+                    debug!(%peer, partial = reader.buffered(), "idle timeout");
+                    return CloseReason::Idle;
+                }
+                idle_timer.as_mut().reset(deadline);
+                continue;
+            }
         };
         match read {
-            Ok(Ok(0)) => {
+            Ok(0) => {
                 if reader.buffered() > 0 {
                     debug!(%peer, bytes = reader.buffered(), "client closed inside a frame");
                 }
                 return CloseReason::Peer;
             }
-            Ok(Ok(n)) => reader.extend(chunk.get(..n).unwrap_or_default()),
-            Ok(Err(error)) => {
+            Ok(n) => reader.extend(chunk.get(..n).unwrap_or_default()),
+            Err(error) => {
                 debug!(%peer, %error, "read failed");
                 return CloseReason::Io;
             }
-            Err(_) => {
-                debug!(%peer, partial = reader.buffered(), "idle timeout");
-                return CloseReason::Idle;
-            }
+        }
+    }
+}
+
+/// Writes a response: at once when the socket takes it whole (the usual case, no timer), else
+/// the rest within `idle`. `Err`: why the connection closes.
+async fn write_response(
+    stream: &mut TcpStream,
+    peer: SocketAddr,
+    adu: &[u8],
+    idle: std::time::Duration,
+) -> Result<(), CloseReason> {
+    let written = match stream.try_write(adu) {
+        Ok(n) => n,
+        Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => 0,
+        Err(error) => {
+            debug!(%peer, %error, "write failed");
+            return Err(CloseReason::Io);
+        }
+    };
+    let Some(rest) = adu.get(written..).filter(|rest| !rest.is_empty()) else {
+        return Ok(());
+    };
+    match tokio::time::timeout(idle, stream.write_all(rest)).await {
+        Ok(Ok(())) => Ok(()),
+        Ok(Err(error)) => {
+            debug!(%peer, %error, "write failed");
+            Err(CloseReason::Io)
+        }
+        Err(_) => {
+            debug!(%peer, "client does not take its responses");
+            Err(CloseReason::Idle)
         }
     }
 }

@@ -109,14 +109,19 @@ impl MbapHeader {
         HEADER_LEN + self.pdu_len
     }
 
-    /// Appends the 7 header bytes to `out`.
-    pub fn encode(self, out: &mut Vec<u8>) {
+    /// The 7 header bytes.
+    pub fn to_bytes(self) -> [u8; HEADER_LEN] {
         // `pdu_len` <= 253 for every header built by `check` or `reply`; saturate otherwise.
         let length = u16::try_from(self.pdu_len + 1).unwrap_or(u16::MAX);
-        out.extend_from_slice(&self.transaction_id.to_be_bytes());
-        out.extend_from_slice(&PROTOCOL_ID_MODBUS.to_be_bytes());
-        out.extend_from_slice(&length.to_be_bytes());
-        out.push(self.unit_id);
+        let [t0, t1] = self.transaction_id.to_be_bytes();
+        let [p0, p1] = PROTOCOL_ID_MODBUS.to_be_bytes();
+        let [l0, l1] = length.to_be_bytes();
+        [t0, t1, p0, p1, l0, l1, self.unit_id]
+    }
+
+    /// Appends the 7 header bytes to `out`.
+    pub fn encode(self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.to_bytes());
     }
 }
 
@@ -146,6 +151,26 @@ pub fn encode_frame(request: MbapHeader, pdu: &[u8], out: &mut Vec<u8>) -> bool 
     header.encode(out);
     out.extend_from_slice(pdu);
     true
+}
+
+/// Completes a response ADU built in place: `adu` holds [`HEADER_LEN`] bytes of room, then the
+/// PDU; writes the reply header to `request` into the room. `false` (nothing changed) when the
+/// PDU is longer than [`MAX_PDU_LEN`] or there is no room.
+pub fn complete_frame(request: MbapHeader, adu: &mut [u8]) -> bool {
+    let Some(header) = adu
+        .len()
+        .checked_sub(HEADER_LEN)
+        .and_then(|pdu_len| request.reply(pdu_len))
+    else {
+        return false;
+    };
+    match adu.get_mut(..HEADER_LEN) {
+        Some(room) => {
+            room.copy_from_slice(&header.to_bytes());
+            true
+        }
+        None => false,
+    }
 }
 
 /// Collects the bytes of one connection and cuts them into frames (check, then parse).
@@ -315,6 +340,26 @@ mod tests {
         let mut out = Vec::new();
         assert!(encode_frame(request, &[0x83, 0x02], &mut out));
         assert_eq!(out, [0xBE, 0xEF, 0, 0, 0, 3, 17, 0x83, 0x02]);
+    }
+
+    #[test]
+    fn a_frame_built_in_place_is_the_frame_encoded() {
+        let request = MbapHeader {
+            transaction_id: 0xBEEF,
+            unit_id: 17,
+            pdu_len: 5,
+        };
+        let pdu = [0x03, 4, 0, 1, 0, 2];
+        let mut encoded = Vec::new();
+        assert!(encode_frame(request, &pdu, &mut encoded));
+        let mut in_place = vec![0u8; HEADER_LEN];
+        in_place.extend_from_slice(&pdu);
+        assert!(complete_frame(request, &mut in_place));
+        assert_eq!(in_place, encoded);
+        let mut too_long = vec![0u8; HEADER_LEN + MAX_PDU_LEN + 1];
+        assert!(!complete_frame(request, &mut too_long));
+        assert!(too_long.iter().all(|&b| b == 0));
+        assert!(!complete_frame(request, &mut [0u8; HEADER_LEN - 1]));
     }
 
     #[test]

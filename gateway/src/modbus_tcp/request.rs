@@ -10,10 +10,15 @@
 //! 3. read-only mode and the request changes state: 01 (illegal function);
 //! 4. a table write outside the write-enabled ranges: 02 (illegal data address);
 //! 5. the unit service does not answer within `request_timeout`: 0x0B (gateway target device
-//!    failed to respond); otherwise the service's response or exception;
+//!    failed to respond); otherwise the service's response or exception. A unit that can answer
+//!    at once ([`UnitService::answer_now`], a read from the process image) writes its response
+//!    straight into the connection's buffer, and a future ready at its first poll arms no timer;
+//!    the answers are the same;
 //! 6. a response that does not fit an ADU or answers another function: 04 (server device failure).
 
+use std::future::poll_fn;
 use std::sync::{Arc, PoisonError};
+use std::task::Poll;
 
 use proto_core::modbus::pdu::{ExceptionCode, ExceptionResponse, FunctionCode, Request, Response};
 use tracing::{debug, error};
@@ -34,7 +39,8 @@ pub(crate) struct Shared {
     pub(crate) stats: Arc<ServerStats>,
 }
 
-/// Answers the request `pdu` to `unit`, writing the response PDU (normal or exception) to `out`.
+/// Answers the request `pdu` to `unit`, appending the response PDU (normal or exception) to `out`
+/// after what it holds already (the connection keeps room for the MBAP header there).
 /// `Err` when there is nothing to answer (no function code): the connection closes.
 pub(crate) async fn answer(
     shared: &Shared,
@@ -45,31 +51,34 @@ pub(crate) async fn answer(
     let Some(&function) = pdu.first() else {
         return Err(FrameReject::EmptyPdu);
     };
-    let result = match admit(shared, unit, pdu) {
-        Ok((service, request)) => call(service.as_ref(), request, shared).await,
-        Err(code) => Err(code),
-    };
-    out.clear();
-    let result = match result {
-        Ok(response) => {
-            encode_response(&response, out);
-            if out.len() <= MAX_PDU_LEN && out.first() == Some(&function) {
+    let mark = out.len();
+    let result = match admit(shared, unit, pdu, out) {
+        Admitted::Answered(result) => result,
+        Admitted::Call(service, request) => match call(service.as_ref(), request, shared).await {
+            Ok(response) => {
+                encode_response(&response, out);
                 Ok(())
-            } else {
-                error!(
-                    unit,
-                    function,
-                    len = out.len(),
-                    "unit service gave a response that does not fit the request"
-                );
-                Err(ExceptionCode::ServerDeviceFailure)
             }
-        }
-        Err(code) => Err(code),
+            Err(code) => Err(code),
+        },
     };
+    let result = result.and_then(|()| {
+        let response = out.get(mark..).unwrap_or_default();
+        if response.len() <= MAX_PDU_LEN && response.first() == Some(&function) {
+            Ok(())
+        } else {
+            error!(
+                unit,
+                function,
+                len = response.len(),
+                "unit service gave a response that does not fit the request"
+            );
+            Err(ExceptionCode::ServerDeviceFailure)
+        }
+    });
     if let Err(code) = result {
         debug!(unit, function, ?code, "exception response");
-        out.clear();
+        out.truncate(mark);
         encode_exception(function, code, out);
     }
     let counted = result.map_or_else(RequestResult::Exception, |()| RequestResult::Ok);
@@ -77,32 +86,46 @@ pub(crate) async fn answer(
     Ok(())
 }
 
-/// Steps 1 to 4: the decoded request and the service to call, or the exception.
-fn admit(
-    shared: &Shared,
-    unit: u8,
-    pdu: &[u8],
-) -> Result<(Arc<dyn UnitService>, Request), ExceptionCode> {
-    let request = decode_request(pdu).map_err(|error| {
-        debug!(unit, %error, "request does not decode");
-        ExceptionCode::from(&error)
-    })?;
-    let service = {
-        // A panic elsewhere while holding the lock leaves a map that is still whole: keep serving.
-        let units = shared.units.read().unwrap_or_else(PoisonError::into_inner);
-        units.get(unit).cloned()
-    };
-    let service = service.ok_or(ExceptionCode::GatewayPathUnavailable)?;
-    if let Some(code) = shared.options.check_write(unit, &request) {
-        return Err(code);
-    }
-    Ok((service, request))
+/// How steps 1 to 4 ended.
+enum Admitted {
+    /// An exception of steps 1 to 4, or the unit's answer given at once (appended to `out`).
+    Answered(Result<(), ExceptionCode>),
+    /// The unit answers in its own time: step 5.
+    Call(Arc<dyn UnitService>, Request),
 }
 
-/// Step 5: the service's answer, or 0x0B after `request_timeout`.
+/// Steps 1 to 4, then the unit's answer when it can give it at once ([`UnitService::answer_now`],
+/// under the read lock of the unit map: no clone of the service, no future, no timer).
+fn admit(shared: &Shared, unit: u8, pdu: &[u8], out: &mut Vec<u8>) -> Admitted {
+    let request = match decode_request(pdu) {
+        Ok(request) => request,
+        Err(error) => {
+            debug!(unit, %error, "request does not decode");
+            return Admitted::Answered(Err(ExceptionCode::from(&error)));
+        }
+    };
+    // A panic elsewhere while holding the lock leaves a map that is still whole: keep serving.
+    let units = shared.units.read().unwrap_or_else(PoisonError::into_inner);
+    let Some(service) = units.get(unit) else {
+        return Admitted::Answered(Err(ExceptionCode::GatewayPathUnavailable));
+    };
+    if let Some(code) = shared.options.check_write(unit, &request) {
+        return Admitted::Answered(Err(code));
+    }
+    match service.answer_now(&request, out) {
+        Some(result) => Admitted::Answered(result),
+        None => Admitted::Call(Arc::clone(service), request),
+    }
+}
+
+/// Step 5: the service's answer, or 0x0B after `request_timeout`. A future that is ready at its
+/// first poll is taken without arming the timer.
 async fn call(service: &dyn UnitService, request: Request, shared: &Shared) -> UnitResult {
-    let timeout = shared.options.request_timeout;
-    tokio::time::timeout(timeout, service.call(request))
+    let mut future = service.call(request);
+    if let Poll::Ready(result) = poll_fn(|cx| Poll::Ready(future.as_mut().poll(cx))).await {
+        return result;
+    }
+    tokio::time::timeout(shared.options.request_timeout, future)
         .await
         .unwrap_or(Err(ExceptionCode::GatewayTargetFailedToRespond))
 }

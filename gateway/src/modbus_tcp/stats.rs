@@ -6,9 +6,11 @@
 //! `accept_error`), requests by function and result.
 
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 use proto_core::modbus::pdu::ExceptionCode;
+
+use prometheus::IntCounter;
 
 use crate::metrics::{self, Metrics, TcpConnectionGuard};
 
@@ -107,6 +109,10 @@ pub struct ServerStats {
     requests: [[AtomicU64; RESULT_LABELS.len()]; FUNCTION_LABELS.len()],
     /// The Prometheus families the counts are mirrored into, if any.
     metrics: Option<Metrics>,
+    /// The request series of `metrics` for the functions counted by name, each looked up once
+    /// (the series of a function counted as `"other"` here may have a label of its own there, so
+    /// those are looked up every time).
+    request_series: [[OnceLock<IntCounter>; RESULT_LABELS.len()]; FUNCTIONS.len()],
 }
 
 // === impl ServerStats ===
@@ -221,16 +227,21 @@ impl ServerStats {
     }
 
     pub(crate) fn count_request(&self, function: u8, result: RequestResult) {
-        self.requests[function_index(function)][result_index(result)]
-            .fetch_add(1, Ordering::Relaxed);
-        if let Some(m) = &self.metrics {
-            m.tcp_request(
-                function,
-                match result {
-                    RequestResult::Ok => metrics::RequestResult::Ok,
-                    RequestResult::Exception(code) => metrics::RequestResult::Exception(code),
-                },
-            );
+        let (row, column) = (function_index(function), result_index(result));
+        self.requests[row][column].fetch_add(1, Ordering::Relaxed);
+        let Some(m) = &self.metrics else {
+            return;
+        };
+        let labelled = match result {
+            RequestResult::Ok => metrics::RequestResult::Ok,
+            RequestResult::Exception(code) => metrics::RequestResult::Exception(code),
+        };
+        // Every exception code counted as "other" here is "exception_other" there as well.
+        match self.request_series.get(row).and_then(|r| r.get(column)) {
+            Some(series) => series
+                .get_or_init(|| m.tcp_request_series(function, labelled))
+                .inc(),
+            None => m.tcp_request(function, labelled),
         }
     }
 }
@@ -318,6 +329,22 @@ mod tests {
             r#"gateway_modbus_tcp_connections_rejected_total{reason="accept_error"} 1"#,
             r#"gateway_modbus_tcp_requests_total{function="03",result="ok"} 1"#,
             r#"gateway_modbus_tcp_requests_total{function="10",result="exception_0B"} 1"#,
+        ] {
+            assert!(text.contains(expected), "{expected} missing in\n{text}");
+        }
+        // Counted again through the kept series; the functions and exceptions counted together
+        // here keep their own labels there.
+        stats.count_request(0x03, RequestResult::Ok);
+        stats.count_request(0x43, RequestResult::Ok);
+        stats.count_request(0x42, RequestResult::Ok);
+        stats.count_request(0x03, RequestResult::Exception(ExceptionCode::Other(0x42)));
+        stats.count_request(0x03, RequestResult::Exception(ExceptionCode::Other(0x43)));
+        let text = metrics::encode_text(&registry);
+        for expected in [
+            r#"gateway_modbus_tcp_requests_total{function="03",result="ok"} 2"#,
+            r#"gateway_modbus_tcp_requests_total{function="43",result="ok"} 1"#,
+            r#"gateway_modbus_tcp_requests_total{function="other",result="ok"} 1"#,
+            r#"gateway_modbus_tcp_requests_total{function="03",result="exception_other"} 2"#,
         ] {
             assert!(text.contains(expected), "{expected} missing in\n{text}");
         }
