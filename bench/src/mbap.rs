@@ -59,6 +59,26 @@ impl Client {
         Ok(())
     }
 
+    /// FC 03: reads one holding register of `unit`; an exception or a malformed answer is an
+    /// error.
+    pub(crate) async fn read_one(&mut self, unit: u8, address: u16) -> io::Result<u16> {
+        let h = self.header(unit, 5);
+        let [a0, a1] = address.to_be_bytes();
+        let request = [h[0], h[1], h[2], h[3], h[4], h[5], h[6], 0x03, a0, a1, 0, 1];
+        self.stream.write_all(&request).await?;
+        // An exception answer is 9 bytes, a good one 11: read 9 first.
+        let mut answer = [0u8; 11];
+        self.stream.read_exact(&mut answer[..9]).await?;
+        if answer.get(..2) != Some(&h[..2]) || answer.get(7..9) != Some(&[0x03, 2]) {
+            return Err(io::Error::other(format!(
+                "read answered {:02X?}",
+                answer.get(..9).unwrap_or_default()
+            )));
+        }
+        self.stream.read_exact(&mut answer[9..]).await?;
+        Ok(u16::from_be_bytes([answer[9], answer[10]]))
+    }
+
     /// FC 06: writes `value` to holding register `address` of `unit`; anything but the echo is
     /// an error.
     pub(crate) async fn write_one(&mut self, unit: u8, address: u16, value: u16) -> io::Result<()> {

@@ -29,6 +29,20 @@ const BAUD: u32 = 115_200;
 const MAILBOX_UNIT: u8 = 100;
 /// The mailbox's acknowledge register (gateway::mailbox::layout::ACK).
 const ACK: u16 = gateway::mailbox::layout::ACK;
+/// The sequence number of the oldest telegram waiting (gateway::mailbox::layout::RX_SEQ).
+const RX_SEQ: u16 = gateway::mailbox::layout::RX_SEQ;
+
+/// Releases every telegram waiting in the mailbox. The mailbox releases only its oldest
+/// telegram (an acknowledge of any other is refused), so each is read and acknowledged in turn.
+async fn drain_mailbox(mailbox: &mut Client) -> std::io::Result<()> {
+    loop {
+        let oldest = mailbox.read_one(MAILBOX_UNIT, RX_SEQ).await?;
+        if oldest == 0 {
+            return Ok(());
+        }
+        mailbox.write_one(MAILBOX_UNIT, ACK, oldest).await?;
+    }
+}
 
 /// A plain pty pair: the path for the gateway, the other end for the benchmark. The gateway's end
 /// is kept open until `shutdown` so that the benchmark's end never hangs up.
@@ -120,19 +134,8 @@ async fn zenoh_client(endpoint: &str) -> std::io::Result<zenoh::Session> {
     zenoh::open(config).await.map_err(err)
 }
 
-/// A received telegram: when, its bytes, its sequence number.
-type Received = (Instant, Vec<u8>, Option<u16>);
-
-/// The `"seq": N` of a telegram's attachment.
-fn seq_of(attachment: &str) -> Option<u16> {
-    let rest = attachment.split("\"seq\":").nth(1)?;
-    let digits: String = rest
-        .trim_start()
-        .chars()
-        .take_while(char::is_ascii_digit)
-        .collect();
-    digits.parse().ok()
-}
+/// A received telegram: when, and its bytes.
+type Received = (Instant, Vec<u8>);
 
 /// Serial frame end (the telegram's end character written into the pty) to the subscriber's
 /// callback, p99.
@@ -161,10 +164,7 @@ pub(crate) async fn zenoh_latency(bin: &Path, plan: &Plan) -> std::io::Result<Ro
         .declare_subscriber("gw/bench/tg/rx")
         .callback(move |sample| {
             let at = Instant::now();
-            let seq = sample
-                .attachment()
-                .and_then(|a| a.try_to_string().ok().and_then(|s| seq_of(&s)));
-            let _ = tx.send((at, sample.payload().to_bytes().into_owned(), seq));
+            let _ = tx.send((at, sample.payload().to_bytes().into_owned()));
         })
         .await
         .map_err(|e| std::io::Error::other(e.to_string()))?;
@@ -172,10 +172,10 @@ pub(crate) async fn zenoh_latency(bin: &Path, plan: &Plan) -> std::io::Result<Ro
 
     // Until the subscription has reached the gateway.
     let deadline = Instant::now() + Duration::from_secs(20);
-    let first = loop {
+    loop {
         port.write_all(b"W\x03").await?;
-        if let Ok(Some(r)) = tokio::time::timeout(Duration::from_millis(200), rx.recv()).await {
-            break r;
+        if let Ok(Some(_)) = tokio::time::timeout(Duration::from_millis(200), rx.recv()).await {
+            break;
         }
         if Instant::now() > deadline {
             return Err(std::io::Error::other(format!(
@@ -183,15 +183,12 @@ pub(crate) async fn zenoh_latency(bin: &Path, plan: &Plan) -> std::io::Result<Ro
                 gw.output()
             )));
         }
-    };
+    }
+    // Warm-up telegrams sent before the subscription was in place are waiting in the mailbox
+    // without having reached the subscriber: release them all.
     tokio::time::sleep(Duration::from_millis(300)).await;
-    let mut last_seq = first.2;
-    while let Ok(r) = rx.try_recv() {
-        last_seq = r.2.or(last_seq);
-    }
-    if let Some(seq) = last_seq {
-        mailbox.write_one(MAILBOX_UNIT, ACK, seq).await?;
-    }
+    while rx.try_recv().is_ok() {}
+    drain_mailbox(&mut mailbox).await?;
 
     let mut latencies = Vec::with_capacity(plan.telegrams);
     let mut lost = 0usize;
@@ -208,12 +205,10 @@ pub(crate) async fn zenoh_latency(bin: &Path, plan: &Plan) -> std::io::Result<Ro
             }
         };
         match got {
-            Some((at, _, seq)) => {
+            Some((at, _)) => {
                 latencies.push(at.saturating_duration_since(sent));
-                // Release the telegram from the mailbox, so that it never fills up.
-                if let Some(seq) = seq {
-                    mailbox.write_one(MAILBOX_UNIT, ACK, seq).await?;
-                }
+                // Release the telegram (and any before it) so that the mailbox never fills up.
+                drain_mailbox(&mut mailbox).await?;
             }
             None => lost += 1,
         }
