@@ -287,7 +287,7 @@ pub(crate) async fn cached_reads(plan: &Plan) -> std::io::Result<Vec<Row>> {
         );
         let cpu = |l: &Load| l.server_cpu.as_secs_f64() * 1e6 / (l.requests as f64).max(1.0);
         let conditions = format!(
-            "{} rounds of {:.1} s each, servers alternating; p50 gateway {} / bare {} = {:.2}; \
+            "{} rounds of {:.2} s each, servers alternating; p50 gateway {} / bare {} = {:.2}; \
              server threads' CPU per request gateway {:.1} us / bare {:.1} us = {:.2}",
             plan.tcp_rounds,
             plan.tcp_slice.as_secs_f64(),
