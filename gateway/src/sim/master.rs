@@ -231,12 +231,14 @@ async fn run<P: AsyncRead + AsyncWrite + Unpin>(
             let len = u32::try_from(frame.len()).unwrap_or(u32::MAX);
             master.handle_tx_done(engine(Instant::now() + char_time.saturating_mul(len)));
         }
+        let mut completed = false;
         while let Some(event) = master.poll_event() {
             if let MasterEvent::Completed {
                 request, outcome, ..
             } = event
             {
                 in_flight = false;
+                completed = true;
                 let counter = match outcome {
                     Outcome::Response(_) => {
                         stats.responses.fetch_add(1, Ordering::Relaxed);
@@ -261,6 +263,11 @@ async fn run<P: AsyncRead + AsyncWrite + Unpin>(
                         .store(u64::from(value), Ordering::Relaxed);
                 }
             }
+        }
+        if completed {
+            // Start the next request at once: after a reply timeout the engine is idle already
+            // (the line was silent), with no timer left to wake this loop.
+            continue;
         }
         let deadline = master.poll_timeout().map(tokio_at);
         let idle = !in_flight && master.is_idle() && queue.is_empty();
@@ -291,6 +298,75 @@ async fn sleep_until(deadline: Option<Instant>) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A slave on the other end of `port` that answers every request with one register, except
+    /// the `silent`-th request (counted from 1), which it never answers.
+    async fn partner(mut port: tokio::io::DuplexStream, silent: u32) {
+        let mut buf = [0u8; 256];
+        let mut pending = Vec::new();
+        let mut requests = 0u32;
+        loop {
+            let Ok(n) = port.read(&mut buf).await else {
+                return;
+            };
+            if n == 0 {
+                return;
+            }
+            pending.extend_from_slice(buf.get(..n).unwrap_or_default());
+            // Every request of these tests is 8 bytes long (FC 03 and FC 06).
+            while pending.len() >= 8 {
+                pending.drain(..8);
+                requests += 1;
+                if requests == silent {
+                    continue;
+                }
+                let mut reply = Vec::new();
+                proto_core::modbus::rtu::encode_frame(222, &[0x03, 0x02, 0x00, 0x01], &mut reply);
+                if port.write_all(&reply).await.is_err() {
+                    return;
+                }
+            }
+        }
+    }
+
+    #[tokio::test]
+    async fn a_request_without_reply_does_not_stop_the_cycle() {
+        // Three reads a cycle; the second request of the first cycle is never answered. After its
+        // reply timeout the engine is idle at once, and the third read must still go out (it used
+        // to wait for a byte from the line that never came).
+        let (ours, theirs) = tokio::io::duplex(1024);
+        let shutdown = CancellationToken::new();
+        let read = Request::ReadHoldingRegisters {
+            address: 0,
+            quantity: 1,
+        };
+        let settings = SimMasterSettings {
+            slave: 222,
+            baud: 115_200,
+            bits_per_char: 11,
+            period: Duration::from_millis(30),
+            reply_timeout: Duration::from_millis(50),
+            reads: vec![read.clone(), read.clone(), read],
+            counter_register: None,
+        };
+        let partner = tokio::spawn(partner(theirs, 2));
+        let master = spawn_sim_master(ours, settings, shutdown.clone());
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while master.counts().responses < 8 {
+            assert!(
+                Instant::now() < deadline,
+                "the master stopped: {:?}",
+                master.counts()
+            );
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        let counts = master.counts();
+        assert_eq!(counts.failures, 1, "{counts:?}");
+        assert!(counts.cycles >= 3, "{counts:?}");
+        shutdown.cancel();
+        master.join().await;
+        partner.abort();
+    }
 
     #[test]
     fn one_read_per_row_and_register_table() {
