@@ -36,9 +36,10 @@ pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(
             // The relay delivers each byte on a timerfd, on time when a core is free; on a busy
             // machine a byte can still come several milliseconds late, more than t3.5 at 9600 Bd
             // (4 ms): with multiplier 1, a slave line behind a paced link had requests cut in two
-            // (CRC errors, no reply) in several of 30 three-second runs on a 2-core machine. The CP's "multiplier character delay time" exists for
-            // partners that cannot keep the Modbus timing (003 6.4.2.1, 1..10); the paced demo
-            // uses its maximum, so that it shows no errors the machine made.
+            // (CRC errors, no reply) in several of 30 three-second runs on a 2-core machine. The
+            // CP's "multiplier character delay time" exists for partners that cannot keep the
+            // Modbus timing (003 6.4.2.1, 1..10); the paced demo uses its maximum, so that it
+            // shows no errors the machine made.
             match &mut line.protocol {
                 ProtocolConfig::ModbusMasterRtu(m) => m.delay_multiplier = PACED_DELAY_MULTIPLIER,
                 ProtocolConfig::ModbusSlaveRtu(s) => s.delay_multiplier = PACED_DELAY_MULTIPLIER,
