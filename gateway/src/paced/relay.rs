@@ -115,8 +115,10 @@ async fn write_side<W: AsyncWrite + Unpin>(
             () = timer.sleep_until_opt(head), if head.is_some() => {
                 collect_due(&mut pending, &mut out, &mut index, &parts);
                 if !out.is_empty() {
+                    // No flush: neither a pty nor an in-process stream buffers in user space,
+                    // and a serial stream's flush is tcdrain(3), a blocking call on a runtime
+                    // thread (once per delivered byte here).
                     dst.write_all(&out).await?;
-                    dst.flush().await?;
                     parts.counters.add_delivered(out.len());
                 }
             }

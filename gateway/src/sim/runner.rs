@@ -419,8 +419,9 @@ where
         () = shutdown.cancelled() => return Ok(false),
         () = timer.sleep_until(at) => {}
     }
+    // No flush: a serial stream's flush is tcdrain(3), a blocking call on a runtime thread, and
+    // the write is in the kernel already.
     stream.write_all(&reply).await?;
-    stream.flush().await?;
     Ok(true)
 }
 
