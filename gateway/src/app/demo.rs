@@ -15,7 +15,7 @@ use tokio_util::sync::CancellationToken;
 use tracing::info;
 
 use super::{run, AppError, Overrides};
-use crate::config::{self, LineConfig, Profile, ProtocolConfig};
+use crate::config::{self, LineConfig, Profile, ProtocolConfig, ASCII_CHARACTER_DELAY_RANGE};
 use crate::sim::{self, altivar::AltivarSim, ksvario::KsVarioSim, ModbusDevice};
 
 /// The delay-time multiplier of the Modbus lines of `gateway demo --paced` (003 6.4.2.1: 1..10).
@@ -40,9 +40,17 @@ pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(
             // CP's "multiplier character delay time" exists for partners that cannot keep the
             // Modbus timing (003 6.4.2.1, 1..10); the paced demo uses its maximum, so that it
             // shows no errors the machine made.
+            // The ASCII line's character delay time (ZVZ, 4 ms at 9600 Bd) gets the same margin:
+            // beside three busy processes on two cores it counted 7 events 08 06h a minute.
             match &mut line.protocol {
                 ProtocolConfig::ModbusMasterRtu(m) => m.delay_multiplier = PACED_DELAY_MULTIPLIER,
                 ProtocolConfig::ModbusSlaveRtu(s) => s.delay_multiplier = PACED_DELAY_MULTIPLIER,
+                ProtocolConfig::Ascii(a) => {
+                    a.character_delay = a
+                        .character_delay
+                        .saturating_mul(u32::from(PACED_DELAY_MULTIPLIER))
+                        .min(ASCII_CHARACTER_DELAY_RANGE.1);
+                }
                 _ => {}
             }
         }
