@@ -3,7 +3,7 @@
 //!
 //! - a PUT that changes one line's baud rate restarts that line only: the other lines keep their
 //!   task (start time), their port (`port_opens`), their counters, and an open Modbus TCP client
-//!   keeps reading on the same connection;
+//!   keeps reading on the same connection; `/readyz` stays 200 all through the restart;
 //! - every line route: status, diagnostics (newest first, catalog texts), clearing them, queued
 //!   telegrams (read, acknowledge), sending, tags (read, write through to the device), RS232
 //!   signals on a pseudo-terminal (a clear error), health, readiness, OpenAPI, metrics;
@@ -80,11 +80,39 @@ async fn a_baud_rate_change_restarts_only_its_line() {
     let mut drive = api.get_ok("/api/v1/config/lines/drive").await;
     assert_eq!(drive["baud"], 19200);
     drive["baud"] = json!(9600);
+    assert_eq!(api.get("/readyz").await.status, StatusCode::OK);
+    // Readiness is watched all through the restart: a line that had opened its port, restarted
+    // on the same port, does not make the gateway unready while its new task reopens it.
+    let watch = tokio::sync::watch::channel(false);
+    let readiness = {
+        let (api, mut stop) = (api.clone(), watch.1.clone());
+        tokio::spawn(async move {
+            let mut seen = Vec::new();
+            while !*stop.borrow_and_update() {
+                let a = api.get("/readyz").await;
+                if a.status != StatusCode::OK {
+                    seen.push(a.body);
+                }
+                tokio::select! {
+                    _ = stop.changed() => {}
+                    () = tokio::time::sleep(Duration::from_millis(2)) => {}
+                }
+            }
+            seen
+        })
+    };
     let put_at = Instant::now();
     let answer = api
         .change(Method::PUT, "/api/v1/config/lines/drive", Some(&drive))
         .await;
     let put_took = put_at.elapsed();
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let _ = watch.0.send(true);
+    let unready = readiness.await.expect("readiness watcher");
+    assert!(
+        unready.is_empty(),
+        "/readyz answered 503 during the restart of a line: {unready:#?}"
+    );
     assert_eq!(answer.status, StatusCode::OK, "{:#}", answer.body);
     let applied = &answer.body["applied"];
     assert_eq!(applied["lines_restarted"], json!(["drive"]), "{applied:#}");

@@ -384,7 +384,11 @@ impl ApiBackend for RestBackend {
             lines: snapshot
                 .lines
                 .iter()
-                .map(|(n, l)| (n.clone(), l.kind.status().port_opens > 0))
+                .map(|(n, l)| {
+                    let opened =
+                        l.kind.status().port_opens > 0 || self.sup.opened_before(n, &l.port);
+                    (n.clone(), opened)
+                })
                 .collect(),
             modbus_tcp: self.sup.tcp_listen().1,
             zenoh: self

@@ -88,6 +88,10 @@ pub(crate) struct Supervisor {
     diag_marks: Mutex<BTreeMap<String, (SystemTime, proto_core::time::Instant)>>,
     /// Per line: the Prometheus frame and byte counts when the line started.
     baselines: Mutex<BTreeMap<String, WireCounters>>,
+    /// Lines (name, port) whose port was opened by an earlier task of the line, before a
+    /// configuration change restarted it: readiness does not wait for the new task to reopen
+    /// the same port.
+    opened_before: Mutex<BTreeSet<(String, String)>>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
@@ -171,6 +175,7 @@ impl Supervisor {
             zenoh_state: Mutex::new(None),
             diag_marks: Mutex::new(BTreeMap::new()),
             baselines: Mutex::new(baselines),
+            opened_before: Mutex::new(BTreeSet::new()),
         });
         let server = sup.spawn_tcp(listener)?;
         *sup.tcp
@@ -182,6 +187,14 @@ impl Supervisor {
     /// What is in force now.
     pub(crate) fn snapshot(&self) -> Arc<Snapshot> {
         Arc::clone(&self.state.read().unwrap_or_else(PoisonError::into_inner))
+    }
+
+    /// Whether an earlier task of line `name`, stopped by a configuration change, had opened
+    /// `port` (the same path the line has now).
+    pub(crate) fn opened_before(&self, name: &str, port: &str) -> bool {
+        lock(&self.opened_before)
+            .iter()
+            .any(|(line, path)| line == name && path == port)
     }
 
     /// The address the Modbus TCP server listens on and whether it is up.
@@ -327,6 +340,15 @@ impl Supervisor {
             let Some(line) = lines.remove(name) else {
                 continue;
             };
+            {
+                let key = (name.clone(), line.port.clone());
+                let mut opened = lock(&self.opened_before);
+                let known = opened.contains(&key);
+                opened.retain(|(line_name, _)| line_name != name);
+                if new.lines.contains_key(name) && (known || line.kind.status().port_opens > 0) {
+                    opened.insert(key);
+                }
+            }
             stop_line(name, line).await;
             let kept: BTreeSet<&String> = new
                 .lines

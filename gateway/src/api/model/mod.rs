@@ -163,7 +163,8 @@ pub struct ValidationResult {
 /// What `/readyz` checks (filled by the backend).
 #[derive(Debug, Clone, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
 pub struct Readiness {
-    /// Per line: whether its port has been opened at least once.
+    /// Per line: whether its port has been opened at least once (by the line's task, or, for a
+    /// line restarted by a configuration change on the same port, by the task before it).
     pub lines: BTreeMap<String, bool>,
     /// Whether the Modbus TCP listener is bound.
     pub modbus_tcp: bool,
