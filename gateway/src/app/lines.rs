@@ -42,6 +42,15 @@ impl LineKind {
         }
     }
 
+    /// Empties the line's diagnostic buffer.
+    pub(crate) fn clear_diagnostics(&self) {
+        match self {
+            Self::Master(h) => h.clear_diagnostics(),
+            Self::Slave(h) => h.clear_diagnostics(),
+            Self::Telegram(h) => h.clear_diagnostics(),
+        }
+    }
+
     /// The line's events as they happen.
     pub(crate) fn subscribe_events(&self) -> broadcast::Receiver<LineEvent> {
         match self {

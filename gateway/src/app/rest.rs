@@ -211,13 +211,11 @@ impl ApiBackend for RestBackend {
     fn diag(&self, line: &str) -> Result<DiagSnapshot, ApiError> {
         let snapshot = self.sup.snapshot();
         let status = Self::line(&snapshot, line)?.kind.status();
-        let mark = self.sup.diag_mark(line, status.started);
         Ok(DiagSnapshot {
             depth: usize::from(snapshot.config.gateway.diag_buffer_depth),
             entries: status
                 .diagnostics
                 .iter()
-                .filter(|e| mark.is_none_or(|m| e.at > m))
                 .map(|e| DiagRecord::from_entry(e, status.started))
                 .collect(),
         })
@@ -225,11 +223,9 @@ impl ApiBackend for RestBackend {
 
     fn clear_diag(&self, line: &str) -> Result<(), ApiError> {
         let snapshot = self.sup.snapshot();
-        let status = Self::line(&snapshot, line)?.kind.status();
-        // Newest first: the first entry's last occurrence is the newest instant.
-        if let Some(newest) = status.diagnostics.iter().map(|e| e.at).max() {
-            self.sup.set_diag_mark(line, status.started, newest);
-        }
+        // The line's own buffer is emptied: an event that comes again starts a new entry with a
+        // count of 1, not the count it had before the clear.
+        Self::line(&snapshot, line)?.kind.clear_diagnostics();
         Ok(())
     }
 

@@ -84,8 +84,6 @@ pub(crate) struct Supervisor {
     pub(crate) zenoh: tokio::sync::Mutex<Option<super::zenoh::ZenohRun>>,
     /// What status and readiness show of zenoh; `None` when it is not configured.
     pub(crate) zenoh_state: Mutex<Option<super::zenoh::ZenohState>>,
-    /// Per line: when the buffer was cleared (the line's start time and the newest entry then).
-    diag_marks: Mutex<BTreeMap<String, (SystemTime, proto_core::time::Instant)>>,
     /// Per line: the Prometheus frame and byte counts when the line started.
     baselines: Mutex<BTreeMap<String, WireCounters>>,
     /// Lines (name, port) whose port was opened by an earlier task of the line, before a
@@ -173,7 +171,6 @@ impl Supervisor {
             tcp_state: Mutex::new((addr, Arc::new(AtomicBool::new(false)))),
             zenoh: tokio::sync::Mutex::new(None),
             zenoh_state: Mutex::new(None),
-            diag_marks: Mutex::new(BTreeMap::new()),
             baselines: Mutex::new(baselines),
             opened_before: Mutex::new(BTreeSet::new()),
         });
@@ -206,29 +203,6 @@ impl Supervisor {
     /// The Prometheus frame and byte counts of `line` at its start.
     pub(crate) fn baseline(&self, line: &str) -> WireCounters {
         lock(&self.baselines).get(line).copied().unwrap_or_default()
-    }
-
-    /// The newest diagnostic entry at the last clear of `line`, while the line runs the task
-    /// that was cleared.
-    pub(crate) fn diag_mark(
-        &self,
-        line: &str,
-        started: SystemTime,
-    ) -> Option<proto_core::time::Instant> {
-        lock(&self.diag_marks)
-            .get(line)
-            .filter(|(s, _)| *s == started)
-            .map(|(_, at)| *at)
-    }
-
-    /// Hides the entries of `line`'s buffer up to its newest one.
-    pub(crate) fn set_diag_mark(
-        &self,
-        line: &str,
-        started: SystemTime,
-        newest: proto_core::time::Instant,
-    ) {
-        lock(&self.diag_marks).insert(line.to_owned(), (started, newest));
     }
 
     /// Binds the listener's server task under its own token.

@@ -143,6 +143,11 @@ impl SlaveLineHandle {
             .clone()
     }
 
+    /// Empties the line's diagnostic buffer; the event counters and the STATUS word stay.
+    pub fn clear_diagnostics(&self) {
+        self.shared.clear_diagnostics();
+    }
+
     /// The line's events as they happen (bounded; a lagging receiver is told how many it missed).
     pub fn subscribe_events(&self) -> broadcast::Receiver<LineEvent> {
         self.shared.subscribe()

@@ -136,6 +136,14 @@ impl Shared {
         f(&mut self.status.lock().unwrap_or_else(PoisonError::into_inner))
     }
 
+    /// Empties the diagnostic buffer (the event counters and the STATUS word stay).
+    pub(crate) fn clear_diagnostics(&self) {
+        self.diag
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clear();
+    }
+
     /// A snapshot with the diagnostic buffer.
     pub(crate) fn snapshot(&self) -> LineStatus {
         let mut status = self.update(|s| s.clone());
@@ -259,6 +267,27 @@ mod tests {
         assert_eq!(s.event_counts[&EventId::new(0x08, 0x34)], 1);
         assert_eq!(s.last_event.unwrap().detail, None);
         assert_eq!(rx.try_recv().unwrap().id, EventId::new(0x08, 0x30));
+    }
+
+    #[test]
+    fn a_cleared_buffer_starts_a_repeated_event_afresh_and_keeps_the_counters() {
+        let shared = Shared::new(status(), 9, Clock::start());
+        let no_reply = EventId::new(0x08, 0x30);
+        for _ in 0..3 {
+            shared.raise(no_reply, Some(2), None);
+        }
+        assert_eq!(shared.snapshot().diagnostics[0].count, 3);
+        shared.clear_diagnostics();
+        let s = shared.snapshot();
+        assert!(s.diagnostics.is_empty());
+        // The counters and the STATUS word are not the buffer: they stay.
+        assert_eq!(s.event_counts[&no_reply], 3);
+        assert_eq!(s.status_word, 0x0830);
+        shared.raise(no_reply, Some(2), None);
+        let s = shared.snapshot();
+        let entries: Vec<(EventId, u32)> = s.diagnostics.iter().map(|e| (e.id, e.count)).collect();
+        assert_eq!(entries, vec![(no_reply, 1)]);
+        assert_eq!(s.event_counts[&no_reply], 4);
     }
 
     #[test]

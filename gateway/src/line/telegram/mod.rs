@@ -290,6 +290,11 @@ impl TelegramLineHandle {
         self.shared.mailbox.subscribe()
     }
 
+    /// Empties the line's diagnostic buffer; the event counters and the STATUS word stay.
+    pub fn clear_diagnostics(&self) {
+        self.shared.status.clear_diagnostics();
+    }
+
     /// The line's events as they happen.
     pub fn subscribe_events(&self) -> broadcast::Receiver<LineEvent> {
         self.shared.status.subscribe()
