@@ -307,9 +307,10 @@ fn overlong_frames_and_line_faults() {
         seen,
         vec![
             SlaveEvent::Diagnostic(ids::FRAME_TOO_LONG),
+            // Every byte of the noise: the 265 of the overlong frame and the 35 after it.
             SlaveEvent::Discarded {
                 reason: DiscardReason::TooLong,
-                len: 265
+                len: 300
             }
         ]
     );
@@ -334,9 +335,10 @@ fn overlong_frames_and_line_faults() {
         line.events(),
         vec![
             SlaveEvent::Diagnostic(ids::CHARACTER_ERROR),
+            // The 3 bytes before the fault and the 5 after it, up to the silence.
             SlaveEvent::Discarded {
                 reason: DiscardReason::LineFault,
-                len: 3
+                len: 8
             },
             SlaveEvent::Diagnostic(ids::LINE_BREAK)
         ]

@@ -137,7 +137,8 @@ pub enum SlaveEvent {
     },
     /// A write changed the memory (also for broadcasts), for change notifications.
     Written(Written),
-    /// Received bytes that were not served.
+    /// Received bytes that were not served. After an overlong frame or a line fault the bytes
+    /// are dropped up to the next silence and reported then, all of them in one event.
     Discarded {
         /// Why.
         reason: DiscardReason,
@@ -184,8 +185,9 @@ pub struct Slave<M: MemoryAccess = CpMemory> {
     rx: Vec<u8>,
     /// When the last byte of `rx` (or of the bytes being dropped) arrived.
     last_rx: Option<Instant>,
-    /// Dropping bytes until the next silence (after an overlong frame or a line fault).
-    dropping: bool,
+    /// Dropping bytes until the next silence (after an overlong frame or a line fault): why, and
+    /// how many bytes so far; reported in one [`SlaveEvent::Discarded`] when the silence comes.
+    dropping: Option<(DiscardReason, usize)>,
     /// Frames complete by length, in order, waiting for their answer time.
     ready: VecDeque<Ready>,
     /// Answers to send.
@@ -208,7 +210,7 @@ impl<M: MemoryAccess> Slave<M> {
             memory,
             rx: Vec::new(),
             last_rx: None,
-            dropping: false,
+            dropping: None,
             ready: VecDeque::new(),
             transmit: VecDeque::new(),
             events: VecDeque::new(),
@@ -247,7 +249,8 @@ impl<M: MemoryAccess> Slave<M> {
     pub fn handle_rx(&mut self, now: Instant, bytes: &[u8]) {
         self.advance(now);
         for &byte in bytes {
-            if self.dropping {
+            if let Some((_, dropped)) = self.dropping.as_mut() {
+                *dropped += 1;
                 continue;
             }
             self.rx.push(byte);
@@ -279,7 +282,7 @@ impl<M: MemoryAccess> Slave<M> {
     /// no frame is being received is ignored. A fault inside a frame drops the frame.
     pub fn handle_line_fault(&mut self, now: Instant, fault: LineFault) {
         self.advance(now);
-        let idle = self.rx.is_empty() && !self.dropping;
+        let idle = self.rx.is_empty() && self.dropping.is_none();
         if idle && self.params.mode() == OperatingMode::InterferenceSuppression {
             return;
         }
@@ -306,7 +309,9 @@ impl<M: MemoryAccess> Slave<M> {
     /// Changes after [`Slave::handle_rx`], [`Slave::handle_timeout`] and [`Slave::handle_line_fault`].
     pub fn poll_timeout(&self) -> Option<Instant> {
         let frame_end = match self.last_rx {
-            Some(last) if !self.rx.is_empty() || self.dropping => Some(last + self.timing.t35),
+            Some(last) if !self.rx.is_empty() || self.dropping.is_some() => {
+                Some(last + self.timing.t35)
+            }
             _ => None,
         };
         let answer = self.ready.front().map(|r| r.due);
@@ -328,7 +333,9 @@ impl<M: MemoryAccess> Slave<M> {
             let end = last + self.timing.t35;
             if now >= end {
                 // The silence ends the frame being received, or the bytes being dropped.
-                self.dropping = false;
+                if let Some((reason, len)) = self.dropping.take() {
+                    self.events.push_back(SlaveEvent::Discarded { reason, len });
+                }
                 if !self.rx.is_empty() {
                     let frame = core::mem::take(&mut self.rx);
                     self.end_of_frame(frame, end);
@@ -361,12 +368,21 @@ impl<M: MemoryAccess> Slave<M> {
         }
     }
 
-    /// Drops the frame being received and every byte until the next silence.
+    /// Drops the frame being received and every byte until the next silence; the event (if any)
+    /// is raised now, the bytes are reported as discarded when the silence comes.
     fn drop_frame(&mut self, reason: DiscardReason, event: Option<EventId>) {
-        let len = self.rx.len();
+        if let Some((earlier, len)) = self.dropping.take() {
+            // A second cause while dropping (a line fault): the bytes so far go with the first.
+            self.events.push_back(SlaveEvent::Discarded {
+                reason: earlier,
+                len,
+            });
+        }
+        if let Some(id) = event {
+            self.events.push_back(SlaveEvent::Diagnostic(id));
+        }
+        self.dropping = Some((reason, self.rx.len()));
         self.rx.clear();
-        self.dropping = true;
-        self.discard(reason, len, event);
     }
 
     fn discard(&mut self, reason: DiscardReason, len: usize, event: Option<EventId>) {
