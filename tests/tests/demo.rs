@@ -277,3 +277,62 @@ async fn the_paced_demo_serves_its_devices_with_cable_timing() {
         .expect("read");
     assert_eq!(values[0], 21);
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_slave_line_moved_to_another_unit_id_serves_there_and_its_old_mirror_stops() {
+    // The demo's HMI line: the gateway as a serial slave, its CP memory on unit 50, where the
+    // simulated HMI writes its cycle counter into holding register 10.
+    let gw = Gateway::demo(&[]);
+    let http = gw.http.expect("the demo serves HTTP");
+    let mut old_unit = connect(&gw, 50).await;
+    read_holding_eventually(&mut old_unit, 10, 1).await;
+
+    let client = reqwest::Client::builder()
+        .no_proxy()
+        .build()
+        .expect("HTTP client");
+    let url = format!("http://{http}/api/v1/config/lines/hmi");
+    let mut line: serde_json::Value = client
+        .get(&url)
+        .send()
+        .await
+        .expect("GET the line")
+        .json()
+        .await
+        .expect("JSON");
+    assert_eq!(line["unit_id"], 50, "{line:#}");
+    line["unit_id"] = serde_json::json!(51);
+    let put = client.put(&url).json(&line).send().await.expect("PUT");
+    assert_eq!(put.status(), reqwest::StatusCode::OK);
+
+    // The mirror under unit 50 is stopped, not left writing into the image for nobody.
+    let deadline = tokio::time::Instant::now() + Duration::from_secs(10);
+    while !gw.output().contains("CP memory mirror stopped") {
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the old mirror was not stopped:\n{}",
+            gw.output()
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // Unit 51 serves the memory, the HMI's counter still moving; unit 50 is no unit any more.
+    let mut new_unit = connect(&gw, 51).await;
+    let before = read_holding_eventually(&mut new_unit, 10, 1).await;
+    let deadline = tokio::time::Instant::now() + FIRST_POLL;
+    loop {
+        let now = read_holding_eventually(&mut new_unit, 10, 1).await;
+        if now != before {
+            break;
+        }
+        assert!(
+            tokio::time::Instant::now() < deadline,
+            "the HMI counter stands still on unit 51"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let gone = old_unit
+        .read_holding_registers(10, 1)
+        .await
+        .expect("transport");
+    assert_eq!(gone, Err(ExceptionCode::GatewayPathUnavailable));
+}

@@ -469,7 +469,10 @@ async fn a_burst_of_1000_connections_and_stalled_headers_leave_the_server_servin
         );
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    eprintln!("the burst's places were free {:?} after its clients left", left.elapsed());
+    eprintln!(
+        "the burst's places were free {:?} after its clients left",
+        left.elapsed()
+    );
 
     // The server keeps serving.
     let mut ks = client(&gw, 17).await;

@@ -4,7 +4,7 @@
 //! The supervisor starts every line through [`start_line`] at start-up and again for each line a
 //! configuration change adds or changes; it stops a line by cancelling its token and joining it.
 
-use std::collections::BTreeSet;
+use proto_core::cpmem::AddressMap;
 use std::sync::{Arc, Mutex, PoisonError};
 
 use tokio::sync::broadcast;
@@ -82,6 +82,8 @@ pub(crate) struct RunningLine {
     pub(crate) port: String,
     /// The Modbus TCP units the line answers.
     pub(crate) units: Vec<(u8, Arc<dyn UnitService>)>,
+    /// The CP memory mirror a slave line keeps in the image: its unit id and address map.
+    pub(crate) mirror: Option<(u8, AddressMap)>,
 }
 
 impl std::fmt::Debug for RunningLine {
@@ -110,7 +112,7 @@ pub(crate) struct LineDeps<'a> {
     pub(crate) parent: &'a CancellationToken,
     /// CP memory mirrors already set up, by unit id and address map: a restarted slave line
     /// does not mirror the memory into the image a second time.
-    pub(crate) mirrored: &'a Mutex<BTreeSet<(u8, String)>>,
+    pub(crate) mirrored: &'a Mutex<Vec<(u8, AddressMap)>>,
 }
 
 /// Starts line `name` of `deps.config` under its own token.
@@ -123,6 +125,7 @@ pub(crate) fn start_line(
     let config = deps.config;
     let protocol = line.protocol.kind().as_str();
     let mut units: Vec<(u8, Arc<dyn UnitService>)> = Vec::new();
+    let mut mirror = None;
     let kind = match &line.protocol {
         ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => {
             let (mut settings, devices) = build::master_line(name, line, config)
@@ -155,15 +158,13 @@ pub(crate) fn start_line(
             let handle = line::spawn_modbus_slave_line(settings, memory.clone(), token.clone());
             if let Some(unit) = cfg.unit_id {
                 units.push((unit, Arc::new(handle.unit())));
-                let key = (unit, format!("{:?}", handle.map()));
-                let new = deps
-                    .mirrored
-                    .lock()
-                    .unwrap_or_else(PoisonError::into_inner)
-                    .insert(key);
-                if new {
+                let key = (unit, handle.map().clone());
+                let mut mirrored = deps.mirrored.lock().unwrap_or_else(PoisonError::into_inner);
+                if !mirrored.contains(&key) {
                     memory.mirror_to(deps.image.clone(), unit, handle.map().clone());
+                    mirrored.push(key.clone());
                 }
+                mirror = Some(key);
             }
             LineKind::Slave(handle)
         }
@@ -186,6 +187,7 @@ pub(crate) fn start_line(
         protocol,
         port: line.serial.port.clone(),
         units,
+        mirror,
     })
 }
 

@@ -35,6 +35,7 @@ use crate::image::{ImageConfig, ProcessImage};
 use crate::modbus_tcp::{self, ServerOptions, ServerStats, SharedUnits};
 use crate::tags::TagDirectory;
 use crate::unit::UnitMap;
+use proto_core::cpmem::AddressMap;
 
 /// What is in force: read as a whole, replaced as a whole.
 #[derive(Debug)]
@@ -75,7 +76,8 @@ pub(crate) struct Supervisor {
     lines_token: CancellationToken,
     state: RwLock<Arc<Snapshot>>,
     cp: Mutex<CpState>,
-    mirrored: Mutex<BTreeSet<(u8, String)>>,
+    /// The CP memory mirrors in the image, by unit id and address map.
+    mirrored: Mutex<Vec<(u8, AddressMap)>>,
     tcp: tokio::sync::Mutex<Option<TcpServer>>,
     /// The address the Modbus TCP server listens on and whether it is up.
     tcp_state: Mutex<(SocketAddr, Arc<AtomicBool>)>,
@@ -112,7 +114,7 @@ impl Supervisor {
             None => (None, None),
         };
         let lines_token = shutdown.child_token();
-        let mirrored = Mutex::new(BTreeSet::new());
+        let mirrored = Mutex::new(Vec::new());
         let baselines_now = status::wire_counters(&exported.registry);
         let mut lines = BTreeMap::new();
         let mut baselines = BTreeMap::new();
@@ -376,6 +378,30 @@ impl Supervisor {
                         warn!(line = %name, error = %e, "line did not start");
                         failures.push(format!("line {name}: {e}"));
                     }
+                }
+            }
+        }
+
+        // A mirror no running slave line keeps any more (its unit id or address map changed, or
+        // the line went) stops: the memory's changes no longer reach the image there.
+        let gone: Vec<(u8, AddressMap)> = {
+            let live: Vec<&(u8, AddressMap)> =
+                lines.values().filter_map(|l| l.mirror.as_ref()).collect();
+            let mut mirrored = lock(&self.mirrored);
+            let (kept, gone) = mirrored.drain(..).partition(|key| live.contains(&key));
+            *mirrored = kept;
+            gone
+        };
+        // The memory in force (a replaced one was emptied of mirrors with the set). The mirror
+        // set's lock is released first: `memory_for` takes the two in the other order.
+        let current = lock(&self.cp).memory.clone();
+        if let Some(memory) = current {
+            for (unit, map) in &gone {
+                if memory.unmirror(*unit, map) {
+                    info!(
+                        unit = *unit,
+                        "CP memory mirror stopped: no slave line serves it"
+                    );
                 }
             }
         }

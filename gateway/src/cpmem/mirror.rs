@@ -40,6 +40,11 @@ impl Mirror {
         self.unit
     }
 
+    /// The address map the memory is seen through.
+    pub fn map(&self) -> &AddressMap {
+        &self.map
+    }
+
     /// Stores in the image the Modbus addresses that `written` covers, with the values `memory`
     /// holds now.
     pub fn publish(&self, memory: &CpMemory, written: Written) {

@@ -201,6 +201,17 @@ impl SharedCpMemory {
         }
         state.mirrors.push(mirror);
     }
+
+    /// Stops the mirrors under `unit` through `map`: later changes no longer reach the image
+    /// there (what it shows stays, with its quality). Whether there was one.
+    pub fn unmirror(&self, unit: u8, map: &AddressMap) -> bool {
+        let mut state = self.lock();
+        let before = state.mirrors.len();
+        state
+            .mirrors
+            .retain(|m| !(m.unit() == unit && m.map() == map));
+        state.mirrors.len() != before
+    }
 }
 
 /// Every area of `layout` as one write each.
@@ -237,6 +248,7 @@ impl MemoryAccess for SharedCpMemory {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::image::Table;
     use proto_core::cpmem::WriteLimits;
 
     fn writable_map() -> AddressMap {
@@ -275,6 +287,31 @@ mod tests {
             memory.read(|m| m.db(800).map(|d| d[3..5].to_vec())),
             Some(vec![7, 8])
         );
+    }
+
+    #[test]
+    fn an_unmirrored_unit_no_longer_follows_the_memory() {
+        let memory = SharedCpMemory::new(MemoryLayout::default());
+        let map = writable_map();
+        let image = ProcessImage::default();
+        memory.mirror_to(image.clone(), 50, map.clone());
+        memory.mirror_to(image.clone(), 51, map.clone());
+        let word = |unit| {
+            image
+                .read_words(unit, Table::HoldingRegisters, 3, 1)
+                .expect("mirrored")
+                .values
+        };
+        memory.write_registers(&map, 3, &[7]).expect("DB 800");
+        assert_eq!((word(50), word(51)), (vec![7], vec![7]));
+        assert!(memory.unmirror(50, &map));
+        assert!(!memory.unmirror(50, &map), "only once");
+        assert!(
+            !memory.unmirror(51, &AddressMap::manual_example()),
+            "another map"
+        );
+        memory.write_registers(&map, 3, &[8]).expect("DB 800");
+        assert_eq!((word(50), word(51)), (vec![7], vec![8]));
     }
 
     #[test]
