@@ -17,7 +17,7 @@ mod read;
 mod runs;
 
 use std::collections::HashMap;
-use std::sync::{Arc, PoisonError, RwLock};
+use std::sync::{Arc, PoisonError, RwLock, RwLockReadGuard, RwLockWriteGuard};
 use std::time::{Duration, SystemTime};
 
 use tokio::sync::broadcast;
@@ -318,11 +318,7 @@ impl ProcessImage {
         let end = u32::from(start) + u32::try_from(values.len()).unwrap_or(u32::MAX);
         let mut changes: Vec<Change> = Vec::new();
         {
-            let mut units = self
-                .inner
-                .units
-                .write()
-                .unwrap_or_else(PoisonError::into_inner);
+            let mut units = self.write_units();
             if existing_only && !units.contains_key(&unit) {
                 return;
             }
@@ -416,11 +412,7 @@ impl ProcessImage {
         let wall = SystemTime::now();
         let mut changes = Vec::new();
         {
-            let mut units = self
-                .inner
-                .units
-                .write()
-                .unwrap_or_else(PoisonError::into_inner);
+            let mut units = self.write_units();
             let Some(image) = units.get_mut(&unit) else {
                 return;
             };
@@ -467,11 +459,7 @@ impl ProcessImage {
     /// Every stored value of one table of a unit, in address order (for REST and diagnostics).
     pub fn snapshot(&self, unit: u8, table: Table) -> Vec<SlotView> {
         let now = Instant::now();
-        let units = self
-            .inner
-            .units
-            .read()
-            .unwrap_or_else(PoisonError::into_inner);
+        let units = self.read_units();
         units.get(&unit).map_or_else(Vec::new, |image| {
             image
                 .table(table)
@@ -486,13 +474,26 @@ impl ProcessImage {
         })
     }
 
-    /// The unit ids with values in the image, sorted.
-    pub fn units(&self) -> Vec<u8> {
-        let units = self
-            .inner
+    /// The units under the read lock. A poisoned lock is taken as it is: a writer that panicked
+    /// leaves whole slot values, at worst some of a range newer than the rest.
+    fn read_units(&self) -> RwLockReadGuard<'_, HashMap<u8, UnitImage>> {
+        self.inner
             .units
             .read()
-            .unwrap_or_else(PoisonError::into_inner);
+            .unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The units under the write lock (poisoning as for [`Self::read_units`]).
+    fn write_units(&self) -> RwLockWriteGuard<'_, HashMap<u8, UnitImage>> {
+        self.inner
+            .units
+            .write()
+            .unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The unit ids with values in the image, sorted.
+    pub fn units(&self) -> Vec<u8> {
+        let units = self.read_units();
         let mut ids: Vec<u8> = units.keys().copied().collect();
         ids.sort_unstable();
         ids

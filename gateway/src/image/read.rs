@@ -2,7 +2,6 @@
 //! response encoded straight into a buffer (the Modbus TCP server's cached reads).
 
 use std::collections::HashMap;
-use std::sync::PoisonError;
 use std::time::Duration;
 
 use tokio::time::Instant;
@@ -95,11 +94,7 @@ impl ProcessImage {
     ) -> Result<RangeRead<T>, ImageError> {
         check_range(start, count)?;
         let now = Instant::now();
-        let units = self
-            .inner
-            .units
-            .read()
-            .unwrap_or_else(PoisonError::into_inner);
+        let units = self.read_units();
         let stored = range(&units, unit, table, start, count)?;
         let values = stored
             .slots
@@ -147,11 +142,7 @@ impl ProcessImage {
         let byte_count =
             u8::try_from(bytes).map_err(|_| ImageError::InvalidRange { start, count })?;
         let now = Instant::now();
-        let units = self
-            .inner
-            .units
-            .read()
-            .unwrap_or_else(PoisonError::into_inner);
+        let units = self.read_units();
         let stored = range(&units, unit, table, start, count)?;
         let slots = stored.slots;
         let at = out.len();
