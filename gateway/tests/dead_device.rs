@@ -104,6 +104,17 @@ fn set_faults(drive: &Mutex<AltivarSim>, faults: Faults) {
     drive.lock().unwrap().set_faults(faults);
 }
 
+/// The drive stops answering.
+fn silence(drive: &Mutex<AltivarSim>) {
+    set_faults(
+        drive,
+        Faults {
+            silent: true,
+            ..Faults::default()
+        },
+    );
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_dead_drive_does_not_starve_the_others_and_is_found_again() {
     let (device_end, line_end) = SerialStream::pair().expect("pty pair");
@@ -143,13 +154,7 @@ async fn a_dead_drive_does_not_starve_the_others_and_is_found_again() {
     .await;
 
     // The last drive dies: one poll waits the whole 2 s (08 30h), then it is offline.
-    set_faults(
-        &drives[DEAD],
-        Faults {
-            silent: true,
-            ..Faults::default()
-        },
-    );
+    silence(&drives[DEAD]);
     within("the dead drive offline", Duration::from_secs(5), || {
         !online(&line, DEAD)
     })
@@ -204,13 +209,7 @@ async fn a_dead_drive_does_not_starve_the_others_and_is_found_again() {
     // It dies again and comes back slower than a short probe waits (400 ms after its t3.5,
     // within the 2 s). Its late reply to a short probe is counted (0E 53h while the line is
     // idle, or the event of the exchange it ran into), and the next probe waits the full time.
-    set_faults(
-        &drives[DEAD],
-        Faults {
-            silent: true,
-            ..Faults::default()
-        },
-    );
+    silence(&drives[DEAD]);
     within(
         "the dead drive offline again",
         Duration::from_secs(5),

@@ -53,6 +53,16 @@ struct Run {
     waits: Vec<(usize, Duration)>,
 }
 
+impl Run {
+    /// How long after `since` `device` was first seen back, if it was.
+    fn came_back_after(&self, device: usize, since: Instant) -> Option<Duration> {
+        self.came_back
+            .iter()
+            .find(|(d, _)| *d == device)
+            .map(|(_, at)| at.saturating_duration_since(since))
+    }
+}
+
 /// Runs the scheduler on the line model from `t0` to `until`; `delay(device, now)` is the
 /// device's reply delay at `now`, `None` while it is silent.
 fn simulate(
@@ -256,11 +266,7 @@ fn a_drive_that_comes_back_is_found_within_the_maximum_back_off() {
         let run = simulate(&ten(), &line, t0, back_at + ms(20_000), |d, now| {
             (d != 9 || now >= back_at).then_some(HEALTHY_DELAY)
         });
-        let found = run
-            .came_back
-            .iter()
-            .find(|(d, _)| *d == 9)
-            .map(|(_, at)| at.saturating_duration_since(back_at));
+        let found = run.came_back_after(9, back_at);
         // At most the 5 s back-off, the exchange in flight when it came back (a full probe of
         // 2 s, or a short one of 100 ms), the polls due before the probe and its own poll.
         assert!(
@@ -283,11 +289,7 @@ fn a_drive_that_comes_back_slower_than_a_short_probe_is_found_by_a_full_one() {
             _ => Some(HEALTHY_DELAY),
         }
     });
-    let found = run
-        .came_back
-        .iter()
-        .find(|(d, _)| *d == 9)
-        .map(|(_, at)| at.saturating_duration_since(back_at));
+    let found = run.came_back_after(9, back_at);
     // Within twelve probes at the 5 s maximum back-off (and the full probe itself).
     assert!(
         found.is_some_and(|f| f <= ms(12 * 5000 + 2000 + 700)),
