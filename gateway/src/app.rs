@@ -219,7 +219,7 @@ pub async fn run(
 /// stdout once bound.
 async fn serve_http(
     sup: &Arc<supervisor::Supervisor>,
-    http: &crate::api::HttpConfig,
+    http: &config::HttpConfig,
     overrides: &Overrides,
     shutdown: CancellationToken,
 ) -> Result<JoinHandle<()>, AppError> {

@@ -18,25 +18,34 @@
 //! address = 2
 //! ```
 //!
-//! `deploy/gateway.example.toml` lists every key with its default and the manual section it comes
-//! from. A `port` that starts with `pty:` (as in the embedded demo) names a pseudo-terminal that
-//! `gateway demo` creates and puts in its place.
+//! Every section's types live here (`[gateway]`, `[modbus_tcp]`, `[cp_memory]`, `[http]`,
+//! `[zenoh]`, `[lines.*]` with their devices), with the defaults and ranges of their keys. The
+//! config is plain data: this module imports no other module of the gateway (the lines, the CP
+//! memory, the API and the zenoh bridge import it). `deploy/gateway.example.toml` lists every key
+//! with its default and the manual section it comes from. A `port` that starts with `pty:` (as
+//! in the embedded demo) names a pseudo-terminal that `gateway demo` creates and puts in its
+//! place.
 //!
 //! # How it reads
 //!
 //! [`parse`] reads the TOML into a `toml::Table` (a syntax error is one issue with line and
-//! column), then walks it table by table: each key is converted to its domain type
-//! (`SocketAddr`, `IpNet`, `Duration` through humantime, enums, [`Baud`]) and checked against the
-//! manual's range; keys nobody asked for are refused with their path. A bad value is reported and
-//! replaced by its default so that the walk goes on; then [`validate::validate`] runs the checks
-//! that span several keys. This is what serde's `deny_unknown_fields` would give, but with every
-//! problem of the file in one answer instead of the first one, and with the flat line tables
-//! (`port`, `baud` and the protocol's parameters side by side) that `#[serde(flatten)]` cannot
-//! combine with `deny_unknown_fields`. Serializing uses serde (`toml::to_string(&config)`), and
-//! parsing the output gives the same `Config` back.
+//! column), then walks it table by table with one reader (`reader::Fields`): each key is
+//! converted to its domain type (`SocketAddr`, `IpNet`, `Duration` through humantime, enums,
+//! [`Baud`], zenoh endpoints and key prefixes) and checked against the manual's range; keys
+//! nobody asked for are refused with their path. A bad value is reported and replaced by its
+//! default so that the walk goes on; then [`validate::validate`] runs the checks that span
+//! several keys. Every problem is a [`ConfigIssue`] with its path. This is what serde's
+//! `deny_unknown_fields` would give, but with every problem of the file in one answer instead of
+//! the first one, and with the flat line tables (`port`, `baud` and the protocol's parameters
+//! side by side) that `#[serde(flatten)]` cannot combine with `deny_unknown_fields`. Serializing
+//! uses serde (`toml::to_string(&config)`), and parsing the output gives the same `Config` back;
+//! deserializing a [`Config`], [`HttpConfig`] or [`ZenohConfig`] with serde goes through the same
+//! reader.
+//!
 
 mod cpmem;
 mod device;
+mod http;
 mod line;
 mod modbus;
 mod reader;
@@ -44,6 +53,7 @@ mod serial;
 mod server;
 mod telegram;
 pub mod validate;
+mod zenoh;
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -53,11 +63,14 @@ use serde::{Deserialize, Deserializer, Serialize};
 
 pub use cpmem::*;
 pub use device::*;
+pub use http::*;
 pub use line::*;
 pub use modbus::*;
 pub use serial::*;
 pub use server::*;
 pub use telegram::*;
+// `self::`: the module, not the zenoh crate.
+pub use self::zenoh::*;
 
 use reader::{check_name, Cx, Fields};
 
@@ -87,9 +100,9 @@ pub struct Config {
     pub cp_memory: CpMemoryConfig,
     /// The zenoh session (`[zenoh]`); none: the gateway joins no zenoh fabric.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub zenoh: Option<crate::zenoh_bridge::ZenohConfig>,
+    pub zenoh: Option<ZenohConfig>,
     /// The REST API and `/metrics` (`[http]`): where they listen, the token, the limits.
-    pub http: crate::api::HttpConfig,
+    pub http: HttpConfig,
     /// Lines by name.
     pub lines: BTreeMap<String, LineConfig>,
 }
@@ -161,7 +174,7 @@ impl Default for Config {
             modbus_tcp: ModbusTcpConfig::default(),
             cp_memory: CpMemoryConfig::new(),
             zenoh: None,
-            http: crate::api::HttpConfig::default(),
+            http: HttpConfig::default(),
             lines: BTreeMap::new(),
         }
     }
@@ -238,37 +251,10 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         None => CpMemoryConfig::new(),
         Some(f) => CpMemoryConfig::read(cx, f),
     };
-    // The zenoh section is the bridge's own serde type (deny_unknown_fields): its first problem
-    // is reported with the section's path.
-    let zenoh = root.raw("zenoh").and_then(|value| {
-        match crate::zenoh_bridge::ZenohConfig::deserialize(value.clone()) {
-            Ok(z) => Some(z),
-            Err(e) => {
-                let text = e.to_string();
-                let text = text.trim_end();
-                // serde names an unknown key "unknown field `x`, expected one of ...": report it
-                // at its path with the reader's wording.
-                match text
-                    .strip_prefix("unknown field `")
-                    .and_then(|rest| rest.split_once('`'))
-                {
-                    Some((key, rest)) => cx.issue(
-                        format!("zenoh.{key}"),
-                        format!("unknown key{}", rest.trim_start_matches(',')),
-                    ),
-                    None => cx.issue("zenoh", text.to_owned()),
-                }
-                None
-            }
-        }
-    });
-    // The `[http]` section reads itself and reports every problem with its path.
-    let http = match root.raw("http") {
-        None => crate::api::HttpConfig::default(),
-        Some(value) => crate::api::HttpConfig::from_toml(value, "http").unwrap_or_else(|issues| {
-            cx.issues.extend(issues);
-            crate::api::HttpConfig::default()
-        }),
+    let zenoh = root.table(cx, "zenoh").map(|f| ZenohConfig::read(cx, f));
+    let http = match root.table(cx, "http") {
+        None => HttpConfig::default(),
+        Some(f) => HttpConfig::read(cx, f),
     };
     let mut lines = BTreeMap::new();
     if table.get("lines").is_some_and(toml::Value::is_array) {
@@ -292,6 +278,26 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         zenoh,
         http,
         lines,
+    }
+}
+
+/// Reads one section through its reader, for the section types' `Deserialize`: unknown keys are
+/// refused and every problem is reported, with paths under `path`.
+fn read_section<'de, D, T>(
+    deserializer: D,
+    path: &str,
+    read: fn(&mut Cx, Fields<'_>) -> T,
+) -> Result<T, D::Error>
+where
+    D: Deserializer<'de>,
+{
+    let table = toml::Table::deserialize(deserializer)?;
+    let mut cx = Cx::default();
+    let section = read(&mut cx, Fields::new(&table, path.to_owned()));
+    if cx.issues.is_empty() {
+        Ok(section)
+    } else {
+        Err(serde::de::Error::custom(ConfigErrors { issues: cx.issues }))
     }
 }
 
