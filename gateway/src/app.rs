@@ -25,6 +25,7 @@ use crate::modbus_tcp::ServerOptions;
 use crate::persist::ConfigStore;
 
 mod build;
+mod check;
 mod demo;
 mod lines;
 mod rest;
@@ -33,6 +34,7 @@ mod supervisor;
 mod tag_io;
 mod zenoh;
 
+pub use check::{check_command, check_report, config_issues, load_config};
 pub use demo::demo;
 
 /// How long a stopping gateway waits for lines to finish their transaction in flight and for

@@ -42,6 +42,9 @@
 //! deserializing a [`Config`], [`HttpConfig`] or [`ZenohConfig`] with serde goes through the same
 //! reader.
 //!
+//! Checks that need another part of the gateway (whether the CP memory can serve a slave line
+//! exactly) are the app's: it passes them as a [`Check`] to [`load_with`], [`parse_with`] or
+//! [`Config::from_table_with`], and their issues come in the same answer as the reader's.
 
 mod cpmem;
 mod device;
@@ -202,9 +205,16 @@ impl Config {
 
     /// A parsed `toml::Table` as a config.
     pub fn from_table(table: &toml::Table) -> Result<Self, ConfigErrors> {
+        Self::from_table_with(table, &no_check)
+    }
+
+    /// A parsed `toml::Table` as a config, with `check`'s issues in the same answer.
+    pub fn from_table_with(table: &toml::Table, check: Check<'_>) -> Result<Self, ConfigErrors> {
         let mut cx = Cx::default();
         let config = read_root(&mut cx, table);
         validate::check(&mut cx, &config);
+        let more = check(&config, &cx.issues);
+        cx.issues.extend(more);
         if cx.issues.is_empty() {
             Ok(config)
         } else {
@@ -281,6 +291,18 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
     }
 }
 
+/// Checks that need another part of the gateway (e.g. whether the CP memory can serve a slave
+/// line exactly). The app passes them to [`parse_with`], [`load_with`] or
+/// [`Config::from_table_with`]; they run on the config as read (a bad value replaced by its
+/// default) after the reader's own rules, which found the issues given as second argument, and
+/// their issues are reported with those in one answer.
+pub type Check<'a> = &'a dyn Fn(&Config, &[ConfigIssue]) -> Vec<ConfigIssue>;
+
+/// The [`Check`] that finds nothing.
+pub fn no_check(_: &Config, _: &[ConfigIssue]) -> Vec<ConfigIssue> {
+    Vec::new()
+}
+
 /// Reads one section through its reader, for the section types' `Deserialize`: unknown keys are
 /// refused and every problem is reported, with paths under `path`.
 fn read_section<'de, D, T>(
@@ -303,24 +325,35 @@ where
 
 /// Parses and validates a configuration.
 pub fn parse(text: &str) -> Result<Config, ConfigErrors> {
+    parse_with(text, &no_check)
+}
+
+/// Parses and validates a configuration, with `check`'s issues in the same answer.
+pub fn parse_with(text: &str, check: Check<'_>) -> Result<Config, ConfigErrors> {
     let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
         issues: vec![ConfigIssue {
             path: String::new(),
             message: syntax_message(text, &e),
         }],
     })?;
-    Config::from_table(&table)
+    Config::from_table_with(&table, check)
 }
 
 /// Reads, parses and validates the configuration file at `path`.
 pub fn load(path: &Path) -> Result<Config, ConfigErrors> {
+    load_with(path, &no_check)
+}
+
+/// Reads, parses and validates the configuration file at `path`, with `check`'s issues in the
+/// same answer.
+pub fn load_with(path: &Path, check: Check<'_>) -> Result<Config, ConfigErrors> {
     let text = std::fs::read_to_string(path).map_err(|e| ConfigErrors {
         issues: vec![ConfigIssue {
             path: String::new(),
             message: format!("cannot read {}: {e}", path.display()),
         }],
     })?;
-    parse(&text)
+    parse_with(&text, check)
 }
 
 /// The embedded demo configuration: lines `drive`, `ksvario`, `r3964`, `ascii` on `pty:` ports.
@@ -332,25 +365,6 @@ pub fn demo() -> Config {
 /// The text of the embedded demo configuration.
 pub fn demo_toml() -> &'static str {
     DEMO_TOML
-}
-
-/// `gateway check --config FILE`: prints `ok: N lines, M devices`, or every issue on its own
-/// line, to stdout; returns the exit code (0 valid, 1 not).
-pub fn check_command(path: &Path) -> i32 {
-    let (text, code) = check_report(path);
-    println!("{text}");
-    code
-}
-
-/// What [`check_command`] prints, and its exit code.
-pub fn check_report(path: &Path) -> (String, i32) {
-    match load(path) {
-        Ok(c) => (
-            format!("ok: {} lines, {} devices", c.lines.len(), c.device_count()),
-            0,
-        ),
-        Err(e) => (e.to_string(), 1),
-    }
 }
 
 /// `syntax error at line L, column C: <what>`.
