@@ -42,19 +42,6 @@ pub const HTTP_MAX_CONNECTIONS_RANGE: (u32, u32) = (1, 4096);
 /// Changes are refused without a token unless this is set.
 pub const DEFAULT_INSECURE: bool = false;
 
-pub fn default_http_listen() -> SocketAddr {
-    DEFAULT_HTTP_LISTEN
-}
-pub fn default_body_limit() -> u64 {
-    DEFAULT_BODY_LIMIT
-}
-pub fn default_http_request_timeout() -> Duration {
-    DEFAULT_HTTP_REQUEST_TIMEOUT
-}
-pub fn default_http_max_connections() -> u32 {
-    DEFAULT_HTTP_MAX_CONNECTIONS
-}
-
 /// The `[http]` section.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct HttpConfig {
