@@ -121,6 +121,14 @@ def write_telegrams():
               + bytes([signals, TIMEOUT, CONFIRM, TIMEOUT, CONFIRM, TIMEOUT]))
 
 
+def write_marks(frames):
+    # What a tty opened with INPCK|PARMRK delivers: FF doubled, FF 00 x a faulty character x,
+    # FF 00 00 a BREAK. The first byte chooses the fuzzer's chunk size.
+    for name, frame in sorted(frames.items())[:4]:
+        write("marks", name, frame.replace(b"\xff", b"\xff\xff"))
+    write("marks", "all-marks", b"\x03\x01\xff\xff\x02\xff\x00\x41\x05\xff\x00\x00\x06\xff")
+
+
 def write(target, name, data):
     folder = SEEDS / target
     folder.mkdir(parents=True, exist_ok=True)
@@ -145,6 +153,7 @@ def main():
         if name.endswith("-request"):
             write("slave", name, slave_script(frame))
     write_telegrams()
+    write_marks(frames)
     # MBAP frames of the request PDUs.
     stream = b""
     for number, (name, frame) in enumerate(sorted(frames.items())):
