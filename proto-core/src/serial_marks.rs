@@ -28,30 +28,36 @@
 
 use crate::event::{ids, EventId};
 
-/// A transmission error the UART detected on the receive line (003 7.2, events 08 0Ch and 08 0Dh).
+/// A fault the UART reported for a received character, or a BREAK (003 7.2, events 08 0Ch and
+/// 08 0Dh). The faulty character itself is not passed to the engine's `handle_rx`.
+///
+/// Every engine takes it through its `handle_line_error` input. The kernel's `PARMRK` marks do not
+/// say whether a character had a parity or a framing error ([`Self::ParityOrFraming`]); the UART's
+/// own counters (`TIOCGICOUNT`) do ([`Self::Parity`], [`Self::Framing`], [`Self::Overrun`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum LineError {
-    /// A character received with a parity or framing (stop bit) error; `byte` is what the UART
-    /// read, which is not the character the partner sent. 003 7.2 08 0Ch.
-    Character {
-        /// The byte as received.
-        byte: u8,
-    },
-    /// The UART's receive buffer overflowed and characters were lost. 003 7.2 08 0Ch ("overflow
-    /// error").
+    /// Parity error.
+    Parity,
+    /// Stop bit (framing) error.
+    Framing,
+    /// A parity or a stop bit error, as a `PARMRK` mark reports it (`FF 00 x`).
+    ParityOrFraming,
+    /// Receiver overrun: characters were lost.
     Overrun,
-    /// BREAK: the receive line was held at space longer than a character. 003 7.2 08 0Dh.
+    /// BREAK: the receive line is held at space, the line to the partner is interrupted.
     Break,
 }
 
 // === impl LineError ===
 
 impl LineError {
-    /// The catalog event the error raises: 08 0Ch for a parity, stop bit or overrun error, 08 0Dh
-    /// for a BREAK (003 7.2).
+    /// 003 7.2: 08 0Ch "transmission error (parity error, stop bit error or overflow error)";
+    /// 08 0Dh "BREAK: receive line to partner is interrupted".
     pub const fn event(self) -> EventId {
         match self {
-            Self::Character { .. } | Self::Overrun => ids::CHARACTER_ERROR,
+            Self::Parity | Self::Framing | Self::ParityOrFraming | Self::Overrun => {
+                ids::CHARACTER_ERROR
+            }
             Self::Break => ids::LINE_BREAK,
         }
     }
@@ -194,7 +200,7 @@ impl<'a> Iterator for Pieces<'_, 'a> {
                     let error = if first == 0x00 {
                         LineError::Break
                     } else {
-                        LineError::Character { byte: first }
+                        LineError::ParityOrFraming
                     };
                     return Some(Piece::Error {
                         error,
@@ -206,15 +212,31 @@ impl<'a> Iterator for Pieces<'_, 'a> {
     }
 }
 
-/// One element of a received stream, for [`encode`]: a good data byte or a line error.
+/// One element of a received stream, for [`encode`]: a good data byte, a faulty character, or a
+/// BREAK.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Received {
     /// A byte received without error.
     Byte(u8),
-    /// A line error at this point. [`LineError::Overrun`] is not marked in band and encodes to
-    /// nothing; `Character { byte: 0 }` encodes as a BREAK (the kernel's marks cannot tell them
-    /// apart).
-    Error(LineError),
+    /// The byte as the UART read it with a parity or framing error: the mark `FF 00 x`, which
+    /// decodes to [`LineError::ParityOrFraming`]. A faulty `00` is the mark of a BREAK (the
+    /// kernel's marks cannot tell them apart) and decodes to [`LineError::Break`].
+    Faulty(u8),
+    /// A BREAK (`FF 00 00`).
+    Break,
+}
+
+// === impl Received ===
+
+impl Received {
+    /// What [`MarkDecoder`] yields for this element: the byte, or the line error.
+    pub const fn decoded(self) -> Result<u8, LineError> {
+        match self {
+            Self::Byte(b) => Ok(b),
+            Self::Faulty(0) | Self::Break => Err(LineError::Break),
+            Self::Faulty(_) => Err(LineError::ParityOrFraming),
+        }
+    }
 }
 
 /// Appends `items` to `out` the way the tty layer delivers them with `INPCK | PARMRK`: the inverse
@@ -224,11 +246,8 @@ pub fn encode(items: impl IntoIterator<Item = Received>, out: &mut Vec<u8>) {
         match item {
             Received::Byte(MARK) => out.extend_from_slice(&[MARK, MARK]),
             Received::Byte(b) => out.push(b),
-            Received::Error(LineError::Character { byte }) => {
-                out.extend_from_slice(&[MARK, 0x00, byte]);
-            }
-            Received::Error(LineError::Break) => out.extend_from_slice(&[MARK, 0x00, 0x00]),
-            Received::Error(LineError::Overrun) => {}
+            Received::Faulty(byte) => out.extend_from_slice(&[MARK, 0x00, byte]),
+            Received::Break => out.extend_from_slice(&[MARK, 0x00, 0x00]),
         }
     }
 }
@@ -238,14 +257,14 @@ mod tests {
     use super::*;
 
     /// Decodes `chunks` with one decoder and returns data bytes and errors in order.
-    fn decode_chunks(chunks: &[&[u8]]) -> (Vec<Received>, MarkDecoder) {
+    fn decode_chunks(chunks: &[&[u8]]) -> (Vec<Result<u8, LineError>>, MarkDecoder) {
         let mut dec = MarkDecoder::new();
         let mut out = Vec::new();
         for chunk in chunks {
             for piece in dec.decode(chunk) {
                 match piece {
-                    Piece::Data(d) => out.extend(d.iter().copied().map(Byte)),
-                    Piece::Error { error, .. } => out.push(Error(error)),
+                    Piece::Data(d) => out.extend(d.iter().copied().map(Ok)),
+                    Piece::Error { error, .. } => out.push(Err(error)),
                 }
             }
         }
@@ -253,7 +272,7 @@ mod tests {
     }
 
     /// Every way to split `input` into two and three reads gives `expected`.
-    fn check_all_splits(input: &[u8], expected: &[Received]) {
+    fn check_all_splits(input: &[u8], expected: &[Result<u8, LineError>]) {
         let (whole, dec) = decode_chunks(&[input]);
         assert_eq!(whole, expected, "whole {input:02X?}");
         assert!(!dec.in_mark());
@@ -270,7 +289,7 @@ mod tests {
         }
     }
 
-    use Received::{Byte, Error};
+    use Received::{Byte, Faulty};
 
     #[test]
     fn plain_read_is_one_borrowed_slice() {
@@ -285,27 +304,20 @@ mod tests {
 
     #[test]
     fn doubled_ff_is_one_data_byte_at_every_split() {
-        check_all_splits(
-            &[0x10, 0xFF, 0xFF, 0x20],
-            &[Byte(0x10), Byte(0xFF), Byte(0x20)],
-        );
-        check_all_splits(&[0xFF, 0xFF, 0xFF, 0xFF], &[Byte(0xFF), Byte(0xFF)]);
+        check_all_splits(&[0x10, 0xFF, 0xFF, 0x20], &[Ok(0x10), Ok(0xFF), Ok(0x20)]);
+        check_all_splits(&[0xFF, 0xFF, 0xFF, 0xFF], &[Ok(0xFF), Ok(0xFF)]);
     }
 
     #[test]
     fn character_error_mark_at_every_split() {
         check_all_splits(
             &[0x41, 0xFF, 0x00, 0x7E, 0x42],
-            &[
-                Byte(0x41),
-                Error(LineError::Character { byte: 0x7E }),
-                Byte(0x42),
-            ],
+            &[Ok(0x41), Err(LineError::ParityOrFraming), Ok(0x42)],
         );
         // A faulty FF is not doubled inside the mark.
         check_all_splits(
             &[0xFF, 0x00, 0xFF, 0xFF, 0xFF],
-            &[Error(LineError::Character { byte: 0xFF }), Byte(0xFF)],
+            &[Err(LineError::ParityOrFraming), Ok(0xFF)],
         );
     }
 
@@ -313,11 +325,11 @@ mod tests {
     fn break_mark_at_every_split() {
         check_all_splits(
             &[0x01, 0xFF, 0x00, 0x00, 0x00, 0x02],
-            &[Byte(0x01), Error(LineError::Break), Byte(0x00), Byte(0x02)],
+            &[Ok(0x01), Err(LineError::Break), Ok(0x00), Ok(0x02)],
         );
         check_all_splits(
             &[0xFF, 0x00, 0x00, 0xFF, 0x00, 0x00],
-            &[Error(LineError::Break), Error(LineError::Break)],
+            &[Err(LineError::Break), Err(LineError::Break)],
         );
     }
 
@@ -346,15 +358,14 @@ mod tests {
     #[test]
     fn a_lone_ff_is_kept_as_data() {
         // The kernel never writes FF followed by anything but FF or 00; if it did, nothing is lost.
-        check_all_splits(&[0xFF, 0x41, 0x42], &[Byte(0xFF), Byte(0x41), Byte(0x42)]);
+        check_all_splits(&[0xFF, 0x41, 0x42], &[Ok(0xFF), Ok(0x41), Ok(0x42)]);
     }
 
     #[test]
     fn line_errors_raise_the_catalog_events() {
-        assert_eq!(
-            LineError::Character { byte: 1 }.event(),
-            ids::CHARACTER_ERROR
-        );
+        assert_eq!(LineError::ParityOrFraming.event(), ids::CHARACTER_ERROR);
+        assert_eq!(LineError::Parity.event(), ids::CHARACTER_ERROR);
+        assert_eq!(LineError::Framing.event(), ids::CHARACTER_ERROR);
         assert_eq!(LineError::Overrun.event(), ids::CHARACTER_ERROR);
         assert_eq!(LineError::Break.event(), ids::LINE_BREAK);
         assert!(LineError::Break.is_break());
@@ -364,16 +375,22 @@ mod tests {
     #[test]
     fn encode_marks_like_the_kernel() {
         let mut out = Vec::new();
-        encode(
-            [
-                Byte(0xFF),
-                Byte(1),
-                Error(LineError::Character { byte: 0x55 }),
-                Error(LineError::Overrun),
-                Error(LineError::Break),
-            ],
-            &mut out,
+        let items = [
+            Byte(0xFF),
+            Byte(1),
+            Faulty(0x55),
+            Received::Break,
+            Faulty(0),
+        ];
+        encode(items, &mut out);
+        assert_eq!(
+            out,
+            [0xFF, 0xFF, 1, 0xFF, 0x00, 0x55, 0xFF, 0x00, 0x00, 0xFF, 0x00, 0x00]
         );
-        assert_eq!(out, [0xFF, 0xFF, 1, 0xFF, 0x00, 0x55, 0xFF, 0x00, 0x00]);
+        let (decoded, _) = decode_chunks(&[&out]);
+        let expected: Vec<_> = items.iter().map(|r| r.decoded()).collect();
+        assert_eq!(decoded, expected);
+        assert_eq!(expected[2], Err(LineError::ParityOrFraming));
+        assert_eq!(expected[4], Err(LineError::Break));
     }
 }

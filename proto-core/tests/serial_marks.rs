@@ -12,9 +12,8 @@ fn received() -> impl Strategy<Value = Received> {
         6 => any::<u8>().prop_map(Received::Byte),
         2 => Just(Received::Byte(0xFF)),
         1 => Just(Received::Byte(0x00)),
-        // A character error on 00 is a BREAK in the kernel's marks; see `Received::Error`.
-        1 => (1u8..=0xFF).prop_map(|byte| Received::Error(LineError::Character { byte })),
-        1 => Just(Received::Error(LineError::Break)),
+        1 => any::<u8>().prop_map(Received::Faulty),
+        1 => Just(Received::Break),
     ]
 }
 
@@ -40,24 +39,25 @@ proptest! {
                 match piece {
                     Piece::Data(d) => {
                         prop_assert!(!d.is_empty());
-                        got.extend(d.iter().copied().map(Received::Byte));
+                        got.extend(d.iter().copied().map(Ok));
                     }
                     Piece::Error { error, at } => {
                         positions.push(at);
-                        got.push(Received::Error(error));
+                        got.push(Err(error));
                     }
                 }
             }
             start = end;
         }
         prop_assert!(!dec.in_mark());
-        prop_assert_eq!(&got, &items);
+        let expected: Vec<Result<u8, LineError>> = items.iter().map(|r| r.decoded()).collect();
+        prop_assert_eq!(&got, &expected);
 
         // Each error's position is the number of data bytes before it.
         let expected_positions: Vec<u64> = items
             .iter()
             .enumerate()
-            .filter(|(_, r)| matches!(r, Received::Error(_)))
+            .filter(|(_, r)| !matches!(r, Received::Byte(_)))
             .map(|(i, _)| items[..i].iter().filter(|r| matches!(r, Received::Byte(_))).count() as u64)
             .collect();
         prop_assert_eq!(positions, expected_positions);
@@ -72,12 +72,12 @@ proptest! {
     ) {
         let decode = |chunks: &[&[u8]]| {
             let mut dec = MarkDecoder::new();
-            let mut out = Vec::new();
+            let mut out: Vec<Result<u8, LineError>> = Vec::new();
             for c in chunks {
                 for p in dec.decode(c) {
                     match p {
-                        Piece::Data(d) => out.extend(d.iter().copied().map(Received::Byte)),
-                        Piece::Error { error, .. } => out.push(Received::Error(error)),
+                        Piece::Data(d) => out.extend(d.iter().copied().map(Ok)),
+                        Piece::Error { error, .. } => out.push(Err(error)),
                     }
                 }
             }

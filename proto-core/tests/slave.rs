@@ -14,7 +14,7 @@ use proto_core::cpmem::{
 use proto_core::event::ids;
 use proto_core::modbus::pdu::{ExceptionCode, FunctionCode};
 use proto_core::modbus::rtu::{encode_frame, CharTiming};
-use proto_core::modbus::slave::{DiscardReason, LineFault, Outcome, Slave, SlaveEvent};
+use proto_core::modbus::slave::{DiscardReason, LineError, Outcome, Slave, SlaveEvent};
 use proto_core::time::Instant;
 
 /// 19200 bit/s, 8 data bits, even parity, 1 stop bit: 11 bits a character, t3.5 = 2005 us (the
@@ -326,11 +326,11 @@ fn overlong_frames_and_line_faults() {
     let t0 = line.now + 1_000_000;
     line.slave.handle_rx(at(t0), &request[..3]);
     line.slave
-        .handle_line_fault(at(t0 + 100), LineFault::Character);
+        .handle_line_error(at(t0 + 100), LineError::ParityOrFraming);
     line.slave.handle_rx(at(t0 + 200), &request[3..]);
     assert!(drive(&mut line.slave, at(t0 + 200 + 2 * t35)).is_empty());
     line.slave
-        .handle_line_fault(at(t0 + 100_000), LineFault::Break);
+        .handle_line_error(at(t0 + 100_000), LineError::Break);
     assert_eq!(
         line.events(),
         vec![
@@ -352,10 +352,10 @@ fn overlong_frames_and_line_faults() {
         AddressMap::manual_example(),
     );
     let mut slave = Slave::new(quiet.expect("valid"), timing(), CpMemory::default());
-    slave.handle_line_fault(at(0), LineFault::Break);
+    slave.handle_line_error(at(0), LineError::Break);
     assert_eq!(slave.poll_event(), None);
     slave.handle_rx(at(10), &request[..2]);
-    slave.handle_line_fault(at(20), LineFault::Character);
+    slave.handle_line_error(at(20), LineError::ParityOrFraming);
     assert_eq!(
         slave.poll_event(),
         Some(SlaveEvent::Diagnostic(ids::CHARACTER_ERROR))

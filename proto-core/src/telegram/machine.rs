@@ -246,7 +246,10 @@ impl AsciiDriver {
                 self.receiver.abort();
                 self.raise(error.event());
             }
-            LineError::Parity | LineError::Framing | LineError::Overrun => {
+            LineError::Parity
+            | LineError::Framing
+            | LineError::ParityOrFraming
+            | LineError::Overrun => {
                 if let Some(outcome) = self.receiver.push_faulty(now, error.event()) {
                     self.deliver(outcome);
                 }

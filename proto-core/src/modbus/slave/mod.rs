@@ -113,14 +113,9 @@ impl DiscardReason {
     }
 }
 
-/// A fault the serial port reports (the runtime reads it from the UART; a pty has none).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum LineFault {
-    /// Parity, stop bit or overrun error (7.2 08 0Ch).
-    Character,
-    /// BREAK: the receive line is interrupted (7.2 08 0Dh).
-    Break,
-}
+/// The UART errors every engine of the crate takes (003 7.2: 08 0Ch parity, stop bit and
+/// overflow errors, 08 0Dh break).
+pub use crate::serial_marks::LineError;
 
 /// What happened, in order (see [`Slave::poll_event`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -280,16 +275,13 @@ impl<M: MemoryAccess> Slave<M> {
     /// A fault of the serial line at `now` (003 6.4.5.1 "Operating mode"): in normal operation
     /// every fault raises its event (08 0Ch, 08 0Dh); with interference suppression a fault while
     /// no frame is being received is ignored. A fault inside a frame drops the frame.
-    pub fn handle_line_fault(&mut self, now: Instant, fault: LineFault) {
+    pub fn handle_line_error(&mut self, now: Instant, error: LineError) {
         self.advance(now);
         let idle = self.rx.is_empty() && self.dropping.is_none();
         if idle && self.params.mode() == OperatingMode::InterferenceSuppression {
             return;
         }
-        self.events.push_back(SlaveEvent::Diagnostic(match fault {
-            LineFault::Character => ids::CHARACTER_ERROR,
-            LineFault::Break => ids::LINE_BREAK,
-        }));
+        self.events.push_back(SlaveEvent::Diagnostic(error.event()));
         if !idle {
             self.drop_frame(DiscardReason::LineFault, None);
         }
@@ -306,7 +298,7 @@ impl<M: MemoryAccess> Slave<M> {
     /// When [`Slave::handle_timeout`] has work next: t3.5 after the last byte of the frame being
     /// received, or the answer time of the oldest complete request; `None` when idle.
     ///
-    /// Changes after [`Slave::handle_rx`], [`Slave::handle_timeout`] and [`Slave::handle_line_fault`].
+    /// Changes after [`Slave::handle_rx`], [`Slave::handle_timeout`] and [`Slave::handle_line_error`].
     pub fn poll_timeout(&self) -> Option<Instant> {
         let frame_end = match self.last_rx {
             Some(last) if !self.rx.is_empty() || self.dropping.is_some() => {
