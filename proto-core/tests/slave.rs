@@ -232,7 +232,7 @@ fn answer_not_before_t35() {
     assert_eq!(t35, 2005);
     let mut slave = slave_with(222, AddressMap::manual_example(), CpMemory::default());
     let request = frame(222, &[0x03, 0x00, 0x00, 0x00, 0x02]);
-    // Split over two chunks; the frame completes by length at 1000 us.
+    // Split over two chunks; the frame ends by the silence after its last byte at 1000 us.
     slave.handle_rx(at(0), &request[..3]);
     assert_eq!(slave.poll_timeout(), Some(at(t35)));
     slave.handle_rx(at(1000), &request[3..]);
@@ -277,11 +277,23 @@ fn silence_between_chunks_splits_frames() {
         .filter(|e| matches!(e, SlaveEvent::Discarded { .. }))
         .count();
     assert_eq!(discarded, 2);
-    // Two requests in one chunk (no gap) are both answered, in order.
+    // Two requests without a silence between them are one frame (003 6.4.6: the frame ends by
+    // silence only): a request with trailing bytes, discarded and counted, not answered.
     let second = frame(222, &[0x01, 0x00, 0x00, 0x00, 0x01]);
     let both: Vec<u8> = request.iter().chain(second.iter()).copied().collect();
     slave.handle_rx(at(200_000), &both);
-    let sent: Vec<Vec<u8>> = drive(&mut slave, at(300_000))
+    assert!(drive(&mut slave, at(300_000)).is_empty());
+    assert_eq!(
+        drain(&mut slave),
+        vec![SlaveEvent::Discarded {
+            reason: DiscardReason::TrailingData,
+            len: both.len()
+        }]
+    );
+    // The same two with t3.5 of silence between them are both answered, in order.
+    slave.handle_rx(at(400_000), &request);
+    slave.handle_rx(at(400_000 + t35), &second);
+    let sent: Vec<Vec<u8>> = drive(&mut slave, at(500_000))
         .into_iter()
         .map(|(_, tx)| tx)
         .collect();
@@ -291,6 +303,32 @@ fn silence_between_chunks_splits_frames() {
             frame(222, &[0x03, 0x02, 0, 0]),
             frame(222, &[0x01, 0x01, 0])
         ]
+    );
+}
+
+#[test]
+fn a_request_with_trailing_bytes_is_discarded_and_counted() {
+    let t35 = t35_micros();
+    let mut slave = slave_with(222, AddressMap::manual_example(), CpMemory::default());
+    let request = frame(222, &[0x03, 0x00, 0x00, 0x00, 0x01]);
+    // One trailing byte 1 ms after the request, inside t3.5: part of the frame.
+    slave.handle_rx(at(0), &request);
+    slave.handle_rx(at(1000), &[0x00]);
+    assert_eq!(slave.poll_timeout(), Some(at(1000 + t35)));
+    assert!(drive(&mut slave, at(50_000)).is_empty(), "not answered");
+    assert_eq!(
+        drain(&mut slave),
+        vec![SlaveEvent::Discarded {
+            reason: DiscardReason::TrailingData,
+            len: request.len() + 1
+        }]
+    );
+    assert_eq!(DiscardReason::TrailingData.as_str(), "trailing_data");
+    // The line goes on: the next request after the silence is answered at t3.5 after it.
+    slave.handle_rx(at(60_000), &request);
+    assert_eq!(
+        drive(&mut slave, at(70_000)),
+        vec![(at(60_000 + t35), frame(222, &[0x03, 0x02, 0, 0]))]
     );
 }
 
