@@ -114,11 +114,12 @@ def write_telegrams():
               bytes([setup, length]) + chunks(RX, data) + bytes([TIMEOUT, TAKE]))
     for name, setup in {"etx-sent": 2, "xon-xoff-sent": 2 | 1 << 2, "rts-cts-sent": 2 | 2 << 2,
                         "auto-v24-sent": 2 | 3 << 2}.items():
-        # send, CTS and DSR on, confirm, deadlines
+        # CTS and DSR on (a send does not start while DSR is off under automatic V24 handling,
+        # 000 7.2 08 18h), send, confirm, deadlines
         signals = CONFIRM | (1 | 2 | 4) << 3
         write("telegram", name,
-              bytes([setup, 0]) + chunks(SEND, b"ABC\x03")
-              + bytes([signals, TIMEOUT, CONFIRM, TIMEOUT, CONFIRM, TIMEOUT]))
+              bytes([setup, 0, signals]) + chunks(SEND, b"ABC\x03")
+              + bytes([TIMEOUT, CONFIRM, TIMEOUT, CONFIRM, TIMEOUT]))
 
 
 def write_marks(frames):

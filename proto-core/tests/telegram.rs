@@ -361,6 +361,41 @@ fn automatic_v24_signal_handling() {
 }
 
 #[test]
+fn automatic_v24_does_not_start_a_send_while_dsr_is_off() {
+    // 000 7.2 08 18h: DSR switched off by the partner before a send; RTS is not even raised.
+    let mut d = auto_v24();
+    actions(&mut d);
+    let id = d.send(at(0), b"abc".to_vec()).expect("accepted");
+    assert!(actions(&mut d).is_empty(), "RTS stays off");
+    assert_eq!(d.poll_transmit(), None);
+    assert_eq!(
+        events(&mut d),
+        [
+            AsciiEvent::Raised {
+                id: ids::DSR_OR_CTS_OFF
+            },
+            AsciiEvent::SendFailed {
+                id,
+                event: ids::DSR_OR_CTS_OFF,
+                first: ids::DSR_OR_CTS_OFF
+            }
+        ]
+    );
+    // With DSR on, the next telegram goes out as usual.
+    d.handle_signals(
+        at(1),
+        Signals {
+            cts: true,
+            dsr: true,
+        },
+    );
+    d.send(at(1), b"abc".to_vec()).expect("accepted");
+    assert_eq!(actions(&mut d), [Action::SetRts(true)]);
+    d.handle_timeout(at(11));
+    assert_eq!(out(&mut d, at(14)), [b"abc".to_vec()]);
+}
+
+#[test]
 fn automatic_v24_without_cts_or_dsr() {
     let mut d = auto_v24();
     actions(&mut d);

@@ -457,6 +457,13 @@ impl AsciiDriver {
                         return;
                     };
                     if let FlowControl::AutoV24 { output_wait, .. } = self.settings().flow {
+                        if !self.signals.dsr {
+                            // 000 7.2 08 18h: "Vor oder während eines Sendevorgangs sind die
+                            // Signale DSR bzw. CTS vom Partner auf OFF geschaltet worden": a send
+                            // does not start while the partner is not ready (DSR, 000 5.4).
+                            self.refuse_send(job, ids::DSR_OR_CTS_OFF);
+                            continue;
+                        }
                         // 000 5.4 "Senden": "Steht ein Sendeauftrag an, wird RTS auf ON gesetzt und
                         // die parametrierte Datenausgabewartezeit gestartet."
                         let deadline = now + output_wait;
@@ -555,6 +562,16 @@ impl AsciiDriver {
             self.quiet_since = Some(now);
         }
         true
+    }
+
+    /// Gives up `job` before any of it went out (the line stays as quiet as it was).
+    fn refuse_send(&mut self, job: Job, cause: EventId) {
+        self.raise(cause);
+        self.events.push_back(TelegramEvent::SendFailed {
+            id: job.id,
+            event: cause,
+            first: cause,
+        });
     }
 
     fn set_rts(&mut self, on: bool) {
