@@ -181,6 +181,12 @@ pub enum ConfigError {
         /// The code given.
         value: u8,
     },
+    /// 003 6.2.1 "Send with end character" exists only "as soon as 'End character' is activated
+    /// at the end ID".
+    #[error(
+        "sending up to the end characters needs received telegrams to end with end characters"
+    )]
+    SendLengthNeedsEndChars,
     /// Two control codes that must differ are equal.
     #[error("{first} and {second} must differ (both 0x{value:02X})")]
     SameCode {

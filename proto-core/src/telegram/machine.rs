@@ -10,7 +10,9 @@ use crate::time::Instant;
 use super::common::{
     LineError, ReceiveBuffer, SendError, Stored, TelegramEvent, TelegramId, TxQueue,
 };
-use super::config::{AsciiParams, AsciiSettings, FlowControl, MAX_TELEGRAM};
+use super::config::{
+    AsciiParams, AsciiSettings, EndCriterion, FlowControl, SendLength, MAX_TELEGRAM,
+};
 use super::receiver::{Outcome, Receiver};
 
 /// What [`AsciiDriver::poll_event`] returns.
@@ -180,8 +182,12 @@ impl AsciiDriver {
     ///
     /// [`SendError::Empty`], [`SendError::TooLong`] beyond 1024 bytes, [`SendError::EighthBit`]
     /// with 7 data bits, [`SendError::QueueFull`].
-    pub fn send(&mut self, now: Instant, telegram: Vec<u8>) -> Result<TelegramId, SendError> {
+    pub fn send(&mut self, now: Instant, mut telegram: Vec<u8>) -> Result<TelegramId, SendError> {
         let capacity = usize::from(self.settings().send_queue);
+        if let Some(len) = self.end_chars_len(&telegram) {
+            // 003 6.2.1 "Send with end character": the telegram ends with its end character(s).
+            telegram.truncate(len);
+        }
         if telegram.is_empty() {
             return Err(SendError::Empty);
         }
@@ -562,6 +568,24 @@ impl AsciiDriver {
             self.quiet_since = Some(now);
         }
         true
+    }
+
+    /// With [`SendLength::UpToEndChars`]: the length of `telegram` up to and including the first
+    /// occurrence of the end character(s), if it has them.
+    fn end_chars_len(&self, telegram: &[u8]) -> Option<usize> {
+        if self.params.send_length() != SendLength::UpToEndChars {
+            return None;
+        }
+        let EndCriterion::EndChars { first, second } = self.settings().end else {
+            return None;
+        };
+        match second {
+            None => telegram.iter().position(|&b| b == first).map(|at| at + 1),
+            Some(second) => telegram
+                .windows(2)
+                .position(|w| w == [first, second])
+                .map(|at| at + 2),
+        }
     }
 
     /// Gives up `job` before any of it went out (the line stays as quiet as it was).
