@@ -7,7 +7,11 @@
 //!   answering cleanly is read again (003 6.4.3, 7.2 0E 53h);
 //! - a slave request with trailing bytes is not answered, the clean request is (003 6.4.6);
 //! - a 3964R telegram with a wrong BCC is answered with NAK, its repetition with DLE, and only the
-//!   good one reaches the mailbox (003 6.3.1 "Block check character").
+//!   good one reaches the mailbox (003 6.3.1 "Block check character");
+//! - a 3964R telegram that stops halfway is answered with NAK once the character delay time has
+//!   passed (003 6.3.1 "Passive operation", 7.2 08 06h);
+//! - a Modbus ASCII reply in lower-case hex fails with 0E 58h and its values are not taken
+//!   (7.2 0E 58h: only 0...9, A...F).
 
 use std::net::SocketAddr;
 use std::path::Path;
@@ -404,4 +408,198 @@ unit_id = 100
         .take(data.len())
         .collect();
     assert_eq!(bytes, data);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_3964r_telegram_that_stops_halfway_is_answered_with_nak_after_the_zvz() {
+    let dir = temp_dir("peer-3964r-zvz");
+    let link = SocatLink::new(&dir, "r3964");
+    let config = head()
+        + &format!(
+            r#"
+[lines.r3964]
+port = "{port}"
+protocol = "3964r"
+baud = 9600
+parity = "even"
+block_check = true
+priority = "high"
+character_delay = "220ms"
+unit_id = 100
+"#,
+            port = link.a.display()
+        );
+    let gw = start_gateway(&dir, &config);
+    let http = gw.http.expect("http");
+    let mut port = open(&link.b, 9600);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        port.write_all(&[STX]).await.expect("write");
+        if read_byte(&mut port, Duration::from_millis(500)).await == Some(DLE) {
+            break;
+        }
+        assert!(Instant::now() < deadline, "no DLE to STX within 20 s");
+    }
+    // Half a telegram, then nothing: NAK after the ZVZ (220 ms), not before.
+    port.write_all(b"HALF").await.expect("write");
+    let sent = Instant::now();
+    let answer = read_byte(&mut port, Duration::from_secs(3)).await;
+    let after = sent.elapsed();
+    assert_eq!(answer, Some(NAK));
+    assert!(
+        after >= Duration::from_millis(200),
+        "NAK after {after:?}, before the character delay time"
+    );
+    let deadline = Instant::now() + Duration::from_secs(5);
+    while event_count(http, "r3964", "0806").await < 1.0 {
+        assert!(Instant::now() < deadline, "08 06h not counted");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // A whole telegram afterwards is taken.
+    assert_eq!(
+        send_3964r(&mut port, &block_3964r(b"WHOLE")).await,
+        Some(DLE)
+    );
+}
+
+// --- Modbus ASCII: the gateway as master ---
+
+/// The LRC of Modbus ASCII: the two's complement of the byte sum.
+fn lrc(data: &[u8]) -> u8 {
+    data.iter()
+        .fold(0u8, |acc, b| acc.wrapping_add(*b))
+        .wrapping_neg()
+}
+
+/// Bytes from hex text (either case: the peer reads what the gateway sends, upper case).
+fn from_hex(text: &[u8]) -> Option<Vec<u8>> {
+    let digit = |c: u8| {
+        char::from(c)
+            .to_digit(16)
+            .and_then(|d| u8::try_from(d).ok())
+    };
+    text.chunks(2)
+        .map(|pair| match pair {
+            [hi, lo] => Some(digit(*hi)? << 4 | digit(*lo)?),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Serves FC 03 as slave 2 in Modbus ASCII; with `lower` set, the reply's hex is lower case.
+async fn ascii_slave(mut port: SerialStream, lower: Arc<AtomicBool>) {
+    let mut line = Vec::new();
+    let mut buf = [0u8; 256];
+    loop {
+        let Ok(n) = port.read(&mut buf).await else {
+            return;
+        };
+        if n == 0 {
+            return;
+        }
+        line.extend_from_slice(&buf[..n]);
+        let Some(end) = line.windows(2).position(|w| w == b"\r\n") else {
+            continue;
+        };
+        let frame: Vec<u8> = line.drain(..end + 2).collect();
+        let Some(start) = frame.iter().position(|&b| b == b':') else {
+            continue;
+        };
+        let Some(bytes) = from_hex(&frame[start + 1..frame.len() - 2]) else {
+            continue;
+        };
+        let Some((&check, body)) = bytes.split_last() else {
+            continue;
+        };
+        if lrc(body) != check || body.len() != 6 || body[0] != 2 || body[1] != 3 {
+            continue;
+        }
+        let start_reg = u16::from_be_bytes([body[2], body[3]]);
+        let count = u16::from_be_bytes([body[4], body[5]]);
+        let mut reply = vec![2, 3, u8::try_from(count * 2).expect("count")];
+        for i in 0..count {
+            let value = if start_reg == 3102 && i < 4 {
+                WORDS[usize::from(i)]
+            } else {
+                0
+            };
+            reply.extend_from_slice(&value.to_be_bytes());
+        }
+        reply.push(lrc(&reply));
+        let hex: String = reply.iter().map(|b| format!("{b:02X}")).collect();
+        let hex = if lower.load(Ordering::SeqCst) {
+            hex.to_ascii_lowercase()
+        } else {
+            hex
+        };
+        let text = format!(":{hex}\r\n");
+        if port.write_all(text.as_bytes()).await.is_err() {
+            return;
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_modbus_ascii_reply_in_lower_case_hex_fails_with_0e58() {
+    let dir = temp_dir("peer-ascii-lower");
+    let link = SocatLink::new(&dir, "meter");
+    let lower = Arc::new(AtomicBool::new(true));
+    let config = head()
+        + &format!(
+            r#"
+[lines.meter]
+port = "{port}"
+protocol = "modbus-master-ascii"
+baud = 19200
+parity = "even"
+reply_timeout = "300ms"
+
+[lines.meter.devices.atv71]
+profile = "altivar71"
+address = 2
+unit_id = 2
+offline_backoff_min = "200ms"
+offline_backoff_max = "1s"
+
+[[lines.meter.devices.atv71.poll]]
+name = "settings"
+period = "100ms"
+ranges = [{{ table = "holding", start = 3102, count = 4 }}]
+"#,
+            port = link.a.display()
+        );
+    let peer = tokio::spawn(ascii_slave(open(&link.b, 19200), Arc::clone(&lower)));
+    let gw = start_gateway(&dir, &config);
+    let http = gw.http.expect("http");
+    let mut ctx = tcp::connect_slave(gw.modbus_tcp, Slave(2))
+        .await
+        .expect("connect");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    while event_count(http, "meter", "0E58").await < 3.0 {
+        assert!(Instant::now() < deadline, "0E 58h not counted within 20 s");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let answer = ctx
+        .read_holding_registers(3102, 4)
+        .await
+        .expect("transport");
+    assert!(answer.is_err(), "lower-case values were taken: {answer:?}");
+    // Upper case from the same device is read.
+    lower.store(false, Ordering::SeqCst);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        let answer = ctx
+            .read_holding_registers(3102, 4)
+            .await
+            .expect("transport");
+        if answer.as_deref() == Ok(&WORDS[..]) {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "upper-case replies not read within 20 s: {answer:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    peer.abort();
 }
