@@ -11,7 +11,11 @@
 //! - a 3964R telegram that stops halfway is answered with NAK once the character delay time has
 //!   passed (003 6.3.1 "Passive operation", 7.2 08 06h);
 //! - a Modbus ASCII reply in lower-case hex fails with 0E 58h and its values are not taken
-//!   (7.2 0E 58h: only 0...9, A...F).
+//!   (7.2 0E 58h: only 0...9, A...F);
+//! - a 3964R telegram of the gateway answered with NAK is repeated from the connection setup
+//!   (003 6.3.1 "Timeout times");
+//! - the initialization conflict in both priorities: the low-priority station answers the other's
+//!   STX with DLE and receives first (003 6.3.1 "Initialization conflict").
 
 use std::net::SocketAddr;
 use std::path::Path;
@@ -22,7 +26,7 @@ use std::time::{Duration, Instant};
 use gateway_tests::{temp_dir, Gateway, SocatLink};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
-use tokio_modbus::client::{tcp, Reader};
+use tokio_modbus::client::{tcp, Context, Reader, Writer};
 use tokio_modbus::prelude::Slave;
 use tokio_serial::{SerialPortBuilderExt, SerialStream};
 
@@ -602,4 +606,197 @@ ranges = [{{ table = "holding", start = 3102, count = 4 }}]
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
     peer.abort();
+}
+
+// --- 3964R: the gateway sends ---
+
+/// The 3964R line with the gateway at `priority`.
+fn r3964_config(port: &Path, priority: &str) -> String {
+    head()
+        + &format!(
+            r#"
+[lines.r3964]
+port = "{port}"
+protocol = "3964r"
+baud = 9600
+parity = "even"
+block_check = true
+priority = "{priority}"
+unit_id = 100
+"#,
+            port = port.display()
+        )
+}
+
+/// Starts a send of `data` through the mailbox's send block as request `req` (docs/mailbox.md:
+/// REQ at 1008, TX_LEN, TX_DATA high byte first).
+async fn mailbox_send(ctx: &mut Context, req: u16, data: &[u8]) {
+    let mut regs = vec![req, u16::try_from(data.len()).expect("len")];
+    regs.extend(
+        data.chunks(2)
+            .map(|c| u16::from_be_bytes([c[0], c.get(1).copied().unwrap_or(0)])),
+    );
+    ctx.write_multiple_registers(1008, &regs)
+        .await
+        .expect("transport")
+        .expect("the send block takes the request");
+}
+
+/// DONE, ERROR, TX_STATUS of request `req` once it has finished.
+async fn mailbox_result(ctx: &mut Context, req: u16) -> (u16, u16, u16) {
+    let deadline = Instant::now() + Duration::from_secs(15);
+    loop {
+        let r = ctx
+            .read_holding_registers(1000, 5)
+            .await
+            .expect("transport")
+            .expect("the send block");
+        if r[4] == req && r[3] == 0 && (r[0] == 1 || r[1] == 1) {
+            return (r[0], r[1], r[2]);
+        }
+        assert!(
+            Instant::now() < deadline,
+            "request {req} did not finish: {r:?}"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// Reads a 3964R block up to DLE ETX BCC and returns its data (DLE undoubled) if the BCC is right.
+async fn read_block(port: &mut SerialStream) -> Option<Vec<u8>> {
+    let mut raw = Vec::new();
+    loop {
+        let byte = read_byte(port, Duration::from_millis(500)).await?;
+        raw.push(byte);
+        let n = raw.len();
+        // DLE ETX BCC with the DLE not itself the second half of a doubled DLE.
+        if n >= 3 && raw[n - 3] == DLE && raw[n - 2] == ETX {
+            let before = raw[..n - 3].iter().rev().take_while(|&&b| b == DLE).count();
+            if before % 2 == 0 {
+                break;
+            }
+        }
+    }
+    let (bcc, block) = raw.split_last()?;
+    if block.iter().fold(0u8, |acc, b| acc ^ b) != *bcc {
+        return None;
+    }
+    let mut data = Vec::new();
+    let mut body = block[..block.len() - 2].iter();
+    while let Some(&b) = body.next() {
+        data.push(b);
+        if b == DLE {
+            body.next();
+        }
+    }
+    Some(data)
+}
+
+/// Waits for the gateway's STX (the port may still be opening).
+async fn await_stx(port: &mut SerialStream) {
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        if read_byte(port, Duration::from_millis(500)).await == Some(STX) {
+            return;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "no STX from the gateway within 20 s"
+        );
+    }
+}
+
+/// A gateway on a 3964R line at `priority`, a Modbus TCP client of its mailbox and the peer's end.
+async fn r3964_line(test: &str, priority: &str) -> (Gateway, Context, SerialStream, SocatLink) {
+    let dir = temp_dir(test);
+    let link = SocatLink::new(&dir, "r3964");
+    let gw = start_gateway(&dir, &r3964_config(&link.a, priority));
+    let port = open(&link.b, 9600);
+    let ctx = tcp::connect_slave(gw.modbus_tcp, Slave(100))
+        .await
+        .expect("connect");
+    (gw, ctx, port, link)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_3964r_telegram_answered_with_nak_is_repeated_from_the_setup() {
+    let (_gw, mut ctx, mut port, _link) = r3964_line("peer-3964r-nak", "high").await;
+    let data = b"OUT\x10GOING";
+    mailbox_send(&mut ctx, 1, data).await;
+    await_stx(&mut port).await;
+    port.write_all(&[DLE]).await.expect("write");
+    assert_eq!(read_block(&mut port).await.as_deref(), Some(&data[..]));
+    // 003 6.3.1: "when a character other than DLE is received the attempt to establish the
+    // connection and the telegram are repeated".
+    port.write_all(&[NAK]).await.expect("write");
+    assert_eq!(
+        read_byte(&mut port, Duration::from_secs(3)).await,
+        Some(STX)
+    );
+    port.write_all(&[DLE]).await.expect("write");
+    assert_eq!(read_block(&mut port).await.as_deref(), Some(&data[..]));
+    port.write_all(&[DLE]).await.expect("write");
+    assert_eq!(mailbox_result(&mut ctx, 1).await, (1, 0, 0));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn initialization_conflict_the_gateway_at_low_priority_yields() {
+    let (_gw, mut ctx, mut port, _link) = r3964_line("peer-3964r-conflict-low", "low").await;
+    let ours = b"GATEWAY";
+    mailbox_send(&mut ctx, 1, ours).await;
+    await_stx(&mut port).await;
+    // Both sent STX: the peer has high priority and insists.
+    port.write_all(&[STX]).await.expect("write");
+    assert_eq!(
+        read_byte(&mut port, Duration::from_secs(3)).await,
+        Some(DLE),
+        "the low-priority gateway answers our STX with DLE"
+    );
+    let theirs = b"PEER FIRST";
+    port.write_all(&block_3964r(theirs)).await.expect("write");
+    assert_eq!(
+        read_byte(&mut port, Duration::from_secs(3)).await,
+        Some(DLE)
+    );
+    // Then the gateway's own telegram.
+    assert_eq!(
+        read_byte(&mut port, Duration::from_secs(5)).await,
+        Some(STX)
+    );
+    port.write_all(&[DLE]).await.expect("write");
+    assert_eq!(read_block(&mut port).await.as_deref(), Some(&ours[..]));
+    port.write_all(&[DLE]).await.expect("write");
+    assert_eq!(mailbox_result(&mut ctx, 1).await, (1, 0, 0));
+    let regs = ctx
+        .read_holding_registers(0, 4 + 5)
+        .await
+        .expect("transport")
+        .expect("the receive block");
+    assert_eq!((regs[1], usize::from(regs[2])), (1, theirs.len()));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn initialization_conflict_the_gateway_at_high_priority_insists() {
+    let (_gw, mut ctx, mut port, _link) = r3964_line("peer-3964r-conflict-high", "high").await;
+    let ours = b"GATEWAY";
+    mailbox_send(&mut ctx, 1, ours).await;
+    await_stx(&mut port).await;
+    // Both sent STX: the peer has low priority, so its STX is not answered ...
+    port.write_all(&[STX]).await.expect("write");
+    assert_eq!(
+        read_byte(&mut port, Duration::from_millis(300)).await,
+        None,
+        "the high-priority gateway does not answer the crossing STX"
+    );
+    // ... and it yields: DLE, and the gateway's telegram comes.
+    port.write_all(&[DLE]).await.expect("write");
+    assert_eq!(read_block(&mut port).await.as_deref(), Some(&ours[..]));
+    port.write_all(&[DLE]).await.expect("write");
+    assert_eq!(mailbox_result(&mut ctx, 1).await, (1, 0, 0));
+    // Its own telegram afterwards.
+    tokio::time::sleep(Duration::from_millis(50)).await;
+    assert_eq!(
+        send_3964r(&mut port, &block_3964r(b"PEER")).await,
+        Some(DLE)
+    );
 }
