@@ -114,11 +114,20 @@ def write_telegrams():
               bytes([setup, length]) + chunks(RX, data) + bytes([TIMEOUT, TAKE]))
     for name, setup in {"etx-sent": 2, "xon-xoff-sent": 2 | 1 << 2, "rts-cts-sent": 2 | 2 << 2,
                         "auto-v24-sent": 2 | 3 << 2}.items():
-        # send, CTS and DSR on, confirm, deadlines
+        # CTS and DSR on (a send does not start while DSR is off under automatic V24 handling,
+        # 000 7.2 08 18h), send, confirm, deadlines
         signals = CONFIRM | (1 | 2 | 4) << 3
         write("telegram", name,
-              bytes([setup, 0]) + chunks(SEND, b"ABC\x03")
-              + bytes([signals, TIMEOUT, CONFIRM, TIMEOUT, CONFIRM, TIMEOUT]))
+              bytes([setup, 0, signals]) + chunks(SEND, b"ABC\x03")
+              + bytes([TIMEOUT, CONFIRM, TIMEOUT, CONFIRM, TIMEOUT]))
+
+
+def write_marks(frames):
+    # What a tty opened with INPCK|PARMRK delivers: FF doubled, FF 00 x a faulty character x,
+    # FF 00 00 a BREAK. The first byte chooses the fuzzer's chunk size.
+    for name, frame in sorted(frames.items())[:4]:
+        write("marks", name, frame.replace(b"\xff", b"\xff\xff"))
+    write("marks", "all-marks", b"\x03\x01\xff\xff\x02\xff\x00\x41\x05\xff\x00\x00\x06\xff")
 
 
 def write(target, name, data):
@@ -145,6 +154,7 @@ def main():
         if name.endswith("-request"):
             write("slave", name, slave_script(frame))
     write_telegrams()
+    write_marks(frames)
     # MBAP frames of the request PDUs.
     stream = b""
     for number, (name, frame) in enumerate(sorted(frames.items())):

@@ -20,6 +20,7 @@
 //! - [`event`]: the CP 341 event catalog (chapter 7.2), the STATUS word and the diagnostic buffer;
 //! - [`profiles`]: the register-map models of the supported devices;
 //! - [`proc3964`]: the 3964(R) procedure (6.3);
+//! - [`serial_marks`]: UART line errors and the decoder of the tty layer's `PARMRK` marks;
 //! - [`telegram`]: the ASCII telegram driver (6.2);
 //! - [`cpmem`]: the CP memory areas and the Modbus slave address conversion (6.4.8);
 //! - [`time`]: the instant type the engines take as input.
@@ -33,5 +34,6 @@ pub mod fuzzing;
 pub mod modbus;
 pub mod proc3964;
 pub mod profiles;
+pub mod serial_marks;
 pub mod telegram;
 pub mod time;

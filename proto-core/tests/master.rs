@@ -40,6 +40,11 @@ fn altivar_read_through_the_test_slave() {
     );
     line.advance(Duration::from_millis(3));
     line.rx(&answer);
+    let last_byte = line.now;
+    // 003 6.4.3: the frame ends by 3.5 character times of silence, not by its announced length.
+    assert!(line.events.is_empty(), "complete before the silence");
+    line.fire();
+    assert_eq!(line.now, last_byte + timing().t35);
     assert_eq!(
         line.events,
         [MasterEvent::Completed {
@@ -49,9 +54,7 @@ fn altivar_read_through_the_test_slave() {
             outcome: Outcome::Response(Response::ReadHoldingRegisters(vec![40, 600, 500, 0])),
         }]
     );
-    // Complete on its announced length: no wait for the silence, but the gap runs before idle.
-    assert!(!line.master.is_idle());
-    line.settle();
+    // The silence that ended the reply is also the gap before the next request.
     assert!(line.master.is_idle());
 }
 
@@ -79,6 +82,7 @@ fn altivar_write_echo_and_exception() {
     );
     assert_eq!(line.transmit(), ATV_WRITE_ETA_REQUEST);
     line.rx(&ATV_WRITE_ETA_EXCEPTION);
+    line.fire();
     assert_eq!(line.raised(), [ids::MODBUS_EXCEPTION_DEVICE_FAILURE]);
     assert_eq!(
         line.outcomes(),
@@ -133,6 +137,7 @@ fn retries_repeat_the_same_frame_and_raise_each_failure() {
     // Third attempt: the slave answers.
     let request = line.transmit();
     line.rx(&slave.answer_rtu(&request).expect("answer"));
+    line.fire();
     assert_eq!(line.raised(), [ids::MODBUS_NO_REPLY, ids::MODBUS_NO_REPLY]);
     assert_eq!(
         line.outcomes(),
@@ -187,6 +192,7 @@ fn wrong_slave_with_interference_suppression_is_0e50() {
     foreign[0] = 3;
     let foreign = rtu_frame(3, &foreign[1..foreign.len() - 2]);
     line.rx(&foreign);
+    line.fire();
     assert_eq!(line.raised(), [ids::MODBUS_WRONG_SLAVE]);
     assert_eq!(line.outcomes(), [Outcome::Failed(ids::MODBUS_WRONG_SLAVE)]);
 }
@@ -249,6 +255,7 @@ fn reply_checks_raise_the_cps_events() {
     );
     line.transmit();
     line.rx(&rtu_frame(2, &[0x06, 0x23, 0x29, 0x00, 0x0E]));
+    line.fire();
     assert_eq!(line.raised(), [ids::MODBUS_ECHO_WRONG]);
 }
 
@@ -259,6 +266,7 @@ fn exception_codes_1_to_7_raise_0e61_to_0e67() {
         line.submit(2, atv_read());
         line.transmit();
         line.rx(&rtu_frame(2, &[0x83, code]));
+        line.fire();
         assert_eq!(line.raised(), [EventId::new(0x0E, 0x60 + code)]);
         assert_eq!(
             line.outcomes(),
@@ -270,6 +278,7 @@ fn exception_codes_1_to_7_raise_0e61_to_0e67() {
     line.submit(2, atv_read());
     line.transmit();
     line.rx(&rtu_frame(2, &[0x83, 0x0B]));
+    line.fire();
     assert!(line.raised().is_empty());
     assert_eq!(
         line.outcomes(),
@@ -329,16 +338,21 @@ fn a_request_waits_for_t35_of_silence() {
     let request = line.transmit();
     line.rx(&slave.answer_rtu(&request).expect("answer"));
     let last_byte = line.now;
-    // Submitted right after the reply: queued until t3.5 after its last byte.
-    line.submit(2, atv_read());
-    assert!(line.master.poll_transmit().is_none());
+    // The reply ends, and the gap after it runs out, t3.5 after its last byte.
     assert_eq!(line.master.poll_timeout(), Some(last_byte + timing().t35));
-    // Noise on the line pushes the gap further (and is reported once in normal operation).
+    line.fire();
+    assert_eq!(line.outcomes().len(), 1);
+    assert!(line.master.is_idle());
+    // Noise on the line starts a new gap (and is reported once in normal operation); a request
+    // submitted in it is queued until t3.5 after the noise.
     line.advance(Duration::from_millis(1));
     line.rx(&[0x00]);
     let noise = line.now;
     assert_eq!(line.raised(), [ids::MODBUS_BYTE_OVERFLOW]);
-    line.master.handle_timeout(last_byte + timing().t35);
+    line.submit(2, atv_read());
+    assert!(line.master.poll_transmit().is_none());
+    line.master
+        .handle_timeout(Instant::from_micros((noise + timing().t35).as_micros() - 1));
     assert!(line.master.poll_transmit().is_none());
     line.fire();
     assert_eq!(line.now, noise + timing().t35);
@@ -460,6 +474,7 @@ fn a_reply_before_the_estimated_end_of_transmission_is_taken() {
     line.master
         .handle_tx_done(line.now + Duration::from_millis(5));
     line.rx(&answer);
+    line.fire();
     assert_eq!(
         line.outcomes(),
         [Outcome::Response(Response::ReadHoldingRegisters(vec![
@@ -473,6 +488,7 @@ fn a_reply_before_the_estimated_end_of_transmission_is_taken() {
     line.rx(&answer);
     line.master.handle_tx_done(line.now);
     line.drain();
+    line.fire();
     assert_eq!(line.outcomes().len(), 1);
 }
 
@@ -492,6 +508,7 @@ fn a_reply_of_the_cps_largest_size_is_received() {
     let mut pdu = Vec::new();
     Response::ReadHoldingRegisters(values.clone()).encode(&mut pdu);
     line.rx(&rtu_frame(2, &pdu));
+    line.fire();
     assert_eq!(
         line.outcomes(),
         [Outcome::Response(Response::ReadHoldingRegisters(values))]
@@ -537,4 +554,101 @@ proptest! {
         }
         prop_assert_eq!(run(&chunks, &gaps), whole);
     }
+}
+
+#[test]
+fn a_reply_longer_than_announced_is_0e53_and_its_values_are_not_taken() {
+    // 003 6.4.3: the reply is what arrived before 3.5 character times of silence; 7.2 0E 53h:
+    // "more characters than should have resulted according to byte counter or function code".
+    let mut line = Line::new(rtu_config());
+    let mut slave = TestSlave::altivar();
+    line.submit(2, atv_read());
+    let request = line.transmit();
+    let answer = slave.answer_rtu(&request).expect("answer");
+    line.rx(&answer);
+    // Trailing bytes 1 ms later, inside t3.5 (2 ms at 19200 Bd): part of the same frame.
+    line.advance(Duration::from_millis(1));
+    line.rx(&[0x00, 0x00]);
+    let last_byte = line.now;
+    assert!(line.events.is_empty());
+    line.fire();
+    assert_eq!(line.now, last_byte + timing().t35);
+    assert_eq!(line.raised(), [ids::MODBUS_BYTE_OVERFLOW]);
+    assert_eq!(
+        line.outcomes(),
+        [Outcome::Failed(ids::MODBUS_BYTE_OVERFLOW)]
+    );
+
+    // The same with the trailing bytes in the same read, and with a good CRC over everything.
+    let mut line = Line::new(rtu_config());
+    line.submit(2, atv_read());
+    line.transmit();
+    let mut pdu = ATV_READ_RESPONSE[1..ATV_READ_RESPONSE.len() - 2].to_vec();
+    pdu.extend_from_slice(&[0x12, 0x34]);
+    line.rx(&rtu_frame(2, &pdu));
+    line.settle();
+    assert_eq!(
+        line.outcomes(),
+        [Outcome::Failed(ids::MODBUS_BYTE_OVERFLOW)]
+    );
+}
+
+#[test]
+fn a_reply_in_pieces_completes_exactly_when_the_silence_has_passed() {
+    let mut line = Line::new(rtu_config());
+    let mut slave = TestSlave::altivar();
+    line.submit(2, atv_read());
+    let request = line.transmit();
+    let answer = slave.answer_rtu(&request).expect("answer");
+    let t35 = timing().t35;
+    let step = Duration::from_micros(1500);
+    assert!(step < t35);
+    for (i, piece) in answer.chunks(4).enumerate() {
+        if i > 0 {
+            line.advance(step);
+        }
+        line.rx(piece);
+        assert!(line.outcomes().is_empty());
+        assert_eq!(line.master.poll_timeout(), Some(line.now + t35));
+    }
+    let last_piece = line.now;
+    line.fire();
+    assert_eq!(line.now, last_piece + t35);
+    assert_eq!(line.outcomes().len(), 1);
+    assert!(line.master.is_idle());
+    // One microsecond before the silence has passed, nothing: run the same line again.
+    let mut line = Line::new(rtu_config());
+    line.submit(2, atv_read());
+    line.transmit();
+    line.rx(&answer);
+    let early = Instant::from_micros((line.now + t35).as_micros() - 1);
+    line.master.handle_timeout(early);
+    line.drain();
+    assert!(line.outcomes().is_empty());
+    line.master.handle_timeout(line.now + t35);
+    line.drain();
+    assert_eq!(line.outcomes().len(), 1);
+}
+
+#[test]
+fn a_pause_longer_than_t35_cuts_the_reply() {
+    let mut line = Line::new(rtu_config());
+    let mut slave = TestSlave::altivar();
+    line.submit(2, atv_read());
+    let request = line.transmit();
+    let answer = slave.answer_rtu(&request).expect("answer");
+    line.rx(&answer[..6]);
+    line.advance(timing().t35 + Duration::from_micros(100));
+    // The first part ended by silence; its last two bytes are not its CRC (0E 57h).
+    assert_eq!(line.raised(), [ids::MODBUS_CHECKSUM_ERROR]);
+    assert_eq!(
+        line.outcomes(),
+        [Outcome::Failed(ids::MODBUS_CHECKSUM_ERROR)]
+    );
+    // The rest is bytes nobody asked for.
+    line.rx(&answer[6..]);
+    assert_eq!(
+        line.raised(),
+        [ids::MODBUS_CHECKSUM_ERROR, ids::MODBUS_BYTE_OVERFLOW]
+    );
 }

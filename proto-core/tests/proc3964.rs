@@ -884,3 +884,40 @@ proptest! {
         prop_assert!(end_raised(&pair.b).is_empty(), "{:?}", end_raised(&pair.b));
     }
 }
+
+#[test]
+fn a_line_error_while_sending_starts_a_repetition_and_is_the_first_error() {
+    // 7.2 08 0Ch: "If this occurs during send or receive operation, repetitions are initiated";
+    // 07 01h: the STATUS of the send names the first error that occurred.
+    let mut a = station(|_| {});
+    let id = a.send(at(0), b"X".to_vec()).expect("accepted");
+    assert_eq!(out(&mut a, at(1)), [STX]);
+    // The partner's answer to STX arrives with a parity or framing error (a PARMRK mark).
+    a.handle_line_error(at(2), LineError::ParityOrFraming);
+    let repeated = out(&mut a, at(3));
+    assert_eq!(repeated, [STX], "the connection setup is repeated");
+    assert_eq!(
+        raised(&events(&mut a)),
+        [ids::CHARACTER_ERROR, ids::SEND_REPETITION]
+    );
+    // The repetition runs into QVZ every time: the job fails with the first error as STATUS.
+    let mut now = at(3);
+    for _ in 0..32 {
+        let Some(deadline) = a.poll_timeout() else {
+            break;
+        };
+        now = now.max(deadline);
+        a.handle_timeout(now);
+        out(&mut a, now);
+    }
+    let ev = events(&mut a);
+    assert_eq!(
+        ev.last(),
+        Some(&Event3964::SendFailed {
+            id,
+            event: ids::SEND_SETUP_ATTEMPTS_EXHAUSTED,
+            first: ids::CHARACTER_ERROR
+        })
+    );
+    assert!(a.is_idle());
+}

@@ -14,7 +14,7 @@ use proto_core::cpmem::{
 use proto_core::event::ids;
 use proto_core::modbus::pdu::{ExceptionCode, FunctionCode};
 use proto_core::modbus::rtu::{encode_frame, CharTiming};
-use proto_core::modbus::slave::{DiscardReason, LineFault, Outcome, Slave, SlaveEvent};
+use proto_core::modbus::slave::{DiscardReason, LineError, Outcome, Slave, SlaveEvent};
 use proto_core::time::Instant;
 
 /// 19200 bit/s, 8 data bits, even parity, 1 stop bit: 11 bits a character, t3.5 = 2005 us (the
@@ -232,7 +232,7 @@ fn answer_not_before_t35() {
     assert_eq!(t35, 2005);
     let mut slave = slave_with(222, AddressMap::manual_example(), CpMemory::default());
     let request = frame(222, &[0x03, 0x00, 0x00, 0x00, 0x02]);
-    // Split over two chunks; the frame completes by length at 1000 us.
+    // Split over two chunks; the frame ends by the silence after its last byte at 1000 us.
     slave.handle_rx(at(0), &request[..3]);
     assert_eq!(slave.poll_timeout(), Some(at(t35)));
     slave.handle_rx(at(1000), &request[3..]);
@@ -277,11 +277,23 @@ fn silence_between_chunks_splits_frames() {
         .filter(|e| matches!(e, SlaveEvent::Discarded { .. }))
         .count();
     assert_eq!(discarded, 2);
-    // Two requests in one chunk (no gap) are both answered, in order.
+    // Two requests without a silence between them are one frame (003 6.4.6: the frame ends by
+    // silence only): a request with trailing bytes, discarded and counted, not answered.
     let second = frame(222, &[0x01, 0x00, 0x00, 0x00, 0x01]);
     let both: Vec<u8> = request.iter().chain(second.iter()).copied().collect();
     slave.handle_rx(at(200_000), &both);
-    let sent: Vec<Vec<u8>> = drive(&mut slave, at(300_000))
+    assert!(drive(&mut slave, at(300_000)).is_empty());
+    assert_eq!(
+        drain(&mut slave),
+        vec![SlaveEvent::Discarded {
+            reason: DiscardReason::TrailingData,
+            len: both.len()
+        }]
+    );
+    // The same two with t3.5 of silence between them are both answered, in order.
+    slave.handle_rx(at(400_000), &request);
+    slave.handle_rx(at(400_000 + t35), &second);
+    let sent: Vec<Vec<u8>> = drive(&mut slave, at(500_000))
         .into_iter()
         .map(|(_, tx)| tx)
         .collect();
@@ -291,6 +303,32 @@ fn silence_between_chunks_splits_frames() {
             frame(222, &[0x03, 0x02, 0, 0]),
             frame(222, &[0x01, 0x01, 0])
         ]
+    );
+}
+
+#[test]
+fn a_request_with_trailing_bytes_is_discarded_and_counted() {
+    let t35 = t35_micros();
+    let mut slave = slave_with(222, AddressMap::manual_example(), CpMemory::default());
+    let request = frame(222, &[0x03, 0x00, 0x00, 0x00, 0x01]);
+    // One trailing byte 1 ms after the request, inside t3.5: part of the frame.
+    slave.handle_rx(at(0), &request);
+    slave.handle_rx(at(1000), &[0x00]);
+    assert_eq!(slave.poll_timeout(), Some(at(1000 + t35)));
+    assert!(drive(&mut slave, at(50_000)).is_empty(), "not answered");
+    assert_eq!(
+        drain(&mut slave),
+        vec![SlaveEvent::Discarded {
+            reason: DiscardReason::TrailingData,
+            len: request.len() + 1
+        }]
+    );
+    assert_eq!(DiscardReason::TrailingData.as_str(), "trailing_data");
+    // The line goes on: the next request after the silence is answered at t3.5 after it.
+    slave.handle_rx(at(60_000), &request);
+    assert_eq!(
+        drive(&mut slave, at(70_000)),
+        vec![(at(60_000 + t35), frame(222, &[0x03, 0x02, 0, 0]))]
     );
 }
 
@@ -326,11 +364,11 @@ fn overlong_frames_and_line_faults() {
     let t0 = line.now + 1_000_000;
     line.slave.handle_rx(at(t0), &request[..3]);
     line.slave
-        .handle_line_fault(at(t0 + 100), LineFault::Character);
+        .handle_line_error(at(t0 + 100), LineError::ParityOrFraming);
     line.slave.handle_rx(at(t0 + 200), &request[3..]);
     assert!(drive(&mut line.slave, at(t0 + 200 + 2 * t35)).is_empty());
     line.slave
-        .handle_line_fault(at(t0 + 100_000), LineFault::Break);
+        .handle_line_error(at(t0 + 100_000), LineError::Break);
     assert_eq!(
         line.events(),
         vec![
@@ -352,10 +390,10 @@ fn overlong_frames_and_line_faults() {
         AddressMap::manual_example(),
     );
     let mut slave = Slave::new(quiet.expect("valid"), timing(), CpMemory::default());
-    slave.handle_line_fault(at(0), LineFault::Break);
+    slave.handle_line_error(at(0), LineError::Break);
     assert_eq!(slave.poll_event(), None);
     slave.handle_rx(at(10), &request[..2]);
-    slave.handle_line_fault(at(20), LineFault::Character);
+    slave.handle_line_error(at(20), LineError::ParityOrFraming);
     assert_eq!(
         slave.poll_event(),
         Some(SlaveEvent::Diagnostic(ids::CHARACTER_ERROR))

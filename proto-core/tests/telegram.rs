@@ -7,8 +7,8 @@ use std::collections::VecDeque;
 use proptest::prelude::*;
 use proto_core::event::{ids, EventId};
 use proto_core::telegram::{
-    Action, AsciiDriver, AsciiEvent, AsciiParams, AsciiSettings, EndCriterion, FlowControl,
-    Interface, LineError, SendError, Signals,
+    Action, AsciiDriver, AsciiEvent, AsciiParams, AsciiSettings, ConfigError, EndCriterion,
+    FlowControl, Interface, LineError, SendError, SendLength, Signals,
 };
 use proto_core::time::Instant;
 
@@ -358,6 +358,41 @@ fn automatic_v24_signal_handling() {
     d.handle_timeout(at(23));
     assert_eq!(actions(&mut d), [Action::SetRts(false)]);
     assert_eq!(events(&mut d), [AsciiEvent::Sent { id }]);
+}
+
+#[test]
+fn automatic_v24_does_not_start_a_send_while_dsr_is_off() {
+    // 000 7.2 08 18h: DSR switched off by the partner before a send; RTS is not even raised.
+    let mut d = auto_v24();
+    actions(&mut d);
+    let id = d.send(at(0), b"abc".to_vec()).expect("accepted");
+    assert!(actions(&mut d).is_empty(), "RTS stays off");
+    assert_eq!(d.poll_transmit(), None);
+    assert_eq!(
+        events(&mut d),
+        [
+            AsciiEvent::Raised {
+                id: ids::DSR_OR_CTS_OFF
+            },
+            AsciiEvent::SendFailed {
+                id,
+                event: ids::DSR_OR_CTS_OFF,
+                first: ids::DSR_OR_CTS_OFF
+            }
+        ]
+    );
+    // With DSR on, the next telegram goes out as usual.
+    d.handle_signals(
+        at(1),
+        Signals {
+            cts: true,
+            dsr: true,
+        },
+    );
+    d.send(at(1), b"abc".to_vec()).expect("accepted");
+    assert_eq!(actions(&mut d), [Action::SetRts(true)]);
+    d.handle_timeout(at(11));
+    assert_eq!(out(&mut d, at(14)), [b"abc".to_vec()]);
 }
 
 #[test]
@@ -764,4 +799,73 @@ proptest! {
         }
         prop_assert_eq!(received(&events(&mut d)), telegrams);
     }
+}
+
+#[test]
+fn send_with_end_character_cuts_the_telegram_after_its_end_characters() {
+    // 003 6.2.1 "Send with end character": "the length of the respective telegram is limited by
+    // an end character"; the default sends the length given.
+    let crlf = |s: &mut AsciiSettings| {
+        s.end = EndCriterion::EndChars {
+            first: b'\r',
+            second: Some(b'\n'),
+        };
+    };
+    let mut settings = AsciiSettings::default();
+    crlf(&mut settings);
+    let params = AsciiParams::try_new(settings.clone()).expect("valid");
+    assert_eq!(params.send_length(), SendLength::AsGiven);
+    let up_to = params
+        .with_send_length(SendLength::UpToEndChars)
+        .expect("valid with end characters");
+    let mut d = AsciiDriver::new(up_to);
+    d.send(at(0), b"12\r3\r\nrest\r\n".to_vec())
+        .expect("accepted");
+    assert_eq!(out(&mut d, at(10)), [b"12\r3\r\n".to_vec()]);
+    // Without its end characters the telegram goes out as given.
+    d.send(at(20), b"no end".to_vec()).expect("accepted");
+    assert_eq!(out(&mut d, at(30)), [b"no end".to_vec()]);
+    // As given by default.
+    let mut plain = AsciiDriver::new(AsciiParams::try_new(settings).expect("valid"));
+    plain.send(at(0), b"a\r\nb".to_vec()).expect("accepted");
+    assert_eq!(out(&mut plain, at(10)), [b"a\r\nb".to_vec()]);
+    // One end character.
+    let etx = AsciiParams::try_new(AsciiSettings {
+        end: EndCriterion::EndChars {
+            first: 0x03,
+            second: None,
+        },
+        ..AsciiSettings::default()
+    })
+    .and_then(|p| p.with_send_length(SendLength::UpToEndChars))
+    .expect("valid");
+    let mut d = AsciiDriver::new(etx);
+    d.send(at(0), b"AB\x03CD\x03".to_vec()).expect("accepted");
+    assert_eq!(out(&mut d, at(10)), [b"AB\x03".to_vec()]);
+    // Only "as soon as 'End character' is activated at the end ID".
+    assert_eq!(
+        AsciiParams::default().with_send_length(SendLength::UpToEndChars),
+        Err(ConfigError::SendLengthNeedsEndChars)
+    );
+}
+
+#[test]
+fn full_duplex_the_character_delay_runs_on_the_received_bytes_own_arrival() {
+    // 003 6.2.1 "Full-duplex (RS422)": "data may be sent and received at the same time"; 6.2:
+    // telegrams are separated by the character delay time between received characters. Our own
+    // long transmission does not stretch it.
+    let mut d = driver(|_| {});
+    let zvz = d.params().settings().zvz;
+    let id = d.send(at(0), vec![b'x'; 200]).expect("accepted");
+    let sending = d.poll_transmit().expect("the telegram goes out");
+    assert_eq!(sending.len(), 200);
+    // At 9600 bit/s the 200 bytes take about 230 ms; the partner sends two telegrams meanwhile.
+    d.handle_rx(at(10), b"AB");
+    assert_eq!(d.poll_timeout(), Some(at(10) + zvz));
+    d.handle_timeout(at(10) + zvz);
+    d.handle_rx(at(50), b"CD");
+    d.handle_timeout(at(50) + zvz);
+    assert_eq!(received(&events(&mut d)), [b"AB".to_vec(), b"CD".to_vec()]);
+    d.handle_tx_done(at(230));
+    assert_eq!(events(&mut d), [AsciiEvent::Sent { id }]);
 }

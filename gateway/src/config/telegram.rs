@@ -156,7 +156,7 @@ pub struct AsciiConfig {
     #[serde(with = "humantime_serde")]
     pub character_delay: Duration,
     pub fixed_length: u16,
-    /// One or two end characters.
+    /// One or two end characters; a second end character 0 is "none" (003 6.2.1) and is dropped.
     pub end_chars: Vec<u8>,
     /// Keep a pause before sending so that the partner synchronizes.
     pub send_pause: bool,
@@ -304,6 +304,10 @@ impl AsciiConfig {
         let items = f.array(cx, "end_chars");
         for (p, v) in &items {
             end_chars.extend(int_value::<u8>(cx, v, p, 0..=u8::MAX, CITE));
+        }
+        // 003 6.2.1 "End character 1/2": end character 2 = 0 is the parameter screen's "none".
+        if end_chars.len() == 2 && end_chars.last() == Some(&0) {
+            end_chars.pop();
         }
         if !f.has("end_chars") {
             end_chars = DEFAULT_ASCII_END_CHARS.to_vec();

@@ -49,6 +49,13 @@ pub trait ModbusDevice: Send {
     fn faults(&self) -> Faults {
         Faults::default()
     }
+
+    /// Bytes the line picks up after the answer just sent, once the answer has ended (the runner
+    /// sends them after a silence of more than t3.5, so they are a burst of their own). The
+    /// default is none.
+    fn after_answer(&mut self) -> Option<Vec<u8>> {
+        None
+    }
 }
 
 impl<D: ModbusDevice + ?Sized> ModbusDevice for Box<D> {
@@ -62,6 +69,10 @@ impl<D: ModbusDevice + ?Sized> ModbusDevice for Box<D> {
 
     fn faults(&self) -> Faults {
         (**self).faults()
+    }
+
+    fn after_answer(&mut self) -> Option<Vec<u8>> {
+        (**self).after_answer()
     }
 }
 
@@ -82,6 +93,12 @@ impl<D: ModbusDevice> ModbusDevice for Arc<Mutex<D>> {
 
     fn faults(&self) -> Faults {
         self.lock().unwrap_or_else(PoisonError::into_inner).faults()
+    }
+
+    fn after_answer(&mut self) -> Option<Vec<u8>> {
+        self.lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .after_answer()
     }
 }
 

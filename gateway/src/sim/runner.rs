@@ -292,6 +292,7 @@ where
                 &mut device,
                 &frame,
                 not_before,
+                timing,
                 &mut timer,
                 &shutdown,
             )
@@ -324,7 +325,7 @@ where
                 }
                 // t3.5 of silence has passed since the last byte: the answer may start now.
                 let not_before = Instant::now();
-                if !answer(&mut stream, &mut device, &frame, not_before, &mut timer, &shutdown).await? {
+                if !answer(&mut stream, &mut device, &frame, not_before, timing, &mut timer, &shutdown).await? {
                     return Ok(());
                 }
             }
@@ -340,8 +341,10 @@ where
 const NOISE_LEN: usize = 12;
 
 /// A device whose every answer is followed by a burst of pseudo-random bytes (`--fault noise`):
-/// a line picking up interference after the frame. The master has its complete answer by then,
-/// so the burst reaches it while it awaits nothing.
+/// a line picking up interference after the frame. The burst comes after a silence longer than
+/// t3.5 (the runner sends it as [`ModbusDevice::after_answer`]): the master has its complete
+/// answer by then, so the burst reaches it while it awaits nothing. Noise inside the silence would
+/// be part of the answer, which then fails (003 6.4.3, 7.2 0E 53h).
 pub struct Noisy {
     inner: Box<dyn ModbusDevice>,
     /// State of a xorshift generator (never 0).
@@ -372,12 +375,11 @@ impl Noisy {
 
 impl ModbusDevice for Noisy {
     fn handle_frame(&mut self, adu: &[u8]) -> Option<Vec<u8>> {
-        let mut answer = self.inner.handle_frame(adu)?;
-        for _ in 0..NOISE_LEN {
-            let byte = self.next_byte();
-            answer.push(byte);
-        }
-        Some(answer)
+        self.inner.handle_frame(adu)
+    }
+
+    fn after_answer(&mut self) -> Option<Vec<u8>> {
+        Some((0..NOISE_LEN).map(|_| self.next_byte()).collect())
     }
 
     fn tick(&mut self, elapsed: Duration) {
@@ -405,6 +407,7 @@ async fn answer<S>(
     device: &mut impl ModbusDevice,
     frame: &[u8],
     not_before: Instant,
+    timing: CharTiming,
     timer: &mut LineTimer,
     shutdown: &CancellationToken,
 ) -> Result<bool, SimError>
@@ -422,6 +425,15 @@ where
     // No flush: a serial stream's flush is tcdrain(3), a blocking call on a runtime thread, and
     // the write is in the kernel already.
     stream.write_all(&reply).await?;
+    if let Some(burst) = device.after_answer() {
+        // After the answer has left the wire and more than t3.5 of silence: a burst of its own.
+        let at = Instant::now() + timing.transmit_time(reply.len()) + timing.t3_5() * 2;
+        tokio::select! {
+            () = shutdown.cancelled() => return Ok(false),
+            () = timer.sleep_until(at) => {}
+        }
+        stream.write_all(&burst).await?;
+    }
     Ok(true)
 }
 
@@ -464,9 +476,10 @@ mod tests {
         assert!(decode_frame(&bad_crc).is_err());
         let wrong = answer(Some(SimFault::WrongAddress)).expect("an answer");
         assert_eq!(decode_frame(&wrong).map(|f| f.address), Ok(18));
-        let noisy = answer(Some(SimFault::Noise)).expect("an answer");
-        assert_eq!(noisy.get(..good.len()), Some(&good[..]));
-        assert_eq!(noisy.len(), good.len() + NOISE_LEN);
+        let mut noisy = args(Some(SimFault::Noise)).device().unwrap();
+        assert_eq!(noisy.handle_frame(&request()), Some(good.clone()));
+        let burst = noisy.after_answer().expect("noise after the answer");
+        assert_eq!(burst.len(), NOISE_LEN);
 
         let slow = args(Some(SimFault::Slow));
         assert_eq!(slow.device().unwrap().faults().delay, slow.fault_delay);

@@ -126,6 +126,28 @@ fn proc3964_defaults_match_the_manual() {
 }
 
 #[test]
+fn ascii_end_character_2_zero_is_none() {
+    // 003 6.2.1: "End character 1:3 (03h=ETX) End character 2:0", where 0 is the screen's "none".
+    let c = parse(&one_line(
+        "ascii",
+        "end_criterion = \"end-chars\"\nend_chars = [0x03, 0]",
+    ));
+    let ProtocolConfig::Ascii(a) = &line(&c).protocol else {
+        panic!("ascii")
+    };
+    assert_eq!(a.end_chars, [0x03]);
+    // End character 1 = 0 is a real NUL.
+    let c = parse(&one_line(
+        "ascii",
+        "end_criterion = \"end-chars\"\nend_chars = [0, 0x0A]",
+    ));
+    let ProtocolConfig::Ascii(a) = &line(&c).protocol else {
+        panic!("ascii")
+    };
+    assert_eq!(a.end_chars, [0x00, 0x0A]);
+}
+
+#[test]
 fn ascii_defaults_match_the_manual() {
     let c = parse(&one_line("ascii", ""));
     let ProtocolConfig::Ascii(a) = &line(&c).protocol else {

@@ -11,10 +11,12 @@
 //!
 //! Compiled with `cfg(fuzzing)` (set by cargo-fuzz), the `fuzzing` feature, or for tests.
 
+mod marks;
 mod modbus;
 mod slave;
 mod telegram;
 
+pub use marks::fuzz_marks;
 pub use modbus::{fuzz_ascii, fuzz_pdu, fuzz_rtu};
 pub use slave::fuzz_slave;
 pub use telegram::{fuzz_3964, fuzz_telegram};

@@ -2,7 +2,7 @@
 
 use crate::cpmem::{AddressMap, CpMemory, OperatingMode, SlaveParams, WriteLimits};
 use crate::modbus::rtu::{self, CharTiming};
-use crate::modbus::slave::{LineFault, Outcome, Slave, SlaveEvent};
+use crate::modbus::slave::{LineError, Outcome, Slave, SlaveEvent};
 use crate::time::Instant;
 
 /// The most deadlines [`fuzz_slave`] follows after the script before calling it a livelock.
@@ -88,12 +88,12 @@ pub(super) fn run_slave_script(data: &[u8]) -> usize {
             }
             _ => {
                 let fault = if arg % 2 == 1 {
-                    LineFault::Break
+                    LineError::Break
                 } else {
-                    LineFault::Character
+                    LineError::ParityOrFraming
                 };
                 let now = slave.now;
-                slave.slave.handle_line_fault(now, fault);
+                slave.slave.handle_line_error(now, fault);
             }
         }
         // A wait tells the engine nothing: its deadline may pass unnoticed (a late wake-up).

@@ -138,6 +138,11 @@ fn proc3964_seeds_and_mutations() {
 }
 
 #[test]
+fn marks_seeds_and_mutations() {
+    exercise("marks", fuzz_marks);
+}
+
+#[test]
 fn telegram_seeds_and_mutations() {
     exercise("telegram", fuzz_telegram);
 }

@@ -2,7 +2,8 @@
 //!
 //! A frame is `':' hex(address PDU LRC) CR LF`, every byte as two hex characters, the LRC over the
 //! binary address and PDU (Modbus over Serial Line V1.02, 2.5.2). [`encode_frame`] writes upper-case
-//! hex; [`decode_frame`] also accepts lower case. [`AsciiFrameAssembler`] cuts a byte stream into
+//! hex, and [`decode_frame`] takes nothing else: 003 7.2 0E 58h names every character other than
+//! 0-9 and A-F an invalid character. [`AsciiFrameAssembler`] cuts a byte stream into
 //! frames and reports what it throws away: a wrong start character (003 7.2, 08 33h), a ':' inside
 //! a frame (08 34h), a frame longer than the specification allows.
 //!
@@ -36,12 +37,12 @@ fn push_hex(out: &mut Vec<u8>, byte: u8) {
     }
 }
 
-/// The value of one hex character (either case).
+/// The value of one hex character: 0-9 and A-F only (003 7.2 0E 58h: "A received character within
+/// the reply message is not an ASCII character (0...9, A...F)"; lower case is such a character).
 const fn hex_value(c: u8) -> Option<u8> {
     match c {
         b'0'..=b'9' => Some(c - b'0'),
         b'A'..=b'F' => Some(c - b'A' + 10),
-        b'a'..=b'f' => Some(c - b'a' + 10),
         _ => None,
     }
 }
@@ -256,9 +257,13 @@ mod tests {
             decode_frame(&out),
             Ok((0x11, vec![0x03, 0x00, 0x6B, 0x00, 0x03]))
         );
+        // Lower-case hex is an invalid character (003 7.2 0E 58h).
         assert_eq!(
             decode_frame(b":1103006b00037e\r\n"),
-            Ok((0x11, vec![0x03, 0x00, 0x6B, 0x00, 0x03]))
+            Err(FrameError::BadHexDigit {
+                position: 8,
+                byte: b'b'
+            })
         );
     }
 
@@ -285,6 +290,13 @@ mod tests {
             Err(FrameError::BadHexDigit {
                 position: 8,
                 byte: b'G'
+            })
+        );
+        assert_eq!(
+            decode_frame(b":1103006b00037E\r\n"),
+            Err(FrameError::BadHexDigit {
+                position: 8,
+                byte: b'b'
             })
         );
         assert_eq!(

@@ -3,8 +3,8 @@
 //! An RTU frame (ADU) is `address | PDU | CRC` with the CRC-16/Modbus low byte first. Frames are
 //! delimited by silence: 3.5 character times end a frame (003 6.4.3), which [`CharTiming`]
 //! computes. Where the function code and byte counts tell the frame's length,
-//! [`expected_request_len`] and [`expected_response_len`] let a receiver end the frame as soon as
-//! its last byte arrives, without waiting for the silence.
+//! [`expected_request_len`] and [`expected_response_len`] let a receiver check a frame ended by
+//! silence against it: a frame longer than announced carries trailing bytes.
 
 use core::time::Duration;
 

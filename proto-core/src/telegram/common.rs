@@ -107,32 +107,7 @@ impl SendError {
     }
 }
 
-/// A fault the UART reported for a received character (the character itself is not passed to
-/// `handle_rx`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum LineError {
-    /// Parity error.
-    Parity,
-    /// Stop bit (framing) error.
-    Framing,
-    /// Receiver overrun: characters were lost.
-    Overrun,
-    /// BREAK: the receive line is held at space, the line to the partner is interrupted.
-    Break,
-}
-
-// === impl LineError ===
-
-impl LineError {
-    /// 7.2: 08 0Ch "transmission error (parity error, stop bit error or overflow error)";
-    /// 08 0Dh "BREAK: receive line to partner is interrupted".
-    pub const fn event(self) -> EventId {
-        match self {
-            Self::Parity | Self::Framing | Self::Overrun => ids::CHARACTER_ERROR,
-            Self::Break => ids::LINE_BREAK,
-        }
-    }
-}
+pub use crate::serial_marks::LineError;
 
 /// The physical interface of the line.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
@@ -206,6 +181,12 @@ pub enum ConfigError {
         /// The code given.
         value: u8,
     },
+    /// 003 6.2.1 "Send with end character" exists only "as soon as 'End character' is activated
+    /// at the end ID".
+    #[error(
+        "sending up to the end characters needs received telegrams to end with end characters"
+    )]
+    SendLengthNeedsEndChars,
     /// Two control codes that must differ are equal.
     #[error("{first} and {second} must differ (both 0x{value:02X})")]
     SameCode {

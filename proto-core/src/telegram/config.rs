@@ -166,10 +166,26 @@ impl Default for AsciiSettings {
     }
 }
 
+/// How much of a telegram given to `send` goes out: 003 6.2.1 "Send with end character": "Here
+/// end character(s) may be defined or the length set in the FB may be specified as soon as 'End
+/// character' is activated at the end ID."
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum SendLength {
+    /// The length set in the FB: the telegram as given (the default, and the only choice unless
+    /// received telegrams end with end characters).
+    #[default]
+    AsGiven,
+    /// Up to and including the end character(s) (003 6.2.1 "End character 1/2": "The length of
+    /// the respective telegram is limited by an end character"); a telegram without them goes out
+    /// as given. Only with [`EndCriterion::EndChars`].
+    UpToEndChars,
+}
+
 /// Validated ASCII parameters: only [`AsciiParams::try_new`] makes them.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct AsciiParams {
     settings: AsciiSettings,
+    send_length: SendLength,
 }
 
 // === impl AsciiParams ===
@@ -292,12 +308,38 @@ impl AsciiParams {
         }
         check_range("send queue", s.send_queue.into(), 1, 1024)?;
         check_range("transmit chunk", s.tx_chunk.into(), 1, MAX_TELEGRAM as u64)?;
-        Ok(Self { settings })
+        Ok(Self {
+            settings,
+            send_length: SendLength::AsGiven,
+        })
+    }
+
+    /// The same parameters with the "send with end character" choice of 003 6.2.1.
+    ///
+    /// # Errors
+    ///
+    /// [`ConfigError::SendLengthNeedsEndChars`] for [`SendLength::UpToEndChars`] unless received
+    /// telegrams end with end characters (the option exists "as soon as 'End character' is
+    /// activated at the end ID", 003 6.2.1).
+    pub fn with_send_length(self, send_length: SendLength) -> Result<Self, ConfigError> {
+        let end_chars = matches!(self.settings.end, EndCriterion::EndChars { .. });
+        if send_length == SendLength::UpToEndChars && !end_chars {
+            return Err(ConfigError::SendLengthNeedsEndChars);
+        }
+        Ok(Self {
+            send_length,
+            ..self
+        })
     }
 
     /// The validated settings.
     pub fn settings(&self) -> &AsciiSettings {
         &self.settings
+    }
+
+    /// How much of a telegram goes out (003 6.2.1 "Send with end character").
+    pub fn send_length(&self) -> SendLength {
+        self.send_length
     }
 }
 

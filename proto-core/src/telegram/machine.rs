@@ -10,7 +10,9 @@ use crate::time::Instant;
 use super::common::{
     LineError, ReceiveBuffer, SendError, Stored, TelegramEvent, TelegramId, TxQueue,
 };
-use super::config::{AsciiParams, AsciiSettings, FlowControl, MAX_TELEGRAM};
+use super::config::{
+    AsciiParams, AsciiSettings, EndCriterion, FlowControl, SendLength, MAX_TELEGRAM,
+};
 use super::receiver::{Outcome, Receiver};
 
 /// What [`AsciiDriver::poll_event`] returns.
@@ -180,8 +182,12 @@ impl AsciiDriver {
     ///
     /// [`SendError::Empty`], [`SendError::TooLong`] beyond 1024 bytes, [`SendError::EighthBit`]
     /// with 7 data bits, [`SendError::QueueFull`].
-    pub fn send(&mut self, now: Instant, telegram: Vec<u8>) -> Result<TelegramId, SendError> {
+    pub fn send(&mut self, now: Instant, mut telegram: Vec<u8>) -> Result<TelegramId, SendError> {
         let capacity = usize::from(self.settings().send_queue);
+        if let Some(len) = self.end_chars_len(&telegram) {
+            // 003 6.2.1 "Send with end character": the telegram ends with its end character(s).
+            telegram.truncate(len);
+        }
         if telegram.is_empty() {
             return Err(SendError::Empty);
         }
@@ -246,7 +252,10 @@ impl AsciiDriver {
                 self.receiver.abort();
                 self.raise(error.event());
             }
-            LineError::Parity | LineError::Framing | LineError::Overrun => {
+            LineError::Parity
+            | LineError::Framing
+            | LineError::ParityOrFraming
+            | LineError::Overrun => {
                 if let Some(outcome) = self.receiver.push_faulty(now, error.event()) {
                     self.deliver(outcome);
                 }
@@ -454,6 +463,13 @@ impl AsciiDriver {
                         return;
                     };
                     if let FlowControl::AutoV24 { output_wait, .. } = self.settings().flow {
+                        if !self.signals.dsr {
+                            // 000 7.2 08 18h: "Vor oder während eines Sendevorgangs sind die
+                            // Signale DSR bzw. CTS vom Partner auf OFF geschaltet worden": a send
+                            // does not start while the partner is not ready (DSR, 000 5.4).
+                            self.refuse_send(job, ids::DSR_OR_CTS_OFF);
+                            continue;
+                        }
                         // 000 5.4 "Senden": "Steht ein Sendeauftrag an, wird RTS auf ON gesetzt und
                         // die parametrierte Datenausgabewartezeit gestartet."
                         let deadline = now + output_wait;
@@ -552,6 +568,34 @@ impl AsciiDriver {
             self.quiet_since = Some(now);
         }
         true
+    }
+
+    /// With [`SendLength::UpToEndChars`]: the length of `telegram` up to and including the first
+    /// occurrence of the end character(s), if it has them.
+    fn end_chars_len(&self, telegram: &[u8]) -> Option<usize> {
+        if self.params.send_length() != SendLength::UpToEndChars {
+            return None;
+        }
+        let EndCriterion::EndChars { first, second } = self.settings().end else {
+            return None;
+        };
+        match second {
+            None => telegram.iter().position(|&b| b == first).map(|at| at + 1),
+            Some(second) => telegram
+                .windows(2)
+                .position(|w| w == [first, second])
+                .map(|at| at + 2),
+        }
+    }
+
+    /// Gives up `job` before any of it went out (the line stays as quiet as it was).
+    fn refuse_send(&mut self, job: Job, cause: EventId) {
+        self.raise(cause);
+        self.events.push_back(TelegramEvent::SendFailed {
+            id: job.id,
+            event: cause,
+            first: cause,
+        });
     }
 
     fn set_rts(&mut self, on: bool) {

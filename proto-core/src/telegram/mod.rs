@@ -18,8 +18,9 @@ mod receiver;
 
 pub use common::{ConfigError, Interface, LineError, SendError, TelegramEvent, TelegramId};
 pub use config::{
-    AsciiParams, AsciiSettings, EndCriterion, FlowControl, DEFAULT_END_CHAR, DEFAULT_FIXED_LENGTH,
-    DEFAULT_FLOW_WAIT, DEFAULT_OUTPUT_WAIT, DEFAULT_RECEIVE_BUFFERS, DEFAULT_RTS_HOLD,
-    DEFAULT_SEND_QUEUE, DEFAULT_TX_CHUNK, DEFAULT_XOFF, DEFAULT_XON, DEFAULT_ZVZ, MAX_TELEGRAM,
+    AsciiParams, AsciiSettings, EndCriterion, FlowControl, SendLength, DEFAULT_END_CHAR,
+    DEFAULT_FIXED_LENGTH, DEFAULT_FLOW_WAIT, DEFAULT_OUTPUT_WAIT, DEFAULT_RECEIVE_BUFFERS,
+    DEFAULT_RTS_HOLD, DEFAULT_SEND_QUEUE, DEFAULT_TX_CHUNK, DEFAULT_XOFF, DEFAULT_XON, DEFAULT_ZVZ,
+    MAX_TELEGRAM,
 };
 pub use machine::{Action, AsciiDriver, AsciiEvent, Signals};

@@ -79,6 +79,13 @@ fn ascii_reply_errors() {
         ascii_reply_events(&bad_char),
         failed(ids::MODBUS_ASCII_INVALID_CHARACTER)
     );
+    // 0E 58h: lower-case hex is not one of the characters 0...9, A...F (003 7.2).
+    let lower = good.to_ascii_lowercase();
+    assert_ne!(lower, good, "the reply has hex letters");
+    assert_eq!(
+        ascii_reply_events(&lower),
+        failed(ids::MODBUS_ASCII_INVALID_CHARACTER)
+    );
     // 0E 57h: the LRC does not match.
     let mut bad_lrc = good.clone();
     let lrc_at = bad_lrc.len() - 3;

@@ -68,6 +68,7 @@ fn the_reply_delay_runs_from_the_end_of_transmission_to_the_first_byte() {
     line.rx(&answer[..3]);
     line.advance(Duration::from_millis(1));
     line.rx(&answer[3..]);
+    line.fire();
     assert_eq!(
         line.outcomes(),
         [Outcome::Response(Response::ReadHoldingRegisters(vec![

@@ -1,9 +1,12 @@
 //! Reception of a reply, byte by byte, for RTU and ASCII framing, and the framing of requests.
 //!
 //! A reply ends
-//! - RTU: as soon as the length its function code and byte count announce is reached and the CRC
-//!   checks, else after 3.5 character times of silence (003 6.4.3 "CRC-CHECK"), when whatever
-//!   came is decoded;
+//! - RTU: after 3.5 character times of silence (003 6.4.3 "CRC-CHECK": "The driver for Modbus
+//!   Master recognizes message end, when no transmission takes place during the time period for
+//!   the transmission of 3.5 times character delay time"), never on length alone: the frame is
+//!   everything that arrived before the silence. A frame longer than its function code and byte
+//!   count announce fails with 0E 53h (7.2 "byte overflow"), whatever its CRC, and none of its
+//!   values are taken;
 //! - ASCII: with LF (003 6.4.2.2; Modbus over Serial Line V1.02, 2.5.2.1: ':' ... CR LF); a gap
 //!   longer than the character delay time inside the frame makes it void (003 6.4.2.2 "Character
 //!   Delay Time": "the message is ignored and an error is indicated").
@@ -98,7 +101,15 @@ impl Receiving {
         match (self.error, config.is_ascii()) {
             (Some(error), _) => (self.tx, FrameEnd::Failed(error), Vec::new()),
             // 003 6.4.3: the end of an RTU frame is 3.5 character times of silence.
-            (None, false) => (self.tx, FrameEnd::Frame(self.buf), Vec::new()),
+            (None, false) => match rtu::expected_response_len(&self.buf) {
+                // 003 7.2 0E 53h: "Byte overflow: Amount of characters received is more than
+                // should have resulted according to byte counter or function code".
+                rtu::FrameLen::Complete(len) if len < self.buf.len() => {
+                    let error = ids::MODBUS_BYTE_OVERFLOW;
+                    (self.tx, FrameEnd::Failed(error), vec![error])
+                }
+                _ => (self.tx, FrameEnd::Frame(self.buf), Vec::new()),
+            },
             // 003 6.4.2.2: a gap longer than the character delay time voids the ASCII frame
             // (7.2 08 06h "character delay time exceeded").
             (None, true) => {
@@ -160,15 +171,9 @@ impl Receiving {
             self.fail(ids::MODBUS_RECEIVE_OVERFLOW, give_up_at);
             return None;
         }
+        // The frame ends by silence only (see the module doc), never here.
         self.buf.push(byte);
-        match rtu::expected_response_len(&self.buf) {
-            rtu::FrameLen::Complete(len)
-                if len == self.buf.len() && rtu::decode_frame(&self.buf).is_ok() =>
-            {
-                Some(FrameEnd::Frame(core::mem::take(&mut self.buf)))
-            }
-            _ => None,
-        }
+        None
     }
 
     fn push_ascii(

@@ -26,11 +26,13 @@
 //!
 //! A request ends when no byte arrives for t3.5 (003 6.4.6 "CRC-CHECK": "message end, when no
 //! transmission takes place during the time period for the transmission of 3.5 times character
-//! delay time"; 6.4.5.1 "Multiplier character delay time" scales it by 1..10), or as soon as the
-//! length its function code announces ([`rtu::expected_request_len`]) is complete with a good
-//! CRC; bytes after such a frame start the next one. Either way the request is carried out and
-//! answered t3.5 after its last byte, never earlier: that is the silence the master needs to see
-//! its request ended (Modbus over Serial Line V1.02, 2.5.1.1; the seeds give no turnaround time).
+//! delay time"; 6.4.5.1 "Multiplier character delay time" scales it by 1..10), and only then: the
+//! frame is everything that arrived before the silence. A frame longer than the length its
+//! function code announces ([`rtu::expected_request_len`]) carries trailing bytes and is
+//! discarded and counted ([`DiscardReason::TrailingData`]), not answered. A good request is
+//! carried out and answered as soon as that silence has passed, t3.5 after its last byte: that is
+//! also the silence the master needs to see its request ended (Modbus over Serial Line V1.02,
+//! 2.5.1.1; the seeds give no turnaround time).
 //! The inter-character time-out t1.5 of the Modbus specification is not checked: the CP's
 //! parameters only know the end-of-frame time.
 //!
@@ -96,6 +98,9 @@ pub enum DiscardReason {
     TooLong,
     /// A character error or break cut the frame (events 08 0Ch, 08 0Dh).
     LineFault,
+    /// More bytes before the silence than the request's function code and byte count announce
+    /// (003 6.4.6: the frame ends by silence only); the CP's catalog has no slave event for it.
+    TrailingData,
 }
 
 // === impl DiscardReason ===
@@ -109,18 +114,14 @@ impl DiscardReason {
             Self::TooShort => "too_short",
             Self::TooLong => "too_long",
             Self::LineFault => "line_fault",
+            Self::TrailingData => "trailing_data",
         }
     }
 }
 
-/// A fault the serial port reports (the runtime reads it from the UART; a pty has none).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum LineFault {
-    /// Parity, stop bit or overrun error (7.2 08 0Ch).
-    Character,
-    /// BREAK: the receive line is interrupted (7.2 08 0Dh).
-    Break,
-}
+/// The UART errors every engine of the crate takes (003 7.2: 08 0Ch parity, stop bit and
+/// overflow errors, 08 0Dh break).
+pub use crate::serial_marks::LineError;
 
 /// What happened, in order (see [`Slave::poll_event`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -244,8 +245,8 @@ impl<M: MemoryAccess> Slave<M> {
 
     /// Bytes received at `now` (the arrival of the chunk's last byte).
     ///
-    /// Ends and serves a frame whose silence already passed, then collects the bytes; a frame that
-    /// completes by length is answered at `now + t3.5`.
+    /// Ends and serves a frame whose silence already passed, then collects the bytes; the frame
+    /// they belong to ends t3.5 after the last of them (see [`Slave::poll_timeout`]).
     pub fn handle_rx(&mut self, now: Instant, bytes: &[u8]) {
         self.advance(now);
         for &byte in bytes {
@@ -256,14 +257,6 @@ impl<M: MemoryAccess> Slave<M> {
             self.rx.push(byte);
             if self.rx.len() > rtu::MAX_FRAME_LEN {
                 self.drop_frame(DiscardReason::TooLong, Some(ids::FRAME_TOO_LONG));
-            } else if let FrameLen::Complete(len) = rtu::expected_request_len(&self.rx) {
-                if len == self.rx.len() && rtu::decode_frame(&self.rx).is_ok() {
-                    let frame = core::mem::take(&mut self.rx);
-                    self.ready.push_back(Ready {
-                        frame,
-                        due: now + self.timing.t35,
-                    });
-                }
             }
         }
         if !bytes.is_empty() {
@@ -280,16 +273,13 @@ impl<M: MemoryAccess> Slave<M> {
     /// A fault of the serial line at `now` (003 6.4.5.1 "Operating mode"): in normal operation
     /// every fault raises its event (08 0Ch, 08 0Dh); with interference suppression a fault while
     /// no frame is being received is ignored. A fault inside a frame drops the frame.
-    pub fn handle_line_fault(&mut self, now: Instant, fault: LineFault) {
+    pub fn handle_line_error(&mut self, now: Instant, error: LineError) {
         self.advance(now);
         let idle = self.rx.is_empty() && self.dropping.is_none();
         if idle && self.params.mode() == OperatingMode::InterferenceSuppression {
             return;
         }
-        self.events.push_back(SlaveEvent::Diagnostic(match fault {
-            LineFault::Character => ids::CHARACTER_ERROR,
-            LineFault::Break => ids::LINE_BREAK,
-        }));
+        self.events.push_back(SlaveEvent::Diagnostic(error.event()));
         if !idle {
             self.drop_frame(DiscardReason::LineFault, None);
         }
@@ -306,7 +296,7 @@ impl<M: MemoryAccess> Slave<M> {
     /// When [`Slave::handle_timeout`] has work next: t3.5 after the last byte of the frame being
     /// received, or the answer time of the oldest complete request; `None` when idle.
     ///
-    /// Changes after [`Slave::handle_rx`], [`Slave::handle_timeout`] and [`Slave::handle_line_fault`].
+    /// Changes after [`Slave::handle_rx`], [`Slave::handle_timeout`] and [`Slave::handle_line_error`].
     pub fn poll_timeout(&self) -> Option<Instant> {
         let frame_end = match self.last_rx {
             Some(last) if !self.rx.is_empty() || self.dropping.is_some() => {
@@ -351,6 +341,14 @@ impl<M: MemoryAccess> Slave<M> {
 
     /// A frame ended by silence at `due`: checked now, served in order at `due`.
     fn end_of_frame(&mut self, frame: Vec<u8>, due: Instant) {
+        if let FrameLen::Complete(len) = rtu::expected_request_len(&frame) {
+            if len < frame.len() {
+                // 003 6.4.6 "CRC-CHECK": the frame is what came before the silence; a request
+                // followed by more bytes is not a valid request.
+                self.discard(DiscardReason::TrailingData, frame.len(), None);
+                return;
+            }
+        }
         match rtu::decode_frame(&frame) {
             Ok(_) => self.ready.push_back(Ready { frame, due }),
             Err(error) => {
