@@ -25,7 +25,6 @@ use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
 use super::lines::{self, LineDeps, RunningLine};
-use super::status::{self, WireCounters};
 use super::{server_options, AppError, MetricsRegistry, Overrides, GRACE_PERIOD};
 use crate::api::model::ApplyReport;
 use crate::api::{ApiError, ConfigDiff};
@@ -86,8 +85,6 @@ pub(crate) struct Supervisor {
     pub(crate) zenoh: tokio::sync::Mutex<Option<super::zenoh::ZenohRun>>,
     /// What status and readiness show of zenoh; `None` when it is not configured.
     pub(crate) zenoh_state: Mutex<Option<super::zenoh::ZenohState>>,
-    /// Per line: the Prometheus frame and byte counts when the line started.
-    baselines: Mutex<BTreeMap<String, WireCounters>>,
     /// Lines (name, port) whose port was opened by an earlier task of the line, before a
     /// configuration change restarted it: readiness does not wait for the new task to reopen
     /// the same port.
@@ -115,9 +112,7 @@ impl Supervisor {
         };
         let lines_token = shutdown.child_token();
         let mirrored = Mutex::new(Vec::new());
-        let baselines_now = status::wire_counters(&exported.registry);
         let mut lines = BTreeMap::new();
-        let mut baselines = BTreeMap::new();
         {
             let deps = LineDeps {
                 config: &config,
@@ -131,8 +126,6 @@ impl Supervisor {
                 match lines::start_line(name, line, &deps) {
                     Ok(running) => {
                         lines.insert(name.clone(), running);
-                        let base = baselines_now.get(name).copied().unwrap_or_default();
-                        baselines.insert(name.clone(), base);
                     }
                     Err(e) => {
                         lines_token.cancel();
@@ -173,7 +166,6 @@ impl Supervisor {
             tcp_state: Mutex::new((addr, Arc::new(AtomicBool::new(false)))),
             zenoh: tokio::sync::Mutex::new(None),
             zenoh_state: Mutex::new(None),
-            baselines: Mutex::new(baselines),
             opened_before: Mutex::new(BTreeSet::new()),
         });
         let server = sup.spawn_tcp(listener)?;
@@ -200,11 +192,6 @@ impl Supervisor {
     pub(crate) fn tcp_listen(&self) -> (SocketAddr, bool) {
         let state = lock(&self.tcp_state);
         (state.0, state.1.load(Ordering::Acquire))
-    }
-
-    /// The Prometheus frame and byte counts of `line` at its start.
-    pub(crate) fn baseline(&self, line: &str) -> WireCounters {
-        lock(&self.baselines).get(line).copied().unwrap_or_default()
     }
 
     /// Binds the listener's server task under its own token.
@@ -321,7 +308,7 @@ impl Supervisor {
                 let mut opened = lock(&self.opened_before);
                 let known = opened.contains(&key);
                 opened.retain(|(line_name, _)| line_name != name);
-                if new.lines.contains_key(name) && (known || line.kind.status().port_opens > 0) {
+                if new.lines.contains_key(name) && (known || line.handle.status().port_opens > 0) {
                     opened.insert(key);
                 }
             }
@@ -344,7 +331,6 @@ impl Supervisor {
                     .is_some_and(|l| l.protocol.kind().as_str() == protocol);
                 if !same_protocol {
                     self.exported.metrics.forget_line(name, protocol);
-                    lock(&self.baselines).remove(name);
                 }
             }
         }
@@ -361,15 +347,12 @@ impl Supervisor {
                 parent: &self.lines_token,
                 mirrored: &self.mirrored,
             };
-            let counts = status::wire_counters(&self.exported.registry);
             for name in diff.lines_added.iter().chain(&restart) {
                 let Some(line) = new.lines.get(name) else {
                     continue;
                 };
                 match lines::start_line(name, line, &deps) {
                     Ok(running) => {
-                        let base = counts.get(name).copied().unwrap_or_default();
-                        lock(&self.baselines).insert(name.clone(), base);
                         info!(line = %name, port = %running.port, "line started");
                         lines.insert(name.clone(), running);
                         started.push(name.clone());
@@ -513,7 +496,7 @@ impl Supervisor {
         }
         super::zenoh::stop(self).await;
         for (_, line) in self.snapshot().lines.clone() {
-            line.kind.join().await;
+            line.handle.join().await;
         }
         if let Some(server) = tcp {
             let _ = server.task.await;
@@ -529,7 +512,7 @@ impl Supervisor {
 /// Cancels a line and waits (bounded) for its task, which closes its port.
 async fn stop_line(name: &str, line: RunningLine) {
     line.token.cancel();
-    if tokio::time::timeout(GRACE_PERIOD, line.kind.join())
+    if tokio::time::timeout(GRACE_PERIOD, line.handle.join())
         .await
         .is_err()
     {

@@ -17,7 +17,7 @@ use tokio::sync::broadcast::error::RecvError;
 use tokio_util::sync::CancellationToken;
 use tracing::{debug, info, warn};
 
-use super::lines::{LineKind, RunningLine};
+use super::lines::RunningLine;
 use super::supervisor::{Snapshot, Supervisor};
 use super::tag_io;
 use super::AppError;
@@ -198,7 +198,7 @@ impl BridgeBackend for ZenohBackend {
         let sup = self.sup.upgrade()?;
         let snapshot = sup.snapshot();
         let running = snapshot.lines.get(line)?;
-        Some(status_json(&running.kind.status(), running.protocol))
+        Some(status_json(&running.handle.status(), running.protocol))
     }
 
     fn gateway_status(&self) -> Json {
@@ -209,7 +209,7 @@ impl BridgeBackend for ZenohBackend {
         let lines: Vec<Json> = snapshot
             .lines
             .values()
-            .map(|l| status_json(&l.kind.status(), l.protocol))
+            .map(|l| status_json(&l.handle.status(), l.protocol))
             .collect();
         json!({
             "name": snapshot.config.gateway.name,
@@ -219,13 +219,10 @@ impl BridgeBackend for ZenohBackend {
     }
 
     fn send_telegram(&self, line: &str, bytes: Vec<u8>) -> BackendFuture<Result<Json, String>> {
-        let client =
-            self.sup
-                .upgrade()
-                .and_then(|s| match s.snapshot().lines.get(line).map(|l| &l.kind) {
-                    Some(LineKind::Telegram(h)) => Some(h.client()),
-                    _ => None,
-                });
+        let client = self
+            .sup
+            .upgrade()
+            .and_then(|s| s.snapshot().lines.get(line)?.handle.telegram_client());
         let Some(client) = client else {
             let answer = Err(format!("line {line} does not send telegrams"));
             return Box::pin(async move { answer });
@@ -391,11 +388,9 @@ fn spawn_feeds(sup: &Arc<Supervisor>, bridge: &BridgeHandle, token: &Cancellatio
             let Some(sup) = weak.upgrade() else { return };
             let mut now: BTreeSet<(String, String)> = BTreeSet::new();
             for line in sup.snapshot().lines.values() {
-                if let LineKind::Master(h) = &line.kind {
-                    let status = h.status();
-                    for d in status.devices.iter().filter(|d| d.online) {
-                        now.insert((status.name.clone(), d.name.clone()));
-                    }
+                let status = line.handle.status();
+                for d in status.devices.iter().filter(|d| d.online) {
+                    now.insert((status.name.clone(), d.name.clone()));
                 }
             }
             for key in online.difference(&now) {
@@ -417,7 +412,7 @@ fn spawn_line_feeds(
     line: &RunningLine,
     token: &CancellationToken,
 ) {
-    let mut events = line.kind.subscribe_events();
+    let mut events = line.handle.subscribe_events();
     {
         let bridge = bridge.clone();
         let (token, line_token) = (token.clone(), line.token.clone());
@@ -438,10 +433,9 @@ fn spawn_line_feeds(
             }
         });
     }
-    let LineKind::Telegram(handle) = &line.kind else {
+    let Some(mut rx) = line.handle.subscribe_rx() else {
         return;
     };
-    let mut rx = handle.subscribe_rx();
     let bridge = bridge.clone();
     let (token, line_token) = (token.clone(), line.token.clone());
     let name = name.to_owned();
