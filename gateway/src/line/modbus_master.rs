@@ -55,15 +55,14 @@ pub fn spawn_modbus_master_line(
     let depth = settings.queue_depth.max(1);
     let (tx, rx) = mpsc::channel(depth);
     let devices: Vec<Arc<DeviceSettings>> = devices.into_iter().map(Arc::new).collect();
-    let base = LineBase {
-        name: settings.name.clone(),
-        protocol: settings.protocol(),
-        port: settings.port.clone(),
-        diag_depth: settings.diag_depth,
-        reopen_min: settings.reopen_min,
-        reopen_max: settings.reopen_max,
-        metrics: settings.metrics.clone(),
-    };
+    let base = LineBase::new(
+        &settings.name,
+        settings.protocol(),
+        &settings.port,
+        settings.diag_depth,
+        (settings.reopen_min, settings.reopen_max),
+        settings.metrics.as_ref(),
+    );
     let core = base.core(
         devices
             .iter()

@@ -111,15 +111,14 @@ pub fn spawn_modbus_slave_line(
     memory: SharedCpMemory,
     shutdown: CancellationToken,
 ) -> LineHandle {
-    let base = LineBase {
-        name: settings.name.clone(),
-        protocol: SlaveLineSettings::PROTOCOL,
-        port: settings.port.clone(),
-        diag_depth: settings.diag_depth,
-        reopen_min: settings.reopen_min,
-        reopen_max: settings.reopen_max,
-        metrics: settings.metrics.clone(),
-    };
+    let base = LineBase::new(
+        &settings.name,
+        SlaveLineSettings::PROTOCOL,
+        &settings.port,
+        settings.diag_depth,
+        (settings.reopen_min, settings.reopen_max),
+        settings.metrics.as_ref(),
+    );
     let core = base.core(Vec::new());
     let counters = Arc::new(Mutex::new(SlaveCounters::default()));
     let caps = SlaveCapabilities {

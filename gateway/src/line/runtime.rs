@@ -29,7 +29,7 @@
 use std::fmt;
 use std::future::Future;
 use std::sync::{Arc, Mutex, PoisonError};
-use std::time::{Duration, SystemTime};
+use std::time::Duration;
 
 use proto_core::event::{ids, EventId};
 use proto_core::telegram::Action;
@@ -170,6 +170,8 @@ pub(crate) trait LineEngine: Send + 'static {
 }
 
 /// What every line is started with, whatever its protocol.
+///
+/// The protocol's settings carry these under the same names; [`LineBase::new`] takes them over.
 #[derive(Clone, Debug)]
 pub(crate) struct LineBase {
     /// The line's name (logs, status, keys).
@@ -191,23 +193,30 @@ pub(crate) struct LineBase {
 // === impl LineBase ===
 
 impl LineBase {
+    /// The common settings of line `name` speaking `protocol` (the config's key).
+    pub(crate) fn new(
+        name: &str,
+        protocol: &'static str,
+        port: &PortSettings,
+        diag_depth: usize,
+        reopen: (Duration, Duration),
+        metrics: Option<&Metrics>,
+    ) -> Self {
+        Self {
+            name: name.to_owned(),
+            protocol,
+            port: port.clone(),
+            diag_depth,
+            reopen_min: reopen.0,
+            reopen_max: reopen.1,
+            metrics: metrics.cloned(),
+        }
+    }
+
     /// The line's shared state (status with `devices`, diagnostic buffer, events, metrics) on its
     /// clock.
     pub(crate) fn core(self, devices: Vec<DeviceStatus>) -> LineCore {
-        let status = LineStatus {
-            name: self.name.clone(),
-            port_open: false,
-            port_error: None,
-            port_opens: 0,
-            status_word: 0,
-            diagnostics: Vec::new(),
-            last_event: None,
-            started: SystemTime::now(),
-            event_counts: std::collections::BTreeMap::new(),
-            devices,
-            commands_answered: 0,
-            commands_failed: 0,
-        };
+        let status = LineStatus::new(self.name.clone(), devices);
         let clock = Clock::start();
         let metrics = LineMetrics::new(self.metrics.clone(), &self.name, self.protocol);
         LineCore {

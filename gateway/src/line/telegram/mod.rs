@@ -36,7 +36,6 @@ use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
 
 pub use crate::mailbox::TelegramRx;
-#[cfg(test)]
 pub(crate) use client::Command;
 pub use client::{PendingSend, SendResult, SignalsClient, TelegramClient, TelegramSendError};
 pub use convert::{params_3964, params_ascii, TelegramConfigError};
@@ -310,20 +309,19 @@ pub fn spawn_telegram_line(
     };
     let name: Arc<str> = Arc::from(settings.name.as_str());
     let (tx, rx) = mpsc::channel(settings.send_queue);
-    let base = LineBase {
-        name: settings.name.clone(),
-        protocol: match settings.protocol {
-            TelegramProtocol::P3964(_) => "3964r",
-            TelegramProtocol::Ascii(_) => "ascii",
-        },
-        port: settings.port.clone(),
-        diag_depth: settings.diag_depth,
-        reopen_min: settings.reopen_min,
-        reopen_max: settings.reopen_max,
-        metrics: settings.metrics.clone(),
+    let protocol = match settings.protocol {
+        TelegramProtocol::P3964(_) => "3964r",
+        TelegramProtocol::Ascii(_) => "ascii",
     };
+    let base = LineBase::new(
+        &settings.name,
+        protocol,
+        &settings.port,
+        settings.diag_depth,
+        (settings.reopen_min, settings.reopen_max),
+        settings.metrics.as_ref(),
+    );
     let core = base.core(Vec::new());
-    let clock = core.clock;
     let shared = Arc::new(LineShared {
         metrics: core.shared.metrics().clone(),
         status: Arc::clone(&core.shared),
@@ -333,23 +331,23 @@ pub fn spawn_telegram_line(
         client: TelegramClient::new(Arc::clone(&name), tx, settings.send_queue),
         unit_id: settings.unit_id,
     });
-    let caps = Arc::clone(&shared);
     match settings.engine_protocol() {
-        TelegramProtocol::P3964(params) => runtime::spawn(
-            core,
-            task::TelegramLine::new(settings, params, shared, clock),
-            Some(rx),
-            caps,
-            SerialOpener,
-            shutdown,
-        ),
-        TelegramProtocol::Ascii(params) => runtime::spawn(
-            core,
-            task::TelegramLine::new(settings, params, shared, clock),
-            Some(rx),
-            caps,
-            SerialOpener,
-            shutdown,
-        ),
+        TelegramProtocol::P3964(params) => start(core, settings, params, shared, rx, shutdown),
+        TelegramProtocol::Ascii(params) => start(core, settings, params, shared, rx, shutdown),
     }
+}
+
+/// The runtime with the telegram adapter over the engines `factory` builds.
+fn start<F: engine::EngineFactory>(
+    core: runtime::LineCore,
+    settings: TelegramLineSettings,
+    factory: F,
+    shared: Arc<LineShared>,
+    commands: mpsc::Receiver<Command>,
+    shutdown: CancellationToken,
+) -> LineHandle {
+    let clock = core.clock;
+    let caps = Arc::clone(&shared);
+    let engine = task::TelegramLine::new(settings, factory, shared, clock);
+    runtime::spawn(core, engine, Some(commands), caps, SerialOpener, shutdown)
 }
