@@ -117,10 +117,14 @@ impl LineCapabilities for MasterCapabilities {
             .collect()
     }
 
-    fn commands(&self) -> Option<LineClient> {
-        Some(self.client.clone())
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
     }
+}
 
+// === impl MasterCapabilities ===
+
+impl MasterCapabilities {
     fn device_units(&self) -> Vec<(u8, DeviceUnit)> {
         self.devices
             .iter()
@@ -136,6 +140,30 @@ impl LineCapabilities for MasterCapabilities {
                 (device.unit_id, unit)
             })
             .collect()
+    }
+}
+
+/// What a Modbus master line adds to every line.
+impl LineHandle {
+    /// The command queue of a Modbus master line.
+    pub fn client(&self) -> Option<LineClient> {
+        self.capability::<MasterCapabilities>()
+            .map(|c| c.client.clone())
+    }
+
+    /// Every device of a Modbus master line as a Modbus TCP unit, with its unit id.
+    pub fn device_units(&self) -> Vec<(u8, DeviceUnit)> {
+        self.capability::<MasterCapabilities>()
+            .map(MasterCapabilities::device_units)
+            .unwrap_or_default()
+    }
+
+    /// The device named `name` of a Modbus master line as a Modbus TCP unit.
+    pub fn device_unit(&self, name: &str) -> Option<DeviceUnit> {
+        self.device_units()
+            .into_iter()
+            .map(|(_, u)| u)
+            .find(|u| u.device().name == name)
     }
 }
 

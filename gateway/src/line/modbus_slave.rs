@@ -22,12 +22,11 @@ use tokio_util::sync::CancellationToken;
 
 use super::line_metrics::{slave_result, SLAVE_LINE_PARTNER};
 use super::runtime::{
-    self, CpMemoryView, LineBase, LineCapabilities, LineEngine, LineHandle, SerialOpener,
-    SlaveCapability, Stop,
+    self, LineBase, LineCapabilities, LineEngine, LineHandle, SerialOpener, Stop,
 };
 use super::status::{Shared, DEFAULT_DIAG_DEPTH};
 use super::{DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
-use crate::cpmem::SharedCpMemory;
+use crate::cpmem::{CpMemoryUnit, SharedCpMemory};
 use crate::metrics::Metrics;
 use crate::serial::PortSettings;
 use crate::unit::UnitService;
@@ -156,12 +155,14 @@ impl LineCapabilities for SlaveCapabilities {
             .collect()
     }
 
-    fn slave(&self) -> Option<&dyn SlaveCapability> {
-        Some(self)
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
     }
 }
 
-impl SlaveCapability for SlaveCapabilities {
+// === impl SlaveCapabilities ===
+
+impl SlaveCapabilities {
     fn counters(&self) -> SlaveCounters {
         self.counters
             .lock()
@@ -175,6 +176,41 @@ impl SlaveCapability for SlaveCapabilities {
             map: self.params.map().clone(),
             unit_id: self.unit_id,
         }
+    }
+}
+
+/// The CP memory a slave line serves, with its address conversion and unit id.
+#[derive(Clone, Debug)]
+pub struct CpMemoryView {
+    /// The memory.
+    pub memory: SharedCpMemory,
+    /// The line's address conversion (for [`SharedCpMemory::mirror_to`]).
+    pub map: proto_core::cpmem::AddressMap,
+    /// The unit id under which Modbus TCP and the image show it, if any.
+    pub unit_id: Option<u8>,
+}
+
+// === impl CpMemoryView ===
+
+impl CpMemoryView {
+    /// The memory with the line's address conversion as a Modbus TCP unit.
+    pub fn unit(&self) -> CpMemoryUnit {
+        CpMemoryUnit::new(self.memory.clone(), self.map.clone())
+    }
+}
+
+/// What a Modbus slave line adds to every line.
+impl LineHandle {
+    /// What a Modbus slave line has served.
+    pub fn slave_counters(&self) -> Option<SlaveCounters> {
+        self.capability::<SlaveCapabilities>()
+            .map(SlaveCapabilities::counters)
+    }
+
+    /// The CP memory a Modbus slave line serves.
+    pub fn cp_memory(&self) -> Option<CpMemoryView> {
+        self.capability::<SlaveCapabilities>()
+            .map(SlaveCapabilities::memory)
     }
 }
 

@@ -26,6 +26,7 @@
 //! still read, whether the command queue closes at once, how long the engine may finish what it
 //! has started.
 
+use std::any::Any;
 use std::fmt;
 use std::future::Future;
 use std::sync::{Arc, Mutex, PoisonError};
@@ -43,10 +44,6 @@ use tokio_util::sync::CancellationToken;
 use super::driver::{estimated_tx_end, sleep_until_opt, Clock};
 use super::line_metrics::{LineMetrics, LineTraffic};
 use super::status::{DeviceStatus, LineEvent, LineStatus, Shared};
-use super::{DeviceUnit, LineClient, SlaveCounters};
-use crate::cpmem::{CpMemoryUnit, SharedCpMemory};
-use crate::line::telegram::{SignalsClient, TelegramClient, TelegramLineStatus, TelegramRx};
-use crate::mailbox::{Mailbox, MailboxUnit};
 use crate::metrics::Metrics;
 use crate::serial::{self, Backoff, PortSettings};
 use crate::timer::LineTimer;
@@ -235,8 +232,9 @@ pub(crate) struct LineCore {
     pub(crate) clock: Clock,
 }
 
-/// What a line offers beyond what every line has; each protocol implements what it has, the
-/// rest answers `None`.
+/// What a line offers beyond what every line has. The protocol's module adds the accessors of
+/// its own capabilities to [`LineHandle`] (an `impl LineHandle` block next to its adapter), which
+/// find them with [`LineHandle::capability`].
 pub(crate) trait LineCapabilities: Send + Sync + fmt::Debug + 'static {
     /// The Modbus TCP units the line answers, with their unit ids.
     fn units(&self) -> Vec<(u8, Arc<dyn UnitService>)> {
@@ -246,60 +244,15 @@ pub(crate) trait LineCapabilities: Send + Sync + fmt::Debug + 'static {
     fn traffic(&self) -> Option<LineTraffic> {
         None
     }
-    /// The command queue of a Modbus master line.
-    fn commands(&self) -> Option<LineClient> {
-        None
-    }
-    /// The polled devices as Modbus TCP units.
-    fn device_units(&self) -> Vec<(u8, DeviceUnit)> {
-        Vec::new()
-    }
-    /// The telegram side of a telegram line.
-    fn telegrams(&self) -> Option<&dyn TelegramCapability> {
-        None
-    }
-    /// The slave side of a Modbus slave line.
-    fn slave(&self) -> Option<&dyn SlaveCapability> {
-        None
-    }
-}
-
-/// A line that sends and receives telegrams through a mailbox.
-pub(crate) trait TelegramCapability: Send + Sync {
-    fn client(&self) -> TelegramClient;
-    fn signals(&self) -> SignalsClient;
-    fn mailbox(&self) -> Arc<Mailbox>;
-    fn status(&self) -> TelegramLineStatus;
-}
-
-/// A line that serves the CP memory as a Modbus slave.
-pub(crate) trait SlaveCapability: Send + Sync {
-    fn counters(&self) -> SlaveCounters;
-    fn memory(&self) -> CpMemoryView;
-}
-
-/// The CP memory a slave line serves, with its address conversion and unit id.
-#[derive(Clone, Debug)]
-pub struct CpMemoryView {
-    /// The memory.
-    pub memory: SharedCpMemory,
-    /// The line's address conversion (for [`SharedCpMemory::mirror_to`]).
-    pub map: proto_core::cpmem::AddressMap,
-    /// The unit id under which Modbus TCP and the image show it, if any.
-    pub unit_id: Option<u8>,
-}
-
-// === impl CpMemoryView ===
-
-impl CpMemoryView {
-    /// The memory with the line's address conversion as a Modbus TCP unit.
-    pub fn unit(&self) -> CpMemoryUnit {
-        CpMemoryUnit::new(self.memory.clone(), self.map.clone())
-    }
+    /// The capabilities as their own type.
+    fn as_any(&self) -> &dyn Any;
 }
 
 /// A running line, whatever its protocol: name, protocol, status, events, Modbus TCP units, and
-/// what its protocol adds (reached through the accessors that answer `Option`). Clones share the
+/// what its protocol adds (reached through accessors that answer `Option`, defined next to each
+/// protocol's adapter: `client` and `device_units` of a Modbus master line, `slave_counters` and
+/// `cp_memory` of a slave line, `telegram_client`, `signals`, `mailbox` and `telegram_status` of
+/// a telegram line). Clones share the
 /// line; [`Self::join`] waits for its task once.
 #[derive(Clone, Debug)]
 pub struct LineHandle {
@@ -326,7 +279,7 @@ impl LineHandle {
     /// A snapshot of the line's state: port, diagnostic buffer (newest first), event counters,
     /// last STATUS word, devices. On a slave line `commands_answered` counts the requests served
     /// (answered with data or applied as a broadcast) and `commands_failed` those refused with an
-    /// exception; the details are in [`Self::slave_counters`].
+    /// exception; the details are in `slave_counters`.
     pub fn status(&self) -> LineStatus {
         self.shared.snapshot()
     }
@@ -359,64 +312,9 @@ impl LineHandle {
         self.caps.units()
     }
 
-    /// The command queue of a Modbus master line.
-    pub fn client(&self) -> Option<LineClient> {
-        self.caps.commands()
-    }
-
-    /// Every device of a Modbus master line as a Modbus TCP unit, with its unit id.
-    pub fn device_units(&self) -> Vec<(u8, DeviceUnit)> {
-        self.caps.device_units()
-    }
-
-    /// The device named `name` of a Modbus master line as a Modbus TCP unit.
-    pub fn device_unit(&self, name: &str) -> Option<DeviceUnit> {
-        self.device_units()
-            .into_iter()
-            .map(|(_, u)| u)
-            .find(|u| u.device().name == name)
-    }
-
-    /// Sends telegrams on a telegram line.
-    pub fn telegram_client(&self) -> Option<TelegramClient> {
-        self.caps.telegrams().map(TelegramCapability::client)
-    }
-
-    /// The RS232 signals of a telegram line.
-    pub fn signals(&self) -> Option<SignalsClient> {
-        self.caps.telegrams().map(TelegramCapability::signals)
-    }
-
-    /// The mailbox of a telegram line (received telegrams, acknowledgements, counters).
-    pub fn mailbox(&self) -> Option<Arc<Mailbox>> {
-        self.caps.telegrams().map(TelegramCapability::mailbox)
-    }
-
-    /// The mailbox of a telegram line as a Modbus TCP unit.
-    pub fn mailbox_unit(&self) -> Option<MailboxUnit> {
-        let t = self.caps.telegrams()?;
-        Some(MailboxUnit::new(t.mailbox(), t.client()))
-    }
-
-    /// Every telegram a telegram line receives, with its sequence number and receive time
-    /// (bounded; a lagging receiver is told how many it missed).
-    pub fn subscribe_rx(&self) -> Option<broadcast::Receiver<TelegramRx>> {
-        self.mailbox().map(|m| m.subscribe())
-    }
-
-    /// Protocol, mailbox and telegram counters of a telegram line.
-    pub fn telegram_status(&self) -> Option<TelegramLineStatus> {
-        self.caps.telegrams().map(TelegramCapability::status)
-    }
-
-    /// What a Modbus slave line has served.
-    pub fn slave_counters(&self) -> Option<SlaveCounters> {
-        self.caps.slave().map(SlaveCapability::counters)
-    }
-
-    /// The CP memory a Modbus slave line serves.
-    pub fn cp_memory(&self) -> Option<CpMemoryView> {
-        self.caps.slave().map(SlaveCapability::memory)
+    /// The capabilities of the line's protocol, if they are a `T`.
+    pub(crate) fn capability<T: 'static>(&self) -> Option<&T> {
+        self.caps.as_any().downcast_ref()
     }
 
     /// Waits for the line task to end (after the shutdown token was cancelled).
@@ -647,5 +545,188 @@ async fn recv<C>(commands: &mut Option<mpsc::Receiver<C>>) -> Option<C> {
     match commands {
         Some(commands) => commands.recv().await,
         None => std::future::pending().await,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::VecDeque;
+
+    use tokio::io::DuplexStream;
+
+    use super::*;
+
+    /// Hands out the ports of a queue, then refuses.
+    struct Ports(Mutex<VecDeque<Result<DuplexStream, String>>>);
+
+    impl PortOpener for Ports {
+        type Port = DuplexStream;
+
+        fn open(&self, _settings: &PortSettings) -> Result<DuplexStream, String> {
+            self.0
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .pop_front()
+                .unwrap_or_else(|| Err("no such port".into()))
+        }
+    }
+
+    /// Echoes what it receives and writes what it is sent as a command.
+    struct Echo {
+        shared: Arc<Shared>,
+        out: VecDeque<Vec<u8>>,
+        refused: Arc<Mutex<Vec<Vec<u8>>>>,
+    }
+
+    impl LineEngine for Echo {
+        type Command = Vec<u8>;
+
+        fn opened(&mut self, modem: Option<&mut dyn SerialPort>) {
+            assert!(modem.is_none(), "an in-process stream has no modem lines");
+            self.out.clear();
+        }
+        fn handle_rx(&mut self, _now: proto_core::time::Instant, bytes: &[u8]) {
+            self.out.push_back(bytes.to_vec());
+        }
+        fn handle_timeout(&mut self, _now: proto_core::time::Instant) {}
+        fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
+            None
+        }
+        fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+            self.out.pop_front()
+        }
+        fn transmitted(&mut self, _at: Instant, _len: usize, _end: proto_core::time::Instant) {
+            self.shared.metrics().sent_telegram();
+        }
+        fn handle_events(&mut self) -> bool {
+            false
+        }
+        fn command(&mut self, command: Vec<u8>, _modem: Option<&mut dyn SerialPort>) {
+            self.out.push_back(command);
+        }
+        fn refuse(&mut self, command: Vec<u8>, _shutting_down: bool) {
+            self.refused
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .push(command);
+        }
+        fn stop(&mut self) -> Stop {
+            Stop {
+                read: true,
+                close_queue: true,
+                grace: None,
+            }
+        }
+        fn done(&self) -> bool {
+            self.out.is_empty()
+        }
+        fn closed(&mut self, _shutting_down: bool) {}
+        fn port_failed(&mut self, id: EventId, reason: String) {
+            self.shared.raise(id, None, Some(reason));
+        }
+    }
+
+    #[derive(Debug)]
+    struct Nothing;
+
+    impl LineCapabilities for Nothing {
+        fn as_any(&self) -> &dyn Any {
+            self
+        }
+    }
+
+    async fn eventually(what: &str, mut check: impl FnMut() -> bool) {
+        for _ in 0..500 {
+            if check() {
+                return;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        panic!("{what} did not happen");
+    }
+
+    fn events(line: &LineHandle, id: EventId) -> u64 {
+        line.status().event_counts.get(&id).copied().unwrap_or(0)
+    }
+
+    #[tokio::test]
+    async fn a_line_on_an_in_process_stream_opens_echoes_reopens_and_stops() {
+        let (port, mut partner) = tokio::io::duplex(64);
+        let opener = Ports(Mutex::new(VecDeque::from([
+            Err("busy".to_owned()),
+            Ok(port),
+        ])));
+        let base = LineBase::new(
+            "echo",
+            "echo",
+            &PortSettings::new("/dev/in-process", 9600),
+            8,
+            (Duration::from_millis(10), Duration::from_millis(20)),
+            None,
+        );
+        let core = base.core(Vec::new());
+        let refused = Arc::new(Mutex::new(Vec::new()));
+        let engine = Echo {
+            shared: Arc::clone(&core.shared),
+            out: VecDeque::new(),
+            refused: Arc::clone(&refused),
+        };
+        let (tx, rx) = mpsc::channel(4);
+        let shutdown = CancellationToken::new();
+        let line = spawn(
+            core,
+            engine,
+            Some(rx),
+            Arc::new(Nothing),
+            opener,
+            shutdown.clone(),
+        );
+        assert_eq!((line.name(), line.protocol()), ("echo", "echo"));
+
+        // The first opening fails (02 0Fh), the second after the back-off succeeds.
+        eventually("the port open", || line.status().port_open).await;
+        assert_eq!(events(&line, EVENT_PORT_SETUP), 1);
+        assert_eq!(events(&line, ids::PTP_PARAMS_ACCEPTED), 1);
+
+        // Bytes in, the engine's answer out; a command out.
+        partner.write_all(b"hello").await.expect("write");
+        let mut echo = [0u8; 5];
+        partner.read_exact(&mut echo).await.expect("echo");
+        assert_eq!(&echo, b"hello");
+        tx.send(b"cmd".to_vec()).await.expect("queue");
+        let mut cmd = [0u8; 3];
+        partner.read_exact(&mut cmd).await.expect("command");
+        assert_eq!(&cmd, b"cmd");
+        let traffic = line.traffic();
+        assert_eq!(
+            (
+                traffic.bytes_received,
+                traffic.bytes_sent,
+                traffic.frames_sent
+            ),
+            (5, 8, 2)
+        );
+
+        // The partner goes: 08 0Dh, then every reopening fails while commands are refused.
+        drop(partner);
+        eventually("the port lost", || events(&line, EVENT_PORT_LOST) == 1).await;
+        eventually("a failed reopening", || {
+            events(&line, EVENT_PORT_SETUP) >= 2
+        })
+        .await;
+        let status = line.status();
+        assert!(!status.port_open);
+        assert_eq!(status.port_error.as_deref(), Some("no such port"));
+        tx.send(b"late".to_vec()).await.expect("queue");
+        eventually("the late command refused", || {
+            refused.lock().unwrap_or_else(PoisonError::into_inner).len() == 1
+        })
+        .await;
+
+        shutdown.cancel();
+        tokio::time::timeout(Duration::from_secs(2), line.join())
+            .await
+            .expect("the line stops");
+        assert!(tx.send(b"after".to_vec()).await.is_err(), "queue closed");
     }
 }

@@ -32,7 +32,7 @@ use std::time::Duration;
 use proto_core::event::{ids, EventId};
 use proto_core::proc3964::{Params3964, Settings3964};
 use proto_core::telegram::{AsciiParams, AsciiSettings, FlowControl, MAX_TELEGRAM};
-use tokio::sync::mpsc;
+use tokio::sync::{broadcast, mpsc};
 use tokio_util::sync::CancellationToken;
 
 pub use crate::mailbox::TelegramRx;
@@ -41,9 +41,7 @@ pub use client::{PendingSend, SendResult, SignalsClient, TelegramClient, Telegra
 pub use convert::{params_3964, params_ascii, TelegramConfigError};
 
 use super::line_metrics::{LineMetrics, LineTraffic};
-use super::runtime::{
-    self, LineBase, LineCapabilities, LineHandle, SerialOpener, TelegramCapability,
-};
+use super::runtime::{self, LineBase, LineCapabilities, LineHandle, SerialOpener};
 use super::status::{self, LineStatus};
 use super::{DEFAULT_DIAG_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::mailbox::{Mailbox, MailboxSettings, MailboxUnit, Overflow, TelegramCounters};
@@ -260,24 +258,51 @@ impl LineCapabilities for LineShared {
         })
     }
 
-    fn telegrams(&self) -> Option<&dyn TelegramCapability> {
-        Some(self)
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
     }
 }
 
-impl TelegramCapability for LineShared {
-    fn client(&self) -> TelegramClient {
-        self.client.clone()
+/// What a telegram line adds to every line.
+impl LineHandle {
+    /// Sends telegrams on a telegram line.
+    pub fn telegram_client(&self) -> Option<TelegramClient> {
+        self.capability::<LineShared>().map(|t| t.client.clone())
     }
 
-    fn signals(&self) -> SignalsClient {
-        self.client.signals()
+    /// The RS232 signals of a telegram line.
+    pub fn signals(&self) -> Option<SignalsClient> {
+        self.capability::<LineShared>().map(|t| t.client.signals())
     }
 
-    fn mailbox(&self) -> Arc<Mailbox> {
-        Arc::clone(&self.mailbox)
+    /// The mailbox of a telegram line (received telegrams, acknowledgements, counters).
+    pub fn mailbox(&self) -> Option<Arc<Mailbox>> {
+        self.capability::<LineShared>()
+            .map(|t| Arc::clone(&t.mailbox))
     }
 
+    /// The mailbox of a telegram line as a Modbus TCP unit.
+    pub fn mailbox_unit(&self) -> Option<MailboxUnit> {
+        self.capability::<LineShared>()
+            .map(|t| MailboxUnit::new(Arc::clone(&t.mailbox), t.client.clone()))
+    }
+
+    /// Every telegram a telegram line receives, with its sequence number and receive time
+    /// (bounded; a lagging receiver is told how many it missed).
+    pub fn subscribe_rx(&self) -> Option<broadcast::Receiver<TelegramRx>> {
+        self.capability::<LineShared>()
+            .map(|t| t.mailbox.subscribe())
+    }
+
+    /// Protocol, mailbox and telegram counters of a telegram line.
+    pub fn telegram_status(&self) -> Option<TelegramLineStatus> {
+        self.capability::<LineShared>().map(LineShared::status)
+    }
+}
+
+// === impl LineShared ===
+
+impl LineShared {
     fn status(&self) -> TelegramLineStatus {
         let mailbox = &self.mailbox;
         TelegramLineStatus {
