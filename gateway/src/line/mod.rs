@@ -1,23 +1,28 @@
-//! Serial lines: one task per line owns the port and a protocol engine.
+//! Serial lines: the line runtime drives one protocol adapter per line.
 //!
-//! A Modbus master line ([`spawn_modbus_master_line`]) polls its devices on a schedule, keeps their
-//! registers in the [`ProcessImage`](crate::image::ProcessImage), and carries writes and on-demand
-//! reads from the Modbus TCP server ([`DeviceUnit`]) through a bounded command queue.
+//! [`runtime`] owns what every line does: opening the port ([`PortOpener`]), the driver loop,
+//! reopening with back-off, the port events, the status and one [`LineHandle`]. The protocols are
+//! adapters over it:
+//! - `modbus_master` ([`spawn_modbus_master_line`]): polls its devices on a schedule, keeps their
+//!   registers in the [`ProcessImage`](crate::image::ProcessImage), and carries writes and
+//!   on-demand reads from the Modbus TCP server ([`DeviceUnit`]) through a bounded command queue;
+//! - `modbus_slave` ([`spawn_modbus_slave_line`]): the Modbus slave RTU line serving the CP memory;
+//! - [`telegram`]: ASCII and 3964(R) lines with their mailboxes.
 //!
-//! Modules:
+//! What the Modbus master adapter builds on:
 //! - [`plan`]: merging polled ranges into the fewest reads within a device's limits (pure);
 //! - `scheduler`: which request goes next (writes, on-demand reads, due polls, offline back-off);
 //! - `probe`: how a device that stopped answering is probed (one attempt, a short wait derived
 //!   from its own reply delay, every n-th probe the full reply monitoring time);
 //! - `command`: the bounded command queue and the error-to-exception mapping;
-//! - `status`: diagnostic buffer, event counters, STATUS word, device states;
-//! - `line_metrics`: the line's Prometheus metrics (events, port state, traffic, requests);
-//! - `driver`: clock conversion and timer helpers of the driver loop;
-//! - `modbus_master`: the line task itself;
-//! - `modbus_slave`: the Modbus slave RTU line serving the CP memory ([`spawn_modbus_slave_line`]);
 //! - `writeback`: the image refresh after a confirmed write, the broadcast echo;
-//! - `device_unit`: a polled device as a Modbus TCP unit;
-//! - [`telegram`]: ASCII and 3964(R) lines with their mailboxes.
+//! - `device_unit`: a polled device as a Modbus TCP unit.
+//!
+//! Shared by every line:
+//! - `status`: diagnostic buffer, event counters, STATUS word, device states;
+//! - `line_metrics`: the line's counters ([`LineTraffic`]) and its Prometheus metrics (events,
+//!   port state, traffic, requests);
+//! - `driver`: clock conversion and timer helpers of the driver loop.
 
 mod command;
 mod device_unit;
@@ -43,14 +48,14 @@ pub use command::{
 pub use device_unit::DeviceUnit;
 pub use line_metrics::LineTraffic;
 pub use modbus_master::spawn_modbus_master_line;
-pub use modbus_slave::{spawn_modbus_slave_line, SlaveCounters, SlaveLineSettings};
+pub use modbus_slave::{spawn_modbus_slave_line, CpMemoryView, SlaveCounters, SlaveLineSettings};
 pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
 pub use probe::{
     ProbeSettings, DEFAULT_FULL_PROBE_EVERY, DEFAULT_PROBE_TIMEOUT_MIN, FULL_PROBE_EVERY_RANGE,
     PROBE_TIMEOUT_FACTOR, PROBE_TIMEOUT_MIN_RANGE,
 };
 pub use runtime::{
-    CpMemoryView, LineHandle, LinePort, PortOpener, SerialOpener, EVENT_PORT_LOST, EVENT_PORT_SETUP,
+    LineHandle, LinePort, PortOpener, SerialOpener, EVENT_PORT_LOST, EVENT_PORT_SETUP,
 };
 pub use status::{DeviceStatus, LineEvent, LineStatus, DEFAULT_DIAG_DEPTH};
 

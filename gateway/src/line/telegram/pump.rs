@@ -1,6 +1,6 @@
 //! The engine side of a telegram driver loop, shared by the line task and the simulators: the
 //! clock, the engine's deadline, and writing out what the engine transmits with the estimated
-//! end of each transmission (STYLE "handle_tx_done").
+//! end of each transmission handed to the engine as its `handle_tx_done`.
 
 use std::io;
 use std::time::Duration;
