@@ -27,13 +27,14 @@ use tracing::{info, warn};
 use super::lines::{self, LineDeps, RunningLine};
 use super::{server_options, AppError, MetricsRegistry, Overrides, GRACE_PERIOD};
 use crate::api::model::ApplyReport;
-use crate::api::{ApiError, ConfigDiff};
+use crate::api::{ApiError, BoxFuture, ConfigDiff};
 use crate::config::{Config, ConfigIssue, ProtocolConfig};
 use crate::cpmem::{self, SharedCpMemory};
 use crate::image::{ImageConfig, ProcessImage};
 use crate::modbus_tcp::{self, ServerOptions, ServerStats, SharedUnits};
 use crate::tags::TagDirectory;
 use crate::unit::UnitMap;
+use crate::zenoh_bridge::BridgeStats;
 use proto_core::cpmem::AddressMap;
 
 /// What is in force: read as a whole, replaced as a whole.
@@ -44,6 +45,30 @@ pub(crate) struct Snapshot {
     pub(crate) tags: Arc<TagDirectory>,
     /// The Modbus TCP server's options (its write checks apply to REST and zenoh writes too).
     pub(crate) server: ServerOptions,
+}
+
+/// What status and readiness show of zenoh.
+#[derive(Clone)]
+pub(crate) struct ZenohState {
+    /// The running bridge's counters; `None` while it is down.
+    pub(crate) stats: Option<Arc<BridgeStats>>,
+    /// `peer` or `client`.
+    pub(crate) mode: &'static str,
+}
+
+/// A server that follows the running lines (the zenoh bridge): told when lines start after a
+/// configuration change, when the gateway's name changes, and when the gateway stops.
+pub(crate) trait Follower: Send + Sync + 'static {
+    /// Lines `names` of `snapshot` started.
+    fn lines_started<'a>(
+        &'a self,
+        snapshot: &'a Snapshot,
+        names: &'a [String],
+    ) -> BoxFuture<'a, ()>;
+    /// The gateway's name changed: restarts under the new one; whether it runs again.
+    fn renamed<'a>(&'a self, sup: &'a Arc<Supervisor>) -> BoxFuture<'a, bool>;
+    /// The gateway stops.
+    fn stop<'a>(&'a self, sup: &'a Supervisor) -> BoxFuture<'a, ()>;
 }
 
 /// The running Modbus TCP server.
@@ -81,10 +106,10 @@ pub(crate) struct Supervisor {
     /// The address the Modbus TCP server listens on and whether it is up.
     tcp_state: Mutex<(SocketAddr, Arc<AtomicBool>)>,
     pub(crate) tcp_stats: Arc<ServerStats>,
-    /// The zenoh bridge, when one runs.
-    pub(crate) zenoh: tokio::sync::Mutex<Option<super::zenoh::ZenohRun>>,
+    /// What follows the lines besides the supervisor (the zenoh bridge), once it started.
+    follower: std::sync::OnceLock<Arc<dyn Follower>>,
     /// What status and readiness show of zenoh; `None` when it is not configured.
-    pub(crate) zenoh_state: Mutex<Option<super::zenoh::ZenohState>>,
+    pub(crate) zenoh_state: Mutex<Option<ZenohState>>,
     /// Lines (name, port) whose port was opened by an earlier task of the line, before a
     /// configuration change restarted it: readiness does not wait for the new task to reopen
     /// the same port.
@@ -164,7 +189,7 @@ impl Supervisor {
             mirrored,
             tcp: tokio::sync::Mutex::new(None),
             tcp_state: Mutex::new((addr, Arc::new(AtomicBool::new(false)))),
-            zenoh: tokio::sync::Mutex::new(None),
+            follower: std::sync::OnceLock::new(),
             zenoh_state: Mutex::new(None),
             opened_before: Mutex::new(BTreeSet::new()),
         });
@@ -173,6 +198,11 @@ impl Supervisor {
             .try_lock()
             .map_err(|_| AppError::Setup("Modbus TCP state busy".into()))? = Some(server);
         Ok(sup)
+    }
+
+    /// Registers what follows the lines (once; a second one is refused and returned).
+    pub(crate) fn follow(&self, follower: Arc<dyn Follower>) -> Result<(), Arc<dyn Follower>> {
+        self.follower.set(follower)
     }
 
     /// What is in force now.
@@ -399,7 +429,9 @@ impl Supervisor {
             lines,
         });
         *self.state.write().unwrap_or_else(PoisonError::into_inner) = Arc::clone(&snapshot);
-        super::zenoh::lines_started(self, &snapshot, &started).await;
+        if let Some(follower) = self.follower.get() {
+            follower.lines_started(&snapshot, &started).await;
+        }
 
         report.servers_restarted.clear();
         if diff.modbus_tcp_changed {
@@ -408,7 +440,11 @@ impl Supervisor {
                 Err(e) => failures.push(e),
             }
         }
-        if diff.name_changed && super::zenoh::restart(self).await {
+        let renamed = match self.follower.get() {
+            Some(follower) if diff.name_changed => follower.renamed(self).await,
+            _ => false,
+        };
+        if renamed {
             report.servers_restarted.push("zenoh".into());
         }
         if failures.is_empty() {
@@ -494,7 +530,9 @@ impl Supervisor {
         if let Some(server) = &tcp {
             server.token.cancel();
         }
-        super::zenoh::stop(self).await;
+        if let Some(follower) = self.follower.get() {
+            follower.stop(self).await;
+        }
         for (_, line) in self.snapshot().lines.clone() {
             line.handle.join().await;
         }
