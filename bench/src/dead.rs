@@ -18,10 +18,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use gateway::line::{
-    DEFAULT_DEVICE_BACKOFF_MIN, DEFAULT_FULL_PROBE_EVERY, DEFAULT_PROBE_TIMEOUT_MIN,
-    PROBE_TIMEOUT_FACTOR,
+use gateway::config::{
+    DEFAULT_FULL_PROBE_EVERY, DEFAULT_OFFLINE_BACKOFF_MIN, DEFAULT_PROBE_TIMEOUT_MIN,
 };
+use gateway::line::PROBE_TIMEOUT_FACTOR;
 
 use crate::device::{Bus, FlatDevice};
 use crate::poll::{polled, polls_ok, rig, trouble, Rig};
@@ -37,7 +37,7 @@ const PERIOD: Duration = Duration::from_millis(500);
 /// Warm-up of the run with none dead: every device polled a few times.
 const WARM_UP: Duration = Duration::from_millis(1500);
 /// The gateway's default longest back-off between probes of an offline device.
-const BACKOFF_MAX: Duration = gateway::line::DEFAULT_DEVICE_BACKOFF_MAX;
+const BACKOFF_MAX: Duration = gateway::config::DEFAULT_OFFLINE_BACKOFF_MAX;
 /// Target of the recovery row: the maximum back-off and one second for the probe and the polls
 /// due before it.
 const RECOVERY_TARGET: Duration = BACKOFF_MAX.saturating_add(Duration::from_secs(1));
@@ -108,7 +108,7 @@ pub(crate) async fn dead_device(
              {}{trouble_dead}",
             PERIOD.as_millis(),
             reply_timeout.as_millis(),
-            DEFAULT_DEVICE_BACKOFF_MIN.as_secs_f64(),
+            DEFAULT_OFFLINE_BACKOFF_MIN.as_secs_f64(),
             BACKOFF_MAX.as_secs_f64(),
             DEFAULT_PROBE_TIMEOUT_MIN.as_millis(),
             plan.alive_window.as_secs_f64(),

@@ -25,6 +25,7 @@ use crate::modbus_tcp::ServerOptions;
 use crate::persist::ConfigStore;
 
 mod build;
+mod check;
 mod demo;
 mod lines;
 mod rest;
@@ -33,6 +34,7 @@ mod supervisor;
 mod tag_io;
 mod zenoh;
 
+pub use check::{check_command, check_report, config_issues, load_config};
 pub use demo::demo;
 
 /// How long a stopping gateway waits for lines to finish their transaction in flight and for
@@ -219,7 +221,7 @@ pub async fn run(
 /// stdout once bound.
 async fn serve_http(
     sup: &Arc<supervisor::Supervisor>,
-    http: &crate::api::HttpConfig,
+    http: &config::HttpConfig,
     overrides: &Overrides,
     shutdown: CancellationToken,
 ) -> Result<JoinHandle<()>, AppError> {

@@ -2,7 +2,9 @@
 //! process image, the Modbus TCP server and the device simulators.
 //!
 //! Module ownership (one concern each):
-//! - [`config`]: the TOML configuration, its validation and `gateway check`;
+//! - [`config`]: the TOML configuration as plain data (every section's types, one reader, one
+//!   error type), the rules between its keys, and the defaults and ranges of every key; it
+//!   imports no other module of the gateway, they import it;
 //! - [`serial`]: opening ports with line settings, RS485 mode, reopen with back-off;
 //! - [`line`]: the line runtime (one port task per line, whatever the protocol) with one adapter
 //!   per protocol, the poll scheduler;
@@ -18,7 +20,8 @@
 //! - [`zenoh_bridge`]: telegrams, tag values, queries, writes, events and presence on zenoh;
 //! - [`api`]: the REST API under `/api/v1`, health, readiness and the OpenAPI document;
 //! - [`persist`]: the configuration file, replaced atomically with the previous version kept;
-//! - [`app`]: wiring a config into running tasks (`gateway run`, `gateway demo`).
+//! - [`app`]: wiring a config into running tasks (`gateway run`, `gateway demo`), and the checks
+//!   of a config that need other parts of the gateway (`gateway check`).
 
 pub mod api;
 pub mod app;

@@ -115,7 +115,7 @@ async fn async_main(command: Command) -> ExitCode {
             modbus_tcp,
             zenoh_listen,
             http,
-        } => match gateway::config::load(&config) {
+        } => match gateway::app::load_config(&config) {
             Ok(cfg) => {
                 let metrics = match metrics_registry() {
                     Ok(metrics) => metrics,
@@ -166,7 +166,7 @@ async fn async_main(command: Command) -> ExitCode {
             .await
             .map_err(gateway::app::AppError::from),
         Command::Check { config } => {
-            return match gateway::config::check_command(&config) {
+            return match gateway::app::check_command(&config) {
                 0 => ExitCode::SUCCESS,
                 code => ExitCode::from(u8::try_from(code).unwrap_or(1)),
             };

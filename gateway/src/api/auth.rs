@@ -20,9 +20,9 @@ use axum::http::{header, HeaderMap, Method};
 use axum::middleware::Next;
 use axum::response::{IntoResponse, Response};
 
-use super::config::{HttpConfig, TokenSource};
 use super::error::ApiError;
 use super::ApiState;
+use crate::config::{HttpConfig, TokenSource};
 
 /// Shortest token accepted: 16 characters (e.g. 96 random bits in base64).
 pub const MIN_TOKEN_LEN: usize = 16;

@@ -32,6 +32,16 @@ pub trait ApiBackend: Send + Sync + 'static {
         Ok(())
     }
 
+    /// Checks that need another part of the gateway but not the running system (e.g. whether
+    /// the CP memory can serve a slave line exactly). They run with the parser's own rules on
+    /// every configuration the API reads, on the config as read (a bad value replaced by its
+    /// default), and their issues are answered with the parser's; `found` is what the parser
+    /// found so far.
+    fn config_issues(&self, config: &Config, found: &[ConfigIssue]) -> Vec<ConfigIssue> {
+        let _ = (config, found);
+        Vec::new()
+    }
+
     /// Puts `config` in force, restarting only the lines, devices and servers that changed.
     /// Called one change at a time, after the configuration was validated and persisted.
     fn apply(&self, config: Config) -> BoxFuture<'_, Result<ApplyReport, ApiError>>;

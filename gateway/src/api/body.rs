@@ -6,8 +6,9 @@ use std::hash::{Hash, Hasher};
 
 use axum::http::{header, HeaderMap};
 
+use super::backend::ApiBackend;
 use super::error::{ApiError, Issue};
-use crate::config::{Config, ConfigErrors};
+use crate::config::{Check, Config, ConfigErrors};
 
 /// The media type of TOML documents.
 pub const TOML_MEDIA_TYPE: &str = "application/toml";
@@ -79,10 +80,19 @@ pub(crate) fn table(format: Format, body: &[u8]) -> Result<toml::Table, ApiError
     }
 }
 
-/// A whole configuration from a body.
-pub(crate) fn config(format: Format, body: &[u8]) -> Result<Config, ApiError> {
+/// A whole configuration from a body, checked by the parser and by `check`.
+pub(crate) fn config(format: Format, body: &[u8], check: Check<'_>) -> Result<Config, ApiError> {
     let table = table(format, body)?;
-    Config::from_table(&table).map_err(validation)
+    Config::from_table_with(&table, check).map_err(validation)
+}
+
+/// A configuration from its table, checked by the parser and by `backend`.
+pub(crate) fn from_table(
+    table: &toml::Table,
+    backend: &dyn ApiBackend,
+) -> Result<Config, ApiError> {
+    Config::from_table_with(table, &|config, found| backend.config_issues(config, found))
+        .map_err(validation)
 }
 
 /// Every issue of a configuration as a 422.
@@ -195,15 +205,22 @@ mod tests {
     use axum::http::HeaderValue;
 
     use super::*;
+    use crate::config::no_check;
 
     #[test]
     fn json_and_toml_give_the_same_config() {
         let demo = crate::config::demo();
         let json = serde_json::to_vec(&demo).unwrap();
-        assert_eq!(config(Format::Json, &json).unwrap(), demo);
+        assert_eq!(config(Format::Json, &json, &no_check).unwrap(), demo);
         let toml_text = toml::to_string(&demo).unwrap();
-        assert_eq!(config(Format::Toml, toml_text.as_bytes()).unwrap(), demo);
-        assert_eq!(etag(&demo), etag(&config(Format::Json, &json).unwrap()));
+        assert_eq!(
+            config(Format::Toml, toml_text.as_bytes(), &no_check).unwrap(),
+            demo
+        );
+        assert_eq!(
+            etag(&demo),
+            etag(&config(Format::Json, &json, &no_check).unwrap())
+        );
     }
 
     #[test]

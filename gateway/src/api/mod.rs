@@ -36,7 +36,6 @@
 pub mod auth;
 pub mod backend;
 mod body;
-pub mod config;
 pub mod diff;
 pub mod error;
 mod handlers;
@@ -60,7 +59,6 @@ use utoipa_axum::routes;
 pub use auth::{Auth, AuthMode, Token, TokenError};
 pub use backend::{ApiBackend, BoxFuture};
 pub use body::{etag, TOML_MEDIA_TYPE};
-pub use config::HttpConfig;
 pub use diff::ConfigDiff;
 pub use error::{ApiError, ErrorBody, ErrorDetail, Issue};
 pub use server::{serve, DEFAULT_HEADER_READ_TIMEOUT, DEFAULT_MAX_CONNECTIONS};
@@ -113,8 +111,8 @@ impl ApiState {
             backend,
             auth: Arc::new(auth),
             store: None,
-            body_limit: usize::try_from(config::DEFAULT_BODY_LIMIT).unwrap_or(usize::MAX),
-            request_timeout: config::DEFAULT_HTTP_REQUEST_TIMEOUT,
+            body_limit: usize::try_from(crate::config::DEFAULT_BODY_LIMIT).unwrap_or(usize::MAX),
+            request_timeout: crate::config::DEFAULT_HTTP_REQUEST_TIMEOUT,
             max_connections: DEFAULT_MAX_CONNECTIONS as usize,
             header_read_timeout: DEFAULT_HEADER_READ_TIMEOUT,
             change_lock: Arc::default(),
@@ -126,7 +124,7 @@ impl ApiState {
     /// written to `store` when there is one.
     pub fn from_config(
         backend: Arc<dyn ApiBackend>,
-        http: &HttpConfig,
+        http: &crate::config::HttpConfig,
         store: Option<ConfigStore>,
     ) -> Result<Self, TokenError> {
         let state = Self::new(backend, Auth::from_config(http)?)

@@ -21,8 +21,9 @@ use tokio::sync::Semaphore;
 
 use super::{router, ApiState};
 
-/// Connections served at once by default; more wait in the listen backlog.
-pub const DEFAULT_MAX_CONNECTIONS: u32 = 64;
+/// Connections served at once by default (`[http] max_connections`); more wait in the listen
+/// backlog.
+pub const DEFAULT_MAX_CONNECTIONS: u32 = crate::config::DEFAULT_HTTP_MAX_CONNECTIONS;
 /// Longest wait for a request head, and for the next request on an idle connection.
 pub const DEFAULT_HEADER_READ_TIMEOUT: Duration = Duration::from_secs(10);
 /// Pause after a failed accept (e.g. out of file descriptors) before trying again.

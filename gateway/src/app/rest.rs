@@ -145,6 +145,10 @@ impl ApiBackend for RestBackend {
         self.sup.validate(config)
     }
 
+    fn config_issues(&self, config: &Config, found: &[ConfigIssue]) -> Vec<ConfigIssue> {
+        super::check::config_issues(config, found)
+    }
+
     fn apply(&self, config: Config) -> BoxFuture<'_, Result<ApplyReport, ApiError>> {
         Box::pin(self.sup.apply(config))
     }

@@ -11,19 +11,26 @@ use super::reader::{check_name, int_value, string_value, Cx, Fields};
 /// addresses are 1..=247; 0 is broadcast. 002 (Altivar, "Adressen") agrees: 1..247.
 pub const MAX_DEVICE_ADDRESS: u8 = 247;
 /// First wait before a device that stopped answering is probed (the seeds are silent on offline
-/// devices; the policy is the gateway's, `line::probe`).
-pub const DEFAULT_OFFLINE_BACKOFF_MIN: Duration = crate::line::DEFAULT_DEVICE_BACKOFF_MIN;
-/// Longest wait between probes of a device that does not answer: most probes wait only a short
-/// time, so the device is asked every 5 s and found again within 5 s of its return.
-pub const DEFAULT_OFFLINE_BACKOFF_MAX: Duration = crate::line::DEFAULT_DEVICE_BACKOFF_MAX;
-/// The least a short probe of an offline device waits for the start of a reply.
-pub const DEFAULT_PROBE_TIMEOUT_MIN: Duration = crate::line::DEFAULT_PROBE_TIMEOUT_MIN;
-/// Range of `probe_timeout_min`: the reply monitoring time's (003 6.4.2.1 "5 ... 65500ms").
-pub const PROBE_TIMEOUT_MIN_RANGE: (Duration, Duration) = crate::line::PROBE_TIMEOUT_MIN_RANGE;
-/// Every this many probes of an offline device, one waits the line's full reply monitoring time.
-pub const DEFAULT_FULL_PROBE_EVERY: u32 = crate::line::DEFAULT_FULL_PROBE_EVERY;
-/// Range of `full_probe_every` (1: every probe waits the full time).
-pub const FULL_PROBE_EVERY_RANGE: (u32, u32) = crate::line::FULL_PROBE_EVERY_RANGE;
+/// devices; the policy is the gateway's).
+pub const DEFAULT_OFFLINE_BACKOFF_MIN: Duration = Duration::from_secs(1);
+/// Longest wait between probes of a device that does not answer: a short probe costs the line
+/// about [`DEFAULT_PROBE_TIMEOUT_MIN`], so the device can be asked every 5 s and is found again
+/// within 5 s of its return.
+pub const DEFAULT_OFFLINE_BACKOFF_MAX: Duration = Duration::from_secs(5);
+/// The least a short probe of an offline device waits for the start of a reply by default: well
+/// above a reply delay seen through USB adapters and a busy host (tens of milliseconds), well
+/// below the CP's 2 s.
+pub const DEFAULT_PROBE_TIMEOUT_MIN: Duration = Duration::from_millis(100);
+/// Range of `probe_timeout_min`: the reply monitoring time's (003 6.4.2.1: "Range:
+/// 5 ... 65500ms"); a floor at or above the line's reply monitoring time makes every probe full.
+pub const PROBE_TIMEOUT_MIN_RANGE: (Duration, Duration) =
+    (Duration::from_millis(5), Duration::from_millis(65_500));
+/// Every this many probes of an offline device, one waits the line's full reply monitoring time
+/// by default: about once a minute at the default back-off of at most 5 s.
+pub const DEFAULT_FULL_PROBE_EVERY: u32 = 12;
+/// Range of `full_probe_every`: 1 (every probe waits the full time) to 1000 (the seeds are
+/// silent).
+pub const FULL_PROBE_EVERY_RANGE: (u32, u32) = (1, 1000);
 /// Unpolled addresses a merged read may include: none by default, because the Altivar and the
 /// KS vario answer exception 02 when the first word of a read is undefined (002, 001).
 pub const DEFAULT_BRIDGE_GAP: u16 = 0;

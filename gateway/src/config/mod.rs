@@ -18,25 +18,37 @@
 //! address = 2
 //! ```
 //!
-//! `deploy/gateway.example.toml` lists every key with its default and the manual section it comes
-//! from. A `port` that starts with `pty:` (as in the embedded demo) names a pseudo-terminal that
-//! `gateway demo` creates and puts in its place.
+//! Every section's types live here (`[gateway]`, `[modbus_tcp]`, `[cp_memory]`, `[http]`,
+//! `[zenoh]`, `[lines.*]` with their devices), with the defaults and ranges of their keys. The
+//! config is plain data: this module imports no other module of the gateway (the lines, the CP
+//! memory, the API and the zenoh bridge import it). `deploy/gateway.example.toml` lists every key
+//! with its default and the manual section it comes from. A `port` that starts with `pty:` (as
+//! in the embedded demo) names a pseudo-terminal that `gateway demo` creates and puts in its
+//! place.
 //!
 //! # How it reads
 //!
 //! [`parse`] reads the TOML into a `toml::Table` (a syntax error is one issue with line and
-//! column), then walks it table by table: each key is converted to its domain type
-//! (`SocketAddr`, `IpNet`, `Duration` through humantime, enums, [`Baud`]) and checked against the
-//! manual's range; keys nobody asked for are refused with their path. A bad value is reported and
-//! replaced by its default so that the walk goes on; then [`validate::validate`] runs the checks
-//! that span several keys. This is what serde's `deny_unknown_fields` would give, but with every
-//! problem of the file in one answer instead of the first one, and with the flat line tables
-//! (`port`, `baud` and the protocol's parameters side by side) that `#[serde(flatten)]` cannot
-//! combine with `deny_unknown_fields`. Serializing uses serde (`toml::to_string(&config)`), and
-//! parsing the output gives the same `Config` back.
+//! column), then walks it table by table with one reader (`reader::Fields`): each key is
+//! converted to its domain type (`SocketAddr`, `IpNet`, `Duration` through humantime, enums,
+//! [`Baud`], zenoh endpoints and key prefixes) and checked against the manual's range; keys
+//! nobody asked for are refused with their path. A bad value is reported and replaced by its
+//! default so that the walk goes on; then [`validate::validate`] runs the checks that span
+//! several keys. Every problem is a [`ConfigIssue`] with its path. This is what serde's
+//! `deny_unknown_fields` would give, but with every problem of the file in one answer instead of
+//! the first one, and with the flat line tables (`port`, `baud` and the protocol's parameters
+//! side by side) that `#[serde(flatten)]` cannot combine with `deny_unknown_fields`. Serializing
+//! uses serde (`toml::to_string(&config)`), and parsing the output gives the same `Config` back;
+//! deserializing a [`Config`], [`HttpConfig`] or [`ZenohConfig`] with serde goes through the same
+//! reader.
+//!
+//! Checks that need another part of the gateway (whether the CP memory can serve a slave line
+//! exactly) are the app's: it passes them as a [`Check`] to [`load_with`], [`parse_with`] or
+//! [`Config::from_table_with`], and their issues come in the same answer as the reader's.
 
 mod cpmem;
 mod device;
+mod http;
 mod line;
 mod modbus;
 mod reader;
@@ -44,6 +56,7 @@ mod serial;
 mod server;
 mod telegram;
 pub mod validate;
+mod zenoh;
 
 use std::collections::BTreeMap;
 use std::fmt;
@@ -53,11 +66,14 @@ use serde::{Deserialize, Deserializer, Serialize};
 
 pub use cpmem::*;
 pub use device::*;
+pub use http::*;
 pub use line::*;
 pub use modbus::*;
 pub use serial::*;
 pub use server::*;
 pub use telegram::*;
+// `self::`: the module, not the zenoh crate.
+pub use self::zenoh::*;
 
 use reader::{check_name, Cx, Fields};
 
@@ -87,9 +103,9 @@ pub struct Config {
     pub cp_memory: CpMemoryConfig,
     /// The zenoh session (`[zenoh]`); none: the gateway joins no zenoh fabric.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub zenoh: Option<crate::zenoh_bridge::ZenohConfig>,
+    pub zenoh: Option<ZenohConfig>,
     /// The REST API and `/metrics` (`[http]`): where they listen, the token, the limits.
-    pub http: crate::api::HttpConfig,
+    pub http: HttpConfig,
     /// Lines by name.
     pub lines: BTreeMap<String, LineConfig>,
 }
@@ -161,7 +177,7 @@ impl Default for Config {
             modbus_tcp: ModbusTcpConfig::default(),
             cp_memory: CpMemoryConfig::new(),
             zenoh: None,
-            http: crate::api::HttpConfig::default(),
+            http: HttpConfig::default(),
             lines: BTreeMap::new(),
         }
     }
@@ -189,9 +205,16 @@ impl Config {
 
     /// A parsed `toml::Table` as a config.
     pub fn from_table(table: &toml::Table) -> Result<Self, ConfigErrors> {
+        Self::from_table_with(table, &no_check)
+    }
+
+    /// A parsed `toml::Table` as a config, with `check`'s issues in the same answer.
+    pub fn from_table_with(table: &toml::Table, check: Check<'_>) -> Result<Self, ConfigErrors> {
         let mut cx = Cx::default();
         let config = read_root(&mut cx, table);
         validate::check(&mut cx, &config);
+        let more = check(&config, &cx.issues);
+        cx.issues.extend(more);
         if cx.issues.is_empty() {
             Ok(config)
         } else {
@@ -238,37 +261,10 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         None => CpMemoryConfig::new(),
         Some(f) => CpMemoryConfig::read(cx, f),
     };
-    // The zenoh section is the bridge's own serde type (deny_unknown_fields): its first problem
-    // is reported with the section's path.
-    let zenoh = root.raw("zenoh").and_then(|value| {
-        match crate::zenoh_bridge::ZenohConfig::deserialize(value.clone()) {
-            Ok(z) => Some(z),
-            Err(e) => {
-                let text = e.to_string();
-                let text = text.trim_end();
-                // serde names an unknown key "unknown field `x`, expected one of ...": report it
-                // at its path with the reader's wording.
-                match text
-                    .strip_prefix("unknown field `")
-                    .and_then(|rest| rest.split_once('`'))
-                {
-                    Some((key, rest)) => cx.issue(
-                        format!("zenoh.{key}"),
-                        format!("unknown key{}", rest.trim_start_matches(',')),
-                    ),
-                    None => cx.issue("zenoh", text.to_owned()),
-                }
-                None
-            }
-        }
-    });
-    // The `[http]` section reads itself and reports every problem with its path.
-    let http = match root.raw("http") {
-        None => crate::api::HttpConfig::default(),
-        Some(value) => crate::api::HttpConfig::from_toml(value, "http").unwrap_or_else(|issues| {
-            cx.issues.extend(issues);
-            crate::api::HttpConfig::default()
-        }),
+    let zenoh = root.table(cx, "zenoh").map(|f| ZenohConfig::read(cx, f));
+    let http = match root.table(cx, "http") {
+        None => HttpConfig::default(),
+        Some(f) => HttpConfig::read(cx, f),
     };
     let mut lines = BTreeMap::new();
     if table.get("lines").is_some_and(toml::Value::is_array) {
@@ -295,26 +291,69 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
     }
 }
 
+/// Checks that need another part of the gateway (e.g. whether the CP memory can serve a slave
+/// line exactly). The app passes them to [`parse_with`], [`load_with`] or
+/// [`Config::from_table_with`]; they run on the config as read (a bad value replaced by its
+/// default) after the reader's own rules, which found the issues given as second argument, and
+/// their issues are reported with those in one answer.
+pub type Check<'a> = &'a dyn Fn(&Config, &[ConfigIssue]) -> Vec<ConfigIssue>;
+
+/// The [`Check`] that finds nothing.
+pub fn no_check(_: &Config, _: &[ConfigIssue]) -> Vec<ConfigIssue> {
+    Vec::new()
+}
+
+/// Reads one section through its reader, for the section types' `Deserialize`: unknown keys are
+/// refused and every problem is reported, with paths under `path`.
+fn read_section<'de, D, T>(
+    deserializer: D,
+    path: &str,
+    read: fn(&mut Cx, Fields<'_>) -> T,
+) -> Result<T, D::Error>
+where
+    D: Deserializer<'de>,
+{
+    let table = toml::Table::deserialize(deserializer)?;
+    let mut cx = Cx::default();
+    let section = read(&mut cx, Fields::new(&table, path.to_owned()));
+    if cx.issues.is_empty() {
+        Ok(section)
+    } else {
+        Err(serde::de::Error::custom(ConfigErrors { issues: cx.issues }))
+    }
+}
+
 /// Parses and validates a configuration.
 pub fn parse(text: &str) -> Result<Config, ConfigErrors> {
+    parse_with(text, &no_check)
+}
+
+/// Parses and validates a configuration, with `check`'s issues in the same answer.
+pub fn parse_with(text: &str, check: Check<'_>) -> Result<Config, ConfigErrors> {
     let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
         issues: vec![ConfigIssue {
             path: String::new(),
             message: syntax_message(text, &e),
         }],
     })?;
-    Config::from_table(&table)
+    Config::from_table_with(&table, check)
 }
 
 /// Reads, parses and validates the configuration file at `path`.
 pub fn load(path: &Path) -> Result<Config, ConfigErrors> {
+    load_with(path, &no_check)
+}
+
+/// Reads, parses and validates the configuration file at `path`, with `check`'s issues in the
+/// same answer.
+pub fn load_with(path: &Path, check: Check<'_>) -> Result<Config, ConfigErrors> {
     let text = std::fs::read_to_string(path).map_err(|e| ConfigErrors {
         issues: vec![ConfigIssue {
             path: String::new(),
             message: format!("cannot read {}: {e}", path.display()),
         }],
     })?;
-    parse(&text)
+    parse_with(&text, check)
 }
 
 /// The embedded demo configuration: lines `drive`, `ksvario`, `r3964`, `ascii` on `pty:` ports.
@@ -326,25 +365,6 @@ pub fn demo() -> Config {
 /// The text of the embedded demo configuration.
 pub fn demo_toml() -> &'static str {
     DEMO_TOML
-}
-
-/// `gateway check --config FILE`: prints `ok: N lines, M devices`, or every issue on its own
-/// line, to stdout; returns the exit code (0 valid, 1 not).
-pub fn check_command(path: &Path) -> i32 {
-    let (text, code) = check_report(path);
-    println!("{text}");
-    code
-}
-
-/// What [`check_command`] prints, and its exit code.
-pub fn check_report(path: &Path) -> (String, i32) {
-    match load(path) {
-        Ok(c) => (
-            format!("ok: {} lines, {} devices", c.lines.len(), c.device_count()),
-            0,
-        ),
-        Err(e) => (e.to_string(), 1),
-    }
 }
 
 /// `syntax error at line L, column C: <what>`.

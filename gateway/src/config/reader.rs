@@ -287,18 +287,21 @@ impl<'a> Fields<'a> {
         self.string(cx, key)
     }
 
-    pub(crate) fn bool_or(&mut self, cx: &mut Cx, key: &'static str, default: bool) -> bool {
-        match self.raw(key) {
-            None => default,
-            Some(Value::Boolean(b)) => *b,
-            Some(other) => {
+    pub(crate) fn bool(&mut self, cx: &mut Cx, key: &'static str) -> Option<bool> {
+        match self.raw(key)? {
+            Value::Boolean(b) => Some(*b),
+            other => {
                 cx.issue(
                     self.at(key),
                     format!("expected true or false, found {}", kind(other)),
                 );
-                default
+                None
             }
         }
+    }
+
+    pub(crate) fn bool_or(&mut self, cx: &mut Cx, key: &'static str, default: bool) -> bool {
+        self.bool(cx, key).unwrap_or(default)
     }
 
     pub(crate) fn int<T>(

@@ -38,16 +38,6 @@ pub(crate) fn check(cx: &mut Cx, config: &Config) {
         if let Some(unit) = line.unit_id() {
             claim_unit(cx, &mut units, unit, format!("{path}.unit_id"), &path);
         }
-        if let ProtocolConfig::ModbusSlaveRtu(slave) = &line.protocol {
-            // What the CP memory cannot serve exactly (write enables inside a byte or a DB...).
-            // A key already reported by the reader is not reported twice.
-            for issue in crate::cpmem::config::check(slave) {
-                let key = format!("{path}.{}", issue.key);
-                if !cx.issues.iter().any(|i| i.path.starts_with(&key)) {
-                    cx.issue(key, issue.message);
-                }
-            }
-        }
         let mut addresses: BTreeMap<u8, String> = BTreeMap::new();
         for (dev_name, dev) in line.devices() {
             let dev_path = format!("{path}.devices.{dev_name}");

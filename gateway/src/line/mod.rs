@@ -50,15 +50,16 @@ pub use line_metrics::LineTraffic;
 pub use modbus_master::spawn_modbus_master_line;
 pub use modbus_slave::{spawn_modbus_slave_line, CpMemoryView, SlaveCounters, SlaveLineSettings};
 pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
-pub use probe::{
-    ProbeSettings, DEFAULT_FULL_PROBE_EVERY, DEFAULT_PROBE_TIMEOUT_MIN, FULL_PROBE_EVERY_RANGE,
-    PROBE_TIMEOUT_FACTOR, PROBE_TIMEOUT_MIN_RANGE,
-};
+pub use probe::{ProbeSettings, PROBE_TIMEOUT_FACTOR};
 pub use runtime::{
     LineHandle, LinePort, PortOpener, SerialOpener, EVENT_PORT_LOST, EVENT_PORT_SETUP,
 };
 pub use status::{DeviceStatus, LineEvent, LineStatus, DEFAULT_DIAG_DEPTH};
 
+use crate::config::{
+    DEFAULT_OFFLINE_BACKOFF_MAX, DEFAULT_OFFLINE_BACKOFF_MIN, FULL_PROBE_EVERY_RANGE,
+    PROBE_TIMEOUT_MIN_RANGE,
+};
 use crate::image::Table;
 use crate::metrics::Metrics;
 use crate::serial::PortSettings;
@@ -132,13 +133,6 @@ impl LineSettings {
     }
 }
 
-/// Default back-off before the first probe of a device that stopped answering.
-pub const DEFAULT_DEVICE_BACKOFF_MIN: Duration = Duration::from_secs(1);
-/// Default longest back-off between probes of a device that stopped answering: a short probe
-/// costs the line about [`DEFAULT_PROBE_TIMEOUT_MIN`], so the device can be asked every 5 s and
-/// is found again within 5 s of its return (see `probe`).
-pub const DEFAULT_DEVICE_BACKOFF_MAX: Duration = Duration::from_secs(5);
-
 /// A set of ranges of one table polled at one period.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct PollGroup {
@@ -182,8 +176,8 @@ impl DeviceSettings {
             unit_id,
             limits: DeviceLimits::default(),
             groups: Vec::new(),
-            backoff_min: DEFAULT_DEVICE_BACKOFF_MIN,
-            backoff_max: DEFAULT_DEVICE_BACKOFF_MAX,
+            backoff_min: DEFAULT_OFFLINE_BACKOFF_MIN,
+            backoff_max: DEFAULT_OFFLINE_BACKOFF_MAX,
             probe: ProbeSettings::default(),
         }
     }

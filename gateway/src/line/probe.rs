@@ -46,18 +46,8 @@ use std::time::Duration;
 
 use proto_core::modbus::master::{Attempts, Framing, MasterConfig};
 
-/// The least a short probe waits for the start of a reply by default: well above a reply delay
-/// seen through USB adapters and a busy host (tens of milliseconds), well below the CP's 2 s.
-pub const DEFAULT_PROBE_TIMEOUT_MIN: Duration = Duration::from_millis(100);
-/// Every this many probes one waits the full reply monitoring time by default: about once a
-/// minute at the default back-off of at most 5 s.
-pub const DEFAULT_FULL_PROBE_EVERY: u32 = 12;
-/// The floor a device may set: the range of the reply monitoring time (003 6.4.2.1: "Range:
-/// 5 ... 65500ms"); a floor at or above the line's reply monitoring time makes every probe full.
-pub const PROBE_TIMEOUT_MIN_RANGE: (Duration, Duration) =
-    (Duration::from_millis(5), Duration::from_millis(65_500));
-/// How often a full probe may be asked for: 1 (every probe) to 1000 (the seeds are silent).
-pub const FULL_PROBE_EVERY_RANGE: (u32, u32) = (1, 1000);
+use crate::config::{DEFAULT_FULL_PROBE_EVERY, DEFAULT_PROBE_TIMEOUT_MIN};
+
 /// A short probe waits this many times the device's slowest recent reply delay.
 pub const PROBE_TIMEOUT_FACTOR: u32 = 4;
 /// The recorded slowest reply delay moves this fraction of the way down to each faster reply

@@ -19,7 +19,8 @@ use tokio_util::sync::CancellationToken;
 use tracing::{debug, warn};
 
 use super::mbap::{complete_frame, FrameReader, MbapError, HEADER_LEN, MAX_ADU_LEN};
-use super::request::{answer, Shared};
+use super::request::answer;
+use super::shared::Shared;
 use super::stats::{CloseReason, FrameReject, OpenConnection};
 
 /// Bytes asked from the socket at once.

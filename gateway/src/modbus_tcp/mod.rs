@@ -21,6 +21,7 @@ pub mod stats;
 mod connection;
 mod options;
 mod request;
+mod shared;
 
 pub use server::{
     bind, serve, ServerOptions, SharedUnits, WriteRange, WriteTable, DEFAULT_BACKLOG,

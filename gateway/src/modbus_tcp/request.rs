@@ -24,20 +24,9 @@ use proto_core::modbus::pdu::{ExceptionCode, ExceptionResponse, FunctionCode, Re
 use tracing::{debug, error};
 
 use super::mbap::MAX_PDU_LEN;
-use super::options::ServerOptions;
-use super::server::SharedUnits;
-use super::stats::{FrameReject, RequestResult, ServerStats};
+use super::shared::Shared;
+use super::stats::{FrameReject, RequestResult};
 use crate::unit::{UnitResult, UnitService};
-
-/// What every connection of one server shares.
-pub(crate) struct Shared {
-    /// The units; replaced at run time by whoever holds the other `Arc`.
-    pub(crate) units: SharedUnits,
-    /// Limits and policy.
-    pub(crate) options: ServerOptions,
-    /// Counters.
-    pub(crate) stats: Arc<ServerStats>,
-}
 
 /// Answers the request `pdu` to `unit`, appending the response PDU (normal or exception) to `out`
 /// after what it holds already (the connection keeps room for the MBAP header there).

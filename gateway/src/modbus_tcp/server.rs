@@ -2,7 +2,7 @@
 
 use std::io;
 use std::net::SocketAddr;
-use std::sync::{Arc, RwLock};
+use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::net::{TcpListener, TcpSocket, TcpStream};
@@ -12,18 +12,15 @@ use tokio_util::task::TaskTracker;
 use tracing::{debug, error, info, warn};
 
 use super::connection;
-use super::request::Shared;
+use super::shared::Shared;
 use super::stats::{AcceptError, RejectReason, ServerStats};
-use crate::unit::UnitMap;
 
 pub use super::options::{
     ServerOptions, WriteRange, WriteTable, DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS,
     DEFAULT_REQUEST_TIMEOUT,
 };
 
-/// The unit map the server answers from, replaceable at run time: take the write lock and swap
-/// the map. Each request clones its unit's service out and drops the lock before it waits.
-pub type SharedUnits = Arc<RwLock<UnitMap>>;
+pub use super::shared::SharedUnits;
 
 /// Listen backlog of [`bind`]: room for a burst of clients connecting at once (SCADA stations
 /// reconnecting after a network outage). `TcpListener::bind` uses 128, and connections past a full

@@ -107,15 +107,10 @@ pub fn check_tag_name(name: &str) -> Result<(), KeyError> {
 
 /// Checks a configured prefix: a canonical key expression without wildcards.
 pub fn check_prefix(prefix: &str) -> Result<OwnedKeyExpr, KeyError> {
-    let bad = |reason: String| KeyError::BadPrefix {
+    crate::config::check_prefix(prefix).map_err(|reason| KeyError::BadPrefix {
         prefix: prefix.to_owned(),
         reason,
-    };
-    let ke = OwnedKeyExpr::new(prefix).map_err(|e| bad(e.to_string()))?;
-    if ke.is_wild() {
-        return Err(bad("it contains a wildcard".to_owned()));
-    }
-    Ok(ke)
+    })
 }
 
 /// The default prefix `gw/<gateway name>`.

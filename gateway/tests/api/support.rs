@@ -83,7 +83,7 @@ impl Default for Setup {
         Self {
             auth: Auth::with_token(Token::new(TOKEN, "test").expect("token")),
             store: true,
-            body_limit: api::config::DEFAULT_BODY_LIMIT,
+            body_limit: config::DEFAULT_BODY_LIMIT,
             request_timeout: Duration::from_secs(10),
             max_connections: api::DEFAULT_MAX_CONNECTIONS,
             header_read_timeout: api::DEFAULT_HEADER_READ_TIMEOUT,

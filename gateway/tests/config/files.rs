@@ -314,18 +314,18 @@ fn temp_file(name: &str, text: &str) -> PathBuf {
 #[test]
 fn check_reports_counts_or_issues() {
     let ok = temp_file("config-check-ok.toml", EXAMPLE);
-    let (text, code) = config::check_report(&ok);
+    let (text, code) = gateway::app::check_report(&ok);
     assert_eq!((text.as_str(), code), ("ok: 5 lines, 2 devices", 0));
-    assert_eq!(config::check_command(&ok), 0);
+    assert_eq!(gateway::app::check_command(&ok), 0);
 
     let bad = temp_file(
         "config-check-bad.toml",
         "[gateway]\nname = \"A\"\n[lines.a]\nport = \"x\"\n",
     );
-    let (text, code) = config::check_report(&bad);
+    let (text, code) = gateway::app::check_report(&bad);
     assert_eq!(code, 1);
     assert_eq!(text.lines().collect::<Vec<_>>(), ["gateway.name: invalid name \"A\": use 1 to 64 characters of a-z, 0-9, '_' and '-' (names appear in metric labels and zenoh keys)", "lines.a.protocol: missing required key (modbus-master-rtu, modbus-master-ascii, modbus-slave-rtu, 3964r or ascii)"]);
-    assert_eq!(config::check_command(&bad), 1);
+    assert_eq!(gateway::app::check_command(&bad), 1);
 
     let missing = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("no-such-config.toml");
     let err = config::load(&missing).expect_err("missing file");
@@ -340,4 +340,24 @@ fn load_reads_the_example() {
         config::parse(config::demo_toml()).expect("demo parses"),
         config::demo()
     );
+}
+
+#[test]
+fn check_and_load_report_what_the_cp_memory_cannot_serve_with_the_readers_issues() {
+    // A write enable inside a byte of M (003 6.4.5 "Limits": the write limits are whole bytes),
+    // and a bad baud rate that the reader finds: both in one answer, each with its path.
+    let text = one_line(
+        "modbus-slave-rtu",
+        "baud = 12345\nwrite_enable = [{ table = \"coil\", start = 3, count = 8 }]",
+    );
+    let path = temp_file("config-check-cpmem.toml", &text);
+    let err = gateway::app::load_config(&path).expect_err("refused");
+    let paths: Vec<&str> = err.issues.iter().map(|i| i.path.as_str()).collect();
+    assert_eq!(paths, ["lines.a.baud", "lines.a.write_enable[0]"], "{err}");
+    assert!(err.issues[1].message.contains("whole bytes"), "{err}");
+    let (shown, code) = gateway::app::check_report(&path);
+    assert_eq!((shown, code), (err.to_string(), 1));
+    // The reader alone knows the keys, not the CP memory's limits.
+    let paths: Vec<String> = issues(&text).into_iter().map(|(p, _)| p).collect();
+    assert_eq!(paths, ["lines.a.baud"]);
 }

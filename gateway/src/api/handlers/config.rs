@@ -22,7 +22,7 @@ use super::ApiPath;
 use crate::api::body::{self, TOML_MEDIA_TYPE};
 use crate::api::error::{body_error, ApiError, ErrorBody, Issue};
 use crate::api::model::{ConfigChangeResult, ValidationResult};
-use crate::api::ApiState;
+use crate::api::{ApiBackend, ApiState};
 use crate::config::Config;
 
 /// The configuration as JSON: the TOML file's tables and keys (see
@@ -120,8 +120,11 @@ pub(crate) async fn put_config(
     headers: HeaderMap,
     ApiBytes(bytes): ApiBytes,
 ) -> Result<Response, ApiError> {
-    let new = body::config(body::content_format(&headers)?, &bytes)?;
-    change(state, &headers, move |_| Ok(new)).await
+    let backend = state.backend();
+    let new = body::config(body::content_format(&headers)?, &bytes, &|c, found| {
+        backend.config_issues(c, found)
+    })?;
+    change(state, &headers, move |_, _| Ok(new)).await
 }
 
 /// Validates a configuration without applying it.
@@ -143,7 +146,10 @@ pub(crate) async fn validate_config(
     headers: HeaderMap,
     ApiBytes(bytes): ApiBytes,
 ) -> Result<Json<ValidationResult>, ApiError> {
-    let config = body::config(body::content_format(&headers)?, &bytes)?;
+    let backend = state.backend();
+    let config = body::config(body::content_format(&headers)?, &bytes, &|c, found| {
+        backend.config_issues(c, found)
+    })?;
     state.backend().validate(&config).map_err(backend_issues)?;
     Ok(Json(ValidationResult {
         valid: true,
@@ -205,7 +211,7 @@ pub(crate) async fn put_line_config(
     ApiBytes(bytes): ApiBytes,
 ) -> Result<Response, ApiError> {
     let table = body::table(body::content_format(&headers)?, &bytes)?;
-    change(state, &headers, move |current| {
+    change(state, &headers, move |current, backend| {
         let mut root = body::to_table(current)?;
         let lines = root
             .entry("lines")
@@ -213,7 +219,7 @@ pub(crate) async fn put_line_config(
         if let toml::Value::Table(lines) = lines {
             lines.insert(line, toml::Value::Table(table));
         }
-        Config::from_table(&root).map_err(body::validation)
+        body::from_table(&root, backend)
     })
     .await
 }
@@ -240,7 +246,7 @@ pub(crate) async fn delete_line_config(
     ApiPath(line): ApiPath<String>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    change(state, &headers, move |current| {
+    change(state, &headers, move |current, _| {
         let mut new = current.clone();
         if new.lines.remove(&line).is_none() {
             return Err(ApiError::not_found("line", &line));
@@ -256,7 +262,7 @@ pub(crate) async fn delete_line_config(
 /// apply. The task goes on if the request is dropped (timeout, client gone).
 async fn change<F>(state: ApiState, headers: &HeaderMap, edit: F) -> Result<Response, ApiError>
 where
-    F: FnOnce(&Config) -> Result<Config, ApiError> + Send + 'static,
+    F: FnOnce(&Config, &dyn ApiBackend) -> Result<Config, ApiError> + Send + 'static,
 {
     let if_match = headers.clone();
     let task = tokio::spawn(async move {
@@ -268,7 +274,7 @@ where
                 "the configuration changed since it was read (If-Match)",
             ));
         }
-        let new = edit(&current)?;
+        let new = edit(&current, backend.as_ref())?;
         backend.validate(&new).map_err(backend_issues)?;
         let etag = body::etag(&new);
         let persisted = state.store().is_some();

@@ -19,11 +19,11 @@ use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::path::PathBuf;
 use std::time::Duration;
 
-use serde::{Deserialize, Serialize};
+use serde::{Deserialize, Deserializer, Serialize};
 
-use crate::config::ConfigIssue;
+use super::reader::{Cx, Fields};
 
-/// Local only by default: exposing the API is a decision (SPEC: the demo serves 127.0.0.1:8080).
+/// Local only by default: exposing the API is a decision (the demo serves 127.0.0.1:8080).
 pub const DEFAULT_HTTP_LISTEN: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 8080);
 /// Largest request body by default: a configuration with many devices and tags fits.
 pub const DEFAULT_BODY_LIMIT: u64 = 1024 * 1024;
@@ -35,47 +35,31 @@ pub const DEFAULT_HTTP_REQUEST_TIMEOUT: Duration = Duration::from_secs(30);
 /// Accepted range of `request_timeout`.
 pub const HTTP_REQUEST_TIMEOUT_RANGE: (Duration, Duration) =
     (Duration::from_millis(100), Duration::from_secs(600));
+/// HTTP connections served at once by default.
+pub const DEFAULT_HTTP_MAX_CONNECTIONS: u32 = 64;
 /// Accepted range of `max_connections`.
-pub const MAX_CONNECTIONS_RANGE: (u32, u32) = (1, 4096);
+pub const HTTP_MAX_CONNECTIONS_RANGE: (u32, u32) = (1, 4096);
 /// Changes are refused without a token unless this is set.
 pub const DEFAULT_INSECURE: bool = false;
 
-pub fn default_http_listen() -> SocketAddr {
-    DEFAULT_HTTP_LISTEN
-}
-pub fn default_body_limit() -> u64 {
-    DEFAULT_BODY_LIMIT
-}
-pub fn default_http_request_timeout() -> Duration {
-    DEFAULT_HTTP_REQUEST_TIMEOUT
-}
-pub fn default_http_max_connections() -> u32 {
-    super::DEFAULT_MAX_CONNECTIONS
-}
-
 /// The `[http]` section.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
 pub struct HttpConfig {
-    #[serde(default = "default_http_listen")]
     pub listen: SocketAddr,
     /// A file holding the bearer token (surrounding whitespace ignored).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub token_file: Option<PathBuf>,
     /// The name of an environment variable holding the bearer token.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub token_env: Option<String>,
     /// Accept changes without a token when none is configured (for demos; logged at start).
-    #[serde(default)]
     pub insecure_allow_unauthenticated_changes: bool,
     /// Largest request body in bytes; a larger one is answered 413.
-    #[serde(default = "default_body_limit")]
     pub body_limit: u64,
     /// A request that takes longer is answered 504.
-    #[serde(default = "default_http_request_timeout", with = "humantime_serde")]
+    #[serde(with = "humantime_serde")]
     pub request_timeout: Duration,
     /// Connections served at once; further clients wait in the listen backlog.
-    #[serde(default = "default_http_max_connections")]
     pub max_connections: u32,
 }
 
@@ -88,7 +72,7 @@ impl Default for HttpConfig {
             insecure_allow_unauthenticated_changes: DEFAULT_INSECURE,
             body_limit: DEFAULT_BODY_LIMIT,
             request_timeout: DEFAULT_HTTP_REQUEST_TIMEOUT,
-            max_connections: super::DEFAULT_MAX_CONNECTIONS,
+            max_connections: DEFAULT_HTTP_MAX_CONNECTIONS,
         }
     }
 }
@@ -103,117 +87,73 @@ pub enum TokenSource {
 // === impl HttpConfig ===
 
 impl HttpConfig {
-    /// Reads the `[http]` table at `path` (e.g. `"http"`), reporting every problem at once:
-    /// unknown keys, values of the wrong type, values out of range.
-    pub fn from_toml(value: &toml::Value, path: &str) -> Result<Self, Vec<ConfigIssue>> {
-        let mut issues = Vec::new();
-        let Some(table) = value.as_table() else {
-            return Err(vec![issue(path, "expected a table")]);
-        };
-        let mut config = Self::default();
-        for (key, v) in table {
-            let at = format!("{path}.{key}");
-            match key.as_str() {
-                "listen" => {
-                    if let Some(x) = typed(&mut issues, &at, v, "socket address (e.g. \"127.0.0.1:8080\")") {
-                        config.listen = x;
-                    }
-                }
-                "token_file" => config.token_file = typed(&mut issues, &at, v, "file path"),
-                "token_env" => config.token_env = typed(&mut issues, &at, v, "environment variable name"),
-                "insecure_allow_unauthenticated_changes" => {
-                    if let Some(x) = typed(&mut issues, &at, v, "true or false") {
-                        config.insecure_allow_unauthenticated_changes = x;
-                    }
-                }
-                "body_limit" => {
-                    if let Some(x) = typed(&mut issues, &at, v, "a number of bytes") {
-                        config.body_limit = x;
-                    }
-                }
-                "max_connections" => {
-                    if let Some(x) = typed(&mut issues, &at, v, "a number of connections") {
-                        config.max_connections = x;
-                    }
-                }
-                "request_timeout" => {
-                    let text: Option<String> = typed(&mut issues, &at, v, "a duration (e.g. \"30s\")");
-                    match text.map(|t| humantime::parse_duration(&t)) {
-                        Some(Ok(d)) => config.request_timeout = d,
-                        Some(Err(e)) => issues.push(issue(&at, format!("expected a duration (e.g. \"30s\"): {e}"))),
-                        None => {}
-                    }
-                }
-                _ => issues.push(issue(
-                    &at,
-                    "unknown key (listen, token_file, token_env, insecure_allow_unauthenticated_changes, body_limit, request_timeout, max_connections)",
-                )),
-            }
-        }
-        issues.extend(config.issues(path));
-        if issues.is_empty() {
-            Ok(config)
-        } else {
-            Err(issues)
-        }
-    }
-
-    /// The rules that span keys or ranges, with paths under `path`.
-    pub fn issues(&self, path: &str) -> Vec<ConfigIssue> {
-        let mut issues = Vec::new();
+    /// Reads the `[http]` table: every key converted and checked, every problem with its path.
+    pub(crate) fn read(cx: &mut Cx, mut f: Fields<'_>) -> Self {
+        let listen = f.parsed_or(
+            cx,
+            "listen",
+            "socket address (e.g. \"127.0.0.1:8080\")",
+            DEFAULT_HTTP_LISTEN,
+        );
+        let token_file = f.string(cx, "token_file").map(PathBuf::from);
+        let token_env = f.string(cx, "token_env");
+        let insecure_allow_unauthenticated_changes = f.bool_or(
+            cx,
+            "insecure_allow_unauthenticated_changes",
+            DEFAULT_INSECURE,
+        );
         let (lo, hi) = BODY_LIMIT_RANGE;
-        if !(lo..=hi).contains(&self.body_limit) {
-            issues.push(issue(
-                &format!("{path}.body_limit"),
-                format!("{} is out of range {lo}..={hi} bytes", self.body_limit),
-            ));
-        }
+        let body_limit = f
+            .int::<u32>(cx, "body_limit", narrow(lo)..=narrow(hi), "")
+            .map_or(DEFAULT_BODY_LIMIT, u64::from);
         let (lo, hi) = HTTP_REQUEST_TIMEOUT_RANGE;
-        if !(lo..=hi).contains(&self.request_timeout) {
-            issues.push(issue(
-                &format!("{path}.request_timeout"),
-                format!(
-                    "{} is out of range {}..={}",
-                    humantime::format_duration(self.request_timeout),
-                    humantime::format_duration(lo),
-                    humantime::format_duration(hi)
-                ),
-            ));
+        let request_timeout = f.duration_or(
+            cx,
+            "request_timeout",
+            lo..=hi,
+            DEFAULT_HTTP_REQUEST_TIMEOUT,
+            "",
+        );
+        let (lo, hi) = HTTP_MAX_CONNECTIONS_RANGE;
+        let max_connections = f.int_or(
+            cx,
+            "max_connections",
+            lo..=hi,
+            DEFAULT_HTTP_MAX_CONNECTIONS,
+            "",
+        );
+        if f.has("token_file") && f.has("token_env") {
+            cx.issue(f.at("token_env"), "set token_file or token_env, not both");
         }
-        let (lo, hi) = MAX_CONNECTIONS_RANGE;
-        if !(lo..=hi).contains(&self.max_connections) {
-            issues.push(issue(
-                &format!("{path}.max_connections"),
-                format!("{} is out of range {lo}..={hi}", self.max_connections),
-            ));
-        }
-        if self.token_file.is_some() && self.token_env.is_some() {
-            issues.push(issue(
-                &format!("{path}.token_env"),
-                "set token_file or token_env, not both",
-            ));
-        }
-        if let Some(name) = &self.token_env {
+        if let Some(name) = &token_env {
             let valid = !name.is_empty()
                 && !name.starts_with(|c: char| c.is_ascii_digit())
                 && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
             if !valid {
-                issues.push(issue(
-                    &format!("{path}.token_env"),
+                cx.issue(
+                    f.at("token_env"),
                     format!(
                         "{name:?} is not an environment variable name ([A-Za-z_][A-Za-z0-9_]*)"
                     ),
-                ));
+                );
             }
         }
-        if self
-            .token_file
+        if token_file
             .as_ref()
             .is_some_and(|p| p.as_os_str().is_empty())
         {
-            issues.push(issue(&format!("{path}.token_file"), "empty path"));
+            cx.issue(f.at("token_file"), "empty path");
         }
-        issues
+        f.finish(cx);
+        Self {
+            listen,
+            token_file,
+            token_env,
+            insecure_allow_unauthenticated_changes,
+            body_limit,
+            request_timeout,
+            max_connections,
+        }
     }
 
     /// Where the token comes from, if anywhere.
@@ -226,37 +166,33 @@ impl HttpConfig {
     }
 }
 
-fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
-    ConfigIssue {
-        path: path.to_owned(),
-        message: message.into(),
-    }
+/// A byte count of [`BODY_LIMIT_RANGE`] as the reader's integer type (the range fits in `u32`).
+fn narrow(n: u64) -> u32 {
+    u32::try_from(n).unwrap_or(u32::MAX)
 }
 
-/// `v` as a `T`, or an issue at `at` saying what was expected.
-fn typed<T: serde::de::DeserializeOwned>(
-    issues: &mut Vec<ConfigIssue>,
-    at: &str,
-    v: &toml::Value,
-    expected: &str,
-) -> Option<T> {
-    match v.clone().try_into::<T>() {
-        Ok(x) => Some(x),
-        Err(e) => {
-            let what = e.message().trim().replace('\n', "; ");
-            issues.push(issue(at, format!("expected {expected}: {what}")));
-            None
-        }
+/// Reads the section through [`HttpConfig::read`]: unknown keys are refused, every problem is
+/// reported.
+impl<'de> Deserialize<'de> for HttpConfig {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        super::read_section(deserializer, "http", Self::read)
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::ConfigIssue;
 
     fn read(text: &str) -> Result<HttpConfig, Vec<ConfigIssue>> {
         let table: toml::Table = text.parse().unwrap();
-        HttpConfig::from_toml(&toml::Value::Table(table), "http")
+        let mut cx = Cx::default();
+        let config = HttpConfig::read(&mut cx, Fields::new(&table, "http".into()));
+        if cx.issues.is_empty() {
+            Ok(config)
+        } else {
+            Err(cx.issues)
+        }
     }
 
     #[test]

@@ -1,0 +1,296 @@
+//! The `[zenoh]` section of the gateway configuration.
+//!
+//! ```toml
+//! [zenoh]
+//! enabled = true                      # default true
+//! mode = "peer"                       # "peer" (default) or "client"
+//! listen = ["tcp/0.0.0.0:7447"]       # zenoh endpoints; unset: the file's or zenoh's default
+//! connect = ["tcp/192.168.1.10:7447"] # unset: the file's or zenoh's default (none)
+//! multicast_scouting = false          # unset: the file's or zenoh's default (on)
+//! prefix = "plant/hall2/gw1"          # default "gw/<gateway name>"
+//! config_file = "/etc/gateway/zenoh.json5"  # a zenoh config file (TLS, access control, ...)
+//! telegram_queue = 1024               # received telegrams waiting to be published
+//! event_queue = 256                   # events waiting to be published
+//! tag_queue = 4096                    # tags with a value waiting to be published (newest wins)
+//! result_queue = 256                  # tx / set results waiting to be published
+//! command_queue = 64                  # tx / set commands waiting for their line
+//! query_queue = 64                    # queries waiting to be answered
+//! ```
+//!
+//! Precedence: `config_file` is read first (as zenoh documents it, json5), then every key set in
+//! this section overrides the file. Keys left unset keep the file's value, or zenoh's default
+//! when there is no file. That is how TLS endpoints (`tls/host:port`), certificates and access
+//! control are configured: in the zenoh file, exactly as zenoh documents them (TLS needs the
+//! gateway built with the `zenoh-tls` cargo feature).
+//!
+//! Overflow policy (every drop is counted in `gateway_dropped_updates_total{reason}`):
+//! - tag values: one pending value per tag key, a newer value replaces it (`tag_superseded`);
+//!   a value for a new key when `tag_queue` keys are pending is dropped (`tag_queue_full`);
+//! - telegrams, events and results: first in, first out; when full the new item is dropped and
+//!   counted (`telegram_queue_full`, `event_queue_full`, `result_queue_full`), and the caller
+//!   is told. Order per line is kept, nothing is published twice;
+//! - commands and queries: when full, the command is answered `busy` on its result key
+//!   (`command_queue_full`), the query gets no reply (`query_queue_full`).
+//!
+//! The publisher thread takes everything pending at once, so up to twice a queue's size can be
+//! held (one batch being published, one queue filling).
+
+use std::num::NonZeroUsize;
+use std::path::PathBuf;
+use std::str::FromStr;
+
+use ::zenoh::key_expr::OwnedKeyExpr;
+use serde::{Deserialize, Deserializer, Serialize};
+
+use super::reader::{string_value, Cx, Fields};
+
+/// Default for [`ZenohConfig::telegram_queue`].
+pub const DEFAULT_TELEGRAM_QUEUE: usize = 1024;
+/// Default for [`ZenohConfig::event_queue`].
+pub const DEFAULT_EVENT_QUEUE: usize = 256;
+/// Default for [`ZenohConfig::tag_queue`].
+pub const DEFAULT_TAG_QUEUE: usize = 4096;
+/// Default for [`ZenohConfig::result_queue`].
+pub const DEFAULT_RESULT_QUEUE: usize = 256;
+/// Default for [`ZenohConfig::command_queue`].
+pub const DEFAULT_COMMAND_QUEUE: usize = 64;
+/// Default for [`ZenohConfig::query_queue`].
+pub const DEFAULT_QUERY_QUEUE: usize = 64;
+/// The bridge starts when the section is there, unless `enabled = false`.
+pub const DEFAULT_ZENOH_ENABLED: bool = true;
+
+/// How the session joins the fabric.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mode {
+    /// Talks to other peers directly and to routers (zenoh's default for a session).
+    #[default]
+    Peer,
+    /// Talks only through one router (or peer) it connects to. The bridge keeps retrying the
+    /// first connection, and zenoh reconnects after a loss.
+    Client,
+}
+
+impl Mode {
+    /// The zenoh name of the mode.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Peer => "peer",
+            Self::Client => "client",
+        }
+    }
+}
+
+/// A zenoh endpoint (`tcp/127.0.0.1:7447`, `tls/host:7447`...), checked when the config is read.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub struct Endpoint(String);
+
+impl TryFrom<String> for Endpoint {
+    type Error = String;
+
+    fn try_from(s: String) -> Result<Self, Self::Error> {
+        ::zenoh::config::EndPoint::from_str(&s)
+            .map_err(|e| format!("bad zenoh endpoint {s:?}: {e}"))?;
+        Ok(Self(s))
+    }
+}
+
+impl From<Endpoint> for String {
+    fn from(e: Endpoint) -> Self {
+        e.0
+    }
+}
+
+impl Endpoint {
+    /// The endpoint text.
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+}
+
+/// A key prefix: a canonical key expression without wildcards, checked when the config is read.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(try_from = "String", into = "String")]
+pub struct Prefix(String);
+
+impl TryFrom<String> for Prefix {
+    type Error = String;
+
+    fn try_from(s: String) -> Result<Self, Self::Error> {
+        check_prefix(&s).map_err(|reason| {
+            format!(
+                "key prefix {s:?} is not a canonical key expression without wildcards: {reason}"
+            )
+        })?;
+        Ok(Self(s))
+    }
+}
+
+impl From<Prefix> for String {
+    fn from(p: Prefix) -> Self {
+        p.0
+    }
+}
+
+impl Prefix {
+    /// The prefix text.
+    pub fn as_str(&self) -> &str {
+        &self.0
+    }
+}
+
+/// Checks a prefix: a canonical key expression without wildcards; else why not.
+pub fn check_prefix(prefix: &str) -> Result<OwnedKeyExpr, String> {
+    let ke = OwnedKeyExpr::new(prefix).map_err(|e| e.to_string())?;
+    if ke.is_wild() {
+        return Err("it contains a wildcard".to_owned());
+    }
+    Ok(ke)
+}
+
+/// The `[zenoh]` section: one session per gateway.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct ZenohConfig {
+    /// Whether the gateway starts the bridge at all (the bridge itself does not look at it).
+    pub enabled: bool,
+    /// Peer or client; unset: the file's, else peer.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mode: Option<Mode>,
+    /// Endpoints to listen on; unset: the file's, else zenoh's default.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub listen: Option<Vec<Endpoint>>,
+    /// Endpoints to connect to; unset: the file's, else none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub connect: Option<Vec<Endpoint>>,
+    /// UDP multicast scouting; unset: the file's, else zenoh's default (on). Turn it off
+    /// wherever the endpoints are known (and always in tests).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub multicast_scouting: Option<bool>,
+    /// Key prefix; unset: `gw/<gateway name>`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub prefix: Option<Prefix>,
+    /// A zenoh configuration file (json5) read first; the keys above override it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub config_file: Option<PathBuf>,
+    /// Received telegrams waiting for the session (FIFO, overflow counted).
+    pub telegram_queue: NonZeroUsize,
+    /// Events waiting for the session (FIFO, overflow counted).
+    pub event_queue: NonZeroUsize,
+    /// Tag keys with a pending value (newest value per key wins, overflow counted).
+    pub tag_queue: NonZeroUsize,
+    /// Command results waiting for the session (FIFO, overflow counted).
+    pub result_queue: NonZeroUsize,
+    /// Commands (`tx`, `set`) waiting, in total and per line (overflow answered `busy`).
+    pub command_queue: NonZeroUsize,
+    /// Queries waiting to be answered (overflow counted, the query gets no reply).
+    pub query_queue: NonZeroUsize,
+}
+
+fn nonzero(n: usize) -> NonZeroUsize {
+    NonZeroUsize::new(n).unwrap_or(NonZeroUsize::MIN)
+}
+
+impl Default for ZenohConfig {
+    fn default() -> Self {
+        Self {
+            enabled: DEFAULT_ZENOH_ENABLED,
+            mode: None,
+            listen: None,
+            connect: None,
+            multicast_scouting: None,
+            prefix: None,
+            config_file: None,
+            telegram_queue: nonzero(DEFAULT_TELEGRAM_QUEUE),
+            event_queue: nonzero(DEFAULT_EVENT_QUEUE),
+            tag_queue: nonzero(DEFAULT_TAG_QUEUE),
+            result_queue: nonzero(DEFAULT_RESULT_QUEUE),
+            command_queue: nonzero(DEFAULT_COMMAND_QUEUE),
+            query_queue: nonzero(DEFAULT_QUERY_QUEUE),
+        }
+    }
+}
+
+// === impl ZenohConfig ===
+
+impl ZenohConfig {
+    /// A peer listening on `listen` only, multicast scouting off: the shape every test uses.
+    pub fn loopback_peer(listen: &str) -> Result<Self, String> {
+        Ok(Self {
+            mode: Some(Mode::Peer),
+            listen: Some(vec![Endpoint::try_from(listen.to_owned())?]),
+            connect: Some(Vec::new()),
+            multicast_scouting: Some(false),
+            ..Self::default()
+        })
+    }
+
+    /// Reads the `[zenoh]` table: every key converted and checked, every problem with its path.
+    pub(crate) fn read(cx: &mut Cx, mut f: Fields<'_>) -> Self {
+        let enabled = f.bool_or(cx, "enabled", DEFAULT_ZENOH_ENABLED);
+        let mode = f.choice::<Mode>(cx, "mode");
+        let listen = endpoints(cx, &mut f, "listen");
+        let connect = endpoints(cx, &mut f, "connect");
+        let multicast_scouting = f.bool(cx, "multicast_scouting");
+        let prefix = f.string(cx, "prefix").and_then(|text| {
+            Prefix::try_from(text)
+                .map_err(|e| cx.issue(f.at("prefix"), e))
+                .ok()
+        });
+        let config_file = f.string(cx, "config_file").map(PathBuf::from);
+        let mut queue = |key, default| {
+            f.int::<u32>(cx, key, 1..=u32::MAX, "")
+                .and_then(|n| usize::try_from(n).ok())
+                .map_or(nonzero(default), nonzero)
+        };
+        let telegram_queue = queue("telegram_queue", DEFAULT_TELEGRAM_QUEUE);
+        let event_queue = queue("event_queue", DEFAULT_EVENT_QUEUE);
+        let tag_queue = queue("tag_queue", DEFAULT_TAG_QUEUE);
+        let result_queue = queue("result_queue", DEFAULT_RESULT_QUEUE);
+        let command_queue = queue("command_queue", DEFAULT_COMMAND_QUEUE);
+        let query_queue = queue("query_queue", DEFAULT_QUERY_QUEUE);
+        f.finish(cx);
+        Self {
+            enabled,
+            mode,
+            listen,
+            connect,
+            multicast_scouting,
+            prefix,
+            config_file,
+            telegram_queue,
+            event_queue,
+            tag_queue,
+            result_queue,
+            command_queue,
+            query_queue,
+        }
+    }
+}
+
+/// A list of endpoints, each checked; `None` when the key is not set.
+fn endpoints(cx: &mut Cx, f: &mut Fields<'_>, key: &'static str) -> Option<Vec<Endpoint>> {
+    if !f.has(key) {
+        let _ = f.raw(key);
+        return None;
+    }
+    let mut list = Vec::new();
+    for (path, value) in f.array(cx, key) {
+        let Some(text) = string_value(cx, value, &path) else {
+            continue;
+        };
+        match Endpoint::try_from(text) {
+            Ok(e) => list.push(e),
+            Err(e) => cx.issue(path, e),
+        }
+    }
+    Some(list)
+}
+
+/// Reads the section through [`ZenohConfig::read`]: unknown keys are refused, every problem is
+/// reported.
+impl<'de> Deserialize<'de> for ZenohConfig {
+    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
+        super::read_section(deserializer, "zenoh", Self::read)
+    }
+}
