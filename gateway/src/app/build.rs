@@ -91,9 +91,8 @@ pub(crate) fn master_line(
             };
             (master, &m.devices)
         }
-        ProtocolConfig::ModbusSlaveRtu(_)
-        | ProtocolConfig::Proc3964(_)
-        | ProtocolConfig::Ascii(_) => return None,
+        // Every other protocol: not a master line.
+        _ => return None,
     };
     settings.master = master;
     settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
