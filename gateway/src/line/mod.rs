@@ -27,6 +27,7 @@ mod modbus_master;
 mod modbus_slave;
 pub mod plan;
 mod probe;
+mod registers32;
 mod scheduler;
 mod status;
 pub mod telegram;

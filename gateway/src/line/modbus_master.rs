@@ -10,7 +10,7 @@ use std::sync::Arc;
 use std::time::SystemTime;
 
 use proto_core::event::{ids, EventId};
-use proto_core::modbus::master::{Master, MasterEvent, Outcome, RequestId};
+use proto_core::modbus::master::{Attempts, Master, MasterEvent, Outcome, RequestId};
 use proto_core::modbus::pdu::{Request, Response};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::mpsc;
@@ -21,6 +21,7 @@ use tokio_util::sync::CancellationToken;
 use super::command::{Command, CommandError, CommandResult};
 use super::driver::{estimated_tx_end, sleep_until_opt, Clock};
 use super::line_metrics::{master_result, BROADCAST_DEVICE, UNKNOWN_DEVICE};
+use super::registers32;
 use super::scheduler::{Job, PollJob, Scheduler, Transition};
 use super::status::Shared;
 use super::writeback::{broadcast_echo, refresh_image};
@@ -82,6 +83,7 @@ impl LineTask {
         shutdown: CancellationToken,
         clock: Clock,
     ) -> Self {
+        let devices = registers32::line_devices(&settings.master, devices);
         let sched = Scheduler::new(devices.iter().map(|d| &**d), clock.base());
         Self {
             settings,
@@ -235,6 +237,7 @@ impl LineTask {
             }
             let mut completed = false;
             while let Some(event) = master.poll_event() {
+                let (event, function32) = registers32::as_16bit(event);
                 match event {
                     // Slave 0: raised while the line was idle.
                     MasterEvent::Raised { id, slave } => {
@@ -253,7 +256,8 @@ impl LineTask {
                         match self.inflight.take() {
                             Some((expected, job)) if expected == id => {
                                 let delay = master.reply_delay();
-                                self.complete(job, slave, &request, outcome, delay);
+                                let function = function32.unwrap_or(request.function().0);
+                                self.complete(job, slave, &request, function, outcome, delay);
                             }
                             other => {
                                 tracing::error!(line = %self.settings.name, slave, "completion of a request not in flight");
@@ -261,9 +265,9 @@ impl LineTask {
                             }
                         }
                     }
-                    // This line never submits 32-bit register jobs.
+                    // Turned into `Completed` by `registers32::as_16bit` above.
                     MasterEvent::Completed32 { slave, .. } => {
-                        tracing::error!(line = %self.settings.name, slave, "completion of a 32-bit job never submitted");
+                        tracing::error!(line = %self.settings.name, slave, "completion of a 32-bit job not converted");
                     }
                 }
             }
@@ -317,7 +321,17 @@ impl LineTask {
                         command.answer(Err(CommandError::Offline(slave)));
                         continue;
                     }
-                    match master.submit(engine_now, command.slave, command.request.clone()) {
+                    let registers32 = registers32::enabled(&self.settings.master);
+                    let request = command.request.clone();
+                    let attempts = Attempts::default();
+                    match registers32::submit(
+                        master,
+                        registers32,
+                        engine_now,
+                        command.slave,
+                        request,
+                        attempts,
+                    ) {
                         Ok(id) => {
                             self.sent_at = None;
                             self.inflight = Some((id, InFlight::Command { device, command }));
@@ -333,7 +347,15 @@ impl LineTask {
                     // A probe of an offline device is one attempt with its own wait (`probe`).
                     let attempts = self.sched.poll_attempts(poll.device, &self.settings.master);
                     let request = poll.read.request();
-                    match master.submit_with(engine_now, device.slave, request, attempts) {
+                    let registers32 = registers32::enabled(&self.settings.master);
+                    match registers32::submit(
+                        master,
+                        registers32,
+                        engine_now,
+                        device.slave,
+                        request,
+                        attempts,
+                    ) {
                         Ok(id) => {
                             self.sent_at = None;
                             self.inflight = Some((id, InFlight::Poll(poll)));
@@ -360,13 +382,15 @@ impl LineTask {
         }
     }
 
-    /// Handles the end of the request in flight; `reply_delay` is the master's, from the end of
-    /// the request to the first byte of the answer.
+    /// Handles the end of the request in flight, counted under `function` (the request's, or
+    /// 43h/46h/50h for a 32-bit register job); `reply_delay` is the master's, from the end of the
+    /// request to the first byte of the answer.
     fn complete(
         &mut self,
         job: InFlight,
         slave: u8,
         request: &Request,
+        function: u8,
         outcome: Outcome,
         reply_delay: Option<std::time::Duration>,
     ) {
@@ -387,7 +411,6 @@ impl LineTask {
             InFlight::Poll(poll) => Some(poll.device),
             InFlight::Command { device, .. } => *device,
         };
-        let function = request.function().0;
         self.shared
             .metrics()
             .request(self.device_label(index, Some(slave)), function, result);
