@@ -26,7 +26,8 @@ use crate::image::ProcessImage;
 use crate::line::{LineEvent, LineStatus};
 use crate::tags::{TagDirectory, TagEntry, TagWriteError};
 use crate::zenoh_bridge::{
-    BackendFuture, Bridge, BridgeBackend, BridgeHandle, TagValue, ZenohConfig,
+    BackendFuture, Bridge, BridgeBackend, BridgeHandle, BridgeStats, DropReason, TagValue,
+    ZenohConfig,
 };
 
 /// How often device presence is compared with the last published state.
@@ -110,11 +111,12 @@ async fn open(follower: &ZenohFollower, sup: &Arc<Supervisor>) -> Result<(), App
     let backend = ZenohBackend {
         sup: Arc::downgrade(sup),
     };
-    let (bridge, handle) = Bridge::start(
+    let (bridge, handle) = Bridge::start_counted(
         cfg,
         &snapshot.config.gateway.name,
         Arc::new(backend),
         token.clone(),
+        BridgeStats::with_metrics(sup.exported.metrics.clone()),
     )
     .await
     .map_err(|e| AppError::Setup(format!("zenoh: {e}")))?;
@@ -391,6 +393,7 @@ fn spawn_feeds(sup: &Arc<Supervisor>, bridge: &BridgeHandle, token: &Cancellatio
                     }
                     Err(RecvError::Lagged(n)) => {
                         // The newest values follow; publishing skipped ones would be stale.
+                        bridge.stats().dropped_many(DropReason::FeedLagged, n);
                         debug!(
                             skipped = n,
                             "zenoh feed fell behind the image; newest values win"
@@ -454,7 +457,8 @@ fn spawn_line_feeds(
                 match received {
                     Ok(e) => publish_event(&bridge, &e),
                     Err(RecvError::Lagged(n)) => {
-                        warn!(missed = n, "zenoh event feed fell behind a line")
+                        bridge.stats().dropped_many(DropReason::FeedLagged, n);
+                        warn!(missed = n, "zenoh event feed fell behind a line");
                     }
                     Err(RecvError::Closed) => return,
                 }
@@ -485,6 +489,7 @@ fn spawn_line_feeds(
                     }
                 }
                 Err(RecvError::Lagged(n)) => {
+                    bridge.stats().dropped_many(DropReason::FeedLagged, n);
                     warn!(line = %name, missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
                 }
                 Err(RecvError::Closed) => return,

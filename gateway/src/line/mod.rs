@@ -32,6 +32,7 @@ mod modbus_master;
 mod modbus_slave;
 pub mod plan;
 mod probe;
+mod registers32;
 pub mod runtime;
 mod scheduler;
 mod status;

@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::time::SystemTime;
 
 use proto_core::event::{ids, EventId};
-use proto_core::modbus::master::{Master, MasterEvent, Outcome, RequestId};
+use proto_core::modbus::master::{Attempts, Master, MasterEvent, Outcome, RequestId};
 use proto_core::modbus::pdu::{Request, Response};
 use tokio::sync::mpsc;
 use tokio::time::Instant;
@@ -22,6 +22,7 @@ use super::command::{Command, CommandError, CommandResult, LineClient};
 use super::device_unit::DeviceUnit;
 use super::driver::{sleep_until_opt, Clock};
 use super::line_metrics::{master_result, BROADCAST_DEVICE, UNKNOWN_DEVICE};
+use super::registers32;
 use super::runtime::{
     self, LineBase, LineCapabilities, LineEngine, LineHandle, SerialOpener, Stop,
 };
@@ -220,6 +221,7 @@ impl LineEngine for MasterLine {
     fn handle_events(&mut self) -> bool {
         let mut completed = false;
         while let Some(event) = self.master.poll_event() {
+            let (event, function32) = registers32::as_16bit(event);
             match event {
                 // Slave 0: raised while the line was idle.
                 MasterEvent::Raised { id, slave } => {
@@ -238,7 +240,8 @@ impl LineEngine for MasterLine {
                     match self.inflight.take() {
                         Some((expected, job)) if expected == id => {
                             let delay = self.master.reply_delay();
-                            self.complete(job, slave, &request, outcome, delay);
+                            let function = function32.unwrap_or(request.function().0);
+                            self.complete(job, slave, &request, function, outcome, delay);
                         }
                         other => {
                             tracing::error!(line = %self.settings.name, slave, "completion of a request not in flight");
@@ -246,9 +249,9 @@ impl LineEngine for MasterLine {
                         }
                     }
                 }
-                // This line never submits 32-bit register jobs.
+                // Turned into `Completed` by `registers32::as_16bit` above.
                 MasterEvent::Completed32 { slave, .. } => {
-                    tracing::error!(line = %self.settings.name, slave, "completion of a 32-bit job never submitted");
+                    tracing::error!(line = %self.settings.name, slave, "completion of a 32-bit job not converted");
                 }
             }
         }
@@ -321,6 +324,7 @@ impl MasterLine {
         shared: Arc<Shared>,
         clock: Clock,
     ) -> Self {
+        let devices = registers32::line_devices(&settings.master, devices);
         let sched = Scheduler::new(devices.iter().map(|d| &**d), clock.base());
         let master = Master::new(settings.master);
         Self {
@@ -381,10 +385,17 @@ impl MasterLine {
                         command.answer(Err(CommandError::Offline(slave)));
                         continue;
                     }
-                    match self
-                        .master
-                        .submit(engine_now, command.slave, command.request.clone())
-                    {
+                    let registers32 = registers32::enabled(&self.settings.master);
+                    let request = command.request.clone();
+                    let attempts = Attempts::default();
+                    match registers32::submit(
+                        &mut self.master,
+                        registers32,
+                        engine_now,
+                        command.slave,
+                        request,
+                        attempts,
+                    ) {
                         Ok(id) => {
                             self.sent_at = None;
                             self.inflight = Some((id, InFlight::Command { device, command }));
@@ -400,10 +411,15 @@ impl MasterLine {
                     // A probe of an offline device is one attempt with its own wait (`probe`).
                     let attempts = self.sched.poll_attempts(poll.device, &self.settings.master);
                     let request = poll.read.request();
-                    match self
-                        .master
-                        .submit_with(engine_now, device.slave, request, attempts)
-                    {
+                    let registers32 = registers32::enabled(&self.settings.master);
+                    match registers32::submit(
+                        &mut self.master,
+                        registers32,
+                        engine_now,
+                        device.slave,
+                        request,
+                        attempts,
+                    ) {
                         Ok(id) => {
                             self.sent_at = None;
                             self.inflight = Some((id, InFlight::Poll(poll)));
@@ -430,13 +446,15 @@ impl MasterLine {
         }
     }
 
-    /// Handles the end of the request in flight; `reply_delay` is the master's, from the end of
-    /// the request to the first byte of the answer.
+    /// Handles the end of the request in flight, counted under `function` (the request's, or
+    /// 43h/46h/50h for a 32-bit register job); `reply_delay` is the master's, from the end of the
+    /// request to the first byte of the answer.
     fn complete(
         &mut self,
         job: InFlight,
         slave: u8,
         request: &Request,
+        function: u8,
         outcome: Outcome,
         reply_delay: Option<std::time::Duration>,
     ) {
@@ -457,7 +475,6 @@ impl MasterLine {
             InFlight::Poll(poll) => Some(poll.device),
             InFlight::Command { device, .. } => *device,
         };
-        let function = request.function().0;
         self.shared
             .metrics()
             .request(self.device_label(index, Some(slave)), function, result);

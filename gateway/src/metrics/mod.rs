@@ -414,9 +414,14 @@ impl Metrics {
 
     /// Counts one update dropped instead of delivered.
     pub fn dropped_update(&self, reason: DropReason) {
+        self.dropped_updates(reason, 1);
+    }
+
+    /// Counts `count` updates dropped instead of delivered (a receiver that lagged lost several).
+    pub fn dropped_updates(&self, reason: DropReason, count: u64) {
         self.dropped_updates
             .with_label_values(&[reason.as_str()])
-            .inc();
+            .inc_by(count);
     }
 }
 
