@@ -98,7 +98,7 @@ fn prometheus_scrapes_the_demo_sees_every_line_start_and_evaluates_every_dashboa
 
     let exposition = scrape(http);
     let lines = served_lines(&exposition);
-    // SPEC.md: the demo polls the drive and the KS vario; the other lines count when served.
+    // The demo polls the drive and the KS vario; the other lines count when served.
     for required in ["drive", "ksvario"] {
         assert!(
             lines.contains(required),

@@ -170,7 +170,7 @@ fn ascii_defaults_match_the_manual() {
     // 003 6.2.1: 250 buffered telegrams, prevent overwriting on.
     assert_eq!(a.receive_buffer, 250);
     assert!(a.prevent_overwrite);
-    // SPEC: at most 1024 bytes a telegram.
+    // At most 1024 bytes a telegram.
     assert_eq!(a.max_telegram_len, 1024);
 }
 

@@ -23,6 +23,7 @@
 mod client;
 mod convert;
 pub(crate) mod engine;
+mod mailbox_unit;
 pub(crate) mod pump;
 mod task;
 
@@ -39,12 +40,13 @@ pub use crate::mailbox::TelegramRx;
 pub(crate) use client::Command;
 pub use client::{PendingSend, SendResult, SignalsClient, TelegramClient, TelegramSendError};
 pub use convert::{params_3964, params_ascii, TelegramConfigError};
+pub use mailbox_unit::MailboxUnit;
 
 use super::line_metrics::{LineMetrics, LineTraffic};
 use super::runtime::{self, LineBase, LineCapabilities, LineHandle, SerialOpener};
 use super::status::{self, LineStatus};
 use super::{DEFAULT_DIAG_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
-use crate::mailbox::{Mailbox, MailboxSettings, MailboxUnit, Overflow, TelegramCounters};
+use crate::mailbox::{Mailbox, MailboxSettings, Overflow, TelegramCounters};
 use crate::serial::PortSettings;
 use crate::unit::UnitService;
 

@@ -1,6 +1,6 @@
 //! A simulated Altivar 61/71 with its integrated Modbus (seed manual 002).
 //!
-//! Defaults reproduce the manual's examples (SPEC "Fixed names"): slave 2; W3102..W3105 =
+//! Defaults reproduce the manual's examples (which the README and the tests use): slave 2; W3102..W3105 =
 //! 40/600/500/0; W8400 does not exist; CHCF (W8401) = 3, COP (W8402) = 2; ETA (W3201) is
 //! read-only and a write answers exception 04; a missing or protected word reads 16#8000 and only
 //! an all-missing request answers exception 02; the FC 43 identity is "Telemecanique" /
