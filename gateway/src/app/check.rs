@@ -5,11 +5,25 @@
 //! CP memory can serve a slave line exactly is the CP memory's knowledge (`cpmem::config`): its
 //! write limits are one byte range for M, one for Q and one range of DB numbers (003 6.4.5
 //! "Limits"), so a write enable inside a byte or a DB is refused here, never silently widened.
+//!
+//! `gateway run` refuses more than the file's rules: the REST API's token must be readable and
+//! at least 16 visible characters ([`run_issues`], exit 64 before any port opens), and a line
+//! must be startable (telegram settings, CP memory). `gateway check` reports all of that, and
+//! also opens every RS485 line's port as the line would and closes it again: a port whose driver
+//! refuses RS485 mode (a pseudo-terminal, a UART without RS485 support) never works, so it is an
+//! error; a port that cannot be opened now (not plugged in, in use) is a warning, because the
+//! running line opens it again with back-off.
+//!
+//! Exit codes: `gateway check` 0 (valid, warnings may be printed) or 1 (problems); `gateway run`
+//! 64 (the configuration is refused: file, token, line settings) or 70 (anything else).
 
 use std::path::Path;
 
-use crate::config::{self, Config, ConfigErrors, ConfigIssue, ProtocolConfig};
+use crate::api::{Auth, TokenError};
+use crate::config::{self, Config, ConfigErrors, ConfigIssue, Interface, ProtocolConfig};
+use crate::config::{HttpConfig, TokenSource};
 use crate::cpmem;
+use crate::serial::{self, OpenError};
 
 /// What the CP memory cannot serve exactly in the slave lines of `config`, each issue with its
 /// path. A key the reader reported already (in `found`) is not reported twice.
@@ -39,6 +53,65 @@ pub fn load_config(path: &Path) -> Result<Config, ConfigErrors> {
     config::load_with(path, &config_issues)
 }
 
+/// What `gateway run` refuses in `config` beyond the file's own rules: the REST API token (read
+/// from its file or variable, at least 16 visible characters) and what would keep a line from
+/// starting. Run exits 64 on any of them before a port is opened.
+pub fn run_issues(config: &Config) -> Vec<ConfigIssue> {
+    let mut issues = token_issues(&config.http, |name| std::env::var(name).ok());
+    issues.extend(super::lines::start_issues(config, None));
+    issues
+}
+
+/// The token of `[http]` as run reads it, with `env` for the process environment.
+pub(crate) fn token_issues(
+    http: &HttpConfig,
+    env: impl Fn(&str) -> Option<String>,
+) -> Vec<ConfigIssue> {
+    match Auth::from_config_with(http, env) {
+        Ok(_) => Vec::new(),
+        Err(e) => vec![token_issue(http, &e)],
+    }
+}
+
+/// A token error as an issue at the key that names the token's source.
+pub(crate) fn token_issue(http: &HttpConfig, e: &TokenError) -> ConfigIssue {
+    let key = match http.token_source() {
+        Some(TokenSource::Env(_)) => "http.token_env",
+        _ => "http.token_file",
+    };
+    ConfigIssue {
+        path: key.to_owned(),
+        message: e.to_string(),
+    }
+}
+
+/// Opens every RS485 line's port with its settings and closes it again: a refused RS485 mode is
+/// an error (the line could never work), a port that cannot be opened now a warning (the line
+/// opens it again with back-off).
+pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
+    let (mut errors, mut warnings) = (Vec::new(), Vec::new());
+    for (name, line) in &config.lines {
+        if !matches!(line.serial.interface, Interface::Rs485) {
+            continue;
+        }
+        let path = format!("lines.{name}.port");
+        match serial::probe(&super::build::port_settings(&line.serial)) {
+            Ok(()) => {}
+            Err(e @ OpenError::Rs485Refused { .. }) => errors.push(ConfigIssue {
+                path: format!("lines.{name}.interface"),
+                message: e.to_string(),
+            }),
+            Err(e @ OpenError::Open { .. }) => warnings.push(ConfigIssue {
+                path,
+                message: format!(
+                    "{e}; RS485 mode not tested (the line opens the port again with back-off)"
+                ),
+            }),
+        }
+    }
+    (errors, warnings)
+}
+
 /// `gateway check --config FILE`: prints `ok: N lines, M devices`, or every issue on its own
 /// line, to stdout; returns the exit code (0 valid, 1 not).
 pub fn check_command(path: &Path) -> i32 {
@@ -47,13 +120,28 @@ pub fn check_command(path: &Path) -> i32 {
     code
 }
 
-/// What [`check_command`] prints, and its exit code.
+/// What [`check_command`] prints, and its exit code: the counts or every problem (each with
+/// its path), then every warning (`warning: <path>: <message>`).
 pub fn check_report(path: &Path) -> (String, i32) {
-    match load_config(path) {
-        Ok(c) => (
-            format!("ok: {} lines, {} devices", c.lines.len(), c.device_count()),
-            0,
-        ),
-        Err(e) => (e.to_string(), 1),
+    let config = match load_config(path) {
+        Ok(c) => c,
+        Err(e) => return (e.to_string(), 1),
+    };
+    let mut errors = run_issues(&config);
+    let (port_errors, warnings) = port_issues(&config);
+    errors.extend(port_errors);
+    let code = i32::from(!errors.is_empty());
+    let mut text = if errors.is_empty() {
+        format!(
+            "ok: {} lines, {} devices",
+            config.lines.len(),
+            config.device_count()
+        )
+    } else {
+        ConfigErrors { issues: errors }.to_string()
+    };
+    for w in &warnings {
+        text.push_str(&format!("\nwarning: {}: {}", w.path, w.message));
     }
+    (text, code)
 }
