@@ -34,7 +34,9 @@ mod supervisor;
 mod tag_io;
 mod zenoh;
 
-pub use check::{check_command, check_report, config_issues, load_config, port_issues, run_issues};
+pub use check::{
+    check_command, check_report, config_issues, load_config, port_issues, run_issues, unpolled_tags,
+};
 pub use demo::demo;
 
 /// How long a stopping gateway waits for lines to finish their transaction in flight and for

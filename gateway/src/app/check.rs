@@ -112,6 +112,82 @@ pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
     (errors, warnings)
 }
 
+/// The tags that no poll group of their device reads, fully (by name or by an address range
+/// that covers all its registers): they are read from the device on demand only (REST, zenoh
+/// queries) and never published on change. A config tag is named at its own path; the
+/// profile's unpolled tags are listed in one warning per device.
+pub fn unpolled_tags(config: &Config) -> Vec<ConfigIssue> {
+    use proto_core::profiles::Table as T;
+    let directory = crate::tags::TagDirectory::from_config(config);
+    let mut warnings = Vec::new();
+    for (line_name, line) in &config.lines {
+        for (device_name, device) in line.devices() {
+            let polled = |name: &str, table: T, address: u16, words: u16| {
+                let table = match table {
+                    T::Coils => config::ModbusTable::Coil,
+                    T::DiscreteInputs => config::ModbusTable::Discrete,
+                    T::InputRegisters => config::ModbusTable::Input,
+                    T::HoldingRegisters => config::ModbusTable::Holding,
+                };
+                device.poll.iter().any(|group| {
+                    group.tags.iter().any(|t| t.eq_ignore_ascii_case(name))
+                        || group
+                            .ranges
+                            .iter()
+                            .any(|r| r.covers(table, address, u32::from(words)))
+                })
+            };
+            let path = format!("lines.{line_name}.devices.{device_name}");
+            let mut from_profile = Vec::new();
+            for entry in directory
+                .iter()
+                .filter(|e| &e.line == line_name && &e.device == device_name)
+            {
+                let tag = &entry.tag;
+                if polled(&tag.name, tag.table, tag.address, tag.words()) {
+                    continue;
+                }
+                match device.tags.iter().position(|t| t.name == tag.name) {
+                    Some(i) => warnings.push(ConfigIssue {
+                        path: format!("{path}.tags[{i}]"),
+                        message: format!(
+                            "tag {:?} is read by no poll group: it is read from the device only on demand and never published on change",
+                            tag.name
+                        ),
+                    }),
+                    None => from_profile.push(tag.name.as_str()),
+                }
+            }
+            if !from_profile.is_empty() {
+                warnings.push(ConfigIssue {
+                    path: format!("{path}.poll"),
+                    message: format!(
+                        "{} tags of the profile are read by no poll group (read on demand only, never published on change): {}",
+                        from_profile.len(),
+                        listed(&from_profile)
+                    ),
+                });
+            }
+        }
+    }
+    warnings
+}
+
+/// The first names of a list, and how many more there are.
+fn listed(names: &[&str]) -> String {
+    const SHOWN: usize = 12;
+    let mut text = names
+        .iter()
+        .take(SHOWN)
+        .copied()
+        .collect::<Vec<_>>()
+        .join(", ");
+    if names.len() > SHOWN {
+        text.push_str(&format!(" and {} more", names.len() - SHOWN));
+    }
+    text
+}
+
 /// `gateway check --config FILE`: prints `ok: N lines, M devices`, or every issue on its own
 /// line, to stdout; returns the exit code (0 valid, 1 not).
 pub fn check_command(path: &Path) -> i32 {
@@ -128,7 +204,8 @@ pub fn check_report(path: &Path) -> (String, i32) {
         Err(e) => return (e.to_string(), 1),
     };
     let mut errors = run_issues(&config);
-    let (port_errors, warnings) = port_issues(&config);
+    let (port_errors, mut warnings) = port_issues(&config);
+    warnings.extend(unpolled_tags(&config));
     errors.extend(port_errors);
     let code = i32::from(!errors.is_empty());
     let mut text = if errors.is_empty() {

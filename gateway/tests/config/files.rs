@@ -311,6 +311,9 @@ fn temp_file(name: &str, text: &str) -> PathBuf {
     path
 }
 
+/// The Altivar profile's tags that the example polls by neither name nor range.
+const UNPOLLED_ATV71: &str = "warning: lines.drive.devices.atv71.poll: 44 tags of the profile are read by no poll group (read on demand only, never published on change): SFr, tFr, HSP, LSP, M1EC, M1CT, LFT, CHCF, COP, CMD, LFRD, THR and 32 more";
+
 #[test]
 fn check_reports_counts_or_issues() {
     // The example's token file, here with a token of 16 characters (run reads it at start).
@@ -327,7 +330,7 @@ fn check_reports_counts_or_issues() {
     assert_eq!(
         (text.as_str(), code),
         (
-            format!("ok: 5 lines, 2 devices\nwarning: lines.drive.port: cannot open port {ftdi}: No such file or directory; RS485 mode not tested (the line opens the port again with back-off)").as_str(),
+            format!("ok: 5 lines, 2 devices\nwarning: lines.drive.port: cannot open port {ftdi}: No such file or directory; RS485 mode not tested (the line opens the port again with back-off)\n{UNPOLLED_ATV71}").as_str(),
             0
         )
     );
@@ -453,4 +456,32 @@ async fn check_opens_an_rs485_port_and_reports_a_refused_rs485_mode() {
         "{shown}"
     );
     assert_eq!(lines.len(), 2, "{shown}");
+}
+
+#[test]
+fn tag_names_compare_without_case_and_check_warns_about_tags_no_poll_group_reads() {
+    // `LEVEL` in a poll group is the tag `level`, `ETA` the Altivar profile's `eta`.
+    let device = "[lines.a.devices.d]\nprofile = \"generic\"\naddress = 1\n\
+        tags = [\n  { name = \"level\", table = \"holding\", address = 10 },\n  \
+        { name = \"flow\", table = \"holding\", address = 11, writable = true },\n  \
+        { name = \"spare\", table = \"holding\", address = 50 },\n]\n\
+        [[lines.a.devices.d.poll]]\nname = \"fast\"\nperiod = \"1s\"\ntags = [\"LEVEL\"]\n\
+        [[lines.a.devices.d.poll]]\nname = \"slow\"\nperiod = \"10s\"\nranges = [{ table = \"holding\", start = 11, count = 1 }]\n";
+    let text = one_line("modbus-master-rtu", device);
+    let c = parse(&text);
+    assert_eq!(line(&c).devices().count(), 1);
+    let path = temp_file("config-check-unpolled.toml", &text);
+    let (shown, code) = gateway::app::check_report(&path);
+    assert_eq!(code, 0, "{shown}");
+    assert_eq!(
+        shown,
+        "ok: 1 lines, 1 devices\nwarning: lines.a.devices.d.tags[2]: tag \"spare\" is read by no poll group: it is read from the device only on demand and never published on change"
+    );
+
+    let altivar = one_line(
+        "modbus-master-rtu",
+        "[lines.a.devices.atv]\nprofile = \"altivar71\"\naddress = 2\n\
+         [[lines.a.devices.atv.poll]]\nname = \"s\"\nperiod = \"1s\"\ntags = [\"ETA\", \"acc\", \"SFr\"]\n",
+    );
+    parse(&altivar);
 }
