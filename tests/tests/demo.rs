@@ -64,6 +64,13 @@ async fn demo_serves_both_devices_and_writes_through() {
         vec![40, 600, 500, 0]
     );
 
+    // The second Altivar on the same bus (multi-drop, slave 3), unit 3: the same settings.
+    let mut drive_b = connect(&gw, 3).await;
+    assert_eq!(
+        read_holding_eventually(&mut drive_b, 3102, 4).await,
+        vec![40, 600, 500, 0]
+    );
+
     // KS vario, unit 17: FC04 1004..1006 (001 chapter 4 example).
     let mut ks = connect(&gw, 17).await;
     assert_eq!(
@@ -94,6 +101,27 @@ async fn demo_serves_both_devices_and_writes_through() {
             .expect("read W9001"),
         vec![13]
     );
+
+    // Each drive on the bus answers its own address: a write to the second drive leaves the
+    // first one's value alone.
+    drive_b
+        .write_single_register(9001, 21)
+        .await
+        .expect("transport")
+        .expect("write W9001 of the second drive");
+    let both = (
+        drive_b
+            .read_holding_registers(9001, 3)
+            .await
+            .expect("transport")
+            .expect("read the second drive"),
+        drive
+            .read_holding_registers(9001, 3)
+            .await
+            .expect("transport")
+            .expect("read the first drive"),
+    );
+    assert_eq!((both.0[0], both.1[0]), (21, 13), "{both:?}");
 
     // ETA (W3201) is read-only on the drive: the drive's own exception 04 comes back.
     let refused = drive

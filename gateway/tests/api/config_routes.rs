@@ -304,7 +304,11 @@ async fn a_change_edits_the_operators_file_in_place() {
     assert_eq!(r.status, 200, "{}", r.text);
     let saved = std::fs::read_to_string(&path).expect("the file");
     let expected = expected
-        .replacen("period = \"1s\"", "period = \"2s\"", 1)
+        .replacen(
+            "period = \"1s\"\nranges = [{ table = \"input\"",
+            "period = \"2s\"\nranges = [{ table = \"input\"",
+            1,
+        )
         .replacen(
             "name = \"demo\"\n",
             "name = \"demo\"\ndiag_buffer_depth = 20\n",

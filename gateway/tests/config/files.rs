@@ -37,11 +37,16 @@ fn demo_follows_the_spec() {
         );
         assert_eq!(l.serial.pty_name(), Some(name), "{name} runs on a demo pty");
     }
+    // Two drives on one bus (multi-drop): slaves 2 and 3, served as unit ids 2 and 3.
     let drive: Vec<_> = c.lines["drive"].devices().collect();
-    assert_eq!(drive.len(), 1);
+    assert_eq!(drive.len(), 2);
     assert_eq!(
         (drive[0].1.profile, drive[0].1.address, drive[0].1.unit_id),
         (Profile::Altivar71, 2, 2)
+    );
+    assert_eq!(
+        (drive[1].1.profile, drive[1].1.address, drive[1].1.unit_id),
+        (Profile::Altivar71, 3, 3)
     );
     assert!(matches!(
         c.lines["drive"].protocol,
@@ -62,7 +67,7 @@ fn demo_follows_the_spec() {
     };
     assert_eq!(a.end_criterion, EndCriterion::EndChars);
     assert_eq!(a.end_chars, [0x03]);
-    assert_eq!(c.device_count(), 2);
+    assert_eq!(c.device_count(), 3);
 }
 
 #[test]
