@@ -566,11 +566,13 @@ mod tests {
     #[test]
     fn m1ct_wraps_and_m1ec_stops() {
         // 002 "Modbus-Zähler": M1CT counts modulo 65536, M1EC stops at 65535.
-        let mut sim = AltivarSim::default();
-        sim.counters = Counters {
-            frames: u16::MAX,
-            crc_errors: u16::MAX,
-            slave_messages: 0,
+        let mut sim = AltivarSim {
+            counters: Counters {
+                frames: u16::MAX,
+                crc_errors: u16::MAX,
+                slave_messages: 0,
+            },
+            ..AltivarSim::default()
         };
         assert_eq!(
             sim.handle_frame(&[0x02, 0x03, 0x0C, 0x1E, 0x00, 0x04, 0x27, 0x6D]),
