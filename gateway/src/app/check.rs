@@ -7,8 +7,9 @@
 //! "Limits"), so a write enable inside a byte or a DB is refused here, never silently widened.
 //!
 //! `gateway run` refuses more than the file's rules: the REST API's token must be readable and
-//! at least 16 visible characters ([`run_issues`], exit 64 before any port opens), and a line
-//! must be startable (telegram settings, CP memory). `gateway check` reports all of that, and
+//! at least 16 visible characters, a line must be startable (telegram settings, CP memory), the
+//! zenoh settings must load (its `config_file` included) and a persisted CP memory file must be
+//! readable ([`run_issues`], exit 64 before any port opens). `gateway check` reports all of that, and
 //! also opens every RS485 line's port as the line would and closes it again: a port whose driver
 //! refuses RS485 mode (a pseudo-terminal, a UART without RS485 support) never works, so it is an
 //! error; a port that cannot be opened now (not plugged in, in use) is a warning, because the
@@ -59,7 +60,52 @@ pub fn load_config(path: &Path) -> Result<Config, ConfigErrors> {
 pub fn run_issues(config: &Config) -> Vec<ConfigIssue> {
     let mut issues = token_issues(&config.http, |name| std::env::var(name).ok());
     issues.extend(super::lines::start_issues(config, None));
+    issues.extend(zenoh_issues(config));
+    issues.extend(cp_memory_issues(config));
     issues
+}
+
+/// The zenoh session's settings as the bridge builds them at start: `config_file` read and
+/// parsed, the section's keys applied on top (an unreadable or invalid file stops `run`).
+fn zenoh_issues(config: &Config) -> Vec<ConfigIssue> {
+    let Some(zenoh) = config.zenoh.as_ref().filter(|z| z.enabled) else {
+        return Vec::new();
+    };
+    match zenoh.to_zenoh() {
+        Ok(_) => Vec::new(),
+        Err(e) => vec![ConfigIssue {
+            path: if zenoh.config_file.is_some() {
+                "zenoh.config_file".to_owned()
+            } else {
+                "zenoh".to_owned()
+            },
+            message: e.to_string(),
+        }],
+    }
+}
+
+/// The persisted CP memory, which `run` loads before the slave lines start: a file that exists
+/// but cannot be read stops it (a missing file starts zeroed, a damaged one is moved aside).
+fn cp_memory_issues(config: &Config) -> Vec<ConfigIssue> {
+    let serves_memory = config
+        .lines
+        .values()
+        .any(|l| matches!(l.protocol, ProtocolConfig::ModbusSlaveRtu(_)));
+    let Some(path) = config
+        .cp_memory
+        .persist_file
+        .as_ref()
+        .filter(|_| serves_memory)
+    else {
+        return Vec::new();
+    };
+    match std::fs::File::open(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => vec![ConfigIssue {
+            path: "cp_memory.persist_file".to_owned(),
+            message: format!("cannot read {}: {e}", path.display()),
+        }],
+        _ => Vec::new(),
+    }
 }
 
 /// The token of `[http]` as run reads it, with `env` for the process environment.

@@ -490,3 +490,46 @@ fn tag_names_compare_without_case_and_check_warns_about_tags_no_poll_group_reads
     );
     parse(&altivar);
 }
+
+#[test]
+fn check_refuses_a_zenoh_file_or_a_cp_memory_file_that_run_cannot_read() {
+    let missing = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("no-such-zenoh.json5");
+    let text = format!("[zenoh]\nconfig_file = \"{}\"\n", missing.display());
+    let path = temp_file("config-check-zenoh-file.toml", &text);
+    let (shown, code) = gateway::app::check_report(&path);
+    assert_eq!(code, 1, "{shown}");
+    assert!(shown.starts_with("zenoh.config_file: "), "{shown}");
+    assert_eq!(shown.lines().count(), 1, "{shown}");
+    // Disabled, the session is never built: nothing to refuse.
+    let off = temp_file(
+        "config-check-zenoh-off.toml",
+        &format!("{text}enabled = false\n"),
+    );
+    assert_eq!(gateway::app::check_report(&off).1, 0);
+
+    // A path below a regular file can never be read (ENOTDIR); a missing file starts zeroed.
+    let slave = one_line("modbus-slave-rtu", "");
+    let blocked = temp_file(
+        "config-check-cpmem-file.toml",
+        &format!(
+            "[cp_memory]\npersist_file = \"{}/memory.bin\"\n{slave}",
+            path.display()
+        ),
+    );
+    let (shown, code) = gateway::app::check_report(&blocked);
+    assert_eq!(code, 1, "{shown}");
+    assert!(
+        shown.starts_with("cp_memory.persist_file: cannot read "),
+        "{shown}"
+    );
+    let fresh = temp_file(
+        "config-check-cpmem-fresh.toml",
+        &format!(
+            "[cp_memory]\npersist_file = \"{}\"\n{slave}",
+            PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+                .join("no-such-memory.bin")
+                .display()
+        ),
+    );
+    assert_eq!(gateway::app::check_report(&fresh).1, 0);
+}
