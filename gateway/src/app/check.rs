@@ -9,14 +9,15 @@
 //! `gateway run` refuses more than the file's rules: the REST API's token must be readable and
 //! at least 16 visible characters, a line must be startable (telegram settings, CP memory), the
 //! zenoh settings must load (its `config_file` included) and a persisted CP memory file must be
-//! readable ([`run_issues`], exit 64 before any port opens). `gateway check` reports all of that, and
-//! also opens every RS485 line's port as the line would and closes it again: a port whose driver
-//! refuses RS485 mode (a pseudo-terminal, a UART without RS485 support) never works, so it is an
-//! error; a port that cannot be opened now (not plugged in, in use) is a warning, because the
-//! running line opens it again with back-off.
+//! readable ([`run_issues`], exit 64 before any port opens). `gateway check` reports all of
+//! that, and also opens every RS485 line's port as the line would and closes it again: a port
+//! whose driver refuses RS485 mode (a pseudo-terminal, a UART without RS485 support) never
+//! works, so it is an error; a port that cannot be opened now (not plugged in, in use) is a
+//! warning, because the running line opens it again with back-off.
 //!
 //! Exit codes: `gateway check` 0 (valid, warnings may be printed) or 1 (problems); `gateway run`
-//! 64 (the configuration is refused: file, token, line settings) or 70 (anything else).
+//! 64 (the configuration is refused: file, token, line settings, zenoh or CP memory file) or 70
+//! (anything else).
 
 use std::path::Path;
 
@@ -55,8 +56,9 @@ pub fn load_config(path: &Path) -> Result<Config, ConfigErrors> {
 }
 
 /// What `gateway run` refuses in `config` beyond the file's own rules: the REST API token (read
-/// from its file or variable, at least 16 visible characters) and what would keep a line from
-/// starting. Run exits 64 on any of them before a port is opened.
+/// from its file or variable, at least 16 visible characters), what would keep a line from
+/// starting, the zenoh settings (`config_file` included) and an unreadable persisted CP memory
+/// file. Run exits 64 on any of them before a port is opened.
 pub fn run_issues(config: &Config) -> Vec<ConfigIssue> {
     let mut issues = token_issues(&config.http, |name| std::env::var(name).ok());
     issues.extend(super::lines::start_issues(config, None));
