@@ -34,7 +34,9 @@ mod supervisor;
 mod tag_io;
 mod zenoh;
 
-pub use check::{check_command, check_report, config_issues, load_config};
+pub use check::{
+    check_command, check_report, config_issues, load_config, port_issues, run_issues, unpolled_tags,
+};
 pub use demo::demo;
 
 /// How long a stopping gateway waits for lines to finish their transaction in flight and for
@@ -238,7 +240,11 @@ async fn serve_http(
     };
     let backend = Arc::new(rest::RestBackend::new(Arc::clone(sup)));
     let state = ApiState::from_config(backend, http, store)
-        .map_err(|e| AppError::Setup(format!("[http]: {e}")))?
+        .map_err(|e| {
+            AppError::Config(config::ConfigErrors {
+                issues: vec![check::token_issue(http, &e)],
+            })
+        })?
         .with_routes(metrics_route(sup.exported.registry.clone()));
     let listener = tokio::net::TcpListener::bind(addr)
         .await

@@ -5,11 +5,27 @@
 //! CP memory can serve a slave line exactly is the CP memory's knowledge (`cpmem::config`): its
 //! write limits are one byte range for M, one for Q and one range of DB numbers (003 6.4.5
 //! "Limits"), so a write enable inside a byte or a DB is refused here, never silently widened.
+//!
+//! `gateway run` refuses more than the file's rules: the REST API's token must be readable and
+//! at least 16 visible characters, a line must be startable (telegram settings, CP memory), the
+//! zenoh settings must load (its `config_file` included) and a persisted CP memory file must be
+//! readable ([`run_issues`], exit 64 before any port opens). `gateway check` reports all of
+//! that, and also opens every RS485 line's port as the line would and closes it again: a port
+//! whose driver refuses RS485 mode (a pseudo-terminal, a UART without RS485 support) never
+//! works, so it is an error; a port that cannot be opened now (not plugged in, in use) is a
+//! warning, because the running line opens it again with back-off.
+//!
+//! Exit codes: `gateway check` 0 (valid, warnings may be printed) or 1 (problems); `gateway run`
+//! 64 (the configuration is refused: file, token, line settings, zenoh or CP memory file) or 70
+//! (anything else).
 
 use std::path::Path;
 
-use crate::config::{self, Config, ConfigErrors, ConfigIssue, ProtocolConfig};
+use crate::api::{Auth, TokenError};
+use crate::config::{self, Config, ConfigErrors, ConfigIssue, Interface, ProtocolConfig};
+use crate::config::{HttpConfig, TokenSource};
 use crate::cpmem;
+use crate::serial::{self, OpenError};
 
 /// What the CP memory cannot serve exactly in the slave lines of `config`, each issue with its
 /// path. A key the reader reported already (in `found`) is not reported twice.
@@ -39,6 +55,187 @@ pub fn load_config(path: &Path) -> Result<Config, ConfigErrors> {
     config::load_with(path, &config_issues)
 }
 
+/// What `gateway run` refuses in `config` beyond the file's own rules: the REST API token (read
+/// from its file or variable, at least 16 visible characters), what would keep a line from
+/// starting, the zenoh settings (`config_file` included) and an unreadable persisted CP memory
+/// file. Run exits 64 on any of them before a port is opened.
+pub fn run_issues(config: &Config) -> Vec<ConfigIssue> {
+    let mut issues = token_issues(&config.http, |name| std::env::var(name).ok());
+    issues.extend(super::lines::start_issues(config, None));
+    issues.extend(zenoh_issues(config));
+    issues.extend(cp_memory_issues(config));
+    issues
+}
+
+/// The zenoh session's settings as the bridge builds them at start: `config_file` read and
+/// parsed, the section's keys applied on top (an unreadable or invalid file stops `run`).
+fn zenoh_issues(config: &Config) -> Vec<ConfigIssue> {
+    let Some(zenoh) = config.zenoh.as_ref().filter(|z| z.enabled) else {
+        return Vec::new();
+    };
+    match zenoh.to_zenoh() {
+        Ok(_) => Vec::new(),
+        Err(e) => vec![ConfigIssue {
+            path: if zenoh.config_file.is_some() {
+                "zenoh.config_file".to_owned()
+            } else {
+                "zenoh".to_owned()
+            },
+            message: e.to_string(),
+        }],
+    }
+}
+
+/// The persisted CP memory, which `run` loads before the slave lines start: a file that exists
+/// but cannot be read stops it (a missing file starts zeroed, a damaged one is moved aside).
+fn cp_memory_issues(config: &Config) -> Vec<ConfigIssue> {
+    let serves_memory = config
+        .lines
+        .values()
+        .any(|l| matches!(l.protocol, ProtocolConfig::ModbusSlaveRtu(_)));
+    let Some(path) = config
+        .cp_memory
+        .persist_file
+        .as_ref()
+        .filter(|_| serves_memory)
+    else {
+        return Vec::new();
+    };
+    match std::fs::File::open(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => vec![ConfigIssue {
+            path: "cp_memory.persist_file".to_owned(),
+            message: format!("cannot read {}: {e}", path.display()),
+        }],
+        _ => Vec::new(),
+    }
+}
+
+/// The token of `[http]` as run reads it, with `env` for the process environment.
+pub(crate) fn token_issues(
+    http: &HttpConfig,
+    env: impl Fn(&str) -> Option<String>,
+) -> Vec<ConfigIssue> {
+    match Auth::from_config_with(http, env) {
+        Ok(_) => Vec::new(),
+        Err(e) => vec![token_issue(http, &e)],
+    }
+}
+
+/// A token error as an issue at the key that names the token's source.
+pub(crate) fn token_issue(http: &HttpConfig, e: &TokenError) -> ConfigIssue {
+    let key = match http.token_source() {
+        Some(TokenSource::Env(_)) => "http.token_env",
+        _ => "http.token_file",
+    };
+    ConfigIssue {
+        path: key.to_owned(),
+        message: e.to_string(),
+    }
+}
+
+/// Opens every RS485 line's port with its settings and closes it again: a refused RS485 mode is
+/// an error (the line could never work), a port that cannot be opened now a warning (the line
+/// opens it again with back-off).
+pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
+    let (mut errors, mut warnings) = (Vec::new(), Vec::new());
+    for (name, line) in &config.lines {
+        if !matches!(line.serial.interface, Interface::Rs485) {
+            continue;
+        }
+        let path = format!("lines.{name}.port");
+        match serial::probe(&super::build::port_settings(&line.serial)) {
+            Ok(()) => {}
+            Err(e @ OpenError::Rs485Refused { .. }) => errors.push(ConfigIssue {
+                path: format!("lines.{name}.interface"),
+                message: e.to_string(),
+            }),
+            Err(e @ OpenError::Open { .. }) => warnings.push(ConfigIssue {
+                path,
+                message: format!(
+                    "{e}; RS485 mode not tested (the line opens the port again with back-off)"
+                ),
+            }),
+        }
+    }
+    (errors, warnings)
+}
+
+/// The tags that no poll group of their device reads, fully (by name or by an address range
+/// that covers all its registers): they are read from the device on demand only (REST, zenoh
+/// queries) and never published on change. A config tag is named at its own path; the
+/// profile's unpolled tags are listed in one warning per device.
+pub fn unpolled_tags(config: &Config) -> Vec<ConfigIssue> {
+    use proto_core::profiles::Table as T;
+    let directory = crate::tags::TagDirectory::from_config(config);
+    let mut warnings = Vec::new();
+    for (line_name, line) in &config.lines {
+        for (device_name, device) in line.devices() {
+            let polled = |name: &str, table: T, address: u16, words: u16| {
+                let table = match table {
+                    T::Coils => config::ModbusTable::Coil,
+                    T::DiscreteInputs => config::ModbusTable::Discrete,
+                    T::InputRegisters => config::ModbusTable::Input,
+                    T::HoldingRegisters => config::ModbusTable::Holding,
+                };
+                device.poll.iter().any(|group| {
+                    group.tags.iter().any(|t| t.eq_ignore_ascii_case(name))
+                        || group
+                            .ranges
+                            .iter()
+                            .any(|r| r.covers(table, address, u32::from(words)))
+                })
+            };
+            let path = format!("lines.{line_name}.devices.{device_name}");
+            let mut from_profile = Vec::new();
+            for entry in directory
+                .iter()
+                .filter(|e| &e.line == line_name && &e.device == device_name)
+            {
+                let tag = &entry.tag;
+                if polled(&tag.name, tag.table, tag.address, tag.words()) {
+                    continue;
+                }
+                match device.tags.iter().position(|t| t.name == tag.name) {
+                    Some(i) => warnings.push(ConfigIssue {
+                        path: format!("{path}.tags[{i}]"),
+                        message: format!(
+                            "tag {:?} is read by no poll group: it is read from the device only on demand and never published on change",
+                            tag.name
+                        ),
+                    }),
+                    None => from_profile.push(tag.name.as_str()),
+                }
+            }
+            if !from_profile.is_empty() {
+                warnings.push(ConfigIssue {
+                    path: format!("{path}.poll"),
+                    message: format!(
+                        "{} tags of the profile are read by no poll group (read on demand only, never published on change): {}",
+                        from_profile.len(),
+                        listed(&from_profile)
+                    ),
+                });
+            }
+        }
+    }
+    warnings
+}
+
+/// The first names of a list, and how many more there are.
+fn listed(names: &[&str]) -> String {
+    const SHOWN: usize = 12;
+    let mut text = names
+        .iter()
+        .take(SHOWN)
+        .copied()
+        .collect::<Vec<_>>()
+        .join(", ");
+    if names.len() > SHOWN {
+        text.push_str(&format!(" and {} more", names.len() - SHOWN));
+    }
+    text
+}
+
 /// `gateway check --config FILE`: prints `ok: N lines, M devices`, or every issue on its own
 /// line, to stdout; returns the exit code (0 valid, 1 not).
 pub fn check_command(path: &Path) -> i32 {
@@ -47,13 +244,29 @@ pub fn check_command(path: &Path) -> i32 {
     code
 }
 
-/// What [`check_command`] prints, and its exit code.
+/// What [`check_command`] prints, and its exit code: the counts or every problem (each with
+/// its path), then every warning (`warning: <path>: <message>`).
 pub fn check_report(path: &Path) -> (String, i32) {
-    match load_config(path) {
-        Ok(c) => (
-            format!("ok: {} lines, {} devices", c.lines.len(), c.device_count()),
-            0,
-        ),
-        Err(e) => (e.to_string(), 1),
+    let config = match load_config(path) {
+        Ok(c) => c,
+        Err(e) => return (e.to_string(), 1),
+    };
+    let mut errors = run_issues(&config);
+    let (port_errors, mut warnings) = port_issues(&config);
+    warnings.extend(unpolled_tags(&config));
+    errors.extend(port_errors);
+    let code = i32::from(!errors.is_empty());
+    let mut text = if errors.is_empty() {
+        format!(
+            "ok: {} lines, {} devices",
+            config.lines.len(),
+            config.device_count()
+        )
+    } else {
+        ConfigErrors { issues: errors }.to_string()
+    };
+    for w in &warnings {
+        text.push_str(&format!("\nwarning: {}: {}", w.path, w.message));
     }
+    (text, code)
 }

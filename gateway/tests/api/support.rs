@@ -76,6 +76,9 @@ pub(crate) struct Setup {
     pub(crate) max_connections: u32,
     pub(crate) header_read_timeout: Duration,
     pub(crate) config: Config,
+    /// The configuration file's text as the operator wrote it (it must read as `config`);
+    /// `None`: the file is `config` written out whole.
+    pub(crate) file_text: Option<String>,
 }
 
 impl Default for Setup {
@@ -88,6 +91,7 @@ impl Default for Setup {
             max_connections: api::DEFAULT_MAX_CONNECTIONS,
             header_read_timeout: api::DEFAULT_HEADER_READ_TIMEOUT,
             config: test_config(),
+            file_text: None,
         }
     }
 }
@@ -185,7 +189,16 @@ pub(crate) async fn start_with(setup: Setup) -> TestApi {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("gateway.toml");
         let store = ConfigStore::new(&path);
-        store.save(&setup.config).expect("initial save");
+        match &setup.file_text {
+            Some(text) => {
+                assert_eq!(
+                    config::parse(text).expect("the test file is valid"),
+                    setup.config
+                );
+                store.save_atomic(text).expect("initial save");
+            }
+            None => store.save(&setup.config).expect("initial save"),
+        }
         state = state.with_store(store);
         (Some(dir), Some(path))
     } else {
