@@ -13,6 +13,7 @@ use std::time::SystemTime;
 use proto_core::event::{ids, EventId};
 use proto_core::modbus::master::{Master, MasterEvent, Outcome, RequestId};
 use proto_core::modbus::pdu::{Request, Response};
+use proto_core::serial_marks::LineError;
 use tokio::sync::mpsc;
 use tokio::time::Instant;
 use tokio_serial::SerialPort;
@@ -191,6 +192,10 @@ impl LineEngine for MasterLine {
 
     fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
         self.master.handle_rx(now, bytes);
+    }
+
+    fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError) {
+        self.master.handle_line_error(now, error);
     }
 
     fn handle_timeout(&mut self, now: proto_core::time::Instant) {
