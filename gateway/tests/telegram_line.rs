@@ -301,6 +301,36 @@ async fn a_full_ascii_mailbox_drops_the_new_telegram_and_counts_it() {
 }
 
 #[tokio::test]
+async fn an_ascii_line_that_may_overwrite_keeps_the_newest_telegram_without_an_event() {
+    // 003 6.2.1 "Prevent overwriting" off, one receive buffer: each new telegram replaces the held
+    // one. That is what the line was set up to do, so there is no 08 0Ah and no overflow.
+    let protocol = TelegramProtocol::Ascii(gateway_ascii());
+    let sim = partner(&protocol).every(ms(5)).limit(5);
+    let pair = start_pair("t", protocol, mailbox(1, Overflow::Overwrite), sim);
+    let line = &pair.line;
+    eventually("five telegrams", || {
+        line.telegram_status()
+            .expect("a telegram line")
+            .counters
+            .received
+            == 5
+    })
+    .await;
+    let status = line.telegram_status().expect("a telegram line");
+    assert_eq!(status.counters.overflows, 0);
+    assert_eq!(event_count(line, ids::NO_FREE_RECEIVE_BUFFER), 0);
+    let waiting: Vec<u16> = line
+        .mailbox()
+        .expect("a telegram line")
+        .waiting()
+        .iter()
+        .map(|t| t.seq)
+        .collect();
+    assert_eq!(waiting, [5], "the newest is held");
+    pair.stop().await;
+}
+
+#[tokio::test]
 async fn a_full_3964r_mailbox_refuses_with_nak_and_takes_the_held_telegram_later() {
     let protocol = TelegramProtocol::P3964(gateway_3964r());
     let sim = partner(&protocol).every(ms(20)).limit(4);

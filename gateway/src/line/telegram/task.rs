@@ -312,6 +312,10 @@ impl<F: EngineFactory> TelegramLine<F> {
                         "mailbox full ({depth} telegrams): telegram {seq} dropped"
                     )),
                 ),
+                // Overwriting allowed (003 6.2.1): the configured behaviour, not an overflow.
+                Delivery::Overwritten { seq, replaced } => {
+                    tracing::debug!(line = %self.name(), seq, replaced, "telegram overwrote the held one");
+                }
                 Delivery::DroppedOldest { seq, dropped } => self.shared.raise(
                     ids::NO_FREE_RECEIVE_BUFFER,
                     Some(format!(
