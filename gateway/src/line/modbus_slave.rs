@@ -75,11 +75,10 @@ impl SlaveLineSettings {
     }
 
     /// The character timing of the line: 3.5 character times end a frame (003 6.4.6 "CRC-CHECK"),
-    /// fixed at 1.75 ms above 19200 Bd (Modbus over Serial Line V1.02, 2.5.1.1: the CP's own table
-    /// stops at 76800 Bd and a pty or USB adapter delivers bytes in bursts anyway); the engine
-    /// applies the multiplier of [`SlaveParams`].
+    /// at every baud rate as the CP's table has it ([`super::rtu_timing`]); the engine applies the
+    /// multiplier of [`SlaveParams`].
     pub fn timing(&self) -> CharTiming {
-        CharTiming::new(self.port.baud, self.port.bits_per_char())
+        super::rtu_timing(&self.port)
     }
 }
 
