@@ -97,7 +97,8 @@ pub struct SlaveCounters {
     pub writes: u64,
     /// Good frames for other slave addresses (normal on a multi-drop bus).
     pub other_address: u64,
-    /// Received bytes not served, by reason (`bad_crc`, `too_short`, `too_long`, `line_fault`).
+    /// Received bytes not served, by reason (`bad_crc`, `too_short`, `too_long`, `line_fault`,
+    /// `trailing_data`); also in the metrics as `gateway_frames_discarded_total`.
     pub discarded: BTreeMap<&'static str, u64>,
     /// When the last request for this slave (or a broadcast) was handled.
     pub last_request: Option<SystemTime>,
@@ -351,6 +352,7 @@ impl SlaveLine {
                 reason => {
                     tracing::debug!(line = %line, reason = reason.as_str(), len, "received bytes discarded");
                     self.count(|c| *c.discarded.entry(reason.as_str()).or_default() += 1);
+                    self.shared.metrics().frame_discarded(reason.as_str());
                 }
             },
             SlaveEvent::Diagnostic(id) => self.shared.raise(id, None, None),
@@ -499,6 +501,33 @@ mod tests {
                 .unwrap_or_else(|| panic!("no {event} series in\n{text}"));
             assert!(series.ends_with(" 1"), "{series}");
         }
+        shutdown.cancel();
+        line.join().await;
+    }
+
+    #[tokio::test]
+    async fn a_request_with_trailing_bytes_is_discarded_and_counted_not_answered() {
+        let (line, mut partner, registry, shutdown) = start(OperatingMode::Normal).await;
+        let good = request();
+        // 003 6.4.6: the frame is what came before the silence; a request followed by more bytes
+        // within it is not a valid request.
+        let mut long = good.clone();
+        long.extend_from_slice(&[0x12, 0x34]);
+        partner.write_all(&long).await.expect("write");
+        silent(&mut partner).await;
+        let counters = line.slave_counters().expect("slave counters");
+        assert_eq!(
+            counters.discarded.get("trailing_data"),
+            Some(&1),
+            "{counters:?}"
+        );
+        assert_eq!(counters.answered + counters.exceptions, 0);
+        let text = crate::metrics::encode_text(&registry);
+        let series = r#"gateway_frames_discarded_total{line="hmi",reason="trailing_data"} 1"#;
+        assert!(text.contains(series), "{series} missing in\n{text}");
+
+        partner.write_all(&good).await.expect("write");
+        assert_eq!(answer(&mut partner).await.first(), Some(&ADDRESS));
         shutdown.cancel();
         line.join().await;
     }
