@@ -866,4 +866,151 @@ mod tests {
             .await
             .expect("the line stops");
     }
+
+    /// An in-process port with UART counters the test sets (`None`: the driver has none).
+    struct Uart {
+        inner: DuplexStream,
+        counters: Arc<Mutex<Option<UartCounters>>>,
+        asked: Arc<std::sync::atomic::AtomicUsize>,
+    }
+
+    impl AsyncRead for Uart {
+        fn poll_read(
+            mut self: std::pin::Pin<&mut Self>,
+            cx: &mut std::task::Context<'_>,
+            buf: &mut tokio::io::ReadBuf<'_>,
+        ) -> std::task::Poll<std::io::Result<()>> {
+            std::pin::Pin::new(&mut self.inner).poll_read(cx, buf)
+        }
+    }
+
+    impl AsyncWrite for Uart {
+        fn poll_write(
+            mut self: std::pin::Pin<&mut Self>,
+            cx: &mut std::task::Context<'_>,
+            buf: &[u8],
+        ) -> std::task::Poll<std::io::Result<usize>> {
+            std::pin::Pin::new(&mut self.inner).poll_write(cx, buf)
+        }
+        fn poll_flush(
+            mut self: std::pin::Pin<&mut Self>,
+            cx: &mut std::task::Context<'_>,
+        ) -> std::task::Poll<std::io::Result<()>> {
+            std::pin::Pin::new(&mut self.inner).poll_flush(cx)
+        }
+        fn poll_shutdown(
+            mut self: std::pin::Pin<&mut Self>,
+            cx: &mut std::task::Context<'_>,
+        ) -> std::task::Poll<std::io::Result<()>> {
+            std::pin::Pin::new(&mut self.inner).poll_shutdown(cx)
+        }
+    }
+
+    impl LinePort for Uart {
+        fn uart_counters(&self) -> Option<std::io::Result<UartCounters>> {
+            self.asked.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+            let counters = *self.counters.lock().unwrap_or_else(PoisonError::into_inner);
+            Some(counters.ok_or_else(|| std::io::Error::from_raw_os_error(libc::ENOTTY)))
+        }
+    }
+
+    struct OneUart(Mutex<Option<Uart>>);
+
+    impl PortOpener for OneUart {
+        type Port = Uart;
+
+        fn open(&self, _settings: &PortSettings) -> Result<Uart, String> {
+            self.0
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .take()
+                .ok_or_else(|| "no second port".to_owned())
+        }
+    }
+
+    #[tokio::test]
+    async fn a_grown_overrun_count_is_a_line_error_and_a_port_without_counters_is_not_asked_again()
+    {
+        let (inner, mut partner) = tokio::io::duplex(64);
+        let counters = Arc::new(Mutex::new(Some(UartCounters {
+            overrun: 5,
+            frame: 2,
+            ..UartCounters::default()
+        })));
+        let asked = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let port = Uart {
+            inner,
+            counters: Arc::clone(&counters),
+            asked: Arc::clone(&asked),
+        };
+        let base = LineBase::new(
+            "uart",
+            "echo",
+            &PortSettings::new("/dev/ttyS0", 9600),
+            8,
+            (Duration::from_millis(10), Duration::from_millis(20)),
+            None,
+        );
+        let core = base.core(Vec::new());
+        let engine = Echo {
+            shared: Arc::clone(&core.shared),
+            out: VecDeque::new(),
+            refused: Arc::new(Mutex::new(Vec::new())),
+        };
+        let shutdown = CancellationToken::new();
+        let opener = OneUart(Mutex::new(Some(port)));
+        let line = spawn(
+            core,
+            engine,
+            None,
+            Arc::new(Nothing),
+            opener,
+            shutdown.clone(),
+        );
+        eventually("the port open", || line.status().port_open).await;
+        let set = |c: Option<UartCounters>| {
+            *counters.lock().unwrap_or_else(PoisonError::into_inner) = c;
+        };
+
+        // The counts at opening are the start: nothing lost yet.
+        partner.write_all(b"a").await.expect("write");
+        let mut a = [0u8; 1];
+        partner.read_exact(&mut a).await.expect("echo");
+        assert_eq!(&a, b"a");
+
+        // Two characters lost (and a framing error, which the marks report, not the counters).
+        set(Some(UartCounters {
+            overrun: 7,
+            frame: 3,
+            ..UartCounters::default()
+        }));
+        partner.write_all(b"b").await.expect("write");
+        let expected: &[u8] = b"b<Overrun>";
+        let mut got = vec![0u8; expected.len()];
+        partner.read_exact(&mut got).await.expect("echo");
+        assert_eq!(got, expected);
+
+        // The driver refuses the ioctl: asked once more, then never again on this opening.
+        set(None);
+        partner.write_all(b"c").await.expect("write");
+        let mut c = [0u8; 1];
+        partner.read_exact(&mut c).await.expect("echo");
+        let after_refusal = asked.load(std::sync::atomic::Ordering::SeqCst);
+        partner.write_all(b"d").await.expect("write");
+        partner.read_exact(&mut c).await.expect("echo");
+        assert_eq!(&c, b"d");
+        assert_eq!(
+            asked.load(std::sync::atomic::Ordering::SeqCst),
+            after_refusal
+        );
+        assert_eq!(
+            after_refusal, 4,
+            "at opening and after the reads of a, b and c"
+        );
+
+        shutdown.cancel();
+        tokio::time::timeout(Duration::from_secs(2), line.join())
+            .await
+            .expect("the line stops");
+    }
 }
