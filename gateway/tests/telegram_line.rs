@@ -581,3 +581,50 @@ async fn the_ascii_simulator_opens_its_port_sends_its_own_and_echoes() {
         .expect("no panic");
     assert!(result.is_ok(), "{result:?}");
 }
+
+// === full duplex ===
+
+#[tokio::test]
+async fn an_ascii_line_separates_the_partners_telegrams_while_it_sends_a_long_one() {
+    // 003 6.2: the ASCII driver is full duplex; the character delay time ends a received telegram
+    // on the received bytes' own arrival, whatever the line sends meanwhile. At 1200 Bd the line's
+    // 300-byte telegram takes about 2.75 s on a real wire; the partner sends two telegrams 300 ms
+    // apart within that time, and they must stay two.
+    let protocol = TelegramProtocol::Ascii(
+        AsciiParams::try_new(AsciiSettings {
+            end: proto_core::telegram::EndCriterion::CharacterDelay,
+            zvz: ms(50),
+            ..AsciiSettings::default()
+        })
+        .expect("valid"),
+    );
+    let (mut partner_end, path, _keep) = pty();
+    let mut settings = settings("fd", &path, protocol, mailbox(8, Overflow::Refuse));
+    settings.port.baud = 1200;
+    let shutdown = CancellationToken::new();
+    let line = spawn_telegram_line(settings, shutdown.clone());
+    eventually("the port open", || line.status().port_open).await;
+    let client = line.telegram_client().expect("a telegram line");
+    let send = tokio::spawn(async move { client.send(vec![b'x'; 300]).await });
+    // The line's telegram is under way (its first bytes are here).
+    let mut first = [0u8; 1];
+    tokio::io::AsyncReadExt::read_exact(&mut partner_end, &mut first)
+        .await
+        .expect("the line sends");
+    tokio::io::AsyncWriteExt::write_all(&mut partner_end, b"AAAA")
+        .await
+        .expect("write");
+    tokio::time::sleep(ms(300)).await;
+    tokio::io::AsyncWriteExt::write_all(&mut partner_end, b"BBBB")
+        .await
+        .expect("write");
+    let mailbox = line.mailbox().expect("a telegram line");
+    eventually("two telegrams", || mailbox.len() >= 2).await;
+    let got: Vec<Vec<u8>> = mailbox.waiting().iter().map(|t| t.data.to_vec()).collect();
+    assert_eq!(got, [b"AAAA".to_vec(), b"BBBB".to_vec()]);
+    drop(send);
+    shutdown.cancel();
+    tokio::time::timeout(Duration::from_secs(5), line.join())
+        .await
+        .expect("the line stops");
+}
