@@ -75,6 +75,7 @@ pub const METRIC_NAMES: &[&str] = &[
     TCP_REQUESTS,
     ZENOH_PUBLICATIONS,
     DROPPED_UPDATES,
+    FRAMES_DISCARDED,
 ];
 
 const BUILD_INFO: &str = "gateway_build_info";
@@ -92,6 +93,7 @@ const TCP_CONNECTIONS_REJECTED: &str = "gateway_modbus_tcp_connections_rejected_
 const TCP_REQUESTS: &str = "gateway_modbus_tcp_requests_total";
 const ZENOH_PUBLICATIONS: &str = "gateway_zenoh_publications_total";
 const DROPPED_UPDATES: &str = "gateway_dropped_updates_total";
+const FRAMES_DISCARDED: &str = "gateway_frames_discarded_total";
 
 /// Buckets of `gateway_poll_duration_seconds`, 1 ms .. 5 s.
 ///
@@ -137,6 +139,8 @@ pub struct Metrics {
     zenoh_publications: IntCounterVec,
     /// `gateway_dropped_updates_total{reason}`.
     dropped_updates: IntCounterVec,
+    /// `gateway_frames_discarded_total{line,reason}`: received frames a slave line did not serve.
+    frames_discarded: IntCounterVec,
 }
 
 // === impl Metrics ===
@@ -224,6 +228,13 @@ impl Metrics {
                 ),
                 &["reason"],
             )?,
+            frames_discarded: IntCounterVec::new(
+                Opts::new(
+                    FRAMES_DISCARDED,
+                    "Received frames a Modbus slave line discarded unanswered, by reason.",
+                ),
+                &["line", "reason"],
+            )?,
         };
 
         registry.register(Box::new(build_info.clone()))?;
@@ -241,6 +252,7 @@ impl Metrics {
         registry.register(Box::new(metrics.tcp_requests.clone()))?;
         registry.register(Box::new(metrics.zenoh_publications.clone()))?;
         registry.register(Box::new(metrics.dropped_updates.clone()))?;
+        registry.register(Box::new(metrics.frames_discarded.clone()))?;
 
         build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
@@ -298,6 +310,14 @@ impl Metrics {
                 .remove_label_values(&[line, direction.as_str()]);
             let _ = self.bytes.remove_label_values(&[line, direction.as_str()]);
         }
+    }
+
+    /// Counts one received frame that a slave line on `line` discarded unanswered; `reason` is
+    /// one of the fixed names of `proto_core::modbus::slave::DiscardReason::as_str`.
+    pub fn frame_discarded(&self, line: &str, reason: &'static str) {
+        self.frames_discarded
+            .with_label_values(&[line, reason])
+            .inc();
     }
 
     /// Counts one event raised on `line` (every event of 003 7.2, start-up included).
@@ -477,6 +497,7 @@ mod tests {
         metrics.modbus_request("drive", "atv71", 0x03, RequestResult::Ok);
         metrics.device_image_updated("drive", "atv71", Instant::now());
         metrics.tcp_request(0x03, RequestResult::Ok);
+        metrics.frame_discarded("hmi", "trailing_data");
         let mut names: Vec<_> = registry
             .gather()
             .iter()
