@@ -165,6 +165,13 @@ impl LineMetrics {
         }
     }
 
+    /// Creates the slave line's discard series at 0, one per reason.
+    pub(crate) fn init_frames_discarded(&self, reasons: &[&'static str]) {
+        if let Some(i) = &self.inner {
+            i.metrics.init_frames_discarded(&i.line, reasons);
+        }
+    }
+
     /// One received frame discarded unanswered by a slave line, for `reason`.
     pub(crate) fn frame_discarded(&self, reason: &'static str) {
         if let Some(i) = &self.inner {

@@ -312,6 +312,14 @@ impl Metrics {
         }
     }
 
+    /// Creates the discard series of a slave line on `line` at 0, one per `reasons`, so that a
+    /// rate over them exists before the first discard.
+    pub fn init_frames_discarded(&self, line: &str, reasons: &[&'static str]) {
+        for reason in reasons {
+            self.frames_discarded.with_label_values(&[line, reason]);
+        }
+    }
+
     /// Counts one received frame that a slave line on `line` discarded unanswered; `reason` is
     /// one of the fixed names of `proto_core::modbus::slave::DiscardReason::as_str`.
     pub fn frame_discarded(&self, line: &str, reason: &'static str) {
