@@ -257,15 +257,20 @@ impl Shared {
             event
         });
         let class = event::class_name(id.class).unwrap_or("unknown class");
+        // A disturbed line raises the same event for every frame: once per interval in the log
+        // (with the count left out), every one in the counters and the diagnostic buffer.
+        let key = || format!("line/{}/{id}", event.line);
         match &event.detail {
             Some(detail) => {
-                tracing::warn!(line = %event.line, event = %id, class, slave, detail, "line event")
+                crate::warn_limited!(key(), line = %event.line, event = %id, class, slave, detail, "line event");
             }
             // Class 00h "CP start-up" reports normal operation.
             None if id.class == 0 => {
                 tracing::info!(line = %event.line, event = %id, class, "line event")
             }
-            None => tracing::warn!(line = %event.line, event = %id, class, slave, "line event"),
+            None => {
+                crate::warn_limited!(key(), line = %event.line, event = %id, class, slave, "line event");
+            }
         }
         // No subscriber: nobody to lose it.
         let _ = self.events.send(event);
