@@ -63,6 +63,10 @@ pub struct Overrides {
     /// The registry `/metrics` serves and its families, created in `main`; `None`: [`run`]
     /// creates its own.
     pub metrics: Option<MetricsRegistry>,
+    /// `gateway demo`: the demo's own consumer acknowledges the oldest telegrams of every
+    /// mailbox so that at most half of it is in use (it never overflows; clients still see
+    /// recent telegrams).
+    pub acknowledge_mailboxes: bool,
 }
 
 /// The Prometheus registry of the process and the gateway's families registered in it.
@@ -193,6 +197,12 @@ pub async fn run(
             return Err(e);
         }
     };
+    if overrides.acknowledge_mailboxes {
+        tokio::spawn(demo::consume_mailboxes(
+            Arc::clone(&sup),
+            shutdown.child_token(),
+        ));
+    }
     let (local, _) = sup.tcp_listen();
     info!(%local, units = ?sup.units.read().map(|u| u.unit_ids()).unwrap_or_default(), "Modbus TCP listening");
     // A fixed line on stdout that scripts and tests wait for; printed last, when everything
