@@ -12,6 +12,7 @@
 //! What the Modbus master adapter builds on:
 //! - [`plan`]: merging polled ranges into the fewest reads within a device's limits (pure);
 //! - `scheduler`: which request goes next (writes, on-demand reads, due polls, offline back-off);
+//! - `scanner`: the Altivar communication scanner, one FC 23 exchange per cycle;
 //! - `probe`: how a device that stopped answering is probed (one attempt, a short wait derived
 //!   from its own reply delay, every n-th probe the full reply monitoring time);
 //! - `command`: the bounded command queue and the error-to-exception mapping;
