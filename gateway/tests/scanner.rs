@@ -104,6 +104,8 @@ async fn the_scanner_exchanges_fc23_each_cycle_without_zeroing_cmd() {
     settings.master.reply_timeout = Duration::from_millis(200);
     let mut atv = DeviceSettings::new("atv", 2, 2);
     atv.limits = DeviceLimits::ALTIVAR;
+    atv.backoff_min = Duration::from_millis(100);
+    atv.backoff_max = Duration::from_millis(200);
     atv.scanner = Some(ScannerSettings {
         inputs: 2,
         outputs: 2,
@@ -203,6 +205,62 @@ async fn the_scanner_exchanges_fc23_each_cycle_without_zeroing_cmd() {
         Some(Request::ReadWriteMultipleRegisters { values, .. }) if values == &vec![0x000F, 1500]
     ));
     assert_eq!(cmd(), Some(0x000F));
+
+    // The drive stops answering: the device goes offline, its words turn comm failure. Meanwhile
+    // CMD is changed at the drive (0007h); when it answers again the output words are read
+    // first, and the exchanges carry the drive's CMD, not the gateway's old one.
+    let mark = seen.lock().unwrap_or_else(PoisonError::into_inner).len();
+    let set_faults = |faults| {
+        drive
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .set_faults(faults)
+    };
+    set_faults(Faults {
+        silent: true,
+        ..Faults::default()
+    });
+    eventually("the drive offline", || !line.status().devices[0].online).await;
+    assert_eq!(
+        image
+            .read_words(2, Table::HoldingRegisters, profile::NM[0], 2)
+            .map(|r| r.quality),
+        Ok(Quality::CommFailure)
+    );
+    assert!(drive
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner)
+        .set_word(profile::CMD, 0x0007));
+    set_faults(Faults::default());
+    eventually("the drive back with its CMD exchanged", || {
+        line.status().devices[0].online
+            && matches!(
+                exchanges(&seen).last(),
+                Some(Request::ReadWriteMultipleRegisters { values, .. })
+                    if values == &vec![0x0007, 1500]
+            )
+    })
+    .await;
+    let after: Vec<Request> = seen
+        .lock()
+        .unwrap_or_else(PoisonError::into_inner)
+        .get(mark..)
+        .unwrap_or_default()
+        .to_vec();
+    let prime = Request::ReadHoldingRegisters {
+        address: profile::NC[0],
+        quantity: 2,
+    };
+    let primed_at = after
+        .iter()
+        .position(|r| r == &prime)
+        .expect("primed again");
+    for request in after.get(primed_at..).unwrap_or_default() {
+        if let Request::ReadWriteMultipleRegisters { values, .. } = request {
+            assert_eq!(values, &vec![0x0007, 1500]);
+        }
+    }
+    assert_eq!(cmd(), Some(0x0007));
 
     // Never a zero written to CMD.
     for request in seen.lock().unwrap_or_else(PoisonError::into_inner).iter() {

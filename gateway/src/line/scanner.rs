@@ -150,18 +150,26 @@ impl Scanners {
         self.last_was_scan = scan;
     }
 
-    /// The scanner job due longest at `now` among the devices `online` accepts.
+    /// The scanner job due longest at `now` among the devices `online` accepts. A due scanner
+    /// of a device not accepted now (offline, its back-off running) skips this cycle, so that the
+    /// line does not wake for it again before its next period.
     pub(crate) fn next_job(
-        &self,
+        &mut self,
         now: Instant,
         mut online: impl FnMut(usize) -> bool,
     ) -> Option<ScanJob> {
+        for (i, s) in self.devices.iter_mut().enumerate() {
+            if let Some(s) = s.as_mut().filter(|s| s.next_due <= now) {
+                if !online(i) {
+                    s.next_due = now + s.settings.period;
+                }
+            }
+        }
         self.devices
             .iter()
             .enumerate()
             .filter_map(|(i, s)| s.as_ref().map(|s| (i, s)))
             .filter(|(_, s)| s.next_due <= now)
-            .filter(|(i, _)| online(*i))
             .min_by_key(|(_, s)| s.next_due)
             .map(|(device, s)| ScanJob {
                 device,
@@ -312,7 +320,6 @@ mod tests {
         let image = ProcessImage::default();
         let devices = [drive(None), drive(Some(SCAN))];
         let mut scanners = Scanners::new(&devices, now);
-        assert_eq!(scanners.next_job(now, |_| false), None);
         let mut job = scanners.next_job(now, |_| true).expect("due");
         assert_eq!(
             job,
@@ -356,6 +363,20 @@ mod tests {
         assert_eq!(scanners.next_job(now, |_| true), None);
         assert_eq!(scanners.next_wake(), Some(now + SCAN.period));
         scanners.unprime(1);
+        let later = now + SCAN.period;
+        assert_eq!(
+            scanners.next_job(later, |_| true).map(|j| j.step),
+            Some(ScanStep::Prime)
+        );
+    }
+
+    #[test]
+    fn an_offline_device_skips_its_cycles_instead_of_waking_the_line() {
+        let now = Instant::now();
+        let devices = [drive(Some(SCAN))];
+        let mut scanners = Scanners::new(&devices, now);
+        assert_eq!(scanners.next_job(now, |_| false), None);
+        assert_eq!(scanners.next_wake(), Some(now + SCAN.period));
         let later = now + SCAN.period;
         assert_eq!(
             scanners.next_job(later, |_| true).map(|j| j.step),
