@@ -9,8 +9,8 @@ use std::time::Duration;
 
 use gateway::config::{
     self, Config, DataBits, DataType, EndCriterion, FlowControl, Interface, LineConfig,
-    ModbusTable, OperatingMode, Overflow3964, Parity, Priority, Profile, ProtocolConfig, StopBits,
-    WordOrder,
+    ModbusTable, OperatingMode, Overflow3964, Parity, Priority, Profile, ProtocolConfig,
+    ScannerConfig, StopBits, WordOrder,
 };
 
 #[path = "config/defaults.rs"]

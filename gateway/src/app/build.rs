@@ -12,6 +12,7 @@ use crate::config::{self, Config, DeviceConfig, LineConfig, ModbusTable, Protoco
 use crate::image::Table;
 use crate::line::{
     AddrRange, DeviceLimits, DeviceSettings, LineSettings, PollGroup, ProbeSettings,
+    ScannerSettings,
 };
 use crate::modbus_tcp::{WriteRange, WriteTable};
 use crate::serial::{self, PortSettings};
@@ -115,6 +116,14 @@ pub(crate) fn device_settings(name: &str, device: &DeviceConfig) -> DeviceSettin
         full_every: device.full_probe_every,
     };
     settings.offline_after = device.offline_after;
+    settings.scanner = device
+        .scanner
+        .filter(|s| s.enabled)
+        .map(|s| ScannerSettings {
+            inputs: s.inputs,
+            outputs: s.outputs,
+            period: s.period,
+        });
     for group in &device.poll {
         let mut by_table: BTreeMap<Table, Vec<AddrRange>> = BTreeMap::new();
         for range in &group.ranges {

@@ -319,6 +319,73 @@ pub struct DeviceConfig {
     pub bridge_gap: u16,
     pub tags: Vec<TagConfig>,
     pub poll: Vec<PollGroup>,
+    /// The Altivar communication scanner, exchanged with one FC 23 a cycle (absent: off).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub scanner: Option<ScannerConfig>,
+}
+
+/// The Altivar 61/71 communication scanner (002 "Kommunikationsscanner"): NM1..NM`inputs` read
+/// and NC1..NC`outputs` written with one FC 23 every `period`, when `enabled`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct ScannerConfig {
+    /// Off by default: the table alone changes nothing.
+    pub enabled: bool,
+    /// Input words NM1.. read each cycle, 1..8.
+    pub inputs: u16,
+    /// Output words NC1.. written each cycle, 1..8.
+    pub outputs: u16,
+    #[serde(with = "humantime_serde")]
+    pub period: Duration,
+}
+
+/// The scanner's cycle by default.
+pub const DEFAULT_SCANNER_PERIOD: Duration = Duration::from_millis(100);
+/// Scanner words in each direction by default: the factory assignment's (002: NCA1 = CMD,
+/// NCA2 = LFRD; NMA1 = ETA, NMA2 = RFRD).
+pub const DEFAULT_SCANNER_WORDS: u16 = 2;
+
+/// Where the scanner's words and their number come from.
+const SCANNER_CITE: &str = "002 Kommunikationsscanner: NM1..NM8, NC1..NC8";
+
+/// The device's `scanner` table, if present: only an Altivar has one, and its words must fit
+/// one FC 23 within the device's limits.
+fn read_scanner(
+    cx: &mut Cx,
+    f: &mut Fields<'_>,
+    profile: Option<Profile>,
+    limits: &RequestLimits,
+) -> Option<ScannerConfig> {
+    let mut t = f.table(cx, "scanner")?;
+    let other = profile.is_some_and(|p| p != Profile::Altivar71);
+    if other {
+        cx.issue(
+            t.path().to_owned(),
+            "the communication scanner is the Altivar's (002); only with profile = \"altivar71\"",
+        );
+    }
+    let enabled = t.bool_or(cx, "enabled", false);
+    let inputs = t.int_or(cx, "inputs", 1..=8, DEFAULT_SCANNER_WORDS, SCANNER_CITE);
+    let outputs = t.int_or(cx, "outputs", 1..=8, DEFAULT_SCANNER_WORDS, SCANNER_CITE);
+    let (lo, hi) = POLL_PERIOD_RANGE;
+    let period = t.duration_or(cx, "period", lo..=hi, DEFAULT_SCANNER_PERIOD, "");
+    if enabled && !other && (inputs > rw_read(limits) || outputs > rw_write(limits)) {
+        cx.issue(
+            t.path().to_owned(),
+            format!(
+                "{inputs} input and {outputs} output words do not fit one FC 23 of this device \
+                 (limits rw_read_registers {}, rw_write_registers {})",
+                rw_read(limits),
+                rw_write(limits)
+            ),
+        );
+    }
+    t.finish(cx);
+    Some(ScannerConfig {
+        enabled,
+        inputs,
+        outputs,
+        period,
+    })
 }
 
 // === readers ===
@@ -526,6 +593,7 @@ impl DeviceConfig {
             "003 6.3.3",
         );
         let bridge_gap = f.int_or(cx, "bridge_gap", 0..=u16::MAX, DEFAULT_BRIDGE_GAP, "");
+        let scanner = read_scanner(cx, &mut f, profile, &limits);
         let raw_tags = f.array(cx, "tags");
         if profile == Some(Profile::Generic) && raw_tags.is_empty() {
             cx.issue(f.at("tags"), "a generic device needs a tag list");
@@ -554,6 +622,7 @@ impl DeviceConfig {
             bridge_gap,
             tags,
             poll,
+            scanner,
         })
     }
 }

@@ -48,7 +48,13 @@ impl Polled {
                 .groups
                 .iter()
                 .filter(|g| g.table == table)
-                .flat_map(|g| g.ranges.iter())
+                .flat_map(|g| g.ranges.iter().copied())
+                .chain(
+                    device
+                        .scanner_ranges()
+                        .into_iter()
+                        .filter(|_| table == Table::HoldingRegisters),
+                )
                 .filter(|r| r.count > 0)
                 .map(|r| (u32::from(r.start), r.end()))
                 .collect();

@@ -13,6 +13,7 @@
 //! - [`plan`]: merging polled ranges into the fewest reads within a device's limits (pure);
 //! - `scheduler`: which request goes next (writes, on-demand reads, due polls within the fairness
 //!   rule, reads riding on a due poll, offline after failed polls, back-off);
+//! - `scanner`: the Altivar communication scanner, one FC 23 exchange per cycle;
 //! - `probe`: how a device that stopped answering is probed (one attempt, a short wait derived
 //!   from its own reply delay, every n-th probe the full reply monitoring time);
 //! - `command`: the bounded command queue and the error-to-exception mapping;
@@ -35,6 +36,7 @@ pub mod plan;
 mod probe;
 mod registers32;
 pub mod runtime;
+mod scanner;
 mod scheduler;
 mod status;
 pub mod telegram;
@@ -57,6 +59,7 @@ pub use probe::{ProbeSettings, PROBE_TIMEOUT_FACTOR};
 pub use runtime::{
     LineHandle, LinePort, PortOpener, SerialOpener, EVENT_PORT_LOST, EVENT_PORT_SETUP,
 };
+pub use scanner::{ScannerSettings, SCANNER_WORDS};
 pub use status::{DeviceStatus, LineEvent, LineStatus, DEFAULT_DIAG_DEPTH};
 
 use crate::config::{
@@ -188,6 +191,8 @@ pub struct DeviceSettings {
     pub probe: ProbeSettings,
     /// Polls in a row without a valid answer that put it offline.
     pub offline_after: u32,
+    /// The Altivar communication scanner exchanged with FC 23 each cycle (`None`: off).
+    pub scanner: Option<ScannerSettings>,
 }
 
 // === impl DeviceSettings ===
@@ -205,7 +210,15 @@ impl DeviceSettings {
             backoff_max: DEFAULT_OFFLINE_BACKOFF_MAX,
             probe: ProbeSettings::default(),
             offline_after: DEFAULT_OFFLINE_AFTER,
+            scanner: None,
         }
+    }
+
+    /// The holding register ranges the scanner keeps in the image: its input and output words.
+    pub fn scanner_ranges(&self) -> Vec<AddrRange> {
+        self.scanner
+            .map(|s| vec![s.input_range(), s.output_range()])
+            .unwrap_or_default()
     }
 
     /// The reads that serve every poll group: groups of the same table and period are merged
@@ -290,6 +303,9 @@ impl DeviceSettings {
                 }
             }
         }
+        if let Some(scanner) = &self.scanner {
+            issues.extend(scanner.validate(name));
+        }
         if let Err(err) = crate::serial::Backoff::try_new(self.backoff_min, self.backoff_max) {
             issues.push(format!("device {name}: back-off: {err}"));
         }
@@ -328,6 +344,13 @@ impl DeviceSettings {
                         .any(|r| r.contains(AddrRange::new(address, 1)))
             })
             .map(|g| g.period)
+            .chain(self.scanner.map(|s| s.period).filter(|_| {
+                table == Table::HoldingRegisters
+                    && self
+                        .scanner_ranges()
+                        .iter()
+                        .any(|r| r.contains(AddrRange::new(address, 1)))
+            }))
             .min()
     }
 
@@ -335,9 +358,12 @@ impl DeviceSettings {
     pub fn is_polled(&self, table: Table, range: AddrRange) -> bool {
         (u32::from(range.start)..range.end()).all(|a| {
             u16::try_from(a).is_ok_and(|a| {
-                self.groups.iter().any(|g| {
-                    g.table == table && g.ranges.iter().any(|r| r.contains(AddrRange::new(a, 1)))
-                })
+                let one = AddrRange::new(a, 1);
+                self.groups
+                    .iter()
+                    .any(|g| g.table == table && g.ranges.iter().any(|r| r.contains(one)))
+                    || (table == Table::HoldingRegisters
+                        && self.scanner_ranges().iter().any(|r| r.contains(one)))
             })
         })
     }

@@ -27,6 +27,7 @@ use super::registers32;
 use super::runtime::{
     self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
 };
+use super::scanner::{ScanJob, Scanners};
 use super::scheduler::{cycle_bound, Job, PollJob, ReadKey, Scheduler, Transition};
 use super::status::{DeviceStatus, PollCycle, Shared};
 use super::writeback::{broadcast_echo, refresh_image};
@@ -40,6 +41,8 @@ use crate::unit::UnitService;
 enum InFlight {
     /// A poll, with the on-demand reads it covers (answered from its answer).
     Poll(PollJob, Vec<Command>),
+    /// A communication scanner request (`scanner`).
+    Scan(ScanJob),
     Command {
         device: Option<usize>,
         command: Command,
@@ -184,6 +187,7 @@ struct MasterLine {
     shared: Arc<Shared>,
     clock: Clock,
     sched: Scheduler<Command>,
+    scanners: Scanners,
     master: Master,
     inflight: Option<(RequestId, InFlight)>,
     /// When the first frame of the request in flight was written (the poll duration's start).
@@ -196,6 +200,7 @@ impl LineEngine for MasterLine {
 
     fn opened(&mut self, _modem: Option<&mut dyn SerialPort>) {
         self.master = Master::new(self.settings.master);
+        self.scanners.unprime_all();
     }
 
     fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
@@ -273,7 +278,11 @@ impl LineEngine for MasterLine {
     /// The next poll, while the line is idle.
     fn wake(&self) -> impl std::future::Future<Output = ()> + Send + '_ {
         let idle = self.inflight.is_none() && self.master.is_idle() && !self.stopping;
-        sleep_until_opt(if idle { self.sched.next_wake() } else { None })
+        let next = [self.sched.next_wake(), self.scanners.next_wake()]
+            .into_iter()
+            .flatten()
+            .min();
+        sleep_until_opt(if idle { next } else { None })
     }
 
     fn command(&mut self, command: Command, _modem: Option<&mut dyn SerialPort>) {
@@ -340,6 +349,7 @@ impl MasterLine {
         let devices = registers32::line_devices(&settings.master, devices);
         let sched = Scheduler::new(devices.iter().map(|d| &**d), clock.base())
             .with_commands_in_row(settings.commands_in_row);
+        let scanners = Scanners::new(devices.iter().map(|d| &**d), clock.base());
         let master = Master::new(settings.master);
         let line = Self {
             settings,
@@ -348,6 +358,7 @@ impl MasterLine {
             shared,
             clock,
             sched,
+            scanners,
             master,
             inflight: None,
             sent_at: None,
@@ -474,6 +485,7 @@ impl MasterLine {
         };
         let (device, slave, function) = match &job {
             InFlight::Poll(poll, _) => (Some(poll.device), None, poll.read.request().function()),
+            InFlight::Scan(scan) => (Some(scan.device), None, scan.step.function()),
             InFlight::Command { device, command } => {
                 (*device, Some(command.slave), command.request.function())
             }
@@ -490,6 +502,7 @@ impl MasterLine {
                     rider.answer(Err(CommandError::PortClosed));
                 }
             }
+            InFlight::Scan(_) => {}
         }
     }
 
@@ -505,6 +518,10 @@ impl MasterLine {
 
     /// Submits the next job to the idle master; answers commands that cannot be sent.
     fn start_next(&mut self, now: Instant) {
+        if !self.scanners.yields() && self.start_scan(now) {
+            return;
+        }
+        self.scanners.started(false);
         let engine_now = self.clock.to_engine(now);
         while let Some(job) = self.sched.next_job(now) {
             match job {
@@ -575,6 +592,51 @@ impl MasterLine {
                 }
             }
         }
+        // Nothing else to do: the scanner need not wait for another turn.
+        self.start_scan(now);
+    }
+
+    /// Submits the due communication scanner request, if any; whether one was started.
+    fn start_scan(&mut self, now: Instant) -> bool {
+        let sched = &self.sched;
+        let Some(mut job) = self
+            .scanners
+            .next_job(now, |d| sched.accepts_commands(d, now))
+        else {
+            return false;
+        };
+        let Some(device) = self.devices.get(job.device) else {
+            return false;
+        };
+        let Some(request) = self.scanners.request(&mut job, &self.image) else {
+            return false;
+        };
+        let attempts = self.sched.poll_attempts(job.device, &self.settings.master);
+        let engine_now = self.clock.to_engine(now);
+        // The scanner words are 16-bit registers: never sent as a 32-bit register job.
+        match registers32::submit(
+            &mut self.master,
+            false,
+            engine_now,
+            device.slave,
+            request,
+            attempts,
+        ) {
+            Ok(id) => {
+                self.sent_at = None;
+                self.inflight = Some((id, InFlight::Scan(job)));
+                self.scanners.started(true);
+                true
+            }
+            Err(err) => {
+                tracing::error!(
+                    line = %self.settings.name, device = %device.name, error = %err,
+                    "scanner request refused by the master; check the device limits"
+                );
+                self.scanners.postpone(job, now);
+                false
+            }
+        }
     }
 
     /// Handles the end of the request in flight, counted under `function` (the request's, or
@@ -604,12 +666,48 @@ impl MasterLine {
         }
         let index = match &job {
             InFlight::Poll(poll, _) => Some(poll.device),
+            InFlight::Scan(scan) => Some(scan.device),
             InFlight::Command { device, .. } => *device,
         };
         self.shared
             .metrics()
             .request(self.device_label(index, Some(slave)), function, result);
         match job {
+            InFlight::Scan(scan) => {
+                let answered = matches!(outcome, Outcome::Response(_) | Outcome::Exception(_));
+                let response = match outcome {
+                    Outcome::Response(response) => Some(response),
+                    _ => None,
+                };
+                if let Some(device) = self.devices.get(scan.device).cloned() {
+                    if !answered {
+                        self.device_stat(scan.device, |d| d.polls_failed += 1);
+                    } else if response.is_none() {
+                        tracing::debug!(line = %self.settings.name, device = %device.name, ?request, "scanner request answered with an exception");
+                        self.device_stat(scan.device, |d| d.polls_exception += 1);
+                    } else if self
+                        .scanners
+                        .done(scan, request, response.clone(), &self.image, now)
+                    {
+                        self.device_stat(scan.device, |d| {
+                            d.polls_ok += 1;
+                            d.last_answer = Some(SystemTime::now());
+                        });
+                        self.shared.metrics().image_updated(&device.name);
+                    } else {
+                        tracing::error!(line = %self.settings.name, device = %device.name, ?request, "scanner answer does not fit its request");
+                    }
+                    if response.is_none() {
+                        self.scanners.postpone(scan, now);
+                    }
+                    if answered {
+                        self.shared.metrics().device_up(&device.name, true);
+                        self.sched.heard(scan.device, reply_delay);
+                    }
+                }
+                let transition = self.sched.observe(scan.device, answered, now);
+                self.apply(scan.device, transition);
+            }
             InFlight::Poll(poll, riders) => {
                 for rider in riders {
                     let answer = rider_answer(&poll, &rider.request, slave, &outcome);
@@ -754,7 +852,10 @@ impl MasterLine {
     }
 
     /// Applies a device's state change to the image and the status.
-    fn apply(&self, index: usize, transition: Transition) {
+    fn apply(&mut self, index: usize, transition: Transition) {
+        if !matches!(transition, Transition::Unchanged) {
+            self.scanners.unprime(index);
+        }
         let Some(device) = self.devices.get(index) else {
             return;
         };

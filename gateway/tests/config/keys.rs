@@ -507,3 +507,56 @@ fn device_range_checks() {
         "between 0 and 65535",
     );
 }
+
+#[test]
+fn scanner_keys_are_checked() {
+    let dev = |keys: &str| {
+        one_line(
+            "modbus-master-rtu",
+            &format!("[lines.a.devices.d]\n{keys}\n"),
+        )
+    };
+    // Absent: off; a table with only `enabled = true`: the factory words and 100 ms.
+    let c = parse(&dev("profile = \"altivar71\"\naddress = 1"));
+    assert_eq!(
+        line(&c).devices().next().map(|(_, d)| d.scanner),
+        Some(None)
+    );
+    let c = parse(&dev(
+        "profile = \"altivar71\"\naddress = 1\nscanner = { enabled = true }",
+    ));
+    assert_eq!(
+        line(&c).devices().next().and_then(|(_, d)| d.scanner),
+        Some(ScannerConfig {
+            enabled: true,
+            inputs: 2,
+            outputs: 2,
+            period: ms(100),
+        })
+    );
+    // 002: NM1..NM8 and NC1..NC8.
+    one_issue(
+        &dev("profile = \"altivar71\"\naddress = 1\nscanner = { outputs = 9 }"),
+        "lines.a.devices.d.scanner.outputs",
+        "between 1 and 8",
+    );
+    one_issue(
+        &dev("profile = \"ksvario\"\naddress = 1\nscanner = { enabled = true }"),
+        "lines.a.devices.d.scanner",
+        "altivar71",
+    );
+    // The words must fit one FC 23 of the device.
+    one_issue(
+        &dev(
+            "profile = \"altivar71\"\naddress = 1\nlimits = { rw_write_registers = 1 }\n\
+             scanner = { enabled = true, outputs = 2 }",
+        ),
+        "lines.a.devices.d.scanner",
+        "do not fit one FC 23",
+    );
+    one_issue(
+        &dev("profile = \"altivar71\"\naddress = 1\nscanner = { enable = true }"),
+        "lines.a.devices.d.scanner.enable",
+        "unknown key",
+    );
+}

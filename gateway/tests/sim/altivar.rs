@@ -445,3 +445,14 @@ fn injected_faults() {
     assert_eq!(sim.faults().delay, delay);
     assert_eq!(sim.handle_frame(&request), Some(good));
 }
+
+#[test]
+fn an_assigned_scanner_output_reads_back_the_word_it_names() {
+    // NC1 is a copy of CMD (NCA1's factory assignment): read back, it shows CMD as it is now,
+    // whoever wrote it.
+    let mut sim = AltivarSim::default();
+    assert!(sim.set_word(profile::CMD, 0x0006));
+    assert_eq!(sim.word(profile::NC[0]), Some(0x0006));
+    // NC3 is not assigned: it keeps what was written to it.
+    assert_eq!(sim.word(profile::NC[2]), Some(0));
+}

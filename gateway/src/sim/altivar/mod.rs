@@ -5,7 +5,8 @@
 //! read-only and a write answers exception 04; a missing or protected word reads 16#8000 and only
 //! an all-missing request answers exception 02; the FC 43 identity is "Telemecanique" /
 //! "ATV71HU15M3" / "0201" / "MACHINE 4". The communication scanner reads NM1..8 through NMA1..8
-//! and writes NC1..8 through NCA1..8; M1CT / M1EC count frames and CRC errors.
+//! and writes NC1..8 through NCA1..8 (read back, an assigned NC shows the word it names); M1CT /
+//! M1EC count frames and CRC errors.
 //!
 //! The two option-card Modbus servers the drive can host ("Controller Inside" %MW words and the
 //! Ethernet card's parameters, 002 "Adressen") are off by default, as in the drive (AMOA, AMOC
@@ -220,6 +221,16 @@ impl AltivarSim {
             return Some(match target {
                 0 => 0,
                 t if profile::NM.contains(&t) => NOT_AVAILABLE,
+                t => self.read_word(t).unwrap_or(NOT_AVAILABLE),
+            });
+        }
+        if let Some(i) = profile::NC.iter().position(|a| *a == address) {
+            // NC1..8 are copies of the words NCA1..8 name (002 "Kommunikationsscanner": scattered
+            // parameters copied into contiguous ones): read back, they show the word's value.
+            let own = self.words.get(address)?;
+            return Some(match self.words.get(profile::NCA[i]).unwrap_or(0) {
+                0 => own,
+                t if profile::NC.contains(&t) || profile::NM.contains(&t) => NOT_AVAILABLE,
                 t => self.read_word(t).unwrap_or(NOT_AVAILABLE),
             });
         }
