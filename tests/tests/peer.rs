@@ -800,3 +800,92 @@ async fn initialization_conflict_the_gateway_at_high_priority_insists() {
         Some(DLE)
     );
 }
+
+// --- ASCII: full duplex ---
+
+/// An ASCII line that ends a received telegram by the character delay time (003 6.2.1), with its
+/// mailbox at unit id 101.
+fn ascii_config(port: &Path) -> String {
+    head()
+        + &format!(
+            r#"
+[lines.ascii]
+port = "{port}"
+protocol = "ascii"
+baud = 9600
+parity = "even"
+end_criterion = "char-delay"
+character_delay = "20ms"
+unit_id = 101
+"#,
+            port = port.display()
+        )
+}
+
+/// The oldest waiting telegram of the mailbox (STATUS, SEQ, LEN at 0..2, data from 4, high byte
+/// first), acknowledged at 600 once read. `None` if none arrived within 5 s.
+async fn take_telegram(ctx: &mut Context) -> Option<Vec<u8>> {
+    let deadline = Instant::now() + Duration::from_secs(5);
+    loop {
+        let head = ctx
+            .read_holding_registers(0, 20)
+            .await
+            .expect("transport")
+            .expect("the receive block");
+        let (seq, len) = (head[1], usize::from(head[2]));
+        if seq != 0 {
+            let data: Vec<u8> = head[4..]
+                .iter()
+                .flat_map(|w| w.to_be_bytes())
+                .take(len)
+                .collect();
+            ctx.write_single_register(600, seq)
+                .await
+                .expect("transport")
+                .expect("acknowledge");
+            return Some(data);
+        }
+        if Instant::now() >= deadline {
+            return None;
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
+/// 003 6.2 (full duplex): while the gateway sends a long telegram, the partner's two telegrams,
+/// 60 ms apart (three times the character delay time), stay two telegrams. A receiver that timed
+/// the partner's bytes from the end of its own transmission would see no gap and merge them.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_ascii_line_keeps_the_partners_telegrams_apart_while_it_sends_a_long_one() {
+    let dir = temp_dir("peer-ascii-duplex");
+    let link = SocatLink::new(&dir, "ascii");
+    let gw = start_gateway(&dir, &ascii_config(&link.a));
+    let mut port = open(&link.b, 9600);
+    let mut ctx = tcp::connect_slave(gw.modbus_tcp, Slave(101))
+        .await
+        .expect("connect");
+    // 200 bytes take 229 ms at 9600 Bd 8E1: the gateway's own transmission while the partner
+    // sends.
+    let long = vec![b'L'; 200];
+    mailbox_send(&mut ctx, 1, &long).await;
+    assert!(
+        read_byte(&mut port, Duration::from_secs(20))
+            .await
+            .is_some(),
+        "the gateway's telegram did not start"
+    );
+    port.write_all(b"AAAA").await.expect("write");
+    tokio::time::sleep(Duration::from_millis(60)).await;
+    port.write_all(b"BBBB").await.expect("write");
+    let first = take_telegram(&mut ctx).await;
+    let second = take_telegram(&mut ctx).await;
+    assert_eq!(
+        (first.as_deref(), second.as_deref()),
+        (Some(&b"AAAA"[..]), Some(&b"BBBB"[..])),
+        "two telegrams, in order"
+    );
+    let (done, error, _) = mailbox_result(&mut ctx, 1).await;
+    assert_eq!((done, error), (1, 0), "the gateway's own telegram was sent");
+    drop(gw);
+    drop(link);
+}
