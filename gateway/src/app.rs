@@ -282,6 +282,7 @@ fn metrics_route(registry: Registry) -> axum::Router {
 fn server_options(cfg: &config::ModbusTcpConfig) -> ServerOptions {
     ServerOptions {
         max_connections: usize::try_from(cfg.max_connections).unwrap_or(usize::MAX),
+        max_connections_per_client: None,
         idle_timeout: cfg.idle_timeout,
         allowed_networks: cfg.allowed_networks.clone(),
         read_only: cfg.read_only,

@@ -31,6 +31,7 @@ pub mod fuzzing;
 mod heap;
 pub mod image;
 pub mod line;
+pub mod log_limit;
 pub mod mailbox;
 pub mod metrics;
 pub mod modbus_tcp;

@@ -73,6 +73,8 @@ pub const METRIC_NAMES: &[&str] = &[
     TCP_CONNECTIONS_ACCEPTED,
     TCP_CONNECTIONS_REJECTED,
     TCP_REQUESTS,
+    TCP_REFUSED,
+    TCP_HANDSHAKES_FAILED,
     ZENOH_PUBLICATIONS,
     DROPPED_UPDATES,
 ];
@@ -90,6 +92,8 @@ const TCP_CONNECTIONS: &str = "gateway_modbus_tcp_connections";
 const TCP_CONNECTIONS_ACCEPTED: &str = "gateway_modbus_tcp_connections_accepted_total";
 const TCP_CONNECTIONS_REJECTED: &str = "gateway_modbus_tcp_connections_rejected_total";
 const TCP_REQUESTS: &str = "gateway_modbus_tcp_requests_total";
+const TCP_REFUSED: &str = "gateway_modbus_tcp_refused_total";
+const TCP_HANDSHAKES_FAILED: &str = "gateway_modbus_tcp_tls_handshakes_failed_total";
 const ZENOH_PUBLICATIONS: &str = "gateway_zenoh_publications_total";
 const DROPPED_UPDATES: &str = "gateway_dropped_updates_total";
 
@@ -133,6 +137,10 @@ pub struct Metrics {
     tcp_rejected: IntCounterVec,
     /// `gateway_modbus_tcp_requests_total{function,result}`.
     tcp_requests: IntCounterVec,
+    /// `gateway_modbus_tcp_refused_total{role}`: Modbus/TCP Security requests refused by role.
+    tcp_refused: IntCounterVec,
+    /// `gateway_modbus_tcp_tls_handshakes_failed_total`: TLS handshakes that failed or timed out.
+    tcp_handshakes_failed: IntCounter,
     /// `gateway_zenoh_publications_total{kind}`.
     zenoh_publications: IntCounterVec,
     /// `gateway_dropped_updates_total{reason}`.
@@ -213,6 +221,18 @@ impl Metrics {
                 Opts::new(TCP_REQUESTS, "Modbus TCP requests by function code and result."),
                 &["function", "result"],
             )?,
+            tcp_refused: IntCounterVec::new(
+                Opts::new(
+                    TCP_REFUSED,
+                    "Modbus/TCP Security requests refused by the client certificate's role.",
+                ),
+                &["role"],
+            )?,
+            tcp_handshakes_failed: IntCounter::new(
+                TCP_HANDSHAKES_FAILED,
+                "Modbus/TCP Security TLS handshakes that failed or timed out (bad or missing \
+                 client certificate included).",
+            )?,
             zenoh_publications: IntCounterVec::new(
                 Opts::new(ZENOH_PUBLICATIONS, "zenoh publications and replies, by kind."),
                 &["kind"],
@@ -239,6 +259,8 @@ impl Metrics {
         registry.register(Box::new(metrics.tcp_accepted.clone()))?;
         registry.register(Box::new(metrics.tcp_rejected.clone()))?;
         registry.register(Box::new(metrics.tcp_requests.clone()))?;
+        registry.register(Box::new(metrics.tcp_refused.clone()))?;
+        registry.register(Box::new(metrics.tcp_handshakes_failed.clone()))?;
         registry.register(Box::new(metrics.zenoh_publications.clone()))?;
         registry.register(Box::new(metrics.dropped_updates.clone()))?;
 
@@ -401,6 +423,16 @@ impl Metrics {
     pub fn tcp_request_series(&self, function: u8, result: RequestResult) -> IntCounter {
         self.tcp_requests
             .with_label_values(&[function_label(function), result.as_str()])
+    }
+
+    /// Counts one Modbus/TCP Security request refused for the role labelled `role`.
+    pub fn tcp_refused(&self, role: &str) {
+        self.tcp_refused.with_label_values(&[role]).inc();
+    }
+
+    /// Counts one failed Modbus/TCP Security handshake.
+    pub fn tcp_handshake_failed(&self) {
+        self.tcp_handshakes_failed.inc();
     }
 
     // --- zenoh ---

@@ -6,33 +6,46 @@
 //! 1. the PDU does not decode: `ExceptionCode::from(&PduError)` (01 unknown function, 03 bad
 //!    quantity or byte count, 02 address overflow), quantity checked before address as libmodbus
 //!    does;
-//! 2. the unit id is not in the unit map: 0x0A (gateway path unavailable);
-//! 3. read-only mode and the request changes state: 01 (illegal function);
-//! 4. a table write outside the write-enabled ranges: 02 (illegal data address);
-//! 5. the unit service does not answer within `request_timeout`: 0x0B (gateway target device
+//! 2. on a Modbus/TCP Security connection, the request is not authorized for the client
+//!    certificate's role: 01 (illegal function; see [`super::access`]), counted by role and logged
+//!    at a limited rate;
+//! 3. the unit id is not in the unit map: 0x0A (gateway path unavailable);
+//! 4. read-only mode and the request changes state: 01 (illegal function);
+//! 5. a table write outside the write-enabled ranges: 02 (illegal data address);
+//! 6. the unit service does not answer within `request_timeout`: 0x0B (gateway target device
 //!    failed to respond); otherwise the service's response or exception. A unit that can answer
 //!    at once ([`UnitService::answer_now`], a read from the process image) writes its response
 //!    straight into the connection's buffer, and a future ready at its first poll arms no timer;
 //!    the answers are the same;
-//! 6. a response that does not fit an ADU or answers another function: 04 (server device failure).
+//! 7. a response that does not fit an ADU or answers another function: 04 (server device failure).
 
 use std::future::poll_fn;
+use std::net::SocketAddr;
 use std::sync::{Arc, PoisonError};
 use std::task::Poll;
+use std::time::Duration;
 
 use proto_core::modbus::pdu::{ExceptionCode, ExceptionResponse, FunctionCode, Request, Response};
-use tracing::{debug, error};
+use tracing::{debug, error, warn};
 
+use super::access::Authority;
 use super::mbap::MAX_PDU_LEN;
 use super::shared::Shared;
 use super::stats::{FrameReject, RequestResult};
+use crate::log_limit::{LogLimit, Verdict};
 use crate::unit::{UnitResult, UnitService};
+
+/// Log lines about requests refused by role: a client repeating a refused request cannot flood
+/// the log.
+static REFUSAL_LOG: LogLimit = LogLimit::new(Duration::from_secs(10), 10);
 
 /// Answers the request `pdu` to `unit`, appending the response PDU (normal or exception) to `out`
 /// after what it holds already (the connection keeps room for the MBAP header there).
 /// `Err` when there is nothing to answer (no function code): the connection closes.
 pub(crate) async fn answer(
     shared: &Shared,
+    authority: &Authority,
+    peer: SocketAddr,
     unit: u8,
     pdu: &[u8],
     out: &mut Vec<u8>,
@@ -41,7 +54,7 @@ pub(crate) async fn answer(
         return Err(FrameReject::EmptyPdu);
     };
     let mark = out.len();
-    let result = match admit(shared, unit, pdu, out) {
+    let result = match admit(shared, authority, peer, unit, pdu, out) {
         Admitted::Answered(result) => result,
         Admitted::Call(service, request) => match call(service.as_ref(), request, shared).await {
             Ok(response) => {
@@ -75,17 +88,24 @@ pub(crate) async fn answer(
     Ok(())
 }
 
-/// How steps 1 to 4 ended.
+/// How steps 1 to 5 ended.
 enum Admitted {
-    /// An exception of steps 1 to 4, or the unit's answer given at once (appended to `out`).
+    /// An exception of steps 1 to 5, or the unit's answer given at once (appended to `out`).
     Answered(Result<(), ExceptionCode>),
-    /// The unit answers in its own time: step 5.
+    /// The unit answers in its own time: step 6.
     Call(Arc<dyn UnitService>, Request),
 }
 
-/// Steps 1 to 4, then the unit's answer when it can give it at once ([`UnitService::answer_now`],
+/// Steps 1 to 5, then the unit's answer when it can give it at once ([`UnitService::answer_now`],
 /// under the read lock of the unit map: no clone of the service, no future, no timer).
-fn admit(shared: &Shared, unit: u8, pdu: &[u8], out: &mut Vec<u8>) -> Admitted {
+fn admit(
+    shared: &Shared,
+    authority: &Authority,
+    peer: SocketAddr,
+    unit: u8,
+    pdu: &[u8],
+    out: &mut Vec<u8>,
+) -> Admitted {
     let request = match decode_request(pdu) {
         Ok(request) => request,
         Err(error) => {
@@ -93,6 +113,17 @@ fn admit(shared: &Shared, unit: u8, pdu: &[u8], out: &mut Vec<u8>) -> Admitted {
             return Admitted::Answered(Err(ExceptionCode::from(&error)));
         }
     };
+    // MODBUS/TCP Security, "Authorization": a request the role is not authorized for is answered
+    // with exception code 01 (Illegal Function).
+    if let Err(refusal) = authority.check(unit, &request) {
+        let role = authority.label();
+        shared.stats.count_refused(role);
+        if let Verdict::Log { suppressed } = REFUSAL_LOG.check() {
+            warn!(%peer, role, unit, function = pdu.first().copied().unwrap_or(0), ?refusal,
+                suppressed, "request refused by role");
+        }
+        return Admitted::Answered(Err(ExceptionCode::IllegalFunction));
+    }
     // A panic elsewhere while holding the lock leaves a map that is still whole: keep serving.
     let units = shared.units.read().unwrap_or_else(PoisonError::into_inner);
     let Some(service) = units.get(unit) else {
@@ -107,7 +138,7 @@ fn admit(shared: &Shared, unit: u8, pdu: &[u8], out: &mut Vec<u8>) -> Admitted {
     }
 }
 
-/// Step 5: the service's answer, or 0x0B after `request_timeout`. A future that is ready at its
+/// Step 6: the service's answer, or 0x0B after `request_timeout`. A future that is ready at its
 /// first poll is taken without arming the timer.
 async fn call(service: &dyn UnitService, request: Request, shared: &Shared) -> UnitResult {
     let mut future = service.call(request);
