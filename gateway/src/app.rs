@@ -32,6 +32,7 @@ mod rest;
 mod status;
 mod supervisor;
 mod tag_io;
+mod tls;
 mod zenoh;
 
 pub use check::{check_command, check_report, config_issues, load_config};
@@ -193,9 +194,17 @@ pub async fn run(
     };
     let (local, _) = sup.tcp_listen();
     info!(%local, units = ?sup.units.read().map(|u| u.unit_ids()).unwrap_or_default(), "Modbus TCP listening");
+    if let Some(tls) = sup.tls_local().await {
+        // The same kind of line for the Modbus/TCP Security listener, before the plain one.
+        println!("modbus-tcp-tls listening on {tls}");
+    }
     // A fixed line on stdout that scripts and tests wait for; printed last, when everything
     // listens.
-    println!("modbus-tcp listening on {local}");
+    if sup.snapshot().config.modbus_tcp.enabled {
+        println!("modbus-tcp listening on {local}");
+    } else {
+        println!("modbus-tcp switched off");
+    }
     // What start-up freed (above all the configuration document) goes back to the system.
     crate::heap::release_free_memory();
 
@@ -282,7 +291,9 @@ fn metrics_route(registry: Registry) -> axum::Router {
 fn server_options(cfg: &config::ModbusTcpConfig) -> ServerOptions {
     ServerOptions {
         max_connections: usize::try_from(cfg.max_connections).unwrap_or(usize::MAX),
-        max_connections_per_client: None,
+        max_connections_per_client: Some(
+            usize::try_from(cfg.max_connections_per_client).unwrap_or(usize::MAX),
+        ),
         idle_timeout: cfg.idle_timeout,
         allowed_networks: cfg.allowed_networks.clone(),
         read_only: cfg.read_only,

@@ -390,7 +390,7 @@ impl ApiBackend for RestBackend {
                     (n.clone(), opened)
                 })
                 .collect(),
-            modbus_tcp: self.sup.tcp_listen().1,
+            modbus_tcp: self.sup.tcp_ready(),
             zenoh: self
                 .sup
                 .zenoh_state

@@ -79,6 +79,8 @@ pub(crate) struct Supervisor {
     /// The CP memory mirrors in the image, by unit id and address map.
     mirrored: Mutex<Vec<(u8, AddressMap)>>,
     tcp: tokio::sync::Mutex<Option<TcpServer>>,
+    /// The Modbus/TCP Security server, when `[modbus_tcp.tls]` is set.
+    tls: tokio::sync::Mutex<Option<super::tls::TlsRun>>,
     /// The address the Modbus TCP server listens on and whether it is up.
     tcp_state: Mutex<(SocketAddr, Arc<AtomicBool>)>,
     pub(crate) tcp_stats: Arc<ServerStats>,
@@ -143,22 +145,30 @@ impl Supervisor {
         }
         let units = Arc::new(RwLock::new(unit_map(&lines)));
         let addr = overrides.modbus_tcp.unwrap_or(config.modbus_tcp.listen);
-        let listener = modbus_tcp::bind(addr).map_err(|source| AppError::Bind {
-            what: "Modbus TCP",
-            addr,
-            source,
-        })?;
+        // `[modbus_tcp] enabled = false`: no plain listener (Modbus/TCP Security only).
+        let listener = if config.modbus_tcp.enabled {
+            Some(modbus_tcp::bind(addr).map_err(|source| AppError::Bind {
+                what: "Modbus TCP",
+                addr,
+                source,
+            })?)
+        } else {
+            info!("plain Modbus TCP switched off ([modbus_tcp] enabled = false)");
+            None
+        };
         let snapshot = Snapshot {
             tags: Arc::new(TagDirectory::from_config(&config)),
             server: server_options(&config.modbus_tcp),
             config,
             lines,
         };
+        let tcp_stats = Arc::new(ServerStats::with_metrics(exported.metrics.clone()));
+        let tls = super::tls::start(&snapshot.config.modbus_tcp, &units, &tcp_stats, shutdown)?;
         let sup = Arc::new(Self {
             started: SystemTime::now(),
             image,
             units,
-            tcp_stats: Arc::new(ServerStats::with_metrics(exported.metrics.clone())),
+            tcp_stats,
             exported,
             overrides,
             root: shutdown.clone(),
@@ -170,16 +180,19 @@ impl Supervisor {
             }),
             mirrored,
             tcp: tokio::sync::Mutex::new(None),
+            tls: tokio::sync::Mutex::new(tls),
             tcp_state: Mutex::new((addr, Arc::new(AtomicBool::new(false)))),
             zenoh: tokio::sync::Mutex::new(None),
             zenoh_state: Mutex::new(None),
             baselines: Mutex::new(baselines),
             opened_before: Mutex::new(BTreeSet::new()),
         });
-        let server = sup.spawn_tcp(listener)?;
-        *sup.tcp
-            .try_lock()
-            .map_err(|_| AppError::Setup("Modbus TCP state busy".into()))? = Some(server);
+        if let Some(listener) = listener {
+            let server = sup.spawn_tcp(listener)?;
+            *sup.tcp
+                .try_lock()
+                .map_err(|_| AppError::Setup("Modbus TCP state busy".into()))? = Some(server);
+        }
         Ok(sup)
     }
 
@@ -200,6 +213,16 @@ impl Supervisor {
     pub(crate) fn tcp_listen(&self) -> (SocketAddr, bool) {
         let state = lock(&self.tcp_state);
         (state.0, state.1.load(Ordering::Acquire))
+    }
+
+    /// The address the Modbus/TCP Security server listens on, when it runs.
+    pub(crate) async fn tls_local(&self) -> Option<SocketAddr> {
+        self.tls.lock().await.as_ref().map(|run| run.local)
+    }
+
+    /// Whether plain Modbus TCP is as it should be for readiness: up, or switched off.
+    pub(crate) fn tcp_ready(&self) -> bool {
+        !self.snapshot().config.modbus_tcp.enabled || self.tcp_listen().1
     }
 
     /// The Prometheus frame and byte counts of `line` at its start.
@@ -424,6 +447,13 @@ impl Supervisor {
                 Ok(()) => report.servers_restarted.push("modbus_tcp".into()),
                 Err(e) => failures.push(e),
             }
+            let cfg = &self.snapshot().config.modbus_tcp;
+            let mut tls = self.tls.lock().await;
+            if let Err(e) =
+                super::tls::apply(&mut tls, cfg, &self.units, &self.tcp_stats, &self.root).await
+            {
+                failures.push(e);
+            }
         }
         if diff.name_changed && super::zenoh::restart(self).await {
             report.servers_restarted.push("zenoh".into());
@@ -480,6 +510,17 @@ impl Supervisor {
         let bind = |addr| {
             modbus_tcp::bind(addr).map_err(|e| format!("Modbus TCP cannot listen on {addr}: {e}"))
         };
+        if !config.enabled {
+            if let Some(old) = slot.take() {
+                old.token.cancel();
+                if tokio::time::timeout(GRACE_PERIOD, old.task).await.is_err() {
+                    warn!("the old Modbus TCP server did not stop within the grace period");
+                }
+                old.up.store(false, Ordering::Release);
+                info!("plain Modbus TCP switched off");
+            }
+            return Ok(());
+        }
         // A new address is bound before the old server stops: a failure leaves it running.
         let early = if Some(addr) == old_local {
             None
@@ -511,7 +552,11 @@ impl Supervisor {
         if let Some(server) = &tcp {
             server.token.cancel();
         }
+        let tls = self.tls.lock().await.take();
         super::zenoh::stop(self).await;
+        if let Some(tls) = tls {
+            tls.stop().await;
+        }
         for (_, line) in self.snapshot().lines.clone() {
             line.kind.join().await;
         }

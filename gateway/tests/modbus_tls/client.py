@@ -2,11 +2,13 @@
 certificate.
 
 usage: client.py PORT CA CERT KEY UNIT OP...
-OP: r:ADDRESS:COUNT (FC 03) or w:ADDRESS:VALUE (FC 06).
-Prints one line per OP: "ok V1,V2,..." / "ok", "exception CODE", or "error TEXT"; the first
-line is "connected" or "not connected".
+OP: r:ADDRESS:COUNT (FC 03), i:ADDRESS:COUNT (FC 04), w:ADDRESS:VALUE (FC 06), or cert:-:-
+(the SHA-256 of the server's certificate).
+Prints one line per OP: "ok V1,V2,..." / "ok", "exception CODE", "cert HEX", or "error TEXT";
+the first line is "connected" or "not connected".
 """
 
+import hashlib
 import ssl
 import sys
 
@@ -34,9 +36,15 @@ def main() -> int:
     print("connected", flush=True)
     for op in ops:
         kind, address, arg = op.split(":")
+        if kind == "cert":
+            der = client.socket.getpeercert(binary_form=True)
+            print("cert " + hashlib.sha256(der).hexdigest(), flush=True)
+            continue
         try:
             if kind == "r":
                 rr = client.read_holding_registers(int(address), count=int(arg), device_id=int(unit))
+            elif kind == "i":
+                rr = client.read_input_registers(int(address), count=int(arg), device_id=int(unit))
             else:
                 rr = client.write_register(int(address), int(arg), device_id=int(unit))
         except Exception as e:  # the connection closed, a timeout
@@ -44,7 +52,7 @@ def main() -> int:
             continue
         if rr.isError():
             print(f"exception {getattr(rr, 'exception_code', '?')}", flush=True)
-        elif kind == "r":
+        elif kind in ("r", "i"):
             print("ok " + ",".join(str(v) for v in rr.registers), flush=True)
         else:
             print("ok", flush=True)
