@@ -35,7 +35,7 @@ mod tag_io;
 mod tls;
 mod zenoh;
 
-pub use check::{check_command, check_report, config_issues, load_config};
+pub use check::{check_command, check_report, config_issues, load_config, security_warnings};
 pub use demo::demo;
 
 /// How long a stopping gateway waits for lines to finish their transaction in flight and for
@@ -178,6 +178,9 @@ pub async fn run(
         None => MetricsRegistry::new()
             .map_err(|e| AppError::Setup(format!("cannot register the metrics: {e}")))?,
     };
+    for warning in security_warnings(&config) {
+        warn!("{warning}");
+    }
     let http_config = config.http.clone();
     let sup = supervisor::Supervisor::start(config, overrides.clone(), &shutdown, exported)?;
     if let Err(e) = zenoh::start(&sup).await {

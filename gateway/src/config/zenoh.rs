@@ -4,9 +4,9 @@
 //! [zenoh]
 //! enabled = true                      # default true
 //! mode = "peer"                       # "peer" (default) or "client"
-//! listen = ["tcp/0.0.0.0:7447"]       # zenoh endpoints; unset: the file's or zenoh's default
+//! listen = ["tcp/0.0.0.0:7447"]       # zenoh endpoints; unset: the file's, else tcp/127.0.0.1:7447
 //! connect = ["tcp/192.168.1.10:7447"] # unset: the file's or zenoh's default (none)
-//! multicast_scouting = false          # unset: the file's or zenoh's default (on)
+//! multicast_scouting = true           # unset: the file's, else off
 //! prefix = "plant/hall2/gw1"          # default "gw/<gateway name>"
 //! config_file = "/etc/gateway/zenoh.json5"  # a zenoh config file (TLS, access control, ...)
 //! telegram_queue = 1024               # received telegrams waiting to be published
@@ -157,14 +157,14 @@ pub struct ZenohConfig {
     /// Peer or client; unset: the file's, else peer.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mode: Option<Mode>,
-    /// Endpoints to listen on; unset: the file's, else zenoh's default.
+    /// Endpoints to listen on; unset: the file's, else loopback only (`tcp/127.0.0.1:7447`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub listen: Option<Vec<Endpoint>>,
     /// Endpoints to connect to; unset: the file's, else none.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub connect: Option<Vec<Endpoint>>,
-    /// UDP multicast scouting; unset: the file's, else zenoh's default (on). Turn it off
-    /// wherever the endpoints are known (and always in tests).
+    /// UDP multicast scouting; unset: the file's, else off (the gateway is not announced on
+    /// the network unless asked to be).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub multicast_scouting: Option<bool>,
     /// Key prefix; unset: `gw/<gateway name>`.
