@@ -110,6 +110,18 @@ fn endpoint_is_loopback(endpoint: &str) -> bool {
             .is_ok_and(|ip| ip.is_loopback())
 }
 
+
+/// What [`check_command`] prints, and its exit code.
+pub fn check_report(path: &Path) -> (String, i32) {
+    match load_config(path) {
+        Ok(c) => (
+            format!("ok: {} lines, {} devices", c.lines.len(), c.device_count()),
+            0,
+        ),
+        Err(e) => (e.to_string(), 1),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -144,16 +156,5 @@ mod tests {
         // The demo's loopback listeners are not warned about.
         let demo = config::parse(config::demo_toml()).expect("demo parses");
         assert_eq!(security_warnings(&demo), Vec::<String>::new());
-    }
-}
-
-/// What [`check_command`] prints, and its exit code.
-pub fn check_report(path: &Path) -> (String, i32) {
-    match load_config(path) {
-        Ok(c) => (
-            format!("ok: {} lines, {} devices", c.lines.len(), c.device_count()),
-            0,
-        ),
-        Err(e) => (e.to_string(), 1),
     }
 }
