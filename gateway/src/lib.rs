@@ -6,7 +6,8 @@
 //!   error type), the rules between its keys, and the defaults and ranges of every key; it
 //!   imports no other module of the gateway, they import it;
 //! - [`serial`]: opening ports with line settings, RS485 mode, reopen with back-off;
-//! - [`line`]: one task per line driving an engine, the poll scheduler;
+//! - [`line`]: the line runtime (one port task per line, whatever the protocol) with one adapter
+//!   per protocol, the poll scheduler;
 //! - [`cpmem`]: the CP memory (M, Q, I, T, C, DBs) shared by slave lines, Modbus TCP and the image;
 //! - [`image`]: the process image (value, quality, timestamp per register);
 //! - [`mailbox`]: telegram lines' received telegrams and sends as Modbus TCP registers;
@@ -24,6 +25,7 @@
 
 pub mod api;
 pub mod app;
+pub mod audit;
 pub mod config;
 pub mod cpmem;
 #[cfg(any(fuzzing, test))]

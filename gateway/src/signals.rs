@@ -20,7 +20,7 @@
 
 use std::fmt;
 
-use tokio_serial::{SerialPort, SerialStream};
+use tokio_serial::SerialPort;
 
 /// One RS232 signal (000 5.4).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -221,6 +221,17 @@ fn unsupported(
     }
 }
 
+/// The answer for a port without modem lines (an in-process stream).
+pub(crate) fn no_modem(path: &str, signal: Signal, action: &'static str) -> SignalError {
+    SignalError::Unsupported {
+        path: path.to_owned(),
+        signal,
+        action,
+        reason: "the port has no modem lines".into(),
+        hint: "",
+    }
+}
+
 /// Reads one input of `port` (DSR, CTS, DCD, RI); an output (DTR, RTS) is answered from
 /// `state`, or refused as unknown when it was never set.
 ///
@@ -228,7 +239,7 @@ fn unsupported(
 ///
 /// [`SignalError::Unsupported`] when the port's driver refuses the request.
 pub fn read(
-    port: &mut SerialStream,
+    port: &mut dyn SerialPort,
     path: &str,
     state: SignalState,
     signal: Signal,
@@ -263,7 +274,7 @@ pub fn read(
 ///
 /// The first input the port's driver refuses to read.
 pub fn read_all(
-    port: &mut SerialStream,
+    port: &mut dyn SerialPort,
     path: &str,
     state: SignalState,
 ) -> Result<ModemSignals, SignalError> {
@@ -283,7 +294,7 @@ pub fn read_all(
 ///
 /// [`SignalError::Unsupported`] when the port's driver refuses; `state` is unchanged then.
 pub fn set(
-    port: &mut SerialStream,
+    port: &mut dyn SerialPort,
     path: &str,
     state: &mut SignalState,
     output: Output,
@@ -303,6 +314,8 @@ pub fn set(
 
 #[cfg(test)]
 mod tests {
+    use tokio_serial::SerialStream;
+
     use super::*;
 
     #[test]

@@ -17,7 +17,7 @@ use proto_core::modbus::pdu::{ExceptionCode, Request};
 use proto_core::profiles::{self, DeviceProfile, Tag, Value};
 
 use crate::config::{self, Config, DeviceConfig};
-use crate::image::{ProcessImage, Quality, Table};
+use crate::image::{ProcessImage, Table};
 
 /// One tag of one device on one line.
 #[derive(Clone, Debug)]
@@ -126,17 +126,14 @@ impl TagDirectory {
         self.entries.iter().filter(move |e| {
             let t_start = u32::from(e.tag.address);
             let t_end = t_start + u32::from(e.tag.data_type.words());
-            e.unit_id == unit
-                && image_table(e.tag.table) == table
-                && t_start < end
-                && u32::from(start) < t_end
+            e.unit_id == unit && e.tag.table == table && t_start < end && u32::from(start) < t_end
         })
     }
 
     /// The tag's value from the image; `None` while its registers are not in the image (nobody
     /// polls them, or no poll has answered yet).
     pub fn read(&self, image: &ProcessImage, entry: &TagEntry) -> Option<TagReading> {
-        let table = image_table(entry.tag.table);
+        let table = entry.tag.table;
         let words = entry.tag.data_type.words();
         let read = match table {
             Table::Coils | Table::DiscreteInputs => {
@@ -155,7 +152,7 @@ impl TagDirectory {
                 .ok()?,
         };
         let (value, device_quality) = entry.profile.decode(&entry.tag, &read.values);
-        let quality = read.quality.worst(from_profile(device_quality));
+        let quality = read.quality.worst(device_quality);
         Some(TagReading {
             value,
             unit: entry.tag.unit.clone(),
@@ -181,14 +178,12 @@ impl TagDirectory {
             })?;
         let address = entry.tag.address;
         Ok(match (entry.tag.table, words.as_slice()) {
-            (profiles::Table::Coils, [w]) => Request::WriteSingleCoil {
+            (Table::Coils, [w]) => Request::WriteSingleCoil {
                 address,
                 value: *w != 0,
             },
-            (profiles::Table::HoldingRegisters, [w]) => {
-                Request::WriteSingleRegister { address, value: *w }
-            }
-            (profiles::Table::HoldingRegisters, _) => Request::WriteMultipleRegisters {
+            (Table::HoldingRegisters, [w]) => Request::WriteSingleRegister { address, value: *w },
+            (Table::HoldingRegisters, _) => Request::WriteMultipleRegisters {
                 address,
                 values: words,
             },
@@ -241,7 +236,7 @@ fn cp_memory_tags(
             };
             let mut tag = Tag::new(
                 format!("DB{db}.DBW{}", w * 2),
-                profiles::Table::HoldingRegisters,
+                Table::HoldingRegisters,
                 address,
                 profiles::DataType::U16,
             );
@@ -278,12 +273,8 @@ fn shared(mut profile: DeviceProfile) -> (Arc<DeviceProfile>, Vec<Tag>) {
 /// The profile of a configured device, with the config's own tags added.
 fn profile_of(name: &str, device: &DeviceConfig) -> DeviceProfile {
     let config_tags: Vec<Tag> = device.tags.iter().map(tag_of).collect();
-    let mut profile = match device.profile {
-        config::Profile::Altivar71 => DeviceProfile::altivar71(),
-        config::Profile::Ksvario => DeviceProfile::ksvario(),
-        config::Profile::Generic => {
-            return DeviceProfile::generic(name, device.address, config_tags)
-        }
+    let Some(mut profile) = device.profile.device_profile() else {
+        return DeviceProfile::generic(name, device.address, config_tags);
     };
     profile.tags.extend(config_tags);
     profile
@@ -291,7 +282,7 @@ fn profile_of(name: &str, device: &DeviceConfig) -> DeviceProfile {
 
 /// A config tag as a profile tag.
 fn tag_of(t: &config::TagConfig) -> Tag {
-    use profiles::{DataType as D, Table as T, WordOrder as W};
+    use profiles::{DataType as D, WordOrder as W};
     let order = match t.word_order {
         config::WordOrder::HighFirst => W::HighFirst,
         config::WordOrder::LowFirst => W::LowFirst,
@@ -304,13 +295,7 @@ fn tag_of(t: &config::TagConfig) -> Tag {
         config::DataType::I32 => D::I32(order),
         config::DataType::F32 => D::F32(order),
     };
-    let table = match t.table {
-        config::ModbusTable::Holding => T::HoldingRegisters,
-        config::ModbusTable::Input => T::InputRegisters,
-        config::ModbusTable::Coil => T::Coils,
-        config::ModbusTable::Discrete => T::DiscreteInputs,
-    };
-    let mut tag = Tag::new(t.name.clone(), table, t.address, data_type)
+    let mut tag = Tag::new(t.name.clone(), t.table.into(), t.address, data_type)
         .decimals(t.decimals)
         .scale(t.scale)
         .unit(t.unit.clone());
@@ -318,28 +303,6 @@ fn tag_of(t: &config::TagConfig) -> Tag {
         tag = tag.writable();
     }
     tag
-}
-
-/// The image table of a profile table.
-pub fn image_table(t: profiles::Table) -> Table {
-    match t {
-        profiles::Table::Coils => Table::Coils,
-        profiles::Table::DiscreteInputs => Table::DiscreteInputs,
-        profiles::Table::InputRegisters => Table::InputRegisters,
-        profiles::Table::HoldingRegisters => Table::HoldingRegisters,
-    }
-}
-
-/// The image quality of a profile's special-value quality.
-fn from_profile(q: profiles::Quality) -> Quality {
-    match q {
-        profiles::Quality::Good => Quality::Good,
-        profiles::Quality::Stale => Quality::Stale,
-        profiles::Quality::NotDefined => Quality::NotDefined,
-        profiles::Quality::Off => Quality::Off,
-        profiles::Quality::OutOfRange => Quality::OutOfRange,
-        profiles::Quality::CommFailure => Quality::CommFailure,
-    }
 }
 
 #[cfg(test)]

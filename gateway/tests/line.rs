@@ -553,7 +553,7 @@ async fn a_full_queue_answers_0x06_and_no_answer_0x0b() {
     settings.master.reply_timeout = ms(300);
     let ghost = DeviceSettings::new("ghost", 9, 9);
     let line = spawn_modbus_master_line(settings, vec![ghost], image, shutdown.clone());
-    let client = line.client();
+    let client = line.client().expect("a master line");
     let unit = line.device_unit("ghost").unwrap();
 
     let request = Request::ReadHoldingRegisters {

@@ -60,7 +60,7 @@ async fn the_outside_master_reads_every_area() {
     let i = c.read_input_registers(0, 2).await.unwrap().unwrap();
     assert_eq!(i, vec![0xA0A0, 0xB1B1]);
 
-    let counters = rig.line.counters();
+    let counters = rig.line.slave_counters().expect("a slave line");
     assert_eq!((counters.answered, counters.exceptions), (9, 0));
     assert!(counters.last_request.is_some());
     let status = rig.line.status();
@@ -101,7 +101,7 @@ async fn the_outside_master_writes_m_q_and_db() {
     // And back over the same line.
     let back = c.read_coils(8, 8).await.unwrap().unwrap();
     assert_eq!(back, bits(&[0x2F], 8));
-    let counters = rig.line.counters();
+    let counters = rig.line.slave_counters().expect("a slave line");
     assert_eq!((counters.answered, counters.writes), (5, 4));
     rig.stop().await;
 }
@@ -128,7 +128,7 @@ async fn a_write_outside_the_limits_is_refused_with_an_exception() {
     assert_eq!(missing, Err(ExceptionCode::IllegalDataAddress));
 
     assert_eq!(rig.memory.snapshot(), before, "nothing was written");
-    let counters = rig.line.counters();
+    let counters = rig.line.slave_counters().expect("a slave line");
     assert_eq!((counters.answered, counters.exceptions), (0, 5));
     let status = rig.line.status();
     assert_eq!(status.event_counts.get(&ids::SLAVE_DB_ERROR), Some(&1));
@@ -163,7 +163,7 @@ async fn a_broadcast_is_applied_without_an_answer() {
         tokio::time::timeout(Duration::from_millis(300), c.read_holding_registers(0, 1)).await;
     assert!(read.is_err(), "a broadcast read was answered: {read:?}");
 
-    let counters = rig.line.counters();
+    let counters = rig.line.slave_counters().expect("a slave line");
     assert_eq!(
         (
             counters.broadcasts_applied,
@@ -208,7 +208,7 @@ async fn bad_frames_and_other_addresses_get_no_answer() {
     let mut buf = [0u8; 64];
     let silent = tokio::time::timeout(Duration::from_millis(200), outside.read(&mut buf)).await;
     assert!(silent.is_err(), "answered: {silent:?}");
-    let counters = line.counters();
+    let counters = line.slave_counters().expect("a slave line");
     assert_eq!(counters.discarded.get("bad_crc"), Some(&1), "{counters:?}");
     assert_eq!(counters.other_address, 1);
     assert_eq!(
@@ -239,7 +239,7 @@ async fn bad_frames_and_other_addresses_get_no_answer() {
 #[tokio::test]
 async fn a_serial_write_reads_back_over_tcp_and_a_tcp_write_over_serial() {
     let mut rig = Rig::start(filled_memory()).await;
-    let mut tcp = Tcp::start(rig.line.unit()).await;
+    let mut tcp = Tcp::start(rig.line.cp_memory().expect("a slave line").unit()).await;
 
     // Serial -> TCP.
     rig.client
@@ -513,7 +513,7 @@ async fn the_simulated_master_moves_values_and_counters() {
         u64::from(written) >= counts.last_counter,
         "{written} {counts:?}"
     );
-    let served = line.counters();
+    let served = line.slave_counters().expect("a slave line");
     assert!(
         served.answered >= counts.responses && served.writes >= 3,
         "{served:?}"

@@ -36,7 +36,7 @@ async fn line_and_partner_exchange_telegrams_both_ways() {
         let name = protocol.name();
         let sim = partner(&protocol).every(ms(20)).limit(3);
         let mut pair = start_pair("t", protocol, mailbox(16, Overflow::Refuse), sim);
-        let mailbox = pair.line.mailbox();
+        let mailbox = pair.line.mailbox().expect("a telegram line");
 
         // The partner's own telegrams arrive in order, numbered from 1.
         eventually("three telegrams from the partner", || mailbox.len() == 3).await;
@@ -57,7 +57,7 @@ async fn line_and_partner_exchange_telegrams_both_ways() {
 
         // A telegram of ours reaches the partner, which echoes it back into the mailbox.
         let ours = b"HELLO PARTNER\x03".to_vec();
-        let client = pair.line.client();
+        let client = pair.line.telegram_client().expect("a telegram line");
         tokio::time::timeout(Duration::from_secs(10), client.send(ours.clone()))
             .await
             .expect("in time")
@@ -67,7 +67,7 @@ async fn line_and_partner_exchange_telegrams_both_ways() {
         let echo = mailbox.head().expect("echo");
         assert_eq!((echo.seq, echo.data.to_vec()), (4, ours), "{name}");
 
-        let status = pair.line.status();
+        let status = pair.line.telegram_status().expect("a telegram line");
         assert!(status.line.port_open);
         assert_eq!(status.counters.received, 4);
         assert_eq!(status.counters.sent, 1);
@@ -86,7 +86,7 @@ async fn a_telegram_longer_than_the_line_allows_is_refused_with_its_event() {
         mailbox(4, Overflow::Refuse),
         sim,
     );
-    let client = pair.line.client();
+    let client = pair.line.telegram_client().expect("a telegram line");
     let err = client
         .send(vec![b'x'; 251])
         .await
@@ -95,7 +95,14 @@ async fn a_telegram_longer_than_the_line_allows_is_refused_with_its_event() {
     assert_eq!(err.event(), ids::TRANSFER_LENGTH_INVALID);
     let err = client.send(Vec::new()).await.expect_err("empty");
     assert_eq!(err.event(), ids::BACKPLANE_LEN_ILLEGAL);
-    assert_eq!(pair.line.status().counters.send_failed, 2);
+    assert_eq!(
+        pair.line
+            .telegram_status()
+            .expect("a telegram line")
+            .counters
+            .send_failed,
+        2
+    );
     pair.stop().await;
 }
 
@@ -127,7 +134,13 @@ async fn read_through_the_mailbox(protocol: TelegramProtocol, count: u16) {
             tokio::time::sleep(ms(1)).await;
             continue;
         }
-        let events = || pair.line.status().line.event_counts;
+        let events = || {
+            pair.line
+                .telegram_status()
+                .expect("a telegram line")
+                .line
+                .event_counts
+        };
         assert_eq!(
             seq,
             expected,
@@ -152,7 +165,7 @@ async fn read_through_the_mailbox(protocol: TelegramProtocol, count: u16) {
             .expect("the right number is accepted");
         expected += 1;
     }
-    let status = pair.line.status();
+    let status = pair.line.telegram_status().expect("a telegram line");
     assert_eq!(status.counters.received, u64::from(count), "{name}");
     assert_eq!(status.counters.acknowledged, u64::from(count), "{name}");
     assert_eq!(status.counters.overflows, 0, "{name}");
@@ -180,7 +193,7 @@ async fn a_wrong_acknowledgement_is_exception_03_and_releases_nothing() {
     let pair = start_pair("t", protocol, mailbox(8, Overflow::DropNew), sim);
     let server = Server::start(&pair.line);
     let mut client = server.client().await;
-    let mailbox = pair.line.mailbox();
+    let mailbox = pair.line.mailbox().expect("a telegram line");
     eventually("two telegrams", || mailbox.len() == 2).await;
     let answer = client
         .write_single_register(layout::ACK, 2)
@@ -233,7 +246,7 @@ async fn a_telegram_written_into_the_send_block_arrives_and_done_is_set() {
             tokio::time::sleep(ms(2)).await;
         }
         // The echo comes back into the receive block.
-        let mailbox = pair.line.mailbox();
+        let mailbox = pair.line.mailbox().expect("a telegram line");
         eventually("the echo", || mailbox.len() == 1).await;
         let head = read(&mut client, layout::RX_SEQ, 7).await;
         assert_eq!(head[..3], [1, 7, 1], "{name}");
@@ -253,16 +266,29 @@ async fn a_full_ascii_mailbox_drops_the_new_telegram_and_counts_it() {
     let server = Server::start(&pair.line);
     let mut client = server.client().await;
     let line = &pair.line;
-    eventually("seven overflows", || line.status().counters.overflows == 7).await;
+    eventually("seven overflows", || {
+        line.telegram_status()
+            .expect("a telegram line")
+            .counters
+            .overflows
+            == 7
+    })
+    .await;
     assert_eq!(event_count(line, ids::NO_FREE_RECEIVE_BUFFER), 7);
-    let status = line.status();
+    let status = line.telegram_status().expect("a telegram line");
     assert_eq!(status.line.status_word, 0x080A);
     assert_eq!(status.waiting, 3);
     assert_eq!(
         status.counters.received, 10,
         "every telegram got its number"
     );
-    let waiting: Vec<u16> = line.mailbox().waiting().iter().map(|t| t.seq).collect();
+    let waiting: Vec<u16> = line
+        .mailbox()
+        .expect("a telegram line")
+        .waiting()
+        .iter()
+        .map(|t| t.seq)
+        .collect();
     assert_eq!(waiting, [1, 2, 3], "the oldest are kept");
     // STATUS word and the overflow counter as registers.
     assert_eq!(read(&mut client, layout::RX_STATUS, 1).await, [0x080A]);
@@ -280,9 +306,16 @@ async fn a_full_3964r_mailbox_refuses_with_nak_and_takes_the_held_telegram_later
     let sim = partner(&protocol).every(ms(20)).limit(4);
     let pair = start_pair("t", protocol, mailbox(2, Overflow::Refuse), sim);
     let line = &pair.line;
-    let mailbox = line.mailbox();
+    let mailbox = line.mailbox().expect("a telegram line");
     // Two in the mailbox, one held by the driver, the fourth refused (NAK, 08 0Ah).
-    eventually("a refusal", || line.status().counters.overflows >= 1).await;
+    eventually("a refusal", || {
+        line.telegram_status()
+            .expect("a telegram line")
+            .counters
+            .overflows
+            >= 1
+    })
+    .await;
     assert!(event_count(line, ids::NO_FREE_RECEIVE_BUFFER) >= 1);
     assert_eq!(mailbox.len(), 2);
     mailbox.ack(1).expect("oldest");
@@ -301,8 +334,14 @@ async fn a_pty_refuses_the_rs232_signals_with_a_clear_error() {
     let sim = partner(&protocol).every(Duration::ZERO);
     let pair = start_pair("t", protocol, mailbox(4, Overflow::DropNew), sim);
     let line = &pair.line;
-    eventually("port open", || line.status().line.port_open).await;
-    let signals = line.signals();
+    eventually("port open", || {
+        line.telegram_status()
+            .expect("a telegram line")
+            .line
+            .port_open
+    })
+    .await;
+    let signals = line.signals().expect("a telegram line");
     let err = signals.read().await.expect_err("a pty has no modem lines");
     let text = err.to_string();
     assert!(
@@ -347,8 +386,19 @@ async fn signals_on_a_line_that_is_not_rs232_or_driven_by_flow_control_are_refus
     );
     s.port.interface = Interface::Rs422;
     let line = spawn_telegram_line(s, shutdown.clone());
-    eventually("port open", || line.status().line.port_open).await;
-    let err = line.signals().read().await.expect_err("RS422");
+    eventually("port open", || {
+        line.telegram_status()
+            .expect("a telegram line")
+            .line
+            .port_open
+    })
+    .await;
+    let err = line
+        .signals()
+        .expect("a telegram line")
+        .read()
+        .await
+        .expect_err("RS422");
     assert_eq!(
         err,
         SignalError::NotRs232 {
@@ -376,11 +426,16 @@ async fn signals_on_a_line_that_is_not_rs232_or_driven_by_flow_control_are_refus
         shutdown.clone(),
     );
     eventually("the signals error", || {
-        rtscts.status().signals_error.is_some()
+        rtscts
+            .telegram_status()
+            .expect("a telegram line")
+            .signals_error
+            .is_some()
     })
     .await;
     let err = rtscts
         .signals()
+        .expect("a telegram line")
         .set(Output::Rts, true)
         .await
         .expect_err("driven by RTS/CTS");
@@ -395,7 +450,8 @@ async fn signals_on_a_line_that_is_not_rs232_or_driven_by_flow_control_are_refus
         "{err:?}"
     );
     let failed = rtscts
-        .client()
+        .telegram_client()
+        .expect("a telegram line")
         .send(b"x".to_vec())
         .await
         .expect_err("no CTS");
@@ -416,7 +472,13 @@ async fn a_lost_port_fails_the_send_and_the_line_reopens() {
         settings("t", &path, protocol, mailbox(4, Overflow::Refuse)),
         shutdown.clone(),
     );
-    eventually("port open", || line.status().line.port_open).await;
+    eventually("port open", || {
+        line.telegram_status()
+            .expect("a telegram line")
+            .line
+            .port_open
+    })
+    .await;
     // The partner's end goes away: the pty is gone.
     drop(partner_end);
     drop(keep);
@@ -425,10 +487,21 @@ async fn a_lost_port_fails_the_send_and_the_line_reopens() {
         event_count(&line, ids::INVALID_PARAMETERIZATION) >= 1
     })
     .await;
-    let err = line.client().send(b"x".to_vec()).await.expect_err("closed");
+    let err = line
+        .telegram_client()
+        .expect("a telegram line")
+        .send(b"x".to_vec())
+        .await
+        .expect_err("closed");
     assert_eq!(err, TelegramSendError::PortClosed);
     assert_eq!(err.event(), ids::REQUEST_NOT_PERMITTED);
-    assert!(!line.status().line.port_open);
+    assert!(
+        !line
+            .telegram_status()
+            .expect("a telegram line")
+            .line
+            .port_open
+    );
     shutdown.cancel();
     tokio::time::timeout(Duration::from_secs(5), line.join())
         .await

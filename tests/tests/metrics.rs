@@ -98,7 +98,7 @@ fn prometheus_scrapes_the_demo_sees_every_line_start_and_evaluates_every_dashboa
 
     let exposition = scrape(http);
     let lines = served_lines(&exposition);
-    // SPEC.md: the demo polls the drive and the KS vario; the other lines count when served.
+    // The demo polls the drive and the KS vario; the other lines count when served.
     for required in ["drive", "ksvario"] {
         assert!(
             lines.contains(required),
@@ -300,4 +300,201 @@ fn a_device_that_stops_answering_is_down_in_the_metrics_and_up_again_when_it_is_
     scrape_until(http, Duration::from_secs(15), "the drive up again", |t| {
         drive_up(t) == Some(1.0)
     });
+}
+
+/// The metric names (`gateway_` and lower-case letters and underscores) in a PromQL expression.
+fn gateway_names(expr: &str) -> BTreeSet<String> {
+    const PREFIX: &str = "gateway_";
+    let mut names = BTreeSet::new();
+    let bytes = expr.as_bytes();
+    let mut at = 0;
+    while let Some(found) = expr.get(at..).and_then(|rest| rest.find(PREFIX)) {
+        let start = at + found;
+        // Part of a longer word (a label value like `my_gateway_x`) is no metric name.
+        let inside_word = start > 0
+            && bytes
+                .get(start - 1)
+                .is_some_and(|b| b.is_ascii_alphanumeric() || *b == b'_' || *b == b'-');
+        let end = start
+            + PREFIX.len()
+            + expr[start + PREFIX.len()..]
+                .bytes()
+                .take_while(|b| b.is_ascii_lowercase() || *b == b'_')
+                .count();
+        if !inside_word && end > start + PREFIX.len() {
+            names.insert(expr[start..end].to_owned());
+        }
+        at = end.max(start + 1);
+    }
+    names
+}
+
+/// Every string under an `expr`, `query` or `definition` key of a dashboard (panel targets and
+/// template variables).
+fn dashboard_queries(value: &serde_json::Value, out: &mut Vec<String>) {
+    match value {
+        serde_json::Value::Object(map) => {
+            for (key, v) in map {
+                match (key.as_str(), v) {
+                    ("expr" | "query" | "definition", serde_json::Value::String(s)) => {
+                        out.push(s.clone());
+                    }
+                    _ => dashboard_queries(v, out),
+                }
+            }
+        }
+        serde_json::Value::Array(items) => items.iter().for_each(|v| dashboard_queries(v, out)),
+        _ => {}
+    }
+}
+
+/// The `expr:` values of an alerting rules file (one line, or a `|` / `>` block below it).
+fn alert_exprs(yaml: &str) -> Vec<String> {
+    let mut exprs = Vec::new();
+    let lines: Vec<&str> = yaml.lines().collect();
+    for (i, line) in lines.iter().enumerate() {
+        let Some((indent, rest)) = line.split_once("expr:") else {
+            continue;
+        };
+        if !indent.trim().is_empty() && indent.trim() != "-" {
+            continue;
+        }
+        let rest = rest.trim();
+        if rest.is_empty() || rest.starts_with('|') || rest.starts_with('>') {
+            let block = lines
+                .iter()
+                .skip(i + 1)
+                .take_while(|l| l.len() - l.trim_start().len() > indent.len())
+                .map(|l| l.trim())
+                .collect::<Vec<_>>()
+                .join(" ");
+            exprs.push(block);
+        } else {
+            exprs.push(rest.to_owned());
+        }
+    }
+    exprs
+}
+
+/// Every metric family the dashboards and the alerting rules query, with where it is queried.
+/// Histogram series (`_bucket`, `_sum`, `_count`) name their family.
+fn queried_families() -> std::collections::BTreeMap<String, String> {
+    let mut exprs: Vec<(String, String)> = Vec::new();
+    let dir = support::repo_path("dashboards");
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .expect("dashboards directory")
+        .map(|e| e.expect("entry").path())
+        .filter(|p| p.extension().is_some_and(|e| e == "json"))
+        .collect();
+    files.sort();
+    for path in files {
+        let board: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).expect("readable dashboard"))
+                .unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let mut queries = Vec::new();
+        dashboard_queries(&board, &mut queries);
+        let file = path.display().to_string();
+        exprs.extend(queries.into_iter().map(|q| (file.clone(), q)));
+    }
+    let alerts = support::repo_path("deploy/alerts.yml");
+    let yaml = std::fs::read_to_string(&alerts).expect("deploy/alerts.yml");
+    let file = alerts.display().to_string();
+    exprs.extend(alert_exprs(&yaml).into_iter().map(|e| (file.clone(), e)));
+
+    let mut families = std::collections::BTreeMap::new();
+    for (file, expr) in exprs {
+        for name in gateway_names(&expr) {
+            let family = ["_bucket", "_sum", "_count"]
+                .iter()
+                .find_map(|s| name.strip_suffix(s))
+                .filter(|f| f.ends_with("_seconds"))
+                .map_or_else(|| name.clone(), str::to_owned);
+            families.entry(family).or_insert_with(|| file.clone());
+        }
+    }
+    families
+}
+
+/// The sum of every sample of a family (a histogram by its `_count`).
+fn family_total(exposition: &str, family: &str) -> Option<f64> {
+    let mut found = samples(exposition, family);
+    if found.is_empty() {
+        found = samples(exposition, &format!("{family}_count"));
+    }
+    (!found.is_empty()).then(|| found.iter().map(|(_, v)| v).sum())
+}
+
+#[test]
+fn every_family_the_dashboards_and_alerts_query_counts_in_the_running_demo() {
+    let families = queried_families();
+    // The extraction itself: the families the alerts and the overview are built on.
+    for known in [
+        "gateway_line_up",
+        "gateway_dropped_updates_total",
+        "gateway_zenoh_publications_total",
+        "gateway_poll_duration_seconds",
+    ] {
+        assert!(
+            families.contains_key(known),
+            "{known} not found among {families:?}"
+        );
+    }
+
+    let gw = Gateway::demo(&[]);
+    let http = gw.http.expect("the demo announces its HTTP address");
+    modbus_tcp_traffic(gw.modbus_tcp);
+
+    // What the demo's traffic moves within a few seconds: its polls, its telegram partners, the
+    // Modbus TCP requests just made, and the zenoh publications of tags, events and telegrams.
+    let must_move = [
+        "gateway_build_info",
+        "gateway_events_total",
+        "gateway_telegrams_total",
+        "gateway_bytes_total",
+        "gateway_line_up",
+        "gateway_modbus_requests_total",
+        "gateway_poll_duration_seconds",
+        "gateway_device_up",
+        "gateway_device_image_age_seconds",
+        "gateway_modbus_tcp_connections_accepted_total",
+        "gateway_modbus_tcp_requests_total",
+        "gateway_zenoh_publications_total",
+    ];
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let exposition = loop {
+        let text = scrape(http);
+        let still: Vec<&str> = must_move
+            .iter()
+            .copied()
+            .filter(|f| family_total(&text, f).is_none_or(|v| v <= 0.0))
+            .collect();
+        if still.is_empty() {
+            break text;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "families still at 0 or missing after 30 s: {still:?}\n{text}"
+        );
+        std::thread::sleep(Duration::from_millis(250));
+    };
+    let mut report = Vec::new();
+    for (family, file) in &families {
+        let total = family_total(&exposition, family);
+        assert!(
+            total.is_some(),
+            "{family} (queried in {file}) is not in /metrics of the running demo:\n{exposition}"
+        );
+        report.push(format!("{family} = {}", total.unwrap_or_default()));
+    }
+    for family in must_move {
+        assert!(
+            families.contains_key(family),
+            "{family} must move in the demo but no dashboard or alert queries it: {families:?}"
+        );
+    }
+    eprintln!(
+        "{} queried families in /metrics:\n  {}",
+        families.len(),
+        report.join("\n  ")
+    );
 }

@@ -235,5 +235,15 @@ ranges = [{{ table = "input", start = 1004, count = 3 }}]
         let series = format!("gateway_modbus_tcp_refused_total{{role=\"{role}\"}} 1");
         assert!(metrics.contains(&series), "no {series} in:\n{metrics}");
     }
+    // The viewer's write is in the audit count and the audit log, with its source.
+    let series = r#"gateway_writes_total{path="modbus_tcp_tls",result="refused"} 1"#;
+    assert!(metrics.contains(series), "no {series} in:\n{metrics}");
+    let output = gw.output();
+    assert!(
+        output
+            .lines()
+            .any(|l| l.contains("audit") && l.contains("role=viewer") && l.contains("refused")),
+        "no audit line for the viewer's write:\n{output}"
+    );
     gw.terminate(Duration::from_secs(10));
 }

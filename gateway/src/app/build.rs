@@ -91,9 +91,8 @@ pub(crate) fn master_line(
             };
             (master, &m.devices)
         }
-        ProtocolConfig::ModbusSlaveRtu(_)
-        | ProtocolConfig::Proc3964(_)
-        | ProtocolConfig::Ascii(_) => return None,
+        // Every other protocol: not a master line.
+        _ => return None,
     };
     settings.master = master;
     settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
@@ -104,27 +103,11 @@ pub(crate) fn master_line(
     Some((settings, devices))
 }
 
-fn table(t: ModbusTable) -> Table {
-    match t {
-        ModbusTable::Holding => Table::HoldingRegisters,
-        ModbusTable::Input => Table::InputRegisters,
-        ModbusTable::Coil => Table::Coils,
-        ModbusTable::Discrete => Table::DiscreteInputs,
-    }
-}
-
 /// A polled device: its limits, and its poll groups split by table (a config group may mix
 /// tables; a runtime group reads one table), tag names resolved to their addresses.
 pub(crate) fn device_settings(name: &str, device: &DeviceConfig) -> DeviceSettings {
     let mut settings = DeviceSettings::new(name, device.address, device.unit_id);
-    let l = device.limits;
-    settings.limits = DeviceLimits {
-        max_read_regs: l.read_registers,
-        max_write_regs: l.write_registers,
-        max_read_bits: l.read_bits,
-        max_write_bits: l.write_bits,
-        bridge_gap: device.bridge_gap,
-    };
+    settings.limits = DeviceLimits::from_request(device.limits, device.bridge_gap);
     settings.backoff_min = device.offline_backoff_min;
     settings.backoff_max = device.offline_backoff_max;
     settings.probe = ProbeSettings {
@@ -134,13 +117,13 @@ pub(crate) fn device_settings(name: &str, device: &DeviceConfig) -> DeviceSettin
     for group in &device.poll {
         let mut by_table: BTreeMap<Table, Vec<AddrRange>> = BTreeMap::new();
         for range in &group.ranges {
-            push_range(&mut by_table, table(range.table), range.start, range.count);
+            push_range(&mut by_table, range.table.into(), range.start, range.count);
         }
         for tag in &group.tags {
             if let Some(t) = device.tags.iter().find(|t| &t.name == tag) {
                 push_range(
                     &mut by_table,
-                    table(t.table),
+                    t.table.into(),
                     t.address,
                     t.data_type.width(),
                 );
@@ -180,20 +163,9 @@ fn push_range(
 
 /// Table, address and width of a profile's named tag.
 fn profile_tag(profile: config::Profile, name: &str) -> Option<(Table, u16, u32)> {
-    use proto_core::profiles::{DeviceProfile, Table as T};
-    let profile = match profile {
-        config::Profile::Altivar71 => DeviceProfile::altivar71(),
-        config::Profile::Ksvario => DeviceProfile::ksvario(),
-        config::Profile::Generic => return None,
-    };
+    let profile = profile.device_profile()?;
     let tag = profile.tag(name)?;
-    let table = match tag.table {
-        T::Coils => Table::Coils,
-        T::DiscreteInputs => Table::DiscreteInputs,
-        T::InputRegisters => Table::InputRegisters,
-        T::HoldingRegisters => Table::HoldingRegisters,
-    };
-    Some((table, tag.address, u32::from(tag.words())))
+    Some((tag.table, tag.address, u32::from(tag.words())))
 }
 
 /// The Modbus TCP write policy of the config (`None`: every address of every unit is writable).

@@ -110,7 +110,6 @@ fn endpoint_is_loopback(endpoint: &str) -> bool {
             .is_ok_and(|ip| ip.is_loopback())
 }
 
-
 /// What [`check_command`] prints, and its exit code.
 pub fn check_report(path: &Path) -> (String, i32) {
     match load_config(path) {

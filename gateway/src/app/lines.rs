@@ -7,73 +7,22 @@
 use proto_core::cpmem::AddressMap;
 use std::sync::{Arc, Mutex, PoisonError};
 
-use tokio::sync::broadcast;
 use tokio_util::sync::CancellationToken;
 
 use super::{build, AppError};
 use crate::config::{Config, LineConfig, ProtocolConfig};
 use crate::cpmem::{self, SharedCpMemory};
 use crate::image::ProcessImage;
-use crate::line::telegram::{TelegramLineHandle, TelegramLineSettings};
-use crate::line::{self, LineEvent, LineHandle, LineStatus, SlaveLineHandle, SlaveLineSettings};
+use crate::line::telegram::TelegramLineSettings;
+use crate::line::{self, LineHandle, SlaveLineSettings};
 use crate::metrics::Metrics;
 use crate::unit::UnitService;
-
-/// The task of a line, by protocol.
-#[derive(Clone, Debug)]
-pub(crate) enum LineKind {
-    /// Modbus master RTU or ASCII.
-    Master(LineHandle),
-    /// Modbus slave RTU over the CP memory.
-    Slave(SlaveLineHandle),
-    /// 3964(R) or ASCII telegrams.
-    Telegram(TelegramLineHandle),
-}
-
-// === impl LineKind ===
-
-impl LineKind {
-    /// Port, diagnostic buffer, counters, STATUS word, devices.
-    pub(crate) fn status(&self) -> LineStatus {
-        match self {
-            Self::Master(h) => h.status(),
-            Self::Slave(h) => h.status(),
-            Self::Telegram(h) => h.status().line,
-        }
-    }
-
-    /// Empties the line's diagnostic buffer.
-    pub(crate) fn clear_diagnostics(&self) {
-        match self {
-            Self::Master(h) => h.clear_diagnostics(),
-            Self::Slave(h) => h.clear_diagnostics(),
-            Self::Telegram(h) => h.clear_diagnostics(),
-        }
-    }
-
-    /// The line's events as they happen.
-    pub(crate) fn subscribe_events(&self) -> broadcast::Receiver<LineEvent> {
-        match self {
-            Self::Master(h) => h.subscribe_events(),
-            Self::Slave(h) => h.subscribe_events(),
-            Self::Telegram(h) => h.subscribe_events(),
-        }
-    }
-
-    /// Waits for the task to end (after its token was cancelled).
-    pub(crate) async fn join(self) {
-        match self {
-            Self::Master(h) => h.join().await,
-            Self::Slave(h) => h.join().await,
-            Self::Telegram(h) => h.join().await,
-        }
-    }
-}
 
 /// A running line and what it registered.
 #[derive(Clone)]
 pub(crate) struct RunningLine {
-    pub(crate) kind: LineKind,
+    /// The line's task: status, events, capabilities.
+    pub(crate) handle: LineHandle,
     /// Cancels this line only (a child of the gateway's lines token).
     pub(crate) token: CancellationToken,
     /// The config's protocol name (`modbus-master-rtu`, `3964r`, ...).
@@ -89,7 +38,7 @@ pub(crate) struct RunningLine {
 impl std::fmt::Debug for RunningLine {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("RunningLine")
-            .field("kind", &self.kind)
+            .field("handle", &self.handle)
             .field("protocol", &self.protocol)
             .field("port", &self.port)
             .field(
@@ -124,23 +73,12 @@ pub(crate) fn start_line(
     let token = deps.parent.child_token();
     let config = deps.config;
     let protocol = line.protocol.kind().as_str();
-    let mut units: Vec<(u8, Arc<dyn UnitService>)> = Vec::new();
-    let mut mirror = None;
-    let kind = match &line.protocol {
+    let handle = match &line.protocol {
         ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => {
             let (mut settings, devices) = build::master_line(name, line, config)
                 .ok_or_else(|| AppError::Setup(format!("line {name}: not a Modbus master")))?;
             settings.metrics = Some(deps.metrics.clone());
-            let handle = line::spawn_modbus_master_line(
-                settings,
-                devices,
-                deps.image.clone(),
-                token.clone(),
-            );
-            for (unit, device) in handle.device_units() {
-                units.push((unit, Arc::new(device)));
-            }
-            LineKind::Master(handle)
+            line::spawn_modbus_master_line(settings, devices, deps.image.clone(), token.clone())
         }
         ProtocolConfig::ModbusSlaveRtu(cfg) => {
             let memory = deps
@@ -155,18 +93,8 @@ pub(crate) fn start_line(
                 SlaveLineSettings::new(name.to_owned(), build::port_settings(&line.serial), params);
             settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
             settings.metrics = Some(deps.metrics.clone());
-            let handle = line::spawn_modbus_slave_line(settings, memory.clone(), token.clone());
-            if let Some(unit) = cfg.unit_id {
-                units.push((unit, Arc::new(handle.unit())));
-                let key = (unit, handle.map().clone());
-                let mut mirrored = deps.mirrored.lock().unwrap_or_else(PoisonError::into_inner);
-                if !mirrored.contains(&key) {
-                    memory.mirror_to(deps.image.clone(), unit, handle.map().clone());
-                    mirrored.push(key.clone());
-                }
-                mirror = Some(key);
-            }
-            LineKind::Slave(handle)
+            settings.unit_id = cfg.unit_id;
+            line::spawn_modbus_slave_line(settings, memory.clone(), token.clone())
         }
         ProtocolConfig::Proc3964(_) | ProtocolConfig::Ascii(_) => {
             let port = build::port_settings(&line.serial);
@@ -174,19 +102,26 @@ pub(crate) fn start_line(
                 .map_err(|e| AppError::Setup(format!("line {name}: {e}")))?;
             settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
             settings.metrics = Some(deps.metrics.clone());
-            let handle = line::telegram::spawn_telegram_line(settings, token.clone());
-            if let Some(unit) = line.unit_id() {
-                units.push((unit, Arc::new(handle.mailbox_unit())));
-            }
-            LineKind::Telegram(handle)
+            line::telegram::spawn_telegram_line(settings, token.clone())
         }
     };
+    // The CP memory a slave line serves is mirrored into the image under its unit id, once.
+    let mirror = handle.cp_memory().and_then(|view| {
+        let key = (view.unit_id?, view.map.clone());
+        let mut mirrored = deps.mirrored.lock().unwrap_or_else(PoisonError::into_inner);
+        if !mirrored.contains(&key) {
+            view.memory
+                .mirror_to(deps.image.clone(), key.0, view.map.clone());
+            mirrored.push(key.clone());
+        }
+        Some(key)
+    });
     Ok(RunningLine {
-        kind,
+        units: handle.units(),
+        handle,
         token,
         protocol,
         port: line.serial.port.clone(),
-        units,
         mirror,
     })
 }

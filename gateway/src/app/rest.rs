@@ -15,14 +15,16 @@ use crate::api::model::{
 };
 use crate::api::{ApiBackend, ApiError, BoxFuture};
 use crate::config::{Config, ConfigIssue};
-use crate::line::telegram::{TelegramLineHandle, TelegramSendError};
+use crate::line::telegram::TelegramSendError;
+use crate::line::LineHandle;
 use crate::signals::{Output, SignalError};
 use crate::tags::TagEntry;
 
-use super::lines::{LineKind, RunningLine};
-use super::status::{self, line_view};
+use super::lines::RunningLine;
+use super::status::line_view;
 use super::supervisor::{Snapshot, Supervisor};
 use super::tag_io::{self, WriteRefused};
+use crate::audit::{self, WritePath, WriteResult};
 
 /// The API's view of the running gateway.
 pub(crate) struct RestBackend {
@@ -43,27 +45,21 @@ impl RestBackend {
             .ok_or_else(|| ApiError::not_found("line", line))
     }
 
-    fn telegram_line(snapshot: &Snapshot, line: &str) -> Result<TelegramLineHandle, ApiError> {
-        match &Self::line(snapshot, line)?.kind {
-            LineKind::Telegram(h) => Ok(h.clone()),
-            LineKind::Master(_) | LineKind::Slave(_) => Err(ApiError::conflict(format!(
+    /// What `get` finds on a telegram line; a conflict on a line that carries no telegrams.
+    fn telegram_line<T>(
+        snapshot: &Snapshot,
+        line: &str,
+        get: impl FnOnce(&LineHandle) -> Option<T>,
+    ) -> Result<T, ApiError> {
+        get(&Self::line(snapshot, line)?.handle).ok_or_else(|| {
+            ApiError::conflict(format!(
                 "line {line} is a Modbus line: it carries no telegrams (3964(R) and ASCII lines do)"
-            ))),
-        }
+            ))
+        })
     }
 
-    fn view(
-        &self,
-        name: &str,
-        line: &RunningLine,
-        wire: &status::WireCountersByLine,
-    ) -> LineStatusView {
-        let counts = wire
-            .get(name)
-            .copied()
-            .unwrap_or_default()
-            .since(self.sup.baseline(name));
-        line_view(name, line, &line.kind.status(), counts)
+    fn view(name: &str, line: &RunningLine) -> LineStatusView {
+        line_view(name, line, &line.handle.status(), line.handle.traffic())
     }
 
     /// A tag's value from the image; `None` while its registers are not in the image.
@@ -160,11 +156,10 @@ impl ApiBackend for RestBackend {
 
     fn gateway_status(&self) -> GatewayStatus {
         let snapshot = self.sup.snapshot();
-        let wire = status::wire_counters(&self.sup.exported.registry);
         let lines = snapshot
             .lines
             .iter()
-            .map(|(name, line)| self.view(name, line, &wire))
+            .map(|(name, line)| Self::view(name, line))
             .collect();
         let (listen, up) = self.sup.tcp_listen();
         let stats = &self.sup.tcp_stats;
@@ -208,13 +203,12 @@ impl ApiBackend for RestBackend {
     fn line_status(&self, line: &str) -> Result<LineStatusView, ApiError> {
         let snapshot = self.sup.snapshot();
         let running = Self::line(&snapshot, line)?;
-        let wire = status::wire_counters(&self.sup.exported.registry);
-        Ok(self.view(line, running, &wire))
+        Ok(Self::view(line, running))
     }
 
     fn diag(&self, line: &str) -> Result<DiagSnapshot, ApiError> {
         let snapshot = self.sup.snapshot();
-        let status = Self::line(&snapshot, line)?.kind.status();
+        let status = Self::line(&snapshot, line)?.handle.status();
         Ok(DiagSnapshot {
             depth: usize::from(snapshot.config.gateway.diag_buffer_depth),
             entries: status
@@ -229,13 +223,12 @@ impl ApiBackend for RestBackend {
         let snapshot = self.sup.snapshot();
         // The line's own buffer is emptied: an event that comes again starts a new entry with a
         // count of 1, not the count it had before the clear.
-        Self::line(&snapshot, line)?.kind.clear_diagnostics();
+        Self::line(&snapshot, line)?.handle.clear_diagnostics();
         Ok(())
     }
 
     fn telegrams(&self, line: &str) -> Result<TelegramQueue, ApiError> {
-        let handle = Self::telegram_line(&self.sup.snapshot(), line)?;
-        let mailbox = handle.mailbox();
+        let mailbox = Self::telegram_line(&self.sup.snapshot(), line, LineHandle::mailbox)?;
         Ok(TelegramQueue {
             line: line.to_owned(),
             capacity: mailbox.settings().queue_depth,
@@ -249,8 +242,7 @@ impl ApiBackend for RestBackend {
     }
 
     fn ack_telegram(&self, line: &str, seq: u32) -> Result<(), ApiError> {
-        let handle = Self::telegram_line(&self.sup.snapshot(), line)?;
-        let mailbox = handle.mailbox();
+        let mailbox = Self::telegram_line(&self.sup.snapshot(), line, LineHandle::mailbox)?;
         let waiting = mailbox.waiting();
         let Some(seq16) = u16::try_from(seq)
             .ok()
@@ -271,9 +263,9 @@ impl ApiBackend for RestBackend {
         line: &str,
         data: Vec<u8>,
     ) -> BoxFuture<'_, Result<SendResult, ApiError>> {
-        let handle = Self::telegram_line(&self.sup.snapshot(), line);
+        let client = Self::telegram_line(&self.sup.snapshot(), line, LineHandle::telegram_client);
         Box::pin(async move {
-            let client = handle?.client();
+            let client = client?;
             let len = data.len();
             match client.send(data).await {
                 Ok(()) => Ok(SendResult::done(len)),
@@ -343,12 +335,35 @@ impl ApiBackend for RestBackend {
             )
             .map_err(refused)
         });
+        let target = format!("{line}/{device}/{tag} = {}", value.as_f64());
+        let metrics = Some(&self.sup.exported.metrics);
+        let audit = move |result, detail: &dyn std::fmt::Display| {
+            audit::record(
+                metrics,
+                WritePath::Rest,
+                &"REST API",
+                &target,
+                result,
+                detail,
+            );
+        };
+        let write = match prepared {
+            Ok(write) => write,
+            Err(e) => {
+                audit(WriteResult::Refused, &e.message());
+                return Box::pin(async move { Err(e) });
+            }
+        };
         let (line, device) = (line.to_owned(), device.to_owned());
+        let name = write.entry.tag.name.clone();
         Box::pin(async move {
-            let write = prepared?;
-            let name = write.entry.tag.name.clone();
-            write.service.call(write.request).await?;
-            tracing::info!(%line, %device, tag = %name, value = value.as_f64(), "tag written");
+            match write.service.call(write.request).await {
+                Ok(_) => audit(WriteResult::Accepted, &"ok"),
+                Err(code) => {
+                    audit(WriteResult::Failed, &format_args!("{code:?}"));
+                    return Err(code.into());
+                }
+            }
             self.read_tag(&line, &device, &name).await
         })
     }
@@ -386,7 +401,7 @@ impl ApiBackend for RestBackend {
                 .iter()
                 .map(|(n, l)| {
                     let opened =
-                        l.kind.status().port_opens > 0 || self.sup.opened_before(n, &l.port);
+                        l.handle.status().port_opens > 0 || self.sup.opened_before(n, &l.port);
                     (n.clone(), opened)
                 })
                 .collect(),
@@ -405,11 +420,13 @@ impl ApiBackend for RestBackend {
 impl RestBackend {
     fn signals_client(&self, line: &str) -> Result<crate::line::telegram::SignalsClient, ApiError> {
         let snapshot = self.sup.snapshot();
-        match &Self::line(&snapshot, line)?.kind {
-            LineKind::Telegram(h) => Ok(h.signals()),
-            LineKind::Master(_) | LineKind::Slave(_) => Err(ApiError::conflict(format!(
-                "line {line}: the RS232 signals are served on 3964(R) and ASCII lines only"
-            ))),
-        }
+        Self::line(&snapshot, line)?
+            .handle
+            .signals()
+            .ok_or_else(|| {
+                ApiError::conflict(format!(
+                    "line {line}: the RS232 signals are served on 3964(R) and ASCII lines only"
+                ))
+            })
     }
 }

@@ -25,16 +25,16 @@ use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
 use super::lines::{self, LineDeps, RunningLine};
-use super::status::{self, WireCounters};
 use super::{server_options, AppError, MetricsRegistry, Overrides, GRACE_PERIOD};
 use crate::api::model::ApplyReport;
-use crate::api::{ApiError, ConfigDiff};
+use crate::api::{ApiError, BoxFuture, ConfigDiff};
 use crate::config::{Config, ConfigIssue, ProtocolConfig};
 use crate::cpmem::{self, SharedCpMemory};
 use crate::image::{ImageConfig, ProcessImage};
 use crate::modbus_tcp::{self, ServerOptions, ServerStats, SharedUnits};
 use crate::tags::TagDirectory;
 use crate::unit::UnitMap;
+use crate::zenoh_bridge::BridgeStats;
 use proto_core::cpmem::AddressMap;
 
 /// What is in force: read as a whole, replaced as a whole.
@@ -45,6 +45,30 @@ pub(crate) struct Snapshot {
     pub(crate) tags: Arc<TagDirectory>,
     /// The Modbus TCP server's options (its write checks apply to REST and zenoh writes too).
     pub(crate) server: ServerOptions,
+}
+
+/// What status and readiness show of zenoh.
+#[derive(Clone)]
+pub(crate) struct ZenohState {
+    /// The running bridge's counters; `None` while it is down.
+    pub(crate) stats: Option<Arc<BridgeStats>>,
+    /// `peer` or `client`.
+    pub(crate) mode: &'static str,
+}
+
+/// A server that follows the running lines (the zenoh bridge): told when lines start after a
+/// configuration change, when the gateway's name changes, and when the gateway stops.
+pub(crate) trait Follower: Send + Sync + 'static {
+    /// Lines `names` of `snapshot` started.
+    fn lines_started<'a>(
+        &'a self,
+        snapshot: &'a Snapshot,
+        names: &'a [String],
+    ) -> BoxFuture<'a, ()>;
+    /// The gateway's name changed: restarts under the new one; whether it runs again.
+    fn renamed<'a>(&'a self, sup: &'a Arc<Supervisor>) -> BoxFuture<'a, bool>;
+    /// The gateway stops.
+    fn stop<'a>(&'a self, sup: &'a Supervisor) -> BoxFuture<'a, ()>;
 }
 
 /// The running Modbus TCP server.
@@ -84,12 +108,10 @@ pub(crate) struct Supervisor {
     /// The address the Modbus TCP server listens on and whether it is up.
     tcp_state: Mutex<(SocketAddr, Arc<AtomicBool>)>,
     pub(crate) tcp_stats: Arc<ServerStats>,
-    /// The zenoh bridge, when one runs.
-    pub(crate) zenoh: tokio::sync::Mutex<Option<super::zenoh::ZenohRun>>,
+    /// What follows the lines besides the supervisor (the zenoh bridge), once it started.
+    follower: std::sync::OnceLock<Arc<dyn Follower>>,
     /// What status and readiness show of zenoh; `None` when it is not configured.
-    pub(crate) zenoh_state: Mutex<Option<super::zenoh::ZenohState>>,
-    /// Per line: the Prometheus frame and byte counts when the line started.
-    baselines: Mutex<BTreeMap<String, WireCounters>>,
+    pub(crate) zenoh_state: Mutex<Option<ZenohState>>,
     /// Lines (name, port) whose port was opened by an earlier task of the line, before a
     /// configuration change restarted it: readiness does not wait for the new task to reopen
     /// the same port.
@@ -117,9 +139,7 @@ impl Supervisor {
         };
         let lines_token = shutdown.child_token();
         let mirrored = Mutex::new(Vec::new());
-        let baselines_now = status::wire_counters(&exported.registry);
         let mut lines = BTreeMap::new();
-        let mut baselines = BTreeMap::new();
         {
             let deps = LineDeps {
                 config: &config,
@@ -133,8 +153,6 @@ impl Supervisor {
                 match lines::start_line(name, line, &deps) {
                     Ok(running) => {
                         lines.insert(name.clone(), running);
-                        let base = baselines_now.get(name).copied().unwrap_or_default();
-                        baselines.insert(name.clone(), base);
                     }
                     Err(e) => {
                         lines_token.cancel();
@@ -182,9 +200,8 @@ impl Supervisor {
             tcp: tokio::sync::Mutex::new(None),
             tls: tokio::sync::Mutex::new(tls),
             tcp_state: Mutex::new((addr, Arc::new(AtomicBool::new(false)))),
-            zenoh: tokio::sync::Mutex::new(None),
+            follower: std::sync::OnceLock::new(),
             zenoh_state: Mutex::new(None),
-            baselines: Mutex::new(baselines),
             opened_before: Mutex::new(BTreeSet::new()),
         });
         if let Some(listener) = listener {
@@ -194,6 +211,11 @@ impl Supervisor {
                 .map_err(|_| AppError::Setup("Modbus TCP state busy".into()))? = Some(server);
         }
         Ok(sup)
+    }
+
+    /// Registers what follows the lines (once; a second one is refused and returned).
+    pub(crate) fn follow(&self, follower: Arc<dyn Follower>) -> Result<(), Arc<dyn Follower>> {
+        self.follower.set(follower)
     }
 
     /// What is in force now.
@@ -223,11 +245,6 @@ impl Supervisor {
     /// Whether plain Modbus TCP is as it should be for readiness: up, or switched off.
     pub(crate) fn tcp_ready(&self) -> bool {
         !self.snapshot().config.modbus_tcp.enabled || self.tcp_listen().1
-    }
-
-    /// The Prometheus frame and byte counts of `line` at its start.
-    pub(crate) fn baseline(&self, line: &str) -> WireCounters {
-        lock(&self.baselines).get(line).copied().unwrap_or_default()
     }
 
     /// Binds the listener's server task under its own token.
@@ -344,7 +361,7 @@ impl Supervisor {
                 let mut opened = lock(&self.opened_before);
                 let known = opened.contains(&key);
                 opened.retain(|(line_name, _)| line_name != name);
-                if new.lines.contains_key(name) && (known || line.kind.status().port_opens > 0) {
+                if new.lines.contains_key(name) && (known || line.handle.status().port_opens > 0) {
                     opened.insert(key);
                 }
             }
@@ -367,7 +384,6 @@ impl Supervisor {
                     .is_some_and(|l| l.protocol.kind().as_str() == protocol);
                 if !same_protocol {
                     self.exported.metrics.forget_line(name, protocol);
-                    lock(&self.baselines).remove(name);
                 }
             }
         }
@@ -384,15 +400,12 @@ impl Supervisor {
                 parent: &self.lines_token,
                 mirrored: &self.mirrored,
             };
-            let counts = status::wire_counters(&self.exported.registry);
             for name in diff.lines_added.iter().chain(&restart) {
                 let Some(line) = new.lines.get(name) else {
                     continue;
                 };
                 match lines::start_line(name, line, &deps) {
                     Ok(running) => {
-                        let base = counts.get(name).copied().unwrap_or_default();
-                        lock(&self.baselines).insert(name.clone(), base);
                         info!(line = %name, port = %running.port, "line started");
                         lines.insert(name.clone(), running);
                         started.push(name.clone());
@@ -439,7 +452,9 @@ impl Supervisor {
             lines,
         });
         *self.state.write().unwrap_or_else(PoisonError::into_inner) = Arc::clone(&snapshot);
-        super::zenoh::lines_started(self, &snapshot, &started).await;
+        if let Some(follower) = self.follower.get() {
+            follower.lines_started(&snapshot, &started).await;
+        }
 
         report.servers_restarted.clear();
         if diff.modbus_tcp_changed {
@@ -455,7 +470,11 @@ impl Supervisor {
                 failures.push(e);
             }
         }
-        if diff.name_changed && super::zenoh::restart(self).await {
+        let renamed = match self.follower.get() {
+            Some(follower) if diff.name_changed => follower.renamed(self).await,
+            _ => false,
+        };
+        if renamed {
             report.servers_restarted.push("zenoh".into());
         }
         if failures.is_empty() {
@@ -553,12 +572,14 @@ impl Supervisor {
             server.token.cancel();
         }
         let tls = self.tls.lock().await.take();
-        super::zenoh::stop(self).await;
+        if let Some(follower) = self.follower.get() {
+            follower.stop(self).await;
+        }
         if let Some(tls) = tls {
             tls.stop().await;
         }
         for (_, line) in self.snapshot().lines.clone() {
-            line.kind.join().await;
+            line.handle.join().await;
         }
         if let Some(server) = tcp {
             let _ = server.task.await;
@@ -574,7 +595,7 @@ impl Supervisor {
 /// Cancels a line and waits (bounded) for its task, which closes its port.
 async fn stop_line(name: &str, line: RunningLine) {
     line.token.cancel();
-    if tokio::time::timeout(GRACE_PERIOD, line.kind.join())
+    if tokio::time::timeout(GRACE_PERIOD, line.handle.join())
         .await
         .is_err()
     {

@@ -9,7 +9,7 @@ use std::sync::{Arc, PoisonError};
 use std::time::SystemTime;
 
 use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
-use proto_core::profiles;
+use proto_core::modbus::Table;
 
 use super::supervisor::Snapshot;
 use crate::modbus_tcp::SharedUnits;
@@ -87,10 +87,10 @@ pub(crate) fn read_request(entry: &TagEntry) -> Request {
     let address = entry.tag.address;
     let quantity = entry.tag.data_type.words();
     match entry.tag.table {
-        profiles::Table::Coils => Request::ReadCoils { address, quantity },
-        profiles::Table::DiscreteInputs => Request::ReadDiscreteInputs { address, quantity },
-        profiles::Table::InputRegisters => Request::ReadInputRegisters { address, quantity },
-        profiles::Table::HoldingRegisters => Request::ReadHoldingRegisters { address, quantity },
+        Table::Coils => Request::ReadCoils { address, quantity },
+        Table::DiscreteInputs => Request::ReadDiscreteInputs { address, quantity },
+        Table::InputRegisters => Request::ReadInputRegisters { address, quantity },
+        Table::HoldingRegisters => Request::ReadHoldingRegisters { address, quantity },
     }
 }
 
@@ -107,18 +107,10 @@ pub(crate) fn reading_from(entry: &TagEntry, response: &Response) -> Option<TagR
     let want = usize::from(entry.tag.data_type.words());
     let words = words.get(..want)?;
     let (value, quality) = entry.profile.decode(&entry.tag, words);
-    let quality = match quality {
-        profiles::Quality::Good => "good",
-        profiles::Quality::Stale => "stale",
-        profiles::Quality::NotDefined => "not_defined",
-        profiles::Quality::Off => "off",
-        profiles::Quality::OutOfRange => "out_of_range",
-        profiles::Quality::CommFailure => "comm_failure",
-    };
     Some(TagReading {
         value,
         unit: entry.tag.unit.clone(),
-        quality,
+        quality: quality.as_str(),
         timestamp: SystemTime::now(),
     })
 }

@@ -6,6 +6,7 @@
 //! telegrams) run under that line's token and stop with it; a line started later gets its own.
 //! A write from zenoh takes the same path and checks as a Modbus TCP write ([`super::tag_io`]).
 
+use crate::audit::{self, WritePath, WriteResult};
 use std::collections::BTreeSet;
 use std::sync::{Arc, PoisonError, Weak};
 use std::time::Duration;
@@ -17,34 +18,51 @@ use tokio::sync::broadcast::error::RecvError;
 use tokio_util::sync::CancellationToken;
 use tracing::{debug, info, warn};
 
-use super::lines::{LineKind, RunningLine};
-use super::supervisor::{Snapshot, Supervisor};
+use super::lines::RunningLine;
+use super::supervisor::{Follower, Snapshot, Supervisor, ZenohState};
 use super::tag_io;
 use super::AppError;
+use crate::api::BoxFuture;
 use crate::image::ProcessImage;
 use crate::line::{LineEvent, LineStatus};
 use crate::tags::{TagDirectory, TagEntry, TagWriteError};
 use crate::zenoh_bridge::{
-    BackendFuture, Bridge, BridgeBackend, BridgeHandle, BridgeStats, TagValue, ZenohConfig,
+    BackendFuture, Bridge, BridgeBackend, BridgeHandle, BridgeStats, DropReason, TagValue,
+    ZenohConfig,
 };
 
 /// How often device presence is compared with the last published state.
 const PRESENCE_PERIOD: Duration = Duration::from_millis(500);
 
 /// A running bridge.
-pub(crate) struct ZenohRun {
+struct ZenohRun {
     bridge: Bridge,
     handle: BridgeHandle,
     token: CancellationToken,
 }
 
-/// What status and readiness show of zenoh.
-#[derive(Clone)]
-pub(crate) struct ZenohState {
-    /// The running bridge's counters; `None` while it is down.
-    pub(crate) stats: Option<Arc<BridgeStats>>,
-    /// `peer` or `client`.
-    pub(crate) mode: &'static str,
+/// The bridge as the supervisor's follower: it holds the running bridge, if any.
+#[derive(Default)]
+struct ZenohFollower {
+    run: tokio::sync::Mutex<Option<ZenohRun>>,
+}
+
+impl Follower for ZenohFollower {
+    fn lines_started<'a>(
+        &'a self,
+        snapshot: &'a Snapshot,
+        names: &'a [String],
+    ) -> BoxFuture<'a, ()> {
+        Box::pin(lines_started(self, snapshot, names))
+    }
+
+    fn renamed<'a>(&'a self, sup: &'a Arc<Supervisor>) -> BoxFuture<'a, bool> {
+        Box::pin(restart(self, sup))
+    }
+
+    fn stop<'a>(&'a self, sup: &'a Supervisor) -> BoxFuture<'a, ()> {
+        Box::pin(stop(self, sup))
+    }
 }
 
 /// The bridge's session settings: the command line's endpoint, or the config's `[zenoh]`;
@@ -66,8 +84,20 @@ fn session_config(sup: &Supervisor, snapshot: &Snapshot) -> Result<Option<ZenohC
 }
 
 /// Starts the bridge when the config has a `[zenoh]` section (or the command line names an
-/// endpoint), with its feeds.
+/// endpoint), with its feeds, and makes it follow the supervisor's lines.
 pub(crate) async fn start(sup: &Arc<Supervisor>) -> Result<(), AppError> {
+    let follower = Arc::new(ZenohFollower::default());
+    open(&follower, sup).await?;
+    if sup.follow(follower).is_err() {
+        return Err(AppError::Setup(
+            "zenoh: the bridge was started twice".into(),
+        ));
+    }
+    Ok(())
+}
+
+/// Opens the session and starts the feeds.
+async fn open(follower: &ZenohFollower, sup: &Arc<Supervisor>) -> Result<(), AppError> {
     let snapshot = sup.snapshot();
     let Some(cfg) = session_config(sup, &snapshot)? else {
         info!("no [zenoh] section: the gateway joins no zenoh fabric");
@@ -82,11 +112,12 @@ pub(crate) async fn start(sup: &Arc<Supervisor>) -> Result<(), AppError> {
     let backend = ZenohBackend {
         sup: Arc::downgrade(sup),
     };
-    let (bridge, handle) = Bridge::start(
+    let (bridge, handle) = Bridge::start_counted(
         cfg,
         &snapshot.config.gateway.name,
         Arc::new(backend),
         token.clone(),
+        BridgeStats::with_metrics(sup.exported.metrics.clone()),
     )
     .await
     .map_err(|e| AppError::Setup(format!("zenoh: {e}")))?;
@@ -106,7 +137,7 @@ pub(crate) async fn start(sup: &Arc<Supervisor>) -> Result<(), AppError> {
         stats: Some(Arc::clone(bridge.stats())),
         mode,
     });
-    *sup.zenoh.lock().await = Some(ZenohRun {
+    *follower.run.lock().await = Some(ZenohRun {
         bridge,
         handle,
         token,
@@ -115,8 +146,8 @@ pub(crate) async fn start(sup: &Arc<Supervisor>) -> Result<(), AppError> {
 }
 
 /// Stops the bridge: pending publications sent, tokens undeclared, session closed.
-pub(crate) async fn stop(sup: &Supervisor) {
-    let run = sup.zenoh.lock().await.take();
+async fn stop(follower: &ZenohFollower, sup: &Supervisor) {
+    let run = follower.run.lock().await.take();
     if let Some(run) = run {
         run.token.cancel();
         run.bridge.join().await;
@@ -133,12 +164,12 @@ pub(crate) async fn stop(sup: &Supervisor) {
 
 /// Restarts a running bridge under the gateway's new name (its key prefix); whether it runs
 /// again.
-pub(crate) async fn restart(sup: &Arc<Supervisor>) -> bool {
-    if sup.zenoh.lock().await.is_none() {
+async fn restart(follower: &ZenohFollower, sup: &Arc<Supervisor>) -> bool {
+    if follower.run.lock().await.is_none() {
         return false;
     }
-    stop(sup).await;
-    match start(sup).await {
+    stop(follower, sup).await;
+    match open(follower, sup).await {
         Ok(()) => true,
         Err(e) => {
             warn!(error = %e, "zenoh did not restart");
@@ -148,8 +179,8 @@ pub(crate) async fn restart(sup: &Arc<Supervisor>) -> bool {
 }
 
 /// Starts the feeds of lines started by a configuration change.
-pub(crate) async fn lines_started(sup: &Supervisor, snapshot: &Snapshot, names: &[String]) {
-    let run = sup.zenoh.lock().await;
+async fn lines_started(follower: &ZenohFollower, snapshot: &Snapshot, names: &[String]) {
+    let run = follower.run.lock().await;
     let Some(run) = run.as_ref() else { return };
     for name in names {
         if let Some(line) = snapshot.lines.get(name) {
@@ -198,7 +229,7 @@ impl BridgeBackend for ZenohBackend {
         let sup = self.sup.upgrade()?;
         let snapshot = sup.snapshot();
         let running = snapshot.lines.get(line)?;
-        Some(status_json(&running.kind.status(), running.protocol))
+        Some(status_json(&running.handle.status(), running.protocol))
     }
 
     fn gateway_status(&self) -> Json {
@@ -209,7 +240,7 @@ impl BridgeBackend for ZenohBackend {
         let lines: Vec<Json> = snapshot
             .lines
             .values()
-            .map(|l| status_json(&l.kind.status(), l.protocol))
+            .map(|l| status_json(&l.handle.status(), l.protocol))
             .collect();
         json!({
             "name": snapshot.config.gateway.name,
@@ -219,13 +250,10 @@ impl BridgeBackend for ZenohBackend {
     }
 
     fn send_telegram(&self, line: &str, bytes: Vec<u8>) -> BackendFuture<Result<Json, String>> {
-        let client =
-            self.sup
-                .upgrade()
-                .and_then(|s| match s.snapshot().lines.get(line).map(|l| &l.kind) {
-                    Some(LineKind::Telegram(h)) => Some(h.client()),
-                    _ => None,
-                });
+        let client = self
+            .sup
+            .upgrade()
+            .and_then(|s| s.snapshot().lines.get(line)?.handle.telegram_client());
         let Some(client) = client else {
             let answer = Err(format!("line {line} does not send telegrams"));
             return Box::pin(async move { answer });
@@ -247,11 +275,36 @@ impl BridgeBackend for ZenohBackend {
         value: Json,
     ) -> BackendFuture<Result<Json, String>> {
         let prepared = self.prepare_write(line, device, tag, &value);
+        let metrics = self.sup.upgrade().map(|sup| sup.exported.metrics.clone());
+        let target = format!("{line}/{device}/{tag} = {value}");
+        let audit = move |result, detail: &dyn std::fmt::Display| {
+            audit::record(
+                metrics.as_ref(),
+                WritePath::Zenoh,
+                &"zenoh",
+                &target,
+                result,
+                detail,
+            );
+        };
         Box::pin(async move {
-            let (write, name) = prepared?;
+            let (write, name) = match prepared {
+                Ok(prepared) => prepared,
+                Err(e) => {
+                    audit(WriteResult::Refused, &e);
+                    return Err(e);
+                }
+            };
             match write.service.call(write.request).await {
-                Ok(_) => Ok(json!({ "tag": name, "written": value })),
-                Err(code) => Err(TagWriteError::Exception(code).to_string()),
+                Ok(_) => {
+                    audit(WriteResult::Accepted, &"ok");
+                    Ok(json!({ "tag": name, "written": value }))
+                }
+                Err(code) => {
+                    let e = TagWriteError::Exception(code).to_string();
+                    audit(WriteResult::Failed, &e);
+                    Err(e)
+                }
             }
         })
     }
@@ -366,6 +419,7 @@ fn spawn_feeds(sup: &Arc<Supervisor>, bridge: &BridgeHandle, token: &Cancellatio
                     }
                     Err(RecvError::Lagged(n)) => {
                         // The newest values follow; publishing skipped ones would be stale.
+                        bridge.stats().dropped_many(DropReason::FeedLagged, n);
                         debug!(
                             skipped = n,
                             "zenoh feed fell behind the image; newest values win"
@@ -391,11 +445,9 @@ fn spawn_feeds(sup: &Arc<Supervisor>, bridge: &BridgeHandle, token: &Cancellatio
             let Some(sup) = weak.upgrade() else { return };
             let mut now: BTreeSet<(String, String)> = BTreeSet::new();
             for line in sup.snapshot().lines.values() {
-                if let LineKind::Master(h) = &line.kind {
-                    let status = h.status();
-                    for d in status.devices.iter().filter(|d| d.online) {
-                        now.insert((status.name.clone(), d.name.clone()));
-                    }
+                let status = line.handle.status();
+                for d in status.devices.iter().filter(|d| d.online) {
+                    now.insert((status.name.clone(), d.name.clone()));
                 }
             }
             for key in online.difference(&now) {
@@ -417,7 +469,7 @@ fn spawn_line_feeds(
     line: &RunningLine,
     token: &CancellationToken,
 ) {
-    let mut events = line.kind.subscribe_events();
+    let mut events = line.handle.subscribe_events();
     {
         let bridge = bridge.clone();
         let (token, line_token) = (token.clone(), line.token.clone());
@@ -431,17 +483,17 @@ fn spawn_line_feeds(
                 match received {
                     Ok(e) => publish_event(&bridge, &e),
                     Err(RecvError::Lagged(n)) => {
-                        warn!(missed = n, "zenoh event feed fell behind a line")
+                        bridge.stats().dropped_many(DropReason::FeedLagged, n);
+                        warn!(missed = n, "zenoh event feed fell behind a line");
                     }
                     Err(RecvError::Closed) => return,
                 }
             }
         });
     }
-    let LineKind::Telegram(handle) = &line.kind else {
+    let Some(mut rx) = line.handle.subscribe_rx() else {
         return;
     };
-    let mut rx = handle.subscribe_rx();
     let bridge = bridge.clone();
     let (token, line_token) = (token.clone(), line.token.clone());
     let name = name.to_owned();
@@ -463,6 +515,7 @@ fn spawn_line_feeds(
                     }
                 }
                 Err(RecvError::Lagged(n)) => {
+                    bridge.stats().dropped_many(DropReason::FeedLagged, n);
                     warn!(line = %name, missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
                 }
                 Err(RecvError::Closed) => return,

@@ -1,8 +1,12 @@
 //! Devices polled by a Modbus master line: profile, addresses, request limits, back-off, tags and
-//! poll groups (SPEC "Device profiles", "Polling").
+//! poll groups. The profiles themselves, their limits and tags are proto-core's
+//! (`proto_core::profiles::registry`); the config names them and may only lower the limits.
 
 use std::time::Duration;
 
+use proto_core::modbus::Table;
+use proto_core::profiles::registry::{self, Registered};
+use proto_core::profiles::{DeviceProfile, ReadWriteLimits, RequestLimits};
 use serde::{Deserialize, Serialize};
 
 use super::reader::{check_name, int_value, string_value, Cx, Fields};
@@ -69,96 +73,97 @@ pub enum Profile {
     Generic,
 }
 
-/// How much one request may carry. A profile fixes the device's maximum; the config may only
-/// lower it. 0 means the device does not support the function.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-pub struct DeviceLimits {
-    /// Registers per FC 03/04 read.
-    pub read_registers: u16,
-    /// Registers per FC 16 write.
-    pub write_registers: u16,
-    /// Registers read by one FC 23.
-    pub rw_read_registers: u16,
-    /// Registers written by one FC 23.
-    pub rw_write_registers: u16,
-    /// Bits per FC 01/02 read.
-    pub read_bits: u16,
-    /// Bits per FC 15 write.
-    pub write_bits: u16,
+/// How much one request may carry: the profile's [`RequestLimits`], which the config may only
+/// lower (0 means the device does not support the function). Written back under the config's
+/// keys (`read_registers`, `write_registers`, `rw_read_registers`, `rw_write_registers`,
+/// `read_bits`, `write_bits`).
+fn serialize_limits<S: serde::Serializer>(l: &RequestLimits, s: S) -> Result<S::Ok, S::Error> {
+    use serde::ser::SerializeStruct;
+    let mut st = s.serialize_struct("RequestLimits", 6)?;
+    st.serialize_field("read_registers", &l.read_registers)?;
+    st.serialize_field("write_registers", &l.write_registers)?;
+    st.serialize_field("rw_read_registers", &rw_read(l))?;
+    st.serialize_field("rw_write_registers", &rw_write(l))?;
+    st.serialize_field("read_bits", &l.read_bits)?;
+    st.serialize_field("write_bits", &l.write_bits)?;
+    st.end()
+}
+
+/// Registers one FC 23 may read (0: no FC 23).
+fn rw_read(l: &RequestLimits) -> u16 {
+    l.read_write.map_or(0, |rw| rw.read)
+}
+
+/// Registers one FC 23 may write (0: no FC 23).
+fn rw_write(l: &RequestLimits) -> u16 {
+    l.read_write.map_or(0, |rw| rw.write)
 }
 
 // === impl Profile ===
 
 impl Profile {
-    /// The device's own limits.
-    pub fn max_limits(self) -> DeviceLimits {
+    /// The profile's entry in proto-core's registry, `None` for `generic`.
+    pub fn registered(self) -> Option<&'static Registered> {
+        registry::lookup(self.name())
+    }
+
+    /// The configuration's name of the profile (`altivar71`, `ksvario`, `generic`).
+    pub const fn name(self) -> &'static str {
         match self {
-            // 002 "Modbus-Funktionen": FC03 max. 63 words, FC16 max. 61, FC23 20 / 20; the
-            // drive serves no bit functions (codes 3, 6, 8, 16, 23, 43 only).
-            Self::Altivar71 => DeviceLimits {
-                read_registers: 63,
-                write_registers: 61,
-                rw_read_registers: 20,
-                rw_write_registers: 20,
-                read_bits: 0,
-                write_bits: 0,
-            },
-            // 001 3.1: "maximal 120 Integer- bzw. 60 Realdaten in einer Nachricht"; function
-            // codes 03, 04, 06, 08, 16 (no FC 23, no bit functions).
-            Self::Ksvario => DeviceLimits {
-                read_registers: 120,
-                write_registers: 120,
-                rw_read_registers: 0,
-                rw_write_registers: 0,
-                read_bits: 0,
-                write_bits: 0,
-            },
-            // Modbus Application Protocol V1.1b3: FC03/04 1..125 (6.3, 6.4), FC16 1..123
-            // (6.12), FC23 125 read / 121 write (6.17), FC01/02 1..2000 (6.1, 6.2), FC15 1..1968
-            // (6.11). The CP master itself goes to 127 registers / 2040 bits (003 6.4.3), but a
-            // device that follows the specification refuses more.
-            Self::Generic => DeviceLimits {
-                read_registers: 125,
-                write_registers: 123,
-                rw_read_registers: 125,
-                rw_write_registers: 121,
-                read_bits: 2000,
-                write_bits: 1968,
-            },
+            Self::Altivar71 => "altivar71",
+            Self::Ksvario => "ksvario",
+            Self::Generic => "generic",
         }
     }
 
-    /// The tables the device serves.
-    pub fn tables(self) -> &'static [ModbusTable] {
-        match self {
-            Self::Altivar71 => &[ModbusTable::Holding],
-            Self::Ksvario => &[ModbusTable::Holding, ModbusTable::Input],
-            Self::Generic => &[
-                ModbusTable::Holding,
-                ModbusTable::Input,
-                ModbusTable::Coil,
-                ModbusTable::Discrete,
-            ],
-        }
+    /// The register map of the device, `None` for `generic` (built from the config's tags).
+    pub fn device_profile(self) -> Option<DeviceProfile> {
+        self.registered().map(|r| (r.build)())
     }
 
-    /// Tag names the profile defines (lower-case mnemonics), which poll groups may name.
-    /// Altivar: the SPEC's list (ETA W3201, RFRD W8604, LCR W3204, OTR W3205, ULN W3207,
-    /// THD W3209, THR W9630, LFT W7121, CMD W8501, LFRD W8602, ACC W9001, DEC W9002) plus the
-    /// manual's example parameters SFr, tFr, HSP, LSP (W3102..W3105). The KS vario profile names
-    /// no tags yet: poll it by address ranges. Keep in step with `proto_core::profiles`.
-    pub fn tag_names(self) -> &'static [&'static str] {
-        match self {
-            Self::Altivar71 => &[
-                "eta", "rfrd", "lcr", "otr", "uln", "thd", "thr", "lft", "cmd", "lfrd", "acc",
-                "dec", "sfr", "tfr", "hsp", "lsp",
-            ],
-            Self::Ksvario | Self::Generic => &[],
-        }
+    /// The device's own limits: the profile's, or those of the Modbus Application Protocol
+    /// V1.1b3 for a generic device (the CP master itself goes to 127 registers / 2040 bits,
+    /// 003 6.4.4, but a device that follows the specification refuses more).
+    pub fn max_limits(self) -> RequestLimits {
+        self.registered()
+            .map_or(RequestLimits::MODBUS, |r| r.limits)
+    }
+
+    /// Where the limits come from, for messages.
+    fn limits_source(self) -> String {
+        self.registered().map_or_else(
+            || "Modbus Application Protocol V1.1b3".to_owned(),
+            |r| format!("the {} profile, {}", r.name, r.source),
+        )
+    }
+
+    /// The tables the device serves: those its profile's read functions reach (FC 01..04),
+    /// every table for a generic device.
+    pub fn tables(self) -> Vec<ModbusTable> {
+        let Some(profile) = self.device_profile() else {
+            return ModbusTable::ALL.to_vec();
+        };
+        ModbusTable::ALL
+            .into_iter()
+            .filter(|t| {
+                profile
+                    .functions
+                    .iter()
+                    .any(|f| Table::read_by(f.0) == Some(Table::from(*t)))
+            })
+            .collect()
+    }
+
+    /// Tag names the profile defines (lower case), which poll groups may name and the config's
+    /// own tags may not reuse.
+    pub fn tag_names(self) -> Vec<String> {
+        self.device_profile().map_or_else(Vec::new, |p| {
+            p.tags.iter().map(|t| t.name.to_ascii_lowercase()).collect()
+        })
     }
 }
 
-/// A Modbus data table.
+/// A Modbus data table as the configuration spells it; [`Table`] is the table itself.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ModbusTable {
@@ -173,9 +178,23 @@ pub enum ModbusTable {
 }
 
 impl ModbusTable {
+    /// Every table, holding registers first.
+    pub const ALL: [Self; 4] = [Self::Holding, Self::Input, Self::Coil, Self::Discrete];
+
     /// Registers (16-bit) rather than bits.
     pub fn is_register(self) -> bool {
         matches!(self, Self::Holding | Self::Input)
+    }
+}
+
+impl From<ModbusTable> for Table {
+    fn from(t: ModbusTable) -> Self {
+        match t {
+            ModbusTable::Holding => Self::HoldingRegisters,
+            ModbusTable::Input => Self::InputRegisters,
+            ModbusTable::Coil => Self::Coils,
+            ModbusTable::Discrete => Self::DiscreteInputs,
+        }
     }
 }
 
@@ -273,7 +292,8 @@ pub struct DeviceConfig {
     /// Unit id on Modbus TCP, 1..=255, unique in the gateway; defaults to `address`.
     pub unit_id: u8,
     /// Effective request limits: the profile's, lowered by the config.
-    pub limits: DeviceLimits,
+    #[serde(serialize_with = "serialize_limits")]
+    pub limits: RequestLimits,
     /// First wait after the device stopped answering.
     #[serde(with = "humantime_serde")]
     pub offline_backoff_min: Duration,
@@ -324,30 +344,35 @@ pub(crate) fn range_fields(cx: &mut Cx, f: &mut Fields<'_>) -> Option<AddressRan
     Some(r)
 }
 
-fn read_limits(cx: &mut Cx, f: &mut Fields<'_>, profile: Profile) -> DeviceLimits {
+fn read_limits(cx: &mut Cx, f: &mut Fields<'_>, profile: Profile) -> RequestLimits {
     let max = profile.max_limits();
     let Some(mut t) = f.table(cx, "limits") else {
         return max;
     };
-    let cite = match profile {
-        Profile::Altivar71 => "the altivar71 profile, 002 Modbus-Funktionen",
-        Profile::Ksvario => "the ksvario profile, 001 3.1",
-        Profile::Generic => "Modbus Application Protocol V1.1b3",
-    };
+    let cite = profile.limits_source();
     let mut one = |cx: &mut Cx, key: &'static str, hi: u16, min: u16| -> u16 {
         let lo = min.min(hi);
-        t.int_or(cx, key, lo..=hi, hi, cite)
+        t.int_or(cx, key, lo..=hi, hi, &cite)
     };
-    let limits = DeviceLimits {
-        read_registers: one(cx, "read_registers", max.read_registers, 1),
-        write_registers: one(cx, "write_registers", max.write_registers, 1),
-        rw_read_registers: one(cx, "rw_read_registers", max.rw_read_registers, 0),
-        rw_write_registers: one(cx, "rw_write_registers", max.rw_write_registers, 0),
-        read_bits: one(cx, "read_bits", max.read_bits, 0),
-        write_bits: one(cx, "write_bits", max.write_bits, 0),
-    };
+    let read_registers = one(cx, "read_registers", max.read_registers, 1);
+    let write_registers = one(cx, "write_registers", max.write_registers, 1);
+    let rw_read_registers = one(cx, "rw_read_registers", rw_read(&max), 0);
+    let rw_write_registers = one(cx, "rw_write_registers", rw_write(&max), 0);
+    let read_bits = one(cx, "read_bits", max.read_bits, 0);
+    let write_bits = one(cx, "write_bits", max.write_bits, 0);
     t.finish(cx);
-    limits
+    RequestLimits {
+        read_registers,
+        write_registers,
+        read_bits,
+        write_bits,
+        // A profile without FC 23 keeps none; 0 / 0 in the config leaves the quantities 0.
+        read_write: max.read_write.map(|_| ReadWriteLimits {
+            read: rw_read_registers,
+            write: rw_write_registers,
+        }),
+        max_adu_len: max.max_adu_len,
+    }
 }
 
 fn read_tag(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<TagConfig> {
@@ -527,8 +552,8 @@ mod tests {
             (
                 a.read_registers,
                 a.write_registers,
-                a.rw_read_registers,
-                a.rw_write_registers
+                rw_read(&a),
+                rw_write(&a)
             ),
             (63, 61, 20, 20)
         );

@@ -53,7 +53,7 @@ pub fn default_interface() -> Interface {
 }
 
 /// A baud rate the gateway supports: the CP 341's list (003 6.2.1: 300 ... 76800) widened by
-/// 150 and 115200 (SPEC: "150..115200 baud (the CP goes to 76800)").
+/// 150 and 115200: the gateway runs 150..115200 Bd, beyond the CP's 76800.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
 #[serde(transparent)]
 pub struct Baud(u32);

@@ -1,5 +1,5 @@
-//! The Modbus TCP server (SPEC "Republishing": limits on connections, idle time, client networks,
-//! read-only mode and write-enabled ranges).
+//! The Modbus TCP server: limits on connections, idle time, client networks, read-only mode and
+//! write-enabled ranges.
 
 use std::collections::BTreeMap;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
@@ -21,8 +21,8 @@ pub const DEFAULT_MAX_CONNECTIONS: u32 = 64;
 pub const MAX_MAX_CONNECTIONS: u32 = 4096;
 /// A connection without a request for this long is closed.
 pub const DEFAULT_IDLE_TIMEOUT: Duration = Duration::from_secs(60);
-/// A request that has no answer after this long is answered with an exception (SPEC: 0x0B for a
-/// device that does not answer).
+/// A request that has no answer after this long is answered with an exception (0x0B, "gateway
+/// target device failed to respond", for a device that does not answer).
 pub const DEFAULT_REQUEST_TIMEOUT: Duration = Duration::from_secs(5);
 /// Accepted range of `idle_timeout`.
 pub const IDLE_TIMEOUT_RANGE: (Duration, Duration) =
@@ -124,6 +124,7 @@ pub struct ModbusTcpConfig {
     /// When not empty, writes are accepted only inside these ranges.
     pub write_ranges: Vec<UnitRange>,
     /// Modbus/TCP Security; `None`: off.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub tls: Option<ModbusTlsConfig>,
 }
 

@@ -1,6 +1,5 @@
 //! Protocol parameters of the telegram lines: 3964(R) (003 6.3.3) and ASCII (003 6.2.1, with the
-//! RS232 flow-control parameters of 000 6.2.1), and their Modbus TCP mailboxes (SPEC
-//! "Republishing").
+//! RS232 flow-control parameters of 000 6.2.1), and their Modbus TCP mailboxes.
 
 use std::time::Duration;
 
@@ -30,7 +29,8 @@ pub const DEFAULT_3964_SETUP_ATTEMPTS: u8 = 6;
 pub const DEFAULT_3964_TRANSMISSION_ATTEMPTS: u8 = 6;
 /// 003 6.3.1: "You can maximally transfer 250byte per telegram".
 pub const DEFAULT_3964_MAX_TELEGRAM_LEN: u16 = 250;
-/// SPEC: "at most 250 user bytes a telegram by default (the CP's buffer is 1024)".
+/// The longest telegram any line accepts: the CP's buffer of 1024 bytes (250 user bytes a
+/// telegram by default).
 pub const MAX_TELEGRAM_LEN: u16 = 1024;
 /// The seeds give no receive buffer for 3964(R); we hold as many telegrams as the ASCII driver
 /// (003 6.2.1: 250).
@@ -75,7 +75,7 @@ pub const DEFAULT_ASCII_RECEIVE_BUFFER: u16 = 250;
 pub const MAX_RECEIVE_BUFFER: u16 = 250;
 /// 003 6.2.1 "Prevent overwriting ... activated".
 pub const DEFAULT_PREVENT_OVERWRITE: bool = true;
-/// SPEC: "at most 1024 bytes a telegram".
+/// An ASCII telegram may use the whole buffer of 1024 bytes by default.
 pub const DEFAULT_ASCII_MAX_TELEGRAM_LEN: u16 = 1024;
 /// Telegrams waiting to be sent (from Modbus TCP, zenoh, REST); a full queue answers busy.
 /// The CP sends one telegram per FB 8 request; the depth is ours.

@@ -306,7 +306,8 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
     }
     let tables = dev.profile.tables();
     let profile = serde_name(dev.profile);
-    let mut names: BTreeSet<&str> = dev.profile.tag_names().iter().copied().collect();
+    let profile_tags = dev.profile.tag_names();
+    let mut names: BTreeSet<&str> = profile_tags.iter().map(String::as_str).collect();
     for (i, tag) in dev.tags.iter().enumerate() {
         let p = format!("{path}.tags[{i}]");
         if !names.insert(&tag.name) {

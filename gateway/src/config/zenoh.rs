@@ -23,7 +23,8 @@
 //! control are configured: in the zenoh file, exactly as zenoh documents them (TLS needs the
 //! gateway built with the `zenoh-tls` cargo feature).
 //!
-//! Overflow policy (every drop is counted in `gateway_dropped_updates_total{reason}`):
+//! Overflow policy (every drop is counted by the reason named here in the bridge's counters,
+//! and in `gateway_dropped_updates_total{reason}` as `queue_full`, `lagged` or `closed`):
 //! - tag values: one pending value per tag key, a newer value replaces it (`tag_superseded`);
 //!   a value for a new key when `tag_queue` keys are pending is dropped (`tag_queue_full`);
 //! - telegrams, events and results: first in, first out; when full the new item is dropped and

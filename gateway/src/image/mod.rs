@@ -5,14 +5,13 @@
 //! tasks write it after each poll; the Modbus TCP server, REST and zenoh read it. Reads take a shared
 //! lock for the time of one range copy, writes an exclusive lock for one range.
 //!
-//! A value is stale when it is older than `stale_factor` times the poll period it was stored with
-//! (SPEC "Polling"); staleness is computed when the value is read, so no task has to sweep the image.
+//! A value is stale when it is older than `stale_factor` times the poll period it was stored with;
+//! staleness is computed when the value is read, so no task has to sweep the image.
 //!
 //! Every store or quality change that alters something is announced on a bounded broadcast channel
 //! ([`ProcessImage::subscribe`]); a receiver that falls behind loses the oldest changes and learns
 //! how many from `RecvError::Lagged` (tokio's broadcast policy), so nothing is dropped silently.
 
-mod quality;
 mod read;
 mod runs;
 
@@ -23,7 +22,8 @@ use std::time::{Duration, SystemTime};
 use tokio::sync::broadcast;
 use tokio::time::Instant;
 
-pub use quality::{Quality, Table};
+pub use proto_core::modbus::Table;
+pub use proto_core::profiles::Quality;
 use runs::Runs;
 
 /// How many poll periods a value stays fresh by default.

@@ -1,6 +1,6 @@
 //! Commands into a line: writes and on-demand reads from the Modbus TCP server, REST or zenoh.
 //!
-//! The queue is bounded (STYLE habit 10): at most `queue_depth` commands wait or are in flight
+//! The queue is bounded, so that a slow line pushes back instead of growing: at most `queue_depth` commands wait or are in flight
 //! on a line (each holds a permit of a semaphore until it is answered); one more is refused at
 //! once, and the Modbus TCP server turns that into exception 06 "server device busy". Every command is answered exactly
 //! once, with the device's answer or a [`CommandError`]; the mapping of both to a Modbus exception

@@ -1,4 +1,4 @@
-//! A polled device as a Modbus TCP unit (SPEC "Republishing").
+//! A polled device as a Modbus TCP unit: its registers are republished under its unit id.
 //!
 //! - reads of polled ranges come from the process image while the values are fresh and the device
 //!   answers; a stale value or an offline device gives exception 0x0B;

@@ -46,7 +46,7 @@ impl Clock {
 }
 
 /// When a frame of `len` bytes written at `now` has left the UART: the driver cannot see it, so it
-/// estimates `len` character times (STYLE "handle_tx_done"; libmodbus PR #494).
+/// estimates `len` character times and tells the engine that instant (libmodbus PR #494).
 pub(crate) fn estimated_tx_end(now: Instant, len: usize, char_time: Duration) -> Instant {
     now + char_time.saturating_mul(u32::try_from(len).unwrap_or(u32::MAX))
 }

@@ -1,11 +1,15 @@
-//! The Prometheus side of a line: one handle per line task that knows the line's name and
-//! protocol and does nothing when the line runs without metrics.
+//! The counters of a line and their Prometheus side: one handle per line task that knows the
+//! line's name and protocol. Frames and bytes per direction are counted here since the line
+//! started ([`LineTraffic`], what REST shows) and, when the gateway exports metrics, into the
+//! Prometheus families at the same time (cumulative over the process).
 //!
 //! The line tasks call it where the status is updated, so that the status (diagnostic buffer,
 //! counters), the log and `/metrics` tell the same story: every event raised, the start-up event
 //! 00 03h, the port's state, telegrams and bytes on the wire, and per device the Modbus requests,
 //! the poll durations, whether it answers and when its image was last updated.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
 use std::time::Duration;
 
 use proto_core::event::{ids, EventId};
@@ -21,9 +25,37 @@ pub(crate) const UNKNOWN_DEVICE: &str = "unknown";
 /// The `device` label of the requests a Modbus slave line serves: its partner, the serial master.
 pub(crate) const SLAVE_LINE_PARTNER: &str = "master";
 
-/// The metrics of one line; every method is a no-op without metrics.
+/// Frames and bytes in each direction and commands of one line since it started.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LineTraffic {
+    /// Frames (telegrams) written.
+    pub frames_sent: u64,
+    /// Frames (telegrams) received complete.
+    pub frames_received: u64,
+    /// Bytes written.
+    pub bytes_sent: u64,
+    /// Bytes read.
+    pub bytes_received: u64,
+    /// Commands answered (Modbus master: by the device, exceptions included; slave: requests
+    /// served; telegram lines: telegrams sent).
+    pub commands_answered: u64,
+    /// Commands that failed (no answer, an exception served, a send given up).
+    pub commands_failed: u64,
+}
+
+/// The frame and byte counts of a line (relaxed atomics: counts, not synchronisation).
+#[derive(Debug, Default)]
+struct Wire {
+    frames_sent: AtomicU64,
+    frames_received: AtomicU64,
+    bytes_sent: AtomicU64,
+    bytes_received: AtomicU64,
+}
+
+/// The counters and metrics of one line; the Prometheus side is a no-op without metrics.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct LineMetrics {
+    wire: Arc<Wire>,
     inner: Option<Inner>,
 }
 
@@ -48,7 +80,23 @@ impl LineMetrics {
                 protocol,
             }
         });
-        Self { inner }
+        Self {
+            wire: Arc::default(),
+            inner,
+        }
+    }
+
+    /// Frames and bytes since the line started (commands zero: the status counts them).
+    pub(crate) fn traffic(&self) -> LineTraffic {
+        let w = &self.wire;
+        LineTraffic {
+            frames_sent: w.frames_sent.load(Ordering::Relaxed),
+            frames_received: w.frames_received.load(Ordering::Relaxed),
+            bytes_sent: w.bytes_sent.load(Ordering::Relaxed),
+            bytes_received: w.bytes_received.load(Ordering::Relaxed),
+            commands_answered: 0,
+            commands_failed: 0,
+        }
     }
 
     /// The line took its parameters and its port is open: line up and event 00 03h counted
@@ -73,23 +121,20 @@ impl LineMetrics {
         }
     }
 
-    /// One telegram (frame) of `len` bytes written to the port.
-    pub(crate) fn sent(&self, len: usize) {
-        if let Some(i) = &self.inner {
-            i.metrics.telegram(&i.line, Direction::Tx);
-            i.metrics.bytes(&i.line, Direction::Tx, len);
-        }
-    }
-
     /// `len` bytes written to the port (telegram lines: framing included).
     pub(crate) fn sent_bytes(&self, len: usize) {
+        self.wire
+            .bytes_sent
+            .fetch_add(len as u64, Ordering::Relaxed);
         if let (Some(i), true) = (&self.inner, len > 0) {
             i.metrics.bytes(&i.line, Direction::Tx, len);
         }
     }
 
-    /// One user telegram sent and acknowledged by the partner (telegram lines).
+    /// One frame written (Modbus lines), or one user telegram sent and acknowledged by the
+    /// partner (telegram lines).
     pub(crate) fn sent_telegram(&self) {
+        self.wire.frames_sent.fetch_add(1, Ordering::Relaxed);
         if let Some(i) = &self.inner {
             i.metrics.telegram(&i.line, Direction::Tx);
         }
@@ -97,6 +142,9 @@ impl LineMetrics {
 
     /// `len` bytes read from the port.
     pub(crate) fn received_bytes(&self, len: usize) {
+        self.wire
+            .bytes_received
+            .fetch_add(len as u64, Ordering::Relaxed);
         if let Some(i) = &self.inner {
             i.metrics.bytes(&i.line, Direction::Rx, len);
         }
@@ -104,6 +152,7 @@ impl LineMetrics {
 
     /// One complete telegram (frame) received and accepted.
     pub(crate) fn received_telegram(&self) {
+        self.wire.frames_received.fetch_add(1, Ordering::Relaxed);
         if let Some(i) = &self.inner {
             i.metrics.telegram(&i.line, Direction::Rx);
         }
@@ -214,7 +263,8 @@ mod tests {
         let text = encode_text(&registry);
         assert!(text.contains(r#"gateway_line_up{line="drive",protocol="modbus-master-rtu"} 0"#));
         line.started();
-        line.sent(8);
+        line.sent_bytes(8);
+        line.sent_telegram();
         line.received_bytes(5);
         line.received_telegram();
         line.init_device("atv71");
@@ -234,6 +284,32 @@ mod tests {
             r#"gateway_device_image_age_seconds{device="atv71",line="drive"}"#,
         ] {
             assert!(text.contains(expected), "{expected} missing in\n{text}");
+        }
+    }
+
+    #[test]
+    fn the_line_counts_its_traffic_with_or_without_metrics() {
+        for metrics in [
+            None,
+            Some(Metrics::register(&Registry::new()).expect("register")),
+        ] {
+            let line = LineMetrics::new(metrics, "drive", "modbus-master-rtu");
+            line.sent_bytes(8);
+            line.sent_telegram();
+            line.received_bytes(5);
+            line.received_bytes(2);
+            line.received_telegram();
+            assert_eq!(
+                line.traffic(),
+                LineTraffic {
+                    frames_sent: 1,
+                    frames_received: 1,
+                    bytes_sent: 8,
+                    bytes_received: 7,
+                    commands_answered: 0,
+                    commands_failed: 0,
+                }
+            );
         }
     }
 }

@@ -1,23 +1,28 @@
-//! Serial lines: one task per line owns the port and a protocol engine.
+//! Serial lines: the line runtime drives one protocol adapter per line.
 //!
-//! A Modbus master line ([`spawn_modbus_master_line`]) polls its devices on a schedule, keeps their
-//! registers in the [`ProcessImage`](crate::image::ProcessImage), and carries writes and on-demand
-//! reads from the Modbus TCP server ([`DeviceUnit`]) through a bounded command queue.
+//! [`runtime`] owns what every line does: opening the port ([`PortOpener`]), the driver loop,
+//! reopening with back-off, the port events, the status and one [`LineHandle`]. The protocols are
+//! adapters over it:
+//! - `modbus_master` ([`spawn_modbus_master_line`]): polls its devices on a schedule, keeps their
+//!   registers in the [`ProcessImage`](crate::image::ProcessImage), and carries writes and
+//!   on-demand reads from the Modbus TCP server ([`DeviceUnit`]) through a bounded command queue;
+//! - `modbus_slave` ([`spawn_modbus_slave_line`]): the Modbus slave RTU line serving the CP memory;
+//! - [`telegram`]: ASCII and 3964(R) lines with their mailboxes.
 //!
-//! Modules:
+//! What the Modbus master adapter builds on:
 //! - [`plan`]: merging polled ranges into the fewest reads within a device's limits (pure);
 //! - `scheduler`: which request goes next (writes, on-demand reads, due polls, offline back-off);
 //! - `probe`: how a device that stopped answering is probed (one attempt, a short wait derived
 //!   from its own reply delay, every n-th probe the full reply monitoring time);
 //! - `command`: the bounded command queue and the error-to-exception mapping;
-//! - `status`: diagnostic buffer, event counters, STATUS word, device states;
-//! - `line_metrics`: the line's Prometheus metrics (events, port state, traffic, requests);
-//! - `driver`: clock conversion and timer helpers of the driver loop;
-//! - `modbus_master`: the line task itself;
-//! - `modbus_slave`: the Modbus slave RTU line serving the CP memory ([`spawn_modbus_slave_line`]);
 //! - `writeback`: the image refresh after a confirmed write, the broadcast echo;
-//! - `device_unit`: a polled device as a Modbus TCP unit;
-//! - [`telegram`]: ASCII and 3964(R) lines with their mailboxes.
+//! - `device_unit`: a polled device as a Modbus TCP unit.
+//!
+//! Shared by every line:
+//! - `status`: diagnostic buffer, event counters, STATUS word, device states;
+//! - `line_metrics`: the line's counters ([`LineTraffic`]) and its Prometheus metrics (events,
+//!   port state, traffic, requests);
+//! - `driver`: clock conversion and timer helpers of the driver loop.
 
 mod command;
 mod device_unit;
@@ -27,36 +32,36 @@ mod modbus_master;
 mod modbus_slave;
 pub mod plan;
 mod probe;
+mod registers32;
+pub mod runtime;
 mod scheduler;
 mod status;
 pub mod telegram;
 mod writeback;
 
-use std::sync::Arc;
 use std::time::Duration;
 
 use proto_core::modbus::master::{Framing, MasterConfig};
-use tokio::sync::{broadcast, mpsc};
-use tokio::task::JoinHandle;
-use tokio_util::sync::CancellationToken;
 
 pub use command::{
     exception_for, exception_for_queue, CommandError, CommandResult, LineClient, QueueError,
 };
 pub use device_unit::DeviceUnit;
-pub use modbus_master::{EVENT_PORT_LOST, EVENT_PORT_SETUP};
-pub use modbus_slave::{
-    spawn_modbus_slave_line, SlaveCounters, SlaveLineHandle, SlaveLineSettings,
-};
+pub use line_metrics::LineTraffic;
+pub use modbus_master::spawn_modbus_master_line;
+pub use modbus_slave::{spawn_modbus_slave_line, CpMemoryView, SlaveCounters, SlaveLineSettings};
 pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
 pub use probe::{ProbeSettings, PROBE_TIMEOUT_FACTOR};
+pub use runtime::{
+    LineHandle, LinePort, PortOpener, SerialOpener, EVENT_PORT_LOST, EVENT_PORT_SETUP,
+};
 pub use status::{DeviceStatus, LineEvent, LineStatus, DEFAULT_DIAG_DEPTH};
 
 use crate::config::{
     DEFAULT_OFFLINE_BACKOFF_MAX, DEFAULT_OFFLINE_BACKOFF_MIN, FULL_PROBE_EVERY_RANGE,
     PROBE_TIMEOUT_MIN_RANGE,
 };
-use crate::image::{ProcessImage, Table};
+use crate::image::Table;
 use crate::metrics::Metrics;
 use crate::serial::PortSettings;
 
@@ -303,155 +308,5 @@ impl DeviceSettings {
                 })
             })
         })
-    }
-}
-
-/// A running line: its status, its command queue and its devices as Modbus TCP units.
-/// Clones share the line; [`Self::join`] waits for its task once.
-#[derive(Clone, Debug)]
-pub struct LineHandle {
-    name: String,
-    client: LineClient,
-    shared: Arc<status::Shared>,
-    devices: Vec<Arc<DeviceSettings>>,
-    image: ProcessImage,
-    task: Arc<std::sync::Mutex<Option<JoinHandle<()>>>>,
-}
-
-// === impl LineHandle ===
-
-impl LineHandle {
-    /// The line's name.
-    pub fn name(&self) -> &str {
-        &self.name
-    }
-
-    /// A snapshot of the line's state: port, diagnostic buffer (newest first), event counters,
-    /// last STATUS word, devices.
-    pub fn status(&self) -> LineStatus {
-        self.shared.snapshot()
-    }
-
-    /// A client of the line's command queue.
-    pub fn client(&self) -> LineClient {
-        self.client.clone()
-    }
-
-    /// Empties the line's diagnostic buffer; the event counters and the STATUS word stay.
-    pub fn clear_diagnostics(&self) {
-        self.shared.clear_diagnostics();
-    }
-
-    /// The line's events as they happen (bounded; a lagging receiver is told how many it missed).
-    pub fn subscribe_events(&self) -> broadcast::Receiver<LineEvent> {
-        self.shared.subscribe()
-    }
-
-    /// Every device of the line as a Modbus TCP unit, with its unit id.
-    pub fn device_units(&self) -> Vec<(u8, DeviceUnit)> {
-        self.devices
-            .iter()
-            .enumerate()
-            .map(|(index, device)| {
-                let unit = DeviceUnit::new(
-                    Arc::clone(device),
-                    index,
-                    Arc::clone(&self.shared),
-                    self.client.clone(),
-                    self.image.clone(),
-                );
-                (device.unit_id, unit)
-            })
-            .collect()
-    }
-
-    /// The device named `name` as a Modbus TCP unit.
-    pub fn device_unit(&self, name: &str) -> Option<DeviceUnit> {
-        self.device_units()
-            .into_iter()
-            .map(|(_, u)| u)
-            .find(|u| u.device().name == name)
-    }
-
-    /// Waits for the line task to end (after the shutdown token was cancelled).
-    pub async fn join(self) {
-        let task = self
-            .task
-            .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .take();
-        let Some(task) = task else { return };
-        if let Err(err) = task.await {
-            tracing::error!(line = %self.name, %err, "line task failed");
-        }
-    }
-}
-
-/// Starts a Modbus master line: opens its port (reopening with back-off), polls `devices` into
-/// `image`, and serves commands until `shutdown` is cancelled. Must be called within a tokio
-/// runtime.
-pub fn spawn_modbus_master_line(
-    settings: LineSettings,
-    devices: Vec<DeviceSettings>,
-    image: ProcessImage,
-    shutdown: CancellationToken,
-) -> LineHandle {
-    let (tx, rx) = mpsc::channel(settings.queue_depth.max(1));
-    let devices: Vec<Arc<DeviceSettings>> = devices.into_iter().map(Arc::new).collect();
-    let status = LineStatus {
-        name: settings.name.clone(),
-        port_open: false,
-        port_error: None,
-        port_opens: 0,
-        status_word: 0,
-        diagnostics: Vec::new(),
-        last_event: None,
-        started: std::time::SystemTime::now(),
-        event_counts: std::collections::BTreeMap::new(),
-        devices: devices
-            .iter()
-            .map(|d| DeviceStatus {
-                name: d.name.clone(),
-                slave: d.slave,
-                unit_id: d.unit_id,
-                online: true,
-                polls_ok: 0,
-                polls_exception: 0,
-                polls_failed: 0,
-                last_answer: None,
-            })
-            .collect(),
-        commands_answered: 0,
-        commands_failed: 0,
-    };
-    let clock = driver::Clock::start();
-    let metrics = line_metrics::LineMetrics::new(
-        settings.metrics.clone(),
-        &settings.name,
-        settings.protocol(),
-    );
-    for device in &devices {
-        metrics.init_device(&device.name);
-    }
-    let shared = status::Shared::with_metrics(status, settings.diag_depth, clock, metrics);
-    let client = LineClient::new(tx, settings.queue_depth.max(1), settings.command_deadline());
-    let name = settings.name.clone();
-    let task = modbus_master::LineTask::new(
-        settings,
-        devices.clone(),
-        image.clone(),
-        Arc::clone(&shared),
-        rx,
-        shutdown,
-        clock,
-    );
-    let task = tokio::spawn(task.run());
-    LineHandle {
-        name,
-        client,
-        shared,
-        devices,
-        image,
-        task: Arc::new(std::sync::Mutex::new(Some(task))),
     }
 }

@@ -1,41 +1,38 @@
-//! The Modbus master line task: owns the port and a [`Master`], polls the devices on schedule,
-//! keeps the image, carries commands, and reopens the port with back-off when it fails.
+//! The Modbus master line: an adapter of the line runtime over a proto-core [`Master`] that polls
+//! the devices on schedule, keeps the image and carries commands.
 //!
-//! The driver loop (STYLE "serial/driver.rs"): start the next job when the master is idle, write
-//! what the master transmits and tell it the estimated end of transmission, hand its events to the
-//! image and the status, then wait for bytes, the master's deadline, the next poll, a command or
-//! shutdown. On shutdown the request in flight is finished first (STYLE habit 9).
+//! The runtime owns the port; the adapter starts the next job when the master is idle (a due
+//! write or on-demand read first, then the due polls, see `scheduler`), tells the master the
+//! estimated end of each transmission, and hands its completions to the image and the status. On
+//! shutdown the request in flight is finished first: the port is still read until the master is
+//! idle, commands not yet started are answered "shutting down".
 
 use std::sync::Arc;
 use std::time::SystemTime;
 
 use proto_core::event::{ids, EventId};
-use proto_core::modbus::master::{Master, MasterEvent, Outcome, RequestId};
+use proto_core::modbus::master::{Attempts, Master, MasterEvent, Outcome, RequestId};
 use proto_core::modbus::pdu::{Request, Response};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::sync::mpsc;
 use tokio::time::Instant;
-use tokio_serial::SerialStream;
+use tokio_serial::SerialPort;
 use tokio_util::sync::CancellationToken;
 
-use super::command::{Command, CommandError, CommandResult};
-use super::driver::{estimated_tx_end, sleep_until_opt, Clock};
+use super::command::{Command, CommandError, CommandResult, LineClient};
+use super::device_unit::DeviceUnit;
+use super::driver::{sleep_until_opt, Clock};
 use super::line_metrics::{master_result, BROADCAST_DEVICE, UNKNOWN_DEVICE};
+use super::registers32;
+use super::runtime::{
+    self, LineBase, LineCapabilities, LineEngine, LineHandle, SerialOpener, Stop,
+};
 use super::scheduler::{Job, PollJob, Scheduler, Transition};
-use super::status::Shared;
+use super::status::{DeviceStatus, Shared};
 use super::writeback::{broadcast_echo, refresh_image};
 use super::{DeviceSettings, LineSettings};
 use crate::image::{ProcessImage, Quality, Table};
 use crate::metrics::RequestResult;
-use crate::serial::{self, Backoff};
-use crate::timer::LineTimer;
-
-/// The port could not be opened or set up: 003 7.2 event 02 0Fh "Interface could not be
-/// parameterized" (also for RS485 mode refused by the driver).
-pub const EVENT_PORT_SETUP: EventId = ids::INVALID_PARAMETERIZATION;
-/// The open port failed (read or write error, end of file: the device node vanished): 003 7.2
-/// event 08 0Dh "BREAK: receive line to partner is interrupted".
-pub const EVENT_PORT_LOST: EventId = ids::LINE_BREAK;
+use crate::unit::UnitService;
 
 /// What is in flight on the line.
 #[derive(Debug)]
@@ -47,90 +44,301 @@ enum InFlight {
     },
 }
 
-/// Why the driver loop ended.
-#[derive(Debug)]
-enum PortExit {
-    Shutdown,
-    Lost(String),
+/// Starts a Modbus master line: opens its port (reopening with back-off), polls `devices` into
+/// `image`, and serves commands until `shutdown` is cancelled. Must be called within a tokio
+/// runtime.
+pub fn spawn_modbus_master_line(
+    settings: LineSettings,
+    devices: Vec<DeviceSettings>,
+    image: ProcessImage,
+    shutdown: CancellationToken,
+) -> LineHandle {
+    let depth = settings.queue_depth.max(1);
+    let (tx, rx) = mpsc::channel(depth);
+    let devices: Vec<Arc<DeviceSettings>> = devices.into_iter().map(Arc::new).collect();
+    let base = LineBase::new(
+        &settings.name,
+        settings.protocol(),
+        &settings.port,
+        settings.diag_depth,
+        (settings.reopen_min, settings.reopen_max),
+        settings.metrics.as_ref(),
+    );
+    let core = base.core(
+        devices
+            .iter()
+            .map(|d| DeviceStatus {
+                name: d.name.clone(),
+                slave: d.slave,
+                unit_id: d.unit_id,
+                online: true,
+                polls_ok: 0,
+                polls_exception: 0,
+                polls_failed: 0,
+                last_answer: None,
+            })
+            .collect(),
+    );
+    let (shared, clock) = (Arc::clone(&core.shared), core.clock);
+    for device in &devices {
+        shared.metrics().init_device(&device.name);
+    }
+    let client = LineClient::new(tx, depth, settings.command_deadline());
+    let caps = MasterCapabilities {
+        client,
+        shared: Arc::clone(&shared),
+        devices: devices.clone(),
+        image: image.clone(),
+    };
+    let engine = MasterLine::new(settings, devices, image, shared, clock);
+    runtime::spawn(
+        core,
+        engine,
+        Some(rx),
+        Arc::new(caps),
+        SerialOpener,
+        shutdown,
+    )
 }
 
-/// The task of one Modbus master line.
-pub(crate) struct LineTask {
-    pub(crate) settings: LineSettings,
-    pub(crate) devices: Vec<Arc<DeviceSettings>>,
-    pub(crate) image: ProcessImage,
-    pub(crate) shared: Arc<Shared>,
-    pub(crate) commands: mpsc::Receiver<Command>,
-    pub(crate) shutdown: CancellationToken,
-    pub(crate) clock: Clock,
-    pub(crate) sched: Scheduler<Command>,
+/// What a master line offers: its command queue and its devices as Modbus TCP units.
+#[derive(Debug)]
+struct MasterCapabilities {
+    client: LineClient,
+    shared: Arc<Shared>,
+    devices: Vec<Arc<DeviceSettings>>,
+    image: ProcessImage,
+}
+
+impl LineCapabilities for MasterCapabilities {
+    fn units(&self) -> Vec<(u8, Arc<dyn UnitService>)> {
+        self.device_units()
+            .into_iter()
+            .map(|(id, unit)| (id, Arc::new(unit) as Arc<dyn UnitService>))
+            .collect()
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
+// === impl MasterCapabilities ===
+
+impl MasterCapabilities {
+    fn device_units(&self) -> Vec<(u8, DeviceUnit)> {
+        self.devices
+            .iter()
+            .enumerate()
+            .map(|(index, device)| {
+                let unit = DeviceUnit::new(
+                    Arc::clone(device),
+                    index,
+                    Arc::clone(&self.shared),
+                    self.client.clone(),
+                    self.image.clone(),
+                );
+                (device.unit_id, unit)
+            })
+            .collect()
+    }
+}
+
+/// What a Modbus master line adds to every line.
+impl LineHandle {
+    /// The command queue of a Modbus master line.
+    pub fn client(&self) -> Option<LineClient> {
+        self.capability::<MasterCapabilities>()
+            .map(|c| c.client.clone())
+    }
+
+    /// Every device of a Modbus master line as a Modbus TCP unit, with its unit id.
+    pub fn device_units(&self) -> Vec<(u8, DeviceUnit)> {
+        self.capability::<MasterCapabilities>()
+            .map(MasterCapabilities::device_units)
+            .unwrap_or_default()
+    }
+
+    /// The device named `name` of a Modbus master line as a Modbus TCP unit.
+    pub fn device_unit(&self, name: &str) -> Option<DeviceUnit> {
+        self.device_units()
+            .into_iter()
+            .map(|(_, u)| u)
+            .find(|u| u.device().name == name)
+    }
+}
+
+/// The adapter of one Modbus master line.
+struct MasterLine {
+    settings: LineSettings,
+    devices: Vec<Arc<DeviceSettings>>,
+    image: ProcessImage,
+    shared: Arc<Shared>,
+    clock: Clock,
+    sched: Scheduler<Command>,
+    master: Master,
     inflight: Option<(RequestId, InFlight)>,
     /// When the first frame of the request in flight was written (the poll duration's start).
     sent_at: Option<Instant>,
-    commands_open: bool,
+    stopping: bool,
 }
 
-// === impl LineTask ===
+impl LineEngine for MasterLine {
+    type Command = Command;
 
-impl LineTask {
-    pub(crate) fn new(
+    fn opened(&mut self, _modem: Option<&mut dyn SerialPort>) {
+        self.master = Master::new(self.settings.master);
+    }
+
+    fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
+        self.master.handle_rx(now, bytes);
+    }
+
+    fn handle_timeout(&mut self, now: proto_core::time::Instant) {
+        self.master.handle_timeout(now);
+    }
+
+    fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
+        self.master.poll_timeout()
+    }
+
+    fn start(&mut self, now: Instant) {
+        if self.inflight.is_none() && self.master.is_idle() {
+            self.start_next(now);
+        }
+    }
+
+    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        self.master.poll_transmit()
+    }
+
+    fn transmitted(&mut self, written: Instant, _len: usize, end: proto_core::time::Instant) {
+        self.sent_at.get_or_insert(written);
+        self.shared.metrics().sent_telegram();
+        self.master.handle_tx_done(end);
+    }
+
+    fn handle_events(&mut self) -> bool {
+        let mut completed = false;
+        while let Some(event) = self.master.poll_event() {
+            let (event, function32) = registers32::as_16bit(event);
+            match event {
+                // Slave 0: raised while the line was idle.
+                MasterEvent::Raised { id, slave } => {
+                    self.shared.raise(id, (slave != 0).then_some(slave), None);
+                    if id == ids::MODBUS_BYTE_OVERFLOW {
+                        self.sched.unexpected_reply(Instant::now());
+                    }
+                }
+                MasterEvent::Completed {
+                    id,
+                    slave,
+                    request,
+                    outcome,
+                } => {
+                    completed = true;
+                    match self.inflight.take() {
+                        Some((expected, job)) if expected == id => {
+                            let delay = self.master.reply_delay();
+                            let function = function32.unwrap_or(request.function().0);
+                            self.complete(job, slave, &request, function, outcome, delay);
+                        }
+                        other => {
+                            tracing::error!(line = %self.settings.name, slave, "completion of a request not in flight");
+                            self.inflight = other;
+                        }
+                    }
+                }
+                // Turned into `Completed` by `registers32::as_16bit` above.
+                MasterEvent::Completed32 { slave, .. } => {
+                    tracing::error!(line = %self.settings.name, slave, "completion of a 32-bit job not converted");
+                }
+            }
+        }
+        completed
+    }
+
+    /// The next poll, while the line is idle.
+    fn wake(&self) -> impl std::future::Future<Output = ()> + Send + '_ {
+        let idle = self.inflight.is_none() && self.master.is_idle() && !self.stopping;
+        sleep_until_opt(if idle { self.sched.next_wake() } else { None })
+    }
+
+    fn command(&mut self, command: Command, _modem: Option<&mut dyn SerialPort>) {
+        if command.is_write() {
+            self.sched.push_write(command);
+        } else {
+            self.sched.push_read(command);
+        }
+    }
+
+    fn refuse(&mut self, command: Command, shutting_down: bool) {
+        command.answer(Err(if shutting_down {
+            CommandError::ShuttingDown
+        } else {
+            CommandError::PortClosed
+        }));
+    }
+
+    fn stop(&mut self) -> Stop {
+        self.stopping = true;
+        for command in self.sched.drain_commands() {
+            command.answer(Err(CommandError::ShuttingDown));
+        }
+        Stop {
+            read: true,
+            close_queue: false,
+            grace: None,
+        }
+    }
+
+    fn done(&self) -> bool {
+        self.inflight.is_none() && self.master.is_idle()
+    }
+
+    fn closed(&mut self, shutting_down: bool) {
+        self.abandon_inflight();
+        for command in self.sched.drain_commands() {
+            self.refuse(command, shutting_down);
+        }
+    }
+
+    /// The port failed: event, status, and every device's values marked as comm failure.
+    fn port_failed(&mut self, id: EventId, reason: String) {
+        self.shared.raise(id, None, Some(reason));
+        for device in &self.devices {
+            self.image
+                .set_unit_quality(device.unit_id, Quality::CommFailure);
+            self.shared.metrics().device_up(&device.name, false);
+        }
+    }
+}
+
+// === impl MasterLine ===
+
+impl MasterLine {
+    fn new(
         settings: LineSettings,
         devices: Vec<Arc<DeviceSettings>>,
         image: ProcessImage,
         shared: Arc<Shared>,
-        commands: mpsc::Receiver<Command>,
-        shutdown: CancellationToken,
         clock: Clock,
     ) -> Self {
+        let devices = registers32::line_devices(&settings.master, devices);
         let sched = Scheduler::new(devices.iter().map(|d| &**d), clock.base());
+        let master = Master::new(settings.master);
         Self {
             settings,
             devices,
             image,
             shared,
-            commands,
-            shutdown,
             clock,
             sched,
+            master,
             inflight: None,
             sent_at: None,
-            commands_open: true,
+            stopping: false,
         }
-    }
-
-    /// Opens the port, drives it until it fails, reopens with back-off; until shutdown.
-    pub(crate) async fn run(mut self) {
-        let mut reopen = Backoff::clamped(self.settings.reopen_min, self.settings.reopen_max);
-        loop {
-            match serial::open(&self.settings.port) {
-                Ok(port) => {
-                    reopen.reset();
-                    tracing::info!(line = %self.settings.name, path = %self.settings.port.path, "port open");
-                    self.shared.started();
-                    let exit = self.drive(port).await;
-                    self.shared.port_closed();
-                    self.abandon_inflight();
-                    match exit {
-                        PortExit::Shutdown => break,
-                        PortExit::Lost(reason) => self.port_failed(EVENT_PORT_LOST, reason),
-                    }
-                }
-                Err(err) => self.port_failed(EVENT_PORT_SETUP, err.to_string()),
-            }
-            let delay = reopen.next_delay();
-            tracing::info!(line = %self.settings.name, ?delay, "reopening the port after back-off");
-            if !self.wait_closed(delay).await {
-                break;
-            }
-        }
-        for command in self.sched.drain_commands() {
-            command.answer(Err(CommandError::ShuttingDown));
-        }
-        self.commands.close();
-        while let Some(command) = self.commands.recv().await {
-            command.answer(Err(CommandError::ShuttingDown));
-        }
-        tracing::info!(line = %self.settings.name, "line stopped");
     }
 
     /// The port closed with a request in flight: counted as an error, a command answered.
@@ -165,148 +373,8 @@ impl LineTask {
         }
     }
 
-    /// The port failed: event, status, and every device's values marked as comm failure.
-    fn port_failed(&mut self, id: EventId, reason: String) {
-        self.shared.update(|s| s.port_error = Some(reason.clone()));
-        self.shared.raise(id, None, Some(reason));
-        for device in &self.devices {
-            self.image
-                .set_unit_quality(device.unit_id, Quality::CommFailure);
-            self.shared.metrics().device_up(&device.name, false);
-        }
-    }
-
-    /// Waits `delay` with the port closed, answering commands at once. False on shutdown.
-    async fn wait_closed(&mut self, delay: std::time::Duration) -> bool {
-        for command in self.sched.drain_commands() {
-            command.answer(Err(CommandError::PortClosed));
-        }
-        let until = Instant::now() + delay;
-        loop {
-            tokio::select! {
-                biased;
-                () = self.shutdown.cancelled() => return false,
-                () = tokio::time::sleep_until(until) => return true,
-                command = self.commands.recv(), if self.commands_open => match command {
-                    Some(command) => command.answer(Err(CommandError::PortClosed)),
-                    None => self.commands_open = false,
-                },
-            }
-        }
-    }
-
-    /// The driver loop on an open port.
-    async fn drive(&mut self, mut port: SerialStream) -> PortExit {
-        let mut master = Master::new(self.settings.master);
-        let char_time = self.settings.port.char_time();
-        // The master's deadlines are fractions of a millisecond apart: the t3.5 gap before each
-        // request (003 6.4.3), the end of a reply by t3.5 of silence, the turnaround after a
-        // broadcast (003 6.4.2.2). tokio's millisecond timer would add 1.2 ms to each.
-        let mut timer = LineTimer::new();
-        let mut stopping = false;
-        let mut buf = [0u8; 512];
-        loop {
-            let (now, engine_now) = self.clock.now();
-            // A deadline already passed is handled without sleeping (quinn drive_timer).
-            if master
-                .poll_timeout()
-                .is_some_and(|t| self.clock.to_tokio(t) <= now)
-            {
-                master.handle_timeout(engine_now);
-            }
-            if self.inflight.is_none() && master.is_idle() {
-                if stopping {
-                    return PortExit::Shutdown;
-                }
-                self.start_next(&mut master, now);
-            }
-            while let Some(frame) = master.poll_transmit() {
-                if let Err(err) = port.write_all(&frame).await {
-                    return PortExit::Lost(format!(
-                        "write to {} failed: {err}",
-                        self.settings.port.path
-                    ));
-                }
-                let written = Instant::now();
-                self.sent_at.get_or_insert(written);
-                self.shared.metrics().sent(frame.len());
-                let end = estimated_tx_end(written, frame.len(), char_time);
-                master.handle_tx_done(self.clock.to_engine(end));
-            }
-            let mut completed = false;
-            while let Some(event) = master.poll_event() {
-                match event {
-                    // Slave 0: raised while the line was idle.
-                    MasterEvent::Raised { id, slave } => {
-                        self.shared.raise(id, (slave != 0).then_some(slave), None);
-                        if id == ids::MODBUS_BYTE_OVERFLOW {
-                            self.sched.unexpected_reply(Instant::now());
-                        }
-                    }
-                    MasterEvent::Completed {
-                        id,
-                        slave,
-                        request,
-                        outcome,
-                    } => {
-                        completed = true;
-                        match self.inflight.take() {
-                            Some((expected, job)) if expected == id => {
-                                let delay = master.reply_delay();
-                                self.complete(job, slave, &request, outcome, delay);
-                            }
-                            other => {
-                                tracing::error!(line = %self.settings.name, slave, "completion of a request not in flight");
-                                self.inflight = other;
-                            }
-                        }
-                    }
-                    // This line never submits 32-bit register jobs.
-                    MasterEvent::Completed32 { slave, .. } => {
-                        tracing::error!(line = %self.settings.name, slave, "completion of a 32-bit job never submitted");
-                    }
-                }
-            }
-            if completed {
-                continue; // start the next job at once
-            }
-
-            let master_deadline = master.poll_timeout().map(|t| self.clock.to_tokio(t));
-            let idle = self.inflight.is_none() && master.is_idle() && !stopping;
-            let poll_deadline = if idle { self.sched.next_wake() } else { None };
-            tokio::select! {
-                biased;
-                () = self.shutdown.cancelled(), if !stopping => {
-                    stopping = true;
-                    for command in self.sched.drain_commands() {
-                        command.answer(Err(CommandError::ShuttingDown));
-                    }
-                }
-                read = port.read(&mut buf) => match read {
-                    Ok(0) => return PortExit::Lost(format!("{} reached end of file", self.settings.port.path)),
-                    Ok(n) => {
-                        let (_, engine_now) = self.clock.now();
-                        self.shared.metrics().received_bytes(n);
-                        master.handle_rx(engine_now, buf.get(..n).unwrap_or_default());
-                    }
-                    Err(err) => return PortExit::Lost(format!("read from {} failed: {err}", self.settings.port.path)),
-                },
-                () = timer.sleep_until_opt(master_deadline) => {
-                    let (_, engine_now) = self.clock.now();
-                    master.handle_timeout(engine_now);
-                }
-                () = sleep_until_opt(poll_deadline) => {}
-                command = self.commands.recv(), if self.commands_open && !stopping => match command {
-                    Some(command) if command.is_write() => self.sched.push_write(command),
-                    Some(command) => self.sched.push_read(command),
-                    None => self.commands_open = false,
-                },
-            }
-        }
-    }
-
     /// Submits the next job to the idle master; answers commands that cannot be sent.
-    fn start_next(&mut self, master: &mut Master, now: Instant) {
+    fn start_next(&mut self, now: Instant) {
         let engine_now = self.clock.to_engine(now);
         while let Some(job) = self.sched.next_job(now) {
             match job {
@@ -317,7 +385,17 @@ impl LineTask {
                         command.answer(Err(CommandError::Offline(slave)));
                         continue;
                     }
-                    match master.submit(engine_now, command.slave, command.request.clone()) {
+                    let registers32 = registers32::enabled(&self.settings.master);
+                    let request = command.request.clone();
+                    let attempts = Attempts::default();
+                    match registers32::submit(
+                        &mut self.master,
+                        registers32,
+                        engine_now,
+                        command.slave,
+                        request,
+                        attempts,
+                    ) {
                         Ok(id) => {
                             self.sent_at = None;
                             self.inflight = Some((id, InFlight::Command { device, command }));
@@ -333,7 +411,15 @@ impl LineTask {
                     // A probe of an offline device is one attempt with its own wait (`probe`).
                     let attempts = self.sched.poll_attempts(poll.device, &self.settings.master);
                     let request = poll.read.request();
-                    match master.submit_with(engine_now, device.slave, request, attempts) {
+                    let registers32 = registers32::enabled(&self.settings.master);
+                    match registers32::submit(
+                        &mut self.master,
+                        registers32,
+                        engine_now,
+                        device.slave,
+                        request,
+                        attempts,
+                    ) {
                         Ok(id) => {
                             self.sent_at = None;
                             self.inflight = Some((id, InFlight::Poll(poll)));
@@ -360,13 +446,15 @@ impl LineTask {
         }
     }
 
-    /// Handles the end of the request in flight; `reply_delay` is the master's, from the end of
-    /// the request to the first byte of the answer.
+    /// Handles the end of the request in flight, counted under `function` (the request's, or
+    /// 43h/46h/50h for a 32-bit register job); `reply_delay` is the master's, from the end of the
+    /// request to the first byte of the answer.
     fn complete(
         &mut self,
         job: InFlight,
         slave: u8,
         request: &Request,
+        function: u8,
         outcome: Outcome,
         reply_delay: Option<std::time::Duration>,
     ) {
@@ -387,7 +475,6 @@ impl LineTask {
             InFlight::Poll(poll) => Some(poll.device),
             InFlight::Command { device, .. } => *device,
         };
-        let function = request.function().0;
         self.shared
             .metrics()
             .request(self.device_label(index, Some(slave)), function, result);
@@ -472,7 +559,7 @@ impl LineTask {
         }
     }
 
-    fn device_stat(&self, index: usize, f: impl FnOnce(&mut super::status::DeviceStatus)) {
+    fn device_stat(&self, index: usize, f: impl FnOnce(&mut DeviceStatus)) {
         self.shared.update(|s| {
             if let Some(d) = s.devices.get_mut(index) {
                 f(d);

@@ -2,36 +2,34 @@
 //! HMI, say) polls the gateway as if it were the CP at its slave address, reading and writing the
 //! gateway's CP memory, which Modbus TCP, the image, zenoh and REST share.
 //!
-//! The task owns the port and a proto-core [`Slave`] engine that borrows the
-//! [`SharedCpMemory`] for one request at a time. The driver loop is the master line's: write what
-//! the engine transmits, hand its events to the status (diagnostic buffer, counters, STATUS word,
-//! [`LineEvent`](super::LineEvent) broadcast) and the memory (image mirrors, persistence), then
-//! wait for bytes, the engine's deadline or shutdown. On shutdown the port is no longer read, the
-//! request already received is answered, and the task ends (STYLE habit 9). A port that fails is
-//! reopened with back-off, as on the master line.
+//! An adapter of the line runtime over a proto-core [`Slave`] engine that borrows the
+//! [`SharedCpMemory`] for one request at a time: the engine's events go to the status (diagnostic
+//! buffer, counters, STATUS word, [`LineEvent`](super::LineEvent) broadcast) and the memory
+//! (image mirrors, persistence). On shutdown the port is no longer read, the request already
+//! received is answered, and the line stops.
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, SystemTime};
 
-use proto_core::cpmem::{AddressMap, SlaveParams};
+use proto_core::cpmem::SlaveParams;
 use proto_core::event::EventId;
 use proto_core::modbus::rtu::CharTiming;
 use proto_core::modbus::slave::{DiscardReason, Outcome, Slave, SlaveEvent};
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
-use tokio::sync::broadcast;
-use tokio::task::JoinHandle;
+use tokio::time::Instant;
+use tokio_serial::SerialPort;
 use tokio_util::sync::CancellationToken;
 
-use super::driver::Clock;
-use super::line_metrics::{slave_result, LineMetrics, SLAVE_LINE_PARTNER};
-use super::modbus_master::{EVENT_PORT_LOST, EVENT_PORT_SETUP};
-use super::status::{LineEvent, LineStatus, Shared, DEFAULT_DIAG_DEPTH};
+use super::line_metrics::{slave_result, SLAVE_LINE_PARTNER};
+use super::runtime::{
+    self, LineBase, LineCapabilities, LineEngine, LineHandle, SerialOpener, Stop,
+};
+use super::status::{Shared, DEFAULT_DIAG_DEPTH};
 use super::{DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::cpmem::{CpMemoryUnit, SharedCpMemory};
 use crate::metrics::Metrics;
-use crate::serial::{self, Backoff, PortSettings};
-use crate::timer::LineTimer;
+use crate::serial::PortSettings;
+use crate::unit::UnitService;
 
 /// Settings of one Modbus slave RTU line.
 #[derive(Clone, Debug)]
@@ -50,6 +48,9 @@ pub struct SlaveLineSettings {
     pub reopen_max: Duration,
     /// Where the line counts its events, traffic and requests (`None`: nowhere).
     pub metrics: Option<Metrics>,
+    /// The unit id under which Modbus TCP serves the memory with the line's address conversion
+    /// (`None`: not served there).
+    pub unit_id: Option<u8>,
 }
 
 // === impl SlaveLineSettings ===
@@ -68,6 +69,7 @@ impl SlaveLineSettings {
             reopen_min: DEFAULT_REOPEN_MIN,
             reopen_max: DEFAULT_REOPEN_MAX,
             metrics: None,
+            unit_id: None,
         }
     }
 
@@ -101,247 +103,193 @@ pub struct SlaveCounters {
     pub last_request: Option<SystemTime>,
 }
 
-/// A running slave line: its status, counters and the memory it serves.
-/// Clones share the line; [`Self::join`] waits for its task once.
-#[derive(Clone, Debug)]
-pub struct SlaveLineHandle {
-    name: String,
-    params: SlaveParams,
-    shared: Arc<Shared>,
-    counters: Arc<Mutex<SlaveCounters>>,
-    memory: SharedCpMemory,
-    task: Arc<Mutex<Option<JoinHandle<()>>>>,
-}
-
-// === impl SlaveLineHandle ===
-
-impl SlaveLineHandle {
-    /// The line's name.
-    pub fn name(&self) -> &str {
-        &self.name
-    }
-
-    /// The parameters the line runs with.
-    pub fn params(&self) -> &SlaveParams {
-        &self.params
-    }
-
-    /// A snapshot of the line's state in the master line's shape: port, diagnostic buffer (newest
-    /// first), event counters, last STATUS word. A slave line has no devices; `commands_answered`
-    /// counts the requests served (answered with data or applied as a broadcast) and
-    /// `commands_failed` those refused with an exception (answered or broadcast). The details are
-    /// in [`SlaveLineHandle::counters`].
-    pub fn status(&self) -> LineStatus {
-        self.shared.snapshot()
-    }
-
-    /// What the line has served.
-    pub fn counters(&self) -> SlaveCounters {
-        self.counters
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .clone()
-    }
-
-    /// Empties the line's diagnostic buffer; the event counters and the STATUS word stay.
-    pub fn clear_diagnostics(&self) {
-        self.shared.clear_diagnostics();
-    }
-
-    /// The line's events as they happen (bounded; a lagging receiver is told how many it missed).
-    pub fn subscribe_events(&self) -> broadcast::Receiver<LineEvent> {
-        self.shared.subscribe()
-    }
-
-    /// The memory the line serves.
-    pub fn memory(&self) -> &SharedCpMemory {
-        &self.memory
-    }
-
-    /// The same memory with the same address conversion, for the Modbus TCP unit map.
-    pub fn unit(&self) -> CpMemoryUnit {
-        CpMemoryUnit::new(self.memory.clone(), self.params.map().clone())
-    }
-
-    /// The address map of the line (for [`SharedCpMemory::mirror_to`]).
-    pub fn map(&self) -> &AddressMap {
-        self.params.map()
-    }
-
-    /// Waits for the line task to end (after the shutdown token was cancelled).
-    pub async fn join(self) {
-        let task = self
-            .task
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .take();
-        let Some(task) = task else { return };
-        if let Err(err) = task.await {
-            tracing::error!(line = %self.name, %err, "slave line task failed");
-        }
-    }
-}
-
 /// Starts a Modbus slave RTU line: opens its port (reopening with back-off) and serves `memory` to
 /// the serial master until `shutdown` is cancelled. Must be called within a tokio runtime.
 pub fn spawn_modbus_slave_line(
     settings: SlaveLineSettings,
     memory: SharedCpMemory,
     shutdown: CancellationToken,
-) -> SlaveLineHandle {
-    let status = LineStatus {
-        name: settings.name.clone(),
-        port_open: false,
-        port_error: None,
-        port_opens: 0,
-        status_word: 0,
-        diagnostics: Vec::new(),
-        last_event: None,
-        started: SystemTime::now(),
-        event_counts: BTreeMap::new(),
-        devices: Vec::new(),
-        commands_answered: 0,
-        commands_failed: 0,
-    };
-    let clock = Clock::start();
-    let metrics = LineMetrics::new(
-        settings.metrics.clone(),
+) -> LineHandle {
+    let base = LineBase::new(
         &settings.name,
         SlaveLineSettings::PROTOCOL,
+        &settings.port,
+        settings.diag_depth,
+        (settings.reopen_min, settings.reopen_max),
+        settings.metrics.as_ref(),
     );
-    let shared = Shared::with_metrics(status, settings.diag_depth, clock, metrics);
+    let core = base.core(Vec::new());
     let counters = Arc::new(Mutex::new(SlaveCounters::default()));
-    let task = SlaveTask {
-        settings: settings.clone(),
-        memory: memory.clone(),
-        shared: Arc::clone(&shared),
+    let caps = SlaveCapabilities {
+        params: settings.params.clone(),
+        unit_id: settings.unit_id,
         counters: Arc::clone(&counters),
-        shutdown,
-        clock,
+        memory: memory.clone(),
     };
-    let task = tokio::spawn(task.run());
-    SlaveLineHandle {
-        name: settings.name,
-        params: settings.params,
-        shared,
-        counters,
+    let slave = Slave::new(settings.params.clone(), settings.timing(), memory.clone());
+    let engine = SlaveLine {
+        settings,
         memory,
-        task: Arc::new(Mutex::new(Some(task))),
+        shared: Arc::clone(&core.shared),
+        counters,
+        slave,
+    };
+    runtime::spawn(core, engine, None, Arc::new(caps), SerialOpener, shutdown)
+}
+
+/// What a slave line offers: its counters, the memory it serves and that memory as a unit.
+#[derive(Debug)]
+struct SlaveCapabilities {
+    params: SlaveParams,
+    unit_id: Option<u8>,
+    counters: Arc<Mutex<SlaveCounters>>,
+    memory: SharedCpMemory,
+}
+
+impl LineCapabilities for SlaveCapabilities {
+    fn units(&self) -> Vec<(u8, Arc<dyn UnitService>)> {
+        let unit = self.memory().unit();
+        self.unit_id
+            .map(|id| (id, Arc::new(unit) as Arc<dyn UnitService>))
+            .into_iter()
+            .collect()
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
     }
 }
 
-/// Why the driver loop ended.
-#[derive(Debug)]
-enum PortExit {
-    Shutdown,
-    Lost(String),
+// === impl SlaveCapabilities ===
+
+impl SlaveCapabilities {
+    fn counters(&self) -> SlaveCounters {
+        self.counters
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
+    }
+
+    fn memory(&self) -> CpMemoryView {
+        CpMemoryView {
+            memory: self.memory.clone(),
+            map: self.params.map().clone(),
+            unit_id: self.unit_id,
+        }
+    }
 }
 
-/// The task of one slave line.
-struct SlaveTask {
+/// The CP memory a slave line serves, with its address conversion and unit id.
+#[derive(Clone, Debug)]
+pub struct CpMemoryView {
+    /// The memory.
+    pub memory: SharedCpMemory,
+    /// The line's address conversion (for [`SharedCpMemory::mirror_to`]).
+    pub map: proto_core::cpmem::AddressMap,
+    /// The unit id under which Modbus TCP and the image show it, if any.
+    pub unit_id: Option<u8>,
+}
+
+// === impl CpMemoryView ===
+
+impl CpMemoryView {
+    /// The memory with the line's address conversion as a Modbus TCP unit.
+    pub fn unit(&self) -> CpMemoryUnit {
+        CpMemoryUnit::new(self.memory.clone(), self.map.clone())
+    }
+}
+
+/// What a Modbus slave line adds to every line.
+impl LineHandle {
+    /// What a Modbus slave line has served.
+    pub fn slave_counters(&self) -> Option<SlaveCounters> {
+        self.capability::<SlaveCapabilities>()
+            .map(SlaveCapabilities::counters)
+    }
+
+    /// The CP memory a Modbus slave line serves.
+    pub fn cp_memory(&self) -> Option<CpMemoryView> {
+        self.capability::<SlaveCapabilities>()
+            .map(SlaveCapabilities::memory)
+    }
+}
+
+/// The adapter of one slave line.
+struct SlaveLine {
     settings: SlaveLineSettings,
     memory: SharedCpMemory,
     shared: Arc<Shared>,
     counters: Arc<Mutex<SlaveCounters>>,
-    shutdown: CancellationToken,
-    clock: Clock,
+    slave: Slave<SharedCpMemory>,
 }
 
-// === impl SlaveTask ===
+impl LineEngine for SlaveLine {
+    type Command = ();
 
-impl SlaveTask {
-    /// Opens the port, serves it until it fails, reopens with back-off; until shutdown.
-    async fn run(self) {
-        let name = &self.settings.name;
-        let mut reopen = Backoff::clamped(self.settings.reopen_min, self.settings.reopen_max);
-        loop {
-            match serial::open(&self.settings.port) {
-                Ok(port) => {
-                    reopen.reset();
-                    tracing::info!(line = %name, path = %self.settings.port.path, address = self.settings.params.address(), "slave port open");
-                    self.shared.started();
-                    let exit = self.drive(port).await;
-                    self.shared.port_closed();
-                    match exit {
-                        PortExit::Shutdown => break,
-                        PortExit::Lost(reason) => self.port_failed(EVENT_PORT_LOST, reason),
-                    }
-                }
-                Err(err) => self.port_failed(EVENT_PORT_SETUP, err.to_string()),
-            }
-            let delay = reopen.next_delay();
-            tracing::info!(line = %name, ?delay, "reopening the port after back-off");
-            tokio::select! {
-                biased;
-                () = self.shutdown.cancelled() => break,
-                () = tokio::time::sleep(delay) => {}
-            }
-        }
-        tracing::info!(line = %name, "slave line stopped");
-    }
-
-    fn port_failed(&self, id: EventId, reason: String) {
-        self.shared.update(|s| s.port_error = Some(reason.clone()));
-        self.shared.raise(id, None, Some(reason));
-    }
-
-    /// The driver loop on an open port.
-    async fn drive<P: AsyncRead + AsyncWrite + Unpin>(&self, mut port: P) -> PortExit {
-        let path = &self.settings.port.path;
-        let mut slave = Slave::new(
+    fn opened(&mut self, _modem: Option<&mut dyn SerialPort>) {
+        tracing::debug!(line = %self.settings.name, address = self.settings.params.address(), "slave address");
+        self.slave = Slave::new(
             self.settings.params.clone(),
             self.settings.timing(),
             self.memory.clone(),
         );
-        // The slave's deadlines are fractions of a millisecond: the end of a request by t3.5 of
-        // silence (003 6.4.3) and the t3.5 before its answer; tokio's timer would add 1.2 ms.
-        let mut timer = LineTimer::new();
-        let mut stopping = false;
-        let mut buf = [0u8; 512];
-        loop {
-            let (now, engine_now) = self.clock.now();
-            // A deadline already passed is handled without sleeping (quinn drive_timer).
-            if slave
-                .poll_timeout()
-                .is_some_and(|t| self.clock.to_tokio(t) <= now)
-            {
-                slave.handle_timeout(engine_now);
-            }
-            while let Some(frame) = slave.poll_transmit() {
-                if let Err(err) = port.write_all(&frame).await {
-                    return PortExit::Lost(format!("write to {path} failed: {err}"));
-                }
-                self.shared.metrics().sent(frame.len());
-            }
-            while let Some(event) = slave.poll_event() {
-                self.on_event(event);
-            }
-            let deadline = slave.poll_timeout().map(|t| self.clock.to_tokio(t));
-            // Stopping: nothing is read any more, so the frame being received ends by silence
-            // and the last request is answered; then the line stops.
-            if stopping && deadline.is_none() {
-                return PortExit::Shutdown;
-            }
-            tokio::select! {
-                biased;
-                () = self.shutdown.cancelled(), if !stopping => stopping = true,
-                () = timer.sleep_until_opt(deadline) => {
-                    let (_, engine_now) = self.clock.now();
-                    slave.handle_timeout(engine_now);
-                }
-                read = port.read(&mut buf), if !stopping => match read {
-                    Ok(0) => return PortExit::Lost(format!("{path} reached end of file")),
-                    Ok(n) => {
-                        let (_, engine_now) = self.clock.now();
-                        self.shared.metrics().received_bytes(n);
-                        slave.handle_rx(engine_now, buf.get(..n).unwrap_or_default());
-                    }
-                    Err(err) => return PortExit::Lost(format!("read from {path} failed: {err}")),
-                },
-            }
+    }
+
+    fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
+        self.slave.handle_rx(now, bytes);
+    }
+
+    fn handle_timeout(&mut self, now: proto_core::time::Instant) {
+        self.slave.handle_timeout(now);
+    }
+
+    fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
+        self.slave.poll_timeout()
+    }
+
+    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        self.slave.poll_transmit()
+    }
+
+    fn transmitted(&mut self, _written: Instant, _len: usize, _end: proto_core::time::Instant) {
+        self.shared.metrics().sent_telegram();
+    }
+
+    fn handle_events(&mut self) -> bool {
+        while let Some(event) = self.slave.poll_event() {
+            self.on_event(event);
+        }
+        false
+    }
+
+    fn command(&mut self, (): (), _modem: Option<&mut dyn SerialPort>) {}
+
+    fn refuse(&mut self, (): (), _shutting_down: bool) {}
+
+    /// Nothing is read any more, so the frame being received ends by silence and the last
+    /// request is answered; then the line stops.
+    fn stop(&mut self) -> Stop {
+        Stop {
+            read: false,
+            close_queue: true,
+            grace: None,
         }
     }
 
+    fn done(&self) -> bool {
+        self.slave.poll_timeout().is_none()
+    }
+
+    fn closed(&mut self, _shutting_down: bool) {}
+
+    fn port_failed(&mut self, id: EventId, reason: String) {
+        self.shared.raise(id, None, Some(reason));
+    }
+}
+
+// === impl SlaveLine ===
+
+impl SlaveLine {
     fn count(&self, f: impl FnOnce(&mut SlaveCounters)) {
         f(&mut self.counters.lock().unwrap_or_else(PoisonError::into_inner));
     }

@@ -5,6 +5,7 @@
 use std::time::Duration;
 
 use proto_core::modbus::pdu::Request;
+use proto_core::profiles::{self, RequestLimits};
 
 use crate::image::Table;
 
@@ -41,12 +42,14 @@ impl AddrRange {
     }
 }
 
-/// What one device accepts in one request.
+/// What the planner may put in one request to a device: its [`RequestLimits`] (FC 23 and the
+/// ADU length are not planned with) and how far a merged read may bridge.
 ///
-/// The defaults of the presets cite their manuals; "bridging" lets a merged read include up to
-/// `bridge_gap` addresses nobody polls, which only works on devices that answer such addresses
-/// (the Altivar reads a missing word as 0x8000 and the KS vario a gap as 31000, but both answer
-/// exception 02 when the first word is undefined), so it is off unless configured.
+/// The presets take their numbers from proto-core's limits, which cite their manuals;
+/// "bridging" lets a merged read include up to `bridge_gap` addresses nobody polls, which only
+/// works on devices that answer such addresses (the Altivar reads a missing word as 0x8000 and
+/// the KS vario a gap as 31000, but both answer exception 02 when the first word is undefined), so
+/// it is off unless configured.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct DeviceLimits {
     /// Registers in one FC03/FC04 read.
@@ -64,35 +67,36 @@ pub struct DeviceLimits {
 // === impl DeviceLimits ===
 
 impl DeviceLimits {
-    /// What the CP 341 master itself allows: 1..2040 bits, 1..127 registers (003 6.4.4, "FC 01"..
-    /// "FC 16" parameter ranges).
-    pub const CP341: Self = Self {
-        max_read_regs: 127,
-        max_write_regs: 127,
-        max_read_bits: 2040,
-        max_write_bits: 2040,
-        bridge_gap: 0,
-    };
+    /// What the CP 341 master itself allows ([`RequestLimits::CP341`], 003 6.4.4).
+    pub const CP341: Self = Self::from_request(RequestLimits::CP341, 0);
 
-    /// Altivar 61/71: FC03 at most 63 words, FC16 at most 61 words (002 "Modbus-Protokoll",
-    /// table of function codes). The drive has no bit functions; the bit limits stay the CP's.
-    pub const ALTIVAR: Self = Self {
-        max_read_regs: 63,
-        max_write_regs: 61,
-        max_read_bits: 2040,
-        max_write_bits: 2040,
-        bridge_gap: 0,
-    };
+    /// Altivar 61/71 ([`profiles::altivar::LIMITS`], 002). The drive has no bit functions; the
+    /// bit limits stay the CP's.
+    pub const ALTIVAR: Self = Self::registers_of(profiles::altivar::LIMITS);
 
-    /// KS vario: a 250-byte message buffer, "at most 120 integer or 60 float values in one message"
-    /// (001 3.1).
-    pub const KS_VARIO: Self = Self {
-        max_read_regs: 120,
-        max_write_regs: 120,
-        max_read_bits: 2040,
-        max_write_bits: 2040,
-        bridge_gap: 0,
-    };
+    /// KS vario ([`profiles::ksvario::LIMITS`], 001 3.1). No bit functions; the bit limits stay
+    /// the CP's.
+    pub const KS_VARIO: Self = Self::registers_of(profiles::ksvario::LIMITS);
+
+    /// The planner's limits of a device that accepts `limits`, bridging up to `bridge_gap`.
+    pub const fn from_request(limits: RequestLimits, bridge_gap: u16) -> Self {
+        Self {
+            max_read_regs: limits.read_registers,
+            max_write_regs: limits.write_registers,
+            max_read_bits: limits.read_bits,
+            max_write_bits: limits.write_bits,
+            bridge_gap,
+        }
+    }
+
+    /// The register limits of `limits` with the CP's bit limits, no bridging.
+    const fn registers_of(limits: RequestLimits) -> Self {
+        Self {
+            max_read_regs: limits.read_registers,
+            max_write_regs: limits.write_registers,
+            ..Self::CP341
+        }
+    }
 
     /// The largest read of `table` in one request (at least 1).
     pub fn max_read(&self, table: Table) -> u16 {

@@ -1,5 +1,5 @@
-//! How a Modbus master line probes a device that stopped answering (SPEC "Polling": "a device
-//! that stops answering backed off so it cannot starve the others").
+//! How a Modbus master line probes a device that stopped answering: a device that stops
+//! answering is backed off so that it cannot starve the others.
 //!
 //! The seeds are silent on offline devices: the CP 341 sends what the S7 program asks and waits
 //! the interface's reply monitoring time for every request (003 6.4.2.1: 5..65500 ms, default

@@ -1,4 +1,4 @@
-//! Which request a Modbus master line sends next (SPEC "Polling").
+//! Which request a Modbus master line sends next.
 //!
 //! Order: queued writes first, then on-demand reads, then the poll that has been due longest.
 //! A device that does not answer goes offline: its polls stop and one probe is sent after a

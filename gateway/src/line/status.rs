@@ -87,6 +87,28 @@ pub struct LineStatus {
     pub commands_failed: u64,
 }
 
+// === impl LineStatus ===
+
+impl LineStatus {
+    /// The status of line `name` with `devices` as it starts: port not yet open, no events.
+    pub(crate) fn new(name: String, devices: Vec<DeviceStatus>) -> Self {
+        Self {
+            name,
+            port_open: false,
+            port_error: None,
+            port_opens: 0,
+            status_word: 0,
+            diagnostics: Vec::new(),
+            last_event: None,
+            started: SystemTime::now(),
+            event_counts: BTreeMap::new(),
+            devices,
+            commands_answered: 0,
+            commands_failed: 0,
+        }
+    }
+}
+
 /// The state shared between a line task and its handle.
 #[derive(Debug)]
 pub(crate) struct Shared {
@@ -230,20 +252,7 @@ mod tests {
     use super::*;
 
     fn status() -> LineStatus {
-        LineStatus {
-            name: "drive".into(),
-            port_open: false,
-            port_error: None,
-            port_opens: 0,
-            status_word: 0,
-            diagnostics: Vec::new(),
-            last_event: None,
-            started: SystemTime::now(),
-            event_counts: BTreeMap::new(),
-            devices: Vec::new(),
-            commands_answered: 0,
-            commands_failed: 0,
-        }
+        LineStatus::new("drive".into(), Vec::new())
     }
 
     #[test]

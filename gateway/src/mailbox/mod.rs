@@ -1,5 +1,5 @@
 //! Telegram mailboxes: how the telegrams of an ASCII or 3964(R) line reach Modbus TCP clients,
-//! modeled on the CP's FB 7 P_RCV_RK and FB 8 P_SND_RK (SPEC "Republishing").
+//! modeled on the CP's FB 7 P_RCV_RK and FB 8 P_SND_RK.
 //!
 //! The [`Mailbox`] of a line is the CP's receive ring buffer (003 6.2.1 "Receipt telegrams are
 //! buffered in the CP at a ring buffer"): every received telegram gets a sequence number and a
@@ -14,20 +14,17 @@
 //! were lost. Observers (zenoh, REST) get every telegram with its number
 //! ([`Mailbox::subscribe`]), independent of the acknowledgements.
 //!
-//! [`MailboxUnit`] serves the mailbox under the line's unit id; [`layout`] documents the
-//! registers.
+//! The telegram line's `MailboxUnit` (in [`crate::line::telegram`]) serves the mailbox under the
+//! line's unit id; [`layout`] documents the registers.
 
 pub mod layout;
 mod send_block;
-mod unit;
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::SystemTime;
 
 use tokio::sync::{broadcast, Notify};
-
-pub use unit::MailboxUnit;
 
 use send_block::SendBlock;
 
@@ -184,7 +181,7 @@ struct State {
 }
 
 /// The receive queue, counters and send block of one telegram line, shared by the line task,
-/// its [`MailboxUnit`] and observers.
+/// its `MailboxUnit` and observers.
 #[derive(Debug)]
 pub struct Mailbox {
     line: Arc<str>,

@@ -75,6 +75,7 @@ pub const METRIC_NAMES: &[&str] = &[
     TCP_REQUESTS,
     TCP_REFUSED,
     TCP_HANDSHAKES_FAILED,
+    WRITES,
     ZENOH_PUBLICATIONS,
     DROPPED_UPDATES,
 ];
@@ -94,6 +95,7 @@ const TCP_CONNECTIONS_REJECTED: &str = "gateway_modbus_tcp_connections_rejected_
 const TCP_REQUESTS: &str = "gateway_modbus_tcp_requests_total";
 const TCP_REFUSED: &str = "gateway_modbus_tcp_refused_total";
 const TCP_HANDSHAKES_FAILED: &str = "gateway_modbus_tcp_tls_handshakes_failed_total";
+const WRITES: &str = "gateway_writes_total";
 const ZENOH_PUBLICATIONS: &str = "gateway_zenoh_publications_total";
 const DROPPED_UPDATES: &str = "gateway_dropped_updates_total";
 
@@ -141,6 +143,8 @@ pub struct Metrics {
     tcp_refused: IntCounterVec,
     /// `gateway_modbus_tcp_tls_handshakes_failed_total`: TLS handshakes that failed or timed out.
     tcp_handshakes_failed: IntCounter,
+    /// `gateway_writes_total{path,result}`: audited writes from outside.
+    writes: IntCounterVec,
     /// `gateway_zenoh_publications_total{kind}`.
     zenoh_publications: IntCounterVec,
     /// `gateway_dropped_updates_total{reason}`.
@@ -228,6 +232,13 @@ impl Metrics {
                 ),
                 &["role"],
             )?,
+            writes: IntCounterVec::new(
+                Opts::new(
+                    WRITES,
+                    "Writes from outside (Modbus TCP, Modbus/TCP Security, REST, zenoh) by path and result.",
+                ),
+                &["path", "result"],
+            )?,
             tcp_handshakes_failed: IntCounter::new(
                 TCP_HANDSHAKES_FAILED,
                 "Modbus/TCP Security TLS handshakes that failed or timed out (bad or missing \
@@ -261,12 +272,22 @@ impl Metrics {
         registry.register(Box::new(metrics.tcp_requests.clone()))?;
         registry.register(Box::new(metrics.tcp_refused.clone()))?;
         registry.register(Box::new(metrics.tcp_handshakes_failed.clone()))?;
+        registry.register(Box::new(metrics.writes.clone()))?;
         registry.register(Box::new(metrics.zenoh_publications.clone()))?;
         registry.register(Box::new(metrics.dropped_updates.clone()))?;
 
         build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
             .set(1);
+        // A certificate without a role: the one role label every Modbus/TCP Security server has.
+        metrics.tcp_refused.with_label_values(&["none"]);
+        for path in crate::audit::WritePath::ALL {
+            for result in crate::audit::WriteResult::ALL {
+                metrics
+                    .writes
+                    .with_label_values(&[path.as_str(), result.as_str()]);
+            }
+        }
         for reason in RejectReason::ALL {
             metrics.tcp_rejected.with_label_values(&[reason.as_str()]);
         }
@@ -430,6 +451,11 @@ impl Metrics {
         self.tcp_refused.with_label_values(&[role]).inc();
     }
 
+    /// Counts one audited write (see [`crate::audit`]).
+    pub fn write_audited(&self, path: &str, result: &str) {
+        self.writes.with_label_values(&[path, result]).inc();
+    }
+
     /// Counts one failed Modbus/TCP Security handshake.
     pub fn tcp_handshake_failed(&self) {
         self.tcp_handshakes_failed.inc();
@@ -446,9 +472,14 @@ impl Metrics {
 
     /// Counts one update dropped instead of delivered.
     pub fn dropped_update(&self, reason: DropReason) {
+        self.dropped_updates(reason, 1);
+    }
+
+    /// Counts `count` updates dropped instead of delivered (a receiver that lagged lost several).
+    pub fn dropped_updates(&self, reason: DropReason, count: u64) {
         self.dropped_updates
             .with_label_values(&[reason.as_str()])
-            .inc();
+            .inc_by(count);
     }
 }
 

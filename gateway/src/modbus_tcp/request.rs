@@ -32,6 +32,7 @@ use super::access::Authority;
 use super::mbap::MAX_PDU_LEN;
 use super::shared::Shared;
 use super::stats::{FrameReject, RequestResult};
+use crate::audit::{WritePath, WriteResult};
 use crate::log_limit::{LogLimit, Verdict};
 use crate::unit::{UnitResult, UnitService};
 
@@ -54,8 +55,13 @@ pub(crate) async fn answer(
         return Err(FrameReject::EmptyPdu);
     };
     let mark = out.len();
+    let mut refused = false;
     let result = match admit(shared, authority, peer, unit, pdu, out) {
         Admitted::Answered(result) => result,
+        Admitted::Refused(code) => {
+            refused = true;
+            Err(code)
+        }
         Admitted::Call(service, request) => match call(service.as_ref(), request, shared).await {
             Ok(response) => {
                 encode_response(&response, out);
@@ -85,13 +91,68 @@ pub(crate) async fn answer(
     }
     let counted = result.map_or_else(RequestResult::Exception, |()| RequestResult::Ok);
     shared.stats.count_request(function, counted);
+    if changes_state(pdu) {
+        audit_write(shared, authority, peer, unit, pdu, result, refused);
+    }
     Ok(())
+}
+
+/// Whether the request PDU changes state: FC 05, 06, 15, 16, 23, and the FC 08 sub-functions
+/// that change the device (Modbus Application Protocol V1.1b3, 6.8.1: all but 00 return query
+/// data, 02 return diagnostic register and 0B..12 return counters).
+fn changes_state(pdu: &[u8]) -> bool {
+    match pdu {
+        [0x05 | 0x06 | 0x0F | 0x10 | 0x17, ..] => true,
+        [0x08, hi, lo, ..] => !matches!(u16::from_be_bytes([*hi, *lo]), 0x00 | 0x02 | 0x0B..=0x12),
+        _ => false,
+    }
+}
+
+/// The audit record of a write: who (address, role), what (unit, function, first address),
+/// how it ended.
+fn audit_write(
+    shared: &Shared,
+    authority: &Authority,
+    peer: SocketAddr,
+    unit: u8,
+    pdu: &[u8],
+    result: Result<(), ExceptionCode>,
+    refused: bool,
+) {
+    let path = match authority {
+        Authority::Open => WritePath::ModbusTcp,
+        Authority::Role { .. } => WritePath::ModbusTls,
+    };
+    let outcome = match result {
+        Ok(()) => WriteResult::Accepted,
+        Err(_) if refused => WriteResult::Refused,
+        Err(_) => WriteResult::Failed,
+    };
+    let function = pdu.first().copied().unwrap_or(0);
+    let address = match pdu {
+        [_, hi, lo, ..] => u16::from_be_bytes([*hi, *lo]),
+        _ => 0,
+    };
+    let detail = match result {
+        Ok(()) => String::from("ok"),
+        Err(code) => format!("exception {:02X}", u8::from(code)),
+    };
+    crate::audit::record(
+        shared.stats.metrics(),
+        path,
+        &format_args!("{peer} role={}", authority.label()),
+        &format_args!("unit {unit} function {function:02X} address {address}"),
+        outcome,
+        &detail,
+    );
 }
 
 /// How steps 1 to 5 ended.
 enum Admitted {
     /// An exception of steps 1 to 5, or the unit's answer given at once (appended to `out`).
     Answered(Result<(), ExceptionCode>),
+    /// Refused by the role (step 2) or the write policy (steps 4, 5).
+    Refused(ExceptionCode),
     /// The unit answers in its own time: step 6.
     Call(Arc<dyn UnitService>, Request),
 }
@@ -122,7 +183,7 @@ fn admit(
             warn!(%peer, role, unit, function = pdu.first().copied().unwrap_or(0), ?refusal,
                 suppressed, "request refused by role");
         }
-        return Admitted::Answered(Err(ExceptionCode::IllegalFunction));
+        return Admitted::Refused(ExceptionCode::IllegalFunction);
     }
     // A panic elsewhere while holding the lock leaves a map that is still whole: keep serving.
     let units = shared.units.read().unwrap_or_else(PoisonError::into_inner);
@@ -130,7 +191,7 @@ fn admit(
         return Admitted::Answered(Err(ExceptionCode::GatewayPathUnavailable));
     };
     if let Some(code) = shared.options.check_write(unit, &request) {
-        return Admitted::Answered(Err(code));
+        return Admitted::Refused(code);
     }
     match service.answer_now(&request, out) {
         Some(result) => Admitted::Answered(result),
@@ -164,4 +225,33 @@ fn encode_exception(function: u8, code: ExceptionCode, out: &mut Vec<u8>) {
         code,
     }
     .encode(out);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_and_device_control_change_state() {
+        for pdu in [
+            &[0x05, 0, 1, 0xFF, 0][..],
+            &[0x06, 0, 1, 0, 1],
+            &[0x0F, 0, 1],
+            &[0x10, 0, 1],
+            &[0x17, 0, 1],
+            &[0x08, 0, 0x01, 0, 0],
+            &[0x08, 0, 0x04, 0, 0],
+        ] {
+            assert!(changes_state(pdu), "{pdu:02X?}");
+        }
+        for pdu in [
+            &[0x03, 0, 1, 0, 1][..],
+            &[0x08, 0, 0x00, 0x12, 0x34],
+            &[0x08, 0, 0x0B, 0, 0],
+            &[0x08, 0],
+            &[],
+        ] {
+            assert!(!changes_state(pdu), "{pdu:02X?}");
+        }
+    }
 }

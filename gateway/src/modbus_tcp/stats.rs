@@ -9,8 +9,6 @@ use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
-use proto_core::modbus::pdu::ExceptionCode;
-
 use prometheus::IntCounter;
 
 use crate::metrics::{self, Metrics, TcpConnectionGuard};
@@ -77,14 +75,10 @@ const RESULT_LABELS: [&str; 12] = [
     "ok", "01", "02", "03", "04", "05", "06", "07", "08", "0A", "0B", "other",
 ];
 
-/// The answer a request got.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum RequestResult {
-    /// A normal response.
-    Ok,
-    /// An exception response.
-    Exception(ExceptionCode),
-}
+/// The answer a request got: [`RequestResult::Ok`] or [`RequestResult::Exception`] (the server
+/// answers a device that did not reply with exception 0Bh, so it never counts `Timeout` or `Error`;
+/// should it, they count with the unknown exception codes).
+pub use crate::metrics::RequestResult;
 
 /// One line of [`ServerStats::requests`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -208,6 +202,11 @@ impl ServerStats {
         self.handshakes_failed.load(Ordering::Relaxed)
     }
 
+    /// The Prometheus families the counts are mirrored into, if any.
+    pub(crate) fn metrics(&self) -> Option<&Metrics> {
+        self.metrics.as_ref()
+    }
+
     pub(crate) fn count_refused(&self, role: &str) {
         *self
             .refused
@@ -271,10 +270,7 @@ impl ServerStats {
         let Some(m) = &self.metrics else {
             return;
         };
-        let labelled = match result {
-            RequestResult::Ok => metrics::RequestResult::Ok,
-            RequestResult::Exception(code) => metrics::RequestResult::Exception(code),
-        };
+        let labelled = result;
         // Every exception code counted as "other" here is "exception_other" there as well.
         match self.request_series.get(row).and_then(|r| r.get(column)) {
             Some(series) => series
@@ -307,8 +303,10 @@ fn function_index(function: u8) -> usize {
 }
 
 fn result_index(result: RequestResult) -> usize {
-    let RequestResult::Exception(code) = result else {
-        return 0;
+    let code = match result {
+        RequestResult::Ok => return 0,
+        RequestResult::Exception(code) => code,
+        RequestResult::Timeout | RequestResult::Error => return RESULT_LABELS.len() - 1,
     };
     let byte = u8::from(code);
     EXCEPTIONS
@@ -319,6 +317,8 @@ fn result_index(result: RequestResult) -> usize {
 
 #[cfg(test)]
 mod tests {
+    use proto_core::modbus::pdu::ExceptionCode;
+
     use super::*;
 
     #[test]

@@ -2,8 +2,8 @@
 //! (RS232, RS422 four-wire, RS485 two-wire with the kernel's RS485 mode).
 //!
 //! Facts from the seeds: the CP 341 runs 300..76800 Bd (003 6.4.2.1 "Baud rate"), 7 or 8 data bits,
-//! none/odd/even parity, 1 or 2 stop bits (003 6.4.2.1 "Character frames"); SPEC asks for up to
-//! 115200 Bd. A pseudo-terminal accepts every setting and ignores it, and refuses RS485 mode.
+//! none/odd/even parity, 1 or 2 stop bits (003 6.4.2.1 "Character frames"); the gateway goes up
+//! to 115200 Bd. A pseudo-terminal accepts every setting and ignores it, and refuses RS485 mode.
 
 mod backoff;
 mod rs485;

@@ -1,6 +1,6 @@
 //! The 3964(R) and ASCII partners (`gateway sim --device 3964r|ascii`): they answer every
 //! telegram they receive with the same bytes (an echo) and send one telegram of their own every
-//! `--every` interval (default 1 s, 0 = never), as SPEC fixes them.
+//! `--every` interval (default 1 s, 0 = never).
 //!
 //! They run the same proto-core engines as the gateway's lines, so a pty pair with a line on one
 //! end and a simulator on the other is two engines of ours talking. Defaults: the 3964(R)
@@ -27,8 +27,7 @@ use crate::line::telegram::pump::{sleep_until_opt, Pump};
 use crate::line::telegram::{params_3964, params_ascii, TelegramProtocol};
 use crate::serial::{self, DataBits, OpenError, PortSettings};
 
-/// How often a simulator sends a telegram of its own by default (SPEC: "every `--every`
-/// interval (default 1 s, 0 = never)").
+/// How often a simulator sends a telegram of its own by default (`--every`; 0 = never).
 pub const DEFAULT_EVERY: Duration = Duration::from_secs(1);
 /// Pause before reading again after the port failed (a pty whose other end is being reopened
 /// reads EIO meanwhile).

@@ -76,7 +76,7 @@ use zenoh::Session;
 
 pub use config::{Endpoint, Mode, Prefix, ZenohConfig};
 pub use keys::{KeyError, Keys};
-pub use stats::{BridgeStats, CommandKind, CommandResult, DropReason, PublicationKind};
+pub use stats::{BridgeStats, CommandKind, CommandOutcome, DropReason, PublicationKind};
 
 use publish::{Limits, Message, Outbox, PublisherThread};
 use queryable::{Answerer, Queries, QueryKind};
@@ -314,9 +314,21 @@ impl Bridge {
         backend: Arc<dyn BridgeBackend>,
         shutdown: CancellationToken,
     ) -> Result<(Self, BridgeHandle), BridgeError> {
+        Self::start_counted(cfg, gateway_name, backend, shutdown, BridgeStats::new()).await
+    }
+
+    /// [`Self::start`] counting into `stats` (made with [`BridgeStats::with_metrics`] to feed the
+    /// Prometheus families).
+    pub async fn start_counted(
+        cfg: ZenohConfig,
+        gateway_name: &str,
+        backend: Arc<dyn BridgeBackend>,
+        shutdown: CancellationToken,
+        stats: BridgeStats,
+    ) -> Result<(Self, BridgeHandle), BridgeError> {
         let keys = Arc::new(Keys::new(&cfg.prefix_for(gateway_name)?)?);
         let (zcfg, mode) = cfg.to_zenoh()?;
-        let stats = Arc::new(BridgeStats::new());
+        let stats = Arc::new(stats);
         let limits = Limits {
             telegrams: cfg.telegram_queue.get(),
             events: cfg.event_queue.get(),

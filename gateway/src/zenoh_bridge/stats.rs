@@ -1,7 +1,14 @@
-//! Counters of the bridge, with bounded label sets, for `gateway_zenoh_publications_total{kind}`,
-//! `gateway_dropped_updates_total{reason}` and `gateway_zenoh_commands_total{kind,result}`.
+//! Counters of the bridge, with bounded label sets.
+//!
+//! The bridge counts by its own, finer kinds and reasons (shown by the gateway status queryable).
+//! With [`BridgeStats::with_metrics`] every count is also made in the Prometheus families
+//! `gateway_zenoh_publications_total{kind}` and `gateway_dropped_updates_total{reason}`, whose
+//! label sets are coarser: [`PublicationKind::metric`] and [`DropReason::metric`] map one onto
+//! the other.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+
+use crate::metrics::{self, Metrics};
 
 /// What was published.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -34,7 +41,7 @@ impl PublicationKind {
         matches!(self, Self::Telegram | Self::Event)
     }
 
-    /// The metric label.
+    /// The label in the bridge's own counters.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Telegram => "telegram",
@@ -42,6 +49,16 @@ impl PublicationKind {
             Self::Event => "event",
             Self::TxResult => "tx_result",
             Self::SetResult => "set_result",
+        }
+    }
+
+    /// The `kind` of `gateway_zenoh_publications_total`: both result kinds are `send_result`.
+    pub const fn metric(self) -> metrics::PublicationKind {
+        match self {
+            Self::Telegram => metrics::PublicationKind::Telegram,
+            Self::Tag => metrics::PublicationKind::Tag,
+            Self::Event => metrics::PublicationKind::Event,
+            Self::TxResult | Self::SetResult => metrics::PublicationKind::SendResult,
         }
     }
 }
@@ -69,10 +86,13 @@ pub enum DropReason {
     PublishError,
     /// The bridge was shutting down.
     BridgeClosed,
+    /// A feed of the bridge (tag changes, events, received telegrams) fell behind its source and
+    /// lost the oldest updates.
+    FeedLagged,
 }
 
 impl DropReason {
-    const ALL: [Self; 10] = [
+    const ALL: [Self; 11] = [
         Self::TelegramQueueFull,
         Self::EventQueueFull,
         Self::TagSuperseded,
@@ -83,9 +103,10 @@ impl DropReason {
         Self::BadKey,
         Self::PublishError,
         Self::BridgeClosed,
+        Self::FeedLagged,
     ];
 
-    /// The metric label.
+    /// The label in the bridge's own counters.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::TelegramQueueFull => "telegram_queue_full",
@@ -98,6 +119,28 @@ impl DropReason {
             Self::BadKey => "bad_key",
             Self::PublishError => "publish_error",
             Self::BridgeClosed => "bridge_closed",
+            Self::FeedLagged => "feed_lagged",
+        }
+    }
+
+    /// The `reason` of `gateway_dropped_updates_total`, `None` for a name that is no key chunk
+    /// (a configuration mistake the bridge logs and counts in its own counters only; the metric's
+    /// reasons are the delivery path's).
+    ///
+    /// A full queue of any kind is `queue_full`; an update replaced by a newer one before it was
+    /// published, or lost by a feed that fell behind, is `lagged`; a bridge or session that had
+    /// closed is `closed`.
+    pub const fn metric(self) -> Option<metrics::DropReason> {
+        match self {
+            Self::TelegramQueueFull
+            | Self::EventQueueFull
+            | Self::TagQueueFull
+            | Self::ResultQueueFull
+            | Self::CommandQueueFull
+            | Self::QueryQueueFull => Some(metrics::DropReason::QueueFull),
+            Self::TagSuperseded | Self::FeedLagged => Some(metrics::DropReason::Lagged),
+            Self::PublishError | Self::BridgeClosed => Some(metrics::DropReason::Closed),
+            Self::BadKey => None,
         }
     }
 }
@@ -125,7 +168,7 @@ impl CommandKind {
 
 /// How a command ended.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum CommandResult {
+pub enum CommandOutcome {
     /// The backend did it.
     Ok,
     /// The backend refused or failed (the device's answer, a timeout, a check).
@@ -136,7 +179,7 @@ pub enum CommandResult {
     Busy,
 }
 
-impl CommandResult {
+impl CommandOutcome {
     const ALL: [Self; 4] = [Self::Ok, Self::Failed, Self::Rejected, Self::Busy];
 
     /// The metric label.
@@ -156,8 +199,10 @@ pub struct BridgeStats {
     session_open: AtomicBool,
     publications: [AtomicU64; PublicationKind::ALL.len()],
     drops: [AtomicU64; DropReason::ALL.len()],
-    commands: [[AtomicU64; CommandResult::ALL.len()]; CommandKind::ALL.len()],
+    commands: [[AtomicU64; CommandOutcome::ALL.len()]; CommandKind::ALL.len()],
     queries: AtomicU64,
+    /// The Prometheus families the counts are mirrored into, if any.
+    metrics: Option<Metrics>,
 }
 
 // === impl BridgeStats ===
@@ -166,6 +211,15 @@ impl BridgeStats {
     /// All counters at zero.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// All counters at zero, every publication, reply and drop also counted in the Prometheus
+    /// families of `metrics`.
+    pub fn with_metrics(metrics: Metrics) -> Self {
+        Self {
+            metrics: Some(metrics),
+            ..Self::default()
+        }
     }
 
     /// Whether the session is open (for readiness).
@@ -179,18 +233,32 @@ impl BridgeStats {
 
     pub(crate) fn published(&self, kind: PublicationKind) {
         self.publications[kind as usize].fetch_add(1, Ordering::Relaxed);
+        if let Some(m) = &self.metrics {
+            m.zenoh_published(kind.metric());
+        }
     }
 
     pub(crate) fn dropped(&self, reason: DropReason) {
-        self.drops[reason as usize].fetch_add(1, Ordering::Relaxed);
+        self.dropped_many(reason, 1);
     }
 
-    pub(crate) fn command(&self, kind: CommandKind, result: CommandResult) {
+    /// Counts `count` updates dropped for one reason.
+    pub fn dropped_many(&self, reason: DropReason, count: u64) {
+        self.drops[reason as usize].fetch_add(count, Ordering::Relaxed);
+        if let (Some(m), Some(reason)) = (&self.metrics, reason.metric()) {
+            m.dropped_updates(reason, count);
+        }
+    }
+
+    pub(crate) fn command(&self, kind: CommandKind, result: CommandOutcome) {
         self.commands[kind as usize][result as usize].fetch_add(1, Ordering::Relaxed);
     }
 
     pub(crate) fn query_served(&self) {
         self.queries.fetch_add(1, Ordering::Relaxed);
+        if let Some(m) = &self.metrics {
+            m.zenoh_published(metrics::PublicationKind::Reply);
+        }
     }
 
     /// Publications of one kind so far.
@@ -204,7 +272,7 @@ impl BridgeStats {
     }
 
     /// Commands of one kind that ended one way so far.
-    pub fn commands(&self, kind: CommandKind, result: CommandResult) -> u64 {
+    pub fn commands(&self, kind: CommandKind, result: CommandOutcome) -> u64 {
         self.commands[kind as usize][result as usize].load(Ordering::Relaxed)
     }
 
@@ -234,7 +302,7 @@ impl BridgeStats {
         CommandKind::ALL
             .iter()
             .flat_map(|k| {
-                CommandResult::ALL
+                CommandOutcome::ALL
                     .iter()
                     .map(move |r| (k.as_str(), r.as_str(), self.commands(*k, *r)))
             })
@@ -269,7 +337,7 @@ mod tests {
         for (i, r) in DropReason::ALL.iter().enumerate() {
             assert_eq!(*r as usize, i);
         }
-        for (i, r) in CommandResult::ALL.iter().enumerate() {
+        for (i, r) in CommandOutcome::ALL.iter().enumerate() {
             assert_eq!(*r as usize, i);
         }
         let mut labels: Vec<_> = DropReason::ALL.iter().map(|r| r.as_str()).collect();
@@ -284,11 +352,35 @@ mod tests {
         s.published(PublicationKind::Tag);
         s.dropped(DropReason::TagSuperseded);
         s.dropped(DropReason::TagSuperseded);
-        s.command(CommandKind::Set, CommandResult::Busy);
+        s.command(CommandKind::Set, CommandOutcome::Busy);
         assert_eq!(s.publications(PublicationKind::Tag), 1);
         assert_eq!(s.drops(DropReason::TagSuperseded), 2);
         assert!(s.drop_counts().contains(&("tag_superseded", 2)));
         assert!(s.command_counts().contains(&("set", "busy", 1)));
         assert_eq!(s.to_json()["dropped"]["tag_superseded"], 2);
+    }
+
+    #[test]
+    fn counts_feed_the_prometheus_families() {
+        let registry = prometheus::Registry::new();
+        let s = BridgeStats::with_metrics(Metrics::register(&registry).expect("register"));
+        s.published(PublicationKind::Tag);
+        s.published(PublicationKind::SetResult);
+        s.query_served();
+        s.dropped(DropReason::TelegramQueueFull);
+        s.dropped_many(DropReason::FeedLagged, 3);
+        s.dropped(DropReason::BadKey);
+        let text = metrics::encode_text(&registry);
+        for line in [
+            r#"gateway_zenoh_publications_total{kind="tag"} 1"#,
+            r#"gateway_zenoh_publications_total{kind="send_result"} 1"#,
+            r#"gateway_zenoh_publications_total{kind="reply"} 1"#,
+            r#"gateway_dropped_updates_total{reason="queue_full"} 1"#,
+            r#"gateway_dropped_updates_total{reason="lagged"} 3"#,
+            r#"gateway_dropped_updates_total{reason="closed"} 0"#,
+        ] {
+            assert!(text.contains(line), "{line} missing in\n{text}");
+        }
+        assert_eq!(s.drops(DropReason::BadKey), 1);
     }
 }

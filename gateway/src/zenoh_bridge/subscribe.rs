@@ -31,7 +31,7 @@ use zenoh::Wait;
 
 use super::keys::Keys;
 use super::publish::{Message, Outbox};
-use super::stats::{BridgeStats, CommandKind, CommandResult, PublicationKind};
+use super::stats::{BridgeStats, CommandKind, CommandOutcome, PublicationKind};
 use super::BridgeBackend;
 
 /// What a command asks for.
@@ -192,7 +192,7 @@ impl Commands {
             }
             Parsed::Rejected(cmd, error) => {
                 tracing::debug!(%key, %error, "zenoh command rejected");
-                self.finish(cmd, CommandResult::Rejected, Err(error));
+                self.finish(cmd, CommandOutcome::Rejected, Err(error));
             }
             Parsed::NotACommand => {}
         }
@@ -204,13 +204,13 @@ impl Commands {
         tracing::warn!(line = %cmd.line, "zenoh command queue full, command answered busy");
         self.finish(
             cmd,
-            CommandResult::Busy,
+            CommandOutcome::Busy,
             Err("busy: command queue full".to_owned()),
         );
     }
 
     /// Publishes the result of `cmd` (and replies to its query).
-    fn finish(&self, cmd: Command, result: CommandResult, outcome: Result<Value, String>) {
+    fn finish(&self, cmd: Command, result: CommandOutcome, outcome: Result<Value, String>) {
         let Command {
             line,
             op,
@@ -300,7 +300,7 @@ pub(crate) async fn dispatch(
             _ => {
                 if !backend.lines().contains(&cmd.line) {
                     let error = format!("unknown line {:?}", cmd.line);
-                    commands.finish(cmd, CommandResult::Rejected, Err(error));
+                    commands.finish(cmd, CommandOutcome::Rejected, Err(error));
                     continue;
                 }
                 let (tx, wrx) = mpsc::channel(commands.per_line);
@@ -341,9 +341,9 @@ async fn line_worker(
             () = shutdown.cancelled() => return,
         };
         let result = if outcome.is_ok() {
-            CommandResult::Ok
+            CommandOutcome::Ok
         } else {
-            CommandResult::Failed
+            CommandOutcome::Failed
         };
         tracing::debug!(line = %cmd.line, kind = cmd.kind().as_str(), ok = outcome.is_ok(), "zenoh command done");
         commands.finish(cmd, result, outcome);

@@ -170,7 +170,7 @@ fn ascii_defaults_match_the_manual() {
     // 003 6.2.1: 250 buffered telegrams, prevent overwriting on.
     assert_eq!(a.receive_buffer, 250);
     assert!(a.prevent_overwrite);
-    // SPEC: at most 1024 bytes a telegram.
+    // At most 1024 bytes a telegram.
     assert_eq!(a.max_telegram_len, 1024);
 }
 
@@ -200,8 +200,8 @@ fn device_defaults_come_from_the_profile() {
     assert_eq!(atv.limits.read_registers, 63);
     assert_eq!(atv.limits.write_registers, 61);
     assert_eq!(
-        (atv.limits.rw_read_registers, atv.limits.rw_write_registers),
-        (20, 20)
+        atv.limits.read_write.map(|rw| (rw.read, rw.write)),
+        Some((20, 20))
     );
     assert_eq!(atv.offline_backoff_min, Duration::from_secs(1));
     assert_eq!(atv.offline_backoff_max, Duration::from_secs(5));

@@ -10,10 +10,10 @@ fn demo_follows_the_spec() {
     assert_eq!(c.gateway.name, "demo");
     assert_eq!(
         c.modbus_tcp.listen,
-        "127.0.0.1:5020".parse::<SocketAddr>().unwrap() // the demo address SPEC.md fixes; not bound here
+        "127.0.0.1:5020".parse::<SocketAddr>().unwrap() // the demo's fixed address; not bound here
     );
     let names: Vec<_> = c.lines.keys().map(String::as_str).collect();
-    // The four lines SPEC.md fixes, and `hmi`, the slave line a simulated serial master polls.
+    // The demo's four fixed lines, and `hmi`, the slave line a simulated serial master polls.
     assert_eq!(names, ["ascii", "drive", "hmi", "ksvario", "r3964"]);
     let frame = |l: &LineConfig| {
         (

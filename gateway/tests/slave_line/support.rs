@@ -9,7 +9,7 @@ use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
 use gateway::cpmem::{CpMemoryUnit, SharedCpMemory};
-use gateway::line::{spawn_modbus_slave_line, SlaveLineHandle, SlaveLineSettings};
+use gateway::line::{spawn_modbus_slave_line, LineHandle, SlaveLineSettings};
 use gateway::modbus_tcp::{bind, serve, ServerOptions, ServerStats};
 use gateway::serial::PortSettings;
 use gateway::unit::UnitMap;
@@ -75,7 +75,7 @@ pub(crate) fn pty() -> (SerialStream, String, SerialStream) {
 
 /// A slave line serving `memory` and a tokio-modbus RTU client talking to it.
 pub(crate) struct Rig {
-    pub(crate) line: SlaveLineHandle,
+    pub(crate) line: LineHandle,
     pub(crate) memory: SharedCpMemory,
     pub(crate) client: Context,
     pub(crate) shutdown: CancellationToken,

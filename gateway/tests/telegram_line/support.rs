@@ -5,9 +5,8 @@ use std::net::SocketAddr;
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
-use gateway::line::telegram::{
-    spawn_telegram_line, TelegramLineHandle, TelegramLineSettings, TelegramProtocol,
-};
+use gateway::line::telegram::{spawn_telegram_line, TelegramLineSettings, TelegramProtocol};
+use gateway::line::LineHandle;
 use gateway::mailbox::{MailboxSettings, Overflow};
 use gateway::modbus_tcp::{bind, serve, ServerOptions, ServerStats, SharedUnits};
 use gateway::serial::PortSettings;
@@ -93,7 +92,7 @@ pub(crate) fn partner(protocol: &TelegramProtocol) -> TelegramSim {
 /// A line on one end of a pty pair and a simulated partner on the other, with what the partner
 /// receives.
 pub(crate) struct Pair {
-    pub(crate) line: TelegramLineHandle,
+    pub(crate) line: LineHandle,
     pub(crate) partner_rx: mpsc::Receiver<Vec<u8>>,
     pub(crate) shutdown: CancellationToken,
     _keep: SerialStream,
@@ -149,8 +148,9 @@ pub(crate) async fn eventually(what: &str, mut check: impl FnMut() -> bool) {
     }
 }
 
-pub(crate) fn event_count(line: &TelegramLineHandle, id: EventId) -> u64 {
-    line.status()
+pub(crate) fn event_count(line: &LineHandle, id: EventId) -> u64 {
+    line.telegram_status()
+        .expect("a telegram line")
         .line
         .event_counts
         .get(&id)
@@ -165,11 +165,14 @@ pub(crate) struct Server {
 }
 
 impl Server {
-    pub(crate) fn start(line: &TelegramLineHandle) -> Self {
+    pub(crate) fn start(line: &LineHandle) -> Self {
         let listener = bind(([127, 0, 0, 1], 0).into()).expect("bind");
         let addr = listener.local_addr().expect("local addr");
         let mut map = UnitMap::new();
-        map.insert(UNIT, Arc::new(line.mailbox_unit()));
+        map.insert(
+            UNIT,
+            Arc::new(line.mailbox_unit().expect("a telegram line")),
+        );
         let units: SharedUnits = Arc::new(RwLock::new(map));
         let shutdown = CancellationToken::new();
         tokio::spawn(serve(

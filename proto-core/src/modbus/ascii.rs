@@ -7,10 +7,8 @@
 //! frames and reports what it throws away: a wrong start character (003 7.2, 08 33h), a ':' inside
 //! a frame (08 34h), a frame longer than the specification allows.
 //!
-//! The CP's optional 32-bit register mode (003 6.4.2.2 "with 32-Bit Register", 6.4.4) is in
-//! [`reg32`].
-
-pub mod reg32;
+//! The CP's optional 32-bit register mode (003 6.4.2.2 "with 32-Bit Register", 6.4.4) uses this
+//! framing unchanged; its PDUs are in [`crate::modbus::master::Request32`].
 
 use super::FrameError;
 use crate::checksum::lrc;

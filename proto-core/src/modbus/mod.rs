@@ -13,6 +13,9 @@ pub mod master;
 pub mod pdu;
 pub mod rtu;
 pub mod slave;
+mod table;
+
+pub use table::Table;
 
 /// Why a frame (RTU ADU or ASCII message) was rejected before its PDU was looked at.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]

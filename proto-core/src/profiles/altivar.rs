@@ -389,6 +389,14 @@ pub const LIMITS: RequestLimits = RequestLimits {
     max_adu_len: MAX_ADU_LEN,
 };
 
+/// The profile's entry in [`super::registry::PROFILES`].
+pub const REGISTERED: super::registry::Registered = super::registry::Registered {
+    name: "altivar71",
+    source: "002 Modbus-Funktionen",
+    build: profile,
+    limits: LIMITS,
+};
+
 /// The Altivar 61/71 profile.
 pub fn profile() -> DeviceProfile {
     DeviceProfile {

@@ -328,6 +328,14 @@ pub const LIMITS: RequestLimits = RequestLimits {
     max_adu_len: MESSAGE_BUFFER,
 };
 
+/// The profile's entry in [`super::registry::PROFILES`].
+pub const REGISTERED: super::registry::Registered = super::registry::Registered {
+    name: "ksvario",
+    source: "001 3.1",
+    build: profile,
+    limits: LIMITS,
+};
+
 /// The KS vario profile.
 pub fn profile() -> DeviceProfile {
     DeviceProfile {

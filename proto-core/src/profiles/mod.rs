@@ -1,4 +1,4 @@
-//! Register-map models of the supported devices (SPEC "Device profiles").
+//! Register-map models of the supported devices.
 //!
 //! A [`DeviceProfile`] describes one device type: its [`Tag`]s (name, table, address, data type,
 //! fix point decimals, bit fields, unit, scale, writable), the request limits the device accepts,
@@ -7,70 +7,26 @@
 //! poller merges reads within [`RequestLimits`], and [`DeviceProfile::decode`] turns the words it
 //! read into a [`Value`] and a [`Quality`].
 //!
-//! Profiles:
+//! Profiles, listed by name in [`registry::PROFILES`]:
 //! - [`altivar`]: Schneider Altivar 61/71 with integrated Modbus (seed manual 002);
 //! - [`ksvario`]: PMA KS vario controller system, Modbus RTU (seed manual 001);
 //! - [`DeviceProfile::generic`]: any Modbus device described by a tag list.
 
 pub mod altivar;
 pub mod ksvario;
+pub mod registry;
 
+mod quality;
 mod tag;
 
 use core::time::Duration;
 
 use crate::modbus::pdu::FunctionCode;
 
-pub use tag::{BitField, DataType, Table, Tag, WordOrder};
+pub use quality::Quality;
+pub use tag::{BitField, DataType, Tag, WordOrder};
 
-/// The quality of a value in the process image (SPEC "Polling").
-///
-/// [`DeviceProfile::decode`] only produces `Good`, `NotDefined`, `Off`, `OutOfRange` (the device's
-/// special values) and `CommFailure` (fewer words than the tag needs); `Stale` and `CommFailure`
-/// are otherwise set by the poller.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Quality {
-    /// A value the device reported as valid.
-    Good,
-    /// The last good value, older than its group's period allows.
-    Stale,
-    /// The device says the datum does not exist or is not available (KS vario 31000 / 1.5E37,
-    /// Altivar 16#8000).
-    NotDefined,
-    /// The device says the function behind the datum is switched off (KS vario 32000).
-    Off,
-    /// The device says the value does not fit the transfer format (KS vario 0x8000).
-    OutOfRange,
-    /// The device did not answer, or the answer did not carry the tag's words.
-    CommFailure,
-}
-
-// === impl Quality ===
-
-impl Quality {
-    /// A stable snake_case name (JSON, metrics labels).
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::Good => "good",
-            Self::Stale => "stale",
-            Self::NotDefined => "not_defined",
-            Self::Off => "off",
-            Self::OutOfRange => "out_of_range",
-            Self::CommFailure => "comm_failure",
-        }
-    }
-
-    /// Whether the value can be used as a measurement.
-    pub const fn is_good(self) -> bool {
-        matches!(self, Self::Good)
-    }
-}
-
-impl core::fmt::Display for Quality {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
+pub use crate::modbus::Table;
 
 /// A decoded tag value.
 ///
@@ -183,6 +139,18 @@ impl RequestLimits {
             read: 125,
             write: 121,
         }),
+        max_adu_len: 256,
+    };
+
+    /// What the CP 341 master itself allows (003 6.4.4, the "FC 01" .. "FC 16" parameter
+    /// ranges, and 003 7.2 events 0E 45h / 0E 46h): 1..2040 bits, 1..127 registers a request, no
+    /// FC 23; the 256-byte RTU ADU.
+    pub const CP341: Self = Self {
+        read_bits: 2040,
+        read_registers: 127,
+        write_bits: 2040,
+        write_registers: 127,
+        read_write: None,
         max_adu_len: 256,
     };
 

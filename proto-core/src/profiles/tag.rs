@@ -1,19 +1,7 @@
 //! The tag model: one named datum of a device.
 
 use super::Value;
-
-/// The Modbus table a tag lives in.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Table {
-    /// Coils (FC 01 read, FC 05 / 15 write).
-    Coils,
-    /// Discrete inputs (FC 02).
-    DiscreteInputs,
-    /// Input registers (FC 04).
-    InputRegisters,
-    /// Holding registers (FC 03 read, FC 06 / 16 / 23 write).
-    HoldingRegisters,
-}
+use crate::modbus::Table;
 
 /// The order of the two registers of a 32-bit value.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]

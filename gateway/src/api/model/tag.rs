@@ -31,7 +31,7 @@ impl ScalarValue {
     }
 }
 
-/// How far a value can be trusted (SPEC "Polling"; the KS vario's special values).
+/// How far a value can be trusted (the image's quality of the value, and the KS vario's special values).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum TagQuality {

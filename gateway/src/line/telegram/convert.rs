@@ -184,6 +184,7 @@ impl TelegramLineSettings {
         settings.mailbox = mailbox;
         settings.max_len = usize::from(max_len);
         settings.send_queue = usize::from(send_queue);
+        settings.unit_id = line.unit_id();
         Ok(settings)
     }
 }

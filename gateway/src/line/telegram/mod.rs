@@ -1,15 +1,16 @@
 //! Telegram lines: the ASCII driver (003 6.2) and the 3964(R) procedure (003 6.3) on a serial
 //! port, their received telegrams in a [`Mailbox`], their sends from any client.
 //!
-//! One task per line ([`spawn_telegram_line`]) owns the port and the engine; the same loop drives
-//! either engine. What a line offers:
-//! - [`TelegramLineHandle::mailbox_unit`]: the Modbus TCP mailbox ([`crate::mailbox`]);
-//! - [`TelegramLineHandle::client`]: send a telegram and wait for its result (REST, zenoh);
-//! - [`TelegramLineHandle::subscribe_rx`]: every received telegram with its sequence number and
+//! A line ([`spawn_telegram_line`]) is the line runtime with one adapter (`task`) that drives
+//! either engine. What a line offers through its [`LineHandle`]:
+//! - [`LineHandle::mailbox_unit`]: the Modbus TCP mailbox ([`crate::mailbox`]);
+//! - [`LineHandle::telegram_client`]: send a telegram and wait for its result (REST, zenoh);
+//! - [`LineHandle::subscribe_rx`]: every received telegram with its sequence number and
 //!   receive time (zenoh `<prefix>/<line>/rx`);
-//! - [`TelegramLineHandle::signals`]: the RS232 signals (FC 5 V24_STAT, FC 6 V24_SET);
-//! - [`TelegramLineHandle::status`] and [`TelegramLineHandle::subscribe_events`]: diagnostic
-//!   buffer, event counters, STATUS word, telegram counters.
+//! - [`LineHandle::signals`]: the RS232 signals (FC 5 V24_STAT, FC 6 V24_SET);
+//! - [`LineHandle::status`], [`LineHandle::telegram_status`] and
+//!   [`LineHandle::subscribe_events`]: diagnostic buffer, event counters, STATUS word, telegram
+//!   counters.
 //!
 //! The mailbox is the CP's receive buffer, so the engine's own buffer is kept small: under
 //! [`Overflow::Refuse`] the engine holds one telegram beyond the mailbox and then refuses
@@ -22,6 +23,7 @@
 mod client;
 mod convert;
 pub(crate) mod engine;
+mod mailbox_unit;
 pub(crate) mod pump;
 mod task;
 
@@ -32,21 +34,21 @@ use proto_core::event::{ids, EventId};
 use proto_core::proc3964::{Params3964, Settings3964};
 use proto_core::telegram::{AsciiParams, AsciiSettings, FlowControl, MAX_TELEGRAM};
 use tokio::sync::{broadcast, mpsc};
-use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
 pub use crate::mailbox::TelegramRx;
-#[cfg(test)]
 pub(crate) use client::Command;
 pub use client::{PendingSend, SendResult, SignalsClient, TelegramClient, TelegramSendError};
 pub use convert::{params_3964, params_ascii, TelegramConfigError};
+pub use mailbox_unit::MailboxUnit;
 
-use super::driver::Clock;
-use super::line_metrics::LineMetrics;
-use super::status::{self, LineEvent, LineStatus};
+use super::line_metrics::{LineMetrics, LineTraffic};
+use super::runtime::{self, LineBase, LineCapabilities, LineHandle, SerialOpener};
+use super::status::{self, LineStatus};
 use super::{DEFAULT_DIAG_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
-use crate::mailbox::{Mailbox, MailboxSettings, MailboxUnit, Overflow, TelegramCounters};
+use crate::mailbox::{Mailbox, MailboxSettings, Overflow, TelegramCounters};
 use crate::serial::PortSettings;
+use crate::unit::UnitService;
 
 /// Commands (sends, signal requests) that may wait for the line task by default.
 pub const DEFAULT_SEND_QUEUE: usize = 16;
@@ -117,6 +119,8 @@ pub struct TelegramLineSettings {
     pub shutdown_grace: Duration,
     /// Prometheus families, if the gateway exports them.
     pub metrics: Option<crate::metrics::Metrics>,
+    /// The unit id under which Modbus TCP serves the mailbox (`None`: not served there).
+    pub unit_id: Option<u8>,
 }
 
 // === impl TelegramLineSettings ===
@@ -137,6 +141,7 @@ impl TelegramLineSettings {
             reopen_max: DEFAULT_REOPEN_MAX,
             shutdown_grace: DEFAULT_SHUTDOWN_GRACE,
             metrics: None,
+            unit_id: None,
         }
     }
 
@@ -175,7 +180,7 @@ impl TelegramLineSettings {
     }
 }
 
-/// A snapshot of a telegram line ([`TelegramLineHandle::status`]).
+/// The telegram side of a telegram line ([`LineHandle::telegram_status`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct TelegramLineStatus {
     /// Port, diagnostic buffer, event counters and STATUS word, as every line reports them
@@ -193,7 +198,7 @@ pub struct TelegramLineStatus {
     pub signals_error: Option<String>,
 }
 
-/// What the line task and its handle share.
+/// What the line adapter and the handle share.
 #[derive(Debug)]
 pub(crate) struct LineShared {
     pub(crate) status: Arc<status::Shared>,
@@ -202,8 +207,11 @@ pub(crate) struct LineShared {
     pub(crate) mailbox: Arc<Mailbox>,
     protocol: &'static str,
     signals_error: Mutex<Option<String>>,
+    /// The send queue's client.
+    client: TelegramClient,
+    /// The unit id of the mailbox on Modbus TCP.
+    unit_id: Option<u8>,
 }
-
 // === impl LineShared ===
 
 impl LineShared {
@@ -229,87 +237,87 @@ impl LineShared {
     }
 }
 
-/// A running telegram line; clones share it, [`Self::join`] waits for its task once.
-#[derive(Clone, Debug)]
-pub struct TelegramLineHandle {
-    name: String,
-    shared: Arc<LineShared>,
-    client: TelegramClient,
-    task: Arc<Mutex<Option<JoinHandle<()>>>>,
-}
-
-// === impl TelegramLineHandle ===
-
-impl TelegramLineHandle {
-    /// The line's name.
-    pub fn name(&self) -> &str {
-        &self.name
+impl LineCapabilities for LineShared {
+    fn units(&self) -> Vec<(u8, Arc<dyn UnitService>)> {
+        let unit = MailboxUnit::new(Arc::clone(&self.mailbox), self.client.clone());
+        self.unit_id
+            .map(|id| (id, Arc::new(unit) as Arc<dyn UnitService>))
+            .into_iter()
+            .collect()
     }
 
-    /// A snapshot of the line's state.
-    pub fn status(&self) -> TelegramLineStatus {
-        let mailbox = &self.shared.mailbox;
+    /// The mailbox counts since this line started, exactly: telegrams and their bytes, sends
+    /// done and failed.
+    fn traffic(&self) -> Option<LineTraffic> {
+        let c = self.mailbox.counters();
+        Some(LineTraffic {
+            frames_sent: c.sent,
+            frames_received: c.received,
+            bytes_sent: c.sent_bytes,
+            bytes_received: c.received_bytes,
+            commands_answered: c.sent,
+            commands_failed: c.send_failed,
+        })
+    }
+
+    fn as_any(&self) -> &dyn std::any::Any {
+        self
+    }
+}
+
+/// What a telegram line adds to every line.
+impl LineHandle {
+    /// Sends telegrams on a telegram line.
+    pub fn telegram_client(&self) -> Option<TelegramClient> {
+        self.capability::<LineShared>().map(|t| t.client.clone())
+    }
+
+    /// The RS232 signals of a telegram line.
+    pub fn signals(&self) -> Option<SignalsClient> {
+        self.capability::<LineShared>().map(|t| t.client.signals())
+    }
+
+    /// The mailbox of a telegram line (received telegrams, acknowledgements, counters).
+    pub fn mailbox(&self) -> Option<Arc<Mailbox>> {
+        self.capability::<LineShared>()
+            .map(|t| Arc::clone(&t.mailbox))
+    }
+
+    /// The mailbox of a telegram line as a Modbus TCP unit.
+    pub fn mailbox_unit(&self) -> Option<MailboxUnit> {
+        self.capability::<LineShared>()
+            .map(|t| MailboxUnit::new(Arc::clone(&t.mailbox), t.client.clone()))
+    }
+
+    /// Every telegram a telegram line receives, with its sequence number and receive time
+    /// (bounded; a lagging receiver is told how many it missed).
+    pub fn subscribe_rx(&self) -> Option<broadcast::Receiver<TelegramRx>> {
+        self.capability::<LineShared>()
+            .map(|t| t.mailbox.subscribe())
+    }
+
+    /// Protocol, mailbox and telegram counters of a telegram line.
+    pub fn telegram_status(&self) -> Option<TelegramLineStatus> {
+        self.capability::<LineShared>().map(LineShared::status)
+    }
+}
+
+// === impl LineShared ===
+
+impl LineShared {
+    fn status(&self) -> TelegramLineStatus {
+        let mailbox = &self.mailbox;
         TelegramLineStatus {
-            line: self.shared.status.snapshot(),
-            protocol: self.shared.protocol,
+            line: self.status.snapshot(),
+            protocol: self.protocol,
             counters: mailbox.counters(),
             waiting: mailbox.len(),
             mailbox: mailbox.settings(),
             signals_error: self
-                .shared
                 .signals_error
                 .lock()
                 .unwrap_or_else(PoisonError::into_inner)
                 .clone(),
-        }
-    }
-
-    /// Sends telegrams on the line.
-    pub fn client(&self) -> TelegramClient {
-        self.client.clone()
-    }
-
-    /// The line's RS232 signals.
-    pub fn signals(&self) -> SignalsClient {
-        self.client.signals()
-    }
-
-    /// The line's mailbox (received telegrams, acknowledgements, counters).
-    pub fn mailbox(&self) -> Arc<Mailbox> {
-        Arc::clone(&self.shared.mailbox)
-    }
-
-    /// The mailbox as a Modbus TCP unit, to register under the line's unit id.
-    pub fn mailbox_unit(&self) -> MailboxUnit {
-        MailboxUnit::new(self.mailbox(), self.client())
-    }
-
-    /// Every received telegram with its sequence number and receive time (bounded; a lagging
-    /// receiver is told how many it missed).
-    pub fn subscribe_rx(&self) -> broadcast::Receiver<TelegramRx> {
-        self.shared.mailbox.subscribe()
-    }
-
-    /// Empties the line's diagnostic buffer; the event counters and the STATUS word stay.
-    pub fn clear_diagnostics(&self) {
-        self.shared.status.clear_diagnostics();
-    }
-
-    /// The line's events as they happen.
-    pub fn subscribe_events(&self) -> broadcast::Receiver<LineEvent> {
-        self.shared.status.subscribe()
-    }
-
-    /// Waits for the line task to end (after the shutdown token was cancelled).
-    pub async fn join(self) {
-        let task = self
-            .task
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .take();
-        let Some(task) = task else { return };
-        if let Err(err) = task.await {
-            tracing::error!(line = %self.name, %err, "line task failed");
         }
     }
 }
@@ -320,7 +328,7 @@ impl TelegramLineHandle {
 pub fn spawn_telegram_line(
     settings: TelegramLineSettings,
     shutdown: CancellationToken,
-) -> TelegramLineHandle {
+) -> LineHandle {
     let settings = TelegramLineSettings {
         max_len: settings.max_len.min(settings.protocol.max_len()),
         send_queue: settings.send_queue.max(1),
@@ -328,52 +336,45 @@ pub fn spawn_telegram_line(
     };
     let name: Arc<str> = Arc::from(settings.name.as_str());
     let (tx, rx) = mpsc::channel(settings.send_queue);
-    let status = LineStatus {
-        name: settings.name.clone(),
-        port_open: false,
-        port_error: None,
-        port_opens: 0,
-        status_word: 0,
-        diagnostics: Vec::new(),
-        last_event: None,
-        started: std::time::SystemTime::now(),
-        event_counts: std::collections::BTreeMap::new(),
-        devices: Vec::new(),
-        commands_answered: 0,
-        commands_failed: 0,
-    };
-    let kind = match settings.protocol {
+    let protocol = match settings.protocol {
         TelegramProtocol::P3964(_) => "3964r",
         TelegramProtocol::Ascii(_) => "ascii",
     };
-    let metrics = LineMetrics::new(settings.metrics.clone(), &settings.name, kind);
+    let base = LineBase::new(
+        &settings.name,
+        protocol,
+        &settings.port,
+        settings.diag_depth,
+        (settings.reopen_min, settings.reopen_max),
+        settings.metrics.as_ref(),
+    );
+    let core = base.core(Vec::new());
     let shared = Arc::new(LineShared {
-        status: status::Shared::with_metrics(
-            status,
-            settings.diag_depth,
-            Clock::start(),
-            metrics.clone(),
-        ),
-        metrics,
+        metrics: core.shared.metrics().clone(),
+        status: Arc::clone(&core.shared),
         mailbox: Mailbox::new(&settings.name, settings.mailbox, settings.max_len),
         protocol: settings.protocol.name(),
         signals_error: Mutex::new(None),
+        client: TelegramClient::new(Arc::clone(&name), tx, settings.send_queue),
+        unit_id: settings.unit_id,
     });
-    let client = TelegramClient::new(Arc::clone(&name), tx, settings.send_queue);
-    let task = match settings.engine_protocol() {
-        TelegramProtocol::P3964(params) => tokio::spawn(
-            task::TelegramTask::new(settings.clone(), params, Arc::clone(&shared), rx, shutdown)
-                .run(),
-        ),
-        TelegramProtocol::Ascii(params) => tokio::spawn(
-            task::TelegramTask::new(settings.clone(), params, Arc::clone(&shared), rx, shutdown)
-                .run(),
-        ),
-    };
-    TelegramLineHandle {
-        name: settings.name,
-        shared,
-        client,
-        task: Arc::new(Mutex::new(Some(task))),
+    match settings.engine_protocol() {
+        TelegramProtocol::P3964(params) => start(core, settings, params, shared, rx, shutdown),
+        TelegramProtocol::Ascii(params) => start(core, settings, params, shared, rx, shutdown),
     }
+}
+
+/// The runtime with the telegram adapter over the engines `factory` builds.
+fn start<F: engine::EngineFactory>(
+    core: runtime::LineCore,
+    settings: TelegramLineSettings,
+    factory: F,
+    shared: Arc<LineShared>,
+    commands: mpsc::Receiver<Command>,
+    shutdown: CancellationToken,
+) -> LineHandle {
+    let clock = core.clock;
+    let caps = Arc::clone(&shared);
+    let engine = task::TelegramLine::new(settings, factory, shared, clock);
+    runtime::spawn(core, engine, Some(commands), caps, SerialOpener, shutdown)
 }

@@ -1,6 +1,6 @@
-//! The engine side of a telegram driver loop, shared by the line task and the simulators: the
-//! clock, the engine's deadline, and writing out what the engine transmits with the estimated
-//! end of each transmission (STYLE "handle_tx_done").
+//! The engine side of the telegram simulators' driver loop (the lines run on the line runtime):
+//! the clock, the engine's deadline, and writing out what the engine transmits with the estimated
+//! end of each transmission handed to the engine as its `handle_tx_done`.
 
 use std::io;
 use std::time::Duration;
@@ -22,8 +22,6 @@ pub(crate) struct Pump<E> {
     char_time: Duration,
     /// The estimated end of the last transmission.
     tx_end: Option<tokio::time::Instant>,
-    /// Bytes written since the owner last took the count (for the bytes metric).
-    pub(crate) written: usize,
 }
 
 // === impl Pump ===
@@ -36,7 +34,6 @@ impl<E: TelegramEngine> Pump<E> {
             clock: Clock::start(),
             char_time,
             tx_end: None,
-            written: 0,
         }
     }
 
@@ -101,7 +98,6 @@ impl<E: TelegramEngine> Pump<E> {
                 return Ok(progress);
             };
             port.write_all(&bytes).await?;
-            self.written += bytes.len();
             let end = estimated_tx_end(tokio::time::Instant::now(), bytes.len(), self.char_time);
             self.tx_end = Some(end);
             self.engine.handle_tx_done(self.clock.to_engine(end));

@@ -1,47 +1,37 @@
-//! The telegram line task, one loop for both engines: owns the port and an engine, moves received
-//! telegrams into the mailbox, carries sends and RS232 signal commands, and reopens the port with
-//! back-off when it fails.
+//! The telegram line, one adapter of the line runtime for both engines (3964(R) and ASCII): moves
+//! received telegrams into the mailbox, carries sends and RS232 signal commands.
 //!
-//! The driver loop (STYLE "serial/driver.rs"): hand a due deadline to the engine; drain its RS232
-//! actions and transmissions to the port, its events to the status and the waiting senders, its
-//! received telegrams to the mailbox (as long as the mailbox accepts them); then wait for bytes,
-//! the engine's deadline, a signal poll, room in the mailbox, a command or shutdown. On shutdown
-//! new commands are refused and the engine may finish what it has started (a telegram being sent
-//! or received) within the grace period.
+//! After every input the engine's RS232 actions and transmissions go to the port (the runtime
+//! writes them), its events to the status and the waiting senders, its received telegrams to the
+//! mailbox (as long as the mailbox accepts them). Besides bytes and its deadline the line wakes
+//! for a signal poll and for room in the mailbox. On shutdown new commands are refused and the
+//! engine may finish what it has started (a telegram being sent or received) within the grace
+//! period.
 
 use std::collections::{HashMap, VecDeque};
+use std::future::Future;
 use std::sync::Arc;
 use std::time::{Duration, SystemTime};
 
 use proto_core::event::{ids, EventId};
 use proto_core::telegram::{Action, SendError, Signals, TelegramEvent, TelegramId};
-use tokio::io::AsyncReadExt;
-use tokio::sync::{mpsc, oneshot};
+use tokio::sync::oneshot;
 use tokio::time::Instant;
-use tokio_serial::SerialStream;
-use tokio_util::sync::CancellationToken;
+use tokio_serial::SerialPort;
 
 use super::client::{Command, SendResult, TelegramSendError};
 use super::engine::{EngineFactory, TelegramEngine};
-use super::pump::Pump;
 use super::{LineShared, TelegramLineSettings};
-use crate::line::driver::sleep_until_opt;
-use crate::line::{EVENT_PORT_LOST, EVENT_PORT_SETUP};
+use crate::line::driver::{sleep_until_opt, Clock};
+use crate::line::runtime::{LineEngine, Stop};
 use crate::mailbox::Delivery;
-use crate::serial::{self, Backoff, Interface};
-use crate::signals::{self, Output, SignalError, SignalState};
+use crate::serial::Interface;
+use crate::signals::{self, Output, Signal, SignalError, SignalState};
 
 /// How often CTS and DSR are read when the engine watches them (RTS/CTS flow control, automatic
 /// V24 signal handling): the serial library offers no change notification. 10 ms is below every
 /// time of 000 6.2.1 that depends on them (wait for CTS: at least 20 ms).
 const SIGNAL_POLL: Duration = Duration::from_millis(10);
-
-/// Why the driver loop ended.
-#[derive(Debug)]
-enum PortExit {
-    Shutdown,
-    Lost(String),
-}
 
 /// A send the engine accepted, waiting for its result.
 #[derive(Debug)]
@@ -50,10 +40,14 @@ struct Waiting {
     reply: oneshot::Sender<SendResult>,
 }
 
-/// What lives as long as one opening of the port.
-#[derive(Debug)]
-struct Session<E> {
-    pump: Pump<E>,
+/// The adapter of one telegram line; the engine and what goes with it live as long as one
+/// opening of the port.
+pub(crate) struct TelegramLine<F: EngineFactory> {
+    settings: TelegramLineSettings,
+    factory: F,
+    shared: Arc<LineShared>,
+    clock: Clock,
+    engine: F::Engine,
     /// Sends accepted by the engine, by id.
     waiting: HashMap<TelegramId, Waiting>,
     /// Receive times of the telegrams in the engine's buffer, oldest first (one per `Received`).
@@ -64,119 +58,136 @@ struct Session<E> {
     inputs: Option<Signals>,
     /// When the signals are read next (`None`: not watched, or they cannot be read).
     signal_poll: Option<Instant>,
+    /// The estimated end of the last transmission.
+    tx_end: Option<proto_core::time::Instant>,
 }
 
-/// The task of one telegram line.
-pub(crate) struct TelegramTask<F> {
-    settings: TelegramLineSettings,
-    factory: F,
-    shared: Arc<LineShared>,
-    commands: mpsc::Receiver<Command>,
-    commands_open: bool,
-    shutdown: CancellationToken,
-}
+impl<F: EngineFactory> LineEngine for TelegramLine<F> {
+    type Command = Command;
 
-// === impl TelegramTask ===
-
-impl<F: EngineFactory> TelegramTask<F> {
-    pub(crate) fn new(
-        settings: TelegramLineSettings,
-        factory: F,
-        shared: Arc<LineShared>,
-        commands: mpsc::Receiver<Command>,
-        shutdown: CancellationToken,
-    ) -> Self {
-        Self {
-            settings,
-            factory,
-            shared,
-            commands,
-            commands_open: true,
-            shutdown,
-        }
+    fn opened(&mut self, modem: Option<&mut dyn SerialPort>) {
+        self.shared.mailbox.set_port_open(true);
+        self.engine = self.factory.build();
+        tracing::debug!(line = %self.name(), protocol = self.engine.protocol(), "driver started");
+        self.waiting.clear();
+        self.received_at.clear();
+        self.outputs = SignalState::default();
+        self.inputs = None;
+        self.signal_poll = self.engine.watches_signals().then(Instant::now);
+        self.tx_end = None;
+        self.outputs_off(modem);
     }
 
-    fn name(&self) -> &str {
-        &self.settings.name
-    }
-
-    /// Opens the port, drives it until it fails, reopens with back-off; until shutdown.
-    pub(crate) async fn run(mut self) {
-        let mut reopen = Backoff::clamped(self.settings.reopen_min, self.settings.reopen_max);
-        loop {
-            match serial::open(&self.settings.port) {
-                Ok(port) => {
-                    reopen.reset();
-                    // 00 03h "parameter accepted": status, diag buffer, log, metrics.
-                    self.shared.status.started();
-                    self.shared.mailbox.set_port_open(true);
-                    tracing::info!(line = %self.name(), path = %self.settings.port.path, "port open");
-                    let exit = self.drive(port).await;
-                    self.shared.status.port_closed();
-                    self.shared.mailbox.set_port_open(false);
-                    match exit {
-                        PortExit::Shutdown => break,
-                        PortExit::Lost(reason) => self.port_failed(EVENT_PORT_LOST, reason),
-                    }
-                }
-                Err(err) => self.port_failed(EVENT_PORT_SETUP, err.to_string()),
-            }
-            let delay = reopen.next_delay();
-            tracing::info!(line = %self.name(), ?delay, "reopening the port after back-off");
-            if !self.wait_closed(delay).await {
-                break;
-            }
-        }
-        self.commands.close();
-        while let Some(command) = self.commands.recv().await {
-            command.refuse(&self.settings.name, true);
-        }
-        tracing::info!(line = %self.name(), "line stopped");
-    }
-
-    fn port_failed(&self, id: EventId, reason: String) {
-        self.shared
-            .status
-            .update(|s| s.port_error = Some(reason.clone()));
-        self.shared.raise(id, Some(reason));
-    }
-
-    /// Waits `delay` with the port closed, refusing commands at once. False on shutdown.
-    async fn wait_closed(&mut self, delay: Duration) -> bool {
-        let until = Instant::now() + delay;
-        loop {
-            tokio::select! {
-                biased;
-                () = self.shutdown.cancelled() => return false,
-                () = tokio::time::sleep_until(until) => return true,
-                command = self.commands.recv(), if self.commands_open => match command {
-                    Some(command) => command.refuse(&self.settings.name, false),
-                    None => self.commands_open = false,
-                },
+    /// Hands received bytes to the engine one at a time and moves each completed telegram to
+    /// the mailbox at once: a read can hold several short telegrams, and the engine's receive
+    /// buffer is kept small (see the module doc of the line), so taking them only after the whole
+    /// read would make the engine drop or refuse telegrams the mailbox has room for.
+    ///
+    /// The bytes are timestamped no earlier than the estimated end of our last transmission: the
+    /// estimate assumes the configured baud rate; a pseudo-terminal carries the bytes at once,
+    /// and the partner's answer then arrives before the estimated end. A byte that answers ours
+    /// cannot precede it, and the 3964(R) engine takes a byte received before its DLE is out as a
+    /// partner that did not wait (7.2, 08 02h). What is lost: a byte the partner sent, without
+    /// waiting, within the few character times our own bytes take on a real line.
+    fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
+        let at = self.tx_end.map_or(now, |end| end.max(now));
+        for &byte in bytes {
+            self.engine.handle_rx(at, &[byte]);
+            if self.events() {
+                self.move_received(false);
             }
         }
     }
 
-    /// The driver loop on an open port.
-    async fn drive(&mut self, mut port: SerialStream) -> PortExit {
-        let engine = self.factory.build();
-        tracing::debug!(line = %self.name(), protocol = engine.protocol(), "driver started");
-        let watch = engine.watches_signals();
-        let mut session = Session {
-            pump: Pump::new(engine, self.settings.port.char_time()),
-            waiting: HashMap::new(),
-            received_at: VecDeque::new(),
-            outputs: SignalState::default(),
-            inputs: None,
-            signal_poll: watch.then(Instant::now),
+    fn handle_timeout(&mut self, now: proto_core::time::Instant) {
+        self.engine.handle_timeout(now);
+    }
+
+    fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
+        self.engine.poll_timeout()
+    }
+
+    fn poll_action(&mut self) -> Option<Action> {
+        self.engine.poll_action()
+    }
+
+    /// Sets the output the engine asks for; a port that refuses is reported once in the status.
+    fn apply_action(&mut self, action: Action, modem: Option<&mut dyn SerialPort>) {
+        let (output, on) = match action {
+            Action::SetRts(on) => (Output::Rts, on),
+            Action::SetDtr(on) => (Output::Dtr, on),
         };
-        self.outputs_off(&mut port, &mut session.outputs);
-        let exit = self.drive_session(&mut port, &mut session).await;
-        // Telegrams the driver still holds are delivered (or counted as overflow), never lost
-        // with the engine.
-        self.move_received(&mut session, true);
-        let shutting_down = matches!(exit, PortExit::Shutdown);
-        for (_, waiting) in session.waiting.drain() {
+        let path = &self.settings.port.path;
+        let result = match modem {
+            Some(port) => signals::set(port, path, &mut self.outputs, output, on),
+            None => Err(signals::no_modem(path, output.signal(), "set")),
+        };
+        if let Err(err) = result {
+            if self.shared.set_signals_error(err.to_string()) {
+                tracing::warn!(line = %self.name(), %err, "the data flow control cannot set its output");
+            }
+        }
+    }
+
+    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        self.engine.poll_transmit()
+    }
+
+    fn transmitted(&mut self, _written: Instant, _len: usize, end: proto_core::time::Instant) {
+        self.tx_end = Some(end);
+        self.engine.handle_tx_done(end);
+    }
+
+    fn handle_events(&mut self) -> bool {
+        let events = self.events();
+        let moved = self.move_received(false);
+        events || moved
+    }
+
+    fn wake(&self) -> impl Future<Output = ()> + Send + '_ {
+        // The notification is created before the check, so that no wake-up is missed.
+        let room = self.shared.mailbox.room_freed();
+        let wants_room = !self.received_at.is_empty() && !self.shared.mailbox.accepts();
+        let signal_poll = self.signal_poll;
+        async move {
+            tokio::select! {
+                () = sleep_until_opt(signal_poll) => {}
+                () = room, if wants_room => {}
+            }
+        }
+    }
+
+    fn woken(&mut self, modem: Option<&mut dyn SerialPort>) {
+        if self.signal_poll.is_some_and(|at| at <= Instant::now()) {
+            self.poll_signals(modem);
+        }
+    }
+
+    fn command(&mut self, command: Command, modem: Option<&mut dyn SerialPort>) {
+        self.handle_command(modem, command);
+    }
+
+    fn refuse(&mut self, command: Command, shutting_down: bool) {
+        command.refuse(&self.settings.name, shutting_down);
+    }
+
+    fn stop(&mut self) -> Stop {
+        Stop {
+            read: true,
+            close_queue: true,
+            grace: Some(self.settings.shutdown_grace),
+        }
+    }
+
+    fn done(&self) -> bool {
+        self.engine.is_idle()
+    }
+
+    /// Telegrams the driver still holds are delivered (or counted as overflow), never lost with
+    /// the engine; the sends waiting for their result fail.
+    fn closed(&mut self, shutting_down: bool) {
+        self.move_received(true);
+        for (_, waiting) in self.waiting.drain() {
             let error = if shutting_down {
                 TelegramSendError::ShuttingDown
             } else {
@@ -185,97 +196,56 @@ impl<F: EngineFactory> TelegramTask<F> {
             self.shared.mailbox.count_send(false, waiting.bytes);
             let _ = waiting.reply.send(Err(error));
         }
-        exit
+        self.shared.mailbox.set_port_open(false);
     }
 
-    async fn drive_session(
-        &mut self,
-        port: &mut SerialStream,
-        session: &mut Session<F::Engine>,
-    ) -> PortExit {
-        let path = self.settings.port.path.clone();
-        let mut stop_at: Option<Instant> = None;
-        let mut buf = [0u8; 1024];
-        loop {
-            session.pump.handle_due();
-            loop {
-                let outputs = &mut session.outputs;
-                let shared = &self.shared;
-                let wrote = session
-                    .pump
-                    .flush(port, |port, action| {
-                        apply_action(shared, port, &path, outputs, action);
-                    })
-                    .await;
-                self.shared
-                    .metrics
-                    .sent_bytes(std::mem::take(&mut session.pump.written));
-                let wrote = match wrote {
-                    Ok(wrote) => wrote,
-                    Err(err) => return PortExit::Lost(format!("write to {path} failed: {err}")),
-                };
-                let events = self.handle_events(session);
-                let moved = self.move_received(session, false);
-                if !(wrote || events || moved) {
-                    break;
-                }
-            }
-            if stop_at.is_some() && session.pump.engine.is_idle() {
-                return PortExit::Shutdown;
-            }
-            let room = self.shared.mailbox.room_freed();
-            let wants_room = !session.received_at.is_empty() && !self.shared.mailbox.accepts();
-            tokio::select! {
-                biased;
-                () = self.shutdown.cancelled(), if stop_at.is_none() => {
-                    stop_at = Some(Instant::now() + self.settings.shutdown_grace);
-                    self.commands.close();
-                    while let Ok(command) = self.commands.try_recv() {
-                        command.refuse(&self.settings.name, true);
-                    }
-                    self.commands_open = false;
-                }
-                () = sleep_until_opt(stop_at) => return PortExit::Shutdown,
-                read = port.read(&mut buf) => match read {
-                    Ok(0) => return PortExit::Lost(format!("{path} reached end of file")),
-                    Ok(n) => {
-                        self.shared.metrics.received_bytes(n);
-                        self.receive(session, buf.get(..n).unwrap_or_default());
-                    }
-                    Err(err) => return PortExit::Lost(format!("read from {path} failed: {err}")),
-                },
-                () = sleep_until_opt(session.pump.deadline()) => session.pump.handle_timeout(),
-                () = sleep_until_opt(session.signal_poll) => self.poll_signals(port, session),
-                () = room, if wants_room => {}
-                command = self.commands.recv(), if self.commands_open => match command {
-                    Some(command) => self.handle_command(port, session, command),
-                    None => self.commands_open = false,
-                },
-            }
+    fn port_failed(&mut self, id: EventId, reason: String) {
+        self.shared.raise(id, Some(reason));
+    }
+}
+
+// === impl TelegramLine ===
+
+impl<F: EngineFactory> TelegramLine<F> {
+    pub(crate) fn new(
+        settings: TelegramLineSettings,
+        factory: F,
+        shared: Arc<LineShared>,
+        clock: Clock,
+    ) -> Self {
+        let engine = factory.build();
+        Self {
+            settings,
+            factory,
+            shared,
+            clock,
+            engine,
+            waiting: HashMap::new(),
+            received_at: VecDeque::new(),
+            outputs: SignalState::default(),
+            inputs: None,
+            signal_poll: None,
+            tx_end: None,
         }
     }
 
-    /// Hands received bytes to the engine one at a time and moves each completed telegram to
-    /// the mailbox at once: a read can hold several short telegrams, and the engine's receive
-    /// buffer is kept small (see the module doc of the line), so taking them only after the whole
-    /// read would make the engine drop or refuse telegrams the mailbox has room for.
-    fn receive(&self, session: &mut Session<F::Engine>, bytes: &[u8]) {
-        for &byte in bytes {
-            session.pump.handle_rx(&[byte]);
-            if self.handle_events(session) {
-                self.move_received(session, false);
-            }
-        }
+    fn name(&self) -> &str {
+        &self.settings.name
     }
 
     /// 000 5.4 "Nach dem Einschalten des CP sind alle Ausgangssignale inaktiv": DTR and RTS off
     /// on every opening, where the port has them (a pseudo-terminal has not: logged at debug).
-    fn outputs_off(&self, port: &mut SerialStream, outputs: &mut SignalState) {
+    fn outputs_off(&mut self, mut modem: Option<&mut dyn SerialPort>) {
         if self.settings.port.interface != Interface::Rs232 {
             return;
         }
         for output in [Output::Dtr, Output::Rts] {
-            if let Err(err) = signals::set(port, &self.settings.port.path, outputs, output, false) {
+            let path = &self.settings.port.path;
+            let result = match modem.as_deref_mut() {
+                Some(port) => signals::set(port, path, &mut self.outputs, output, false),
+                None => Err(signals::no_modem(path, output.signal(), "set")),
+            };
+            if let Err(err) = result {
                 tracing::debug!(line = %self.name(), %err, "modem outputs left as they are");
                 return;
             }
@@ -283,25 +253,25 @@ impl<F: EngineFactory> TelegramTask<F> {
     }
 
     /// Hands the engine's events on; returns whether there were any.
-    fn handle_events(&self, session: &mut Session<F::Engine>) -> bool {
+    fn events(&mut self) -> bool {
         let mut any = false;
-        while let Some(event) = session.pump.engine.poll_event() {
+        while let Some(event) = self.engine.poll_event() {
             any = true;
             match event {
                 // The copy for observers; the telegram itself is taken from the engine's buffer.
                 TelegramEvent::Received { .. } => {
                     self.shared.metrics.received_telegram();
-                    session.received_at.push_back(SystemTime::now());
+                    self.received_at.push_back(SystemTime::now());
                 }
                 TelegramEvent::Sent { id } => {
                     self.shared.metrics.sent_telegram();
-                    if let Some(waiting) = session.waiting.remove(&id) {
+                    if let Some(waiting) = self.waiting.remove(&id) {
                         self.shared.mailbox.count_send(true, waiting.bytes);
                         let _ = waiting.reply.send(Ok(()));
                     }
                 }
                 TelegramEvent::SendFailed { id, event, first } => {
-                    if let Some(waiting) = session.waiting.remove(&id) {
+                    if let Some(waiting) = self.waiting.remove(&id) {
                         self.shared.mailbox.count_send(false, waiting.bytes);
                         let _ = waiting
                             .reply
@@ -316,18 +286,15 @@ impl<F: EngineFactory> TelegramTask<F> {
 
     /// Moves received telegrams from the engine to the mailbox while it accepts them (`all`:
     /// every one, the port is closing). Returns whether any moved.
-    fn move_received(&self, session: &mut Session<F::Engine>, all: bool) -> bool {
+    fn move_received(&mut self, all: bool) -> bool {
         let mailbox = &self.shared.mailbox;
         let mut any = false;
         while all || mailbox.accepts() {
-            let Some(data) = session.pump.engine.take_received() else {
+            let Some(data) = self.engine.take_received() else {
                 break;
             };
             any = true;
-            let at = session
-                .received_at
-                .pop_front()
-                .unwrap_or_else(SystemTime::now);
+            let at = self.received_at.pop_front().unwrap_or_else(SystemTime::now);
             let depth = mailbox.settings().queue_depth;
             match mailbox.deliver(data, at) {
                 Delivery::Kept { seq } => {
@@ -351,37 +318,35 @@ impl<F: EngineFactory> TelegramTask<F> {
     }
 
     /// Reads CTS and DSR and hands a change to the engine.
-    fn poll_signals(&self, port: &mut SerialStream, session: &mut Session<F::Engine>) {
+    fn poll_signals(&mut self, modem: Option<&mut dyn SerialPort>) {
         let path = &self.settings.port.path;
-        let read =
-            |port: &mut SerialStream, signal| signals::read(port, path, session.outputs, signal);
-        let inputs = read(port, signals::Signal::Cts)
-            .and_then(|cts| read(port, signals::Signal::Dsr).map(|dsr| Signals { cts, dsr }));
+        let outputs = self.outputs;
+        let inputs = match modem {
+            Some(port) => signals::read(port, path, outputs, Signal::Cts).and_then(|cts| {
+                signals::read(port, path, outputs, Signal::Dsr).map(|dsr| Signals { cts, dsr })
+            }),
+            None => Err(signals::no_modem(path, Signal::Cts, "read")),
+        };
         match inputs {
             Ok(inputs) => {
-                if session.inputs != Some(inputs) {
-                    session.inputs = Some(inputs);
-                    let now = session.pump.now();
-                    session.pump.engine.handle_signals(now, inputs);
+                if self.inputs != Some(inputs) {
+                    self.inputs = Some(inputs);
+                    let (_, now) = self.clock.now();
+                    self.engine.handle_signals(now, inputs);
                 }
-                session.signal_poll = Some(Instant::now() + SIGNAL_POLL);
+                self.signal_poll = Some(Instant::now() + SIGNAL_POLL);
             }
             Err(err) => {
                 // The engine keeps CTS and DSR off: its sends end with 07 08h (no CTS) and,
                 // under the automatic V24 handling, nothing is received (DSR off).
                 tracing::warn!(line = %self.name(), %err, "cannot watch CTS/DSR for the data flow control");
                 self.shared.set_signals_error(err.to_string());
-                session.signal_poll = None;
+                self.signal_poll = None;
             }
         }
     }
 
-    fn handle_command(
-        &self,
-        port: &mut SerialStream,
-        session: &mut Session<F::Engine>,
-        command: Command,
-    ) {
+    fn handle_command(&mut self, modem: Option<&mut dyn SerialPort>, command: Command) {
         let path = &self.settings.port.path;
         let not_rs232 = || SignalError::NotRs232 {
             line: self.settings.name.clone(),
@@ -393,12 +358,12 @@ impl<F: EngineFactory> TelegramTask<F> {
                 let accepted = if bytes > max {
                     Err(SendError::TooLong { len: bytes, max })
                 } else {
-                    let now = session.pump.now();
-                    session.pump.engine.send(now, data)
+                    let (_, now) = self.clock.now();
+                    self.engine.send(now, data)
                 };
                 match accepted {
                     Ok(id) => {
-                        session.waiting.insert(id, Waiting { bytes, reply });
+                        self.waiting.insert(id, Waiting { bytes, reply });
                     }
                     // Back-pressure, not a failure: the client may try again.
                     Err(SendError::QueueFull { capacity }) => {
@@ -411,15 +376,15 @@ impl<F: EngineFactory> TelegramTask<F> {
                 }
             }
             Command::ReadSignals { reply } => {
-                let result = if self.settings.port.interface == Interface::Rs232 {
-                    signals::read_all(port, path, session.outputs)
-                } else {
-                    Err(not_rs232())
+                let result = match modem {
+                    _ if self.settings.port.interface != Interface::Rs232 => Err(not_rs232()),
+                    Some(port) => signals::read_all(port, path, self.outputs),
+                    None => Err(signals::no_modem(path, Signal::Dsr, "read")),
                 };
                 let _ = reply.send(result);
             }
             Command::SetSignal { output, on, reply } => {
-                let owner = session.pump.engine.output_owner();
+                let owner = self.engine.output_owner();
                 let result = if self.settings.port.interface != Interface::Rs232 {
                     Err(not_rs232())
                 } else if let Err(flow) = signals::may_set(owner, output) {
@@ -428,30 +393,13 @@ impl<F: EngineFactory> TelegramTask<F> {
                         signal: output.signal(),
                         flow,
                     })
+                } else if let Some(port) = modem {
+                    signals::set(port, path, &mut self.outputs, output, on)
                 } else {
-                    signals::set(port, path, &mut session.outputs, output, on)
+                    Err(signals::no_modem(path, output.signal(), "set"))
                 };
                 let _ = reply.send(result);
             }
-        }
-    }
-}
-
-/// Sets the output the engine asks for; a port that refuses is reported once in the status.
-fn apply_action(
-    shared: &LineShared,
-    port: &mut SerialStream,
-    path: &str,
-    outputs: &mut SignalState,
-    action: Action,
-) {
-    let (output, on) = match action {
-        Action::SetRts(on) => (Output::Rts, on),
-        Action::SetDtr(on) => (Output::Dtr, on),
-    };
-    if let Err(err) = signals::set(port, path, outputs, output, on) {
-        if shared.set_signals_error(err.to_string()) {
-            tracing::warn!(line = %shared.mailbox.line(), %err, "the data flow control cannot set its output");
         }
     }
 }

@@ -1,6 +1,6 @@
 //! A simulated Altivar 61/71 with its integrated Modbus (seed manual 002).
 //!
-//! Defaults reproduce the manual's examples (SPEC "Fixed names"): slave 2; W3102..W3105 =
+//! Defaults reproduce the manual's examples (which the README and the tests use): slave 2; W3102..W3105 =
 //! 40/600/500/0; W8400 does not exist; CHCF (W8401) = 3, COP (W8402) = 2; ETA (W3201) is
 //! read-only and a write answers exception 04; a missing or protected word reads 16#8000 and only
 //! an all-missing request answers exception 02; the FC 43 identity is "Telemecanique" /
@@ -566,11 +566,13 @@ mod tests {
     #[test]
     fn m1ct_wraps_and_m1ec_stops() {
         // 002 "Modbus-Zähler": M1CT counts modulo 65536, M1EC stops at 65535.
-        let mut sim = AltivarSim::default();
-        sim.counters = Counters {
-            frames: u16::MAX,
-            crc_errors: u16::MAX,
-            slave_messages: 0,
+        let mut sim = AltivarSim {
+            counters: Counters {
+                frames: u16::MAX,
+                crc_errors: u16::MAX,
+                slave_messages: 0,
+            },
+            ..AltivarSim::default()
         };
         assert_eq!(
             sim.handle_frame(&[0x02, 0x03, 0x0C, 0x1E, 0x00, 0x04, 0x27, 0x6D]),

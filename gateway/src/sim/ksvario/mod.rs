@@ -1,6 +1,6 @@
 //! A simulated KS vario controller system with its Modbus RTU coupler (seed manual 001).
 //!
-//! Defaults reproduce the manual's examples (SPEC "Fixed names"): slave 17; FC 04 at 1004..1006
+//! Defaults reproduce the manual's examples (which the README and the tests use): slave 17; FC 04 at 1004..1006
 //! reads 1066 / 140 / 4158; ti1 / ti2 of channel 1 (04 98 hex) read 180 / 333; one value store
 //! behind the integer, fix point and float addresses, so that the float FC 16 example (9A AE hex:
 //! 222.0 and 333.0) changes integer addresses 3415 and 3416. Every channel 1..30 has the data the

@@ -267,4 +267,55 @@ mod tests {
             Err(PduError::TrailingData { .. })
         ));
     }
+
+    #[test]
+    fn job_functions_have_bit_6_set_and_the_wire_keeps_the_plain_code() {
+        // 003 6.4.4: the send DB carries 43h / 46h / 50h, the wire 03h / 06h / 10h.
+        let jobs = [
+            Request32::ReadHoldingRegisters {
+                address: 0,
+                quantity: 1,
+            },
+            Request32::WriteSingleRegister {
+                address: 0,
+                value: 0,
+            },
+            Request32::WriteMultipleRegisters {
+                address: 0,
+                values: vec![0],
+            },
+        ];
+        let codes: Vec<_> = jobs
+            .iter()
+            .map(|j| (j.job_function(), j.function().0))
+            .collect();
+        assert_eq!(codes, [(0x43, 0x03), (0x46, 0x06), (0x50, 0x10)]);
+        for (job, wire) in codes {
+            assert_eq!(job & !0x40, wire);
+        }
+    }
+
+    #[test]
+    fn read_of_two_floats_over_ascii() {
+        // 222.0 and 333.0 as IEEE-754 (001 4.4 example values), framed as ASCII.
+        let request = Request32::ReadHoldingRegisters {
+            address: 0x0100,
+            quantity: 2,
+        };
+        let mut pdu = Vec::new();
+        request.encode(&mut pdu);
+        let mut frame = Vec::new();
+        crate::modbus::ascii::encode_frame(0x11, &pdu, &mut frame);
+        let (address, decoded) = crate::modbus::ascii::decode_frame(&frame).expect("frame");
+        assert_eq!(
+            (address, decoded.as_slice()),
+            (0x11, &[0x03, 0x01, 0x00, 0x00, 0x02][..])
+        );
+        let answer = [0x03, 0x08, 0x43, 0x5E, 0x00, 0x00, 0x43, 0xA6, 0x80, 0x00];
+        let Ok(Response32::ReadHoldingRegisters(values)) = request.decode_response(&answer) else {
+            panic!("a read answer");
+        };
+        let floats: Vec<f32> = values.into_iter().map(f32::from_bits).collect();
+        assert_eq!(floats, [222.0, 333.0]);
+    }
 }

@@ -6,9 +6,9 @@ use std::sync::Arc;
 
 use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 
-use super::layout::{self, WritePlan};
-use super::Mailbox;
-use crate::line::telegram::{PendingSend, TelegramClient};
+use super::{PendingSend, TelegramClient};
+use crate::mailbox::layout::{self, WritePlan};
+use crate::mailbox::Mailbox;
 use crate::unit::{UnitFuture, UnitService};
 
 /// One telegram line's mailbox served under its unit id; cheap to clone.

@@ -1,0 +1,732 @@
+//! The line runtime: one port task for every line protocol.
+//!
+//! A line is a serial port, a protocol engine and the line's status. The runtime owns the first
+//! and the last; the engine sits behind [`LineEngine`], a small adapter per protocol
+//! (`modbus_master`, `modbus_slave`, `telegram::task`) over a sans-IO proto-core machine:
+//!
+//! ```text
+//!   commands (queue) ──┐                    ┌──> status, events, metrics, image, mailbox
+//!                      v                    │
+//!   port ──bytes──> [ runtime ] ──bytes, time──> [ adapter: engine ] ──events──┘
+//!        <──bytes──   │   ^  <──frames, RS232 actions, deadline──┘
+//!                     │   └── open with back-off, 02 0Fh / 08 0Dh, shutdown
+//!                     └──> one LineHandle (status, events, units, capabilities, join)
+//! ```
+//!
+//! The task opens the port ([`PortOpener`]: a tokio-serial port, a pty, an in-process stream),
+//! drives the engine until the port fails or the line stops, and reopens the port with back-off.
+//! Each turn of the loop hands a deadline already passed to the engine without sleeping (quinn's
+//! `drive_timer`), lets the adapter start work (a poll, a queued command), writes what the engine
+//! transmits with the estimated end of each transmission, and hands the engine's events on; when
+//! that made progress (a request completed) the loop turns again at once, so a completion starts
+//! the next job without waiting. Then it waits for bytes, the engine's deadline (a timerfd: the
+//! deadlines of a Modbus line are fractions of a millisecond apart, tokio's timer would add
+//! 1.2 ms to each), the adapter's own wake-up (the next poll, a signal poll), a command or
+//! shutdown. On shutdown the adapter says how the line stops ([`Stop`]): whether the port is
+//! still read, whether the command queue closes at once, how long the engine may finish what it
+//! has started.
+
+use std::any::Any;
+use std::fmt;
+use std::future::Future;
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use proto_core::event::{ids, EventId};
+use proto_core::telegram::Action;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::sync::{broadcast, mpsc};
+use tokio::task::JoinHandle;
+use tokio::time::Instant;
+use tokio_serial::{SerialPort, SerialStream};
+use tokio_util::sync::CancellationToken;
+
+use super::driver::{estimated_tx_end, sleep_until_opt, Clock};
+use super::line_metrics::{LineMetrics, LineTraffic};
+use super::status::{DeviceStatus, LineEvent, LineStatus, Shared};
+use crate::metrics::Metrics;
+use crate::serial::{self, Backoff, PortSettings};
+use crate::timer::LineTimer;
+use crate::unit::UnitService;
+
+/// The port could not be opened or set up: 003 7.2 event 02 0Fh "Interface could not be
+/// parameterized" (also for RS485 mode refused by the driver).
+pub const EVENT_PORT_SETUP: EventId = ids::INVALID_PARAMETERIZATION;
+/// The open port failed (read or write error, end of file: the device node vanished): 003 7.2
+/// event 08 0Dh "BREAK: receive line to partner is interrupted".
+pub const EVENT_PORT_LOST: EventId = ids::LINE_BREAK;
+
+/// Bytes read from the port at once.
+const READ_BUF: usize = 1024;
+
+/// A port a line runs on: a byte stream, with the RS232 modem lines where it has them.
+pub trait LinePort: AsyncRead + AsyncWrite + Unpin + Send + 'static {
+    /// The modem lines (DTR, RTS, CTS, DSR, DCD, RI), if the port offers them.
+    fn modem(&mut self) -> Option<&mut dyn SerialPort> {
+        None
+    }
+}
+
+impl LinePort for SerialStream {
+    fn modem(&mut self) -> Option<&mut dyn SerialPort> {
+        Some(self)
+    }
+}
+
+impl LinePort for tokio::io::DuplexStream {}
+
+/// Opens a line's port with the line's settings.
+pub trait PortOpener: Send + Sync + 'static {
+    /// The port.
+    type Port: LinePort;
+
+    /// Opens the port; the error text goes into the status and event 02 0Fh.
+    ///
+    /// # Errors
+    ///
+    /// Why the port cannot be opened or set up.
+    fn open(&self, settings: &PortSettings) -> Result<Self::Port, String>;
+}
+
+/// Opens serial ports (and pseudo-terminals) through tokio-serial: baud rate, character frame
+/// and interface as [`serial::open`] sets them.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct SerialOpener;
+
+impl PortOpener for SerialOpener {
+    type Port = SerialStream;
+
+    fn open(&self, settings: &PortSettings) -> Result<SerialStream, String> {
+        serial::open(settings).map_err(|err| err.to_string())
+    }
+}
+
+/// How a line stops when its shutdown token is cancelled.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Stop {
+    /// The port is still read (a reply in flight can arrive); otherwise the frame being received
+    /// ends by silence.
+    pub(crate) read: bool,
+    /// The command queue closes at once and what waits in it is refused; otherwise it stays
+    /// open (unread) until the line has stopped.
+    pub(crate) close_queue: bool,
+    /// How long the engine may finish what it has started (`None`: until it is done).
+    pub(crate) grace: Option<Duration>,
+}
+
+/// What the runtime needs from a line protocol: the proto-core engine with what the protocol does
+/// with its results. Inputs are bytes, time and commands; outputs are bytes, RS232 actions,
+/// deadlines and the events the adapter hands on itself (status, image, mailbox).
+pub(crate) trait LineEngine: Send + 'static {
+    /// What clients queue for the line (`()` for a line without a queue).
+    type Command: Send + 'static;
+
+    /// The port opened: the adapter starts a fresh engine (nothing carries over a reopen) and
+    /// sets the outputs as the protocol wants them.
+    fn opened(&mut self, modem: Option<&mut dyn SerialPort>);
+    /// Received bytes, at `now`.
+    fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]);
+    /// The engine's deadline has come.
+    fn handle_timeout(&mut self, now: proto_core::time::Instant);
+    /// The engine's next deadline.
+    fn poll_timeout(&self) -> Option<proto_core::time::Instant>;
+    /// Starts work while the line runs (the next poll or command); `now` on tokio's clock.
+    fn start(&mut self, _now: Instant) {}
+    /// The next RS232 output the engine sets (before its next transmission).
+    fn poll_action(&mut self) -> Option<Action> {
+        None
+    }
+    /// Sets an output the engine asks for.
+    fn apply_action(&mut self, _action: Action, _modem: Option<&mut dyn SerialPort>) {}
+    /// The next bytes to write.
+    fn poll_transmit(&mut self) -> Option<Vec<u8>>;
+    /// `len` bytes were written at `written`, estimated to leave the line at `end`.
+    fn transmitted(&mut self, written: Instant, len: usize, end: proto_core::time::Instant);
+    /// Hands the engine's events on; true when that made progress that needs another turn at
+    /// once (a completed request starts the next job).
+    fn handle_events(&mut self) -> bool;
+    /// The adapter's own wake-up (the next poll, a signal poll, room in a mailbox).
+    fn wake(&self) -> impl Future<Output = ()> + Send + '_ {
+        std::future::pending()
+    }
+    /// The wake-up came.
+    fn woken(&mut self, _modem: Option<&mut dyn SerialPort>) {}
+    /// A command from the queue while the port is open.
+    fn command(&mut self, command: Self::Command, modem: Option<&mut dyn SerialPort>);
+    /// A command that cannot be carried: the port is closed, or the line is `shutting_down`.
+    fn refuse(&mut self, command: Self::Command, shutting_down: bool);
+    /// Shutdown began: refuses work not yet started, says how the line stops.
+    fn stop(&mut self) -> Stop;
+    /// Whether a stopping line is done (nothing in flight).
+    fn done(&self) -> bool;
+    /// The port closed: in-flight work is finished or failed (`shutting_down`: the line stops).
+    fn closed(&mut self, shutting_down: bool);
+    /// The port failed to open or was lost (after the status took the reason): the event and
+    /// what the protocol does about it.
+    fn port_failed(&mut self, id: EventId, reason: String);
+}
+
+/// What every line is started with, whatever its protocol.
+///
+/// The protocol's settings carry these under the same names; [`LineBase::new`] takes them over.
+#[derive(Clone, Debug)]
+pub(crate) struct LineBase {
+    /// The line's name (logs, status, keys).
+    pub(crate) name: String,
+    /// The config's `protocol` key (metrics label, REST).
+    pub(crate) protocol: &'static str,
+    /// The serial port.
+    pub(crate) port: PortSettings,
+    /// Depth of the diagnostic buffer.
+    pub(crate) diag_depth: usize,
+    /// First delay before reopening a failed port.
+    pub(crate) reopen_min: Duration,
+    /// Longest delay between reopen attempts.
+    pub(crate) reopen_max: Duration,
+    /// Where the line counts its events, traffic and requests (`None`: nowhere).
+    pub(crate) metrics: Option<Metrics>,
+}
+
+// === impl LineBase ===
+
+impl LineBase {
+    /// The common settings of line `name` speaking `protocol` (the config's key).
+    pub(crate) fn new(
+        name: &str,
+        protocol: &'static str,
+        port: &PortSettings,
+        diag_depth: usize,
+        reopen: (Duration, Duration),
+        metrics: Option<&Metrics>,
+    ) -> Self {
+        Self {
+            name: name.to_owned(),
+            protocol,
+            port: port.clone(),
+            diag_depth,
+            reopen_min: reopen.0,
+            reopen_max: reopen.1,
+            metrics: metrics.cloned(),
+        }
+    }
+
+    /// The line's shared state (status with `devices`, diagnostic buffer, events, metrics) on its
+    /// clock.
+    pub(crate) fn core(self, devices: Vec<DeviceStatus>) -> LineCore {
+        let status = LineStatus::new(self.name.clone(), devices);
+        let clock = Clock::start();
+        let metrics = LineMetrics::new(self.metrics.clone(), &self.name, self.protocol);
+        LineCore {
+            shared: Shared::with_metrics(status, self.diag_depth, clock, metrics),
+            clock,
+            base: self,
+        }
+    }
+}
+
+/// A line about to start: its settings, its shared state and its clock.
+#[derive(Debug)]
+pub(crate) struct LineCore {
+    pub(crate) base: LineBase,
+    pub(crate) shared: Arc<Shared>,
+    pub(crate) clock: Clock,
+}
+
+/// What a line offers beyond what every line has. The protocol's module adds the accessors of
+/// its own capabilities to [`LineHandle`] (an `impl LineHandle` block next to its adapter), which
+/// find them with [`LineHandle::capability`].
+pub(crate) trait LineCapabilities: Send + Sync + fmt::Debug + 'static {
+    /// The Modbus TCP units the line answers, with their unit ids.
+    fn units(&self) -> Vec<(u8, Arc<dyn UnitService>)> {
+        Vec::new()
+    }
+    /// Frames, bytes and commands since the line started, where the protocol counts them itself.
+    fn traffic(&self) -> Option<LineTraffic> {
+        None
+    }
+    /// The capabilities as their own type.
+    fn as_any(&self) -> &dyn Any;
+}
+
+/// A running line, whatever its protocol: name, protocol, status, events, Modbus TCP units, and
+/// what its protocol adds (reached through accessors that answer `Option`, defined next to each
+/// protocol's adapter: `client` and `device_units` of a Modbus master line, `slave_counters` and
+/// `cp_memory` of a slave line, `telegram_client`, `signals`, `mailbox` and `telegram_status` of
+/// a telegram line). Clones share the
+/// line; [`Self::join`] waits for its task once.
+#[derive(Clone, Debug)]
+pub struct LineHandle {
+    name: String,
+    protocol: &'static str,
+    shared: Arc<Shared>,
+    caps: Arc<dyn LineCapabilities>,
+    task: Arc<Mutex<Option<JoinHandle<()>>>>,
+}
+
+// === impl LineHandle ===
+
+impl LineHandle {
+    /// The line's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The config's `protocol` key (`modbus-master-rtu`, `3964r`, ...).
+    pub fn protocol(&self) -> &'static str {
+        self.protocol
+    }
+
+    /// A snapshot of the line's state: port, diagnostic buffer (newest first), event counters,
+    /// last STATUS word, devices. On a slave line `commands_answered` counts the requests served
+    /// (answered with data or applied as a broadcast) and `commands_failed` those refused with an
+    /// exception; the details are in `slave_counters`.
+    pub fn status(&self) -> LineStatus {
+        self.shared.snapshot()
+    }
+
+    /// Frames and bytes in each direction and commands since the line started.
+    pub fn traffic(&self) -> LineTraffic {
+        if let Some(traffic) = self.caps.traffic() {
+            return traffic;
+        }
+        let mut traffic = self.shared.metrics().traffic();
+        self.shared.update(|s| {
+            traffic.commands_answered = s.commands_answered;
+            traffic.commands_failed = s.commands_failed;
+        });
+        traffic
+    }
+
+    /// Empties the line's diagnostic buffer; the event counters and the STATUS word stay.
+    pub fn clear_diagnostics(&self) {
+        self.shared.clear_diagnostics();
+    }
+
+    /// The line's events as they happen (bounded; a lagging receiver is told how many it missed).
+    pub fn subscribe_events(&self) -> broadcast::Receiver<LineEvent> {
+        self.shared.subscribe()
+    }
+
+    /// The Modbus TCP units the line answers, with their unit ids.
+    pub fn units(&self) -> Vec<(u8, Arc<dyn UnitService>)> {
+        self.caps.units()
+    }
+
+    /// The capabilities of the line's protocol, if they are a `T`.
+    pub(crate) fn capability<T: 'static>(&self) -> Option<&T> {
+        self.caps.as_any().downcast_ref()
+    }
+
+    /// Waits for the line task to end (after the shutdown token was cancelled).
+    pub async fn join(self) {
+        let task = self
+            .task
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take();
+        let Some(task) = task else { return };
+        if let Err(err) = task.await {
+            tracing::error!(line = %self.name, %err, "line task failed");
+        }
+    }
+}
+
+/// Starts the task of a line: `engine` on the port `opener` opens with the line's settings, fed
+/// by `commands`, until `shutdown` is cancelled. Must be called within a tokio runtime.
+pub(crate) fn spawn<E: LineEngine, O: PortOpener>(
+    core: LineCore,
+    engine: E,
+    commands: Option<mpsc::Receiver<E::Command>>,
+    caps: Arc<dyn LineCapabilities>,
+    opener: O,
+    shutdown: CancellationToken,
+) -> LineHandle {
+    let LineCore {
+        base,
+        shared,
+        clock,
+    } = core;
+    let name = base.name.clone();
+    let protocol = base.protocol;
+    let task = PortTask {
+        base,
+        shared: Arc::clone(&shared),
+        clock,
+        engine,
+        commands,
+        opener,
+        shutdown,
+    };
+    let task = tokio::spawn(task.run());
+    LineHandle {
+        name,
+        protocol,
+        shared,
+        caps,
+        task: Arc::new(Mutex::new(Some(task))),
+    }
+}
+
+/// Why the driver loop ended.
+#[derive(Debug)]
+enum PortExit {
+    Shutdown,
+    Lost(String),
+}
+
+/// The task of one line.
+struct PortTask<E: LineEngine, O> {
+    base: LineBase,
+    shared: Arc<Shared>,
+    clock: Clock,
+    engine: E,
+    /// The line's queue; `None` once closed and drained (or for a line without one).
+    commands: Option<mpsc::Receiver<E::Command>>,
+    opener: O,
+    shutdown: CancellationToken,
+}
+
+// === impl PortTask ===
+
+impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
+    /// Opens the port, drives it until it fails, reopens with back-off; until shutdown.
+    async fn run(mut self) {
+        let name = self.base.name.clone();
+        let mut reopen = Backoff::clamped(self.base.reopen_min, self.base.reopen_max);
+        loop {
+            match self.opener.open(&self.base.port) {
+                Ok(port) => {
+                    reopen.reset();
+                    tracing::info!(line = %name, path = %self.base.port.path, protocol = self.base.protocol, "port open");
+                    // 00 03h "parameter accepted": status, diag buffer, log, metrics.
+                    self.shared.started();
+                    let exit = self.drive(port).await;
+                    self.shared.port_closed();
+                    let shutting_down = matches!(exit, PortExit::Shutdown);
+                    self.engine.closed(shutting_down);
+                    match exit {
+                        PortExit::Shutdown => break,
+                        PortExit::Lost(reason) => self.port_failed(EVENT_PORT_LOST, reason),
+                    }
+                }
+                Err(err) => self.port_failed(EVENT_PORT_SETUP, err),
+            }
+            let delay = reopen.next_delay();
+            tracing::info!(line = %name, ?delay, "reopening the port after back-off");
+            if !self.wait_closed(delay).await {
+                break;
+            }
+        }
+        if let Some(mut commands) = self.commands.take() {
+            commands.close();
+            while let Some(command) = commands.recv().await {
+                self.engine.refuse(command, true);
+            }
+        }
+        tracing::info!(line = %name, "line stopped");
+    }
+
+    fn port_failed(&mut self, id: EventId, reason: String) {
+        self.shared.update(|s| s.port_error = Some(reason.clone()));
+        self.engine.port_failed(id, reason);
+    }
+
+    /// Waits `delay` with the port closed, refusing commands at once. False on shutdown.
+    async fn wait_closed(&mut self, delay: Duration) -> bool {
+        let until = Instant::now() + delay;
+        loop {
+            tokio::select! {
+                biased;
+                () = self.shutdown.cancelled() => return false,
+                () = tokio::time::sleep_until(until) => return true,
+                command = recv(&mut self.commands) => match command {
+                    Some(command) => self.engine.refuse(command, false),
+                    None => self.commands = None,
+                },
+            }
+        }
+    }
+
+    /// Hands bytes read from the port to the engine: the one place where received bytes pass
+    /// from the port to the protocol.
+    fn receive(&mut self, bytes: &[u8]) {
+        let (_, now) = self.clock.now();
+        self.shared.metrics().received_bytes(bytes.len());
+        self.engine.handle_rx(now, bytes);
+    }
+
+    /// The driver loop on an open port.
+    async fn drive(&mut self, mut port: O::Port) -> PortExit {
+        let path = self.base.port.path.clone();
+        let char_time = self.base.port.char_time();
+        self.engine.opened(port.modem());
+        // The engine's deadlines can be fractions of a millisecond apart (t1.5/t3.5, 003 6.4.3;
+        // the turnaround after a broadcast, 003 6.4.2.2): tokio's millisecond timer would add
+        // 1.2 ms to each.
+        let mut timer = LineTimer::new();
+        let mut stopping: Option<Stop> = None;
+        let mut stop_at: Option<Instant> = None;
+        let mut buf = [0u8; READ_BUF];
+        loop {
+            let (now, engine_now) = self.clock.now();
+            // A deadline already passed is handled without sleeping (quinn drive_timer).
+            if self
+                .engine
+                .poll_timeout()
+                .is_some_and(|t| self.clock.to_tokio(t) <= now)
+            {
+                self.engine.handle_timeout(engine_now);
+            }
+            if stopping.is_none() {
+                self.engine.start(now);
+            }
+            loop {
+                while let Some(action) = self.engine.poll_action() {
+                    self.engine.apply_action(action, port.modem());
+                }
+                let Some(frame) = self.engine.poll_transmit() else {
+                    break;
+                };
+                if let Err(err) = port.write_all(&frame).await {
+                    return PortExit::Lost(format!("write to {path} failed: {err}"));
+                }
+                let written = Instant::now();
+                let end = estimated_tx_end(written, frame.len(), char_time);
+                self.shared.metrics().sent_bytes(frame.len());
+                self.engine
+                    .transmitted(written, frame.len(), self.clock.to_engine(end));
+            }
+            if self.engine.handle_events() {
+                continue; // start the next job at once
+            }
+            if stopping.is_some() && self.engine.done() {
+                return PortExit::Shutdown;
+            }
+            let deadline = self.engine.poll_timeout().map(|t| self.clock.to_tokio(t));
+            let reading = stopping.is_none_or(|s| s.read);
+            let taking = stopping.is_none();
+            tokio::select! {
+                biased;
+                () = self.shutdown.cancelled(), if stopping.is_none() => {
+                    let stop = self.engine.stop();
+                    stop_at = stop.grace.map(|grace| Instant::now() + grace);
+                    if stop.close_queue {
+                        if let Some(mut commands) = self.commands.take() {
+                            commands.close();
+                            while let Ok(command) = commands.try_recv() {
+                                self.engine.refuse(command, true);
+                            }
+                        }
+                    }
+                    stopping = Some(stop);
+                }
+                () = sleep_until_opt(stop_at) => return PortExit::Shutdown,
+                read = port.read(&mut buf), if reading => match read {
+                    Ok(0) => return PortExit::Lost(format!("{path} reached end of file")),
+                    Ok(n) => self.receive(buf.get(..n).unwrap_or_default()),
+                    Err(err) => return PortExit::Lost(format!("read from {path} failed: {err}")),
+                },
+                () = timer.sleep_until_opt(deadline) => {
+                    let (_, engine_now) = self.clock.now();
+                    self.engine.handle_timeout(engine_now);
+                }
+                () = self.engine.wake() => self.engine.woken(port.modem()),
+                command = recv(&mut self.commands), if taking => match command {
+                    Some(command) => self.engine.command(command, port.modem()),
+                    None => self.commands = None,
+                },
+            }
+        }
+    }
+}
+
+/// The next command of an open queue; never for a closed one.
+async fn recv<C>(commands: &mut Option<mpsc::Receiver<C>>) -> Option<C> {
+    match commands {
+        Some(commands) => commands.recv().await,
+        None => std::future::pending().await,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::collections::VecDeque;
+
+    use tokio::io::DuplexStream;
+
+    use super::*;
+
+    /// Hands out the ports of a queue, then refuses.
+    struct Ports(Mutex<VecDeque<Result<DuplexStream, String>>>);
+
+    impl PortOpener for Ports {
+        type Port = DuplexStream;
+
+        fn open(&self, _settings: &PortSettings) -> Result<DuplexStream, String> {
+            self.0
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .pop_front()
+                .unwrap_or_else(|| Err("no such port".into()))
+        }
+    }
+
+    /// Echoes what it receives and writes what it is sent as a command.
+    struct Echo {
+        shared: Arc<Shared>,
+        out: VecDeque<Vec<u8>>,
+        refused: Arc<Mutex<Vec<Vec<u8>>>>,
+    }
+
+    impl LineEngine for Echo {
+        type Command = Vec<u8>;
+
+        fn opened(&mut self, modem: Option<&mut dyn SerialPort>) {
+            assert!(modem.is_none(), "an in-process stream has no modem lines");
+            self.out.clear();
+        }
+        fn handle_rx(&mut self, _now: proto_core::time::Instant, bytes: &[u8]) {
+            self.out.push_back(bytes.to_vec());
+        }
+        fn handle_timeout(&mut self, _now: proto_core::time::Instant) {}
+        fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
+            None
+        }
+        fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+            self.out.pop_front()
+        }
+        fn transmitted(&mut self, _at: Instant, _len: usize, _end: proto_core::time::Instant) {
+            self.shared.metrics().sent_telegram();
+        }
+        fn handle_events(&mut self) -> bool {
+            false
+        }
+        fn command(&mut self, command: Vec<u8>, _modem: Option<&mut dyn SerialPort>) {
+            self.out.push_back(command);
+        }
+        fn refuse(&mut self, command: Vec<u8>, _shutting_down: bool) {
+            self.refused
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .push(command);
+        }
+        fn stop(&mut self) -> Stop {
+            Stop {
+                read: true,
+                close_queue: true,
+                grace: None,
+            }
+        }
+        fn done(&self) -> bool {
+            self.out.is_empty()
+        }
+        fn closed(&mut self, _shutting_down: bool) {}
+        fn port_failed(&mut self, id: EventId, reason: String) {
+            self.shared.raise(id, None, Some(reason));
+        }
+    }
+
+    #[derive(Debug)]
+    struct Nothing;
+
+    impl LineCapabilities for Nothing {
+        fn as_any(&self) -> &dyn Any {
+            self
+        }
+    }
+
+    async fn eventually(what: &str, mut check: impl FnMut() -> bool) {
+        for _ in 0..500 {
+            if check() {
+                return;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        panic!("{what} did not happen");
+    }
+
+    fn events(line: &LineHandle, id: EventId) -> u64 {
+        line.status().event_counts.get(&id).copied().unwrap_or(0)
+    }
+
+    #[tokio::test]
+    async fn a_line_on_an_in_process_stream_opens_echoes_reopens_and_stops() {
+        let (port, mut partner) = tokio::io::duplex(64);
+        let opener = Ports(Mutex::new(VecDeque::from([
+            Err("busy".to_owned()),
+            Ok(port),
+        ])));
+        let base = LineBase::new(
+            "echo",
+            "echo",
+            &PortSettings::new("/dev/in-process", 9600),
+            8,
+            (Duration::from_millis(10), Duration::from_millis(20)),
+            None,
+        );
+        let core = base.core(Vec::new());
+        let refused = Arc::new(Mutex::new(Vec::new()));
+        let engine = Echo {
+            shared: Arc::clone(&core.shared),
+            out: VecDeque::new(),
+            refused: Arc::clone(&refused),
+        };
+        let (tx, rx) = mpsc::channel(4);
+        let shutdown = CancellationToken::new();
+        let line = spawn(
+            core,
+            engine,
+            Some(rx),
+            Arc::new(Nothing),
+            opener,
+            shutdown.clone(),
+        );
+        assert_eq!((line.name(), line.protocol()), ("echo", "echo"));
+
+        // The first opening fails (02 0Fh), the second after the back-off succeeds.
+        eventually("the port open", || line.status().port_open).await;
+        assert_eq!(events(&line, EVENT_PORT_SETUP), 1);
+        assert_eq!(events(&line, ids::PTP_PARAMS_ACCEPTED), 1);
+
+        // Bytes in, the engine's answer out; a command out.
+        partner.write_all(b"hello").await.expect("write");
+        let mut echo = [0u8; 5];
+        partner.read_exact(&mut echo).await.expect("echo");
+        assert_eq!(&echo, b"hello");
+        tx.send(b"cmd".to_vec()).await.expect("queue");
+        let mut cmd = [0u8; 3];
+        partner.read_exact(&mut cmd).await.expect("command");
+        assert_eq!(&cmd, b"cmd");
+        let traffic = line.traffic();
+        assert_eq!(
+            (
+                traffic.bytes_received,
+                traffic.bytes_sent,
+                traffic.frames_sent
+            ),
+            (5, 8, 2)
+        );
+
+        // The partner goes: 08 0Dh, then every reopening fails while commands are refused.
+        drop(partner);
+        eventually("the port lost", || events(&line, EVENT_PORT_LOST) == 1).await;
+        eventually("a failed reopening", || {
+            events(&line, EVENT_PORT_SETUP) >= 2
+        })
+        .await;
+        let status = line.status();
+        assert!(!status.port_open);
+        assert_eq!(status.port_error.as_deref(), Some("no such port"));
+        tx.send(b"late".to_vec()).await.expect("queue");
+        eventually("the late command refused", || {
+            refused.lock().unwrap_or_else(PoisonError::into_inner).len() == 1
+        })
+        .await;
+
+        shutdown.cancel();
+        tokio::time::timeout(Duration::from_secs(2), line.join())
+            .await
+            .expect("the line stops");
+        assert!(tx.send(b"after".to_vec()).await.is_err(), "queue closed");
+    }
+}
