@@ -247,3 +247,186 @@ ranges = [{{ table = "input", start = 1004, count = 3 }}]
     );
     gw.terminate(Duration::from_secs(10));
 }
+
+// === one write policy: Modbus TCP, REST and zenoh ===
+
+/// The Prometheus text of `/metrics`.
+fn scrape(http: std::net::SocketAddr) -> String {
+    use std::io::{Read, Write};
+    let mut s = std::net::TcpStream::connect(http).expect("connect /metrics");
+    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
+        .expect("request");
+    let mut text = String::new();
+    s.read_to_string(&mut text).expect("read");
+    text
+}
+
+async fn zenoh_session(port: u16) -> zenoh::Session {
+    let mut c = zenoh::Config::default();
+    c.insert_json5("mode", r#""client""#).expect("mode");
+    c.insert_json5("connect/endpoints", &format!(r#"["tcp/127.0.0.1:{port}"]"#))
+        .expect("connect");
+    c.insert_json5("scouting/multicast/enabled", "false")
+        .expect("scouting");
+    zenoh::open(c)
+        .await
+        .expect("a zenoh session to the gateway")
+}
+
+/// Puts `payload` on `key` and returns the JSON result published on `key/result`.
+async fn zenoh_put(session: &zenoh::Session, key: &str, payload: &str) -> serde_json::Value {
+    let result = session
+        .declare_subscriber(format!("{key}/result"))
+        .await
+        .expect("subscribe");
+    session.put(key, payload.to_owned()).await.expect("put");
+    let sample = tokio::time::timeout(Duration::from_secs(20), result.recv_async())
+        .await
+        .expect("a result")
+        .expect("sample");
+    serde_json::from_slice(&sample.payload().to_bytes()).expect("JSON result")
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_same_forbidden_write_is_refused_over_modbus_tcp_rest_and_zenoh() {
+    use tokio_modbus::client::{tcp, Reader, Writer};
+    use tokio_modbus::prelude::Slave;
+
+    let dir = temp_dir("one-policy");
+    let link = SocatLink::new(&dir, "drive");
+    let _sim = device_sim("altivar71", &link.b);
+    let zenoh_port = gateway_tests::free_port();
+    // Only CMD (W8501) of the drive may be written: ACC (W9001) is outside the write ranges.
+    let config = format!(
+        r#"
+[gateway]
+name = "policy"
+
+[modbus_tcp]
+listen = "127.0.0.1:0"
+write_ranges = [{{ unit_id = 2, table = "holding", start = 8501, count = 1 }}]
+
+[http]
+insecure_allow_unauthenticated_changes = true
+
+[zenoh]
+mode = "peer"
+listen = ["tcp/127.0.0.1:{zenoh_port}"]
+connect = []
+multicast_scouting = false
+writes = true
+
+[lines.drive]
+port = "{port}"
+protocol = "modbus-master-rtu"
+baud = 19200
+parity = "even"
+
+[lines.drive.devices.atv71]
+profile = "altivar71"
+address = 2
+unit_id = 2
+
+[[lines.drive.devices.atv71.poll]]
+name = "settings"
+period = "200ms"
+ranges = [{{ table = "holding", start = 9001, count = 2 }}]
+"#,
+        port = link.a.display(),
+    );
+    let file = dir.join("gateway.toml");
+    std::fs::write(&file, config).expect("write config");
+    let gw = Gateway::run(&file);
+    let http = gw.http.expect("http");
+    let mut drive = tcp::connect_slave(gw.modbus_tcp, Slave(2))
+        .await
+        .expect("connect");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    let acc = loop {
+        if let Ok(Ok(words)) = drive.read_holding_registers(9001, 1).await {
+            break words[0];
+        }
+        assert!(Instant::now() < deadline, "the drive never answered");
+        tokio::time::sleep(Duration::from_millis(200)).await;
+    };
+
+    // Modbus TCP: exception 02 (outside the write ranges).
+    let tcp_write = drive
+        .write_single_register(9001, acc + 1)
+        .await
+        .expect("transport");
+    assert_eq!(
+        tcp_write,
+        Err(tokio_modbus::ExceptionCode::IllegalDataAddress)
+    );
+    // REST: refused, with the policy named.
+    let rest = reqwest::Client::new()
+        .put(format!(
+            "http://{http}/api/v1/lines/drive/devices/atv71/tags/ACC"
+        ))
+        .json(&serde_json::json!({ "value": 9.9 }))
+        .send()
+        .await
+        .expect("REST request");
+    let status = rest.status();
+    let body = rest.text().await.unwrap_or_default();
+    assert!(status.is_client_error(), "REST write: {status} {body}");
+    assert!(body.contains("write_ranges"), "{body}");
+    // zenoh: refused on the result key.
+    let session = zenoh_session(zenoh_port).await;
+    let result = zenoh_put(&session, "gw/policy/drive/atv71/ACC/set", "9.9").await;
+    assert_eq!(result["ok"], serde_json::Value::Bool(false), "{result}");
+    assert!(result.to_string().contains("write_ranges"), "{result}");
+
+    // Nothing reached the drive; every refusal is in the audit count of its path.
+    let now = drive
+        .read_holding_registers(9001, 1)
+        .await
+        .expect("transport")
+        .expect("read");
+    assert_eq!(now, [acc]);
+    let metrics = scrape(http);
+    for path in ["modbus_tcp", "rest", "zenoh"] {
+        let series = format!("gateway_writes_total{{path=\"{path}\",result=\"refused\"}} 1");
+        assert!(metrics.contains(&series), "no {series} in:\n{metrics}");
+    }
+    session.close().await.expect("close");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn zenoh_writes_are_off_unless_switched_on() {
+    let dir = temp_dir("zenoh-writes");
+    let link = SocatLink::new(&dir, "ascii");
+    let zenoh_port = gateway_tests::free_port();
+    let config = format!(
+        r#"
+[gateway]
+name = "quiet"
+
+[modbus_tcp]
+listen = "127.0.0.1:0"
+
+[zenoh]
+listen = ["tcp/127.0.0.1:{zenoh_port}"]
+
+[lines.ascii]
+port = "{port}"
+protocol = "ascii"
+end_criterion = "end-chars"
+end_chars = [0x03]
+"#,
+        port = link.a.display(),
+    );
+    let file = dir.join("gateway.toml");
+    std::fs::write(&file, config).expect("write config");
+    let mut gw = Gateway::run(&file);
+    let session = zenoh_session(zenoh_port).await;
+    let result = zenoh_put(&session, "gw/quiet/ascii/tx", "HELLO").await;
+    assert_eq!(result["ok"], serde_json::Value::Bool(false), "{result}");
+    assert!(result.to_string().contains("writes = false"), "{result}");
+    let metrics = scrape(gw.http.expect("http"));
+    let series = r#"gateway_writes_total{path="zenoh",result="refused"} 1"#;
+    assert!(metrics.contains(series), "no {series} in:\n{metrics}");
+    gw.wait_for("writes over zenoh are off", Duration::from_secs(5));
+    session.close().await.expect("close");
+}
