@@ -430,3 +430,93 @@ end_chars = [0x03]
     gw.wait_for("writes over zenoh are off", Duration::from_secs(5));
     session.close().await.expect("close");
 }
+
+// === paths a configuration change may name ===
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_config_change_cannot_point_ports_or_the_persistence_file_outside_their_directories() {
+    let dir = temp_dir("paths");
+    let link = SocatLink::new(&dir, "ascii");
+    let config = format!(
+        r#"
+[gateway]
+name = "paths"
+
+[modbus_tcp]
+listen = "127.0.0.1:0"
+
+[http]
+insecure_allow_unauthenticated_changes = true
+
+[lines.ascii]
+port = "{port}"
+protocol = "ascii"
+end_criterion = "end-chars"
+end_chars = [0x03]
+"#,
+        port = link.a.display(),
+    );
+    let file = dir.join("gateway.toml");
+    std::fs::write(&file, config).expect("write config");
+    let gw = Gateway::run(&file);
+    let base = format!("http://{}", gw.http.expect("http"));
+    let http = reqwest::Client::new();
+    let current: serde_json::Value = http
+        .get(format!("{base}/api/v1/config"))
+        .send()
+        .await
+        .expect("GET config")
+        .json()
+        .await
+        .expect("JSON");
+    let refused = |change: &dyn Fn(&mut serde_json::Value), path: &'static str| {
+        let mut config = current.clone();
+        change(&mut config);
+        let http = http.clone();
+        let url = format!("{base}/api/v1/config");
+        async move {
+            let reply = http
+                .put(url)
+                .json(&config)
+                .send()
+                .await
+                .expect("PUT config");
+            let status = reply.status();
+            let body: serde_json::Value = reply.json().await.expect("JSON");
+            assert_eq!(status.as_u16(), 422, "{path}: {body:#}");
+            let paths: Vec<&str> = body["error"]["issues"]
+                .as_array()
+                .expect("issues")
+                .iter()
+                .filter_map(|i| i["path"].as_str())
+                .collect();
+            assert_eq!(paths, [path], "{body:#}");
+        }
+    };
+    // A serial port outside /dev (the file exists: only the directory refuses it).
+    refused(
+        &|c| c["lines"]["ascii"]["port"] = serde_json::json!("/etc/passwd"),
+        "lines.ascii.port",
+    )
+    .await;
+    // `..` does not leave /dev either.
+    refused(
+        &|c| c["lines"]["ascii"]["port"] = serde_json::json!("/dev/../etc/passwd"),
+        "lines.ascii.port",
+    )
+    .await;
+    // The persistence file outside the state directory.
+    refused(
+        &|c| c["cp_memory"]["persist_file"] = serde_json::json!("/etc/cron.d/gateway"),
+        "cp_memory.persist_file",
+    )
+    .await;
+    // Nor can the change widen the directories themselves.
+    refused(
+        &|c| c["gateway"]["port_dirs"] = serde_json::json!(["/"]),
+        "gateway.port_dirs",
+    )
+    .await;
+    let text = std::fs::read_to_string(&file).expect("config file");
+    assert!(!text.contains("/etc/"), "nothing was saved:\n{text}");
+}

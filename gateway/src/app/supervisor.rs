@@ -301,6 +301,50 @@ impl Supervisor {
                 ));
             } else if !Path::new(port).exists() {
                 issues.push(issue(&path, format!("no such serial port {port}")));
+            } else if !inside(Path::new(port), &old.config.gateway.port_dirs) {
+                issues.push(issue(
+                    &path,
+                    format!(
+                        "{port} is outside [gateway] port_dirs {:?}: a change over the API names \
+                         serial ports there only",
+                        old.config.gateway.port_dirs
+                    ),
+                ));
+            }
+        }
+        // The directories themselves are the host's decision: a change over the API cannot widen
+        // them (they are read from the file at start).
+        for (key, new_dirs, old_dirs) in [
+            (
+                "gateway.port_dirs",
+                &new.gateway.port_dirs,
+                &old.config.gateway.port_dirs,
+            ),
+            (
+                "gateway.state_dirs",
+                &new.gateway.state_dirs,
+                &old.config.gateway.state_dirs,
+            ),
+        ] {
+            if new_dirs != old_dirs {
+                issues.push(issue(
+                    key,
+                    "changed only in the configuration file on the host, not over the API",
+                ));
+            }
+        }
+        if let Some(file) = &new.cp_memory.persist_file {
+            let changed = old.config.cp_memory.persist_file.as_ref() != Some(file);
+            if changed && !inside(file, &old.config.gateway.state_dirs) {
+                issues.push(issue(
+                    "cp_memory.persist_file",
+                    format!(
+                        "{} is outside [gateway] state_dirs {:?}: a change over the API names the \
+                         persistence file there only",
+                        file.display(),
+                        old.config.gateway.state_dirs
+                    ),
+                ));
             }
         }
         if self.overrides.modbus_tcp.is_none()
@@ -616,6 +660,26 @@ fn unit_map(lines: &BTreeMap<String, RunningLine>) -> UnitMap {
     map
 }
 
+/// Whether `path` (resolved: symbolic links and `..` followed; a file that does not exist yet by
+/// its directory) lies inside one of `dirs`.
+fn inside(path: &Path, dirs: &[std::path::PathBuf]) -> bool {
+    let resolved = std::fs::canonicalize(path).or_else(|_| {
+        let name = path.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
+        let parent = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        std::fs::canonicalize(parent).map(|dir| dir.join(name))
+    });
+    let Ok(resolved) = resolved else {
+        return false;
+    };
+    dirs.iter().any(|dir| {
+        let dir = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.clone());
+        resolved.starts_with(dir)
+    })
+}
+
 fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
     ConfigIssue {
         path: path.to_owned(),
@@ -669,4 +733,35 @@ fn open_cp_memory(config: &Config) -> Result<Option<(SharedCpMemory, Persistence
     };
     let task = cpmem::spawn_persistence(memory.clone(), settings, token.clone());
     Ok(Some((memory, Some((token, task)))))
+}
+
+#[cfg(test)]
+mod path_tests {
+    use super::*;
+
+    #[test]
+    fn paths_are_resolved_before_they_are_compared() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let state = dir.path().join("state");
+        std::fs::create_dir(&state).expect("mkdir");
+        let dirs = [state.clone()];
+        assert!(
+            inside(&state.join("cp.bin"), &dirs),
+            "a new file in the directory"
+        );
+        assert!(!inside(&state.join("../cp.bin"), &dirs), "`..` out of it");
+        assert!(!inside(Path::new("/etc/passwd"), &dirs));
+        assert!(
+            !inside(&state.join("missing/cp.bin"), &dirs),
+            "no such directory"
+        );
+        // A link inside pointing outside is outside.
+        let link = state.join("escape");
+        std::os::unix::fs::symlink("/etc", &link).expect("symlink");
+        assert!(!inside(&link.join("passwd"), &dirs));
+        assert!(inside(
+            Path::new("/dev/null"),
+            &[std::path::PathBuf::from("/dev")]
+        ));
+    }
 }

@@ -93,3 +93,16 @@ fn modbus_tcp_security_mistakes_are_reported() {
         "same address",
     );
 }
+
+#[test]
+fn api_changes_name_ports_and_state_files_in_the_configured_directories() {
+    let c = parse("");
+    assert_eq!(c.gateway.port_dirs, [PathBuf::from("/dev")]);
+    assert_eq!(c.gateway.state_dirs, [PathBuf::from("/var/lib/gateway")]);
+    let c = parse("[gateway]\nport_dirs = [\"/dev\", \"/run/serial\"]\nstate_dirs = []\n");
+    assert_eq!(
+        c.gateway.port_dirs,
+        [PathBuf::from("/dev"), PathBuf::from("/run/serial")]
+    );
+    assert!(c.gateway.state_dirs.is_empty());
+}
