@@ -98,6 +98,19 @@ if have systemd-analyze; then
       || { echo "ExecStart's config $cfg: no ReadWritePaths=$dir"; return 1; }
   }
   run "gateway.service may save its configuration (ReadWritePaths)" unit_config_writable
+  unit_devices_and_exit_codes() {
+    # The usual serial device classes are allowed, and a configuration error (exit 64) is not
+    # restarted.
+    local class
+    for class in ttyS ttyUSB ttyACM ttyAMA; do
+      grep -qx "DeviceAllow=char-$class rw" "$DEPLOY/gateway.service" \
+        || { echo "no DeviceAllow=char-$class rw"; return 1; }
+    done
+    grep -qx "RestartPreventExitStatus=64" "$DEPLOY/gateway.service" \
+      || { echo "no RestartPreventExitStatus=64"; return 1; }
+  }
+  run "gateway.service allows ttyS/ttyUSB/ttyACM/ttyAMA, does not restart on exit 64" \
+    unit_devices_and_exit_codes
 else
   skip "systemd-analyze not installed: deploy/gateway.service not verified"
 fi
@@ -145,13 +158,26 @@ for sname, svc in services.items():
                 problems.append(f"{sname}: bind mount source {src} does not exist")
         elif src not in doc.get("volumes", {}):
             problems.append(f"{sname}: named volume {src} not declared")
+# The router is connected to the gateway's zenoh peer.
+zenoh_cmd = [str(a) for a in services.get("zenoh", {}).get("command", [])]
+connects = [zenoh_cmd[i + 1] for i, a in enumerate(zenoh_cmd[:-1]) if a in ("--connect", "-e")]
+if not any(c.startswith("tcp/gateway:") for c in connects):
+    problems.append(f"zenoh router does not connect to the gateway (connect: {connects})")
+# Grafana's admin password comes from a secret, never admin/admin.
+grafana = services.get("grafana", {})
+env = grafana.get("environment", {})
+if env.get("GF_SECURITY_ADMIN_PASSWORD__FILE") != "/run/secrets/grafana-admin-password" \
+        or "grafana-admin-password" not in grafana.get("secrets", []) \
+        or "grafana-admin-password" not in doc.get("secrets", {}) \
+        or "GF_SECURITY_ADMIN_PASSWORD" in env:
+    problems.append("grafana: the admin password must come from the grafana-admin-password secret")
 for p in problems:
     print(p)
 sys.exit(1 if problems else 0)
 PY
 }
 if python_has_yaml; then
-  run "compose.yaml parses; services, mounts, grace period" check_compose
+  run "compose.yaml parses; services, mounts, grace period, zenoh router, Grafana secret" check_compose
 else
   skip "python3 yaml missing (apt-get install python3-yaml): deploy/compose.yaml not checked"
 fi

@@ -58,8 +58,11 @@ fn pty(shutdown: &CancellationToken) -> std::io::Result<(String, SerialStream)> 
     Ok((path, ours))
 }
 
+/// The gateway's own sections: every listener on loopback, on a port the kernel picks (the
+/// REST API would otherwise take its default 127.0.0.1:8080, which another gateway or bench run
+/// on the machine may hold).
 fn head(name: &str) -> String {
-    format!("[gateway]\nname = \"{name}\"\n\n[modbus_tcp]\nlisten = \"127.0.0.1:0\"\nmax_connections = 64\n\n")
+    format!("[gateway]\nname = \"{name}\"\n\n[modbus_tcp]\nlisten = \"127.0.0.1:0\"\nmax_connections = 64\n\n[http]\nlisten = \"127.0.0.1:0\"\n\n")
 }
 
 /// A Modbus master line with generic devices, each with `tags[i]` u16 tags on holding registers
@@ -422,4 +425,19 @@ async fn measure_memory(bin: &Path, plan: &Plan, zenoh: bool) -> std::io::Result
     }
     memory.panicked = gw.panicked();
     Ok(memory)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_gateways_listeners_are_loopback_ports_the_kernel_picks() {
+        let config = gateway::config::parse(&head("bench")).expect("the head is a valid config");
+        for addr in [config.modbus_tcp.listen, config.http.listen] {
+            assert!(addr.ip().is_loopback(), "{addr}");
+            assert_eq!(addr.port(), 0, "{addr}");
+        }
+        assert!(config.zenoh.is_none(), "zenoh only on the command line");
+    }
 }

@@ -35,7 +35,10 @@ mod tag_io;
 mod tls;
 mod zenoh;
 
-pub use check::{check_command, check_report, config_issues, load_config, security_warnings};
+pub use check::{
+    check_command, check_report, config_issues, load_config, port_issues, run_issues,
+    security_warnings, unpolled_tags,
+};
 pub use demo::demo;
 
 /// How long a stopping gateway waits for lines to finish their transaction in flight and for
@@ -179,7 +182,7 @@ pub async fn run(
             .map_err(|e| AppError::Setup(format!("cannot register the metrics: {e}")))?,
     };
     for warning in security_warnings(&config) {
-        warn!("{warning}");
+        warn!("{}: {}", warning.path, warning.message);
     }
     let http_config = config.http.clone();
     let sup = supervisor::Supervisor::start(config, overrides.clone(), &shutdown, exported)?;
@@ -250,7 +253,11 @@ async fn serve_http(
     };
     let backend = Arc::new(rest::RestBackend::new(Arc::clone(sup)));
     let state = ApiState::from_config(backend, http, store)
-        .map_err(|e| AppError::Setup(format!("[http]: {e}")))?
+        .map_err(|e| {
+            AppError::Config(config::ConfigErrors {
+                issues: vec![check::token_issue(http, &e)],
+            })
+        })?
         .with_routes(metrics_route(sup.exported.registry.clone()));
     let listener = tokio::net::TcpListener::bind(addr)
         .await

@@ -115,7 +115,16 @@ async fn async_main(command: Command) -> ExitCode {
             modbus_tcp,
             zenoh_listen,
             http,
-        } => match gateway::app::load_config(&config) {
+        } => match gateway::app::load_config(&config).and_then(|cfg| {
+            // What run would refuse later (the API token, a line that cannot start) is a
+            // configuration error too: refused here, before any port opens.
+            let issues = gateway::app::run_issues(&cfg);
+            if issues.is_empty() {
+                Ok(cfg)
+            } else {
+                Err(gateway::config::ConfigErrors { issues })
+            }
+        }) {
             Ok(cfg) => {
                 let metrics = match metrics_registry() {
                     Ok(metrics) => metrics,

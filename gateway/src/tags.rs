@@ -9,12 +9,24 @@
 //!
 //! The directory is built once from the config; zenoh and REST read tags through it, and write
 //! them through the same unit service as a Modbus TCP write.
+//!
+//! Names: a tag name compares without letter case (ASCII) wherever the gateway looks one up:
+//! poll groups in the config, REST paths, zenoh queries and sets (`acc` finds `ACC`). Every
+//! answer and every key the gateway writes uses the one spelling the profile or the config gives
+//! the tag (`ACC`, `SFr`), so two tags of one device may not differ only in case. A zenoh
+//! subscription is matched by zenoh itself, which compares keys exactly: subscribe with that
+//! spelling (or a wildcard).
+//!
+//! Values: a write is refused unless the tag holds the value exactly: a value between two steps
+//! of the tag's fix point and scale (4.55 where the tag holds tenths) or outside its range (200
+//! where it holds 0..=100) is refused with the nearest values it can hold, never rounded or
+//! clipped. Float tags (`f32`) hold what the float holds.
 
 use std::sync::Arc;
 use std::time::SystemTime;
 
 use proto_core::modbus::pdu::{ExceptionCode, Request};
-use proto_core::profiles::{self, DeviceProfile, Tag, Value};
+use proto_core::profiles::{self, DeviceProfile, EncodeError, Tag, Value};
 
 use crate::config::{self, Config, DeviceConfig};
 use crate::image::{ProcessImage, Table};
@@ -168,14 +180,34 @@ impl TagDirectory {
         if !entry.tag.writable {
             return Err(TagWriteError::ReadOnly(name()));
         }
+        let refused = |reason: String| TagWriteError::Value {
+            tag: name(),
+            value,
+            reason,
+        };
         let words = entry
             .profile
             .encode(&entry.tag, value)
-            .map_err(|e| TagWriteError::Value {
-                tag: name(),
-                value,
-                reason: e.to_string(),
+            .map_err(|e| match e {
+                EncodeError::OutOfRange { min, max, .. } => {
+                    let nearest = if value < min { min } else { max };
+                    refused(format!(
+                        "outside the range {}..={} of the tag; nearest: {}",
+                        show(&entry.tag, min),
+                        show(&entry.tag, max),
+                        show(&entry.tag, nearest)
+                    ))
+                }
+                other => refused(other.to_string()),
             })?;
+        if let Some(nearest) = inexact(entry, value) {
+            let shown: Vec<String> = nearest.iter().map(|&v| show(&entry.tag, v)).collect();
+            return Err(refused(format!(
+                "the tag holds steps of {}; nearest: {}",
+                show(&entry.tag, entry.tag.factor()),
+                shown.join(" or ")
+            )));
+        }
         let address = entry.tag.address;
         Ok(match (entry.tag.table, words.as_slice()) {
             (Table::Coils, [w]) => Request::WriteSingleCoil {
@@ -190,6 +222,41 @@ impl TagDirectory {
             _ => return Err(TagWriteError::ReadOnly(name())),
         })
     }
+}
+
+/// The nearest values the tag holds when it cannot hold `value` exactly (between two steps of
+/// its fix point and scale); `None` when it holds it. Only neighbours the tag accepts (its range)
+/// are named. Floats hold any value in their range.
+fn inexact(entry: &TagEntry, value: f64) -> Option<Vec<f64>> {
+    if matches!(entry.tag.data_type, profiles::DataType::F32(_)) {
+        return None;
+    }
+    let factor = entry.tag.factor();
+    let raw = value / factor;
+    // A decimal value such as 4.5 is not exactly 45 x 0.1 in binary: compare with a tolerance
+    // far below one step.
+    if (raw - raw.round()).abs() <= 1e-9 * raw.abs().max(1.0) {
+        return None;
+    }
+    let nearest: Vec<f64> = [raw.floor(), raw.ceil()]
+        .into_iter()
+        .map(|r| r * factor)
+        .filter(|&v| entry.profile.encode(&entry.tag, v).is_ok())
+        .collect();
+    Some(nearest)
+}
+
+/// An engineering value with as many decimals as the tag's steps have (4.6, not
+/// 4.6000000000000005).
+fn show(tag: &Tag, value: f64) -> String {
+    let factor = tag.factor().abs();
+    let decimals = (0..=9usize)
+        .find(|&d| {
+            let scaled = factor * 10f64.powi(i32::try_from(d).unwrap_or(0));
+            (scaled - scaled.round()).abs() < 1e-9 * scaled.max(1.0)
+        })
+        .unwrap_or(9);
+    format!("{value:.decimals$}")
 }
 
 /// The device name of a slave line's CP memory in tag keys (`<line>/memory/DB800.DBW20`).
@@ -381,6 +448,88 @@ mod tests {
                 value: 7
             }
         );
+    }
+
+    /// The reason of a refused write.
+    fn refusal(entry: &TagEntry, value: f64) -> String {
+        match TagDirectory::write_request(entry, value) {
+            Err(TagWriteError::Value { reason, .. }) => reason,
+            other => panic!("{value} on {}: {other:?}", entry.tag.name),
+        }
+    }
+
+    #[test]
+    fn a_value_the_tag_cannot_hold_exactly_is_refused_with_the_nearest_values() {
+        let dir = TagDirectory::from_config(&config::demo());
+        // ACC: 0.1 s steps, 0.1..=999.9 s (raw 1..=9999).
+        let acc = dir.find("drive", "atv71", "ACC").expect("ACC");
+        assert_eq!(
+            refusal(acc, 4.55),
+            "the tag holds steps of 0.1; nearest: 4.5 or 4.6"
+        );
+        assert_eq!(
+            TagDirectory::write_request(acc, 4.55)
+                .unwrap_err()
+                .to_string(),
+            "value 4.55 does not fit tag drive/atv71/ACC: the tag holds steps of 0.1; nearest: 4.5 or 4.6"
+        );
+        assert_eq!(
+            refusal(acc, 1000.0),
+            "outside the range 0.1..=999.9 of the tag; nearest: 999.9"
+        );
+        // Only the neighbour inside the range is named.
+        assert_eq!(
+            refusal(acc, 0.05),
+            "the tag holds steps of 0.1; nearest: 0.1"
+        );
+        for exact in [4.5, 4.6, 0.1, 999.9, 1.3] {
+            assert!(
+                TagDirectory::write_request(acc, exact).is_ok(),
+                "{exact} fits ACC"
+            );
+        }
+        // A word of the CP memory: integers 0..=65535.
+        let word = dir
+            .find("hmi", CP_MEMORY_DEVICE, "DB800.DBW20")
+            .expect("a memory word");
+        assert_eq!(
+            refusal(word, 200.5),
+            "the tag holds steps of 1; nearest: 200 or 201"
+        );
+        assert_eq!(
+            refusal(word, 70000.0),
+            "outside the range 0..=65535 of the tag; nearest: 65535"
+        );
+        assert_eq!(
+            refusal(word, -1.0),
+            "outside the range 0..=65535 of the tag; nearest: 0"
+        );
+    }
+
+    #[test]
+    fn a_config_tag_with_a_scale_names_its_steps() {
+        let text = config::demo_toml().replace(
+            "[lines.ksvario.devices.ksvario]\nprofile = \"ksvario\"\naddress = 17\nunit_id = 17\n",
+            "[lines.ksvario.devices.ksvario]\nprofile = \"ksvario\"\naddress = 17\nunit_id = 17\n\
+             tags = [{ name = \"mode\", table = \"holding\", address = 3415, type = \"u16\", writable = true, scale = 0.5 }]\n",
+        );
+        let config = config::parse(&text).expect("valid");
+        let dir = TagDirectory::from_config(&config);
+        let mode = dir.find("ksvario", "ksvario", "mode").expect("mode");
+        assert_eq!(
+            refusal(mode, 0.25),
+            "the tag holds steps of 0.5; nearest: 0.0 or 0.5"
+        );
+        assert!(TagDirectory::write_request(mode, 1.5).is_ok());
+    }
+
+    #[test]
+    fn names_compare_without_case_and_answer_with_the_profiles_spelling() {
+        let dir = TagDirectory::from_config(&config::demo());
+        for asked in ["sfr", "SFR", "SFr"] {
+            let entry = dir.find("drive", "atv71", asked).expect("SFr");
+            assert_eq!(entry.tag.name, "SFr");
+        }
     }
 
     #[test]

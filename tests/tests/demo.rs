@@ -64,6 +64,13 @@ async fn demo_serves_both_devices_and_writes_through() {
         vec![40, 600, 500, 0]
     );
 
+    // The second Altivar on the same bus (multi-drop, slave 3), unit 3: the same settings.
+    let mut drive_b = connect(&gw, 3).await;
+    assert_eq!(
+        read_holding_eventually(&mut drive_b, 3102, 4).await,
+        vec![40, 600, 500, 0]
+    );
+
     // KS vario, unit 17: FC04 1004..1006 (001 chapter 4 example).
     let mut ks = connect(&gw, 17).await;
     assert_eq!(
@@ -94,6 +101,27 @@ async fn demo_serves_both_devices_and_writes_through() {
             .expect("read W9001"),
         vec![13]
     );
+
+    // Each drive on the bus answers its own address: a write to the second drive leaves the
+    // first one's value alone.
+    drive_b
+        .write_single_register(9001, 21)
+        .await
+        .expect("transport")
+        .expect("write W9001 of the second drive");
+    let both = (
+        drive_b
+            .read_holding_registers(9001, 3)
+            .await
+            .expect("transport")
+            .expect("read the second drive"),
+        drive
+            .read_holding_registers(9001, 3)
+            .await
+            .expect("transport")
+            .expect("read the first drive"),
+    );
+    assert_eq!((both.0[0], both.1[0]), (21, 13), "{both:?}");
 
     // ETA (W3201) is read-only on the drive: the drive's own exception 04 comes back.
     let refused = drive
@@ -222,7 +250,19 @@ async fn the_demo_hmi_polls_the_slave_line_and_tcp_shares_its_memory() {
 #[test]
 fn gateway_check_accepts_the_example_and_lists_every_mistake() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    let example = root.join("deploy/gateway.example.toml");
+    // The example as installed: its token file exists and holds a token of 16 characters or
+    // more (run refuses to start without it, and so does check).
+    let dir = gateway_tests::temp_dir("check");
+    let token = dir.join("api-token");
+    std::fs::write(&token, "0123456789abcdef\n").expect("write token");
+    let text = std::fs::read_to_string(root.join("deploy/gateway.example.toml"))
+        .expect("example")
+        .replace(
+            "token_file = \"/etc/gateway/api-token\"",
+            &format!("token_file = \"{}\"", token.display()),
+        );
+    let example = dir.join("gateway.example.toml");
+    std::fs::write(&example, text).expect("write example");
     let out = Command::new(gateway_tests::gateway_bin())
         .args(["check", "--config", example.to_str().expect("path")])
         .output()
@@ -233,7 +273,6 @@ fn gateway_check_accepts_the_example_and_lists_every_mistake() {
         String::from_utf8_lossy(&out.stdout)
     );
 
-    let dir = gateway_tests::temp_dir("check");
     let bad = dir.join("bad.toml");
     std::fs::write(
         &bad,
@@ -248,6 +287,40 @@ fn gateway_check_accepts_the_example_and_lists_every_mistake() {
     assert_eq!(out.status.code(), Some(1), "{text}");
     for path in ["modbus_tcp.listen", "lines.a.baud", "lines.a.colour"] {
         assert!(text.contains(path), "{path} missing from:\n{text}");
+    }
+}
+
+#[test]
+fn run_refuses_a_missing_or_short_api_token_with_the_config_exit_code() {
+    // 64 (EX_USAGE): the systemd unit does not restart on it (RestartPreventExitStatus=64), and
+    // check reports the same problem.
+    let dir = gateway_tests::temp_dir("short-token");
+    let token = dir.join("api-token");
+    std::fs::write(&token, "too-short\n").expect("write token");
+    for (name, http) in [
+        (
+            "env",
+            "token_env = \"GATEWAY_TEST_TOKEN_NEVER_SET\"".to_owned(),
+        ),
+        ("file", format!("token_file = \"{}\"", token.display())),
+    ] {
+        let cfg = dir.join(format!("{name}.toml"));
+        std::fs::write(
+            &cfg,
+            format!("[modbus_tcp]\nlisten = \"127.0.0.1:0\"\n[http]\nlisten = \"127.0.0.1:0\"\n{http}\n"),
+        )
+        .expect("write config");
+        let out = Command::new(gateway_tests::gateway_bin())
+            .args(["run", "--config", cfg.to_str().expect("path")])
+            .env_remove("GATEWAY_TEST_TOKEN_NEVER_SET")
+            .output()
+            .expect("gateway run");
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(64), "{name}: {stderr}");
+        assert!(stderr.contains(&format!("http.token_{name}: ")), "{stderr}");
+        let (passed, report) = gateway_tests::check_config(&cfg);
+        assert!(!passed, "{report}");
+        assert!(report.contains(&format!("http.token_{name}: ")), "{report}");
     }
 }
 

@@ -167,6 +167,38 @@ async fn a_zenoh_session_receives_gets_sends_and_sets() {
         "ACC in the drive after the zenoh write: {words:?}"
     );
 
+    // Tag names compare without letter case, as in the config and REST: `acc` is ACC, and
+    // the reply comes under the key the query named.
+    let replies = s.get("gw/demo/drive/atv71/acc").await.expect("get");
+    let reply = tokio::time::timeout(Duration::from_secs(10), replies.recv_async())
+        .await
+        .expect("a reply")
+        .expect("reply");
+    let sample = reply.result().expect("ACC");
+    assert_eq!(sample.key_expr().as_str(), "gw/demo/drive/atv71/acc");
+    assert_eq!(json(sample)["unit"], "s", "{}", json(sample));
+
+    // A value ACC (0.1 s steps) cannot hold exactly is refused with the nearest values.
+    let result = s
+        .declare_subscriber("gw/demo/drive/atv71/ACC/set/result")
+        .await
+        .expect("subscribe");
+    s.put("gw/demo/drive/atv71/ACC/set", "4.55")
+        .await
+        .expect("put");
+    let r = tokio::time::timeout(Duration::from_secs(20), result.recv_async())
+        .await
+        .expect("a result")
+        .expect("sample");
+    assert_eq!(json(&r)["ok"], Value::Bool(false), "{}", json(&r));
+    assert!(
+        json(&r)["error"]
+            .as_str()
+            .is_some_and(|e| e.ends_with("nearest: 4.5 or 4.6")),
+        "{}",
+        json(&r)
+    );
+
     // A read-only tag is refused with the reason, and the drive keeps its value.
     let result = s
         .declare_subscriber("gw/demo/drive/atv71/ETA/set/result")

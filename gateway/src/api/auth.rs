@@ -172,9 +172,14 @@ impl Auth {
         }
     }
 
-    /// Whether a request with `method` and `headers` may go on.
+    /// Whether a request with `method` and `headers` may go on. Only the methods that change
+    /// something (PUT, POST, DELETE, PATCH) need the token; any other method (GET, HEAD, and
+    /// those no route serves, such as TRACE or OPTIONS, which the router answers 405) goes on.
     pub fn check(&self, method: &Method, headers: &HeaderMap) -> Result<(), ApiError> {
-        if matches!(*method, Method::GET | Method::HEAD) {
+        if !matches!(
+            *method,
+            Method::PUT | Method::POST | Method::DELETE | Method::PATCH
+        ) {
             return Ok(());
         }
         let Some(token) = &self.token else {

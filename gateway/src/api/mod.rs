@@ -235,7 +235,7 @@ pub fn openapi() -> utoipa::openapi::OpenApi {
 /// The API as a router, ready for `axum::serve`.
 pub fn router(state: ApiState) -> Router {
     let (routes, doc) = routes().split_for_parts();
-    let doc = openapi::finish(doc);
+    let doc = openapi::finish_for(doc, state.auth().mode());
     let doc_json = doc.to_json().unwrap_or_else(|e| {
         // The document is built from our own types; failing to render it is a defect.
         tracing::error!(error = %e, "cannot render the OpenAPI document");

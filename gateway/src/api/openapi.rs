@@ -12,6 +12,7 @@ use utoipa::openapi::security::{Http, HttpAuthScheme, SecurityRequirement, Secur
 use utoipa::openapi::{ContentBuilder, OpenApi as OpenApiDoc, Ref, RefOr};
 use utoipa::{Modify, OpenApi};
 
+use super::auth::AuthMode;
 use super::error::{ErrorBody, ErrorDetail, Issue};
 use super::handlers::BEARER;
 
@@ -53,11 +54,24 @@ impl Modify for CommonAnswers {
 }
 
 /// Completes the document once every route is in it (the derive's modifiers run before the
-/// router adds its paths).
-pub(crate) fn finish(mut doc: OpenApiDoc) -> OpenApiDoc {
+/// router adds its paths), for a server whose changes need the token.
+pub(crate) fn finish(doc: OpenApiDoc) -> OpenApiDoc {
+    finish_for(doc, AuthMode::Token)
+}
+
+/// Completes the document for a server whose changes are guarded as `mode` says, so that it
+/// describes what that server answers: with a token, changes need it (401 without it; 403 is
+/// the answer of the same operations on a server without a token); locked, every change answers
+/// 403; insecure, changes need nothing and neither 401 nor 403 is answered.
+pub(crate) fn finish_for(mut doc: OpenApiDoc, mode: AuthMode) -> OpenApiDoc {
     for item in doc.paths.paths.values_mut() {
         for (changes, op) in operations(item) {
-            common_answers(op, changes);
+            common_answers(op, changes, mode);
+        }
+    }
+    if mode == AuthMode::Insecure {
+        if let Some(components) = doc.components.as_mut() {
+            components.security_schemes.remove(BEARER);
         }
     }
     doc
@@ -80,19 +94,27 @@ fn operations(item: &mut PathItem) -> Vec<(bool, &mut Operation)> {
     ops
 }
 
-fn common_answers(op: &mut Operation, changes: bool) {
+fn common_answers(op: &mut Operation, changes: bool, mode: AuthMode) {
+    let has_parameters = op.parameters.as_ref().is_some_and(|p| !p.is_empty());
     let mut add = |status: &str, description: &str| {
         op.responses
             .responses
             .entry(status.to_owned())
             .or_insert_with(|| error_response(description));
     };
-    if changes {
+    if changes && mode == AuthMode::Token {
         add(
             "401",
             "No token, another scheme, or a wrong token (WWW-Authenticate says which)",
         );
+    }
+    if changes && mode != AuthMode::Insecure {
         add("403", "Changes are disabled: no token is configured");
+    }
+    if has_parameters {
+        // A path parameter that does not parse (a sequence number that is not a number) or a
+        // query parameter the operation does not know.
+        add("400", "A path or query parameter is not valid");
     }
     if op.request_body.is_some() {
         add("400", "The body is not JSON (or TOML)");
@@ -101,7 +123,7 @@ fn common_answers(op: &mut Operation, changes: bool) {
     }
     add("500", "An internal error");
     add("504", "The request took longer than [http] request_timeout");
-    if changes {
+    if changes && mode != AuthMode::Insecure {
         op.security = Some(vec![SecurityRequirement::new(BEARER, Vec::<String>::new())]);
     }
 }

@@ -120,7 +120,12 @@ pub(crate) fn device_settings(name: &str, device: &DeviceConfig) -> DeviceSettin
             push_range(&mut by_table, range.table.into(), range.start, range.count);
         }
         for tag in &group.tags {
-            if let Some(t) = device.tags.iter().find(|t| &t.name == tag) {
+            // Names compare without letter case, as in the config's rules and REST and zenoh.
+            if let Some(t) = device
+                .tags
+                .iter()
+                .find(|t| t.name.eq_ignore_ascii_case(tag))
+            {
                 push_range(
                     &mut by_table,
                     t.table.into(),

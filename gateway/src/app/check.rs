@@ -5,11 +5,27 @@
 //! CP memory can serve a slave line exactly is the CP memory's knowledge (`cpmem::config`): its
 //! write limits are one byte range for M, one for Q and one range of DB numbers (003 6.4.5
 //! "Limits"), so a write enable inside a byte or a DB is refused here, never silently widened.
+//!
+//! `gateway run` refuses more than the file's rules: the REST API's token must be readable and
+//! at least 16 visible characters, a line must be startable (telegram settings, CP memory), the
+//! zenoh settings must load (its `config_file` included) and a persisted CP memory file must be
+//! readable ([`run_issues`], exit 64 before any port opens). `gateway check` reports all of
+//! that, and also opens every RS485 line's port as the line would and closes it again: a port
+//! whose driver refuses RS485 mode (a pseudo-terminal, a UART without RS485 support) never
+//! works, so it is an error; a port that cannot be opened now (not plugged in, in use) is a
+//! warning, because the running line opens it again with back-off.
+//!
+//! Exit codes: `gateway check` 0 (valid, warnings may be printed) or 1 (problems); `gateway run`
+//! 64 (the configuration is refused: file, token, line settings, zenoh or CP memory file) or 70
+//! (anything else).
 
 use std::path::Path;
 
-use crate::config::{self, Config, ConfigErrors, ConfigIssue, ProtocolConfig};
+use crate::api::{Auth, TokenError};
+use crate::config::{self, Config, ConfigErrors, ConfigIssue, Interface, ProtocolConfig};
+use crate::config::{HttpConfig, TokenSource};
 use crate::cpmem;
+use crate::serial::{self, OpenError};
 
 /// What the CP memory cannot serve exactly in the slave lines of `config`, each issue with its
 /// path. A key the reader reported already (in `found`) is not reported twice.
@@ -39,24 +55,213 @@ pub fn load_config(path: &Path) -> Result<Config, ConfigErrors> {
     config::load_with(path, &config_issues)
 }
 
+/// What `gateway run` refuses in `config` beyond the file's own rules: the REST API token (read
+/// from its file or variable, at least 16 visible characters), what would keep a line from
+/// starting, the zenoh settings (`config_file` included) and an unreadable persisted CP memory
+/// file. Run exits 64 on any of them before a port is opened.
+pub fn run_issues(config: &Config) -> Vec<ConfigIssue> {
+    let mut issues = token_issues(&config.http, |name| std::env::var(name).ok());
+    issues.extend(super::lines::start_issues(config, None));
+    issues.extend(zenoh_issues(config));
+    issues.extend(cp_memory_issues(config));
+    issues
+}
+
+/// The zenoh session's settings as the bridge builds them at start: `config_file` read and
+/// parsed, the section's keys applied on top (an unreadable or invalid file stops `run`).
+fn zenoh_issues(config: &Config) -> Vec<ConfigIssue> {
+    let Some(zenoh) = config.zenoh.as_ref().filter(|z| z.enabled) else {
+        return Vec::new();
+    };
+    match zenoh.to_zenoh() {
+        Ok(_) => Vec::new(),
+        Err(e) => vec![ConfigIssue {
+            path: if zenoh.config_file.is_some() {
+                "zenoh.config_file".to_owned()
+            } else {
+                "zenoh".to_owned()
+            },
+            message: e.to_string(),
+        }],
+    }
+}
+
+/// The persisted CP memory, which `run` loads before the slave lines start: a file that exists
+/// but cannot be read stops it (a missing file starts zeroed, a damaged one is moved aside).
+fn cp_memory_issues(config: &Config) -> Vec<ConfigIssue> {
+    let serves_memory = config
+        .lines
+        .values()
+        .any(|l| matches!(l.protocol, ProtocolConfig::ModbusSlaveRtu(_)));
+    let Some(path) = config
+        .cp_memory
+        .persist_file
+        .as_ref()
+        .filter(|_| serves_memory)
+    else {
+        return Vec::new();
+    };
+    match std::fs::File::open(path) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => vec![ConfigIssue {
+            path: "cp_memory.persist_file".to_owned(),
+            message: format!("cannot read {}: {e}", path.display()),
+        }],
+        _ => Vec::new(),
+    }
+}
+
+/// The token of `[http]` as run reads it, with `env` for the process environment.
+pub(crate) fn token_issues(
+    http: &HttpConfig,
+    env: impl Fn(&str) -> Option<String>,
+) -> Vec<ConfigIssue> {
+    match Auth::from_config_with(http, env) {
+        Ok(_) => Vec::new(),
+        Err(e) => vec![token_issue(http, &e)],
+    }
+}
+
+/// A token error as an issue at the key that names the token's source.
+pub(crate) fn token_issue(http: &HttpConfig, e: &TokenError) -> ConfigIssue {
+    let key = match http.token_source() {
+        Some(TokenSource::Env(_)) => "http.token_env",
+        _ => "http.token_file",
+    };
+    ConfigIssue {
+        path: key.to_owned(),
+        message: e.to_string(),
+    }
+}
+
+/// Opens every RS485 line's port with its settings and closes it again: a refused RS485 mode is
+/// an error (the line could never work), a port that cannot be opened now a warning (the line
+/// opens it again with back-off).
+pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
+    let (mut errors, mut warnings) = (Vec::new(), Vec::new());
+    for (name, line) in &config.lines {
+        if !matches!(line.serial.interface, Interface::Rs485) {
+            continue;
+        }
+        let path = format!("lines.{name}.port");
+        match serial::probe(&super::build::port_settings(&line.serial)) {
+            Ok(()) => {}
+            Err(e @ OpenError::Rs485Refused { .. }) => errors.push(ConfigIssue {
+                path: format!("lines.{name}.interface"),
+                message: e.to_string(),
+            }),
+            Err(e @ OpenError::Open { .. }) => warnings.push(ConfigIssue {
+                path,
+                message: format!(
+                    "{e}; RS485 mode not tested (the line opens the port again with back-off)"
+                ),
+            }),
+        }
+    }
+    (errors, warnings)
+}
+
+/// The tags that no poll group of their device reads, fully (by name or by an address range
+/// that covers all its registers): they are read from the device on demand only (REST, zenoh
+/// queries) and never published on change. A config tag is named at its own path; the
+/// profile's unpolled tags are listed in one warning per device.
+pub fn unpolled_tags(config: &Config) -> Vec<ConfigIssue> {
+    use proto_core::profiles::Table as T;
+    let directory = crate::tags::TagDirectory::from_config(config);
+    let mut warnings = Vec::new();
+    for (line_name, line) in &config.lines {
+        for (device_name, device) in line.devices() {
+            let polled = |name: &str, table: T, address: u16, words: u16| {
+                let table = match table {
+                    T::Coils => config::ModbusTable::Coil,
+                    T::DiscreteInputs => config::ModbusTable::Discrete,
+                    T::InputRegisters => config::ModbusTable::Input,
+                    T::HoldingRegisters => config::ModbusTable::Holding,
+                };
+                device.poll.iter().any(|group| {
+                    group.tags.iter().any(|t| t.eq_ignore_ascii_case(name))
+                        || group
+                            .ranges
+                            .iter()
+                            .any(|r| r.covers(table, address, u32::from(words)))
+                })
+            };
+            let path = format!("lines.{line_name}.devices.{device_name}");
+            let mut from_profile = Vec::new();
+            for entry in directory
+                .iter()
+                .filter(|e| &e.line == line_name && &e.device == device_name)
+            {
+                let tag = &entry.tag;
+                if polled(&tag.name, tag.table, tag.address, tag.words()) {
+                    continue;
+                }
+                match device.tags.iter().position(|t| t.name == tag.name) {
+                    Some(i) => warnings.push(ConfigIssue {
+                        path: format!("{path}.tags[{i}]"),
+                        message: format!(
+                            "tag {:?} is read by no poll group: it is read from the device only on demand and never published on change",
+                            tag.name
+                        ),
+                    }),
+                    None => from_profile.push(tag.name.as_str()),
+                }
+            }
+            if !from_profile.is_empty() {
+                warnings.push(ConfigIssue {
+                    path: format!("{path}.poll"),
+                    message: format!(
+                        "{} tags of the profile are read by no poll group (read on demand only, never published on change): {}",
+                        from_profile.len(),
+                        listed(&from_profile)
+                    ),
+                });
+            }
+        }
+    }
+    warnings
+}
+
+/// The first names of a list, and how many more there are.
+fn listed(names: &[&str]) -> String {
+    const SHOWN: usize = 12;
+    let mut text = names
+        .iter()
+        .take(SHOWN)
+        .copied()
+        .collect::<Vec<_>>()
+        .join(", ");
+    if names.len() > SHOWN {
+        text.push_str(&format!(" and {} more", names.len() - SHOWN));
+    }
+    text
+}
+
 /// `gateway check --config FILE`: prints `ok: N lines, M devices`, or every issue on its own
-/// line, to stdout; returns the exit code (0 valid, 1 not). A valid configuration that leaves a
-/// write path open to every address without credentials gets a `warning:` line on stderr for
-/// each such path (the exit code stays 0: the demo and a lab bench run like that on purpose).
+/// line, to stdout; returns the exit code (0 valid, 1 not). The write paths open to every
+/// address without credentials ([`security_warnings`]) follow on stderr, one
+/// `warning: <path>: <message>` line each; they do not change the exit code.
 pub fn check_command(path: &Path) -> i32 {
     let (text, code) = check_report(path);
     println!("{text}");
     if let Ok(config) = load_config(path) {
-        for warning in security_warnings(&config) {
-            eprintln!("warning: {warning}");
+        for w in security_warnings(&config) {
+            eprintln!("warning: {}: {}", w.path, w.message);
         }
     }
     code
 }
 
-/// The write paths of `config` open to every address without credentials, one message each.
-pub fn security_warnings(config: &Config) -> Vec<String> {
+/// The write paths of `config` open to every address without credentials, one warning each (at
+/// the section that opens it). `check` prints them on stderr and `run` logs them;
+/// neither refuses the configuration: the demo and a lab bench run like that on purpose.
+pub fn security_warnings(config: &Config) -> Vec<ConfigIssue> {
     let mut warnings = Vec::new();
+    let mut warn = |path: &str, message: String| {
+        warnings.push(ConfigIssue {
+            path: path.to_owned(),
+            message,
+        });
+    };
     let tcp = &config.modbus_tcp;
     let reachable = |ip: std::net::IpAddr| !ip.is_loopback();
     if tcp.enabled
@@ -64,21 +269,28 @@ pub fn security_warnings(config: &Config) -> Vec<String> {
         && tcp.allowed_networks.is_empty()
         && reachable(tcp.listen.ip())
     {
-        warnings.push(format!(
-            "modbus_tcp: plain Modbus TCP on {} takes writes from every address without \
+        warn(
+            "modbus_tcp",
+            format!(
+                "plain Modbus TCP on {} takes writes from every address without \
              credentials; set allowed_networks, read_only or write_ranges, or serve \
              [modbus_tcp.tls] with enabled = false",
-            tcp.listen
-        ));
+                tcp.listen
+            ),
+        );
     }
     let http = &config.http;
     if http.insecure_allow_unauthenticated_changes && reachable(http.listen.ip()) {
-        warnings.push(format!(
-            "http: changes without a token are allowed on {} (insecure_allow_unauthenticated_changes)",
+        warn(
+            "http",
+            format!(
+            "changes without a token are allowed on {} (insecure_allow_unauthenticated_changes)",
             http.listen
-        ));
+        ),
+        );
     }
-    if let Some(zenoh) = config.zenoh.as_ref().filter(|z| z.enabled) {
+    // zenoh is a write path only with `writes = true`.
+    if let Some(zenoh) = config.zenoh.as_ref().filter(|z| z.enabled && z.writes) {
         let open: Vec<&str> = zenoh
             .listen
             .iter()
@@ -87,11 +299,14 @@ pub fn security_warnings(config: &Config) -> Vec<String> {
             .filter(|e| !endpoint_is_loopback(e))
             .collect();
         if !open.is_empty() && zenoh.config_file.is_none() {
-            warnings.push(format!(
-                "zenoh: `tx` and tag `set` keys take writes from every peer reaching {} without \
+            warn(
+                "zenoh",
+                format!(
+                    "`tx` and tag `set` keys take writes from every peer reaching {} without \
                  credentials; restrict them with zenoh's access_control (and TLS) in config_file",
-                open.join(", ")
-            ));
+                    open.join(", ")
+                ),
+            );
         }
     }
     warnings
@@ -110,15 +325,31 @@ fn endpoint_is_loopback(endpoint: &str) -> bool {
             .is_ok_and(|ip| ip.is_loopback())
 }
 
-/// What [`check_command`] prints, and its exit code.
+/// What [`check_command`] prints, and its exit code: the counts or every problem (each with
+/// its path), then every warning (`warning: <path>: <message>`).
 pub fn check_report(path: &Path) -> (String, i32) {
-    match load_config(path) {
-        Ok(c) => (
-            format!("ok: {} lines, {} devices", c.lines.len(), c.device_count()),
-            0,
-        ),
-        Err(e) => (e.to_string(), 1),
+    let config = match load_config(path) {
+        Ok(c) => c,
+        Err(e) => return (e.to_string(), 1),
+    };
+    let mut errors = run_issues(&config);
+    let (port_errors, mut warnings) = port_issues(&config);
+    warnings.extend(unpolled_tags(&config));
+    errors.extend(port_errors);
+    let code = i32::from(!errors.is_empty());
+    let mut text = if errors.is_empty() {
+        format!(
+            "ok: {} lines, {} devices",
+            config.lines.len(),
+            config.device_count()
+        )
+    } else {
+        ConfigErrors { issues: errors }.to_string()
+    };
+    for w in &warnings {
+        text.push_str(&format!("\nwarning: {}: {}", w.path, w.message));
     }
+    (text, code)
 }
 
 #[cfg(test)]
@@ -138,22 +369,21 @@ mod tests {
     fn open_write_paths_are_warned_about() {
         let open = config::parse(
             "[modbus_tcp]\nlisten = \"0.0.0.0:502\"\n[http]\nlisten = \"0.0.0.0:8080\"\n\
-             insecure_allow_unauthenticated_changes = true\n[zenoh]\nlisten = [\"tcp/0.0.0.0:7447\"]\n",
+             insecure_allow_unauthenticated_changes = true\n[zenoh]\nlisten = [\"tcp/0.0.0.0:7447\"]\nwrites = true\n",
         )
         .expect("parses");
         let warnings = security_warnings(&open);
         assert_eq!(warnings.len(), 3, "{warnings:#?}");
-        assert!(warnings[0].starts_with("modbus_tcp:"));
-        assert!(warnings[1].starts_with("http:"));
-        assert!(warnings[2].starts_with("zenoh:"));
+        let paths: Vec<&str> = warnings.iter().map(|w| w.path.as_str()).collect();
+        assert_eq!(paths, ["modbus_tcp", "http", "zenoh"]);
         let closed = config::parse(
             "[modbus_tcp]\nlisten = \"0.0.0.0:502\"\nallowed_networks = [\"10.0.0.0/8\"]\n\
              [zenoh]\nlisten = [\"tcp/127.0.0.1:7447\"]\n",
         )
         .expect("parses");
-        assert_eq!(security_warnings(&closed), Vec::<String>::new());
+        assert_eq!(security_warnings(&closed), Vec::<ConfigIssue>::new());
         // The demo's loopback listeners are not warned about.
         let demo = config::parse(config::demo_toml()).expect("demo parses");
-        assert_eq!(security_warnings(&demo), Vec::<String>::new());
+        assert_eq!(security_warnings(&demo), Vec::<ConfigIssue>::new());
     }
 }

@@ -116,17 +116,27 @@ fn start_simulator(
     };
     match &line.protocol {
         ProtocolConfig::ModbusMasterRtu(m) => {
-            let Some((_, device)) = m.devices.iter().next() else {
+            // Every device of the line on one simulated bus (multi-drop): each answers its own
+            // slave address.
+            let mut devices: Vec<Box<dyn ModbusDevice>> = Vec::new();
+            for device in m.devices.values() {
+                devices.push(match device.profile {
+                    Profile::Altivar71 => Box::new(AltivarSim::new(device.address)),
+                    Profile::Ksvario => Box::new(KsVarioSim::new(device.address)),
+                    Profile::Generic => {
+                        return Err(AppError::Setup(format!(
+                            "line {name}: the demo has no simulator for generic devices"
+                        )))
+                    }
+                });
+            }
+            if devices.is_empty() {
                 return Ok(());
-            };
-            let sim: Box<dyn ModbusDevice> = match device.profile {
-                Profile::Altivar71 => Box::new(AltivarSim::new(device.address)),
-                Profile::Ksvario => Box::new(KsVarioSim::new(device.address)),
-                Profile::Generic => {
-                    return Err(AppError::Setup(format!(
-                        "line {name}: the demo has no simulator for generic devices"
-                    )))
-                }
+            }
+            let sim: Box<dyn ModbusDevice> = if devices.len() == 1 {
+                devices.remove(0)
+            } else {
+                Box::new(sim::bus::Bus::new(devices))
             };
             let token = shutdown.clone();
             let line_name = name.to_owned();

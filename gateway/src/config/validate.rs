@@ -306,15 +306,22 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
     }
     let tables = dev.profile.tables();
     let profile = serde_name(dev.profile);
-    let profile_tags = dev.profile.tag_names();
-    let mut names: BTreeSet<&str> = profile_tags.iter().map(String::as_str).collect();
+    // Tag names compare without letter case (ASCII), here as in REST and zenoh: `ETA` in a
+    // poll group is the profile's `eta`, and a device may not have two tags that differ only
+    // in case.
+    let mut names: BTreeSet<String> = dev
+        .profile
+        .tag_names()
+        .iter()
+        .map(|n| n.to_ascii_lowercase())
+        .collect();
     for (i, tag) in dev.tags.iter().enumerate() {
         let p = format!("{path}.tags[{i}]");
-        if !names.insert(&tag.name) {
+        if !names.insert(tag.name.to_ascii_lowercase()) {
             cx.issue(
                 format!("{p}.name"),
                 format!(
-                    "tag {:?} is defined twice (or by the {profile} profile)",
+                    "tag {:?} is defined twice (or by the {profile} profile; names compare without letter case)",
                     tag.name
                 ),
             );
@@ -360,7 +367,7 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
             );
         }
         for (j, tag) in group.tags.iter().enumerate() {
-            if !names.contains(tag.as_str()) {
+            if !names.contains(&tag.to_ascii_lowercase()) {
                 cx.issue(
                     format!("{p}.tags[{j}]"),
                     format!("no tag {tag:?} in this device's tags or the {profile} profile"),

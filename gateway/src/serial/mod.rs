@@ -186,6 +186,30 @@ fn rs485_hint(path: &str, err: &io::Error) -> &'static str {
 /// Opens the port with its settings and, for RS485, switches the kernel's RS485 mode on. Must be
 /// called within a tokio runtime (the stream registers with its reactor).
 pub fn open(settings: &PortSettings) -> Result<SerialStream, OpenError> {
+    let port = builder(settings)
+        .open_native_async()
+        .map_err(|source| OpenError::Open {
+            path: settings.path.clone(),
+            source,
+        })?;
+    set_interface(&port, settings)?;
+    Ok(port)
+}
+
+/// Opens the port as [`open`] does (RS485 mode included) and closes it again: whether a line
+/// with these settings can start. Needs no runtime.
+pub fn probe(settings: &PortSettings) -> Result<(), OpenError> {
+    let port = builder(settings)
+        .open_native()
+        .map_err(|source| OpenError::Open {
+            path: settings.path.clone(),
+            source,
+        })?;
+    set_interface(&port, settings)
+}
+
+/// The port's builder with the settings' frame and no flow control.
+fn builder(settings: &PortSettings) -> tokio_serial::SerialPortBuilder {
     let data_bits = match settings.data_bits {
         DataBits::Seven => tokio_serial::DataBits::Seven,
         DataBits::Eight => tokio_serial::DataBits::Eight,
@@ -199,19 +223,21 @@ pub fn open(settings: &PortSettings) -> Result<SerialStream, OpenError> {
         StopBits::One => tokio_serial::StopBits::One,
         StopBits::Two => tokio_serial::StopBits::Two,
     };
-    let port = tokio_serial::new(&settings.path, settings.baud)
+    tokio_serial::new(&settings.path, settings.baud)
         .data_bits(data_bits)
         .parity(parity)
         .stop_bits(stop_bits)
         .flow_control(tokio_serial::FlowControl::None)
-        .open_native_async()
-        .map_err(|source| OpenError::Open {
-            path: settings.path.clone(),
-            source,
-        })?;
+}
+
+/// Switches the kernel's RS485 mode on when the settings ask for it.
+fn set_interface(
+    port: &impl std::os::fd::AsRawFd,
+    settings: &PortSettings,
+) -> Result<(), OpenError> {
     if let Interface::Rs485(rs485) = settings.interface {
         rs485::enable(
-            &port,
+            port,
             rs485.rts_on_send,
             rs485.delay_before_send,
             rs485.delay_after_send,
@@ -225,7 +251,7 @@ pub fn open(settings: &PortSettings) -> Result<SerialStream, OpenError> {
             }
         })?;
     }
-    Ok(port)
+    Ok(())
 }
 
 #[cfg(test)]

@@ -7,6 +7,8 @@
 //! - [`altivar::AltivarSim`]: Altivar 61/71 (seed manual 002), default slave 2;
 //! - [`ksvario::KsVarioSim`]: KS vario (seed manual 001), default slave 17;
 //! - [`telegram`]: the 3964(R) and ASCII partners (echo, own telegrams every interval);
+//! - [`bus::Bus`]: several of them on one port, a multi-drop RS485 bus (`gateway sim
+//!   --also-address`, the demo's drive line with two drives);
 //! - [`master`]: the other way round, a simulated serial master polling the gateway's Modbus slave
 //!   line (the demo's HMI).
 //!
@@ -16,6 +18,7 @@
 //! a broadcast (address 0) write is carried out and never answered, any other broadcast is ignored.
 
 pub mod altivar;
+pub mod bus;
 pub mod ksvario;
 pub mod master;
 pub mod runner;

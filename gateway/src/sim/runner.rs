@@ -16,6 +16,7 @@ use tokio_serial::SerialPortBuilderExt;
 use tokio_util::sync::CancellationToken;
 
 use super::altivar::AltivarSim;
+use super::bus::Bus;
 use super::ksvario::KsVarioSim;
 use super::{Faults, ModbusDevice};
 use crate::timer::LineTimer;
@@ -96,6 +97,10 @@ pub struct SimArgs {
     /// The slave address (default: the device's, Altivar 2, KS vario 17).
     #[arg(long)]
     pub address: Option<u8>,
+    /// Modbus devices: more devices of the same kind on the same port, a multi-drop bus, at
+    /// these slave addresses (repeat the option or separate them by commas).
+    #[arg(long, value_delimiter = ',')]
+    pub also_address: Vec<u8>,
     /// Baud rate.
     #[arg(long, default_value_t = 19_200)]
     pub baud: u32,
@@ -161,33 +166,48 @@ impl SimArgs {
         CharTiming::new(self.baud, self.bits_per_char())
     }
 
-    /// The device the arguments describe.
+    /// The device the arguments describe: one, or a [`Bus`] of devices of the same kind when
+    /// `--also-address` names more addresses.
     pub fn device(&self) -> Result<Box<dyn ModbusDevice>, SimError> {
-        let address = |default: u8| {
-            let address = self.address.unwrap_or(default);
-            if SLAVE_ADDRESSES.contains(&address) {
-                Ok(address)
-            } else {
-                Err(SimError::InvalidAddress(address))
-            }
-        };
-        let faults = self.faults();
-        let device: Box<dyn ModbusDevice> = match self.device {
-            DeviceKind::Altivar71 => {
-                let mut device = AltivarSim::new(address(2)?);
-                device.set_faults(faults);
-                Box::new(device)
-            }
-            DeviceKind::KsVario => {
-                let mut device = KsVarioSim::new(address(17)?);
-                device.set_faults(faults);
-                Box::new(device)
-            }
+        let default = match self.device {
+            DeviceKind::Altivar71 => 2,
+            DeviceKind::KsVario => 17,
             other => return Err(SimError::NotYetAvailable(other)),
+        };
+        let first = self.address.unwrap_or(default);
+        let mut devices = Vec::new();
+        for address in std::iter::once(first).chain(self.also_address.iter().copied()) {
+            devices.push(self.one_device(address)?);
+        }
+        let device: Box<dyn ModbusDevice> = if devices.len() == 1 {
+            devices.remove(0)
+        } else {
+            Box::new(Bus::new(devices))
         };
         Ok(match self.fault {
             Some(SimFault::Noise) => Box::new(Noisy::new(device)),
             _ => device,
+        })
+    }
+
+    /// One device of the kind at `address`, with the injected faults.
+    fn one_device(&self, address: u8) -> Result<Box<dyn ModbusDevice>, SimError> {
+        if !SLAVE_ADDRESSES.contains(&address) {
+            return Err(SimError::InvalidAddress(address));
+        }
+        let faults = self.faults();
+        Ok(match self.device {
+            DeviceKind::Altivar71 => {
+                let mut device = AltivarSim::new(address);
+                device.set_faults(faults);
+                Box::new(device)
+            }
+            DeviceKind::KsVario => {
+                let mut device = KsVarioSim::new(address);
+                device.set_faults(faults);
+                Box::new(device)
+            }
+            other => return Err(SimError::NotYetAvailable(other)),
         })
     }
 
@@ -448,6 +468,7 @@ mod tests {
             device: DeviceKind::KsVario,
             port: String::new(),
             address: None,
+            also_address: Vec::new(),
             baud: 19_200,
             parity: Parity::Even,
             data_bits: 8,
@@ -463,6 +484,24 @@ mod tests {
         let mut frame = Vec::new();
         rtu::encode_frame(17, &[0x04, 0x03, 0xEC, 0x00, 0x03], &mut frame);
         frame
+    }
+
+    #[test]
+    fn also_address_puts_more_devices_of_the_kind_on_the_port() {
+        let mut bus_args = args(None);
+        bus_args.also_address = vec![18, 19];
+        let mut bus = bus_args.device().expect("a bus of three");
+        for address in [17, 18, 19] {
+            let mut frame = Vec::new();
+            rtu::encode_frame(address, &[0x04, 0x03, 0xEC, 0x00, 0x03], &mut frame);
+            let answer = bus.handle_frame(&frame).expect("answered");
+            assert_eq!(decode_frame(&answer).map(|f| f.address), Ok(address));
+        }
+        bus_args.also_address = vec![248];
+        assert!(matches!(
+            bus_args.device().err(),
+            Some(SimError::InvalidAddress(248))
+        ));
     }
 
     #[test]

@@ -100,6 +100,13 @@ impl Answerer {
                     filter.tag.as_deref(),
                 );
                 for (line, device, tag, value) in tags {
+                    // Tag names compare without letter case (as in the config and REST): a
+                    // query that names the tag literally is answered under its own spelling,
+                    // which zenoh requires of a reply (`.../acc` gets `.../acc`, not `ACC`).
+                    let tag = match &filter.tag {
+                        Some(asked) if asked.eq_ignore_ascii_case(&tag) => asked.clone(),
+                        _ => tag,
+                    };
                     let names_ok = keys::check_chunk("line", &line).is_ok()
                         && keys::check_chunk("device", &device).is_ok()
                         && keys::check_chunk("tag", &tag).is_ok();

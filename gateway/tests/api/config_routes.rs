@@ -3,7 +3,7 @@
 use serde_json::{json, Value};
 
 use super::backend::MISSING_PORT;
-use super::support::{start, test_config, TOKEN};
+use super::support::{start, start_with, test_config, Setup, TOKEN};
 
 /// The configuration in force as JSON.
 async fn current(api: &super::support::TestApi) -> Value {
@@ -265,4 +265,57 @@ async fn toml_bodies_are_accepted_and_bad_bodies_refused() {
         .await;
     assert_eq!((r.status, r.code()), (422, "validation_failed"));
     assert_eq!(r.issue_paths(), ["gateway.name"]);
+}
+
+/// The operator's file: comments, order and the keys left out survive REST changes; only the
+/// changed keys are written.
+#[tokio::test]
+async fn a_change_edits_the_operators_file_in_place() {
+    let file = gateway::config::demo_toml().replace(
+        "[lines.ascii]\n",
+        "[lines.ascii]\ninterface = \"rs232\" # the partner has modem signals\n",
+    );
+    let api = start_with(Setup {
+        file_text: Some(file.clone()),
+        ..Setup::default()
+    })
+    .await;
+    let path = api.store_path.clone().expect("a store");
+
+    // One key of one line.
+    let mut line = api.get("/api/v1/config/lines/drive").await.json;
+    line["baud"] = json!(9600);
+    let r = api.put("/api/v1/config/lines/drive", &line).await;
+    assert_eq!(r.status, 200, "{}", r.text);
+    let expected = file.replacen(
+        "port = \"pty:drive\"\nprotocol = \"modbus-master-rtu\"\nbaud = 19200\n",
+        "port = \"pty:drive\"\nprotocol = \"modbus-master-rtu\"\nbaud = 9600\n",
+        1,
+    );
+    assert_ne!(expected, file);
+    let saved = std::fs::read_to_string(&path).expect("the file");
+    assert_eq!(saved, expected);
+
+    // The whole configuration, with a key the file left out (its default) now set.
+    let mut body = current(&api).await;
+    body["lines"]["ksvario"]["devices"]["ksvario"]["poll"][0]["period"] = json!("2s");
+    body["gateway"]["diag_buffer_depth"] = json!(20);
+    let r = api.put("/api/v1/config", &body).await;
+    assert_eq!(r.status, 200, "{}", r.text);
+    let saved = std::fs::read_to_string(&path).expect("the file");
+    let expected = expected
+        .replacen(
+            "period = \"1s\"\nranges = [{ table = \"input\"",
+            "period = \"2s\"\nranges = [{ table = \"input\"",
+            1,
+        )
+        .replacen(
+            "name = \"demo\"\n",
+            "name = \"demo\"\ndiag_buffer_depth = 20\n",
+            1,
+        );
+    assert_eq!(saved, expected);
+    assert_eq!(api.stored().gateway.diag_buffer_depth, 20);
+    // The previous version is the file as the first change left it.
+    assert!(path.with_extension("toml.prev").exists());
 }

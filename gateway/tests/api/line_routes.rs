@@ -43,10 +43,13 @@ async fn gateway_and_line_status() {
     assert_eq!(l["status_word"], 0x0830);
     assert_eq!(l["last_event"]["code"], "0830");
     assert_eq!(l["last_event"]["class_name"], "receive error");
-    assert_eq!(l["devices_online"], 1);
-    assert_eq!(l["devices_total"], 1);
+    // The demo's drive line: two drives on one bus.
+    assert_eq!(l["devices_online"], 2);
+    assert_eq!(l["devices_total"], 2);
     assert_eq!(l["devices"][0]["name"], "atv71");
     assert_eq!(l["devices"][0]["address"], 2);
+    assert_eq!(l["devices"][1]["name"], "atv71b");
+    assert_eq!(l["devices"][1]["address"], 3);
     assert_eq!(l["counters"]["events"], 1);
     assert_eq!(l["event_counts"][0]["count"], 1);
 

@@ -138,3 +138,75 @@ async fn every_documented_operation_is_served() {
         }
     }
 }
+
+/// What schemathesis found: an unused method answered 401 instead of 405, a value schema whose
+/// `oneOf` branches overlap (an integer is a number), 400 answers that were not documented; and
+/// a server without a token that the document said needed one.
+#[tokio::test]
+async fn the_document_matches_what_the_server_answers() {
+    let api = start().await;
+    for method in ["TRACE", "OPTIONS"] {
+        let r = api
+            .request(
+                Method::from_bytes(method.as_bytes()).unwrap(),
+                "/api/v1/status",
+                None,
+                None,
+            )
+            .await;
+        assert_eq!(
+            (r.status, r.code()),
+            (405, "method_not_allowed"),
+            "{method}"
+        );
+    }
+
+    let doc = api.get("/api/v1/openapi.json").await.json;
+    let value = &doc["components"]["schemas"]["ScalarValue"];
+    let types: Vec<&str> = value["oneOf"]
+        .as_array()
+        .unwrap_or_else(|| panic!("oneOf: {value}"))
+        .iter()
+        .filter_map(|b| b["type"].as_str())
+        .collect();
+    assert_eq!(types, ["boolean", "number"], "{value}");
+
+    // A sequence number that is not a number answers 400, which the operation documents.
+    let r = api
+        .request(
+            Method::POST,
+            "/api/v1/lines/ascii/telegrams/-1/ack",
+            Some(TOKEN),
+            None,
+        )
+        .await;
+    assert_eq!(r.status, 400, "{}", r.text);
+    for (method, path) in operations(&doc) {
+        let op = &doc["paths"][&path][&method];
+        if op["parameters"].as_array().is_some_and(|p| !p.is_empty()) {
+            assert!(
+                op["responses"]["400"].is_object(),
+                "{method} {path} has parameters but no 400"
+            );
+        }
+    }
+
+    // A server that accepts changes without a token documents no token and no 401/403.
+    let open = super::support::start_with(super::support::Setup {
+        auth: gateway::api::Auth::insecure(),
+        ..super::support::Setup::default()
+    })
+    .await;
+    let doc = open.get("/api/v1/openapi.json").await.json;
+    assert!(doc["components"]["securitySchemes"].get("bearer").is_none());
+    for (method, path) in operations(&doc) {
+        let op = &doc["paths"][&path][&method];
+        assert!(op.get("security").is_none(), "{method} {path}");
+        for status in ["401", "403"] {
+            assert!(
+                op["responses"].get(status).is_none(),
+                "{method} {path} {status}"
+            );
+        }
+    }
+}

@@ -78,6 +78,9 @@ pub(crate) struct Setup {
     pub(crate) config: Config,
     /// Client networks served; empty: every client.
     pub(crate) allowed_networks: Vec<ipnet::IpNet>,
+    /// The configuration file's text as the operator wrote it (it must read as `config`);
+    /// `None`: the file is `config` written out whole.
+    pub(crate) file_text: Option<String>,
 }
 
 impl Default for Setup {
@@ -91,6 +94,7 @@ impl Default for Setup {
             header_read_timeout: api::DEFAULT_HEADER_READ_TIMEOUT,
             config: test_config(),
             allowed_networks: Vec::new(),
+            file_text: None,
         }
     }
 }
@@ -189,7 +193,16 @@ pub(crate) async fn start_with(setup: Setup) -> TestApi {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("gateway.toml");
         let store = ConfigStore::new(&path);
-        store.save(&setup.config).expect("initial save");
+        match &setup.file_text {
+            Some(text) => {
+                assert_eq!(
+                    config::parse(text).expect("the test file is valid"),
+                    setup.config
+                );
+                store.save_atomic(text).expect("initial save");
+            }
+            None => store.save(&setup.config).expect("initial save"),
+        }
         state = state.with_store(store);
         (Some(dir), Some(path))
     } else {

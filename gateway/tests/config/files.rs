@@ -37,11 +37,16 @@ fn demo_follows_the_spec() {
         );
         assert_eq!(l.serial.pty_name(), Some(name), "{name} runs on a demo pty");
     }
+    // Two drives on one bus (multi-drop): slaves 2 and 3, served as unit ids 2 and 3.
     let drive: Vec<_> = c.lines["drive"].devices().collect();
-    assert_eq!(drive.len(), 1);
+    assert_eq!(drive.len(), 2);
     assert_eq!(
         (drive[0].1.profile, drive[0].1.address, drive[0].1.unit_id),
         (Profile::Altivar71, 2, 2)
+    );
+    assert_eq!(
+        (drive[1].1.profile, drive[1].1.address, drive[1].1.unit_id),
+        (Profile::Altivar71, 3, 3)
     );
     assert!(matches!(
         c.lines["drive"].protocol,
@@ -62,7 +67,7 @@ fn demo_follows_the_spec() {
     };
     assert_eq!(a.end_criterion, EndCriterion::EndChars);
     assert_eq!(a.end_chars, [0x03]);
-    assert_eq!(c.device_count(), 2);
+    assert_eq!(c.device_count(), 3);
 }
 
 #[test]
@@ -311,11 +316,29 @@ fn temp_file(name: &str, text: &str) -> PathBuf {
     path
 }
 
+/// The Altivar profile's tags that the example polls by neither name nor range.
+const UNPOLLED_ATV71: &str = "warning: lines.drive.devices.atv71.poll: 44 tags of the profile are read by no poll group (read on demand only, never published on change): SFr, tFr, HSP, LSP, M1EC, M1CT, LFT, CHCF, COP, CMD, LFRD, THR and 32 more";
+
 #[test]
 fn check_reports_counts_or_issues() {
-    let ok = temp_file("config-check-ok.toml", EXAMPLE);
+    // The example's token file, here with a token of 16 characters (run reads it at start).
+    let token = temp_file("config-check-ok-token", "0123456789abcdef\n");
+    let example = EXAMPLE.replace(
+        "token_file = \"/etc/gateway/api-token\"",
+        &format!("token_file = \"{}\"", token.display()),
+    );
+    assert_ne!(example, EXAMPLE);
+    let ok = temp_file("config-check-ok.toml", &example);
     let (text, code) = gateway::app::check_report(&ok);
-    assert_eq!((text.as_str(), code), ("ok: 5 lines, 2 devices", 0));
+    // The example's RS485 adapter is not plugged in here: a warning, not a problem.
+    let ftdi = "/dev/serial/by-id/usb-FTDI_FT232R_USB_UART_A10K1234-if00-port0";
+    assert_eq!(
+        (text.as_str(), code),
+        (
+            format!("ok: 5 lines, 2 devices\nwarning: lines.drive.port: cannot open port {ftdi}: No such file or directory; RS485 mode not tested (the line opens the port again with back-off)\n{UNPOLLED_ATV71}").as_str(),
+            0
+        )
+    );
     assert_eq!(gateway::app::check_command(&ok), 0);
 
     let bad = temp_file(
@@ -360,4 +383,153 @@ fn check_and_load_report_what_the_cp_memory_cannot_serve_with_the_readers_issues
     // The reader alone knows the keys, not the CP memory's limits.
     let paths: Vec<String> = issues(&text).into_iter().map(|(p, _)| p).collect();
     assert_eq!(paths, ["lines.a.baud"]);
+}
+
+#[test]
+fn check_refuses_what_run_refuses_the_api_token() {
+    // A variable that is not set, then a token file shorter than 16 characters: run exits 64 on
+    // both (`run_issues`), so check reports them at the key that names the token.
+    let unset = "[http]\ntoken_env = \"GATEWAY_TEST_TOKEN_THAT_IS_NEVER_SET\"\n";
+    let path = temp_file("config-check-token-env.toml", unset);
+    let (text, code) = gateway::app::check_report(&path);
+    assert_eq!(code, 1, "{text}");
+    assert_eq!(
+        text,
+        "http.token_env: the API token variable GATEWAY_TEST_TOKEN_THAT_IS_NEVER_SET is not set"
+    );
+    let run = gateway::app::run_issues(&gateway::app::load_config(&path).expect("loads"));
+    assert_eq!(run.len(), 1);
+
+    let token = temp_file("config-check-short-token", "short-token\n");
+    let short = format!("[http]\ntoken_file = \"{}\"\n", token.display());
+    let path = temp_file("config-check-token-file.toml", &short);
+    let (text, code) = gateway::app::check_report(&path);
+    assert_eq!(code, 1, "{text}");
+    assert!(
+        text.starts_with("http.token_file: the API token from "),
+        "{text}"
+    );
+    assert!(
+        text.ends_with("is too short (at least 16 characters)"),
+        "{text}"
+    );
+
+    std::fs::write(&token, "0123456789abcdef\n").expect("token file");
+    assert_eq!(
+        gateway::app::check_report(&path),
+        ("ok: 0 lines, 0 devices".to_owned(), 0)
+    );
+}
+
+#[tokio::test]
+async fn check_opens_an_rs485_port_and_reports_a_refused_rs485_mode() {
+    // A pseudo-terminal has no RS485 driver: the line would report 02 0Fh forever.
+    let (_device, line_end) = tokio_serial::SerialStream::pair().expect("pty pair");
+    let pty = tokio_serial::SerialPort::name(&line_end).expect("pty path");
+    drop(line_end);
+    let text = format!(
+        "[lines.a]\nport = \"{pty}\"\nprotocol = \"modbus-master-rtu\"\ninterface = \"rs485\"\n"
+    );
+    let path = temp_file("config-check-rs485-pty.toml", &text);
+    let (shown, code) = gateway::app::check_report(&path);
+    assert_eq!(code, 1, "{shown}");
+    assert!(
+        shown.starts_with(&format!(
+            "lines.a.interface: port {pty} refused RS485 mode: "
+        )),
+        "{shown}"
+    );
+    assert!(
+        shown.ends_with("(a pseudo-terminal has no RS485 driver)"),
+        "{shown}"
+    );
+    // The port was closed again: it opens (exclusively) once more.
+    let again = gateway::serial::PortSettings::new(pty.as_str(), 9600);
+    gateway::serial::probe(&again).expect("the port is free again");
+
+    // A port that is not there is a warning: the line opens it again with back-off.
+    let missing = text.replace(&pty, "/dev/gateway-test-no-such-port");
+    let path = temp_file("config-check-rs485-missing.toml", &missing);
+    let (shown, code) = gateway::app::check_report(&path);
+    assert_eq!(code, 0, "{shown}");
+    let lines: Vec<&str> = shown.lines().collect();
+    assert_eq!(lines[0], "ok: 1 lines, 0 devices");
+    assert!(
+        lines[1].starts_with(
+            "warning: lines.a.port: cannot open port /dev/gateway-test-no-such-port: "
+        ),
+        "{shown}"
+    );
+    assert_eq!(lines.len(), 2, "{shown}");
+}
+
+#[test]
+fn tag_names_compare_without_case_and_check_warns_about_tags_no_poll_group_reads() {
+    // `LEVEL` in a poll group is the tag `level`, `ETA` the Altivar profile's `eta`.
+    let device = "[lines.a.devices.d]\nprofile = \"generic\"\naddress = 1\n\
+        tags = [\n  { name = \"level\", table = \"holding\", address = 10 },\n  \
+        { name = \"flow\", table = \"holding\", address = 11, writable = true },\n  \
+        { name = \"spare\", table = \"holding\", address = 50 },\n]\n\
+        [[lines.a.devices.d.poll]]\nname = \"fast\"\nperiod = \"1s\"\ntags = [\"LEVEL\"]\n\
+        [[lines.a.devices.d.poll]]\nname = \"slow\"\nperiod = \"10s\"\nranges = [{ table = \"holding\", start = 11, count = 1 }]\n";
+    let text = one_line("modbus-master-rtu", device);
+    let c = parse(&text);
+    assert_eq!(line(&c).devices().count(), 1);
+    let path = temp_file("config-check-unpolled.toml", &text);
+    let (shown, code) = gateway::app::check_report(&path);
+    assert_eq!(code, 0, "{shown}");
+    assert_eq!(
+        shown,
+        "ok: 1 lines, 1 devices\nwarning: lines.a.devices.d.tags[2]: tag \"spare\" is read by no poll group: it is read from the device only on demand and never published on change"
+    );
+
+    let altivar = one_line(
+        "modbus-master-rtu",
+        "[lines.a.devices.atv]\nprofile = \"altivar71\"\naddress = 2\n\
+         [[lines.a.devices.atv.poll]]\nname = \"s\"\nperiod = \"1s\"\ntags = [\"ETA\", \"acc\", \"SFr\"]\n",
+    );
+    parse(&altivar);
+}
+
+#[test]
+fn check_refuses_a_zenoh_file_or_a_cp_memory_file_that_run_cannot_read() {
+    let missing = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("no-such-zenoh.json5");
+    let text = format!("[zenoh]\nconfig_file = \"{}\"\n", missing.display());
+    let path = temp_file("config-check-zenoh-file.toml", &text);
+    let (shown, code) = gateway::app::check_report(&path);
+    assert_eq!(code, 1, "{shown}");
+    assert!(shown.starts_with("zenoh.config_file: "), "{shown}");
+    assert_eq!(shown.lines().count(), 1, "{shown}");
+    // Disabled, the session is never built: nothing to refuse.
+    let off = temp_file(
+        "config-check-zenoh-off.toml",
+        &format!("{text}enabled = false\n"),
+    );
+    assert_eq!(gateway::app::check_report(&off).1, 0);
+
+    // A path below a regular file can never be read (ENOTDIR); a missing file starts zeroed.
+    let slave = one_line("modbus-slave-rtu", "");
+    let blocked = temp_file(
+        "config-check-cpmem-file.toml",
+        &format!(
+            "[cp_memory]\npersist_file = \"{}/memory.bin\"\n{slave}",
+            path.display()
+        ),
+    );
+    let (shown, code) = gateway::app::check_report(&blocked);
+    assert_eq!(code, 1, "{shown}");
+    assert!(
+        shown.starts_with("cp_memory.persist_file: cannot read "),
+        "{shown}"
+    );
+    let fresh = temp_file(
+        "config-check-cpmem-fresh.toml",
+        &format!(
+            "[cp_memory]\npersist_file = \"{}\"\n{slave}",
+            PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
+                .join("no-such-memory.bin")
+                .display()
+        ),
+    );
+    assert_eq!(gateway::app::check_report(&fresh).1, 0);
 }

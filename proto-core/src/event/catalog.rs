@@ -115,10 +115,15 @@ static CATALOG: [EventInfo; 80] = [
     e(ids::REQUEST_INTERFACE_DEFECTIVE, "Request interface of the CP defective.", REPLACE_CP),
     e(ids::FIRMWARE_FAULT, "Fault in the CP firmware.", "Switch the CP off and on again. If necessary, replace the CP."),
     // Class 02h "Initialization error".
+    // 003 7.2 adds that RK512, which the CP 341 does not support, gives this error, and its
+    // remedy says not to parameterize RK512. No line of the gateway can be set to RK512 (the
+    // config reader refuses it), so the entry keeps the rule that holds on every line: the
+    // interface could not be set up with the line's parameters (for a gateway: the port could not
+    // be opened, or its driver refused the frame or RS485 mode), and the remedy is to correct them.
     e(
         ids::INVALID_PARAMETERIZATION,
-        "Invalid parameterization detected at the start of parameterized communication; the interface could not be parameterized. RK512 is not supported and gives this error when parameterized.",
-        "Do not parameterize RK512. Correct the non-permissible parameterization and initiate a start-up.",
+        "Invalid parameterization detected at the start of parameterized communication; the interface could not be parameterized (the port could not be opened or its driver refused the line's settings, e.g. RS485 mode).",
+        "Correct the line's parameters (port, frame, interface; the event's detail names the cause) and initiate a start-up; a port that is missing is opened again with back-off.",
     ),
     // Class 03h "Error parameterization of FBs" (not displayed in the diagnostic buffer).
     e(
@@ -232,7 +237,9 @@ static CATALOG: [EventInfo; 80] = [
     e(
         ids::LINE_BREAK,
         "BREAK: the receive line to the partner is interrupted.",
-        "Reconnect or switch the partner on again. Check the pin assignment of the 2-wire receive line R(A), R(B).",
+        // 003 7.2 names the RS422/485 receive pair R(A), R(B); the remedy here holds for every
+        // interface, including RS232 and a port that went away (a USB adapter unplugged).
+        "Reconnect or switch the partner on again; reconnect the port (cable, USB adapter), which is opened again with back-off. Check the pin assignment of the receive line (RS422/485: the 2-wire receive line R(A), R(B); RS232: RxD).",
     ),
     e(ids::ATTEMPTS_MISMATCH, "The settings for transmission attempts differ between the CP and the partner.", "Parameterize the same number of transmission attempts at the partner as at the CP. Check for malfunction at the partner device."),
     e(
@@ -374,6 +381,20 @@ static CATALOG: [EventInfo; 80] = [
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn remedies_fit_every_line_of_the_gateway() {
+        // No remedy asks for something a gateway line cannot be set to (RK512), and the events
+        // of a port that cannot be set up or went away say what to do with the port.
+        for info in all() {
+            assert!(!info.remedy.contains("RK512"), "{:?}", info.id);
+            assert!(!info.description.contains("RK512"), "{:?}", info.id);
+        }
+        for id in [ids::INVALID_PARAMETERIZATION, ids::LINE_BREAK] {
+            let remedy = lookup(id).map(|i| i.remedy).unwrap_or_default();
+            assert!(remedy.contains("port"), "{id:?}: {remedy}");
+        }
+    }
 
     #[test]
     fn sorted_for_binary_search() {

@@ -260,6 +260,27 @@ async fn every_line_route_answers_on_a_running_gateway() {
             .await["tag"],
         "HSP"
     );
+    // A value the tag cannot hold exactly is refused with the nearest values it holds: HSP in
+    // steps of 0.1 Hz from 0.0 to 1600.0 Hz.
+    for (value, nearest) in [(45.55, "nearest: 45.5 or 45.6"), (-1.0, "nearest: 0.0")] {
+        let refused = api
+            .change(
+                Method::PUT,
+                "/api/v1/lines/drive/devices/atv71/tags/hsp",
+                Some(&json!({ "value": value })),
+            )
+            .await;
+        assert_eq!(
+            refused.status,
+            StatusCode::UNPROCESSABLE_ENTITY,
+            "{value}: {:#}",
+            refused.body
+        );
+        let message = refused.body["error"]["message"]
+            .as_str()
+            .unwrap_or_default();
+        assert!(message.ends_with(nearest), "{value}: {message}");
+    }
     assert_eq!(
         api.get("/api/v1/lines/drive/devices/atv71/tags/nope")
             .await

@@ -286,8 +286,8 @@ where
             });
         }
         if let Some(store) = state.store() {
-            let to_save = new.clone();
-            tokio::task::spawn_blocking(move || store.save(&to_save))
+            let (in_force, to_save) = (current.clone(), new.clone());
+            tokio::task::spawn_blocking(move || store.save_change(&in_force, &to_save))
                 .await
                 .map_err(|e| ApiError::internal(format!("the save task failed: {e}")))?
                 .map_err(|e| ApiError::persist_failed(format!("not applied: {e}")))?;

@@ -8,13 +8,28 @@ use crate::image::Quality;
 use crate::tags::TagReading;
 
 /// A value: a number or a bit.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ToSchema)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(untagged)]
 pub enum ScalarValue {
     Bool(bool),
     Int(i64),
     Float(f64),
 }
+
+/// A boolean or a number. Integers are numbers too, so the schema has no separate integer
+/// branch: `oneOf` branches must not overlap (a value has to match exactly one).
+impl utoipa::PartialSchema for ScalarValue {
+    fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+        use utoipa::openapi::schema::{ObjectBuilder, OneOfBuilder, Type};
+        OneOfBuilder::new()
+            .item(ObjectBuilder::new().schema_type(Type::Boolean))
+            .item(ObjectBuilder::new().schema_type(Type::Number))
+            .description(Some("A value: a number or a bit"))
+            .into()
+    }
+}
+
+impl ToSchema for ScalarValue {}
 
 // === impl ScalarValue ===
 
