@@ -6,13 +6,19 @@
 //! device's end (see [`crate::tap`]).
 //!
 //! The physical best case of one poll of N registers: the request (8 characters) and the response
-//! (5 + 2N characters) on the wire, 11 bits a character (8E1), t3.5 of silence before the device may
-//! answer, t3.5 of silence before the next request, and whatever the device takes beyond its t3.5:
+//! (5 + 2N characters) on the wire, 11 bits a character (8E1), the device's t3.5 of silence before
+//! it may answer, the master's t3.5 of silence before the next request, and whatever the device
+//! takes beyond its t3.5:
 //!
 //! ```text
-//! T_cycle = (13 + 2N) x 11 / baud + 2 x t3.5 + turnaround
-//!         = (13 + 2N) x 11 / baud + t3.5 + (request end -> answer start, measured at the device)
+//! T_cycle = (13 + 2N) x 11 / baud + t3.5 (device) + t3.5 (master) + turnaround
+//!         = (13 + 2N) x 11 / baud + t3.5 (master) + (request end -> answer start, measured at
+//!           the device)
 //! ```
+//!
+//! The two t3.5 differ above 19200 Bd: the simulated device follows the Modbus over Serial Line
+//! specification (fixed 1.75 ms), the gateway's line the CP's table (3.5 character times at every
+//! baud rate, 003 6.4.3: 1 ms at 38400 Bd), as `gateway::line::rtu_timing` says.
 
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -49,6 +55,8 @@ pub(crate) struct Rig {
     pub(crate) master: MasterTap,
     pub(crate) device: Arc<Mutex<DeviceLog>>,
     pub(crate) timing: CharTiming,
+    /// The master line's own timing (its t3.5 before the next request).
+    pub(crate) master_timing: CharTiming,
     /// The paced link's counters (bytes, the latest delivery).
     pub(crate) link: Arc<LinkCounters>,
     shutdown: CancellationToken,
@@ -76,7 +84,13 @@ pub(crate) async fn rig(
     let timing = CharTiming::new(baud, BITS_PER_CHAR);
     let (port, device_log) = device_relay(b, shutdown.clone());
     tokio::spawn(serve_modbus(port, device, timing, shutdown.clone()));
-    let master = MasterTap::spawn(a, timing.char_time, timing.t3_5(), shutdown.clone())?;
+    let master_timing = gateway::line::rtu_timing(&PortSettings::new(String::new(), baud));
+    let master = MasterTap::spawn(
+        a,
+        master_timing.char_time,
+        master_timing.t3_5(),
+        shutdown.clone(),
+    )?;
     let mut line = LineSettings::rtu("bench", PortSettings::new(master.path.clone(), baud));
     if let Some(timeout) = reply_timeout {
         line.master.reply_timeout = timeout;
@@ -88,6 +102,7 @@ pub(crate) async fn rig(
         master,
         device: device_log,
         timing,
+        master_timing,
         link: counters,
         shutdown,
     })
@@ -147,6 +162,7 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
     .await?;
     let timing = rig.timing;
     let t35 = timing.t3_5();
+    let master_t35 = rig.master_timing.t3_5();
     let wire = timing.char_time * (13 + 2 * u32::from(n));
     if !warm_up(&rig.line, 3, Duration::from_secs(10)).await {
         return Ok(PollRun {
@@ -159,7 +175,7 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
         });
     }
     // Long enough for the plan's number of cycles (estimated with a 1 ms turnaround).
-    let estimate = wire + t35 * 3 + Duration::from_millis(2);
+    let estimate = wire + t35 * 2 + master_t35 + Duration::from_millis(2);
     let window = plan.poll_window.max(estimate * plan.poll_cycles);
 
     let (p0, t0) = (polls_ok(&rig.line, 0..1), Instant::now());
@@ -205,7 +221,7 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
     let elapsed = t1.saturating_duration_since(t0).as_secs_f64();
     let polls = p1 - p0;
     let achieved = 1.0 / cycle.as_secs_f64();
-    let best_cycle = wire + t35 + turnaround;
+    let best_cycle = wire + master_t35 + turnaround;
     let best = 1.0 / best_cycle.as_secs_f64();
     let link_excess = serial.saturating_sub(wire + turnaround);
     let without_link = best_cycle.as_secs_f64() / cycle.saturating_sub(link_excess).as_secs_f64();
@@ -222,7 +238,7 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
         ms(turnaround.saturating_sub(t35)),
         ms(link_excess),
         ms(gap),
-        ms(t35),
+        ms(master_t35),
         ms(to_device),
         ms(to_master),
     );

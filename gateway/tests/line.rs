@@ -669,3 +669,54 @@ async fn rs485_on_a_pty_is_reported_as_an_event_with_the_reason() {
     assert_eq!(status.status_word, 0x020F);
     stop(line, shutdown).await;
 }
+
+#[tokio::test]
+async fn a_reply_full_of_ff_bytes_is_decoded_as_it_was_sent() {
+    // The device writes plain bytes. The line's end of the pty was opened with PARMRK, so the
+    // kernel's line discipline doubles every FF it delivers to the line, exactly as it does for
+    // bytes from a UART (termios(3)); the line must undo the doubling before the frame is checked,
+    // or the reply is too long and fails its CRC.
+    let (device_end, path, _keep) = pty();
+    let slave = Arc::new(Slave::with_holding(&[
+        (3102, 0xFFFF),
+        (3103, 0xFFFF),
+        (3104, 0xFF00),
+        (3105, 0x00FF),
+    ]));
+    tokio::spawn(run_device(device_end, vec![(2, slave.clone())]));
+
+    let image = ProcessImage::default();
+    let shutdown = CancellationToken::new();
+    let line = spawn_modbus_master_line(
+        line_settings(&path),
+        vec![altivar("atv", 2, vec![AddrRange::new(3102, 4)])],
+        image.clone(),
+        shutdown.clone(),
+    );
+    eventually("the image to fill", || {
+        image
+            .read_words(2, Table::HoldingRegisters, 3102, 4)
+            .is_ok()
+    })
+    .await;
+    let read = image
+        .read_words(2, Table::HoldingRegisters, 3102, 4)
+        .unwrap();
+    assert_eq!(read.values, vec![0xFFFF, 0xFFFF, 0xFF00, 0x00FF]);
+    let before = slave.reads.load(Ordering::Relaxed);
+    eventually("more polls", || {
+        slave.reads.load(Ordering::Relaxed) >= before + 3
+    })
+    .await;
+    let status = line.status();
+    assert!(status.devices[0].polls_ok >= 3, "{status:?}");
+    assert_eq!(status.devices[0].polls_failed, 0, "{status:?}");
+    // Only the start-up event: no CRC error, no length error, no line error.
+    let ids: Vec<_> = status.event_counts.keys().copied().collect();
+    assert_eq!(
+        ids,
+        vec![proto_core::event::ids::PTP_PARAMS_ACCEPTED],
+        "{status:?}"
+    );
+    stop(line, shutdown).await;
+}

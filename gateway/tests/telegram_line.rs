@@ -301,6 +301,36 @@ async fn a_full_ascii_mailbox_drops_the_new_telegram_and_counts_it() {
 }
 
 #[tokio::test]
+async fn an_ascii_line_that_may_overwrite_keeps_the_newest_telegram_without_an_event() {
+    // 003 6.2.1 "Prevent overwriting" off, one receive buffer: each new telegram replaces the held
+    // one. That is what the line was set up to do, so there is no 08 0Ah and no overflow.
+    let protocol = TelegramProtocol::Ascii(gateway_ascii());
+    let sim = partner(&protocol).every(ms(5)).limit(5);
+    let pair = start_pair("t", protocol, mailbox(1, Overflow::Overwrite), sim);
+    let line = &pair.line;
+    eventually("five telegrams", || {
+        line.telegram_status()
+            .expect("a telegram line")
+            .counters
+            .received
+            == 5
+    })
+    .await;
+    let status = line.telegram_status().expect("a telegram line");
+    assert_eq!(status.counters.overflows, 0);
+    assert_eq!(event_count(line, ids::NO_FREE_RECEIVE_BUFFER), 0);
+    let waiting: Vec<u16> = line
+        .mailbox()
+        .expect("a telegram line")
+        .waiting()
+        .iter()
+        .map(|t| t.seq)
+        .collect();
+    assert_eq!(waiting, [5], "the newest is held");
+    pair.stop().await;
+}
+
+#[tokio::test]
 async fn a_full_3964r_mailbox_refuses_with_nak_and_takes_the_held_telegram_later() {
     let protocol = TelegramProtocol::P3964(gateway_3964r());
     let sim = partner(&protocol).every(ms(20)).limit(4);
@@ -550,4 +580,51 @@ async fn the_ascii_simulator_opens_its_port_sends_its_own_and_echoes() {
         .expect("the simulator stops")
         .expect("no panic");
     assert!(result.is_ok(), "{result:?}");
+}
+
+// === full duplex ===
+
+#[tokio::test]
+async fn an_ascii_line_separates_the_partners_telegrams_while_it_sends_a_long_one() {
+    // 003 6.2: the ASCII driver is full duplex; the character delay time ends a received telegram
+    // on the received bytes' own arrival, whatever the line sends meanwhile. At 1200 Bd the line's
+    // 300-byte telegram takes about 2.75 s on a real wire; the partner sends two telegrams 300 ms
+    // apart within that time, and they must stay two.
+    let protocol = TelegramProtocol::Ascii(
+        AsciiParams::try_new(AsciiSettings {
+            end: proto_core::telegram::EndCriterion::CharacterDelay,
+            zvz: ms(50),
+            ..AsciiSettings::default()
+        })
+        .expect("valid"),
+    );
+    let (mut partner_end, path, _keep) = pty();
+    let mut settings = settings("fd", &path, protocol, mailbox(8, Overflow::Refuse));
+    settings.port.baud = 1200;
+    let shutdown = CancellationToken::new();
+    let line = spawn_telegram_line(settings, shutdown.clone());
+    eventually("the port open", || line.status().port_open).await;
+    let client = line.telegram_client().expect("a telegram line");
+    let send = tokio::spawn(async move { client.send(vec![b'x'; 300]).await });
+    // The line's telegram is under way (its first bytes are here).
+    let mut first = [0u8; 1];
+    tokio::io::AsyncReadExt::read_exact(&mut partner_end, &mut first)
+        .await
+        .expect("the line sends");
+    tokio::io::AsyncWriteExt::write_all(&mut partner_end, b"AAAA")
+        .await
+        .expect("write");
+    tokio::time::sleep(ms(300)).await;
+    tokio::io::AsyncWriteExt::write_all(&mut partner_end, b"BBBB")
+        .await
+        .expect("write");
+    let mailbox = line.mailbox().expect("a telegram line");
+    eventually("two telegrams", || mailbox.len() >= 2).await;
+    let got: Vec<Vec<u8>> = mailbox.waiting().iter().map(|t| t.data.to_vec()).collect();
+    assert_eq!(got, [b"AAAA".to_vec(), b"BBBB".to_vec()]);
+    drop(send);
+    shutdown.cancel();
+    tokio::time::timeout(Duration::from_secs(5), line.join())
+        .await
+        .expect("the line stops");
 }

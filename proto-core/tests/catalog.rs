@@ -172,18 +172,26 @@ fn buffer_keeps_newest_first_and_the_cp_depth() {
     assert!(buf.is_empty());
 }
 
+/// 003 7.3: every diagnostic event is entered in the order it occurs, in a ring of N entries,
+/// newest first; repeats are not merged (class 03h is not entered at all, 7.2).
 #[test]
-fn buffer_skips_class_03_and_merges_repeats() {
+fn buffer_skips_class_03_and_keeps_every_repeat() {
     let mut buf = DiagBuffer::new(2);
     assert!(!buf.push(DiagEntry::new(ids::INVALID_FB_PARAMETERS, at(0))));
     for t in 1..=5 {
         buf.push(DiagEntry::new(ids::CHARACTER_ERROR, at(t)));
     }
-    assert_eq!(buf.len(), 1);
-    let newest = buf.newest().copied().expect("one entry");
+    assert_eq!(buf.len(), 2);
+    let entries: Vec<_> = buf
+        .iter()
+        .map(|e| (e.id, e.count, e.first_at, e.at))
+        .collect();
     assert_eq!(
-        (newest.count, newest.first_at, newest.at),
-        (5, at(1), at(5))
+        entries,
+        [
+            (ids::CHARACTER_ERROR, 1, at(5), at(5)),
+            (ids::CHARACTER_ERROR, 1, at(4), at(4)),
+        ]
     );
 }
 
@@ -192,18 +200,21 @@ proptest! {
     fn buffer_never_exceeds_depth(depth in 0usize..20, pushes in proptest::collection::vec((0usize..80, 0u64..1000), 0..200)) {
         let mut buf = DiagBuffer::new(depth);
         let catalog = event::all();
-        let mut last = None;
+        let mut recorded_ids = Vec::new();
         for (index, ms) in pushes {
             let id = catalog[index].id;
             let recorded = buf.push(DiagEntry::new(id, at(ms)));
             prop_assert_eq!(recorded, id.class != 0x03);
             prop_assert!(buf.len() <= depth.max(1));
             if recorded {
-                last = Some(id);
+                recorded_ids.push(id);
             }
-            prop_assert_eq!(buf.newest().map(|e| e.id), last);
-            // Consecutive entries never repeat an id: repeats are merged.
-            prop_assert!(buf.iter().zip(buf.iter().skip(1)).all(|(a, b)| a.id != b.id));
+            prop_assert_eq!(buf.newest().map(|e| e.id), recorded_ids.last().copied());
+            // Every recorded event is an entry (repeats included), newest first, the oldest
+            // deleted beyond the depth (003 7.3).
+            let want: Vec<EventId> = recorded_ids.iter().rev().take(depth.max(1)).copied().collect();
+            let got: Vec<EventId> = buf.iter().map(|e| e.id).collect();
+            prop_assert_eq!(got, want);
         }
     }
 }

@@ -7,7 +7,6 @@
 use std::collections::BTreeMap;
 
 use proto_core::modbus::master::{Framing, MasterConfig, OperatingMode};
-use proto_core::modbus::rtu::CharTiming;
 
 use crate::config::{self, Config, DeviceConfig, LineConfig, ModbusTable, ProtocolConfig};
 use crate::image::Table;
@@ -63,12 +62,11 @@ pub(crate) fn master_line(
     config: &Config,
 ) -> Option<(LineSettings, Vec<DeviceSettings>)> {
     let port = port_settings(&line.serial);
-    let bits = line.serial.bits_per_char();
     let mut settings = LineSettings::rtu(name, port);
     let (master, devices) = match &line.protocol {
         ProtocolConfig::ModbusMasterRtu(m) => {
             let timing =
-                CharTiming::new(line.serial.baud.get(), bits).with_multiplier(m.delay_multiplier);
+                crate::line::rtu_timing(&settings.port).with_multiplier(m.delay_multiplier);
             let master = MasterConfig {
                 framing: Framing::Rtu { timing },
                 reply_timeout: m.reply_timeout,

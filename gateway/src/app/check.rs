@@ -145,10 +145,12 @@ pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
         let path = format!("lines.{name}.port");
         match serial::probe(&super::build::port_settings(&line.serial)) {
             Ok(()) => {}
-            Err(e @ OpenError::Rs485Refused { .. }) => errors.push(ConfigIssue {
-                path: format!("lines.{name}.interface"),
-                message: e.to_string(),
-            }),
+            Err(e @ (OpenError::Rs485Refused { .. } | OpenError::Flags { .. })) => {
+                errors.push(ConfigIssue {
+                    path: format!("lines.{name}.interface"),
+                    message: e.to_string(),
+                });
+            }
             Err(e @ OpenError::Open { .. }) => warnings.push(ConfigIssue {
                 path,
                 message: format!(

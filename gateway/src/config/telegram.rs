@@ -174,7 +174,7 @@ pub struct AsciiConfig {
     pub data_output_wait: Duration,
     pub receive_buffer: u16,
     /// A full buffer drops the new telegram (event 08 0Ah); off (only with a buffer of 1), the
-    /// newest telegram overwrites the held one.
+    /// newest telegram overwrites the held one, without an event (the CP raises none).
     pub prevent_overwrite: bool,
     pub max_telegram_len: u16,
     pub send_queue: u16,

@@ -165,6 +165,13 @@ impl LineMetrics {
         }
     }
 
+    /// One received frame discarded unanswered by a slave line, for `reason`.
+    pub(crate) fn frame_discarded(&self, reason: &'static str) {
+        if let Some(i) = &self.inner {
+            i.metrics.frame_discarded(&i.line, reason);
+        }
+    }
+
     /// One Modbus request with function code `function` to (or, on a slave line, from) `device`.
     pub(crate) fn request(&self, device: &str, function: u8, result: RequestResult) {
         if let Some(i) = &self.inner {

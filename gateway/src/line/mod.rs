@@ -42,6 +42,7 @@ mod writeback;
 use std::time::Duration;
 
 use proto_core::modbus::master::{Framing, MasterConfig};
+use proto_core::modbus::rtu::CharTiming;
 
 pub use command::{
     exception_for, exception_for_queue, CommandError, CommandResult, LineClient, QueueError,
@@ -74,6 +75,16 @@ pub const DEFAULT_REOPEN_MAX: Duration = Duration::from_secs(30);
 /// Slack on top of the master's own reply monitoring for a command's deadline by default.
 pub const DEFAULT_COMMAND_SLACK: Duration = Duration::from_secs(1);
 
+/// The character timing of the gateway's Modbus RTU lines, master and slave: 1.5 and 3.5
+/// character times at every baud rate, as the CP 341 computes them (003 6.4.3, "Time_Out for
+/// message end": 76800 -> 0.5 ms, 38400 -> 1 ms, 19200 -> 2 ms, 9600 -> 4 ms ... 300 -> 128 ms),
+/// not the fixed 1.75 ms of the Modbus over Serial Line specification above 19200 Bd. The line's
+/// "multiplier character delay time" (003 6.4.2.1, 1..10) multiplies t3.5 on top, for a partner
+/// that needs longer (a device that follows the fixed 1.75 ms above 19200 Bd: 2 at 38400 Bd).
+pub fn rtu_timing(port: &PortSettings) -> CharTiming {
+    CharTiming::exact(port.baud, port.bits_per_char())
+}
+
 /// Settings of one Modbus master line.
 #[derive(Clone, Debug)]
 pub struct LineSettings {
@@ -103,7 +114,12 @@ pub struct LineSettings {
 impl LineSettings {
     /// A Modbus master RTU line on `port` with the master's defaults for its baud rate and frame.
     pub fn rtu(name: impl Into<String>, port: PortSettings) -> Self {
-        let master = MasterConfig::rtu(port.baud, port.bits_per_char());
+        let master = MasterConfig {
+            framing: Framing::Rtu {
+                timing: rtu_timing(&port),
+            },
+            ..MasterConfig::rtu(port.baud, port.bits_per_char())
+        };
         Self {
             name: name.into(),
             port,
@@ -308,5 +324,46 @@ impl DeviceSettings {
                 })
             })
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// 003 6.4.3 "Time_Out for message end": 76800 -> 0.5 ms, 38400 -> 1 ms, 19200 -> 2 ms,
+    /// 9600 -> 4 ms, 300 -> 128 ms (3.5 characters of 11 bits, rounded in the manual).
+    #[test]
+    fn rtu_lines_end_a_frame_after_the_cps_time_out_at_every_baud_rate() {
+        for (baud, manual_us) in [
+            (76_800, 500),
+            (38_400, 1_000),
+            (19_200, 2_000),
+            (9_600, 4_000),
+            (300, 128_000),
+        ] {
+            let port = PortSettings::new("/dev/null", baud);
+            let t35 = rtu_timing(&port).t3_5().as_micros();
+            let off = t35.abs_diff(manual_us);
+            assert!(off * 100 <= manual_us * 3, "{baud} Bd: {t35} us");
+            // The master line and the slave line take the same timing.
+            let Framing::Rtu { timing } = LineSettings::rtu("l", port.clone()).master.framing
+            else {
+                panic!("an RTU line");
+            };
+            assert_eq!(timing.t3_5().as_micros(), t35);
+            let params = proto_core::cpmem::SlaveParams::new(
+                1,
+                proto_core::cpmem::OperatingMode::Normal,
+                1,
+                proto_core::cpmem::AddressMap::manual_example(),
+            )
+            .expect("params");
+            let slave = SlaveLineSettings::new("s", port, params);
+            assert_eq!(slave.timing().t3_5().as_micros(), t35);
+        }
+        // The multiplier (003 6.4.2.1, 1..10) on top: 2 at 38400 Bd gives 2 ms.
+        let doubled = rtu_timing(&PortSettings::new("/dev/null", 38_400)).with_multiplier(2);
+        assert_eq!(doubled.t3_5().as_micros(), 2_005);
     }
 }

@@ -13,6 +13,7 @@ use std::time::SystemTime;
 use proto_core::event::{ids, EventId};
 use proto_core::modbus::master::{Attempts, Master, MasterEvent, Outcome, RequestId};
 use proto_core::modbus::pdu::{Request, Response};
+use proto_core::serial_marks::LineError;
 use tokio::sync::mpsc;
 use tokio::time::Instant;
 use tokio_serial::SerialPort;
@@ -24,7 +25,7 @@ use super::driver::{sleep_until_opt, Clock};
 use super::line_metrics::{master_result, BROADCAST_DEVICE, UNKNOWN_DEVICE};
 use super::registers32;
 use super::runtime::{
-    self, LineBase, LineCapabilities, LineEngine, LineHandle, SerialOpener, Stop,
+    self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
 };
 use super::scheduler::{Job, PollJob, Scheduler, Transition};
 use super::status::{DeviceStatus, Shared};
@@ -52,6 +53,17 @@ pub fn spawn_modbus_master_line(
     devices: Vec<DeviceSettings>,
     image: ProcessImage,
     shutdown: CancellationToken,
+) -> LineHandle {
+    spawn_on(settings, devices, image, shutdown, SerialOpener)
+}
+
+/// [`spawn_modbus_master_line`] on the ports `opener` opens.
+fn spawn_on<O: PortOpener>(
+    settings: LineSettings,
+    devices: Vec<DeviceSettings>,
+    image: ProcessImage,
+    shutdown: CancellationToken,
+    opener: O,
 ) -> LineHandle {
     let depth = settings.queue_depth.max(1);
     let (tx, rx) = mpsc::channel(depth);
@@ -91,14 +103,7 @@ pub fn spawn_modbus_master_line(
         image: image.clone(),
     };
     let engine = MasterLine::new(settings, devices, image, shared, clock);
-    runtime::spawn(
-        core,
-        engine,
-        Some(rx),
-        Arc::new(caps),
-        SerialOpener,
-        shutdown,
-    )
+    runtime::spawn(core, engine, Some(rx), Arc::new(caps), opener, shutdown)
 }
 
 /// What a master line offers: its command queue and its devices as Modbus TCP units.
@@ -192,6 +197,10 @@ impl LineEngine for MasterLine {
 
     fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
         self.master.handle_rx(now, bytes);
+    }
+
+    fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError) {
+        self.master.handle_line_error(now, error);
     }
 
     fn handle_timeout(&mut self, now: proto_core::time::Instant) {
@@ -656,5 +665,119 @@ impl ReadBlockParts {
             count: usize::from(read.range.count),
             period: read.period,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::{Mutex, PoisonError};
+    use std::time::Duration;
+
+    use proto_core::event::ids;
+    use proto_core::modbus::rtu::{encode_frame, expected_request_len, FrameLen};
+    use proto_core::serial_marks::{encode, Received};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
+
+    use super::*;
+    use crate::line::{AddrRange, PollGroup};
+    use crate::serial::PortSettings;
+
+    /// Hands out one in-process port: the test's end plays the device and writes what the tty
+    /// layer delivers from a UART with `INPCK | PARMRK` (a pty cannot produce a parity error).
+    struct OnePort(Mutex<Option<DuplexStream>>);
+
+    impl PortOpener for OnePort {
+        type Port = DuplexStream;
+
+        fn open(&self, _settings: &PortSettings) -> Result<DuplexStream, String> {
+            self.0
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .take()
+                .ok_or_else(|| "no second port".to_owned())
+        }
+    }
+
+    /// Reads one FC 03 request of the line.
+    async fn request(device: &mut DuplexStream) -> Vec<u8> {
+        let mut buf = Vec::new();
+        let mut byte = [0u8; 1];
+        loop {
+            device.read_exact(&mut byte).await.expect("request");
+            buf.extend_from_slice(&byte);
+            if let FrameLen::Complete(len) = expected_request_len(&buf) {
+                if buf.len() >= len {
+                    return buf;
+                }
+            }
+        }
+    }
+
+    #[tokio::test]
+    async fn a_reply_with_a_parity_error_fails_with_080c_and_its_values_are_not_taken() {
+        let (port, mut device) = tokio::io::duplex(256);
+        let mut settings = LineSettings::rtu("drive", PortSettings::new("/dev/in-process", 19200));
+        settings.master.reply_timeout = Duration::from_millis(200);
+        let mut atv = DeviceSettings::new("atv", 2, 2);
+        atv.groups = vec![PollGroup {
+            period: Duration::from_millis(50),
+            table: Table::HoldingRegisters,
+            ranges: vec![AddrRange::new(3201, 1)],
+        }];
+        atv.backoff_min = Duration::from_millis(50);
+        atv.backoff_max = Duration::from_millis(100);
+        let image = ProcessImage::default();
+        let shutdown = CancellationToken::new();
+        let line = spawn_on(
+            settings,
+            vec![atv],
+            image.clone(),
+            shutdown.clone(),
+            OnePort(Mutex::new(Some(port))),
+        );
+
+        // The first reply (ETA = 0637h) arrives with its first data byte received with a parity
+        // error: 08 0Ch for slave 2 (003 7.2), the reply discarded, nothing in the image.
+        let req = request(&mut device).await;
+        assert_eq!(req.get(..2), Some(&[2, 3][..]));
+        let mut reply = Vec::new();
+        encode_frame(2, &[0x03, 0x02, 0x06, 0x37], &mut reply);
+        let mut marked = reply.get(..3).unwrap_or_default().to_vec();
+        encode([Received::Faulty(0x06)], &mut marked);
+        marked.extend_from_slice(reply.get(4..).unwrap_or_default());
+        device.write_all(&marked).await.expect("write");
+        let mut ok = false;
+        for _ in 0..200 {
+            let status = line.status();
+            if status.event_counts.get(&ids::CHARACTER_ERROR) == Some(&1) {
+                ok = true;
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        assert!(ok, "no 08 0Ch: {:?}", line.status());
+        assert!(image
+            .read_words(2, Table::HoldingRegisters, 3201, 1)
+            .is_err());
+
+        // The line keeps running: the next poll's clean reply is taken.
+        let req = request(&mut device).await;
+        assert_eq!(req.get(..2), Some(&[2, 3][..]));
+        device.write_all(&reply).await.expect("write");
+        let mut read = None;
+        for _ in 0..200 {
+            if let Ok(r) = image.read_words(2, Table::HoldingRegisters, 3201, 1) {
+                read = Some(r.values);
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        assert_eq!(read, Some(vec![0x0637]));
+        assert_eq!(
+            line.status().event_counts.get(&ids::CHARACTER_ERROR),
+            Some(&1)
+        );
+        shutdown.cancel();
+        line.join().await;
     }
 }

@@ -16,13 +16,14 @@ use proto_core::cpmem::SlaveParams;
 use proto_core::event::EventId;
 use proto_core::modbus::rtu::CharTiming;
 use proto_core::modbus::slave::{DiscardReason, Outcome, Slave, SlaveEvent};
+use proto_core::serial_marks::LineError;
 use tokio::time::Instant;
 use tokio_serial::SerialPort;
 use tokio_util::sync::CancellationToken;
 
 use super::line_metrics::{slave_result, SLAVE_LINE_PARTNER};
 use super::runtime::{
-    self, LineBase, LineCapabilities, LineEngine, LineHandle, SerialOpener, Stop,
+    self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
 };
 use super::status::{Shared, DEFAULT_DIAG_DEPTH};
 use super::{DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
@@ -74,11 +75,10 @@ impl SlaveLineSettings {
     }
 
     /// The character timing of the line: 3.5 character times end a frame (003 6.4.6 "CRC-CHECK"),
-    /// fixed at 1.75 ms above 19200 Bd (Modbus over Serial Line V1.02, 2.5.1.1: the CP's own table
-    /// stops at 76800 Bd and a pty or USB adapter delivers bytes in bursts anyway); the engine
-    /// applies the multiplier of [`SlaveParams`].
+    /// at every baud rate as the CP's table has it ([`super::rtu_timing`]); the engine applies the
+    /// multiplier of [`SlaveParams`].
     pub fn timing(&self) -> CharTiming {
-        CharTiming::new(self.port.baud, self.port.bits_per_char())
+        super::rtu_timing(&self.port)
     }
 }
 
@@ -97,7 +97,8 @@ pub struct SlaveCounters {
     pub writes: u64,
     /// Good frames for other slave addresses (normal on a multi-drop bus).
     pub other_address: u64,
-    /// Received bytes not served, by reason (`bad_crc`, `too_short`, `too_long`, `line_fault`).
+    /// Received bytes not served, by reason (`bad_crc`, `too_short`, `too_long`, `line_fault`,
+    /// `trailing_data`); also in the metrics as `gateway_frames_discarded_total`.
     pub discarded: BTreeMap<&'static str, u64>,
     /// When the last request for this slave (or a broadcast) was handled.
     pub last_request: Option<SystemTime>,
@@ -109,6 +110,16 @@ pub fn spawn_modbus_slave_line(
     settings: SlaveLineSettings,
     memory: SharedCpMemory,
     shutdown: CancellationToken,
+) -> LineHandle {
+    spawn_on(settings, memory, shutdown, SerialOpener)
+}
+
+/// [`spawn_modbus_slave_line`] on the ports `opener` opens.
+fn spawn_on<O: PortOpener>(
+    settings: SlaveLineSettings,
+    memory: SharedCpMemory,
+    shutdown: CancellationToken,
+    opener: O,
 ) -> LineHandle {
     let base = LineBase::new(
         &settings.name,
@@ -134,7 +145,7 @@ pub fn spawn_modbus_slave_line(
         counters,
         slave,
     };
-    runtime::spawn(core, engine, None, Arc::new(caps), SerialOpener, shutdown)
+    runtime::spawn(core, engine, None, Arc::new(caps), opener, shutdown)
 }
 
 /// What a slave line offers: its counters, the memory it serves and that memory as a unit.
@@ -239,6 +250,10 @@ impl LineEngine for SlaveLine {
         self.slave.handle_rx(now, bytes);
     }
 
+    fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError) {
+        self.slave.handle_line_error(now, error);
+    }
+
     fn handle_timeout(&mut self, now: proto_core::time::Instant) {
         self.slave.handle_timeout(now);
     }
@@ -337,10 +352,210 @@ impl SlaveLine {
                 reason => {
                     tracing::debug!(line = %line, reason = reason.as_str(), len, "received bytes discarded");
                     self.count(|c| *c.discarded.entry(reason.as_str()).or_default() += 1);
+                    self.shared.metrics().frame_discarded(reason.as_str());
                 }
             },
             SlaveEvent::Diagnostic(id) => self.shared.raise(id, None, None),
             other => tracing::debug!(line = %line, kind = other.kind(), "slave event"),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Mutex;
+
+    use proto_core::cpmem::{AddressMap, MemoryLayout, OperatingMode};
+    use proto_core::event::ids;
+    use proto_core::modbus::rtu::encode_frame;
+    use proto_core::serial_marks::{encode, Received};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
+
+    use super::*;
+
+    /// Hands out one in-process port: the test's end stands in for the tty layer, writing what
+    /// the kernel delivers from a UART with `INPCK | PARMRK` (a pty cannot produce a parity
+    /// error or a BREAK: its other end writes bytes only).
+    struct OnePort(Mutex<Option<DuplexStream>>);
+
+    impl PortOpener for OnePort {
+        type Port = DuplexStream;
+
+        fn open(&self, _settings: &PortSettings) -> Result<DuplexStream, String> {
+            self.0
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .take()
+                .ok_or_else(|| "no second port".to_owned())
+        }
+    }
+
+    const ADDRESS: u8 = 222;
+
+    fn request() -> Vec<u8> {
+        let mut frame = Vec::new();
+        encode_frame(ADDRESS, &[0x03, 0x00, 0x00, 0x00, 0x01], &mut frame);
+        frame
+    }
+
+    async fn eventually(what: &str, mut check: impl FnMut() -> bool) {
+        for _ in 0..500 {
+            if check() {
+                return;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        panic!("{what} did not happen");
+    }
+
+    /// The answer to a request: what arrives until the line is silent for 50 ms.
+    async fn answer(partner: &mut DuplexStream) -> Vec<u8> {
+        let mut answer = vec![0u8; 1];
+        partner.read_exact(&mut answer).await.expect("answer");
+        let mut more = [0u8; 64];
+        while let Ok(Ok(n)) =
+            tokio::time::timeout(Duration::from_millis(50), partner.read(&mut more)).await
+        {
+            answer.extend_from_slice(more.get(..n).unwrap_or_default());
+            if n == 0 {
+                break;
+            }
+        }
+        answer
+    }
+
+    /// Nothing arrives within 100 ms.
+    async fn silent(partner: &mut DuplexStream) {
+        let mut byte = [0u8; 1];
+        let read = tokio::time::timeout(Duration::from_millis(100), partner.read(&mut byte)).await;
+        assert!(read.is_err(), "unexpected answer {read:?}");
+    }
+
+    async fn start(
+        mode: OperatingMode,
+    ) -> (
+        LineHandle,
+        DuplexStream,
+        prometheus::Registry,
+        CancellationToken,
+    ) {
+        let (port, partner) = tokio::io::duplex(256);
+        let registry = prometheus::Registry::new();
+        let params =
+            SlaveParams::new(ADDRESS, mode, 1, AddressMap::manual_example()).expect("params");
+        let mut settings =
+            SlaveLineSettings::new("hmi", PortSettings::new("/dev/in-process", 19200), params);
+        settings.metrics = Some(Metrics::register(&registry).expect("metrics"));
+        let shutdown = CancellationToken::new();
+        let memory = SharedCpMemory::new(MemoryLayout::default());
+        let line = spawn_on(
+            settings,
+            memory,
+            shutdown.clone(),
+            OnePort(Mutex::new(Some(port))),
+        );
+        eventually("the port open", || line.status().port_open).await;
+        (line, partner, registry, shutdown)
+    }
+
+    fn events(line: &LineHandle, id: EventId) -> u64 {
+        line.status().event_counts.get(&id).copied().unwrap_or(0)
+    }
+
+    #[tokio::test]
+    async fn parity_errors_and_breaks_from_the_uart_are_events_and_drop_the_request() {
+        let (line, mut partner, registry, shutdown) = start(OperatingMode::Normal).await;
+        let good = request();
+
+        // A request with one character received with a parity error in its middle (FF 00 x):
+        // 08 0Ch, the request dropped, no answer.
+        let (head, tail) = good.split_at(3);
+        let mut marked = head.to_vec();
+        encode([Received::Faulty(0x5A)], &mut marked);
+        marked.extend_from_slice(tail.get(1..).unwrap_or_default());
+        partner.write_all(&marked).await.expect("write");
+        silent(&mut partner).await;
+        assert_eq!(events(&line, ids::CHARACTER_ERROR), 1);
+        let counters = line.slave_counters().expect("slave counters");
+        assert_eq!(counters.answered, 0);
+        assert!(
+            counters.discarded.get("line_fault").copied().unwrap_or(0) >= 1,
+            "{counters:?}"
+        );
+
+        // A BREAK while idle (FF 00 00): in normal operation reported at once (08 0Dh).
+        let mut brk = Vec::new();
+        encode([Received::Break], &mut brk);
+        partner.write_all(&brk).await.expect("write");
+        eventually("08 0Dh", || events(&line, ids::LINE_BREAK) == 1).await;
+
+        // The line keeps running: the next good request is answered.
+        partner.write_all(&good).await.expect("write");
+        assert_eq!(answer(&mut partner).await.first(), Some(&ADDRESS));
+
+        let text = crate::metrics::encode_text(&registry);
+        for event in ["080C", "080D"] {
+            let series = text
+                .lines()
+                .find(|l| l.starts_with("gateway_events_total") && l.contains(event))
+                .unwrap_or_else(|| panic!("no {event} series in\n{text}"));
+            assert!(series.ends_with(" 1"), "{series}");
+        }
+        shutdown.cancel();
+        line.join().await;
+    }
+
+    #[tokio::test]
+    async fn a_request_with_trailing_bytes_is_discarded_and_counted_not_answered() {
+        let (line, mut partner, registry, shutdown) = start(OperatingMode::Normal).await;
+        let good = request();
+        // 003 6.4.6: the frame is what came before the silence; a request followed by more bytes
+        // within it is not a valid request.
+        let mut long = good.clone();
+        long.extend_from_slice(&[0x12, 0x34]);
+        partner.write_all(&long).await.expect("write");
+        silent(&mut partner).await;
+        let counters = line.slave_counters().expect("slave counters");
+        assert_eq!(
+            counters.discarded.get("trailing_data"),
+            Some(&1),
+            "{counters:?}"
+        );
+        assert_eq!(counters.answered + counters.exceptions, 0);
+        let text = crate::metrics::encode_text(&registry);
+        let series = r#"gateway_frames_discarded_total{line="hmi",reason="trailing_data"} 1"#;
+        assert!(text.contains(series), "{series} missing in\n{text}");
+
+        partner.write_all(&good).await.expect("write");
+        assert_eq!(answer(&mut partner).await.first(), Some(&ADDRESS));
+        shutdown.cancel();
+        line.join().await;
+    }
+
+    #[tokio::test]
+    async fn interference_suppression_ignores_a_break_while_idle_but_not_inside_a_request() {
+        let (line, mut partner, _registry, shutdown) =
+            start(OperatingMode::InterferenceSuppression).await;
+        let mut brk = Vec::new();
+        encode([Received::Break, Received::Faulty(0x31)], &mut brk);
+        partner.write_all(&brk).await.expect("write");
+        let good = request();
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        partner.write_all(&good).await.expect("write");
+        assert_eq!(answer(&mut partner).await.first(), Some(&ADDRESS));
+        assert_eq!(events(&line, ids::LINE_BREAK), 0);
+        assert_eq!(events(&line, ids::CHARACTER_ERROR), 0);
+
+        // Inside a request the fault counts and drops it (003 6.4.5.1).
+        let mut marked = good.get(..4).unwrap_or_default().to_vec();
+        encode([Received::Break], &mut marked);
+        partner.write_all(&marked).await.expect("write");
+        eventually("08 0Dh inside the request", || {
+            events(&line, ids::LINE_BREAK) == 1
+        })
+        .await;
+        silent(&mut partner).await;
+        shutdown.cancel();
+        line.join().await;
     }
 }

@@ -33,6 +33,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use proto_core::event::{ids, EventId};
+use proto_core::serial_marks::{LineError, MarkDecoder, Piece};
 use proto_core::telegram::Action;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::sync::{broadcast, mpsc};
@@ -45,7 +46,7 @@ use super::driver::{estimated_tx_end, sleep_until_opt, Clock};
 use super::line_metrics::{LineMetrics, LineTraffic};
 use super::status::{DeviceStatus, LineEvent, LineStatus, Shared};
 use crate::metrics::Metrics;
-use crate::serial::{self, Backoff, PortSettings};
+use crate::serial::{self, Backoff, PortSettings, UartCounters};
 use crate::timer::LineTimer;
 use crate::unit::UnitService;
 
@@ -65,11 +66,19 @@ pub trait LinePort: AsyncRead + AsyncWrite + Unpin + Send + 'static {
     fn modem(&mut self) -> Option<&mut dyn SerialPort> {
         None
     }
+    /// The UART's error counters (`TIOCGICOUNT`), if the port is a UART; `Some(Err(..))` where the
+    /// driver has none (a pty, most USB adapters).
+    fn uart_counters(&self) -> Option<std::io::Result<UartCounters>> {
+        None
+    }
 }
 
 impl LinePort for SerialStream {
     fn modem(&mut self) -> Option<&mut dyn SerialPort> {
         Some(self)
+    }
+    fn uart_counters(&self) -> Option<std::io::Result<UartCounters>> {
+        Some(serial::uart_counters(self))
     }
 }
 
@@ -126,6 +135,9 @@ pub(crate) trait LineEngine: Send + 'static {
     fn opened(&mut self, modem: Option<&mut dyn SerialPort>);
     /// Received bytes, at `now`.
     fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]);
+    /// A character received with a parity or framing error, a BREAK, or characters lost to an
+    /// overrun, at `now`, between the bytes handed to `handle_rx` before and after it.
+    fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError);
     /// The engine's deadline has come.
     fn handle_timeout(&mut self, now: proto_core::time::Instant);
     /// The engine's next deadline.
@@ -356,6 +368,9 @@ pub(crate) fn spawn<E: LineEngine, O: PortOpener>(
         commands,
         opener,
         shutdown,
+        marks: MarkDecoder::new(),
+        uart: None,
+        no_uart_counters: false,
     };
     let task = tokio::spawn(task.run());
     LineHandle {
@@ -384,6 +399,12 @@ struct PortTask<E: LineEngine, O> {
     commands: Option<mpsc::Receiver<E::Command>>,
     opener: O,
     shutdown: CancellationToken,
+    /// Undoes the tty layer's line error marks of the open port (reset on every opening).
+    marks: MarkDecoder,
+    /// The UART's counters at the last look; `None` before the first look on this opening.
+    uart: Option<UartCounters>,
+    /// The port has no UART counters (a pty): not asked again until it is reopened.
+    no_uart_counters: bool,
 }
 
 // === impl PortTask ===
@@ -448,17 +469,59 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
     }
 
     /// Hands bytes read from the port to the engine: the one place where received bytes pass
-    /// from the port to the protocol.
+    /// from the port to the protocol. The tty layer's marks are undone here: data to the engine's
+    /// `handle_rx`, a faulty character or a BREAK to its `handle_line_error`, in stream order (a
+    /// read without an `FF` byte goes to the engine as it is, without a copy).
     fn receive(&mut self, bytes: &[u8]) {
         let (_, now) = self.clock.now();
-        self.shared.metrics().received_bytes(bytes.len());
-        self.engine.handle_rx(now, bytes);
+        let mut data = 0;
+        for piece in self.marks.decode(bytes) {
+            match piece {
+                Piece::Data(bytes) => {
+                    data += bytes.len();
+                    self.engine.handle_rx(now, bytes);
+                }
+                Piece::Error { error, .. } => self.engine.handle_line_error(now, error),
+            }
+        }
+        self.shared.metrics().received_bytes(data);
+    }
+
+    /// Looks at the UART's counters (after a read): characters lost to an overrun since the last
+    /// look go to the engine as [`LineError::Overrun`] (003 7.2, 08 0Ch), the one line error the
+    /// stream's marks cannot show. A port without counters is not asked again.
+    fn check_uart(&mut self, port: &O::Port) {
+        if self.no_uart_counters {
+            return;
+        }
+        match port.uart_counters() {
+            Some(Ok(counters)) => {
+                let lost = self
+                    .uart
+                    .replace(counters)
+                    .map_or(0, |earlier| counters.lost_since(&earlier));
+                if lost > 0 {
+                    tracing::debug!(line = %self.base.name, lost, "receive overrun");
+                    let (_, now) = self.clock.now();
+                    self.engine.handle_line_error(now, LineError::Overrun);
+                }
+            }
+            Some(Err(err)) => {
+                tracing::debug!(line = %self.base.name, %err, "no UART counters on this port");
+                self.no_uart_counters = true;
+            }
+            None => self.no_uart_counters = true,
+        }
     }
 
     /// The driver loop on an open port.
     async fn drive(&mut self, mut port: O::Port) -> PortExit {
         let path = self.base.port.path.clone();
         let char_time = self.base.port.char_time();
+        self.marks.reset();
+        self.no_uart_counters = false;
+        self.uart = None;
+        self.check_uart(&port); // the counters' start on this opening
         self.engine.opened(port.modem());
         // The engine's deadlines can be fractions of a millisecond apart (t1.5/t3.5, 003 6.4.3;
         // the turnaround after a broadcast, 003 6.4.2.2): tokio's millisecond timer would add
@@ -523,7 +586,10 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
                 () = sleep_until_opt(stop_at) => return PortExit::Shutdown,
                 read = port.read(&mut buf), if reading => match read {
                     Ok(0) => return PortExit::Lost(format!("{path} reached end of file")),
-                    Ok(n) => self.receive(buf.get(..n).unwrap_or_default()),
+                    Ok(n) => {
+                        self.receive(buf.get(..n).unwrap_or_default());
+                        self.check_uart(&port);
+                    }
                     Err(err) => return PortExit::Lost(format!("read from {path} failed: {err}")),
                 },
                 () = timer.sleep_until_opt(deadline) => {
@@ -587,6 +653,9 @@ mod tests {
         }
         fn handle_rx(&mut self, _now: proto_core::time::Instant, bytes: &[u8]) {
             self.out.push_back(bytes.to_vec());
+        }
+        fn handle_line_error(&mut self, _now: proto_core::time::Instant, error: LineError) {
+            self.out.push_back(format!("<{error:?}>").into_bytes());
         }
         fn handle_timeout(&mut self, _now: proto_core::time::Instant) {}
         fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
@@ -728,5 +797,220 @@ mod tests {
             .await
             .expect("the line stops");
         assert!(tx.send(b"after".to_vec()).await.is_err(), "queue closed");
+    }
+
+    #[tokio::test]
+    async fn marks_are_decoded_in_stream_order_and_forgotten_on_reopening() {
+        let (first, mut partner) = tokio::io::duplex(64);
+        let (second, mut partner2) = tokio::io::duplex(64);
+        let opener = Ports(Mutex::new(VecDeque::from([Ok(first), Ok(second)])));
+        let base = LineBase::new(
+            "marks",
+            "echo",
+            &PortSettings::new("/dev/in-process", 9600),
+            8,
+            (Duration::from_millis(10), Duration::from_millis(20)),
+            None,
+        );
+        let core = base.core(Vec::new());
+        let engine = Echo {
+            shared: Arc::clone(&core.shared),
+            out: VecDeque::new(),
+            refused: Arc::new(Mutex::new(Vec::new())),
+        };
+        let shutdown = CancellationToken::new();
+        let line = spawn(
+            core,
+            engine,
+            None,
+            Arc::new(Nothing),
+            opener,
+            shutdown.clone(),
+        );
+        eventually("the port open", || line.status().port_open).await;
+
+        // What the tty layer delivers with INPCK | PARMRK: 01, FF (doubled), 02, 'A' with a
+        // parity or framing error, 03, a BREAK, 04; the BREAK's mark split across two reads.
+        partner
+            .write_all(&[0x01, 0xFF, 0xFF, 0x02, 0xFF, 0x00, b'A', 0x03, 0xFF])
+            .await
+            .expect("write");
+        partner.write_all(&[0x00, 0x00, 0x04]).await.expect("write");
+        let expected: &[u8] = b"\x01\xFF\x02<ParityOrFraming>\x03<Break>\x04";
+        let mut echo = vec![0u8; expected.len()];
+        partner.read_exact(&mut echo).await.expect("echo");
+        assert_eq!(echo, expected);
+        assert_eq!(
+            line.traffic().bytes_received,
+            5,
+            "data bytes, marks removed"
+        );
+
+        // A mark cut off by the port's loss is not completed by the next opening's bytes.
+        partner.write_all(&[0x05, 0xFF]).await.expect("write");
+        let mut five = [0u8; 1];
+        partner.read_exact(&mut five).await.expect("echo");
+        assert_eq!(five, [0x05]);
+        drop(partner);
+        eventually("the port reopened", || {
+            line.status().port_opens == 2 && line.status().port_open
+        })
+        .await;
+        partner2.write_all(&[0x00, 0x00]).await.expect("write");
+        let mut zeros = [0xAAu8; 2];
+        partner2.read_exact(&mut zeros).await.expect("echo");
+        assert_eq!(zeros, [0x00, 0x00]);
+
+        shutdown.cancel();
+        tokio::time::timeout(Duration::from_secs(2), line.join())
+            .await
+            .expect("the line stops");
+    }
+
+    /// An in-process port with UART counters the test sets (`None`: the driver has none).
+    struct Uart {
+        inner: DuplexStream,
+        counters: Arc<Mutex<Option<UartCounters>>>,
+        asked: Arc<std::sync::atomic::AtomicUsize>,
+    }
+
+    impl AsyncRead for Uart {
+        fn poll_read(
+            mut self: std::pin::Pin<&mut Self>,
+            cx: &mut std::task::Context<'_>,
+            buf: &mut tokio::io::ReadBuf<'_>,
+        ) -> std::task::Poll<std::io::Result<()>> {
+            std::pin::Pin::new(&mut self.inner).poll_read(cx, buf)
+        }
+    }
+
+    impl AsyncWrite for Uart {
+        fn poll_write(
+            mut self: std::pin::Pin<&mut Self>,
+            cx: &mut std::task::Context<'_>,
+            buf: &[u8],
+        ) -> std::task::Poll<std::io::Result<usize>> {
+            std::pin::Pin::new(&mut self.inner).poll_write(cx, buf)
+        }
+        fn poll_flush(
+            mut self: std::pin::Pin<&mut Self>,
+            cx: &mut std::task::Context<'_>,
+        ) -> std::task::Poll<std::io::Result<()>> {
+            std::pin::Pin::new(&mut self.inner).poll_flush(cx)
+        }
+        fn poll_shutdown(
+            mut self: std::pin::Pin<&mut Self>,
+            cx: &mut std::task::Context<'_>,
+        ) -> std::task::Poll<std::io::Result<()>> {
+            std::pin::Pin::new(&mut self.inner).poll_shutdown(cx)
+        }
+    }
+
+    impl LinePort for Uart {
+        fn uart_counters(&self) -> Option<std::io::Result<UartCounters>> {
+            self.asked.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+            let counters = *self.counters.lock().unwrap_or_else(PoisonError::into_inner);
+            Some(counters.ok_or_else(|| std::io::Error::from_raw_os_error(libc::ENOTTY)))
+        }
+    }
+
+    struct OneUart(Mutex<Option<Uart>>);
+
+    impl PortOpener for OneUart {
+        type Port = Uart;
+
+        fn open(&self, _settings: &PortSettings) -> Result<Uart, String> {
+            self.0
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .take()
+                .ok_or_else(|| "no second port".to_owned())
+        }
+    }
+
+    #[tokio::test]
+    async fn a_grown_overrun_count_is_a_line_error_and_a_port_without_counters_is_not_asked_again()
+    {
+        let (inner, mut partner) = tokio::io::duplex(64);
+        let counters = Arc::new(Mutex::new(Some(UartCounters {
+            overrun: 5,
+            frame: 2,
+            ..UartCounters::default()
+        })));
+        let asked = Arc::new(std::sync::atomic::AtomicUsize::new(0));
+        let port = Uart {
+            inner,
+            counters: Arc::clone(&counters),
+            asked: Arc::clone(&asked),
+        };
+        let base = LineBase::new(
+            "uart",
+            "echo",
+            &PortSettings::new("/dev/ttyS0", 9600),
+            8,
+            (Duration::from_millis(10), Duration::from_millis(20)),
+            None,
+        );
+        let core = base.core(Vec::new());
+        let engine = Echo {
+            shared: Arc::clone(&core.shared),
+            out: VecDeque::new(),
+            refused: Arc::new(Mutex::new(Vec::new())),
+        };
+        let shutdown = CancellationToken::new();
+        let opener = OneUart(Mutex::new(Some(port)));
+        let line = spawn(
+            core,
+            engine,
+            None,
+            Arc::new(Nothing),
+            opener,
+            shutdown.clone(),
+        );
+        eventually("the port open", || line.status().port_open).await;
+        let set = |c: Option<UartCounters>| {
+            *counters.lock().unwrap_or_else(PoisonError::into_inner) = c;
+        };
+
+        // The counts at opening are the start: nothing lost yet.
+        partner.write_all(b"a").await.expect("write");
+        let mut a = [0u8; 1];
+        partner.read_exact(&mut a).await.expect("echo");
+        assert_eq!(&a, b"a");
+
+        // Two characters lost (and a framing error, which the marks report, not the counters).
+        set(Some(UartCounters {
+            overrun: 7,
+            frame: 3,
+            ..UartCounters::default()
+        }));
+        partner.write_all(b"b").await.expect("write");
+        let expected: &[u8] = b"b<Overrun>";
+        let mut got = vec![0u8; expected.len()];
+        partner.read_exact(&mut got).await.expect("echo");
+        assert_eq!(got, expected);
+
+        // The driver refuses the ioctl: asked once more, then never again on this opening.
+        set(None);
+        partner.write_all(b"c").await.expect("write");
+        let mut c = [0u8; 1];
+        partner.read_exact(&mut c).await.expect("echo");
+        let after_refusal = asked.load(std::sync::atomic::Ordering::SeqCst);
+        partner.write_all(b"d").await.expect("write");
+        partner.read_exact(&mut c).await.expect("echo");
+        assert_eq!(&c, b"d");
+        assert_eq!(
+            asked.load(std::sync::atomic::Ordering::SeqCst),
+            after_refusal
+        );
+        assert_eq!(
+            after_refusal, 4,
+            "at opening and after the reads of a, b and c"
+        );
+
+        shutdown.cancel();
+        tokio::time::timeout(Duration::from_secs(2), line.join())
+            .await
+            .expect("the line stops");
     }
 }

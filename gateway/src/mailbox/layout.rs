@@ -12,7 +12,7 @@
 //! | 524..525 | counters | telegrams sent (every client: Modbus TCP, REST, zenoh) | read |
 //! | 526..527 | counters | sends failed | read |
 //! | 528 | counters | queue depth configured | read |
-//! | 529 | counters | overflow policy: 0 refuse, 1 drop the new telegram, 2 drop the oldest | read |
+//! | 529 | counters | overflow policy: 0 refuse, 1 drop the new telegram, 2 drop the oldest, 3 overwrite | read |
 //! | 530 | counters | port open: 1, closed: 0 | read |
 //! | 531 | counters | longest telegram the line sends, in bytes | read |
 //! | 600 | acknowledge | ACK: write SEQ to release that telegram; reads the last acknowledged SEQ | read/write |

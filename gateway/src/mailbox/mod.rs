@@ -50,8 +50,11 @@ pub enum Overflow {
     /// 003 6.2.1 "Prevent overwriting": the new telegram is dropped.
     DropNew,
     /// The oldest waiting telegram is dropped to make room (003 6.2.1 allows overwriting only
-    /// with one buffer; the gateway allows it at any depth).
+    /// with one buffer; the gateway allows it at any depth, for 3964(R)), raising 08 0Ah.
     DropOldest,
+    /// 003 6.2.1 "Prevent overwriting" off (a buffer of one): the new telegram replaces the held
+    /// one. That is the configured behaviour, not a lack of room: no 08 0Ah, no overflow counted.
+    Overwrite,
 }
 
 // === impl Overflow ===
@@ -63,6 +66,7 @@ impl Overflow {
             Self::Refuse => 0,
             Self::DropNew => 1,
             Self::DropOldest => 2,
+            Self::Overwrite => 3,
         }
     }
 
@@ -72,6 +76,7 @@ impl Overflow {
             Self::Refuse => "refuse",
             Self::DropNew => "drop-new",
             Self::DropOldest => "drop-oldest",
+            Self::Overwrite => "overwrite",
         }
     }
 }
@@ -127,6 +132,14 @@ pub enum Delivery {
         seq: u16,
         /// The dropped telegram's number.
         dropped: u16,
+    },
+    /// Overwriting allowed ([`Overflow::Overwrite`]): `seq` replaced the held telegram
+    /// `replaced`.
+    Overwritten {
+        /// The new telegram's number.
+        seq: u16,
+        /// The replaced telegram's number.
+        replaced: u16,
     },
 }
 
@@ -290,6 +303,10 @@ impl Mailbox {
             let dropped = state.queue.pop_front().map_or(0, |t| t.seq);
             state.queue.push_back(telegram.clone());
             Delivery::DroppedOldest { seq, dropped }
+        } else if self.settings.overflow == Overflow::Overwrite {
+            let replaced = state.queue.pop_front().map_or(0, |t| t.seq);
+            state.queue.push_back(telegram.clone());
+            Delivery::Overwritten { seq, replaced }
         } else {
             Delivery::DroppedNew { seq }
         };

@@ -96,6 +96,20 @@ fn a_full_queue_follows_its_policy() {
     );
     let waiting: Vec<_> = oldest.waiting().iter().map(|t| t.seq).collect();
     assert_eq!(waiting, [2, 3]);
+
+    // Overwriting allowed (003 6.2.1, one buffer): the new telegram replaces the held one.
+    let overwrite = mailbox(1, Overflow::Overwrite);
+    deliver(&overwrite, "a");
+    assert!(overwrite.accepts());
+    assert_eq!(
+        deliver(&overwrite, "b"),
+        Delivery::Overwritten {
+            seq: 2,
+            replaced: 1
+        }
+    );
+    let held: Vec<_> = overwrite.waiting().iter().map(|t| t.seq).collect();
+    assert_eq!(held, [2]);
     assert_eq!(
         oldest.ack(1),
         Err(AckError::WrongSeq {

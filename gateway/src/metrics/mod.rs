@@ -78,6 +78,7 @@ pub const METRIC_NAMES: &[&str] = &[
     WRITES,
     ZENOH_PUBLICATIONS,
     DROPPED_UPDATES,
+    FRAMES_DISCARDED,
 ];
 
 const BUILD_INFO: &str = "gateway_build_info";
@@ -98,6 +99,7 @@ const TCP_HANDSHAKES_FAILED: &str = "gateway_modbus_tcp_tls_handshakes_failed_to
 const WRITES: &str = "gateway_writes_total";
 const ZENOH_PUBLICATIONS: &str = "gateway_zenoh_publications_total";
 const DROPPED_UPDATES: &str = "gateway_dropped_updates_total";
+const FRAMES_DISCARDED: &str = "gateway_frames_discarded_total";
 
 /// Buckets of `gateway_poll_duration_seconds`, 1 ms .. 5 s.
 ///
@@ -149,6 +151,8 @@ pub struct Metrics {
     zenoh_publications: IntCounterVec,
     /// `gateway_dropped_updates_total{reason}`.
     dropped_updates: IntCounterVec,
+    /// `gateway_frames_discarded_total{line,reason}`: received frames a slave line did not serve.
+    frames_discarded: IntCounterVec,
 }
 
 // === impl Metrics ===
@@ -255,6 +259,13 @@ impl Metrics {
                 ),
                 &["reason"],
             )?,
+            frames_discarded: IntCounterVec::new(
+                Opts::new(
+                    FRAMES_DISCARDED,
+                    "Received frames a Modbus slave line discarded unanswered, by reason.",
+                ),
+                &["line", "reason"],
+            )?,
         };
 
         registry.register(Box::new(build_info.clone()))?;
@@ -275,6 +286,7 @@ impl Metrics {
         registry.register(Box::new(metrics.writes.clone()))?;
         registry.register(Box::new(metrics.zenoh_publications.clone()))?;
         registry.register(Box::new(metrics.dropped_updates.clone()))?;
+        registry.register(Box::new(metrics.frames_discarded.clone()))?;
 
         build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
@@ -341,6 +353,14 @@ impl Metrics {
                 .remove_label_values(&[line, direction.as_str()]);
             let _ = self.bytes.remove_label_values(&[line, direction.as_str()]);
         }
+    }
+
+    /// Counts one received frame that a slave line on `line` discarded unanswered; `reason` is
+    /// one of the fixed names of `proto_core::modbus::slave::DiscardReason::as_str`.
+    pub fn frame_discarded(&self, line: &str, reason: &'static str) {
+        self.frames_discarded
+            .with_label_values(&[line, reason])
+            .inc();
     }
 
     /// Counts one event raised on `line` (every event of 003 7.2, start-up included).
@@ -535,6 +555,7 @@ mod tests {
         metrics.modbus_request("drive", "atv71", 0x03, RequestResult::Ok);
         metrics.device_image_updated("drive", "atv71", Instant::now());
         metrics.tcp_request(0x03, RequestResult::Ok);
+        metrics.frame_discarded("hmi", "trailing_data");
         let mut names: Vec<_> = registry
             .gather()
             .iter()

@@ -7,6 +7,7 @@
 
 mod backoff;
 mod rs485;
+mod uart;
 
 use std::io;
 use std::time::Duration;
@@ -14,6 +15,7 @@ use std::time::Duration;
 use tokio_serial::{SerialPortBuilderExt, SerialStream};
 
 pub use backoff::{Backoff, InvalidBackoff};
+pub use uart::{counters as uart_counters, UartCounters};
 
 /// Data bits of a character.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -145,6 +147,15 @@ pub enum OpenError {
         #[source]
         source: tokio_serial::Error,
     },
+    /// The port opened but the tty layer refused the input flags that keep line errors visible.
+    #[error("port {path} refused the line error flags: {source}")]
+    Flags {
+        /// The device path.
+        path: String,
+        /// The error of `tcgetattr`/`tcsetattr`.
+        #[source]
+        source: io::Error,
+    },
     /// The port opened but its driver refused RS485 mode.
     #[error("port {path} refused RS485 mode: {source}{hint}")]
     Rs485Refused {
@@ -164,7 +175,9 @@ impl OpenError {
     /// The device path.
     pub fn path(&self) -> &str {
         match self {
-            Self::Open { path, .. } | Self::Rs485Refused { path, .. } => path,
+            Self::Open { path, .. }
+            | Self::Flags { path, .. }
+            | Self::Rs485Refused { path, .. } => path,
         }
     }
 }
@@ -183,8 +196,10 @@ fn rs485_hint(path: &str, err: &io::Error) -> &'static str {
     }
 }
 
-/// Opens the port with its settings and, for RS485, switches the kernel's RS485 mode on. Must be
-/// called within a tokio runtime (the stream registers with its reactor).
+/// Opens the port with its settings, sets the input flags that keep line errors in the stream
+/// (`INPCK | PARMRK`, not `IGNPAR`/`IGNBRK`/`BRKINT`: see `uart.rs`; the reader must decode the
+/// marks with [`proto_core::serial_marks::MarkDecoder`]) and, for RS485, switches the kernel's
+/// RS485 mode on. Must be called within a tokio runtime (the stream registers with its reactor).
 pub fn open(settings: &PortSettings) -> Result<SerialStream, OpenError> {
     let port = builder(settings)
         .open_native_async()
@@ -192,6 +207,10 @@ pub fn open(settings: &PortSettings) -> Result<SerialStream, OpenError> {
             path: settings.path.clone(),
             source,
         })?;
+    uart::mark_line_errors(&port).map_err(|source| OpenError::Flags {
+        path: settings.path.clone(),
+        source,
+    })?;
     set_interface(&port, settings)?;
     Ok(port)
 }
@@ -205,6 +224,10 @@ pub fn probe(settings: &PortSettings) -> Result<(), OpenError> {
             path: settings.path.clone(),
             source,
         })?;
+    uart::mark_line_errors(&port).map_err(|source| OpenError::Flags {
+        path: settings.path.clone(),
+        source,
+    })?;
     set_interface(&port, settings)
 }
 

@@ -87,21 +87,14 @@ impl LineRt {
 
     fn raise(&mut self, id: EventId) {
         let now = SystemTime::now();
-        match self.diag.front_mut() {
-            Some(newest) if newest.id == id => {
-                newest.at = now;
-                newest.count += 1;
-            }
-            _ => {
-                self.diag.push_front(DiagRecord {
-                    id,
-                    at: now,
-                    first_at: now,
-                    count: 1,
-                });
-                self.diag.truncate(self.depth);
-            }
-        }
+        // As the line's buffer (003 7.3): every event an entry of its own, newest first.
+        self.diag.push_front(DiagRecord {
+            id,
+            at: now,
+            first_at: now,
+            count: 1,
+        });
+        self.diag.truncate(self.depth);
         self.status_word = id.status_word();
         *self.event_counts.entry(id).or_default() += 1;
         self.counters.events += 1;

@@ -11,12 +11,12 @@
 //! - Class 03h "Error parameterization of FBs" is "not displayed in diagnostic buffer" (7.2), so
 //!   [`DiagBuffer::push`] does not record it.
 //!
-//! Where the gateway differs: the manual does not merge repeated events, so on the CP a burst of
-//! nine identical errors (a CRC storm on a noisy line) pushes every older entry out. Here an event
-//! equal to the newest entry is merged into it: its `count` grows and its `at` moves to the new
-//! time, while `first_at` keeps the time of the first occurrence. Only consecutive repeats merge,
-//! so the order of different events is still the order in which they occurred. Every occurrence is
-//! still counted by the caller's event counters; the buffer is the "what happened last" view.
+//! As on the CP, every event gets its own entry, repeats included: a burst of nine identical
+//! errors (a CRC storm on a noisy line) pushes every older entry out. The caller's event counters
+//! count every occurrence over the line's life; the buffer shows the last N in order.
+//! [`DiagEntry::count`] and [`DiagEntry::first_at`] describe one entry: an entry recorded by
+//! [`DiagBuffer::push`] stands for the occurrences it was built with (one, for
+//! [`DiagEntry::new`]).
 
 use std::collections::VecDeque;
 
@@ -84,22 +84,14 @@ impl DiagBuffer {
 
     /// Records an entry as the newest one and returns whether it was recorded.
     ///
-    /// Class 03h events are not recorded (7.2). An entry with the id of the newest entry is merged
-    /// into it (see the module doc); otherwise, when the buffer is full, the oldest entry is deleted
-    /// (7.3). An entry with `count` 0 counts as one occurrence.
+    /// Class 03h events are not recorded (7.2). Every other entry is kept as an entry of its own,
+    /// a repeat of the newest one too; when the buffer is full, the oldest entry is deleted (7.3).
+    /// An entry with `count` 0 counts as one occurrence.
     pub fn push(&mut self, entry: DiagEntry) -> bool {
         if entry.id.class == CLASS_NOT_BUFFERED {
             return false;
         }
         let count = entry.count.max(1);
-        if let Some(newest) = self.entries.front_mut() {
-            if newest.id == entry.id {
-                newest.count = newest.count.saturating_add(count);
-                newest.at = newest.at.max(entry.at);
-                newest.first_at = newest.first_at.min(entry.first_at);
-                return true;
-            }
-        }
         self.entries.truncate(self.depth - 1);
         self.entries.push_front(DiagEntry { count, ..entry });
         true
@@ -153,7 +145,7 @@ mod tests {
     use crate::event::ids;
 
     #[test]
-    fn merges_consecutive_repeats_only() {
+    fn keeps_every_entry_newest_first_repeats_included() {
         let mut buf = DiagBuffer::new(3);
         assert!(buf.push(DiagEntry::new(
             ids::MODBUS_NO_REPLY,
@@ -175,12 +167,14 @@ mod tests {
             .iter()
             .map(|e| (e.id, e.count, e.first_at.as_micros(), e.at.as_micros()))
             .collect();
+        // 003 7.3: a ring of three, newest first; the repeat at 2 ms is an entry of its own and
+        // the first entry (1 ms) was deleted for the fourth.
         assert_eq!(
             got,
             vec![
                 (ids::MODBUS_NO_REPLY, 1, 4000, 4000),
                 (ids::CHARACTER_ERROR, 1, 3000, 3000),
-                (ids::MODBUS_NO_REPLY, 2, 1000, 2000),
+                (ids::MODBUS_NO_REPLY, 1, 2000, 2000),
             ]
         );
     }

@@ -12,11 +12,12 @@ use super::{EventView, Timestamp};
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct DiagRecord {
     pub id: EventId,
-    /// The last occurrence.
+    /// When it occurred.
     pub at: SystemTime,
-    /// The first of the merged consecutive occurrences.
+    /// The first occurrence the entry stands for (`at` for a single event).
     pub first_at: SystemTime,
-    /// Consecutive occurrences merged into this entry (at least 1).
+    /// Occurrences the entry stands for: 1, since the buffer keeps every event as an entry of
+    /// its own (003 7.3).
     pub count: u32,
 }
 
@@ -48,11 +49,12 @@ pub struct DiagView {
 /// One entry of the diagnostic buffer.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
 pub struct DiagEntryView {
-    /// When it occurred (the last of merged repeats).
+    /// When it occurred.
     pub time: Timestamp,
-    /// When the first of merged consecutive repeats occurred.
+    /// The first occurrence the entry stands for (`time`: every event is an entry of its own,
+    /// repeats included, as on the CP).
     pub first_time: Timestamp,
-    /// How many consecutive occurrences the entry stands for.
+    /// How many occurrences the entry stands for (1).
     pub count: u32,
     /// Class, number, STATUS word, class name, description and remedy from the catalog.
     #[serde(flatten)]

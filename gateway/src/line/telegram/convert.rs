@@ -4,7 +4,7 @@
 //! The mailbox follows the line's receive buffer: its depth is `receive_buffer`; its policy is
 //! 3964(R) `overflow` (refuse: NAK, or drop-oldest), ASCII `prevent_overwrite` (on: the CP drops
 //! the new telegram, or under XON/XOFF or RTS/CTS holds the partner back, 003 6.2.1; off: the
-//! newest telegram replaces the oldest).
+//! newest telegram replaces the held one, without an event).
 //!
 //! The port settings come from the caller (the app's conversion of the serial section), so that
 //! every line opens its port the same way.
@@ -162,7 +162,7 @@ impl TelegramLineSettings {
                 // automatic V24 handling "Bei Überlauf des Empfangspuffers erfolgt keine Reaktion
                 // des CP" (000 5.4).
                 let overflow = match (c.prevent_overwrite, c.flow_control) {
-                    (false, _) => Overflow::DropOldest,
+                    (false, _) => Overflow::Overwrite,
                     (true, cfg::FlowControl::XonXoff | cfg::FlowControl::RtsCts) => {
                         Overflow::Refuse
                     }

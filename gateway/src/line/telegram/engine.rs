@@ -2,11 +2,16 @@
 //! simulators) drives either: the 3964(R) procedure and the ASCII driver share their calls
 //! (`handle_*`, `poll_*`, `send`, `take_received`); only the ASCII driver has RS232 signals.
 //!
-//! `handle_line_error` is left out: the serial library hands over bytes only, never a parity,
-//! framing or overrun error or a BREAK per character, so the runtime has nothing to report (a
-//! real UART's errors stay invisible; the paced link and the simulators' fault modes test them).
+//! Line errors (a parity or framing error, an overrun, a BREAK) come from the runtime, which
+//! decodes the tty layer's marks, through `handle_line_error`.
+//!
+//! When a received byte counts as received ([`TelegramEngine::rx_time`]) is each protocol's
+//! own: the ASCII driver is full duplex (003 6.2) and measures its character delay time on the
+//! bytes' own arrival, the 3964(R) procedure is half duplex and takes no byte as received before
+//! its own transmission has left the line.
 
 use proto_core::proc3964::{Params3964, Proc3964};
+use proto_core::serial_marks::LineError;
 use proto_core::telegram::{
     Action, AsciiDriver, AsciiParams, FlowControl, SendError, Signals, TelegramEvent, TelegramId,
 };
@@ -24,6 +29,11 @@ pub(crate) trait TelegramEngine: Send + 'static {
     fn send(&mut self, now: Instant, telegram: Vec<u8>) -> Result<TelegramId, SendError>;
     /// Received bytes.
     fn handle_rx(&mut self, now: Instant, bytes: &[u8]);
+    /// A character received with an error, characters lost to an overrun, or a BREAK.
+    fn handle_line_error(&mut self, now: Instant, error: LineError);
+    /// The time at which bytes read at `now` are handed to the engine, given the estimated end
+    /// of our last transmission.
+    fn rx_time(&self, now: Instant, tx_end: Option<Instant>) -> Instant;
     /// The CTS and DSR inputs (ignored by engines without RS232 signals).
     fn handle_signals(&mut self, now: Instant, signals: Signals);
     /// The oldest buffer from `poll_transmit` left the line at `now`.
@@ -60,6 +70,18 @@ impl TelegramEngine for Proc3964 {
     }
     fn handle_rx(&mut self, now: Instant, bytes: &[u8]) {
         Self::handle_rx(self, now, bytes);
+    }
+    fn handle_line_error(&mut self, now: Instant, error: LineError) {
+        Self::handle_line_error(self, now, error);
+    }
+    /// Half duplex: no byte before the end of our own transmission. The estimate assumes the
+    /// configured baud rate; a pseudo-terminal carries the bytes at once, and the partner's
+    /// answer then arrives before the estimated end. A byte that answers ours cannot precede it,
+    /// and the engine takes a byte received before its DLE is out as a partner that did not wait
+    /// (003 7.2, 08 02h). What is lost: a byte the partner sent, without waiting, within the few
+    /// character times our own bytes take on a real line.
+    fn rx_time(&self, now: Instant, tx_end: Option<Instant>) -> Instant {
+        tx_end.map_or(now, |end| end.max(now))
     }
     fn handle_signals(&mut self, _now: Instant, _signals: Signals) {}
     fn handle_tx_done(&mut self, now: Instant) {
@@ -103,6 +125,14 @@ impl TelegramEngine for AsciiDriver {
     }
     fn handle_rx(&mut self, now: Instant, bytes: &[u8]) {
         Self::handle_rx(self, now, bytes);
+    }
+    fn handle_line_error(&mut self, now: Instant, error: LineError) {
+        Self::handle_line_error(self, now, error);
+    }
+    /// Full duplex (003 6.2): the receiver runs while we send, and the character delay time is
+    /// measured between the received bytes' own arrivals, whatever we transmit meanwhile.
+    fn rx_time(&self, now: Instant, _tx_end: Option<Instant>) -> Instant {
+        now
     }
     fn handle_signals(&mut self, now: Instant, signals: Signals) {
         Self::handle_signals(self, now, signals);

@@ -43,7 +43,7 @@ pub use convert::{params_3964, params_ascii, TelegramConfigError};
 pub use mailbox_unit::MailboxUnit;
 
 use super::line_metrics::{LineMetrics, LineTraffic};
-use super::runtime::{self, LineBase, LineCapabilities, LineHandle, SerialOpener};
+use super::runtime::{self, LineBase, LineCapabilities, LineHandle, PortOpener, SerialOpener};
 use super::status::{self, LineStatus};
 use super::{DEFAULT_DIAG_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::mailbox::{Mailbox, MailboxSettings, Overflow, TelegramCounters};
@@ -329,6 +329,15 @@ pub fn spawn_telegram_line(
     settings: TelegramLineSettings,
     shutdown: CancellationToken,
 ) -> LineHandle {
+    spawn_on(settings, shutdown, SerialOpener)
+}
+
+/// [`spawn_telegram_line`] on the ports `opener` opens.
+fn spawn_on<O: PortOpener>(
+    settings: TelegramLineSettings,
+    shutdown: CancellationToken,
+    opener: O,
+) -> LineHandle {
     let settings = TelegramLineSettings {
         max_len: settings.max_len.min(settings.protocol.max_len()),
         send_queue: settings.send_queue.max(1),
@@ -359,22 +368,114 @@ pub fn spawn_telegram_line(
         unit_id: settings.unit_id,
     });
     match settings.engine_protocol() {
-        TelegramProtocol::P3964(params) => start(core, settings, params, shared, rx, shutdown),
-        TelegramProtocol::Ascii(params) => start(core, settings, params, shared, rx, shutdown),
+        TelegramProtocol::P3964(params) => {
+            start(core, settings, params, shared, rx, shutdown, opener)
+        }
+        TelegramProtocol::Ascii(params) => {
+            start(core, settings, params, shared, rx, shutdown, opener)
+        }
     }
 }
 
 /// The runtime with the telegram adapter over the engines `factory` builds.
-fn start<F: engine::EngineFactory>(
+fn start<F: engine::EngineFactory, O: PortOpener>(
     core: runtime::LineCore,
     settings: TelegramLineSettings,
     factory: F,
     shared: Arc<LineShared>,
     commands: mpsc::Receiver<Command>,
     shutdown: CancellationToken,
+    opener: O,
 ) -> LineHandle {
     let clock = core.clock;
     let caps = Arc::clone(&shared);
     let engine = task::TelegramLine::new(settings, factory, shared, clock);
-    runtime::spawn(core, engine, Some(commands), caps, SerialOpener, shutdown)
+    runtime::spawn(core, engine, Some(commands), caps, opener, shutdown)
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::PoisonError;
+    use std::time::Duration;
+
+    use proto_core::event::{ids, EventId};
+    use proto_core::proc3964::{Params3964, Priority, Settings3964};
+    use proto_core::serial_marks::{encode, Received};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
+
+    use super::*;
+
+    /// Hands out one in-process port: the test's end plays the partner and writes what the tty
+    /// layer delivers from a UART with `INPCK | PARMRK` (a pty cannot produce a parity error or
+    /// a BREAK).
+    struct OnePort(Mutex<Option<DuplexStream>>);
+
+    impl PortOpener for OnePort {
+        type Port = DuplexStream;
+
+        fn open(&self, _settings: &PortSettings) -> Result<DuplexStream, String> {
+            self.0
+                .lock()
+                .unwrap_or_else(PoisonError::into_inner)
+                .take()
+                .ok_or_else(|| "no second port".to_owned())
+        }
+    }
+
+    async fn eventually(what: &str, mut check: impl FnMut() -> bool) {
+        for _ in 0..500 {
+            if check() {
+                return;
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+        panic!("{what} did not happen");
+    }
+
+    fn events(line: &LineHandle, id: EventId) -> u64 {
+        line.status().event_counts.get(&id).copied().unwrap_or(0)
+    }
+
+    #[tokio::test]
+    async fn a_3964r_line_reports_a_faulty_character_and_a_break_in_idle_at_once() {
+        let (port, mut partner) = tokio::io::duplex(256);
+        let params = Params3964::try_new(Settings3964 {
+            priority: Priority::High,
+            ..Settings3964::default()
+        })
+        .expect("params");
+        let settings = TelegramLineSettings::new(
+            "r3964",
+            PortSettings::new("/dev/in-process", 9600),
+            TelegramProtocol::P3964(params),
+        );
+        let shutdown = CancellationToken::new();
+        let line = spawn_on(settings, shutdown.clone(), OnePort(Mutex::new(Some(port))));
+        eventually("the port open", || line.status().port_open).await;
+
+        // 003 7.2 08 0Ch: a faulty character in idle is reported immediately; like any character
+        // other than STX in idle it is answered with NAK (6.3.1 "Passive operation").
+        let mut marks = Vec::new();
+        encode([Received::Faulty(0x02)], &mut marks);
+        partner.write_all(&marks).await.expect("write");
+        let mut nak = [0u8; 1];
+        partner.read_exact(&mut nak).await.expect("NAK");
+        assert_eq!(nak, [0x15]);
+        eventually("08 0Ch", || events(&line, ids::CHARACTER_ERROR) == 1).await;
+
+        // 08 0Dh: a BREAK in idle is reported, nothing is sent.
+        marks.clear();
+        encode([Received::Break], &mut marks);
+        partner.write_all(&marks).await.expect("write");
+        eventually("08 0Dh", || events(&line, ids::LINE_BREAK) == 1).await;
+        let mut byte = [0u8; 1];
+        let read = tokio::time::timeout(Duration::from_millis(100), partner.read(&mut byte)).await;
+        assert!(read.is_err(), "sent after a BREAK: {read:?}");
+        assert_eq!(
+            line.status().diagnostics.first().map(|e| e.id),
+            Some(ids::LINE_BREAK)
+        );
+        shutdown.cancel();
+        line.join().await;
+    }
 }

@@ -5,6 +5,7 @@
 use std::io;
 use std::time::Duration;
 
+use proto_core::serial_marks::{MarkDecoder, Piece};
 use proto_core::telegram::Action;
 use tokio::io::{AsyncWrite, AsyncWriteExt};
 
@@ -22,6 +23,8 @@ pub(crate) struct Pump<E> {
     char_time: Duration,
     /// The estimated end of the last transmission.
     tx_end: Option<tokio::time::Instant>,
+    /// Undoes the tty layer's line error marks (`serial::open` sets `PARMRK`).
+    marks: MarkDecoder,
 }
 
 // === impl Pump ===
@@ -34,6 +37,7 @@ impl<E: TelegramEngine> Pump<E> {
             clock: Clock::start(),
             char_time,
             tx_end: None,
+            marks: MarkDecoder::new(),
         }
     }
 
@@ -62,18 +66,19 @@ impl<E: TelegramEngine> Pump<E> {
         self.engine.handle_timeout(now);
     }
 
-    /// Hands the engine received bytes, timestamped no earlier than the estimated end of our
-    /// last transmission.
-    ///
-    /// The estimate assumes the configured baud rate; a pseudo-terminal carries the bytes at
-    /// once, and the partner's answer then arrives before the estimated end. A byte that answers
-    /// ours cannot precede it, and the 3964(R) engine takes a byte received before its DLE is out
-    /// as a partner that did not wait (7.2, 08 02h). What is lost: a byte the partner sent,
-    /// without waiting, within the few character times our own bytes take on a real line.
+    /// Hands the engine bytes read from the port, timestamped as its protocol counts them
+    /// ([`TelegramEngine::rx_time`]), with the tty layer's marks undone: data to `handle_rx`,
+    /// a faulty character or a BREAK to `handle_line_error`, in stream order.
     pub(crate) fn handle_rx(&mut self, bytes: &[u8]) {
-        let now = tokio::time::Instant::now();
-        let at = self.tx_end.map_or(now, |end| end.max(now));
-        self.engine.handle_rx(self.clock.to_engine(at), bytes);
+        let now = self.clock.to_engine(tokio::time::Instant::now());
+        let tx_end = self.tx_end.map(|end| self.clock.to_engine(end));
+        let at = self.engine.rx_time(now, tx_end);
+        for piece in self.marks.decode(bytes) {
+            match piece {
+                Piece::Data(data) => self.engine.handle_rx(at, data),
+                Piece::Error { error, .. } => self.engine.handle_line_error(at, error),
+            }
+        }
     }
 
     /// Drains the engine's RS232 actions (to `apply`) and transmissions (to `port`), in the

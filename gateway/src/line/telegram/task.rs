@@ -14,6 +14,7 @@ use std::sync::Arc;
 use std::time::{Duration, SystemTime};
 
 use proto_core::event::{ids, EventId};
+use proto_core::serial_marks::LineError;
 use proto_core::telegram::{Action, SendError, Signals, TelegramEvent, TelegramId};
 use tokio::sync::oneshot;
 use tokio::time::Instant;
@@ -83,19 +84,24 @@ impl<F: EngineFactory> LineEngine for TelegramLine<F> {
     /// buffer is kept small (see the module doc of the line), so taking them only after the whole
     /// read would make the engine drop or refuse telegrams the mailbox has room for.
     ///
-    /// The bytes are timestamped no earlier than the estimated end of our last transmission: the
-    /// estimate assumes the configured baud rate; a pseudo-terminal carries the bytes at once,
-    /// and the partner's answer then arrives before the estimated end. A byte that answers ours
-    /// cannot precede it, and the 3964(R) engine takes a byte received before its DLE is out as a
-    /// partner that did not wait (7.2, 08 02h). What is lost: a byte the partner sent, without
-    /// waiting, within the few character times our own bytes take on a real line.
+    /// The bytes are timestamped as the protocol counts them ([`TelegramEngine::rx_time`]: on
+    /// arrival for the full-duplex ASCII driver, no earlier than the end of our own transmission
+    /// for 3964(R)).
     fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
-        let at = self.tx_end.map_or(now, |end| end.max(now));
+        let at = self.engine.rx_time(now, self.tx_end);
         for &byte in bytes {
             self.engine.handle_rx(at, &[byte]);
             if self.events() {
                 self.move_received(false);
             }
+        }
+    }
+
+    fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError) {
+        let at = self.engine.rx_time(now, self.tx_end);
+        self.engine.handle_line_error(at, error);
+        if self.events() {
+            self.move_received(false);
         }
     }
 
@@ -306,6 +312,10 @@ impl<F: EngineFactory> TelegramLine<F> {
                         "mailbox full ({depth} telegrams): telegram {seq} dropped"
                     )),
                 ),
+                // Overwriting allowed (003 6.2.1): the configured behaviour, not an overflow.
+                Delivery::Overwritten { seq, replaced } => {
+                    tracing::debug!(line = %self.name(), seq, replaced, "telegram overwrote the held one");
+                }
                 Delivery::DroppedOldest { seq, dropped } => self.shared.raise(
                     ids::NO_FREE_RECEIVE_BUFFER,
                     Some(format!(
