@@ -65,6 +65,10 @@ pub struct Overrides {
     /// The registry `/metrics` serves and its families, created in `main`; `None`: [`run`]
     /// creates its own.
     pub metrics: Option<MetricsRegistry>,
+    /// `gateway demo`: the demo's own consumer acknowledges the oldest telegrams of every
+    /// mailbox so that at most half of it is in use (it never overflows; clients still see
+    /// recent telegrams).
+    pub acknowledge_mailboxes: bool,
 }
 
 /// The Prometheus registry of the process and the gateway's families registered in it.
@@ -198,6 +202,12 @@ pub async fn run(
             return Err(e);
         }
     };
+    if overrides.acknowledge_mailboxes {
+        tokio::spawn(demo::consume_mailboxes(
+            Arc::clone(&sup),
+            shutdown.child_token(),
+        ));
+    }
     let (local, _) = sup.tcp_listen();
     info!(%local, units = ?sup.units.read().map(|u| u.unit_ids()).unwrap_or_default(), "Modbus TCP listening");
     if let Some(tls) = sup.tls_local().await {

@@ -1,11 +1,128 @@
-//! Rate limits for log lines that a client can cause: a flood of refused requests or failed
-//! handshakes writes a few lines a window and then one line saying how many were left out, so it
-//! cannot fill the disk.
+//! Rate-limited warnings: a warning that can repeat once per frame or per request (a rejected
+//! Modbus TCP frame, a line event) is logged at its first occurrence, then at most once per
+//! [`INTERVAL`] with the number of occurrences left out since the last line (`suppressed`).
+//! The log stays readable under a fuzzing client or a disturbed line; the counters in
+//! `/metrics` still count every occurrence.
+//!
+//! Keys are bounded like the metrics' labels: a fixed message, or a line name and an event id
+//! from the configuration and the event catalog, never a client address.
 
+use std::collections::BTreeMap;
 use std::sync::{Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
-/// Lets `burst` lines through per `window`; counts the others.
+/// At most one line per key in this interval.
+pub const INTERVAL: Duration = Duration::from_secs(10);
+
+/// Logs the warning of `$key` (anything that is `Into<String>`) unless one was logged within
+/// [`INTERVAL`]; the fields and message are `tracing::warn!`'s, with `suppressed` (occurrences
+/// left out since the last line) added.
+#[macro_export]
+macro_rules! warn_limited {
+    ($key:expr, $($arg:tt)+) => {
+        if let Some(suppressed) = $crate::log_limit::LIMITER.admit($key, std::time::Instant::now()) {
+            tracing::warn!(suppressed, $($arg)+);
+        }
+    };
+}
+
+/// The gateway's limiter, shared by every warning site.
+pub static LIMITER: Limiter = Limiter::new(INTERVAL);
+
+/// When each key was last logged, and how often it was left out since.
+#[derive(Debug)]
+pub struct Limiter {
+    interval: Duration,
+    keys: Mutex<BTreeMap<String, Seen>>,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Seen {
+    logged: Instant,
+    suppressed: u64,
+}
+
+// === impl Limiter ===
+
+impl Limiter {
+    /// A limiter of one line per key and `interval`.
+    pub const fn new(interval: Duration) -> Self {
+        Self {
+            interval,
+            keys: Mutex::new(BTreeMap::new()),
+        }
+    }
+
+    /// Whether an occurrence of `key` at `now` is logged: `Some(n)` with the `n` occurrences
+    /// left out since the last line, `None` to leave it out (it is counted).
+    pub fn admit(&self, key: impl Into<String>, now: Instant) -> Option<u64> {
+        let mut keys = self.keys.lock().unwrap_or_else(PoisonError::into_inner);
+        let key = key.into();
+        match keys.get_mut(&key) {
+            Some(seen) if now.saturating_duration_since(seen.logged) < self.interval => {
+                seen.suppressed = seen.suppressed.saturating_add(1);
+                None
+            }
+            Some(seen) => {
+                let suppressed = seen.suppressed;
+                *seen = Seen {
+                    logged: now,
+                    suppressed: 0,
+                };
+                Some(suppressed)
+            }
+            None => {
+                keys.insert(
+                    key,
+                    Seen {
+                        logged: now,
+                        suppressed: 0,
+                    },
+                );
+                Some(0)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_first_occurrence_is_logged_then_one_line_per_interval_with_the_count() {
+        let limiter = Limiter::new(Duration::from_secs(10));
+        let t0 = Instant::now();
+        assert_eq!(limiter.admit("bad frame", t0), Some(0));
+        for i in 1..=99 {
+            assert_eq!(
+                limiter.admit("bad frame", t0 + Duration::from_millis(i * 50)),
+                None
+            );
+        }
+        // Another key has its own count.
+        assert_eq!(limiter.admit("drive/0830", t0), Some(0));
+        // The interval is over: one line with the 99 left out, and the count starts again.
+        assert_eq!(
+            limiter.admit("bad frame", t0 + Duration::from_secs(10)),
+            Some(99)
+        );
+        assert_eq!(
+            limiter.admit("bad frame", t0 + Duration::from_secs(11)),
+            None
+        );
+        assert_eq!(
+            limiter.admit("bad frame", t0 + Duration::from_secs(20)),
+            Some(1)
+        );
+    }
+}
+
+// === a burst per window, for lines that must each be seen (audit) ===
+
+/// Lets `burst` lines through per `window` and counts the others: for lines where each one
+/// matters until a flood starts (the audit of writes, refusals by role, failed handshakes). The
+/// line after the window says how many were left out.
 #[derive(Debug)]
 pub struct LogLimit {
     window: Duration,
@@ -78,7 +195,7 @@ impl LogLimit {
 }
 
 #[cfg(test)]
-mod tests {
+mod burst_tests {
     use super::*;
 
     #[test]

@@ -63,6 +63,10 @@ enum Command {
         /// line's baud rate and frame, as on a cable.
         #[arg(long)]
         paced: bool,
+        /// Do not acknowledge the mailboxes' oldest telegrams when they are half full (the demo
+        /// does by default, so that they never overflow): for trying out overflows.
+        #[arg(long)]
+        no_mailbox_consumer: bool,
         /// Serve HTTP (REST API, /healthz, /readyz, /metrics) here instead of the demo
         /// config's 127.0.0.1:8080.
         #[arg(long, value_name = "ADDR")]
@@ -138,6 +142,7 @@ async fn async_main(command: Command) -> ExitCode {
                     http,
                     config_file: Some(config.clone()),
                     metrics: Some(metrics),
+                    acknowledge_mailboxes: false,
                 };
                 gateway::app::run(cfg, overrides, shutdown).await
             }
@@ -155,6 +160,7 @@ async fn async_main(command: Command) -> ExitCode {
             http,
             telegram_every,
             paced,
+            no_mailbox_consumer,
         } => {
             let metrics = match metrics_registry() {
                 Ok(metrics) => metrics,
@@ -168,6 +174,7 @@ async fn async_main(command: Command) -> ExitCode {
                 http,
                 config_file: None,
                 metrics: Some(metrics),
+                acknowledge_mailboxes: !no_mailbox_consumer,
             };
             gateway::app::demo(overrides, shutdown).await
         }

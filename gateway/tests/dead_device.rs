@@ -60,8 +60,8 @@ fn ms(n: u64) -> Duration {
     Duration::from_millis(n)
 }
 
-/// W3102..W3105 (SFr, tFr, HSP, LSP, 002's FC03 example) every 100 ms; offline back-off 200 ms
-/// to 1 s, the default probes.
+/// W3102..W3105 (SFr, tFr, HSP, LSP, 002's FC03 example) every 100 ms; offline after the first
+/// failed poll (these tests are about what follows), back-off 200 ms to 1 s, the default probes.
 fn drive(slave: u8) -> DeviceSettings {
     let mut d = DeviceSettings::new(format!("atv{slave}"), slave, slave);
     d.limits = DeviceLimits::ALTIVAR;
@@ -72,6 +72,7 @@ fn drive(slave: u8) -> DeviceSettings {
     }];
     d.backoff_min = ms(200);
     d.backoff_max = ms(1000);
+    d.offline_after = 1;
     d
 }
 

@@ -184,9 +184,9 @@ async fn the_send_block_reaches_the_partner_and_sets_done() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_full_queue_counts_its_overflow() {
-    // Nobody acknowledges: the ASCII queue (250 telegrams, "prevent overwriting") fills and every
-    // further telegram is dropped, counted and raised as 08 0Ah.
-    let gw = Gateway::demo(&["--telegram-every", "1ms"]);
+    // Nobody acknowledges (the demo's own consumer off): the ASCII queue (250 telegrams, "prevent
+    // overwriting") fills and every further telegram is dropped, counted and raised as 08 0Ah.
+    let gw = Gateway::demo(&["--telegram-every", "1ms", "--no-mailbox-consumer"]);
     let mut ctx = tcp::connect_slave(gw.modbus_tcp, Slave(ASCII_UNIT))
         .await
         .expect("connect");

@@ -74,6 +74,7 @@ pub(crate) fn master_line(
                 turnaround_delay: m.turnaround_delay,
                 mode: operating_mode(m.operating_mode),
             };
+            settings.commands_in_row = m.commands_in_row;
             (master, &m.devices)
         }
         ProtocolConfig::ModbusMasterAscii(m) => {
@@ -87,6 +88,7 @@ pub(crate) fn master_line(
                 turnaround_delay: m.turnaround_delay,
                 mode: operating_mode(m.operating_mode),
             };
+            settings.commands_in_row = m.commands_in_row;
             (master, &m.devices)
         }
         // Every other protocol: not a master line.
@@ -112,6 +114,7 @@ pub(crate) fn device_settings(name: &str, device: &DeviceConfig) -> DeviceSettin
         timeout_min: device.probe_timeout_min,
         full_every: device.full_probe_every,
     };
+    settings.offline_after = device.offline_after;
     for group in &device.poll {
         let mut by_table: BTreeMap<Table, Vec<AddrRange>> = BTreeMap::new();
         for range in &group.ranges {

@@ -101,6 +101,52 @@ pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(
     result
 }
 
+/// How often the demo's consumer looks at the mailboxes: well within the time the demo's partners
+/// (one telegram a second each, plus the echoes) need to fill half of a mailbox.
+const CONSUME_EVERY: std::time::Duration = std::time::Duration::from_millis(500);
+
+/// The demo's own consumer of its telegram lines: keeps every mailbox at most half full by
+/// acknowledging its oldest telegrams, so that the demo runs without 08 0Ah (no free receive
+/// buffer, 003 7.2) while clients still read recent telegrams and acknowledge them themselves.
+/// Follows configuration changes: the lines are looked up at every round.
+pub(super) async fn consume_mailboxes(
+    sup: std::sync::Arc<super::supervisor::Supervisor>,
+    shutdown: CancellationToken,
+) {
+    let mut tick = tokio::time::interval(CONSUME_EVERY);
+    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    loop {
+        tokio::select! {
+            () = shutdown.cancelled() => return,
+            _ = tick.tick() => {}
+        }
+        let snapshot = sup.snapshot();
+        for line in snapshot.lines.values() {
+            if let Some(mailbox) = line.handle.mailbox() {
+                keep_half(&mailbox);
+            }
+        }
+    }
+}
+
+/// Acknowledges the oldest telegrams of `mailbox` until at most half of its depth waits; how
+/// many it acknowledged.
+fn keep_half(mailbox: &crate::mailbox::Mailbox) -> usize {
+    let keep = mailbox.settings().queue_depth / 2;
+    let mut acknowledged = 0;
+    while mailbox.len() > keep {
+        let Some(head) = mailbox.head() else {
+            break;
+        };
+        // A client acknowledged it meanwhile: the next round sees the new head.
+        if mailbox.ack(head.seq).is_err() {
+            break;
+        }
+        acknowledged += 1;
+    }
+    acknowledged
+}
+
 /// Starts the simulated device of a demo line on `stream`.
 fn start_simulator(
     name: &str,
@@ -185,5 +231,40 @@ fn start_simulator(
             drop(stream);
             Ok(())
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::time::SystemTime;
+
+    use super::keep_half;
+    use crate::mailbox::{Delivery, Mailbox, MailboxSettings, Overflow};
+
+    #[test]
+    fn the_demo_consumer_keeps_a_mailbox_half_full_and_it_never_overflows() {
+        let mailbox = Mailbox::new(
+            "r3964",
+            MailboxSettings {
+                queue_depth: 8,
+                overflow: Overflow::Refuse,
+            },
+            250,
+        );
+        for round in 0..100u32 {
+            for _ in 0..3 {
+                let delivery = mailbox.deliver(round.to_be_bytes().to_vec(), SystemTime::now());
+                assert!(
+                    matches!(delivery, Delivery::Kept { .. }),
+                    "round {round}: {delivery:?}"
+                );
+            }
+            keep_half(&mailbox);
+            assert_eq!(mailbox.len(), if round == 0 { 3 } else { 4 });
+        }
+        // The newest stay for the clients, oldest first.
+        let waiting: Vec<u16> = mailbox.waiting().iter().map(|t| t.seq).collect();
+        assert_eq!(waiting, vec![297, 298, 299, 300]);
+        assert_eq!(keep_half(&mailbox), 0);
     }
 }

@@ -7,7 +7,8 @@
 
 use super::lines::RunningLine;
 use crate::api::model::{
-    DeviceStatusView, EventCount, EventView, LineCounters, LineState, LineStatusView, Timestamp,
+    DeviceStatusView, EventCount, EventView, LineCounters, LineState, LineStatusView,
+    PollCycleView, Timestamp,
 };
 use crate::line::{LineStatus, LineTraffic};
 
@@ -48,6 +49,20 @@ pub(crate) fn line_view(
             polls_exception: d.polls_exception,
             polls_failed: d.polls_failed,
             last_answer: d.last_answer.map(Timestamp),
+            commands_failed: d.commands_failed,
+            cycles: d
+                .cycles
+                .iter()
+                .map(|c| PollCycleView {
+                    table: table_name(c.table).to_owned(),
+                    start: c.start,
+                    count: c.count,
+                    planned_ms: millis(c.planned),
+                    bound_ms: millis(c.bound),
+                    achieved_ms: c.achieved.map(millis),
+                    achieved_max_ms: c.achieved_max.map(millis),
+                })
+                .collect(),
         })
         .collect();
     LineStatusView {
@@ -73,4 +88,19 @@ pub(crate) fn line_view(
         devices_total: devices.len(),
         devices,
     }
+}
+
+/// The config's name of a table.
+fn table_name(table: crate::image::Table) -> &'static str {
+    match table {
+        crate::image::Table::HoldingRegisters => "holding",
+        crate::image::Table::InputRegisters => "input",
+        crate::image::Table::Coils => "coil",
+        crate::image::Table::DiscreteInputs => "discrete",
+    }
+}
+
+/// A duration in whole milliseconds.
+fn millis(d: std::time::Duration) -> u64 {
+    u64::try_from(d.as_millis()).unwrap_or(u64::MAX)
 }

@@ -417,6 +417,7 @@ pub(crate) fn status_json(status: &LineStatus, protocol: &str) -> Json {
         "devices": status.devices.iter().map(|d| json!({
             "name": d.name, "slave": d.slave, "unit_id": d.unit_id, "online": d.online,
             "polls_ok": d.polls_ok, "polls_exception": d.polls_exception, "polls_failed": d.polls_failed,
+            "commands_failed": d.commands_failed,
         })).collect::<Vec<_>>(),
     })
 }

@@ -35,6 +35,13 @@ pub const DEFAULT_FULL_PROBE_EVERY: u32 = 12;
 /// Range of `full_probe_every`: 1 (every probe waits the full time) to 1000 (the seeds are
 /// silent).
 pub const FULL_PROBE_EVERY_RANGE: (u32, u32) = (1, 1000);
+/// Polls in a row without a valid answer that put a device offline by default: the CP gives up
+/// a transfer after 6 attempts (003 6.3.3 "Transmission attempts", default 6, its only retry
+/// count; the Modbus master itself sends each request once, 003 6.4.2.1), so a device is given
+/// up after as many failed polls. One corrupted or lost reply only ages the values.
+pub const DEFAULT_OFFLINE_AFTER: u32 = 6;
+/// Range of `offline_after` (003 6.3.3: "Range of values: 1...255").
+pub const OFFLINE_AFTER_RANGE: (u32, u32) = (1, 255);
 /// Unpolled addresses a merged read may include: none by default, because the Altivar and the
 /// KS vario answer exception 02 when the first word of a read is undefined (002, 001).
 pub const DEFAULT_BRIDGE_GAP: u16 = 0;
@@ -306,6 +313,8 @@ pub struct DeviceConfig {
     pub probe_timeout_min: Duration,
     /// Every this many probes, one waits the line's full `reply_timeout` (1: every probe).
     pub full_probe_every: u32,
+    /// Polls in a row without a valid answer that put the device offline (commands never do).
+    pub offline_after: u32,
     /// Largest run of addresses nobody polls that a merged read may include (0: never).
     pub bridge_gap: u16,
     pub tags: Vec<TagConfig>,
@@ -508,6 +517,14 @@ impl DeviceConfig {
             DEFAULT_FULL_PROBE_EVERY,
             "",
         );
+        let (lo, hi) = OFFLINE_AFTER_RANGE;
+        let offline_after = f.int_or(
+            cx,
+            "offline_after",
+            lo..=hi,
+            DEFAULT_OFFLINE_AFTER,
+            "003 6.3.3",
+        );
         let bridge_gap = f.int_or(cx, "bridge_gap", 0..=u16::MAX, DEFAULT_BRIDGE_GAP, "");
         let raw_tags = f.array(cx, "tags");
         if profile == Some(Profile::Generic) && raw_tags.is_empty() {
@@ -533,6 +550,7 @@ impl DeviceConfig {
             offline_backoff_max,
             probe_timeout_min,
             full_probe_every,
+            offline_after,
             bridge_gap,
             tags,
             poll,

@@ -25,6 +25,12 @@ pub const MAX_DELAY_MULTIPLIER: u8 = 10;
 pub const DEFAULT_RETRIES: u8 = 0;
 /// Upper bound of retries so that one silent device cannot hold a line for minutes.
 pub const MAX_RETRIES: u8 = 10;
+/// While a poll is due, at most this many commands (writes, on-demand reads, pass-through
+/// requests) go in a row before it by default. The seeds leave the order of requests to the S7
+/// program; the rule is the gateway's.
+pub const DEFAULT_COMMANDS_IN_ROW: u32 = 2;
+/// Range of `commands_in_row` (0: a due poll always goes before any command).
+pub const COMMANDS_IN_ROW_RANGE: (u32, u32) = (0, 100);
 /// The RTU master's wait after a broadcast. 003 names no such parameter for RTU; Modbus over
 /// Serial Line V1.02 2.4.1 gives the turnaround delay as "typically 100 ms to 200 ms".
 pub const DEFAULT_RTU_TURNAROUND_DELAY: Duration = Duration::from_millis(100);
@@ -88,6 +94,8 @@ pub struct ModbusMasterRtuConfig {
     /// Wait after a broadcast before the next request.
     #[serde(with = "humantime_serde")]
     pub turnaround_delay: Duration,
+    /// At most this many commands in a row while a poll is due.
+    pub commands_in_row: u32,
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub devices: BTreeMap<String, DeviceConfig>,
 }
@@ -106,6 +114,8 @@ pub struct ModbusMasterAsciiConfig {
     /// 32-bit registers by bit 6 of the function code (43h/46h/50h).
     pub registers32: bool,
     pub retries: u8,
+    /// At most this many commands in a row while a poll is due.
+    pub commands_in_row: u32,
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub devices: BTreeMap<String, DeviceConfig>,
 }
@@ -217,6 +227,11 @@ fn read_devices(cx: &mut Cx, f: &mut Fields<'_>) -> BTreeMap<String, DeviceConfi
     devices
 }
 
+fn commands_in_row(cx: &mut Cx, f: &mut Fields<'_>) -> u32 {
+    let (lo, hi) = COMMANDS_IN_ROW_RANGE;
+    f.int_or(cx, "commands_in_row", lo..=hi, DEFAULT_COMMANDS_IN_ROW, "")
+}
+
 fn reply_timeout(cx: &mut Cx, f: &mut Fields<'_>, cite: &str) -> Duration {
     let (lo, hi) = REPLY_TIMEOUT_RANGE;
     f.duration_or(cx, "reply_timeout", lo..=hi, DEFAULT_REPLY_TIMEOUT, cite)
@@ -243,6 +258,7 @@ impl ModbusMasterRtuConfig {
                 DEFAULT_RTU_TURNAROUND_DELAY,
                 "003 6.4.2.2",
             ),
+            commands_in_row: commands_in_row(cx, f),
             devices: read_devices(cx, f),
         }
     }
@@ -271,6 +287,7 @@ impl ModbusMasterAsciiConfig {
             operating_mode: f.choice_or(cx, "operating_mode", DEFAULT_OPERATING_MODE),
             registers32: f.bool_or(cx, "registers32", DEFAULT_REGISTERS32),
             retries: f.int_or(cx, "retries", 0..=MAX_RETRIES, DEFAULT_RETRIES, ""),
+            commands_in_row: commands_in_row(cx, f),
             devices: read_devices(cx, f),
         }
     }

@@ -16,7 +16,7 @@ use proto_core::event::{ids, EventId};
 use proto_core::modbus::master::Outcome;
 use proto_core::modbus::slave;
 
-use crate::metrics::{Direction, Metrics, RequestResult};
+use crate::metrics::{Direction, Metrics, PollCycleKind, RequestResult};
 
 /// The `device` label of master requests to slave address 0 (broadcast, 003 6.4.3 "ADDR").
 pub(crate) const BROADCAST_DEVICE: &str = "broadcast";
@@ -165,6 +165,13 @@ impl LineMetrics {
         }
     }
 
+    /// Creates the slave line's discard series at 0, one per reason.
+    pub(crate) fn init_frames_discarded(&self, reasons: &[&'static str]) {
+        if let Some(i) = &self.inner {
+            i.metrics.init_frames_discarded(&i.line, reasons);
+        }
+    }
+
     /// One received frame discarded unanswered by a slave line, for `reason`.
     pub(crate) fn frame_discarded(&self, reason: &'static str) {
         if let Some(i) = &self.inner {
@@ -183,6 +190,20 @@ impl LineMetrics {
     pub(crate) fn poll_duration(&self, device: &str, duration: Duration) {
         if let Some(i) = &self.inner {
             i.metrics.poll_duration(&i.line, device, duration);
+        }
+    }
+
+    /// The poll cycle of the poll group of `period` of `device`.
+    pub(crate) fn poll_cycle(
+        &self,
+        device: &str,
+        period: Duration,
+        kind: PollCycleKind,
+        value: Duration,
+    ) {
+        if let Some(i) = &self.inner {
+            i.metrics
+                .set_poll_cycle(&i.line, device, period, kind, value);
         }
     }
 

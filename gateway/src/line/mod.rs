@@ -11,7 +11,8 @@
 //!
 //! What the Modbus master adapter builds on:
 //! - [`plan`]: merging polled ranges into the fewest reads within a device's limits (pure);
-//! - `scheduler`: which request goes next (writes, on-demand reads, due polls, offline back-off);
+//! - `scheduler`: which request goes next (writes, on-demand reads, due polls within the fairness
+//!   rule, reads riding on a due poll, offline after failed polls, back-off);
 //! - `probe`: how a device that stopped answering is probed (one attempt, a short wait derived
 //!   from its own reply delay, every n-th probe the full reply monitoring time);
 //! - `command`: the bounded command queue and the error-to-exception mapping;
@@ -59,7 +60,8 @@ pub use runtime::{
 pub use status::{DeviceStatus, LineEvent, LineStatus, DEFAULT_DIAG_DEPTH};
 
 use crate::config::{
-    DEFAULT_OFFLINE_BACKOFF_MAX, DEFAULT_OFFLINE_BACKOFF_MIN, FULL_PROBE_EVERY_RANGE,
+    DEFAULT_COMMANDS_IN_ROW, DEFAULT_OFFLINE_AFTER, DEFAULT_OFFLINE_BACKOFF_MAX,
+    DEFAULT_OFFLINE_BACKOFF_MIN, FULL_PROBE_EVERY_RANGE, OFFLINE_AFTER_RANGE,
     PROBE_TIMEOUT_MIN_RANGE,
 };
 use crate::image::Table;
@@ -107,6 +109,9 @@ pub struct LineSettings {
     pub command_deadline: Option<Duration>,
     /// Where the line counts its events, traffic and requests (`None`: nowhere).
     pub metrics: Option<Metrics>,
+    /// While a poll is due, at most this many commands go in a row (the fairness rule of the
+    /// bus, see `scheduler`).
+    pub commands_in_row: u32,
 }
 
 // === impl LineSettings ===
@@ -130,6 +135,7 @@ impl LineSettings {
             reopen_max: DEFAULT_REOPEN_MAX,
             command_deadline: None,
             metrics: None,
+            commands_in_row: DEFAULT_COMMANDS_IN_ROW,
         }
     }
 
@@ -180,6 +186,8 @@ pub struct DeviceSettings {
     pub backoff_max: Duration,
     /// How an offline device is probed.
     pub probe: ProbeSettings,
+    /// Polls in a row without a valid answer that put it offline.
+    pub offline_after: u32,
 }
 
 // === impl DeviceSettings ===
@@ -196,6 +204,7 @@ impl DeviceSettings {
             backoff_min: DEFAULT_OFFLINE_BACKOFF_MIN,
             backoff_max: DEFAULT_OFFLINE_BACKOFF_MAX,
             probe: ProbeSettings::default(),
+            offline_after: DEFAULT_OFFLINE_AFTER,
         }
     }
 
@@ -289,6 +298,13 @@ impl DeviceSettings {
             issues.push(format!(
                 "device {name}: probe_timeout_min {:?} is outside 5..65500 ms",
                 self.probe.timeout_min
+            ));
+        }
+        let (lo, hi) = OFFLINE_AFTER_RANGE;
+        if !(lo..=hi).contains(&self.offline_after) {
+            issues.push(format!(
+                "device {name}: offline_after {} is outside {lo}..{hi}",
+                self.offline_after
             ));
         }
         let (lo, hi) = FULL_PROBE_EVERY_RANGE;

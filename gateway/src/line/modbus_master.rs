@@ -11,7 +11,7 @@ use std::sync::Arc;
 use std::time::SystemTime;
 
 use proto_core::event::{ids, EventId};
-use proto_core::modbus::master::{Attempts, Master, MasterEvent, Outcome, RequestId};
+use proto_core::modbus::master::{Attempts, Framing, Master, MasterEvent, Outcome, RequestId};
 use proto_core::modbus::pdu::{Request, Response};
 use proto_core::serial_marks::LineError;
 use tokio::sync::mpsc;
@@ -27,18 +27,19 @@ use super::registers32;
 use super::runtime::{
     self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
 };
-use super::scheduler::{Job, PollJob, Scheduler, Transition};
-use super::status::{DeviceStatus, Shared};
+use super::scheduler::{cycle_bound, Job, PollJob, ReadKey, Scheduler, Transition};
+use super::status::{DeviceStatus, PollCycle, Shared};
 use super::writeback::{broadcast_echo, refresh_image};
-use super::{DeviceSettings, LineSettings};
+use super::{AddrRange, DeviceSettings, LineSettings};
 use crate::image::{ProcessImage, Quality, Table};
-use crate::metrics::RequestResult;
+use crate::metrics::{PollCycleKind, RequestResult};
 use crate::unit::UnitService;
 
 /// What is in flight on the line.
 #[derive(Debug)]
 enum InFlight {
-    Poll(PollJob),
+    /// A poll, with the on-demand reads it covers (answered from its answer).
+    Poll(PollJob, Vec<Command>),
     Command {
         device: Option<usize>,
         command: Command,
@@ -88,6 +89,8 @@ fn spawn_on<O: PortOpener>(
                 polls_exception: 0,
                 polls_failed: 0,
                 last_answer: None,
+                commands_failed: 0,
+                cycles: Vec::new(),
             })
             .collect(),
     );
@@ -277,7 +280,8 @@ impl LineEngine for MasterLine {
         if command.is_write() {
             self.sched.push_write(command);
         } else {
-            self.sched.push_read(command);
+            let key = self.read_key(&command);
+            self.sched.push_read(command, key);
         }
     }
 
@@ -334,9 +338,10 @@ impl MasterLine {
         clock: Clock,
     ) -> Self {
         let devices = registers32::line_devices(&settings.master, devices);
-        let sched = Scheduler::new(devices.iter().map(|d| &**d), clock.base());
+        let sched = Scheduler::new(devices.iter().map(|d| &**d), clock.base())
+            .with_commands_in_row(settings.commands_in_row);
         let master = Master::new(settings.master);
-        Self {
+        let line = Self {
             settings,
             devices,
             image,
@@ -347,6 +352,117 @@ impl MasterLine {
             inflight: None,
             sent_at: None,
             stopping: false,
+        };
+        line.publish_cycles();
+        line
+    }
+
+    /// What an on-demand read of a configured device reads, so that a due poll covering it can
+    /// answer it.
+    fn read_key(&self, command: &Command) -> Option<ReadKey> {
+        let device = self.sched.device_index(command.slave)?;
+        let (table, address, quantity) = read_range(&command.request)?;
+        (quantity > 0).then_some(ReadKey {
+            device,
+            table,
+            range: AddrRange::new(address, quantity),
+        })
+    }
+
+    /// The longest one exchange can hold the line: every attempt waits the reply monitoring
+    /// time after a request and a reply of the largest frame.
+    fn longest_exchange(&self) -> std::time::Duration {
+        let master = &self.settings.master;
+        let max_chars: u32 = match master.framing {
+            // 256 bytes an RTU frame, 513 characters an ASCII one (Modbus over Serial Line 2.5).
+            Framing::Rtu { .. } => 256,
+            Framing::Ascii { .. } => 513,
+        };
+        let port = &self.settings.port;
+        let char_time =
+            std::time::Duration::from_secs(u64::from(port.bits_per_char())) / port.baud.max(1);
+        let attempt = master
+            .reply_timeout
+            .saturating_add(char_time.saturating_mul(2 * max_chars))
+            .saturating_add(master.turnaround_delay);
+        attempt.saturating_mul(u32::from(master.retries) + 1)
+    }
+
+    /// Puts the planned, bound and achieved cycles of every device into the status and the
+    /// metrics.
+    fn publish_cycles(&self) {
+        let exchange = self.longest_exchange();
+        let blocks = self.sched.blocks();
+        for (index, device) in self.devices.iter().enumerate() {
+            let cycles: Vec<PollCycle> = self
+                .sched
+                .cycles(index)
+                .into_iter()
+                .map(|c| PollCycle {
+                    table: c.read.table,
+                    start: c.read.range.start,
+                    count: c.read.range.count,
+                    planned: c.read.period,
+                    bound: cycle_bound(
+                        c.read.period,
+                        blocks,
+                        self.settings.commands_in_row,
+                        exchange,
+                    ),
+                    achieved: c.last,
+                    achieved_max: c.max,
+                })
+                .collect();
+            let metrics = self.shared.metrics();
+            // One series per period: the slowest block of that period.
+            let mut periods: Vec<std::time::Duration> = cycles.iter().map(|c| c.planned).collect();
+            periods.sort_unstable();
+            periods.dedup();
+            for period in periods {
+                let of_period = || cycles.iter().filter(|c| c.planned == period);
+                let bound = of_period().map(|c| c.bound).max().unwrap_or(period);
+                metrics.poll_cycle(&device.name, period, PollCycleKind::Planned, period);
+                metrics.poll_cycle(&device.name, period, PollCycleKind::Bound, bound);
+                if let Some(last) = of_period().filter_map(|c| c.achieved).max() {
+                    metrics.poll_cycle(&device.name, period, PollCycleKind::Achieved, last);
+                }
+                if let Some(max) = of_period().filter_map(|c| c.achieved_max).max() {
+                    metrics.poll_cycle(&device.name, period, PollCycleKind::AchievedMax, max);
+                }
+            }
+            self.device_stat(index, |d| d.cycles = cycles);
+        }
+    }
+
+    /// Puts the cycle of one poll block into the status and the metrics after its poll.
+    fn publish_cycle(&self, poll: &PollJob) {
+        let Some(device) = self.devices.get(poll.device) else {
+            return;
+        };
+        let Some(cycle) = self.sched.cycles(poll.device).get(poll.block).copied() else {
+            return;
+        };
+        let metrics = self.shared.metrics();
+        let period = cycle.read.period;
+        if let Some(last) = cycle.last {
+            metrics.poll_cycle(&device.name, period, PollCycleKind::Achieved, last);
+        }
+        self.device_stat(poll.device, |d| {
+            if let Some(c) = d.cycles.get_mut(poll.block) {
+                c.achieved = cycle.last;
+                c.achieved_max = cycle.max;
+            }
+        });
+        // The slowest block of the period is the series' maximum.
+        let max = self
+            .sched
+            .cycles(poll.device)
+            .iter()
+            .filter(|c| c.read.period == period)
+            .filter_map(|c| c.max)
+            .max();
+        if let Some(max) = max {
+            metrics.poll_cycle(&device.name, period, PollCycleKind::AchievedMax, max);
         }
     }
 
@@ -357,7 +473,7 @@ impl MasterLine {
             return;
         };
         let (device, slave, function) = match &job {
-            InFlight::Poll(poll) => (Some(poll.device), None, poll.read.request().function()),
+            InFlight::Poll(poll, _) => (Some(poll.device), None, poll.read.request().function()),
             InFlight::Command { device, command } => {
                 (*device, Some(command.slave), command.request.function())
             }
@@ -367,8 +483,13 @@ impl MasterLine {
             function.0,
             RequestResult::Error,
         );
-        if let InFlight::Command { command, .. } = job {
-            command.answer(Err(CommandError::PortClosed));
+        match job {
+            InFlight::Command { command, .. } => command.answer(Err(CommandError::PortClosed)),
+            InFlight::Poll(_, riders) => {
+                for rider in riders {
+                    rider.answer(Err(CommandError::PortClosed));
+                }
+            }
         }
     }
 
@@ -431,7 +552,8 @@ impl MasterLine {
                     ) {
                         Ok(id) => {
                             self.sent_at = None;
-                            self.inflight = Some((id, InFlight::Poll(poll)));
+                            let riders = self.sched.riders(&poll);
+                            self.inflight = Some((id, InFlight::Poll(poll, riders)));
                             return;
                         }
                         Err(err) => {
@@ -481,14 +603,18 @@ impl MasterLine {
             self.sched.unexpected_reply(now);
         }
         let index = match &job {
-            InFlight::Poll(poll) => Some(poll.device),
+            InFlight::Poll(poll, _) => Some(poll.device),
             InFlight::Command { device, .. } => *device,
         };
         self.shared
             .metrics()
             .request(self.device_label(index, Some(slave)), function, result);
         match job {
-            InFlight::Poll(poll) => {
+            InFlight::Poll(poll, riders) => {
+                for rider in riders {
+                    let answer = rider_answer(&poll, &rider.request, slave, &outcome);
+                    rider.answer(answer);
+                }
                 let Some(device) = self.devices.get(poll.device).cloned() else {
                     return;
                 };
@@ -525,6 +651,7 @@ impl MasterLine {
                     self.sched.heard(poll.device, reply_delay);
                 }
                 let transition = self.sched.poll_done(poll, answered, now);
+                self.publish_cycle(&poll);
                 self.apply(poll.device, transition);
             }
             InFlight::Command { device, command } => {
@@ -559,8 +686,12 @@ impl MasterLine {
                     if answered {
                         self.device_stat(d, |s| s.last_answer = Some(SystemTime::now()));
                         self.sched.heard(d, reply_delay);
+                    } else {
+                        self.device_stat(d, |s| s.commands_failed += 1);
                     }
-                    let transition = self.sched.observe(d, answered, now);
+                    // Only the device's own polls put it offline; a command without an answer
+                    // fails for its client alone.
+                    let transition = self.sched.command_done(d, answered, now);
                     self.apply(d, transition);
                 }
                 command.answer(result);
@@ -646,6 +777,60 @@ impl MasterLine {
             }
         }
     }
+}
+
+/// The table, first address and quantity of a read of one table (FC 01..04).
+fn read_range(request: &Request) -> Option<(Table, u16, u16)> {
+    match *request {
+        Request::ReadCoils { address, quantity } => Some((Table::Coils, address, quantity)),
+        Request::ReadDiscreteInputs { address, quantity } => {
+            Some((Table::DiscreteInputs, address, quantity))
+        }
+        Request::ReadHoldingRegisters { address, quantity } => {
+            Some((Table::HoldingRegisters, address, quantity))
+        }
+        Request::ReadInputRegisters { address, quantity } => {
+            Some((Table::InputRegisters, address, quantity))
+        }
+        _ => None,
+    }
+}
+
+/// The answer to an on-demand read that rode on `poll`: its part of the poll's answer, the
+/// poll's exception, or the poll's failure.
+fn rider_answer(poll: &PollJob, request: &Request, slave: u8, outcome: &Outcome) -> CommandResult {
+    let response = match outcome {
+        Outcome::Response(response) => response,
+        Outcome::Exception(code) => return Ok(Err(*code)),
+        Outcome::Failed(event) => {
+            return Err(CommandError::NoReply {
+                slave,
+                event: *event,
+            })
+        }
+        Outcome::Broadcast => {
+            return Err(CommandError::Refused("broadcast of a read".into()));
+        }
+    };
+    let part = read_range(request).and_then(|(_, address, quantity)| {
+        let from = usize::from(address.checked_sub(poll.read.range.start)?);
+        let to = from.checked_add(usize::from(quantity))?;
+        Some(match response {
+            Response::ReadCoils(bits) => Response::ReadCoils(bits.get(from..to)?.to_vec()),
+            Response::ReadDiscreteInputs(bits) => {
+                Response::ReadDiscreteInputs(bits.get(from..to)?.to_vec())
+            }
+            Response::ReadHoldingRegisters(words) => {
+                Response::ReadHoldingRegisters(words.get(from..to)?.to_vec())
+            }
+            Response::ReadInputRegisters(words) => {
+                Response::ReadInputRegisters(words.get(from..to)?.to_vec())
+            }
+            _ => return None,
+        })
+    });
+    part.map(Ok)
+        .ok_or_else(|| CommandError::Refused("the poll's answer does not cover the read".into()))
 }
 
 /// The parts of a poll's read block.

@@ -130,6 +130,9 @@ fn spawn_on<O: PortOpener>(
         settings.metrics.as_ref(),
     );
     let core = base.core(Vec::new());
+    core.shared
+        .metrics()
+        .init_frames_discarded(&DiscardReason::LOST.map(DiscardReason::as_str));
     let counters = Arc::new(Mutex::new(SlaveCounters::default()));
     let caps = SlaveCapabilities {
         params: settings.params.clone(),

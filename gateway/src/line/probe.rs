@@ -7,10 +7,11 @@
 //! (003 6.4.1). On a half-duplex line every request to a dead device therefore holds the line
 //! silent for the whole reply monitoring time. The policy below is the gateway's own:
 //!
-//! 1. **Detection** is unchanged: an online device's polls and every command get the configured
-//!    reply monitoring time and repetitions; one request without a valid answer after them puts
-//!    the device offline (its values become "comm failure"). A drive that dies costs the line
-//!    `reply_timeout x (retries + 1)` once.
+//! 1. **Detection**: an online device's polls and every command get the configured reply
+//!    monitoring time and repetitions; `offline_after` polls in a row without a valid answer
+//!    after them put the device offline (its values become "comm failure"); commands never do
+//!    (see `scheduler`). A drive that dies costs the line
+//!    `reply_timeout x (retries + 1) x offline_after` once.
 //! 2. **Probes** of an offline device are one attempt, never repeated: the configured retries
 //!    are for a device that answers, and a probe that fails is tried again at the next probe
 //!    anyway.

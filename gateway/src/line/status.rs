@@ -7,7 +7,7 @@
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, PoisonError};
-use std::time::SystemTime;
+use std::time::{Duration, SystemTime};
 
 use proto_core::event::{self, ids, DiagBuffer, DiagEntry, EventId};
 use tokio::sync::broadcast;
@@ -55,6 +55,31 @@ pub struct DeviceStatus {
     pub polls_failed: u64,
     /// When it last answered.
     pub last_answer: Option<SystemTime>,
+    /// Commands (writes, on-demand reads, pass-through requests) that got no valid answer:
+    /// each failed for its own client only.
+    pub commands_failed: u64,
+    /// The planned and achieved cycle of each poll block.
+    pub cycles: Vec<PollCycle>,
+}
+
+/// The planned and achieved cycle of one poll block of a device (one read of its poll groups of
+/// one table and period).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PollCycle {
+    /// The table read.
+    pub table: crate::image::Table,
+    /// The first address read.
+    pub start: u16,
+    /// How many addresses are read.
+    pub count: u16,
+    /// The configured period.
+    pub planned: Duration,
+    /// The longest cycle the fairness rule of the line allows (see the scheduler).
+    pub bound: Duration,
+    /// The last cycle while the device answered.
+    pub achieved: Option<Duration>,
+    /// The longest cycle while the device answered.
+    pub achieved_max: Option<Duration>,
 }
 
 /// A snapshot of a line's state ([`LineHandle::status`](super::LineHandle::status)).
@@ -232,15 +257,20 @@ impl Shared {
             event
         });
         let class = event::class_name(id.class).unwrap_or("unknown class");
+        // A disturbed line raises the same event for every frame: once per interval in the log
+        // (with the count left out), every one in the counters and the diagnostic buffer.
+        let key = || format!("line/{}/{id}", event.line);
         match &event.detail {
             Some(detail) => {
-                tracing::warn!(line = %event.line, event = %id, class, slave, detail, "line event")
+                crate::warn_limited!(key(), line = %event.line, event = %id, class, slave, detail, "line event");
             }
             // Class 00h "CP start-up" reports normal operation.
             None if id.class == 0 => {
                 tracing::info!(line = %event.line, event = %id, class, "line event")
             }
-            None => tracing::warn!(line = %event.line, event = %id, class, slave, "line event"),
+            None => {
+                crate::warn_limited!(key(), line = %event.line, event = %id, class, slave, "line event");
+            }
         }
         // No subscriber: nobody to lose it.
         let _ = self.events.send(event);

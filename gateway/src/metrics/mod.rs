@@ -39,11 +39,13 @@
 //! # Ok(()) }
 //! ```
 
+use std::collections::{BTreeMap, BTreeSet};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use prometheus::{
-    Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge, IntGaugeVec, Opts,
-    Registry, TextEncoder,
+    GaugeVec, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
+    IntGaugeVec, Opts, Registry, TextEncoder,
 };
 use proto_core::event::{self, EventId};
 
@@ -69,6 +71,7 @@ pub const METRIC_NAMES: &[&str] = &[
     POLL_DURATION,
     DEVICE_UP,
     DEVICE_IMAGE_AGE,
+    POLL_CYCLE,
     TCP_CONNECTIONS,
     TCP_CONNECTIONS_ACCEPTED,
     TCP_CONNECTIONS_REJECTED,
@@ -90,6 +93,7 @@ const MODBUS_REQUESTS: &str = "gateway_modbus_requests_total";
 const POLL_DURATION: &str = "gateway_poll_duration_seconds";
 const DEVICE_UP: &str = "gateway_device_up";
 const DEVICE_IMAGE_AGE: &str = "gateway_device_image_age_seconds";
+const POLL_CYCLE: &str = "gateway_poll_cycle_seconds";
 const TCP_CONNECTIONS: &str = "gateway_modbus_tcp_connections";
 const TCP_CONNECTIONS_ACCEPTED: &str = "gateway_modbus_tcp_connections_accepted_total";
 const TCP_CONNECTIONS_REJECTED: &str = "gateway_modbus_tcp_connections_rejected_total";
@@ -110,6 +114,42 @@ const FRAMES_DISCARDED: &str = "gateway_frames_discarded_total";
 pub const POLL_DURATION_BUCKETS: &[f64] = &[
     0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, 2.0, 5.0,
 ];
+
+/// The `period` labels of the poll cycle gauges, by line and device.
+type PollCyclePeriods = BTreeMap<(String, String), BTreeSet<String>>;
+
+/// The `kind` label of `gateway_poll_cycle_seconds`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PollCycleKind {
+    /// The configured period.
+    Planned,
+    /// The longest cycle the fairness rule of the line allows.
+    Bound,
+    /// The last cycle.
+    Achieved,
+    /// The longest cycle seen while the device answered.
+    AchievedMax,
+}
+
+impl PollCycleKind {
+    /// Every kind.
+    pub const ALL: [Self; 4] = [
+        Self::Planned,
+        Self::Bound,
+        Self::Achieved,
+        Self::AchievedMax,
+    ];
+
+    /// The label value.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Planned => "planned",
+            Self::Bound => "bound",
+            Self::Achieved => "achieved",
+            Self::AchievedMax => "achieved_max",
+        }
+    }
+}
 
 /// The `class_name` label of a class the event catalog does not list.
 const UNKNOWN_CLASS: &str = "unknown";
@@ -133,6 +173,11 @@ pub struct Metrics {
     device_up: IntGaugeVec,
     /// `gateway_device_image_age_seconds{line,device}`: computed at scrape time.
     image_age: ImageAge,
+    /// `gateway_poll_cycle_seconds{line,device,period,kind}`: planned, bound and achieved poll
+    /// cycles of a device's poll groups.
+    poll_cycle: GaugeVec,
+    /// The `period` labels of `poll_cycle` by line and device, to remove them with the device.
+    poll_cycle_periods: Arc<Mutex<PollCyclePeriods>>,
     /// `gateway_modbus_tcp_connections`: connections being served now.
     tcp_connections: IntGauge,
     /// `gateway_modbus_tcp_connections_accepted_total`.
@@ -210,6 +255,16 @@ impl Metrics {
                 DEVICE_IMAGE_AGE,
                 "Seconds since the device's image was last updated from a reply.",
             )?,
+            poll_cycle: GaugeVec::new(
+                Opts::new(
+                    POLL_CYCLE,
+                    "Poll cycle of a device's poll group (by its configured period): planned, \
+                     bound (the longest the fairness rule allows), achieved (the last) and \
+                     achieved_max.",
+                ),
+                &["line", "device", "period", "kind"],
+            )?,
+            poll_cycle_periods: Arc::default(),
             tcp_connections: IntGauge::new(
                 TCP_CONNECTIONS,
                 "Modbus TCP connections being served now.",
@@ -277,6 +332,7 @@ impl Metrics {
         registry.register(Box::new(metrics.poll_duration.clone()))?;
         registry.register(Box::new(metrics.device_up.clone()))?;
         registry.register(Box::new(metrics.image_age.clone()))?;
+        registry.register(Box::new(metrics.poll_cycle.clone()))?;
         registry.register(Box::new(metrics.tcp_connections.clone()))?;
         registry.register(Box::new(metrics.tcp_accepted.clone()))?;
         registry.register(Box::new(metrics.tcp_rejected.clone()))?;
@@ -355,6 +411,14 @@ impl Metrics {
         }
     }
 
+    /// Creates the discard series of a slave line on `line` at 0, one per `reasons`, so that a
+    /// rate over them exists before the first discard.
+    pub fn init_frames_discarded(&self, line: &str, reasons: &[&'static str]) {
+        for reason in reasons {
+            self.frames_discarded.with_label_values(&[line, reason]);
+        }
+    }
+
     /// Counts one received frame that a slave line on `line` discarded unanswered; `reason` is
     /// one of the fixed names of `proto_core::modbus::slave::DiscardReason::as_str`.
     pub fn frame_discarded(&self, line: &str, reason: &'static str) {
@@ -427,9 +491,44 @@ impl Metrics {
         self.image_age.updated(line, device, at);
     }
 
+    /// Sets the poll cycle of the poll group of `period` of `device`: `kind` is `planned`,
+    /// `bound`, `achieved` or `achieved_max`.
+    pub fn set_poll_cycle(
+        &self,
+        line: &str,
+        device: &str,
+        period: Duration,
+        kind: PollCycleKind,
+        value: Duration,
+    ) {
+        let period = humantime::format_duration(period).to_string();
+        self.poll_cycle_periods
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .entry((line.to_owned(), device.to_owned()))
+            .or_default()
+            .insert(period.clone());
+        self.poll_cycle
+            .with_label_values(&[line, device, &period, kind.as_str()])
+            .set(value.as_secs_f64());
+    }
+
     /// Removes the gauges and the histogram of a device that left the configuration (its request
     /// counters stay).
     pub fn forget_device(&self, line: &str, device: &str) {
+        let periods = self
+            .poll_cycle_periods
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .remove(&(line.to_owned(), device.to_owned()))
+            .unwrap_or_default();
+        for period in periods {
+            for kind in PollCycleKind::ALL {
+                let _ =
+                    self.poll_cycle
+                        .remove_label_values(&[line, device, &period, kind.as_str()]);
+            }
+        }
         let _ = self.device_up.remove_label_values(&[line, device]);
         let _ = self.poll_duration.remove_label_values(&[line, device]);
         self.image_age.forget(line, device);
@@ -554,6 +653,13 @@ mod tests {
         metrics.init_device("drive", "atv71");
         metrics.modbus_request("drive", "atv71", 0x03, RequestResult::Ok);
         metrics.device_image_updated("drive", "atv71", Instant::now());
+        metrics.set_poll_cycle(
+            "drive",
+            "atv71",
+            Duration::from_millis(200),
+            PollCycleKind::Planned,
+            Duration::from_millis(200),
+        );
         metrics.tcp_request(0x03, RequestResult::Ok);
         metrics.frame_discarded("hmi", "trailing_data");
         let mut names: Vec<_> = registry
@@ -565,6 +671,31 @@ mod tests {
         let mut expected: Vec<_> = METRIC_NAMES.iter().map(|&n| n.to_owned()).collect();
         expected.sort();
         assert_eq!(names, expected);
+    }
+
+    #[test]
+    fn poll_cycles_are_labelled_by_period_and_kind_and_leave_with_their_device() {
+        let registry = Registry::new();
+        let metrics = Metrics::register(&registry).expect("register");
+        let period = Duration::from_millis(200);
+        for (kind, ms) in [
+            (PollCycleKind::Planned, 200),
+            (PollCycleKind::Bound, 4900),
+            (PollCycleKind::Achieved, 212),
+            (PollCycleKind::AchievedMax, 250),
+        ] {
+            metrics.set_poll_cycle("drive", "atv71", period, kind, Duration::from_millis(ms));
+        }
+        let text = encode_text(&registry);
+        assert!(
+            text.contains(
+                "gateway_poll_cycle_seconds{device=\"atv71\",kind=\"achieved\",line=\"drive\",period=\"200ms\"} 0.212"
+            ),
+            "{text}"
+        );
+        metrics.forget_device("drive", "atv71");
+        let text = encode_text(&registry);
+        assert!(!text.contains("gateway_poll_cycle_seconds{"), "{text}");
     }
 
     #[test]

@@ -17,7 +17,7 @@ use tokio::net::TcpStream;
 use tokio::sync::OwnedSemaphorePermit;
 use tokio::time::{sleep_until, Instant};
 use tokio_util::sync::CancellationToken;
-use tracing::{debug, warn};
+use tracing::debug;
 
 use super::access::Authority;
 use super::mbap::{complete_frame, FrameReader, MbapError, HEADER_LEN, MAX_ADU_LEN};
@@ -106,7 +106,10 @@ async fn serve<S: ClientStream>(
                 Ok(Some(frame)) => frame,
                 Ok(None) => break,
                 Err(error) => {
-                    warn!(%peer, %error, "bad MBAP header, closing the connection");
+                    crate::warn_limited!(
+                        "modbus_tcp/bad_header",
+                        %peer, %error, "bad MBAP header, closing the connection"
+                    );
                     shared.stats.count_frame_rejected(match error {
                         MbapError::ProtocolId(_) => FrameReject::ProtocolId,
                         MbapError::Length(_) => FrameReject::Length,
@@ -120,7 +123,11 @@ async fn serve<S: ClientStream>(
             if let Err(reject) =
                 answer(shared, authority, peer, header.unit_id, frame.pdu, &mut adu).await
             {
-                warn!(%peer, transaction_id = header.transaction_id, "frame without function code, closing the connection");
+                crate::warn_limited!(
+                    "modbus_tcp/no_function",
+                    %peer, transaction_id = header.transaction_id,
+                    "frame without function code, closing the connection"
+                );
                 shared.stats.count_frame_rejected(reject);
                 return CloseReason::BadFrame;
             }

@@ -122,6 +122,10 @@ pub struct SimArgs {
     /// How late `--fault slow` answers.
     #[arg(long, default_value = "1s", value_parser = humantime::parse_duration)]
     pub fault_delay: Duration,
+    /// Modbus devices: never answer requests with this function code (e.g. 8 for FC 08), and
+    /// answer every other as usual: a device that ignores one request type (for tests).
+    #[arg(long)]
+    pub ignore_function: Option<u8>,
 }
 
 /// Why a simulator stopped or could not start.
@@ -184,9 +188,13 @@ impl SimArgs {
         } else {
             Box::new(Bus::new(devices))
         };
-        Ok(match self.fault {
+        let device: Box<dyn ModbusDevice> = match self.fault {
             Some(SimFault::Noise) => Box::new(Noisy::new(device)),
             _ => device,
+        };
+        Ok(match self.ignore_function {
+            Some(function) => Box::new(Ignoring::new(device, function)),
+            None => device,
         })
     }
 
@@ -411,6 +419,44 @@ impl ModbusDevice for Noisy {
     }
 }
 
+/// A device that never answers requests of one function code (`--ignore-function`), and answers
+/// every other as `inner` does.
+pub struct Ignoring {
+    inner: Box<dyn ModbusDevice>,
+    function: u8,
+}
+
+// === impl Ignoring ===
+
+impl Ignoring {
+    /// `inner`, silent to requests of `function`.
+    pub fn new(inner: Box<dyn ModbusDevice>, function: u8) -> Self {
+        Self { inner, function }
+    }
+}
+
+impl ModbusDevice for Ignoring {
+    fn handle_frame(&mut self, adu: &[u8]) -> Option<Vec<u8>> {
+        // An RTU ADU: address, function code, data, CRC.
+        if adu.get(1) == Some(&self.function) {
+            return None;
+        }
+        self.inner.handle_frame(adu)
+    }
+
+    fn after_answer(&mut self) -> Option<Vec<u8>> {
+        self.inner.after_answer()
+    }
+
+    fn tick(&mut self, elapsed: Duration) {
+        self.inner.tick(elapsed);
+    }
+
+    fn faults(&self) -> Faults {
+        self.inner.faults()
+    }
+}
+
 /// Cuts the first complete frame off `pending`, if its length is known and all of it is there.
 fn take_frame(pending: &mut Vec<u8>) -> Option<Vec<u8>> {
     match rtu::expected_request_len(pending) {
@@ -476,7 +522,23 @@ mod tests {
             every: Duration::from_secs(1),
             fault,
             fault_delay: Duration::from_millis(700),
+            ignore_function: None,
         }
+    }
+
+    #[test]
+    fn an_ignored_function_gets_no_answer_and_the_others_do() {
+        let mut a = args(None);
+        a.ignore_function = Some(0x08);
+        let mut device = a.device().unwrap();
+        let mut echo = Vec::new();
+        rtu::encode_frame(17, &[0x08, 0x00, 0x00, 0x12, 0x34], &mut echo);
+        assert_eq!(device.handle_frame(&echo), None);
+        let answer = device.handle_frame(&request()).expect("FC 04 answered");
+        assert!(decode_frame(&answer).is_ok());
+        // Without the option the echo is answered.
+        let mut plain = args(None).device().unwrap();
+        assert!(plain.handle_frame(&echo).is_some());
     }
 
     /// FC 04 at 1004, three registers, of slave 17 (001's example).

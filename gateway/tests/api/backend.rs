@@ -223,6 +223,8 @@ impl MemGateway {
                 polls_exception: 0,
                 polls_failed: 0,
                 last_answer: None,
+                commands_failed: 0,
+                cycles: Vec::new(),
             })
             .collect();
         LineStatusView {

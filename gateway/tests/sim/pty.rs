@@ -201,6 +201,7 @@ async fn run_opens_a_port_by_path() {
         every: Duration::from_secs(1),
         fault: None,
         fault_delay: Duration::from_secs(1),
+        ignore_function: None,
     };
     let shutdown = CancellationToken::new();
     let task = tokio::spawn(run(args, shutdown.clone()));
@@ -249,6 +250,7 @@ async fn gateway_sim_runs_the_telegram_partners_on_a_port_path() {
             every: Duration::from_millis(50),
             fault: None,
             fault_delay: Duration::from_secs(1),
+            ignore_function: None,
         };
         let shutdown = CancellationToken::new();
         let sim = tokio::spawn(run(args, shutdown.clone()));

@@ -114,6 +114,38 @@ pub struct DeviceStatusView {
     pub polls_failed: u64,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub last_answer: Option<Timestamp>,
+    /// Commands (writes, on-demand reads, pass-through requests) without a valid answer; each
+    /// failed for its own client only and does not put the device offline.
+    #[serde(default)]
+    pub commands_failed: u64,
+    /// The planned and achieved cycle of each poll block (one read of the device's poll groups
+    /// of one table and period).
+    #[serde(default)]
+    pub cycles: Vec<PollCycleView>,
+}
+
+/// The planned and achieved cycle of one poll block, in milliseconds.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+pub struct PollCycleView {
+    /// The table read: `holding`, `input`, `coil` or `discrete`.
+    pub table: String,
+    /// The first address read.
+    pub start: u16,
+    /// How many addresses are read.
+    pub count: u16,
+    /// The configured period.
+    pub planned_ms: u64,
+    /// The longest cycle the line's fairness rule allows: the period, plus the request in flight
+    /// when the poll fell due, plus for each poll block of the line one poll and
+    /// `commands_in_row` commands, each exchange at its longest (reply monitoring time and
+    /// repetitions).
+    pub bound_ms: u64,
+    /// The last cycle while the device answered.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub achieved_ms: Option<u64>,
+    /// The longest cycle while the device answered.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub achieved_max_ms: Option<u64>,
 }
 
 /// The Modbus TCP server.

@@ -30,9 +30,11 @@ const HEALTHY_DELAY: Duration = Duration::from_millis(3);
 /// A request nobody answers: 8 characters on the wire and t3.5, besides the wait itself.
 const REQUEST: Duration = Duration::from_micros(6_600);
 
-/// A device polling 10 holding registers every 500 ms, with the default back-off and probes.
+/// A device polling 10 holding registers every 500 ms, with the default back-off and probes,
+/// offline after its first failed poll (the probing starts there, whatever the count before).
 fn drive(slave: u8) -> DeviceSettings {
     let mut d = DeviceSettings::new(format!("d{slave}"), slave, slave);
+    d.offline_after = 1;
     d.limits = DeviceLimits::CP341;
     d.groups = vec![PollGroup {
         period: ms(500),

@@ -20,6 +20,8 @@ fn device(name: &str, slave: u8, period: Duration, ranges: Vec<AddrRange>) -> De
     }];
     d.backoff_min = ms(500);
     d.backoff_max = ms(2000);
+    // Offline after one failed poll: these tests are about the back-off.
+    d.offline_after = 1;
     d
 }
 
@@ -31,26 +33,173 @@ fn poll(job: Option<Job<&'static str>>) -> PollJob {
 }
 
 #[test]
-fn writes_go_before_on_demand_reads_and_both_before_polls() {
+fn writes_go_before_on_demand_reads_and_both_before_polls_not_yet_due() {
     let t0 = Instant::now();
     let mut s = Scheduler::new(
         &[device("atv", 2, ms(100), vec![AddrRange::new(3201, 1)])],
         t0,
     );
-    s.push_read("read 1");
+    let first = poll(s.next_job(t0));
+    s.poll_done(first, true, t0);
+    s.push_read("read 1", None);
     s.push_write("write 1");
-    s.push_read("read 2");
+    s.push_read("read 2", None);
     s.push_write("write 2");
     assert!(s.has_commands());
-    let order: Vec<_> = std::iter::from_fn(|| match s.next_job(t0) {
+    let order: Vec<_> = std::iter::from_fn(|| match s.next_job(t0 + ms(50)) {
         Some(Job::Command(c)) => Some(c),
         _ => None,
     })
     .collect();
     assert_eq!(order, vec!["write 1", "write 2", "read 1", "read 2"]);
     assert!(!s.has_commands());
-    let p = poll(s.next_job(t0));
+    let p = poll(s.next_job(t0 + ms(100)));
     assert_eq!(p.read.range, AddrRange::new(3201, 1));
+}
+
+#[test]
+fn while_a_poll_is_due_at_most_commands_in_row_commands_go_before_it() {
+    let t0 = Instant::now();
+    let mut s = Scheduler::new(
+        &[device("atv", 2, ms(100), vec![AddrRange::new(3201, 1)])],
+        t0,
+    )
+    .with_commands_in_row(2);
+    for c in ["w1", "w2", "w3", "w4", "w5"] {
+        s.push_write(c);
+    }
+    s.push_read("r1", None);
+    let mut order = Vec::new();
+    let mut now = t0;
+    while let Some(job) = s.next_job(now) {
+        match job {
+            Job::Command(c) => order.push(c.to_owned()),
+            Job::Poll(p) => {
+                order.push("poll".to_owned());
+                s.poll_done(p, true, now);
+            }
+        }
+        now += ms(10);
+    }
+    // The poll due at t0 waits for two writes; the next falls due at t0 + 100 ms, after the
+    // queue ran dry.
+    assert_eq!(
+        order,
+        vec!["w1", "w2", "poll", "w3", "w4", "w5", "r1"],
+        "{order:?}"
+    );
+    // With 0 a due poll always goes first.
+    let mut s = Scheduler::new(
+        &[device("atv", 2, ms(100), vec![AddrRange::new(3201, 1)])],
+        t0,
+    )
+    .with_commands_in_row(0);
+    s.push_write("w1");
+    poll(s.next_job(t0));
+}
+
+#[test]
+fn a_read_that_a_due_poll_covers_rides_on_it() {
+    let t0 = Instant::now();
+    let mut s = Scheduler::new(
+        &[device("atv", 2, ms(100), vec![AddrRange::new(3100, 10)])],
+        t0,
+    );
+    let key = |start, count| {
+        Some(ReadKey {
+            device: 0,
+            table: Table::HoldingRegisters,
+            range: AddrRange::new(start, count),
+        })
+    };
+    s.push_read("covered", key(3102, 4));
+    s.push_read("beyond", key(3108, 4));
+    s.push_read("input table", None);
+    // The first read is covered by the due poll: the poll goes and takes it along.
+    let p = poll(s.next_job(t0));
+    assert_eq!(s.riders(&p), vec!["covered"]);
+    s.poll_done(p, true, t0 + ms(10));
+    // Not covered, or no poll due: the reads go to the device themselves.
+    assert_eq!(s.next_job(t0 + ms(10)), Some(Job::Command("beyond")));
+    s.push_read("covered later", key(3100, 1));
+    assert_eq!(s.next_job(t0 + ms(20)), Some(Job::Command("input table")));
+    assert_eq!(s.next_job(t0 + ms(30)), Some(Job::Command("covered later")));
+    assert!(!s.has_commands());
+}
+
+#[test]
+fn only_the_devices_own_polls_put_it_offline_after_offline_after_failures() {
+    let t0 = Instant::now();
+    let mut d = device("atv", 2, ms(100), vec![AddrRange::new(3201, 1)]);
+    d.offline_after = 3;
+    let mut s: Scheduler<&str> = Scheduler::new(&[d], t0);
+    // Any number of commands without an answer: still online, still polled.
+    for i in 0..10 {
+        assert_eq!(s.command_done(0, false, t0 + ms(i)), Transition::Unchanged);
+    }
+    assert!(s.is_online(0));
+    // Two failed polls, an answer, two more: the count starts again.
+    assert_eq!(s.observe(0, false, t0), Transition::Unchanged);
+    assert_eq!(s.observe(0, false, t0), Transition::Unchanged);
+    assert_eq!(s.observe(0, true, t0), Transition::Unchanged);
+    assert_eq!(s.observe(0, false, t0), Transition::Unchanged);
+    assert_eq!(s.observe(0, false, t0), Transition::Unchanged);
+    assert!(s.is_online(0));
+    // The third in a row.
+    assert_eq!(
+        s.observe(0, false, t0 + ms(300)),
+        Transition::WentOffline { retry_in: ms(500) }
+    );
+    // Offline: a command sent as its probe that fails backs it off further, one answered brings
+    // it back.
+    assert_eq!(
+        s.command_done(0, false, t0 + ms(800)),
+        Transition::StillOffline { retry_in: ms(1000) }
+    );
+    assert_eq!(s.command_done(0, true, t0 + ms(1800)), Transition::CameBack);
+}
+
+#[test]
+fn under_a_flood_of_commands_every_cycle_stays_within_its_bound() {
+    let t0 = Instant::now();
+    let devices = [
+        device("a", 2, ms(100), vec![AddrRange::new(3201, 1)]),
+        device("b", 3, ms(250), vec![AddrRange::new(3102, 4)]),
+    ];
+    let exchange = ms(20);
+    for in_row in [0, 1, 2, 5] {
+        let mut s: Scheduler<u32> = Scheduler::new(&devices, t0).with_commands_in_row(in_row);
+        let mut now = t0;
+        let mut commands = 0;
+        // A closed-loop client: a new command as soon as one is answered, for 10 s of bus time.
+        s.push_write(0);
+        while now < t0 + ms(10_000) {
+            match s.next_job(now) {
+                Some(Job::Command(_)) => {
+                    now += exchange;
+                    commands += 1;
+                    s.push_write(commands);
+                }
+                Some(Job::Poll(p)) => {
+                    now += exchange;
+                    s.poll_done(p, true, now);
+                }
+                None => now = s.next_wake().unwrap_or(now + ms(1)).max(now),
+            }
+        }
+        for d in 0..devices.len() {
+            for c in s.cycles(d) {
+                let bound = cycle_bound(c.read.period, s.blocks(), in_row, exchange);
+                let max = c.max.expect("polled");
+                assert!(
+                    max <= bound,
+                    "{in_row} in a row: device {d} cycle {max:?} > bound {bound:?}"
+                );
+            }
+        }
+        // The clients still got most of the bus.
+        assert!(commands > 300, "{in_row} in a row: {commands} commands");
+    }
 }
 
 #[test]
@@ -164,7 +313,7 @@ fn queued_commands_can_be_drained_and_an_empty_line_never_wakes() {
     let mut s = Scheduler::new(&[], t0);
     assert_eq!(s.next_wake(), None);
     s.push_write(1);
-    s.push_read(2);
+    s.push_read(2, None);
     assert_eq!(s.drain_commands(), vec![1, 2]);
     assert!(s.next_job(t0).is_none());
     assert_eq!(s.observe(7, false, t0), Transition::Unchanged);
@@ -176,6 +325,7 @@ fn an_offline_device_takes_a_command_as_its_probe_once_the_back_off_ran_out() {
     // Nobody polls this device: commands are its only probes.
     let mut d = DeviceSettings::new("ghost", 9, 9);
     d.backoff_min = ms(500);
+    d.offline_after = 1;
     let mut s: Scheduler<&str> = Scheduler::new(&[d], t0);
     assert!(s.accepts_commands(0, t0));
     assert_eq!(

@@ -106,6 +106,16 @@ pub enum DiscardReason {
 // === impl DiscardReason ===
 
 impl DiscardReason {
+    /// The reasons of bytes lost to the line (every reason but a frame for another slave, which
+    /// is normal on a multi-drop bus).
+    pub const LOST: [Self; 5] = [
+        Self::BadCrc,
+        Self::TooShort,
+        Self::TooLong,
+        Self::LineFault,
+        Self::TrailingData,
+    ];
+
     /// A stable name, usable as a metric label.
     pub const fn as_str(self) -> &'static str {
         match self {
