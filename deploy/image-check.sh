@@ -6,7 +6,7 @@
 #   bash deploy/image-check.sh --keep   # also keeps the image, tagged localhost/cp341-gateway
 #
 # Steps: install what is missing (apt: buildah; rustup: the x86_64-unknown-linux-musl target;
-# apt: musl-tools only when the build cannot do without it), build the static musl release
+# apt: musl-tools, for ring's C code), build the static musl release
 # binary, check that it has no interpreter and no shared libraries, build
 # deploy/Containerfile.scratch with buildah (deploy/gateway.example.toml as
 # /etc/gateway/gateway.toml), then inside a container of that image, as the image's user:
@@ -76,15 +76,12 @@ build() {
   (cd "$ROOT" && CARGO_TARGET_DIR="$TARGET_DIR" \
     cargo build --locked --release --target "$TARGET" -p gateway --bin gateway)
 }
+# ring (the TLS provider of Modbus/TCP Security) compiles C against the libc headers: the musl
+# build needs musl-gcc.
+have musl-gcc || apt_install musl-tools
 step "cargo build --locked --release --target $TARGET -p gateway --bin gateway"
 t0=$SECONDS
-if ! build; then
-  # A dependency compiling C against libc headers needs musl-gcc; none does today (psm only
-  # assembles), so musl-tools is installed only when the build fails without it.
-  have musl-gcc && die "musl release build failed"
-  apt_install musl-tools
-  build || die "musl release build failed (also with musl-tools)"
-fi
+build || die "musl release build failed"
 build_seconds=$((SECONDS - t0))
 [ -x "$BIN" ] || die "$BIN missing after the build"
 

@@ -32,10 +32,12 @@ mod rest;
 mod status;
 mod supervisor;
 mod tag_io;
+mod tls;
 mod zenoh;
 
 pub use check::{
-    check_command, check_report, config_issues, load_config, port_issues, run_issues, unpolled_tags,
+    check_command, check_report, config_issues, load_config, port_issues, run_issues,
+    security_warnings, unpolled_tags,
 };
 pub use demo::demo;
 
@@ -183,6 +185,9 @@ pub async fn run(
         None => MetricsRegistry::new()
             .map_err(|e| AppError::Setup(format!("cannot register the metrics: {e}")))?,
     };
+    for warning in security_warnings(&config) {
+        warn!("{}: {}", warning.path, warning.message);
+    }
     let http_config = config.http.clone();
     let sup = supervisor::Supervisor::start(config, overrides.clone(), &shutdown, exported)?;
     if let Err(e) = zenoh::start(&sup).await {
@@ -205,9 +210,17 @@ pub async fn run(
     }
     let (local, _) = sup.tcp_listen();
     info!(%local, units = ?sup.units.read().map(|u| u.unit_ids()).unwrap_or_default(), "Modbus TCP listening");
+    if let Some(tls) = sup.tls_local().await {
+        // The same kind of line for the Modbus/TCP Security listener, before the plain one.
+        println!("modbus-tcp-tls listening on {tls}");
+    }
     // A fixed line on stdout that scripts and tests wait for; printed last, when everything
     // listens.
-    println!("modbus-tcp listening on {local}");
+    if sup.snapshot().config.modbus_tcp.enabled {
+        println!("modbus-tcp listening on {local}");
+    } else {
+        println!("modbus-tcp switched off");
+    }
     // What start-up freed (above all the configuration document) goes back to the system.
     crate::heap::release_free_memory();
 
@@ -298,6 +311,9 @@ fn metrics_route(registry: Registry) -> axum::Router {
 fn server_options(cfg: &config::ModbusTcpConfig) -> ServerOptions {
     ServerOptions {
         max_connections: usize::try_from(cfg.max_connections).unwrap_or(usize::MAX),
+        max_connections_per_client: Some(
+            usize::try_from(cfg.max_connections_per_client).unwrap_or(usize::MAX),
+        ),
         idle_timeout: cfg.idle_timeout,
         allowed_networks: cfg.allowed_networks.clone(),
         read_only: cfg.read_only,

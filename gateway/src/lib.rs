@@ -25,6 +25,7 @@
 
 pub mod api;
 pub mod app;
+pub mod audit;
 pub mod config;
 pub mod cpmem;
 #[cfg(any(fuzzing, test))]

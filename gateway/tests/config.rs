@@ -21,6 +21,8 @@ mod files;
 mod keys;
 #[path = "config/rules.rs"]
 mod rules;
+#[path = "config/security.rs"]
+mod security;
 
 const EXAMPLE: &str = include_str!("../../deploy/gateway.example.toml");
 

@@ -523,6 +523,50 @@ async fn clients_over_the_cap_are_closed_and_counted() {
     server.stop().await;
 }
 
+/// A connection from `source` (a loopback address of its own) to the server.
+async fn connect_from(server: &support::TestServer, source: [u8; 4]) -> TcpStream {
+    let socket = tokio::net::TcpSocket::new_v4().expect("socket");
+    socket
+        .bind(std::net::SocketAddr::from((source, 0)))
+        .expect("bind the source address");
+    socket.connect(server.addr).await.expect("connect")
+}
+
+#[tokio::test]
+async fn a_flood_from_one_address_cannot_take_the_last_place_from_another() {
+    // Three places, two per client address: 127.0.0.1 floods with 50 connections.
+    let server = start(ServerOptions {
+        max_connections: 3,
+        max_connections_per_client: Some(2),
+        ..ServerOptions::default()
+    })
+    .await;
+    let mut flood = Vec::new();
+    for _ in 0..50 {
+        flood.push(connect_from(&server, [127, 0, 0, 1]).await);
+    }
+    eventually("50 accepted or refused", || {
+        server.stats.connections_accepted() + server.stats.connections_rejected(RejectReason::Limit)
+            == 50
+    })
+    .await;
+    assert_eq!(server.stats.connections_accepted(), 2);
+    assert_eq!(probe_all(&mut flood).await, (2, 48));
+    // The second address still gets the last place and is served.
+    let mut scada = vec![connect_from(&server, [127, 0, 0, 2]).await];
+    assert_eq!(probe_all(&mut scada).await, (1, 0));
+    assert_eq!(server.stats.connections_accepted(), 3);
+    // The flood's places come back when its connections leave.
+    drop(flood);
+    eventually("the flood's connections closed", || {
+        server.stats.connections_open() == 1
+    })
+    .await;
+    let mut again = vec![connect_from(&server, [127, 0, 0, 1]).await];
+    assert_eq!(probe_all(&mut again).await, (1, 0));
+    server.stop().await;
+}
+
 #[tokio::test]
 async fn clients_outside_the_allowed_networks_are_refused() {
     let outside = ServerOptions {

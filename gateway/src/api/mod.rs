@@ -80,6 +80,8 @@ pub struct ApiState {
     max_connections: usize,
     /// Longest wait for a request head.
     header_read_timeout: Duration,
+    /// Client networks accepted; empty: every client.
+    allowed_networks: Vec<ipnet::IpNet>,
     /// Configuration changes run one at a time.
     change_lock: Arc<tokio::sync::Mutex<()>>,
     /// Routes served beside the API on the same listener (e.g. `/metrics`), outside its
@@ -115,6 +117,7 @@ impl ApiState {
             request_timeout: crate::config::DEFAULT_HTTP_REQUEST_TIMEOUT,
             max_connections: DEFAULT_MAX_CONNECTIONS as usize,
             header_read_timeout: DEFAULT_HEADER_READ_TIMEOUT,
+            allowed_networks: Vec::new(),
             change_lock: Arc::default(),
             extra: None,
         }
@@ -129,7 +132,8 @@ impl ApiState {
     ) -> Result<Self, TokenError> {
         let state = Self::new(backend, Auth::from_config(http)?)
             .with_limits(http.body_limit, http.request_timeout)
-            .with_connections(http.max_connections, DEFAULT_HEADER_READ_TIMEOUT);
+            .with_connections(http.max_connections, DEFAULT_HEADER_READ_TIMEOUT)
+            .with_allowed_networks(http.allowed_networks.clone());
         Ok(match store {
             Some(s) => state.with_store(s),
             None => state,
@@ -154,6 +158,20 @@ impl ApiState {
         self.max_connections = usize::try_from(max_connections.max(1)).unwrap_or(usize::MAX);
         self.header_read_timeout = header_read_timeout;
         self
+    }
+
+    /// Only clients in `networks` are served (empty: every client); others are closed at
+    /// accept.
+    pub fn with_allowed_networks(mut self, networks: Vec<ipnet::IpNet>) -> Self {
+        self.allowed_networks = networks;
+        self
+    }
+
+    /// Whether a client at `peer` may connect.
+    pub(crate) fn allows_peer(&self, peer: std::net::IpAddr) -> bool {
+        let peer = peer.to_canonical();
+        self.allowed_networks.is_empty()
+            || self.allowed_networks.iter().any(|net| net.contains(&peer))
     }
 
     /// Serves `routes` beside the API (same listener, same layers: limits, timeout, JSON

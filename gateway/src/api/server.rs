@@ -42,6 +42,7 @@ pub async fn serve(
         tracing::info!(%addr, max_connections = state.max_connections, "REST API listening");
     }
     let header_read_timeout = state.header_read_timeout;
+    let gate = state.clone();
     let limit = Arc::new(Semaphore::new(state.max_connections));
     let service = TowerToHyperService::new(router(state));
     let graceful = GracefulShutdown::new();
@@ -53,6 +54,10 @@ pub async fn serve(
         };
         let stream = tokio::select! {
             accepted = listener.accept() => match accepted {
+                Ok((_, peer)) if !gate.allows_peer(peer.ip()) => {
+                    tracing::debug!(%peer, "REST API client outside the allowed networks, closed");
+                    continue;
+                }
                 Ok((stream, _)) => stream,
                 Err(e) => {
                     tracing::warn!(error = %e, "REST API accept failed");

@@ -185,11 +185,15 @@ fn profile_tag(profile: config::Profile, name: &str) -> Option<(Table, u16, u32)
 
 /// The Modbus TCP write policy of the config (`None`: every address of every unit is writable).
 pub(crate) fn write_ranges(cfg: &config::ModbusTcpConfig) -> Option<Vec<WriteRange>> {
-    if cfg.write_ranges.is_empty() {
+    unit_write_ranges(&cfg.write_ranges)
+}
+
+/// Configured write ranges as the server checks them; `None` (no limit) when there are none.
+pub(crate) fn unit_write_ranges(ranges: &[config::UnitRange]) -> Option<Vec<WriteRange>> {
+    if ranges.is_empty() {
         return None;
     }
-    let ranges = cfg
-        .write_ranges
+    let ranges = ranges
         .iter()
         .filter_map(|r| {
             let table = match r.table {

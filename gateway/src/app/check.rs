@@ -239,11 +239,92 @@ fn listed(names: &[&str]) -> String {
 }
 
 /// `gateway check --config FILE`: prints `ok: N lines, M devices`, or every issue on its own
-/// line, to stdout; returns the exit code (0 valid, 1 not).
+/// line, to stdout; returns the exit code (0 valid, 1 not). The write paths open to every
+/// address without credentials ([`security_warnings`]) follow on stderr, one
+/// `warning: <path>: <message>` line each; they do not change the exit code.
 pub fn check_command(path: &Path) -> i32 {
     let (text, code) = check_report(path);
     println!("{text}");
+    if let Ok(config) = load_config(path) {
+        for w in security_warnings(&config) {
+            eprintln!("warning: {}: {}", w.path, w.message);
+        }
+    }
     code
+}
+
+/// The write paths of `config` open to every address without credentials, one warning each (at
+/// the section that opens it). `check` prints them on stderr and `run` logs them;
+/// neither refuses the configuration: the demo and a lab bench run like that on purpose.
+pub fn security_warnings(config: &Config) -> Vec<ConfigIssue> {
+    let mut warnings = Vec::new();
+    let mut warn = |path: &str, message: String| {
+        warnings.push(ConfigIssue {
+            path: path.to_owned(),
+            message,
+        });
+    };
+    let tcp = &config.modbus_tcp;
+    let reachable = |ip: std::net::IpAddr| !ip.is_loopback();
+    if tcp.enabled
+        && !tcp.read_only
+        && tcp.allowed_networks.is_empty()
+        && reachable(tcp.listen.ip())
+    {
+        warn(
+            "modbus_tcp",
+            format!(
+                "plain Modbus TCP on {} takes writes from every address without \
+             credentials; set allowed_networks, read_only or write_ranges, or serve \
+             [modbus_tcp.tls] with enabled = false",
+                tcp.listen
+            ),
+        );
+    }
+    let http = &config.http;
+    if http.insecure_allow_unauthenticated_changes && reachable(http.listen.ip()) {
+        warn(
+            "http",
+            format!(
+            "changes without a token are allowed on {} (insecure_allow_unauthenticated_changes)",
+            http.listen
+        ),
+        );
+    }
+    // zenoh is a write path only with `writes = true`.
+    if let Some(zenoh) = config.zenoh.as_ref().filter(|z| z.enabled && z.writes) {
+        let open: Vec<&str> = zenoh
+            .listen
+            .iter()
+            .flatten()
+            .map(config::Endpoint::as_str)
+            .filter(|e| !endpoint_is_loopback(e))
+            .collect();
+        if !open.is_empty() && zenoh.config_file.is_none() {
+            warn(
+                "zenoh",
+                format!(
+                    "`tx` and tag `set` keys take writes from every peer reaching {} without \
+                 credentials; restrict them with zenoh's access_control (and TLS) in config_file",
+                    open.join(", ")
+                ),
+            );
+        }
+    }
+    warnings
+}
+
+/// Whether a zenoh endpoint (`tcp/127.0.0.1:7447`, `tcp/[::1]:7447`, `tcp/localhost:7447`)
+/// listens on loopback only.
+fn endpoint_is_loopback(endpoint: &str) -> bool {
+    let address = endpoint.split_once('/').map_or(endpoint, |(_, a)| a);
+    let address = address.split('#').next().unwrap_or(address);
+    let host = address.rsplit_once(':').map_or(address, |(h, _)| h);
+    let host = host.trim_start_matches('[').trim_end_matches(']');
+    host == "localhost"
+        || host
+            .parse::<std::net::IpAddr>()
+            .is_ok_and(|ip| ip.is_loopback())
 }
 
 /// What [`check_command`] prints, and its exit code: the counts or every problem (each with
@@ -271,4 +352,40 @@ pub fn check_report(path: &Path) -> (String, i32) {
         text.push_str(&format!("\nwarning: {}: {}", w.path, w.message));
     }
     (text, code)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn loopback_endpoints_are_recognised() {
+        assert!(endpoint_is_loopback("tcp/127.0.0.1:7447"));
+        assert!(endpoint_is_loopback("tcp/[::1]:7447"));
+        assert!(endpoint_is_loopback("tcp/localhost:7447"));
+        assert!(!endpoint_is_loopback("tcp/0.0.0.0:7447"));
+        assert!(!endpoint_is_loopback("tls/10.0.0.5:7447"));
+    }
+
+    #[test]
+    fn open_write_paths_are_warned_about() {
+        let open = config::parse(
+            "[modbus_tcp]\nlisten = \"0.0.0.0:502\"\n[http]\nlisten = \"0.0.0.0:8080\"\n\
+             insecure_allow_unauthenticated_changes = true\n[zenoh]\nlisten = [\"tcp/0.0.0.0:7447\"]\nwrites = true\n",
+        )
+        .expect("parses");
+        let warnings = security_warnings(&open);
+        assert_eq!(warnings.len(), 3, "{warnings:#?}");
+        let paths: Vec<&str> = warnings.iter().map(|w| w.path.as_str()).collect();
+        assert_eq!(paths, ["modbus_tcp", "http", "zenoh"]);
+        let closed = config::parse(
+            "[modbus_tcp]\nlisten = \"0.0.0.0:502\"\nallowed_networks = [\"10.0.0.0/8\"]\n\
+             [zenoh]\nlisten = [\"tcp/127.0.0.1:7447\"]\n",
+        )
+        .expect("parses");
+        assert_eq!(security_warnings(&closed), Vec::<ConfigIssue>::new());
+        // The demo's loopback listeners are not warned about.
+        let demo = config::parse(config::demo_toml()).expect("demo parses");
+        assert_eq!(security_warnings(&demo), Vec::<ConfigIssue>::new());
+    }
 }

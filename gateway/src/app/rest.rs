@@ -24,6 +24,7 @@ use super::lines::RunningLine;
 use super::status::line_view;
 use super::supervisor::{Snapshot, Supervisor};
 use super::tag_io::{self, WriteRefused};
+use crate::audit::{self, WritePath, WriteResult};
 
 /// The API's view of the running gateway.
 pub(crate) struct RestBackend {
@@ -334,12 +335,35 @@ impl ApiBackend for RestBackend {
             )
             .map_err(refused)
         });
+        let target = format!("{line}/{device}/{tag} = {}", value.as_f64());
+        let metrics = Some(&self.sup.exported.metrics);
+        let audit = move |result, detail: &dyn std::fmt::Display| {
+            audit::record(
+                metrics,
+                WritePath::Rest,
+                &"REST API",
+                &target,
+                result,
+                detail,
+            );
+        };
+        let write = match prepared {
+            Ok(write) => write,
+            Err(e) => {
+                audit(WriteResult::Refused, &e.message());
+                return Box::pin(async move { Err(e) });
+            }
+        };
         let (line, device) = (line.to_owned(), device.to_owned());
+        let name = write.entry.tag.name.clone();
         Box::pin(async move {
-            let write = prepared?;
-            let name = write.entry.tag.name.clone();
-            write.service.call(write.request).await?;
-            tracing::info!(%line, %device, tag = %name, value = value.as_f64(), "tag written");
+            match write.service.call(write.request).await {
+                Ok(_) => audit(WriteResult::Accepted, &"ok"),
+                Err(code) => {
+                    audit(WriteResult::Failed, &format_args!("{code:?}"));
+                    return Err(code.into());
+                }
+            }
             self.read_tag(&line, &device, &name).await
         })
     }
@@ -381,7 +405,7 @@ impl ApiBackend for RestBackend {
                     (n.clone(), opened)
                 })
                 .collect(),
-            modbus_tcp: self.sup.tcp_listen().1,
+            modbus_tcp: self.sup.tcp_ready(),
             zenoh: self
                 .sup
                 .zenoh_state

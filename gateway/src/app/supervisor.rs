@@ -103,6 +103,8 @@ pub(crate) struct Supervisor {
     /// The CP memory mirrors in the image, by unit id and address map.
     mirrored: Mutex<Vec<(u8, AddressMap)>>,
     tcp: tokio::sync::Mutex<Option<TcpServer>>,
+    /// The Modbus/TCP Security server, when `[modbus_tcp.tls]` is set.
+    tls: tokio::sync::Mutex<Option<super::tls::TlsRun>>,
     /// The address the Modbus TCP server listens on and whether it is up.
     tcp_state: Mutex<(SocketAddr, Arc<AtomicBool>)>,
     pub(crate) tcp_stats: Arc<ServerStats>,
@@ -161,22 +163,30 @@ impl Supervisor {
         }
         let units = Arc::new(RwLock::new(unit_map(&lines)));
         let addr = overrides.modbus_tcp.unwrap_or(config.modbus_tcp.listen);
-        let listener = modbus_tcp::bind(addr).map_err(|source| AppError::Bind {
-            what: "Modbus TCP",
-            addr,
-            source,
-        })?;
+        // `[modbus_tcp] enabled = false`: no plain listener (Modbus/TCP Security only).
+        let listener = if config.modbus_tcp.enabled {
+            Some(modbus_tcp::bind(addr).map_err(|source| AppError::Bind {
+                what: "Modbus TCP",
+                addr,
+                source,
+            })?)
+        } else {
+            info!("plain Modbus TCP switched off ([modbus_tcp] enabled = false)");
+            None
+        };
         let snapshot = Snapshot {
             tags: Arc::new(TagDirectory::from_config(&config)),
             server: server_options(&config.modbus_tcp),
             config,
             lines,
         };
+        let tcp_stats = Arc::new(ServerStats::with_metrics(exported.metrics.clone()));
+        let tls = super::tls::start(&snapshot.config.modbus_tcp, &units, &tcp_stats, shutdown)?;
         let sup = Arc::new(Self {
             started: SystemTime::now(),
             image,
             units,
-            tcp_stats: Arc::new(ServerStats::with_metrics(exported.metrics.clone())),
+            tcp_stats,
             exported,
             overrides,
             root: shutdown.clone(),
@@ -188,15 +198,18 @@ impl Supervisor {
             }),
             mirrored,
             tcp: tokio::sync::Mutex::new(None),
+            tls: tokio::sync::Mutex::new(tls),
             tcp_state: Mutex::new((addr, Arc::new(AtomicBool::new(false)))),
             follower: std::sync::OnceLock::new(),
             zenoh_state: Mutex::new(None),
             opened_before: Mutex::new(BTreeSet::new()),
         });
-        let server = sup.spawn_tcp(listener)?;
-        *sup.tcp
-            .try_lock()
-            .map_err(|_| AppError::Setup("Modbus TCP state busy".into()))? = Some(server);
+        if let Some(listener) = listener {
+            let server = sup.spawn_tcp(listener)?;
+            *sup.tcp
+                .try_lock()
+                .map_err(|_| AppError::Setup("Modbus TCP state busy".into()))? = Some(server);
+        }
         Ok(sup)
     }
 
@@ -222,6 +235,16 @@ impl Supervisor {
     pub(crate) fn tcp_listen(&self) -> (SocketAddr, bool) {
         let state = lock(&self.tcp_state);
         (state.0, state.1.load(Ordering::Acquire))
+    }
+
+    /// The address the Modbus/TCP Security server listens on, when it runs.
+    pub(crate) async fn tls_local(&self) -> Option<SocketAddr> {
+        self.tls.lock().await.as_ref().map(|run| run.local)
+    }
+
+    /// Whether plain Modbus TCP is as it should be for readiness: up, or switched off.
+    pub(crate) fn tcp_ready(&self) -> bool {
+        !self.snapshot().config.modbus_tcp.enabled || self.tcp_listen().1
     }
 
     /// Binds the listener's server task under its own token.
@@ -278,6 +301,50 @@ impl Supervisor {
                 ));
             } else if !Path::new(port).exists() {
                 issues.push(issue(&path, format!("no such serial port {port}")));
+            } else if !inside(Path::new(port), &old.config.gateway.port_dirs) {
+                issues.push(issue(
+                    &path,
+                    format!(
+                        "{port} is outside [gateway] port_dirs {:?}: a change over the API names \
+                         serial ports there only",
+                        old.config.gateway.port_dirs
+                    ),
+                ));
+            }
+        }
+        // The directories themselves are the host's decision: a change over the API cannot widen
+        // them (they are read from the file at start).
+        for (key, new_dirs, old_dirs) in [
+            (
+                "gateway.port_dirs",
+                &new.gateway.port_dirs,
+                &old.config.gateway.port_dirs,
+            ),
+            (
+                "gateway.state_dirs",
+                &new.gateway.state_dirs,
+                &old.config.gateway.state_dirs,
+            ),
+        ] {
+            if new_dirs != old_dirs {
+                issues.push(issue(
+                    key,
+                    "changed only in the configuration file on the host, not over the API",
+                ));
+            }
+        }
+        if let Some(file) = &new.cp_memory.persist_file {
+            let changed = old.config.cp_memory.persist_file.as_ref() != Some(file);
+            if changed && !inside(file, &old.config.gateway.state_dirs) {
+                issues.push(issue(
+                    "cp_memory.persist_file",
+                    format!(
+                        "{} is outside [gateway] state_dirs {:?}: a change over the API names the \
+                         persistence file there only",
+                        file.display(),
+                        old.config.gateway.state_dirs
+                    ),
+                ));
             }
         }
         if self.overrides.modbus_tcp.is_none()
@@ -439,6 +506,13 @@ impl Supervisor {
                 Ok(()) => report.servers_restarted.push("modbus_tcp".into()),
                 Err(e) => failures.push(e),
             }
+            let cfg = &self.snapshot().config.modbus_tcp;
+            let mut tls = self.tls.lock().await;
+            if let Err(e) =
+                super::tls::apply(&mut tls, cfg, &self.units, &self.tcp_stats, &self.root).await
+            {
+                failures.push(e);
+            }
         }
         let renamed = match self.follower.get() {
             Some(follower) if diff.name_changed => follower.renamed(self).await,
@@ -499,6 +573,17 @@ impl Supervisor {
         let bind = |addr| {
             modbus_tcp::bind(addr).map_err(|e| format!("Modbus TCP cannot listen on {addr}: {e}"))
         };
+        if !config.enabled {
+            if let Some(old) = slot.take() {
+                old.token.cancel();
+                if tokio::time::timeout(GRACE_PERIOD, old.task).await.is_err() {
+                    warn!("the old Modbus TCP server did not stop within the grace period");
+                }
+                old.up.store(false, Ordering::Release);
+                info!("plain Modbus TCP switched off");
+            }
+            return Ok(());
+        }
         // A new address is bound before the old server stops: a failure leaves it running.
         let early = if Some(addr) == old_local {
             None
@@ -530,8 +615,12 @@ impl Supervisor {
         if let Some(server) = &tcp {
             server.token.cancel();
         }
+        let tls = self.tls.lock().await.take();
         if let Some(follower) = self.follower.get() {
             follower.stop(self).await;
+        }
+        if let Some(tls) = tls {
+            tls.stop().await;
         }
         for (_, line) in self.snapshot().lines.clone() {
             line.handle.join().await;
@@ -569,6 +658,26 @@ fn unit_map(lines: &BTreeMap<String, RunningLine>) -> UnitMap {
         }
     }
     map
+}
+
+/// Whether `path` (resolved: symbolic links and `..` followed; a file that does not exist yet by
+/// its directory) lies inside one of `dirs`.
+fn inside(path: &Path, dirs: &[std::path::PathBuf]) -> bool {
+    let resolved = std::fs::canonicalize(path).or_else(|_| {
+        let name = path.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
+        let parent = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        std::fs::canonicalize(parent).map(|dir| dir.join(name))
+    });
+    let Ok(resolved) = resolved else {
+        return false;
+    };
+    dirs.iter().any(|dir| {
+        let dir = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.clone());
+        resolved.starts_with(dir)
+    })
 }
 
 fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
@@ -624,4 +733,35 @@ fn open_cp_memory(config: &Config) -> Result<Option<(SharedCpMemory, Persistence
     };
     let task = cpmem::spawn_persistence(memory.clone(), settings, token.clone());
     Ok(Some((memory, Some((token, task)))))
+}
+
+#[cfg(test)]
+mod path_tests {
+    use super::*;
+
+    #[test]
+    fn paths_are_resolved_before_they_are_compared() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let state = dir.path().join("state");
+        std::fs::create_dir(&state).expect("mkdir");
+        let dirs = [state.clone()];
+        assert!(
+            inside(&state.join("cp.bin"), &dirs),
+            "a new file in the directory"
+        );
+        assert!(!inside(&state.join("../cp.bin"), &dirs), "`..` out of it");
+        assert!(!inside(Path::new("/etc/passwd"), &dirs));
+        assert!(
+            !inside(&state.join("missing/cp.bin"), &dirs),
+            "no such directory"
+        );
+        // A link inside pointing outside is outside.
+        let link = state.join("escape");
+        std::os::unix::fs::symlink("/etc", &link).expect("symlink");
+        assert!(!inside(&link.join("passwd"), &dirs));
+        assert!(inside(
+            Path::new("/dev/null"),
+            &[std::path::PathBuf::from("/dev")]
+        ));
+    }
 }

@@ -6,6 +6,7 @@
 //! telegrams) run under that line's token and stop with it; a line started later gets its own.
 //! A write from zenoh takes the same path and checks as a Modbus TCP write ([`super::tag_io`]).
 
+use crate::audit::{self, WritePath, WriteResult};
 use std::collections::BTreeSet;
 use std::sync::{Arc, PoisonError, Weak};
 use std::time::Duration;
@@ -249,19 +250,43 @@ impl BridgeBackend for ZenohBackend {
     }
 
     fn send_telegram(&self, line: &str, bytes: Vec<u8>) -> BackendFuture<Result<Json, String>> {
+        let metrics = self.metrics();
+        let target = format!("{line}/tx ({} bytes)", bytes.len());
+        let audit = move |result, detail: &dyn std::fmt::Display| {
+            audit::record(
+                metrics.as_ref(),
+                WritePath::Zenoh,
+                &"zenoh",
+                &target,
+                result,
+                detail,
+            );
+        };
+        if let Err(e) = self.writes_allowed() {
+            audit(WriteResult::Refused, &e);
+            return Box::pin(async move { Err(e) });
+        }
         let client = self
             .sup
             .upgrade()
             .and_then(|s| s.snapshot().lines.get(line)?.handle.telegram_client());
         let Some(client) = client else {
-            let answer = Err(format!("line {line} does not send telegrams"));
-            return Box::pin(async move { answer });
+            let answer = format!("line {line} does not send telegrams");
+            audit(WriteResult::Refused, &answer);
+            return Box::pin(async move { Err(answer) });
         };
         Box::pin(async move {
             let len = bytes.len();
             match client.send(bytes).await {
-                Ok(()) => Ok(json!({ "sent": len })),
-                Err(e) => Err(e.to_string()),
+                Ok(()) => {
+                    audit(WriteResult::Accepted, &"sent");
+                    Ok(json!({ "sent": len }))
+                }
+                Err(e) => {
+                    let e = e.to_string();
+                    audit(WriteResult::Failed, &e);
+                    Err(e)
+                }
             }
         })
     }
@@ -273,18 +298,67 @@ impl BridgeBackend for ZenohBackend {
         tag: &str,
         value: Json,
     ) -> BackendFuture<Result<Json, String>> {
-        let prepared = self.prepare_write(line, device, tag, &value);
+        let prepared = self
+            .writes_allowed()
+            .and_then(|()| self.prepare_write(line, device, tag, &value));
+        let metrics = self.metrics();
+        let target = format!("{line}/{device}/{tag} = {value}");
+        let audit = move |result, detail: &dyn std::fmt::Display| {
+            audit::record(
+                metrics.as_ref(),
+                WritePath::Zenoh,
+                &"zenoh",
+                &target,
+                result,
+                detail,
+            );
+        };
         Box::pin(async move {
-            let (write, name) = prepared?;
+            let (write, name) = match prepared {
+                Ok(prepared) => prepared,
+                Err(e) => {
+                    audit(WriteResult::Refused, &e);
+                    return Err(e);
+                }
+            };
             match write.service.call(write.request).await {
-                Ok(_) => Ok(json!({ "tag": name, "written": value })),
-                Err(code) => Err(TagWriteError::Exception(code).to_string()),
+                Ok(_) => {
+                    audit(WriteResult::Accepted, &"ok");
+                    Ok(json!({ "tag": name, "written": value }))
+                }
+                Err(code) => {
+                    let e = TagWriteError::Exception(code).to_string();
+                    audit(WriteResult::Failed, &e);
+                    Err(e)
+                }
             }
         })
     }
 }
 
 impl ZenohBackend {
+    /// `Err` with the reason when `[zenoh] writes` is off: zenoh carries no credentials, so
+    /// writes through it are refused unless switched on.
+    fn writes_allowed(&self) -> Result<(), String> {
+        let on = self.sup.upgrade().is_some_and(|sup| {
+            sup.snapshot()
+                .config
+                .zenoh
+                .as_ref()
+                .is_some_and(|z| z.writes)
+        });
+        if on {
+            Ok(())
+        } else {
+            Err("writes over zenoh are off ([zenoh] writes = false)".to_owned())
+        }
+    }
+
+    /// The Prometheus families, while the gateway runs.
+    fn metrics(&self) -> Option<crate::metrics::Metrics> {
+        self.sup.upgrade().map(|sup| sup.exported.metrics.clone())
+    }
+
     /// The checked write of a JSON value, or why there is none.
     fn prepare_write(
         &self,

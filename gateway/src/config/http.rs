@@ -19,9 +19,10 @@ use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::path::PathBuf;
 use std::time::Duration;
 
+use ipnet::IpNet;
 use serde::{Deserialize, Deserializer, Serialize};
 
-use super::reader::{Cx, Fields};
+use super::reader::{parsed_value, Cx, Fields};
 
 /// Local only by default: exposing the API is a decision (the demo serves 127.0.0.1:8080).
 pub const DEFAULT_HTTP_LISTEN: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 8080);
@@ -61,6 +62,8 @@ pub struct HttpConfig {
     pub request_timeout: Duration,
     /// Connections served at once; further clients wait in the listen backlog.
     pub max_connections: u32,
+    /// Client networks accepted (CIDR); empty: every client. Others are closed at accept.
+    pub allowed_networks: Vec<IpNet>,
 }
 
 impl Default for HttpConfig {
@@ -73,6 +76,7 @@ impl Default for HttpConfig {
             body_limit: DEFAULT_BODY_LIMIT,
             request_timeout: DEFAULT_HTTP_REQUEST_TIMEOUT,
             max_connections: DEFAULT_HTTP_MAX_CONNECTIONS,
+            allowed_networks: Vec::new(),
         }
     }
 }
@@ -122,6 +126,15 @@ impl HttpConfig {
             DEFAULT_HTTP_MAX_CONNECTIONS,
             "",
         );
+        let mut allowed_networks = Vec::new();
+        for (path, v) in f.array(cx, "allowed_networks") {
+            allowed_networks.extend(parsed_value::<IpNet>(
+                cx,
+                v,
+                &path,
+                "network (e.g. \"10.0.0.0/8\")",
+            ));
+        }
         if f.has("token_file") && f.has("token_env") {
             cx.issue(f.at("token_env"), "set token_file or token_env, not both");
         }
@@ -153,6 +166,7 @@ impl HttpConfig {
             body_limit,
             request_timeout,
             max_connections,
+            allowed_networks,
         }
     }
 

@@ -60,7 +60,7 @@ mod zenoh;
 
 use std::collections::BTreeMap;
 use std::fmt;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Deserializer, Serialize};
 
@@ -117,13 +117,24 @@ pub struct GatewaySection {
     pub name: String,
     /// Entries kept per line in the diagnostic buffer, newest first (003 7.3).
     pub diag_buffer_depth: u16,
+    /// Directories a configuration change over the API may name a serial port in.
+    pub port_dirs: Vec<PathBuf>,
+    /// Directories a configuration change over the API may name a persistence file in.
+    pub state_dirs: Vec<PathBuf>,
 }
+
+/// Default of `[gateway] port_dirs`: the device directory.
+pub const DEFAULT_PORT_DIR: &str = "/dev";
+/// Default of `[gateway] state_dirs`: the gateway's state directory (systemd `StateDirectory`).
+pub const DEFAULT_STATE_DIR: &str = "/var/lib/gateway";
 
 impl Default for GatewaySection {
     fn default() -> Self {
         Self {
             name: default_gateway_name(),
             diag_buffer_depth: DEFAULT_DIAG_BUFFER_DEPTH,
+            port_dirs: vec![PathBuf::from(DEFAULT_PORT_DIR)],
+            state_dirs: vec![PathBuf::from(DEFAULT_STATE_DIR)],
         }
     }
 }
@@ -246,10 +257,25 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
                 DEFAULT_DIAG_BUFFER_DEPTH,
                 "003 7.3",
             );
+            let mut dirs = |cx: &mut Cx, key, default: &str| {
+                if !f.has(key) {
+                    let _ = f.raw(key);
+                    return vec![PathBuf::from(default)];
+                }
+                f.array(cx, key)
+                    .into_iter()
+                    .filter_map(|(path, v)| reader::string_value(cx, v, &path))
+                    .map(PathBuf::from)
+                    .collect()
+            };
+            let port_dirs = dirs(cx, "port_dirs", DEFAULT_PORT_DIR);
+            let state_dirs = dirs(cx, "state_dirs", DEFAULT_STATE_DIR);
             f.finish(cx);
             GatewaySection {
                 name,
                 diag_buffer_depth,
+                port_dirs,
+                state_dirs,
             }
         }
     };

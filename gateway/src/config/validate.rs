@@ -71,6 +71,18 @@ pub(crate) fn check(cx: &mut Cx, config: &Config) {
             );
         }
     }
+    if let Some(tls) = &config.modbus_tcp.tls {
+        let plain = config.modbus_tcp.listen;
+        if config.modbus_tcp.enabled && tls.listen.port() != 0 && tls.listen == plain {
+            cx.issue(
+                "modbus_tcp.tls.listen",
+                format!(
+                    "the same address as modbus_tcp.listen ({plain}): Modbus/TCP Security needs \
+                     its own port (802)"
+                ),
+            );
+        }
+    }
 }
 
 fn claim_unit(cx: &mut Cx, units: &mut BTreeMap<u8, String>, unit: u8, path: String, owner: &str) {

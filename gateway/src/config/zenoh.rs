@@ -4,10 +4,11 @@
 //! [zenoh]
 //! enabled = true                      # default true
 //! mode = "peer"                       # "peer" (default) or "client"
-//! listen = ["tcp/0.0.0.0:7447"]       # zenoh endpoints; unset: the file's or zenoh's default
+//! listen = ["tcp/0.0.0.0:7447"]       # zenoh endpoints; unset: the file's, else tcp/127.0.0.1:7447
 //! connect = ["tcp/192.168.1.10:7447"] # unset: the file's or zenoh's default (none)
-//! multicast_scouting = false          # unset: the file's or zenoh's default (on)
+//! multicast_scouting = true           # unset: the file's, else off
 //! prefix = "plant/hall2/gw1"          # default "gw/<gateway name>"
+//! writes = true                       # accept `tx` and tag `set` puts; default false
 //! config_file = "/etc/gateway/zenoh.json5"  # a zenoh config file (TLS, access control, ...)
 //! telegram_queue = 1024               # received telegrams waiting to be published
 //! event_queue = 256                   # events waiting to be published
@@ -59,6 +60,9 @@ pub const DEFAULT_COMMAND_QUEUE: usize = 64;
 pub const DEFAULT_QUERY_QUEUE: usize = 64;
 /// The bridge starts when the section is there, unless `enabled = false`.
 pub const DEFAULT_ZENOH_ENABLED: bool = true;
+/// zenoh carries no credentials of its own: `tx` and tag `set` puts are refused unless
+/// `writes = true` (and then zenoh's access control should say who may put).
+pub const DEFAULT_ZENOH_WRITES: bool = false;
 
 /// How the session joins the fabric.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -158,19 +162,21 @@ pub struct ZenohConfig {
     /// Peer or client; unset: the file's, else peer.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mode: Option<Mode>,
-    /// Endpoints to listen on; unset: the file's, else zenoh's default.
+    /// Endpoints to listen on; unset: the file's, else loopback only (`tcp/127.0.0.1:7447`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub listen: Option<Vec<Endpoint>>,
     /// Endpoints to connect to; unset: the file's, else none.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub connect: Option<Vec<Endpoint>>,
-    /// UDP multicast scouting; unset: the file's, else zenoh's default (on). Turn it off
-    /// wherever the endpoints are known (and always in tests).
+    /// UDP multicast scouting; unset: the file's, else off (the gateway is not announced on
+    /// the network unless asked to be).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub multicast_scouting: Option<bool>,
     /// Key prefix; unset: `gw/<gateway name>`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub prefix: Option<Prefix>,
+    /// Accept telegram sends (`<line>/tx`) and tag writes (`.../set`); off by default.
+    pub writes: bool,
     /// A zenoh configuration file (json5) read first; the keys above override it.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub config_file: Option<PathBuf>,
@@ -201,6 +207,7 @@ impl Default for ZenohConfig {
             connect: None,
             multicast_scouting: None,
             prefix: None,
+            writes: DEFAULT_ZENOH_WRITES,
             config_file: None,
             telegram_queue: nonzero(DEFAULT_TELEGRAM_QUEUE),
             event_queue: nonzero(DEFAULT_EVENT_QUEUE),
@@ -238,6 +245,7 @@ impl ZenohConfig {
                 .map_err(|e| cx.issue(f.at("prefix"), e))
                 .ok()
         });
+        let writes = f.bool_or(cx, "writes", DEFAULT_ZENOH_WRITES);
         let config_file = f.string(cx, "config_file").map(PathBuf::from);
         let mut queue = |key, default| {
             f.int::<u32>(cx, key, 1..=u32::MAX, "")
@@ -258,6 +266,7 @@ impl ZenohConfig {
             connect,
             multicast_scouting,
             prefix,
+            writes,
             config_file,
             telegram_queue,
             event_queue,

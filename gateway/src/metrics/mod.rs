@@ -76,6 +76,9 @@ pub const METRIC_NAMES: &[&str] = &[
     TCP_CONNECTIONS_ACCEPTED,
     TCP_CONNECTIONS_REJECTED,
     TCP_REQUESTS,
+    TCP_REFUSED,
+    TCP_HANDSHAKES_FAILED,
+    WRITES,
     ZENOH_PUBLICATIONS,
     DROPPED_UPDATES,
     FRAMES_DISCARDED,
@@ -95,6 +98,9 @@ const TCP_CONNECTIONS: &str = "gateway_modbus_tcp_connections";
 const TCP_CONNECTIONS_ACCEPTED: &str = "gateway_modbus_tcp_connections_accepted_total";
 const TCP_CONNECTIONS_REJECTED: &str = "gateway_modbus_tcp_connections_rejected_total";
 const TCP_REQUESTS: &str = "gateway_modbus_tcp_requests_total";
+const TCP_REFUSED: &str = "gateway_modbus_tcp_refused_total";
+const TCP_HANDSHAKES_FAILED: &str = "gateway_modbus_tcp_tls_handshakes_failed_total";
+const WRITES: &str = "gateway_writes_total";
 const ZENOH_PUBLICATIONS: &str = "gateway_zenoh_publications_total";
 const DROPPED_UPDATES: &str = "gateway_dropped_updates_total";
 const FRAMES_DISCARDED: &str = "gateway_frames_discarded_total";
@@ -180,6 +186,12 @@ pub struct Metrics {
     tcp_rejected: IntCounterVec,
     /// `gateway_modbus_tcp_requests_total{function,result}`.
     tcp_requests: IntCounterVec,
+    /// `gateway_modbus_tcp_refused_total{role}`: Modbus/TCP Security requests refused by role.
+    tcp_refused: IntCounterVec,
+    /// `gateway_modbus_tcp_tls_handshakes_failed_total`: TLS handshakes that failed or timed out.
+    tcp_handshakes_failed: IntCounter,
+    /// `gateway_writes_total{path,result}`: audited writes from outside.
+    writes: IntCounterVec,
     /// `gateway_zenoh_publications_total{kind}`.
     zenoh_publications: IntCounterVec,
     /// `gateway_dropped_updates_total{reason}`.
@@ -272,6 +284,25 @@ impl Metrics {
                 Opts::new(TCP_REQUESTS, "Modbus TCP requests by function code and result."),
                 &["function", "result"],
             )?,
+            tcp_refused: IntCounterVec::new(
+                Opts::new(
+                    TCP_REFUSED,
+                    "Modbus/TCP Security requests refused by the client certificate's role.",
+                ),
+                &["role"],
+            )?,
+            writes: IntCounterVec::new(
+                Opts::new(
+                    WRITES,
+                    "Writes from outside (Modbus TCP, Modbus/TCP Security, REST, zenoh) by path and result.",
+                ),
+                &["path", "result"],
+            )?,
+            tcp_handshakes_failed: IntCounter::new(
+                TCP_HANDSHAKES_FAILED,
+                "Modbus/TCP Security TLS handshakes that failed or timed out (bad or missing \
+                 client certificate included).",
+            )?,
             zenoh_publications: IntCounterVec::new(
                 Opts::new(ZENOH_PUBLICATIONS, "zenoh publications and replies, by kind."),
                 &["kind"],
@@ -306,6 +337,9 @@ impl Metrics {
         registry.register(Box::new(metrics.tcp_accepted.clone()))?;
         registry.register(Box::new(metrics.tcp_rejected.clone()))?;
         registry.register(Box::new(metrics.tcp_requests.clone()))?;
+        registry.register(Box::new(metrics.tcp_refused.clone()))?;
+        registry.register(Box::new(metrics.tcp_handshakes_failed.clone()))?;
+        registry.register(Box::new(metrics.writes.clone()))?;
         registry.register(Box::new(metrics.zenoh_publications.clone()))?;
         registry.register(Box::new(metrics.dropped_updates.clone()))?;
         registry.register(Box::new(metrics.frames_discarded.clone()))?;
@@ -313,6 +347,15 @@ impl Metrics {
         build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
             .set(1);
+        // A certificate without a role: the one role label every Modbus/TCP Security server has.
+        metrics.tcp_refused.with_label_values(&["none"]);
+        for path in crate::audit::WritePath::ALL {
+            for result in crate::audit::WriteResult::ALL {
+                metrics
+                    .writes
+                    .with_label_values(&[path.as_str(), result.as_str()]);
+            }
+        }
         for reason in RejectReason::ALL {
             metrics.tcp_rejected.with_label_values(&[reason.as_str()]);
         }
@@ -520,6 +563,21 @@ impl Metrics {
     pub fn tcp_request_series(&self, function: u8, result: RequestResult) -> IntCounter {
         self.tcp_requests
             .with_label_values(&[function_label(function), result.as_str()])
+    }
+
+    /// Counts one Modbus/TCP Security request refused for the role labelled `role`.
+    pub fn tcp_refused(&self, role: &str) {
+        self.tcp_refused.with_label_values(&[role]).inc();
+    }
+
+    /// Counts one audited write (see [`crate::audit`]).
+    pub fn write_audited(&self, path: &str, result: &str) {
+        self.writes.with_label_values(&[path, result]).inc();
+    }
+
+    /// Counts one failed Modbus/TCP Security handshake.
+    pub fn tcp_handshake_failed(&self) {
+        self.tcp_handshakes_failed.inc();
     }
 
     // --- zenoh ---

@@ -8,16 +8,18 @@
 //! The response is built in one buffer per connection (header room, then the PDU the unit writes)
 //! and leaves in one write.
 
+use std::io;
 use std::net::SocketAddr;
 use std::sync::Arc;
 
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpStream;
 use tokio::sync::OwnedSemaphorePermit;
 use tokio::time::{sleep_until, Instant};
 use tokio_util::sync::CancellationToken;
 use tracing::debug;
 
+use super::access::Authority;
 use super::mbap::{complete_frame, FrameReader, MbapError, HEADER_LEN, MAX_ADU_LEN};
 use super::request::answer;
 use super::shared::Shared;
@@ -29,31 +31,60 @@ const READ_CHUNK: usize = 1024;
 /// Far enough to mean "never" for an idle timeout too large to add to the clock.
 const FAR_FUTURE: std::time::Duration = std::time::Duration::from_secs(100 * 365 * 24 * 3600);
 
+/// A byte stream a connection is served on: plain TCP, or TLS over TCP (Modbus/TCP Security).
+pub(crate) trait ClientStream: AsyncRead + AsyncWrite + Unpin + Send {
+    /// Writes what the stream takes at once, without waiting; `Ok(0)` when it takes nothing now.
+    fn write_now(&mut self, _bytes: &[u8]) -> io::Result<usize> {
+        Ok(0)
+    }
+}
+
+impl ClientStream for TcpStream {
+    fn write_now(&mut self, bytes: &[u8]) -> io::Result<usize> {
+        match self.try_write(bytes) {
+            Err(error) if error.kind() == io::ErrorKind::WouldBlock => Ok(0),
+            other => other,
+        }
+    }
+}
+
+impl ClientStream for tokio_rustls::server::TlsStream<TcpStream> {}
+
+/// What holds one connection's places: in the server's cap, in its client address's cap, and in
+/// the open-connections gauge.
+pub(crate) struct Places {
+    pub(crate) _permit: OwnedSemaphorePermit,
+    pub(crate) _client: super::server::ClientPlace,
+    pub(crate) _open: OpenConnection,
+}
+
 /// Serves one accepted connection until the client leaves, a limit closes it, or shutdown.
-/// `_permit` and `_open` hold the connection's place in the cap and the open-connections gauge.
-pub(crate) async fn run(
-    mut stream: TcpStream,
+/// `_places` hold the connection's places in the caps and the open-connections gauge; `authority`
+/// is what its requests may do.
+pub(crate) async fn run<S: ClientStream>(
+    mut stream: S,
     peer: SocketAddr,
     shared: Arc<Shared>,
     shutdown: CancellationToken,
-    _permit: OwnedSemaphorePermit,
-    _open: OpenConnection,
+    _places: Places,
+    authority: Authority,
 ) {
     // A token of its own: the connection asks it after every request and waits on it, which on
     // the server's token would take a lock that every connection shares.
     let shutdown = shutdown.child_token();
-    let reason = serve(&mut stream, peer, &shared, &shutdown).await;
+    let reason = serve(&mut stream, peer, &shared, &shutdown, &authority).await;
     debug!(%peer, ?reason, "connection closed");
     shared.stats.count_closed(reason);
     // Best effort: the client may be gone already.
     let _ = stream.shutdown().await;
 }
 
-async fn serve(
-    stream: &mut TcpStream,
+async fn serve<S: ClientStream>(
+    stream: &mut S,
     peer: SocketAddr,
     shared: &Shared,
     shutdown: &CancellationToken,
+    authority: &Authority,
 ) -> CloseReason {
     let idle = shared.options.idle_timeout;
     let mut reader = FrameReader::new();
@@ -89,7 +120,9 @@ async fn serve(
             let header = frame.header;
             adu.clear();
             adu.resize(HEADER_LEN, 0);
-            if let Err(reject) = answer(shared, header.unit_id, frame.pdu, &mut adu).await {
+            if let Err(reject) =
+                answer(shared, authority, peer, header.unit_id, frame.pdu, &mut adu).await
+            {
                 crate::warn_limited!(
                     "modbus_tcp/no_function",
                     %peer, transaction_id = header.transaction_id,
@@ -141,17 +174,17 @@ async fn serve(
     }
 }
 
-/// Writes a response: at once when the socket takes it whole (the usual case, no timer), else
-/// the rest within `idle`. `Err`: why the connection closes.
-async fn write_response(
-    stream: &mut TcpStream,
+/// Writes a response: at once when the socket takes it whole (the usual case on plain TCP, no
+/// timer), else the rest (and, on TLS, the flush of the record) within `idle`. `Err`: why the
+/// connection closes.
+async fn write_response<S: ClientStream>(
+    stream: &mut S,
     peer: SocketAddr,
     adu: &[u8],
     idle: std::time::Duration,
 ) -> Result<(), CloseReason> {
-    let written = match stream.try_write(adu) {
+    let written = match stream.write_now(adu) {
         Ok(n) => n,
-        Err(error) if error.kind() == std::io::ErrorKind::WouldBlock => 0,
         Err(error) => {
             debug!(%peer, %error, "write failed");
             return Err(CloseReason::Io);
@@ -160,7 +193,11 @@ async fn write_response(
     let Some(rest) = adu.get(written..).filter(|rest| !rest.is_empty()) else {
         return Ok(());
     };
-    match tokio::time::timeout(idle, stream.write_all(rest)).await {
+    let write = async {
+        stream.write_all(rest).await?;
+        stream.flush().await
+    };
+    match tokio::time::timeout(idle, write).await {
         Ok(Ok(())) => Ok(()),
         Ok(Err(error)) => {
             debug!(%peer, %error, "write failed");

@@ -14,19 +14,23 @@
 //! (it cannot be resynchronised), a bad PDU gets its exception on the same connection. Every case
 //! is counted in [`ServerStats`].
 
+pub mod access;
 pub mod mbap;
 pub mod server;
 pub mod stats;
+pub mod tls;
 
 mod connection;
 mod options;
 mod request;
 mod shared;
 
+pub use access::{Authority, FunctionClass, Refusal, RoleRights, Roles};
 pub use server::{
-    bind, serve, ServerOptions, SharedUnits, WriteRange, WriteTable, DEFAULT_BACKLOG,
+    bind, serve, serve_tls, ServerOptions, SharedUnits, WriteRange, WriteTable, DEFAULT_BACKLOG,
     DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS, DEFAULT_REQUEST_TIMEOUT,
 };
 pub use stats::{
     AcceptError, CloseReason, FrameReject, RejectReason, RequestCount, RequestResult, ServerStats,
 };
+pub use tls::{TlsError, TlsFiles, TlsServer, ROLE_OID};

@@ -19,6 +19,10 @@ pub struct ServerOptions {
     /// Connections served at once. A client over the cap is accepted and closed at once (counted
     /// as rejected, reason `limit`). 0 refuses every client.
     pub max_connections: usize,
+    /// Connections served at once from one client address; `None`: only `max_connections`
+    /// limits. A client over its cap is closed at accept like one over `max_connections`
+    /// (reason `limit`), so that a flood from one host cannot take the places other hosts need.
+    pub max_connections_per_client: Option<usize>,
     /// A connection that completes no request for this long is closed: silent clients, clients
     /// that never finish a frame, and clients that do not read their responses.
     pub idle_timeout: Duration,
@@ -42,6 +46,7 @@ impl Default for ServerOptions {
     fn default() -> Self {
         Self {
             max_connections: DEFAULT_MAX_CONNECTIONS,
+            max_connections_per_client: None,
             idle_timeout: DEFAULT_IDLE_TIMEOUT,
             allowed_networks: Vec::new(),
             read_only: false,
@@ -176,7 +181,13 @@ impl Access {
 
 /// Whether every address `address..address + count` of `unit`/`table` lies in some range (ranges
 /// may touch or overlap; a write may span several).
-fn covered(ranges: &[WriteRange], unit: u8, table: WriteTable, address: u16, count: usize) -> bool {
+pub(crate) fn covered(
+    ranges: &[WriteRange],
+    unit: u8,
+    table: WriteTable,
+    address: u16,
+    count: usize,
+) -> bool {
     let end = u32::from(address) + u32::try_from(count).unwrap_or(u32::MAX);
     let mut next = u32::from(address);
     while next < end {

@@ -1,8 +1,10 @@
-//! The accept loop: network filter, connection cap, accept errors, shutdown.
+//! The accept loop: network filter, connection caps (the server's and each client address's),
+//! accept errors, shutdown; for Modbus/TCP Security the TLS handshake before the connection task.
 
+use std::collections::HashMap;
 use std::io;
-use std::net::SocketAddr;
-use std::sync::Arc;
+use std::net::{IpAddr, SocketAddr};
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use tokio::net::{TcpListener, TcpSocket, TcpStream};
@@ -11,9 +13,12 @@ use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 use tracing::{debug, error, info, warn};
 
-use super::connection;
+use super::access::Authority;
+use super::connection::{self, Places};
 use super::shared::Shared;
 use super::stats::{AcceptError, RejectReason, ServerStats};
+use super::tls::{role_of, TlsServer};
+use crate::log_limit::{LogLimit, Verdict};
 
 pub use super::options::{
     ServerOptions, WriteRange, WriteTable, DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS,
@@ -59,6 +64,32 @@ pub async fn serve(
     shutdown: CancellationToken,
     stats: Arc<ServerStats>,
 ) -> io::Result<()> {
+    run(listener, units, options, None, shutdown, stats).await
+}
+
+/// Serves Modbus/TCP Security on `listener` until `shutdown` is cancelled: as [`serve`], with a
+/// TLS handshake (client certificate required) before each connection is served, and every
+/// request checked against the rights of the client certificate's role. `tls` stays shared with
+/// the caller, who reloads or replaces the certificates through it while the server runs.
+pub async fn serve_tls(
+    listener: TcpListener,
+    units: SharedUnits,
+    options: ServerOptions,
+    tls: TlsServer,
+    shutdown: CancellationToken,
+    stats: Arc<ServerStats>,
+) -> io::Result<()> {
+    run(listener, units, options, Some(tls), shutdown, stats).await
+}
+
+async fn run(
+    listener: TcpListener,
+    units: SharedUnits,
+    options: ServerOptions,
+    tls: Option<TlsServer>,
+    shutdown: CancellationToken,
+    stats: Arc<ServerStats>,
+) -> io::Result<()> {
     let limit = Arc::new(Semaphore::new(
         options.max_connections.min(Semaphore::MAX_PERMITS),
     ));
@@ -66,10 +97,19 @@ pub async fn serve(
         units,
         options,
         stats,
+        tls,
+        clients: Arc::new(Mutex::new(HashMap::new())),
     });
+    let what = if shared.tls.is_some() {
+        "Modbus/TCP Security"
+    } else {
+        "Modbus TCP"
+    };
     let tracker = TaskTracker::new();
     if let Ok(local) = listener.local_addr() {
-        info!(%local, max_connections = shared.options.max_connections, "Modbus TCP server listening");
+        info!(%local, max_connections = shared.options.max_connections,
+            max_connections_per_client = shared.options.max_connections_per_client,
+            "{what} server listening");
     }
     let result = loop {
         let accepted = tokio::select! {
@@ -96,7 +136,7 @@ pub async fn serve(
     drop(listener);
     tracker.close();
     tracker.wait().await;
-    info!("Modbus TCP server stopped");
+    info!("{what} server stopped");
     result
 }
 
@@ -114,6 +154,11 @@ fn admit(
         shared.stats.count_rejected(RejectReason::Network);
         return;
     }
+    let Some(client) = ClientPlace::take(shared, peer.ip()) else {
+        debug!(%peer, "connection limit of the client address reached, closed");
+        shared.stats.count_rejected(RejectReason::Limit);
+        return;
+    };
     let Ok(permit) = Arc::clone(limit).try_acquire_owned() else {
         debug!(%peer, "connection limit reached, closed");
         shared.stats.count_rejected(RejectReason::Limit);
@@ -123,16 +168,115 @@ fn admit(
     if let Err(error) = stream.set_nodelay(true) {
         debug!(%peer, %error, "TCP_NODELAY not set");
     }
-    debug!(%peer, "client connected");
-    let open = shared.stats.count_accepted();
-    tracker.spawn(connection::run(
-        stream,
-        peer,
-        Arc::clone(shared),
-        shutdown.clone(),
-        permit,
-        open,
-    ));
+    let shared = Arc::clone(shared);
+    let shutdown = shutdown.clone();
+    let Some(tls) = shared.tls.clone() else {
+        debug!(%peer, "client connected");
+        let places = Places {
+            _permit: permit,
+            _client: client,
+            _open: shared.stats.count_accepted(),
+        };
+        tracker.spawn(connection::run(
+            stream,
+            peer,
+            shared,
+            shutdown,
+            places,
+            Authority::Open,
+        ));
+        return;
+    };
+    tracker.spawn(async move {
+        let handshake_timeout = shared.options.idle_timeout.min(HANDSHAKE_TIMEOUT);
+        let handshake = tokio::time::timeout(handshake_timeout, tls.acceptor().accept(stream));
+        let result = tokio::select! {
+            () = shutdown.cancelled() => return,
+            result = handshake => result,
+        };
+        let stream = match result {
+            Ok(Ok(stream)) => stream,
+            failed => {
+                shared.stats.count_handshake_failed();
+                if let Verdict::Log { suppressed } = HANDSHAKE_LOG.check() {
+                    match failed {
+                        Ok(Err(error)) => warn!(%peer, %error, suppressed, "TLS handshake failed"),
+                        _ => warn!(%peer, suppressed, "TLS handshake timed out"),
+                    }
+                }
+                return;
+            }
+        };
+        let role = stream
+            .get_ref()
+            .1
+            .peer_certificates()
+            .and_then(<[_]>::first)
+            .and_then(|certificate| role_of(certificate));
+        let authority = Authority::of_role(role, &tls.roles());
+        info!(%peer, role = authority.label(), "Modbus/TCP Security client connected");
+        let places = Places {
+            _permit: permit,
+            _client: client,
+            _open: shared.stats.count_accepted(),
+        };
+        connection::run(stream, peer, shared, shutdown, places, authority).await;
+    });
+}
+
+/// The longest a TLS handshake may take (bounded by `idle_timeout` as well): a client that
+/// connects and says nothing holds its places no longer than this.
+const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
+
+/// Log lines about failed handshakes: a scan or a flood writes a few lines, not one per attempt.
+static HANDSHAKE_LOG: LogLimit = LogLimit::new(Duration::from_secs(10), 10);
+
+/// One connection's place in its client address's cap; given back when dropped.
+pub(crate) struct ClientPlace {
+    clients: Arc<Mutex<HashMap<IpAddr, usize>>>,
+    ip: IpAddr,
+}
+
+// === impl ClientPlace ===
+
+impl ClientPlace {
+    /// A place for a connection from `ip`, or `None` when the address has its
+    /// `max_connections_per_client` open.
+    fn take(shared: &Shared, ip: IpAddr) -> Option<Self> {
+        let ip = ip.to_canonical();
+        let mut clients = shared
+            .clients
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner);
+        let open = clients.entry(ip).or_default();
+        if shared
+            .options
+            .max_connections_per_client
+            .is_some_and(|cap| *open >= cap)
+        {
+            if *open == 0 {
+                clients.remove(&ip);
+            }
+            return None;
+        }
+        *open += 1;
+        Some(Self {
+            clients: Arc::clone(&shared.clients),
+            ip,
+        })
+    }
+}
+
+impl Drop for ClientPlace {
+    fn drop(&mut self) {
+        let mut clients = self.clients.lock().unwrap_or_else(PoisonError::into_inner);
+        if let Some(open) = clients.get_mut(&self.ip) {
+            *open = open.saturating_sub(1);
+            if *open == 0 {
+                clients.remove(&self.ip);
+            }
+        }
+    }
 }
 
 /// The counter of a transient accept error, or `None` when the listener is unusable.

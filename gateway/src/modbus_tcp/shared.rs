@@ -1,10 +1,13 @@
 //! What the accept loop hands to every connection of one server: the unit map, the options and
 //! the counters.
 
-use std::sync::{Arc, RwLock};
+use std::collections::HashMap;
+use std::net::IpAddr;
+use std::sync::{Arc, Mutex, RwLock};
 
 use super::options::ServerOptions;
 use super::stats::ServerStats;
+use super::tls::TlsServer;
 use crate::unit::UnitMap;
 
 /// The unit map the server answers from, replaceable at run time: take the write lock and swap
@@ -19,4 +22,8 @@ pub(crate) struct Shared {
     pub(crate) options: ServerOptions,
     /// Counters.
     pub(crate) stats: Arc<ServerStats>,
+    /// The TLS settings and roles of a Modbus/TCP Security server; `None` for plain Modbus TCP.
+    pub(crate) tls: Option<TlsServer>,
+    /// Connections open per client address (canonical form), for the per-client cap.
+    pub(crate) clients: Arc<Mutex<HashMap<IpAddr, usize>>>,
 }

@@ -5,8 +5,9 @@
 //! [`Metrics`]: open and accepted connections, rejected ones by reason (failed accepts as
 //! `accept_error`), requests by function and result.
 
+use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::{Arc, OnceLock};
+use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
 use prometheus::IntCounter;
 
@@ -101,6 +102,9 @@ pub struct ServerStats {
     closed: [AtomicU64; 5],
     frames_rejected: [AtomicU64; 3],
     requests: [[AtomicU64; RESULT_LABELS.len()]; FUNCTION_LABELS.len()],
+    /// Requests refused by role, by the role's label (bounded by the configured roles).
+    refused: Mutex<BTreeMap<String, u64>>,
+    handshakes_failed: AtomicU64,
     /// The Prometheus families the counts are mirrored into, if any.
     metrics: Option<Metrics>,
     /// The request series of `metrics` for the functions counted by name, each looked up once
@@ -180,6 +184,46 @@ impl ServerStats {
             }
         }
         counts
+    }
+
+    /// Modbus/TCP Security requests refused for the role labelled `role` (see
+    /// [`super::Authority::label`]).
+    pub fn refused(&self, role: &str) -> u64 {
+        self.refused
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .get(role)
+            .copied()
+            .unwrap_or(0)
+    }
+
+    /// Modbus/TCP Security handshakes that failed or timed out.
+    pub fn handshakes_failed(&self) -> u64 {
+        self.handshakes_failed.load(Ordering::Relaxed)
+    }
+
+    /// The Prometheus families the counts are mirrored into, if any.
+    pub(crate) fn metrics(&self) -> Option<&Metrics> {
+        self.metrics.as_ref()
+    }
+
+    pub(crate) fn count_refused(&self, role: &str) {
+        *self
+            .refused
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .entry(role.to_owned())
+            .or_default() += 1;
+        if let Some(m) = &self.metrics {
+            m.tcp_refused(role);
+        }
+    }
+
+    pub(crate) fn count_handshake_failed(&self) {
+        self.handshakes_failed.fetch_add(1, Ordering::Relaxed);
+        if let Some(m) = &self.metrics {
+            m.tcp_handshake_failed();
+        }
     }
 
     pub(crate) fn count_accepted(self: &Arc<Self>) -> OpenConnection {

@@ -11,6 +11,10 @@ pub use crate::config::{
 use super::keys::{self, KeyError};
 use super::BridgeError;
 
+/// Where a peer listens when neither `[zenoh] listen` nor a zenoh file says: loopback, zenoh's
+/// port. Other hosts reach the gateway only once an endpoint is configured.
+pub const SAFE_LISTEN: &str = "tcp/127.0.0.1:7447";
+
 // === impl ZenohConfig ===
 
 impl ZenohConfig {
@@ -22,11 +26,14 @@ impl ZenohConfig {
         }
     }
 
-    /// The zenoh configuration: the file (if any), then this section's keys on top.
+    /// The zenoh configuration: the file (if any), then this section's keys on top. Without a
+    /// file, what the section leaves unset is the safe default, not zenoh's: a peer listens on
+    /// [`SAFE_LISTEN`] (loopback) only, and multicast scouting is off, so that an empty
+    /// `[zenoh]` section opens nothing to the plant network. A file is taken as written.
     pub fn to_zenoh(&self) -> Result<(zenoh::Config, Mode), BridgeError> {
-        let mut z = match &self.config_file {
-            Some(path) => read_file(path)?,
-            None => zenoh::Config::default(),
+        let (mut z, safe_defaults) = match &self.config_file {
+            Some(path) => (read_file(path)?, false),
+            None => (zenoh::Config::default(), true),
         };
         let mut set = |key: &str, value: String| {
             z.insert_json5(key, &value)
@@ -37,12 +44,19 @@ impl ZenohConfig {
         }
         if let Some(listen) = &self.listen {
             set("listen/endpoints", json_list(listen))?;
+        } else if safe_defaults && self.mode != Some(Mode::Client) {
+            set(
+                "listen/endpoints",
+                format!("[{}]", json_string(SAFE_LISTEN)),
+            )?;
         }
         if let Some(connect) = &self.connect {
             set("connect/endpoints", json_list(connect))?;
         }
-        if let Some(on) = self.multicast_scouting {
-            set("scouting/multicast/enabled", on.to_string())?;
+        match self.multicast_scouting {
+            Some(on) => set("scouting/multicast/enabled", on.to_string())?,
+            None if safe_defaults => set("scouting/multicast/enabled", "false".to_owned())?,
+            None => {}
         }
         let mode = match z.get_json("mode").ok().as_deref() {
             Some("\"client\"") => Mode::Client,
@@ -88,8 +102,14 @@ mod tests {
         assert!(c.enabled);
         assert_eq!(c.telegram_queue.get(), DEFAULT_TELEGRAM_QUEUE);
         assert_eq!(c.prefix_for("demo").unwrap(), "gw/demo");
-        let (_, mode) = c.to_zenoh().unwrap();
+        let (z, mode) = c.to_zenoh().unwrap();
         assert_eq!(mode, Mode::Peer);
+        // Safe defaults: loopback only, no multicast scouting.
+        assert_eq!(
+            z.get_json("listen/endpoints").unwrap().replace(' ', ""),
+            r#"["tcp/127.0.0.1:7447"]"#
+        );
+        assert_eq!(z.get_json("scouting/multicast/enabled").unwrap(), "false");
     }
 
     #[test]

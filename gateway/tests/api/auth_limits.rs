@@ -355,3 +355,32 @@ async fn connections_beyond_the_limit_wait_for_a_free_one() {
         String::from_utf8_lossy(&buf[..n])
     );
 }
+
+#[tokio::test]
+async fn clients_outside_the_allowed_networks_are_closed_at_accept() {
+    let outside = start_with(Setup {
+        allowed_networks: vec!["192.0.2.0/24".parse().expect("net")],
+        ..Setup::default()
+    })
+    .await;
+    let addr = outside.base.trim_start_matches("http://").to_owned();
+    let mut stream = TcpStream::connect(&addr).await.expect("connect");
+    let _ = stream
+        .write_all(b"GET /healthz HTTP/1.1\r\nHost: x\r\n\r\n")
+        .await;
+    let mut answer = Vec::new();
+    let read = tokio::time::timeout(Duration::from_secs(5), stream.read_to_end(&mut answer))
+        .await
+        .expect("closed, not left waiting");
+    assert!(
+        read.is_err() || answer.is_empty(),
+        "answered: {}",
+        String::from_utf8_lossy(&answer)
+    );
+    let inside = start_with(Setup {
+        allowed_networks: vec!["127.0.0.0/8".parse().expect("net")],
+        ..Setup::default()
+    })
+    .await;
+    assert_eq!(inside.get("/healthz").await.status, 200);
+}

@@ -76,6 +76,8 @@ pub(crate) struct Setup {
     pub(crate) max_connections: u32,
     pub(crate) header_read_timeout: Duration,
     pub(crate) config: Config,
+    /// Client networks served; empty: every client.
+    pub(crate) allowed_networks: Vec<ipnet::IpNet>,
     /// The configuration file's text as the operator wrote it (it must read as `config`);
     /// `None`: the file is `config` written out whole.
     pub(crate) file_text: Option<String>,
@@ -91,6 +93,7 @@ impl Default for Setup {
             max_connections: api::DEFAULT_MAX_CONNECTIONS,
             header_read_timeout: api::DEFAULT_HEADER_READ_TIMEOUT,
             config: test_config(),
+            allowed_networks: Vec::new(),
             file_text: None,
         }
     }
@@ -184,7 +187,8 @@ pub(crate) async fn start_with(setup: Setup) -> TestApi {
     let gw = Arc::new(MemGateway::new(setup.config.clone(), test_tags()));
     let mut state = ApiState::new(gw.clone(), setup.auth)
         .with_limits(setup.body_limit, setup.request_timeout)
-        .with_connections(setup.max_connections, setup.header_read_timeout);
+        .with_connections(setup.max_connections, setup.header_read_timeout)
+        .with_allowed_networks(setup.allowed_networks.clone());
     let (dir, store_path) = if setup.store {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("gateway.toml");

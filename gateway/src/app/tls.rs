@@ -1,0 +1,168 @@
+//! Modbus/TCP Security in the running gateway: the `[modbus_tcp.tls]` server next to the plain
+//! one, its certificates read again on SIGHUP, its files and roles replaced on a configuration
+//! change without dropping the clients that are connected.
+
+use std::net::SocketAddr;
+use std::sync::Arc;
+
+use tokio::task::JoinHandle;
+use tokio_util::sync::CancellationToken;
+use tracing::{info, warn};
+
+use super::build::unit_write_ranges;
+use super::{server_options, AppError};
+use crate::config::{FunctionClassConfig, ModbusTcpConfig, ModbusTlsConfig};
+use crate::modbus_tcp::{
+    self, RoleRights, Roles, ServerOptions, ServerStats, SharedUnits, TlsFiles, TlsServer,
+};
+
+/// The running Modbus/TCP Security server.
+pub(crate) struct TlsRun {
+    pub(crate) server: TlsServer,
+    pub(crate) local: SocketAddr,
+    /// What it was started with: a change of these restarts it, a change of the files and
+    /// roles only replaces them.
+    listen: SocketAddr,
+    options: ServerOptions,
+    token: CancellationToken,
+    task: JoinHandle<()>,
+}
+
+/// The files of `cfg`.
+pub(crate) fn files(cfg: &ModbusTlsConfig) -> TlsFiles {
+    TlsFiles {
+        cert: cfg.cert.clone(),
+        key: cfg.key.clone(),
+        ca: cfg.ca.clone(),
+    }
+}
+
+/// The roles of `cfg`, as the server checks them.
+pub(crate) fn roles(cfg: &ModbusTlsConfig) -> Roles {
+    cfg.roles
+        .iter()
+        .map(|(name, role)| {
+            let has = |class| role.functions.contains(&class);
+            let rights = RoleRights {
+                units: (!role.units.is_empty()).then(|| role.units.clone()),
+                read: has(FunctionClassConfig::Read),
+                write: has(FunctionClassConfig::Write),
+                diagnostics: has(FunctionClassConfig::Diagnostics),
+                write_ranges: unit_write_ranges(&role.write_ranges),
+            };
+            (name.clone(), rights)
+        })
+        .collect()
+}
+
+/// Starts the server of `cfg.tls`, if configured: binds its address, reads its files.
+pub(crate) fn start(
+    cfg: &ModbusTcpConfig,
+    units: &SharedUnits,
+    stats: &Arc<ServerStats>,
+    root: &CancellationToken,
+) -> Result<Option<TlsRun>, AppError> {
+    let Some(tls) = &cfg.tls else {
+        return Ok(None);
+    };
+    let server = TlsServer::new(files(tls), roles(tls))
+        .map_err(|e| AppError::Setup(format!("Modbus/TCP Security: {e}")))?;
+    let listener = modbus_tcp::bind(tls.listen).map_err(|source| AppError::Bind {
+        what: "Modbus/TCP Security",
+        addr: tls.listen,
+        source,
+    })?;
+    let local = listener.local_addr()?;
+    let token = root.child_token();
+    let options = server_options(cfg);
+    let serve = modbus_tcp::serve_tls(
+        listener,
+        Arc::clone(units),
+        options.clone(),
+        server.clone(),
+        token.clone(),
+        Arc::clone(stats),
+    );
+    let task = tokio::spawn(async move {
+        if let Err(e) = serve.await {
+            warn!(error = %e, "Modbus/TCP Security server ended with an error");
+        }
+    });
+    spawn_reload_on_hangup(server.clone(), token.clone());
+    info!(%local, roles = tls.roles.len(), "Modbus/TCP Security listening");
+    Ok(Some(TlsRun {
+        server,
+        local,
+        listen: tls.listen,
+        options,
+        token,
+        task,
+    }))
+}
+
+/// Applies a changed `[modbus_tcp]`: the same address and limits keep the server and its clients
+/// and take the new files and roles (for new connections); otherwise the server restarts.
+pub(crate) async fn apply(
+    running: &mut Option<TlsRun>,
+    cfg: &ModbusTcpConfig,
+    units: &SharedUnits,
+    stats: &Arc<ServerStats>,
+    root: &CancellationToken,
+) -> Result<(), String> {
+    if let (Some(run), Some(tls)) = (running.as_ref(), &cfg.tls) {
+        if run.listen == tls.listen && run.options == server_options(cfg) {
+            return run
+                .server
+                .replace(files(tls), roles(tls))
+                .map_err(|e| format!("Modbus/TCP Security: {e}"));
+        }
+    }
+    if let Some(old) = running.take() {
+        old.stop().await;
+    }
+    *running = start(cfg, units, stats, root).map_err(|e| e.to_string())?;
+    Ok(())
+}
+
+// === impl TlsRun ===
+
+impl TlsRun {
+    /// Stops accepting and waits (bounded) for the connections to finish their request.
+    pub(crate) async fn stop(self) {
+        self.token.cancel();
+        if tokio::time::timeout(super::GRACE_PERIOD, self.task)
+            .await
+            .is_err()
+        {
+            warn!("the Modbus/TCP Security server did not stop within the grace period");
+        }
+    }
+}
+
+/// Reads the certificate, key and CA again on every SIGHUP until `token` is cancelled.
+fn spawn_reload_on_hangup(server: TlsServer, token: CancellationToken) {
+    #[cfg(unix)]
+    tokio::spawn(async move {
+        use tokio::signal::unix::{signal, SignalKind};
+        let Ok(mut hangup) = signal(SignalKind::hangup()) else {
+            warn!("cannot install the SIGHUP handler: certificates are read at start only");
+            return;
+        };
+        loop {
+            tokio::select! {
+                () = token.cancelled() => return,
+                received = hangup.recv() => {
+                    if received.is_none() {
+                        return;
+                    }
+                }
+            }
+            match server.reload() {
+                Ok(()) => info!("SIGHUP: Modbus/TCP Security certificates read again"),
+                Err(e) => warn!(error = %e, "SIGHUP: certificates not reloaded, the old ones stay"),
+            }
+        }
+    });
+    #[cfg(not(unix))]
+    drop((server, token));
+}
