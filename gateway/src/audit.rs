@@ -13,59 +13,7 @@ use tracing::info;
 
 use crate::log_limit::{LogLimit, Verdict};
 use crate::metrics::Metrics;
-
-/// The interface a write came through.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum WritePath {
-    /// Plain Modbus TCP.
-    ModbusTcp,
-    /// Modbus/TCP Security.
-    ModbusTls,
-    /// The REST API.
-    Rest,
-    /// zenoh (`tx`, tag `set`).
-    Zenoh,
-}
-
-impl WritePath {
-    /// Every path, for the zero series.
-    pub const ALL: [Self; 4] = [Self::ModbusTcp, Self::ModbusTls, Self::Rest, Self::Zenoh];
-
-    /// The label value.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::ModbusTcp => "modbus_tcp",
-            Self::ModbusTls => "modbus_tcp_tls",
-            Self::Rest => "rest",
-            Self::Zenoh => "zenoh",
-        }
-    }
-}
-
-/// How a write ended.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum WriteResult {
-    /// Passed the policy and the device took it.
-    Accepted,
-    /// Refused by the write policy or the role: never sent to the device.
-    Refused,
-    /// Passed the policy; the device or the line did not take it.
-    Failed,
-}
-
-impl WriteResult {
-    /// Every result, for the zero series.
-    pub const ALL: [Self; 3] = [Self::Accepted, Self::Refused, Self::Failed];
-
-    /// The label value.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Accepted => "accepted",
-            Self::Refused => "refused",
-            Self::Failed => "failed",
-        }
-    }
-}
+pub use crate::metrics::{WritePath, WriteResult};
 
 /// 50 audit lines per 10 s, then one line with the count left out.
 static AUDIT_LOG: LogLimit = LogLimit::new(Duration::from_secs(10), 50);

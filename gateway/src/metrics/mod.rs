@@ -55,7 +55,8 @@ pub mod labels;
 
 pub use http::serve_metrics;
 pub use labels::{
-    function_label, Direction, DropReason, PublicationKind, RejectReason, RequestResult,
+    function_label, Direction, DropReason, PublicationKind, RejectReason, RequestResult, WritePath,
+    WriteResult,
 };
 
 use image_age::ImageAge;
@@ -349,8 +350,8 @@ impl Metrics {
             .set(1);
         // A certificate without a role: the one role label every Modbus/TCP Security server has.
         metrics.tcp_refused.with_label_values(&["none"]);
-        for path in crate::audit::WritePath::ALL {
-            for result in crate::audit::WriteResult::ALL {
+        for path in WritePath::ALL {
+            for result in WriteResult::ALL {
                 metrics
                     .writes
                     .with_label_values(&[path.as_str(), result.as_str()]);

@@ -54,7 +54,7 @@ impl ClientStream for tokio_rustls::server::TlsStream<TcpStream> {}
 /// the open-connections gauge.
 pub(crate) struct Places {
     pub(crate) _permit: OwnedSemaphorePermit,
-    pub(crate) _client: super::server::ClientPlace,
+    pub(crate) _client: super::shared::ClientPlace,
     pub(crate) _open: OpenConnection,
 }
 

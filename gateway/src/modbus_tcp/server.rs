@@ -3,8 +3,8 @@
 
 use std::collections::HashMap;
 use std::io;
-use std::net::{IpAddr, SocketAddr};
-use std::sync::{Arc, Mutex, PoisonError};
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use tokio::net::{TcpListener, TcpSocket, TcpStream};
@@ -15,7 +15,7 @@ use tracing::{debug, error, info, warn};
 
 use super::access::Authority;
 use super::connection::{self, Places};
-use super::shared::Shared;
+use super::shared::{ClientPlace, Shared};
 use super::stats::{AcceptError, RejectReason, ServerStats};
 use super::tls::{role_of, TlsServer};
 use crate::log_limit::{LogLimit, Verdict};
@@ -230,54 +230,6 @@ const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(10);
 
 /// Log lines about failed handshakes: a scan or a flood writes a few lines, not one per attempt.
 static HANDSHAKE_LOG: LogLimit = LogLimit::new(Duration::from_secs(10), 10);
-
-/// One connection's place in its client address's cap; given back when dropped.
-pub(crate) struct ClientPlace {
-    clients: Arc<Mutex<HashMap<IpAddr, usize>>>,
-    ip: IpAddr,
-}
-
-// === impl ClientPlace ===
-
-impl ClientPlace {
-    /// A place for a connection from `ip`, or `None` when the address has its
-    /// `max_connections_per_client` open.
-    fn take(shared: &Shared, ip: IpAddr) -> Option<Self> {
-        let ip = ip.to_canonical();
-        let mut clients = shared
-            .clients
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner);
-        let open = clients.entry(ip).or_default();
-        if shared
-            .options
-            .max_connections_per_client
-            .is_some_and(|cap| *open >= cap)
-        {
-            if *open == 0 {
-                clients.remove(&ip);
-            }
-            return None;
-        }
-        *open += 1;
-        Some(Self {
-            clients: Arc::clone(&shared.clients),
-            ip,
-        })
-    }
-}
-
-impl Drop for ClientPlace {
-    fn drop(&mut self) {
-        let mut clients = self.clients.lock().unwrap_or_else(PoisonError::into_inner);
-        if let Some(open) = clients.get_mut(&self.ip) {
-            *open = open.saturating_sub(1);
-            if *open == 0 {
-                clients.remove(&self.ip);
-            }
-        }
-    }
-}
 
 /// The counter of a transient accept error, or `None` when the listener is unusable.
 fn classify(error: &io::Error) -> Option<AcceptError> {
