@@ -59,8 +59,8 @@ fn pty(shutdown: &CancellationToken) -> std::io::Result<(String, SerialStream)> 
 }
 
 /// The gateway's own sections: every listener on loopback, on a port the kernel picks (the
-/// REST API would otherwise take its default 127.0.0.1:8080, which another gateway or bench run
-/// on the machine may hold).
+/// REST API would otherwise take its default port 8080 on loopback, which another gateway or
+/// bench run on the machine may hold).
 fn head(name: &str) -> String {
     format!("[gateway]\nname = \"{name}\"\n\n[modbus_tcp]\nlisten = \"127.0.0.1:0\"\nmax_connections = 64\n\n[http]\nlisten = \"127.0.0.1:0\"\n\n")
 }
