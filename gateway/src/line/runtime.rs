@@ -718,6 +718,26 @@ mod tests {
         line.status().event_counts.get(&id).copied().unwrap_or(0)
     }
 
+    /// The core of a test line named `name` on `path` (diag depth 8, reopen after 10 to 20 ms,
+    /// no metrics) and its `Echo` engine.
+    fn echo_line(name: &str, path: &str) -> (LineCore, Echo) {
+        let base = LineBase::new(
+            name,
+            "echo",
+            &PortSettings::new(path, 9600),
+            8,
+            (Duration::from_millis(10), Duration::from_millis(20)),
+            None,
+        );
+        let core = base.core(Vec::new());
+        let engine = Echo {
+            shared: Arc::clone(&core.shared),
+            out: VecDeque::new(),
+            refused: Arc::new(Mutex::new(Vec::new())),
+        };
+        (core, engine)
+    }
+
     #[tokio::test]
     async fn a_line_on_an_in_process_stream_opens_echoes_reopens_and_stops() {
         let (port, mut partner) = tokio::io::duplex(64);
@@ -725,21 +745,8 @@ mod tests {
             Err("busy".to_owned()),
             Ok(port),
         ])));
-        let base = LineBase::new(
-            "echo",
-            "echo",
-            &PortSettings::new("/dev/in-process", 9600),
-            8,
-            (Duration::from_millis(10), Duration::from_millis(20)),
-            None,
-        );
-        let core = base.core(Vec::new());
-        let refused = Arc::new(Mutex::new(Vec::new()));
-        let engine = Echo {
-            shared: Arc::clone(&core.shared),
-            out: VecDeque::new(),
-            refused: Arc::clone(&refused),
-        };
+        let (core, engine) = echo_line("echo", "/dev/in-process");
+        let refused = Arc::clone(&engine.refused);
         let (tx, rx) = mpsc::channel(4);
         let shutdown = CancellationToken::new();
         let line = spawn(
@@ -804,20 +811,7 @@ mod tests {
         let (first, mut partner) = tokio::io::duplex(64);
         let (second, mut partner2) = tokio::io::duplex(64);
         let opener = Ports(Mutex::new(VecDeque::from([Ok(first), Ok(second)])));
-        let base = LineBase::new(
-            "marks",
-            "echo",
-            &PortSettings::new("/dev/in-process", 9600),
-            8,
-            (Duration::from_millis(10), Duration::from_millis(20)),
-            None,
-        );
-        let core = base.core(Vec::new());
-        let engine = Echo {
-            shared: Arc::clone(&core.shared),
-            out: VecDeque::new(),
-            refused: Arc::new(Mutex::new(Vec::new())),
-        };
+        let (core, engine) = echo_line("marks", "/dev/in-process");
         let shutdown = CancellationToken::new();
         let line = spawn(
             core,
@@ -943,20 +937,7 @@ mod tests {
             counters: Arc::clone(&counters),
             asked: Arc::clone(&asked),
         };
-        let base = LineBase::new(
-            "uart",
-            "echo",
-            &PortSettings::new("/dev/ttyS0", 9600),
-            8,
-            (Duration::from_millis(10), Duration::from_millis(20)),
-            None,
-        );
-        let core = base.core(Vec::new());
-        let engine = Echo {
-            shared: Arc::clone(&core.shared),
-            out: VecDeque::new(),
-            refused: Arc::new(Mutex::new(Vec::new())),
-        };
+        let (core, engine) = echo_line("uart", "/dev/ttyS0");
         let shutdown = CancellationToken::new();
         let opener = OneUart(Mutex::new(Some(port)));
         let line = spawn(
