@@ -19,7 +19,7 @@ pub const DEFAULT_ANSWER_TIMEOUT: Duration = proto_core::modbus::tap::DEFAULT_AN
 pub const ANSWER_TIMEOUT_RANGE: (Duration, Duration) =
     (Duration::from_millis(5), Duration::from_millis(65_500));
 /// How often the other master is expected to read a value by default: a value not seen again
-/// within `[image] stale_factor` times this turns stale.
+/// within the image's stale factor (3) times this turns stale.
 pub const DEFAULT_EXPECTED_CYCLE: Duration = Duration::from_secs(1);
 /// Range of `expected_cycle`.
 pub const EXPECTED_CYCLE_RANGE: (Duration, Duration) =

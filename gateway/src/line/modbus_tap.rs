@@ -6,8 +6,8 @@
 //! takes no commands. It frames the bus by silence, pairs each request with its answer, and
 //! stores the answers for listed devices into the image with quality `Good`: the values of read
 //! answers (FC 01..04) and of confirmed writes (FC 05/06/15/16/23). The values turn stale as
-//! polled ones do, after `[image] stale_factor` times the line's expected cycle without another
-//! answer. Requests to addresses the line does not list are counted (device `unknown`), not
+//! polled ones do, after the image's stale factor (3) times the line's expected cycle without
+//! another answer. Requests to addresses the line does not list are counted (device `unknown`), not
 //! stored. Its devices are Modbus TCP units that answer reads from the image and refuse every
 //! write with exception 01 (the function is not allowed on this unit: the gateway does not drive
 //! this bus, and a write would need a second master on it).

@@ -197,7 +197,8 @@ pub struct Metrics {
     zenoh_publications: IntCounterVec,
     /// `gateway_dropped_updates_total{reason}`.
     dropped_updates: IntCounterVec,
-    /// `gateway_frames_discarded_total{line,reason}`: received frames a slave line did not serve.
+    /// `gateway_frames_discarded_total{line,reason}`: received frames a slave line did not serve
+    /// or a tap line did not use.
     frames_discarded: IntCounterVec,
 }
 
@@ -318,7 +319,7 @@ impl Metrics {
             frames_discarded: IntCounterVec::new(
                 Opts::new(
                     FRAMES_DISCARDED,
-                    "Received frames a Modbus slave line discarded unanswered, by reason.",
+                    "Received frames a Modbus slave line discarded unanswered, or a tap line did not use, by reason.",
                 ),
                 &["line", "reason"],
             )?,
@@ -420,8 +421,10 @@ impl Metrics {
         }
     }
 
-    /// Counts one received frame that a slave line on `line` discarded unanswered; `reason` is
-    /// one of the fixed names of `proto_core::modbus::slave::DiscardReason::as_str`.
+    /// Counts one received frame that a slave line on `line` discarded unanswered, or a tap line
+    /// did not use; `reason` is one of the fixed names of
+    /// `proto_core::modbus::slave::DiscardReason::as_str` or
+    /// `proto_core::modbus::tap::DiscardReason::as_str`.
     pub fn frame_discarded(&self, line: &str, reason: &'static str) {
         self.frames_discarded
             .with_label_values(&[line, reason])

@@ -533,3 +533,32 @@ fn check_refuses_a_zenoh_file_or_a_cp_memory_file_that_run_cannot_read() {
     );
     assert_eq!(gateway::app::check_report(&fresh).1, 0);
 }
+
+/// The example's tap line is commented out (its adapter is not plugged in here): with the
+/// comment marks removed it is a valid tap line with its keys at their defaults.
+#[test]
+fn the_examples_commented_tap_line_is_valid() {
+    let start = EXAMPLE.find("# [lines.tap]").expect("the tap block");
+    let (head, block) = EXAMPLE.split_at(start);
+    let block: String = block
+        .lines()
+        .map(|l| l.strip_prefix("# ").unwrap_or(l))
+        .map(|l| if l == "#" { "" } else { l })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let c = parse(&format!("{head}{block}\n"));
+    let tap = c.lines.get("tap").expect("the tap line");
+    let ProtocolConfig::ModbusRtuTap(t) = &tap.protocol else {
+        panic!("a tap line: {tap:?}");
+    };
+    assert_eq!(t.answer_timeout, config::DEFAULT_ANSWER_TIMEOUT);
+    assert_eq!(t.expected_cycle, config::DEFAULT_EXPECTED_CYCLE);
+    assert_eq!(t.delay_multiplier, 1);
+    assert!(t.inter_character_check);
+    assert_eq!(
+        tap.devices()
+            .map(|(n, d)| (n.as_str(), d.unit_id))
+            .collect::<Vec<_>>(),
+        [("pump", 5)]
+    );
+}
