@@ -61,6 +61,12 @@ pub enum TokenError {
     BadCharacters(String),
     #[error("the API tokens {0} and {1} are the same: every token must be its own")]
     Duplicate(String, String),
+    /// A named token (`[http.tokens.<name>]`) could not be had.
+    #[error("token {name}: {source}")]
+    Named {
+        name: String,
+        source: Box<TokenError>,
+    },
 }
 
 // === impl Token ===
@@ -245,10 +251,14 @@ impl Auth {
             let Some(source) = t.source() else {
                 continue;
             };
+            let token = read_token(&source, &env).map_err(|e| TokenError::Named {
+                name: name.clone(),
+                source: Box::new(e),
+            })?;
             tokens.push(NamedToken {
                 name: name.clone(),
                 role: t.role,
-                token: read_token(&source, &env)?,
+                token,
             });
         }
         for (i, a) in tokens.iter().enumerate() {
