@@ -276,6 +276,9 @@ impl ApiBackend for RestBackend {
                 Err(e @ TelegramSendError::Refused(_)) => {
                     Err(ApiError::invalid_body(e.to_string()))
                 }
+                Err(e @ TelegramSendError::NotAllowed { .. }) => {
+                    Err(ApiError::conflict(e.to_string()))
+                }
                 Err(e @ (TelegramSendError::Failed { .. } | TelegramSendError::PortClosed)) => {
                     Ok(SendResult::failed(e.event().status_word(), len))
                 }
