@@ -65,7 +65,7 @@ pub enum TokenError {
     #[error("token {name}: {source}")]
     Named {
         name: String,
-        source: Box<TokenError>,
+        source: Box<Self>,
     },
 }
 
