@@ -120,6 +120,7 @@ pub(crate) fn spawn_on<O: PortOpener>(
                 polls_exception: 0,
                 polls_failed: 0,
                 last_answer: None,
+                last_exception: None,
                 commands_failed: 0,
                 cycles: Vec::new(),
             })
