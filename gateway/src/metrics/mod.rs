@@ -76,6 +76,7 @@ pub const METRIC_NAMES: &[&str] = &[
     TCP_CONNECTIONS,
     TCP_CONNECTIONS_ACCEPTED,
     TCP_CONNECTIONS_REJECTED,
+    TCP_CONNECTIONS_CLOSED,
     TCP_REQUESTS,
     TCP_REFUSED,
     TCP_HANDSHAKES_FAILED,
@@ -707,6 +708,7 @@ mod tests {
         );
         metrics.tcp_request(0x03, RequestResult::Ok);
         metrics.frame_discarded("hmi", "trailing_data");
+        let _ = metrics.monitor_dropped("drive", "overwritten");
         let mut names: Vec<_> = registry
             .gather()
             .iter()
