@@ -33,6 +33,7 @@ pub(crate) fn port_settings(serial: &config::SerialConfig) -> PortSettings {
         config::StopBits::One => serial::StopBits::One,
         config::StopBits::Two => serial::StopBits::Two,
     };
+    port.monitor_frames = usize::try_from(serial.monitor_frames).unwrap_or(usize::MAX);
     port.interface = match serial.interface {
         config::Interface::Rs232 => serial::Interface::Rs232,
         config::Interface::Rs422 => serial::Interface::Rs422,

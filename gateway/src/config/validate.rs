@@ -64,8 +64,25 @@ pub(crate) fn check(cx: &mut Cx, config: &Config) {
         }
         check_line(cx, &path, line);
     }
+    if let Some(unit) = config.modbus_tcp.diagnostic_unit {
+        claim_unit(
+            cx,
+            &mut units,
+            unit,
+            "modbus_tcp.diagnostic_unit".to_owned(),
+            "modbus_tcp.diagnostic_unit",
+        );
+    }
     for (i, r) in config.modbus_tcp.write_ranges.iter().enumerate() {
-        if !units.contains_key(&r.unit_id) {
+        if config.modbus_tcp.diagnostic_unit == Some(r.unit_id) {
+            cx.issue(
+                format!("modbus_tcp.write_ranges[{i}].unit_id"),
+                format!(
+                    "unit id {} is the diagnostic unit, which is read-only",
+                    r.unit_id
+                ),
+            );
+        } else if !units.contains_key(&r.unit_id) {
             cx.issue(
                 format!("modbus_tcp.write_ranges[{i}].unit_id"),
                 format!("no device or line is served as unit id {}", r.unit_id),

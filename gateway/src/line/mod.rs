@@ -26,6 +26,8 @@
 //! - `status`: diagnostic buffer, event counters, STATUS word, device states;
 //! - `line_metrics`: the line's counters ([`LineTraffic`]) and its Prometheus metrics (events,
 //!   port state, traffic, requests);
+//! - [`monitor`]: the frame monitor (every frame with its times, bytes and line errors, in a
+//!   bounded ring), fed by the runtime where bytes pass;
 //! - `driver`: clock conversion and timer helpers of the driver loop.
 
 mod command;
@@ -35,6 +37,7 @@ mod line_metrics;
 mod modbus_master;
 mod modbus_slave;
 mod modbus_tap;
+pub mod monitor;
 pub mod plan;
 mod probe;
 mod registers32;
@@ -58,6 +61,7 @@ pub use line_metrics::LineTraffic;
 pub use modbus_master::spawn_modbus_master_line;
 pub use modbus_slave::{spawn_modbus_slave_line, CpMemoryView, SlaveCounters, SlaveLineSettings};
 pub use modbus_tap::{spawn_modbus_tap_line, TapLineSettings, TAP_PROTOCOL};
+pub use monitor::{Frame, FrameMonitor, DEFAULT_MONITOR_FRAMES, MAX_MONITOR_FRAMES};
 pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
 pub use probe::{ProbeSettings, PROBE_TIMEOUT_FACTOR};
 pub use runtime::{
