@@ -104,4 +104,10 @@ pub trait ApiBackend: Send + Sync + 'static {
 
     /// What `/readyz` checks.
     fn readiness(&self) -> Readiness;
+
+    /// A line's frame monitor; `not_found` for an unknown line, `conflict` when its monitor is
+    /// off.
+    fn monitor(&self, line: &str) -> Result<std::sync::Arc<crate::line::FrameMonitor>, ApiError> {
+        Err(ApiError::not_found("line", line))
+    }
 }

@@ -26,6 +26,7 @@
 //!   port state, traffic, requests);
 //! - [`monitor`]: the frame monitor (every frame with its times, bytes and line errors, in a
 //!   bounded ring), fed by the runtime where bytes pass;
+//! - [`pcapng`]: the monitor's frames as a pcapng file for Wireshark;
 //! - `driver`: clock conversion and timer helpers of the driver loop.
 
 mod command;
@@ -35,6 +36,7 @@ mod line_metrics;
 mod modbus_master;
 mod modbus_slave;
 pub mod monitor;
+pub mod pcapng;
 pub mod plan;
 mod probe;
 mod registers32;

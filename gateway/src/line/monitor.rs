@@ -20,6 +20,7 @@ use proto_core::monitor::{describe, Description, Direction, FrameCutter, FrameKi
 use proto_core::serial_marks::LineError;
 use tokio::sync::broadcast;
 use tokio::time::Instant;
+use tokio_util::sync::{CancellationToken, WaitForCancellationFutureOwned};
 
 use super::driver::Clock;
 use crate::metrics::Metrics;
@@ -98,6 +99,8 @@ pub struct FrameMonitor {
     lagged: AtomicU64,
     /// `gateway_monitor_dropped_total{line, reason}` (overwritten, lagged), when counted.
     counters: Option<(IntCounter, IntCounter)>,
+    /// Cancelled when the line's task ends (no more frames come).
+    ended: CancellationToken,
 }
 
 // === impl FrameMonitor ===
@@ -130,6 +133,7 @@ impl FrameMonitor {
                     m.monitor_dropped(line, "lagged"),
                 )
             }),
+            ended: CancellationToken::new(),
         }
     }
 
@@ -189,6 +193,11 @@ impl FrameMonitor {
     pub fn subscribe(&self) -> broadcast::Receiver<Arc<Frame>> {
         let _ring = self.lock();
         self.live.subscribe()
+    }
+
+    /// Resolves when the line's task has ended: no more frames come (a follower stops).
+    pub fn ended(&self) -> WaitForCancellationFutureOwned {
+        self.ended.clone().cancelled_owned()
     }
 
     /// A live follower fell behind and missed `n` frames.
@@ -275,6 +284,13 @@ pub(crate) struct Recorder {
     open: Option<Open>,
     bytes: Vec<u8>,
     errors: Vec<FrameLineError>,
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        self.close();
+        self.monitor.ended.cancel();
+    }
 }
 
 // === impl Recorder ===
