@@ -282,6 +282,8 @@ pub(crate) struct Recorder {
     /// Time of one character on the line (to date the bytes of one read).
     char_time: Duration,
     open: Option<Open>,
+    /// The estimated end of the last transmission: a received frame is not dated before it.
+    tx_end: Option<Instant>,
     bytes: Vec<u8>,
     errors: Vec<FrameLineError>,
 }
@@ -315,6 +317,7 @@ impl Recorder {
             gap,
             char_time,
             open: None,
+            tx_end: None,
             bytes: Vec::new(),
             errors: Vec::new(),
         }
@@ -339,17 +342,18 @@ impl Recorder {
     }
 
     /// Data bytes read at `now` (the last of them arrived at `now`, the ones before it a
-    /// character time apart).
+    /// character time apart, but not before the end of the last transmission: a port that
+    /// delivers faster than the wire, such as a pty, does not date an answer before its request).
     pub(crate) fn received(&mut self, now: Instant, data: &[u8]) {
         self.expire(now);
         let n = data.len();
+        let floor = self.tx_end.map(|end| end.min(now));
         for (i, &byte) in data.iter().enumerate() {
-            let at = now
-                .checked_sub(
-                    self.char_time
-                        .saturating_mul(u32::try_from(n - 1 - i).unwrap_or(0)),
-                )
-                .unwrap_or(now);
+            let back = self
+                .char_time
+                .saturating_mul(u32::try_from(n - 1 - i).unwrap_or(0));
+            let at = now.checked_sub(back).unwrap_or(now);
+            let at = floor.map_or(at, |floor| at.max(floor));
             let open = self.open.get_or_insert(Open {
                 first: at,
                 last: at,
@@ -380,6 +384,7 @@ impl Recorder {
     /// progress ends, the transmission is a frame.
     pub(crate) fn sent(&mut self, written: Instant, end: Instant, frame: &[u8]) {
         self.close();
+        self.tx_end = Some(end);
         self.cutter.sent(frame);
         self.bytes.extend_from_slice(frame);
         let times = self.times(written, end);
