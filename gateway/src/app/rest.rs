@@ -207,6 +207,19 @@ impl ApiBackend for RestBackend {
         Ok(Self::view(line, running))
     }
 
+    fn monitor(&self, line: &str) -> Result<Arc<crate::line::FrameMonitor>, ApiError> {
+        let snapshot = self.sup.snapshot();
+        Self::line(&snapshot, line)?
+            .handle
+            .monitor()
+            .cloned()
+            .ok_or_else(|| {
+                ApiError::conflict(format!(
+                    "line {line} has no frame monitor (monitor_frames = 0)"
+                ))
+            })
+    }
+
     fn diag(&self, line: &str) -> Result<DiagSnapshot, ApiError> {
         let snapshot = self.sup.snapshot();
         let status = Self::line(&snapshot, line)?.handle.status();

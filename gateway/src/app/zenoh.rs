@@ -545,6 +545,9 @@ fn spawn_line_feeds(
             }
         });
     }
+    if let Some(monitor) = line.handle.monitor() {
+        spawn_frame_feed(bridge, Arc::clone(monitor), token, &line.token);
+    }
     let Some(mut rx) = line.handle.subscribe_rx() else {
         return;
     };
@@ -571,6 +574,45 @@ fn spawn_line_feeds(
                 Err(RecvError::Lagged(n)) => {
                     bridge.stats().dropped_many(DropReason::FeedLagged, n);
                     warn!(line = %name, missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
+                }
+                Err(RecvError::Closed) => return,
+            }
+        }
+    });
+}
+
+/// `<prefix>/<line>/frames`: every frame of the line's monitor, as the REST API shows it. The
+/// copy of each frame is made only while this feed listens (the bridge is on).
+fn spawn_frame_feed(
+    bridge: &BridgeHandle,
+    monitor: Arc<crate::line::FrameMonitor>,
+    token: &CancellationToken,
+    line_token: &CancellationToken,
+) {
+    let mut frames = monitor.subscribe();
+    let bridge = bridge.clone();
+    let (token, line_token) = (token.clone(), line_token.clone());
+    tokio::spawn(async move {
+        let ended = monitor.ended();
+        tokio::pin!(ended);
+        loop {
+            let received = tokio::select! {
+                () = token.cancelled() => return,
+                () = line_token.cancelled() => return,
+                () = &mut ended => return,
+                f = frames.recv() => f,
+            };
+            match received {
+                Ok(frame) => {
+                    let view = crate::api::model::FrameView::new(&monitor, &frame);
+                    let json = serde_json::to_vec(&view).unwrap_or_default();
+                    if bridge.publish_frame(monitor.line(), json).is_err() {
+                        debug!(line = %monitor.line(), seq = frame.seq, "zenoh frame queue full; the drop is counted");
+                    }
+                }
+                Err(RecvError::Lagged(n)) => {
+                    monitor.count_lagged(n);
+                    bridge.stats().dropped_many(DropReason::FeedLagged, n);
                 }
                 Err(RecvError::Closed) => return,
             }

@@ -122,7 +122,6 @@ pub(crate) fn spawn_on<O: PortOpener>(
                 polls_failed: 0,
                 last_exception: None,
                 last_answer: None,
-                last_exception: None,
                 commands_failed: 0,
                 cycles: Vec::new(),
             })
