@@ -331,11 +331,14 @@ impl ApiBackend for RestBackend {
                 line,
                 device,
                 tag,
-                value.as_f64(),
+                &value.clone().into(),
             )
             .map_err(refused)
         });
-        let target = format!("{line}/{device}/{tag} = {}", value.as_f64());
+        let target = format!(
+            "{line}/{device}/{tag} = {}",
+            proto_core::profiles::Value::from(value)
+        );
         let metrics = Some(&self.sup.exported.metrics);
         let audit = move |result, detail: &dyn std::fmt::Display| {
             audit::record(
@@ -357,7 +360,7 @@ impl ApiBackend for RestBackend {
         let (line, device) = (line.to_owned(), device.to_owned());
         let name = write.entry.tag.name.clone();
         Box::pin(async move {
-            match write.service.call(write.request).await {
+            match write.send().await {
                 Ok(_) => audit(WriteResult::Accepted, &"ok"),
                 Err(code) => {
                     audit(WriteResult::Failed, &format_args!("{code:?}"));

@@ -117,7 +117,7 @@ pub(crate) async fn put_tag(
 ) -> Result<Json<TagValue>, ApiError> {
     let value = state
         .backend()
-        .write_tag(&line, &device, &tag, write.value)
+        .write_tag(&line, &device, &tag, write.value.clone())
         .await?;
     tracing::info!(line, device, tag, value = ?write.value, "tag written");
     Ok(Json(value))
