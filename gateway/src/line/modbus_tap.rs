@@ -119,6 +119,7 @@ pub(crate) fn spawn_on<O: PortOpener>(
                 polls_ok: 0,
                 polls_exception: 0,
                 polls_failed: 0,
+                last_exception: None,
                 last_answer: None,
                 commands_failed: 0,
                 cycles: Vec::new(),
