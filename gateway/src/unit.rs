@@ -48,6 +48,13 @@ pub trait UnitService: Send + Sync + 'static {
         let _ = request;
         None
     }
+
+    /// Whether the unit only listens to another master's traffic (a device on a tap line): it
+    /// refuses every write with exception 01, and REST and zenoh refuse tag writes before they
+    /// reach it.
+    fn listen_only(&self) -> bool {
+        false
+    }
 }
 
 /// The unit ids the server knows, each with its service.

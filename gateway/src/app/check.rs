@@ -181,6 +181,10 @@ pub fn unpolled_tags(config: &Config) -> Vec<ConfigIssue> {
     let directory = crate::tags::TagDirectory::from_config(config);
     let mut warnings = Vec::new();
     for (line_name, line) in &config.lines {
+        if line.protocol.kind() == config::ProtocolKind::ModbusRtuTap {
+            // A tap line polls nothing: its values come from another master's traffic.
+            continue;
+        }
         for (device_name, device) in line.devices() {
             let polled = |name: &str, table: T, address: u16, words: u16| {
                 let table = match table {

@@ -226,8 +226,8 @@ fn start_simulator(
             });
             Ok(())
         }
-        ProtocolConfig::ModbusMasterAscii(_) => {
-            // The demo has no Modbus ASCII line; a config that adds one gets no simulator.
+        ProtocolConfig::ModbusMasterAscii(_) | ProtocolConfig::ModbusRtuTap(_) => {
+            // The demo has no Modbus ASCII or tap line; a config that adds one gets no simulator.
             drop(stream);
             Ok(())
         }

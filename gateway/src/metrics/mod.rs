@@ -83,6 +83,7 @@ pub const METRIC_NAMES: &[&str] = &[
     ZENOH_PUBLICATIONS,
     DROPPED_UPDATES,
     FRAMES_DISCARDED,
+    MONITOR_DROPPED,
 ];
 
 const BUILD_INFO: &str = "gateway_build_info";
@@ -105,6 +106,7 @@ const WRITES: &str = "gateway_writes_total";
 const ZENOH_PUBLICATIONS: &str = "gateway_zenoh_publications_total";
 const DROPPED_UPDATES: &str = "gateway_dropped_updates_total";
 const FRAMES_DISCARDED: &str = "gateway_frames_discarded_total";
+const MONITOR_DROPPED: &str = "gateway_monitor_dropped_total";
 
 /// Buckets of `gateway_poll_duration_seconds`, 1 ms .. 5 s.
 ///
@@ -197,8 +199,11 @@ pub struct Metrics {
     zenoh_publications: IntCounterVec,
     /// `gateway_dropped_updates_total{reason}`.
     dropped_updates: IntCounterVec,
-    /// `gateway_frames_discarded_total{line,reason}`: received frames a slave line did not serve.
+    /// `gateway_frames_discarded_total{line,reason}`: received frames a slave line did not serve
+    /// or a tap line did not use.
     frames_discarded: IntCounterVec,
+    /// `gateway_monitor_dropped_total{line,reason}`: frames the line's frame monitor let go.
+    monitor_dropped: IntCounterVec,
 }
 
 // === impl Metrics ===
@@ -318,7 +323,15 @@ impl Metrics {
             frames_discarded: IntCounterVec::new(
                 Opts::new(
                     FRAMES_DISCARDED,
-                    "Received frames a Modbus slave line discarded unanswered, by reason.",
+                    "Received frames a Modbus slave line discarded unanswered, or a tap line did not use, by reason.",
+                ),
+                &["line", "reason"],
+            )?,
+            monitor_dropped: IntCounterVec::new(
+                Opts::new(
+                    MONITOR_DROPPED,
+                    "Frames a line's frame monitor let go: pushed out of its full ring \
+                     (overwritten) or missed by a live follower that fell behind (lagged).",
                 ),
                 &["line", "reason"],
             )?,
@@ -344,6 +357,7 @@ impl Metrics {
         registry.register(Box::new(metrics.zenoh_publications.clone()))?;
         registry.register(Box::new(metrics.dropped_updates.clone()))?;
         registry.register(Box::new(metrics.frames_discarded.clone()))?;
+        registry.register(Box::new(metrics.monitor_dropped.clone()))?;
 
         build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
@@ -410,6 +424,9 @@ impl Metrics {
                 .remove_label_values(&[line, direction.as_str()]);
             let _ = self.bytes.remove_label_values(&[line, direction.as_str()]);
         }
+        for reason in ["overwritten", "lagged"] {
+            let _ = self.monitor_dropped.remove_label_values(&[line, reason]);
+        }
     }
 
     /// Creates the discard series of a slave line on `line` at 0, one per `reasons`, so that a
@@ -420,12 +437,20 @@ impl Metrics {
         }
     }
 
-    /// Counts one received frame that a slave line on `line` discarded unanswered; `reason` is
-    /// one of the fixed names of `proto_core::modbus::slave::DiscardReason::as_str`.
+    /// Counts one received frame that a slave line on `line` discarded unanswered, or a tap line
+    /// did not use; `reason` is one of the fixed names of
+    /// `proto_core::modbus::slave::DiscardReason::as_str` or
+    /// `proto_core::modbus::tap::DiscardReason::as_str`.
     pub fn frame_discarded(&self, line: &str, reason: &'static str) {
         self.frames_discarded
             .with_label_values(&[line, reason])
             .inc();
+    }
+
+    /// The counter of frames the frame monitor of `line` let go for `reason` (`overwritten` or
+    /// `lagged`), created at 0; the monitor keeps it and counts without a label lookup.
+    pub fn monitor_dropped(&self, line: &str, reason: &'static str) -> IntCounter {
+        self.monitor_dropped.with_label_values(&[line, reason])
     }
 
     /// Counts one event raised on `line` (every event of 003 7.2, start-up included).
