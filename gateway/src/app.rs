@@ -188,6 +188,7 @@ pub async fn run(
     for warning in security_warnings(&config) {
         warn!("{}: {}", warning.path, warning.message);
     }
+    log_rest_guard(&config.http);
     let http_config = config.http.clone();
     let sup = supervisor::Supervisor::start(config, overrides.clone(), &shutdown, exported)?;
     if let Err(e) = zenoh::start(&sup).await {
@@ -242,6 +243,18 @@ pub async fn run(
 }
 
 /// Binds the HTTP listener and serves there until `shutdown`: the REST API with `/healthz`,
+/// Says how REST changes are guarded, once, before anything starts (the insecure mode and the
+/// locked one as a warning): the operator reads it first, and a script that waits for the
+/// listeners' lines finds it already written. A token that cannot be read stops the start later,
+/// in [`serve_http`], with its own message.
+fn log_rest_guard(http: &config::HttpConfig) {
+    match http.token_source() {
+        Some(_) => info!("REST API: changes need the bearer token"),
+        None if http.insecure_allow_unauthenticated_changes => crate::api::Auth::insecure().log_mode(),
+        None => crate::api::Auth::locked().log_mode(),
+    }
+}
+
 /// `/readyz` and `/metrics` from the process's registry. Prints `http listening on <addr>` on
 /// stdout once bound.
 async fn serve_http(
@@ -278,8 +291,6 @@ async fn serve_http(
             source,
         })?;
     let local = listener.local_addr()?;
-    // How changes are guarded, said before anything listens (the insecure mode as a warning).
-    state.auth().log_mode();
     info!(%local, "HTTP listening: /api/v1, /healthz, /readyz, /metrics");
     // A fixed line on stdout that scripts and tests wait for.
     println!("http listening on {local}");
