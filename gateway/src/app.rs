@@ -250,7 +250,9 @@ pub async fn run(
 fn log_rest_guard(http: &config::HttpConfig) {
     match http.token_source() {
         Some(_) => info!("REST API: changes need the bearer token"),
-        None if http.insecure_allow_unauthenticated_changes => crate::api::Auth::insecure().log_mode(),
+        None if http.insecure_allow_unauthenticated_changes => {
+            crate::api::Auth::insecure().log_mode()
+        }
         None => crate::api::Auth::locked().log_mode(),
     }
 }
