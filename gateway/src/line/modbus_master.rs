@@ -91,6 +91,7 @@ fn spawn_on<O: PortOpener>(
                 polls_ok: 0,
                 polls_exception: 0,
                 polls_failed: 0,
+                last_exception: None,
                 last_answer: None,
                 commands_failed: 0,
                 cycles: Vec::new(),
@@ -691,6 +692,10 @@ impl MasterLine {
         match job {
             InFlight::Scan(scan) => {
                 let answered = matches!(outcome, Outcome::Response(_) | Outcome::Exception(_));
+                let exception = match &outcome {
+                    Outcome::Exception(code) => Some(u8::from(*code)),
+                    _ => None,
+                };
                 let response = match outcome {
                     Outcome::Response(response) => Some(response),
                     _ => None,
@@ -700,7 +705,10 @@ impl MasterLine {
                         self.device_stat(scan.device, |d| d.polls_failed += 1);
                     } else if response.is_none() {
                         tracing::debug!(line = %self.settings.name, device = %device.name, ?request, "scanner request answered with an exception");
-                        self.device_stat(scan.device, |d| d.polls_exception += 1);
+                        self.device_stat(scan.device, |d| {
+                            d.polls_exception += 1;
+                            d.last_exception = exception.or(d.last_exception);
+                        });
                     } else if self
                         .scanners
                         .done(scan, request, response.clone(), &self.image, now)
@@ -751,7 +759,10 @@ impl MasterLine {
                             range.count,
                             Quality::Rejected,
                         );
-                        self.device_stat(poll.device, |d| d.polls_exception += 1);
+                        self.device_stat(poll.device, |d| {
+                            d.polls_exception += 1;
+                            d.last_exception = Some(u8::from(code));
+                        });
                         true
                     }
                     Outcome::Broadcast => true,
@@ -768,7 +779,41 @@ impl MasterLine {
                 self.publish_cycle(&poll);
                 self.apply(poll.device, transition);
             }
-            InFlight::Command { device, command } => {
+            InFlight::Command {
+                device,
+                mut command,
+            } => {
+                // The read of a read-modify-write: the write follows at once, in the same job.
+                if let (Some(update), Outcome::Response(Response::ReadHoldingRegisters(words))) =
+                    (command.mask, &outcome)
+                {
+                    if let [current] = words.as_slice() {
+                        command.mask = None;
+                        command.request = Request::WriteSingleRegister {
+                            address: update.address,
+                            value: update.apply(*current),
+                        };
+                        let engine_now = self.clock.to_engine(now);
+                        let registers32 = registers32::enabled(&self.settings.master);
+                        match registers32::submit(
+                            &mut self.master,
+                            registers32,
+                            engine_now,
+                            command.slave,
+                            command.request.clone(),
+                            Attempts::default(),
+                        ) {
+                            Ok(id) => {
+                                self.sent_at = None;
+                                self.inflight = Some((id, InFlight::Command { device, command }));
+                            }
+                            Err(err) => {
+                                command.answer(Err(CommandError::Refused(err.to_string())));
+                            }
+                        }
+                        return;
+                    }
+                }
                 let result: CommandResult = match outcome {
                     Outcome::Response(response) => {
                         if let Some(d) = device.and_then(|d| self.devices.get(d)) {

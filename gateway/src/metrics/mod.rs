@@ -404,7 +404,8 @@ impl Metrics {
 
     // --- serial lines ---
 
-    /// Creates the series of a configured line at 0 (line down, no telegrams, no bytes), so that it
+    /// Creates the series of a configured line at 0 (line down, no telegrams, no bytes, no frames
+    /// let go by its monitor), so that it
     /// shows on the dashboards before its port opens. `protocol` is the line's `protocol` key.
     pub fn init_line(&self, line: &str, protocol: &str) {
         self.line_up.with_label_values(&[line, protocol]).set(0);
@@ -412,6 +413,9 @@ impl Metrics {
             self.telegrams
                 .with_label_values(&[line, direction.as_str()]);
             self.bytes.with_label_values(&[line, direction.as_str()]);
+        }
+        for reason in ["overwritten", "lagged"] {
+            self.monitor_dropped.with_label_values(&[line, reason]);
         }
     }
 

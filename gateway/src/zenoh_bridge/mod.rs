@@ -43,7 +43,10 @@
 //! endpoint in use, a bad config file). A client keeps retrying its first connection in the
 //! background (1 s doubling to 30 s) and publishes once connected; after a loss zenoh itself
 //! reconnects to the configured endpoints, in both modes. Publications made while no peer
-//! subscribes are not stored anywhere (zenoh has no storage here).
+//! subscribes are not stored anywhere (zenoh has no storage here); a subscriber that joins late
+//! gets the current tag values from the image instead: a get on the tag keys, or zenoh-ext's
+//! advanced subscriber with history, whose history query `<key expression>/@adv/**` the bridge
+//! answers (see `queryable.rs`).
 //!
 //! Runtime: call `start` inside a multi-threaded tokio runtime.
 //!
@@ -83,6 +86,9 @@ use queryable::{Answerer, Queries, QueryKind};
 use subscribe::Commands;
 
 /// First wait before a client retries opening its session.
+/// Monitored frames waiting for the publisher thread (`<line>/frames`), all lines together;
+/// more are dropped and counted (`frame_queue_full`): the line's ring keeps them for REST.
+const FRAME_QUEUE: usize = 1024;
 const RETRY_MIN: Duration = Duration::from_secs(1);
 /// Longest wait between retries.
 const RETRY_MAX: Duration = Duration::from_secs(30);
@@ -226,6 +232,19 @@ impl BridgeHandle {
         }
     }
 
+    /// Queues a monitored frame (JSON) for `<prefix>/<line>/frames`. `Err` when it was dropped
+    /// (counted).
+    pub fn publish_frame(&self, line: &str, json: Vec<u8>) -> Result<(), DropReason> {
+        self.check(&[line])?;
+        self.outbox.push(Message {
+            kind: PublicationKind::Frame,
+            key: self.keys.frames(line),
+            payload: json,
+            json: true,
+            attachment: None,
+        })
+    }
+
     /// Queues an event for `<prefix>/<line>/events`. `Err` when it was dropped (counted).
     pub fn publish_event(
         &self,
@@ -334,6 +353,7 @@ impl Bridge {
             events: cfg.event_queue.get(),
             results: cfg.result_queue.get(),
             tags: cfg.tag_queue.get(),
+            frames: FRAME_QUEUE,
         };
         let outbox = Arc::new(Outbox::new(limits, stats.clone()));
 
@@ -519,6 +539,7 @@ async fn declare(
     }
     for (key, kind) in [
         (keys.tag_pattern(), QueryKind::Tags),
+        (keys.history_pattern(), QueryKind::History),
         (keys.line_status_pattern(), QueryKind::LineStatus),
         (keys.gateway_status(), QueryKind::GatewayStatus),
     ] {

@@ -35,6 +35,49 @@ unit_id = 4
 }
 
 #[test]
+fn the_diagnostic_unit_is_its_own_read_only_unit() {
+    let text = r#"
+[modbus_tcp]
+diagnostic_unit = 4
+write_ranges = [{ unit_id = 4, table = "holding", start = 0, count = 1 }]
+[lines.a]
+port = "/dev/ttyS0"
+protocol = "modbus-master-rtu"
+[lines.a.devices.x]
+profile = "altivar71"
+address = 3
+unit_id = 4
+"#;
+    assert_eq!(
+        issues(text),
+        [
+            (
+                "modbus_tcp.diagnostic_unit".to_owned(),
+                "unit id 4 is already used by lines.a.devices.x; unit ids must be unique in the gateway".to_owned()
+            ),
+            (
+                "modbus_tcp.write_ranges[0].unit_id".to_owned(),
+                "unit id 4 is the diagnostic unit, which is read-only".to_owned()
+            ),
+        ]
+    );
+    let ok = parse(
+        &text
+            .replace("diagnostic_unit = 4", "diagnostic_unit = 247")
+            .replace(
+                "write_ranges = [{ unit_id = 4, table = \"holding\", start = 0, count = 1 }]\n",
+                "",
+            ),
+    );
+    assert_eq!(ok.modbus_tcp.diagnostic_unit, Some(247));
+    one_issue(
+        "[modbus_tcp]\ndiagnostic_unit = 0\n",
+        "modbus_tcp.diagnostic_unit",
+        "must be between 1 and 255, found 0",
+    );
+}
+
+#[test]
 fn protocol_and_interface_rules() {
     one_issue(
         &one_line("3964r", "interface = \"rs485\""),
