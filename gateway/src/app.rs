@@ -243,17 +243,18 @@ pub async fn run(
 }
 
 /// Binds the HTTP listener and serves there until `shutdown`: the REST API with `/healthz`,
-/// Says how REST changes are guarded, once, before anything starts (the insecure mode and the
-/// locked one as a warning): the operator reads it first, and a script that waits for the
-/// listeners' lines finds it already written. A token that cannot be read stops the start later,
-/// in [`serve_http`], with its own message.
+/// Says, before anything starts, that REST changes are not guarded by a token (the insecure mode
+/// and the locked one, as a warning): the operator reads it first, and a script that waits for
+/// the listeners' lines finds it already written. With tokens, [`serve_http`] names them once it
+/// has read them (a token that cannot be read stops the start there, with its own message).
 fn log_rest_guard(http: &config::HttpConfig) {
-    match http.token_source() {
-        Some(_) => info!("REST API: changes need the bearer token"),
-        None if http.insecure_allow_unauthenticated_changes => {
-            crate::api::Auth::insecure().log_mode()
-        }
-        None => crate::api::Auth::locked().log_mode(),
+    if http.token_source().is_some() || !http.tokens.is_empty() {
+        return;
+    }
+    if http.insecure_allow_unauthenticated_changes {
+        crate::api::Auth::insecure().log_mode();
+    } else {
+        crate::api::Auth::locked().log_mode();
     }
 }
 
@@ -285,6 +286,10 @@ async fn serve_http(
             })
         })?
         .with_routes(metrics_route(sup.exported.registry.clone()));
+    // Without a token, said at start-up already (log_rest_guard).
+    if matches!(state.auth().mode(), crate::api::AuthMode::Token) {
+        state.auth().log_mode();
+    }
     let listener = tokio::net::TcpListener::bind(addr)
         .await
         .map_err(|source| AppError::Bind {
