@@ -56,6 +56,14 @@ pub trait UnitService: Send + Sync + 'static {
     fn listen_only(&self) -> bool {
         false
     }
+
+    /// The unit's own write policy: `Some(code)` refuses `request` before it is served (the
+    /// server answers the exception and audits the request as refused). `None` (the default):
+    /// the unit serves it.
+    fn refuses(&self, request: &Request) -> Option<ExceptionCode> {
+        let _ = request;
+        None
+    }
 }
 
 /// The unit ids the server knows, each with its service.

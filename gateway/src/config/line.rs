@@ -126,6 +126,16 @@ impl LineConfig {
         }
     }
 
+    /// Whether telegrams may be sent on this line (`sends`); `false` for a line without
+    /// telegrams.
+    pub fn sends(&self) -> bool {
+        match &self.protocol {
+            ProtocolConfig::Proc3964(p) => p.sends,
+            ProtocolConfig::Ascii(a) => a.sends,
+            _ => false,
+        }
+    }
+
     /// Reads `[lines.<name>]` at `path`.
     pub(crate) fn read(cx: &mut Cx, name: &str, path: &str, value: &toml::Value) -> Option<Self> {
         check_name(cx, path, name);

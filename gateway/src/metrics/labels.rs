@@ -214,18 +214,21 @@ pub enum PublicationKind {
     Event,
     /// A reply of a queryable (tag value, gateway status).
     Reply,
+    /// A frame of a line's frame monitor on `<prefix>/<line>/frames`.
+    Frame,
 }
 
 // === impl PublicationKind ===
 
 impl PublicationKind {
     /// Every kind, for pre-creating series.
-    pub const ALL: [Self; 5] = [
+    pub const ALL: [Self; 6] = [
         Self::Telegram,
         Self::SendResult,
         Self::Tag,
         Self::Event,
         Self::Reply,
+        Self::Frame,
     ];
 
     /// The `kind` label value.
@@ -236,6 +239,7 @@ impl PublicationKind {
             Self::Tag => "tag",
             Self::Event => "event",
             Self::Reply => "reply",
+            Self::Frame => "frame",
         }
     }
 }

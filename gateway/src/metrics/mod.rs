@@ -76,6 +76,7 @@ pub const METRIC_NAMES: &[&str] = &[
     TCP_CONNECTIONS,
     TCP_CONNECTIONS_ACCEPTED,
     TCP_CONNECTIONS_REJECTED,
+    TCP_CONNECTIONS_CLOSED,
     TCP_REQUESTS,
     TCP_REFUSED,
     TCP_HANDSHAKES_FAILED,
@@ -403,7 +404,8 @@ impl Metrics {
 
     // --- serial lines ---
 
-    /// Creates the series of a configured line at 0 (line down, no telegrams, no bytes), so that it
+    /// Creates the series of a configured line at 0 (line down, no telegrams, no bytes, no frames
+    /// let go by its monitor), so that it
     /// shows on the dashboards before its port opens. `protocol` is the line's `protocol` key.
     pub fn init_line(&self, line: &str, protocol: &str) {
         self.line_up.with_label_values(&[line, protocol]).set(0);
@@ -411,6 +413,9 @@ impl Metrics {
             self.telegrams
                 .with_label_values(&[line, direction.as_str()]);
             self.bytes.with_label_values(&[line, direction.as_str()]);
+        }
+        for reason in ["overwritten", "lagged"] {
+            self.monitor_dropped.with_label_values(&[line, reason]);
         }
     }
 
@@ -707,6 +712,7 @@ mod tests {
         );
         metrics.tcp_request(0x03, RequestResult::Ok);
         metrics.frame_discarded("hmi", "trailing_data");
+        let _ = metrics.monitor_dropped("drive", "overwritten");
         let mut names: Vec<_> = registry
             .gather()
             .iter()

@@ -191,7 +191,11 @@ fn admit(
     let Some(service) = units.get(unit) else {
         return Admitted::Answered(Err(ExceptionCode::GatewayPathUnavailable));
     };
-    if let Some(code) = shared.options.check_write(unit, &request) {
+    if let Some(code) = shared
+        .options
+        .check_write(unit, &request)
+        .or_else(|| service.refuses(&request))
+    {
         return Admitted::Refused(code);
     }
     match service.answer_now(&request, out) {
