@@ -17,6 +17,7 @@ use gateway::serial::PortSettings;
 use gateway::unit::UnitMap;
 use prometheus::Registry;
 use proto_core::modbus::rtu::encode_frame;
+use proto_core::monitor::{Direction, Verdict};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio_modbus::prelude::*;
 use tokio_serial::{SerialPort, SerialStream};
@@ -246,6 +247,20 @@ async fn a_tap_fills_the_image_from_another_masters_traffic_and_never_transmits(
         .await
         .expect("transport");
     assert_eq!(write, Err(ExceptionCode::IllegalFunction));
+
+    // The line's frame monitor saw the eight frames, all received, none sent; the broken
+    // answer is the one with a bad checksum.
+    let monitor = line.monitor().expect("a frame monitor");
+    let (frames, _) = monitor.frames_since(0);
+    assert_eq!(frames.len(), 8);
+    assert!(frames.iter().all(|f| f.direction == Direction::Rx));
+    let bad: Vec<usize> = frames
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| monitor.describe(f).verdict == Verdict::BadChecksum)
+        .map(|(i, _)| i)
+        .collect();
+    assert_eq!(bad, [7]);
 
     // The tap never wrote a byte to its port.
     let mut buf = [0u8; 64];

@@ -120,4 +120,10 @@ pub trait ApiBackend: Send + Sync + 'static {
     ) {
         crate::audit::record(None, WritePath::Rest, caller, target, result, detail);
     }
+
+    /// A line's frame monitor; `not_found` for an unknown line, `conflict` when its monitor is
+    /// off.
+    fn monitor(&self, line: &str) -> Result<std::sync::Arc<crate::line::FrameMonitor>, ApiError> {
+        Err(ApiError::not_found("line", line))
+    }
 }

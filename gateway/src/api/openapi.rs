@@ -29,7 +29,7 @@ use super::handlers::BEARER;
     tags(
         (name = "config", description = "Read, replace and validate the configuration"),
         (name = "status", description = "The gateway"),
-        (name = "lines", description = "Line status, diagnostic buffer, RS232 signals"),
+        (name = "lines", description = "Line status, diagnostic buffer, RS232 signals, frame monitor and captures"),
         (name = "telegrams", description = "Received telegrams and sending (ASCII, 3964(R))"),
         (name = "tags", description = "Device values by name"),
         (name = "health", description = "Liveness and readiness"),

@@ -32,13 +32,13 @@ const ACCEPT_BACKOFF: Duration = Duration::from_millis(100);
 
 /// Serves the API on `listener` until `shutdown` completes; then stops accepting, closes idle
 /// connections, lets requests in flight finish and returns when every connection has ended
-/// (the caller bounds that with its grace period).
+/// (the caller bounds that with its grace period). The caller says how changes are guarded
+/// (`log_mode` of the API state's guard) before it announces the listener.
 pub async fn serve(
     listener: TcpListener,
     state: ApiState,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> io::Result<()> {
-    state.auth().log_mode();
     if let Ok(addr) = listener.local_addr() {
         tracing::info!(%addr, max_connections = state.max_connections, "REST API listening");
     }

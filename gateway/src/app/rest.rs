@@ -207,6 +207,19 @@ impl ApiBackend for RestBackend {
         Ok(Self::view(line, running))
     }
 
+    fn monitor(&self, line: &str) -> Result<Arc<crate::line::FrameMonitor>, ApiError> {
+        let snapshot = self.sup.snapshot();
+        Self::line(&snapshot, line)?
+            .handle
+            .monitor()
+            .cloned()
+            .ok_or_else(|| {
+                ApiError::conflict(format!(
+                    "line {line} has no frame monitor (monitor_frames = 0)"
+                ))
+            })
+    }
+
     fn diag(&self, line: &str) -> Result<DiagSnapshot, ApiError> {
         let snapshot = self.sup.snapshot();
         let status = Self::line(&snapshot, line)?.handle.status();
@@ -335,7 +348,7 @@ impl ApiBackend for RestBackend {
                 line,
                 device,
                 tag,
-                value.as_f64(),
+                &value.clone().into(),
             )
             .map_err(refused)
         });
@@ -346,11 +359,7 @@ impl ApiBackend for RestBackend {
         let (line, device) = (line.to_owned(), device.to_owned());
         let name = write.entry.tag.name.clone();
         Box::pin(async move {
-            write
-                .service
-                .call(write.request)
-                .await
-                .map_err(ApiError::from)?;
+            write.send().await.map_err(ApiError::from)?;
             self.read_tag(&line, &device, &name).await
         })
     }

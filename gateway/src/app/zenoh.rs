@@ -326,7 +326,7 @@ impl BridgeBackend for ZenohBackend {
                     return Err(e);
                 }
             };
-            match write.service.call(write.request).await {
+            match write.send().await {
                 Ok(_) => {
                     audit(WriteResult::Accepted, &"ok");
                     Ok(json!({ "tag": name, "written": value }))
@@ -373,17 +373,34 @@ impl ZenohBackend {
         value: &Json,
     ) -> Result<(tag_io::PreparedWrite, String), String> {
         let sup = self.sup.upgrade().ok_or("the gateway is stopping")?;
-        let number = match value {
-            Json::Number(n) => n.as_f64(),
-            Json::Bool(b) => Some(f64::from(u8::from(*b))),
-            Json::Object(o) => o.get("value").and_then(Json::as_f64),
-            _ => None,
-        }
-        .ok_or_else(|| format!("value {value} is not a number (send a JSON number)"))?;
-        let write = tag_io::prepare_write(&sup.snapshot(), &sup.units, line, device, tag, number)
+        let value = json_value(value).ok_or_else(|| {
+            format!(
+                "value {value} is not a number, a bool or a text (send JSON: 4.5, true, \"SN-1\")"
+            )
+        })?;
+        let write = tag_io::prepare_write(&sup.snapshot(), &sup.units, line, device, tag, &value)
             .map_err(|e| e.to_string())?;
         let name = format!("{line}/{device}/{}", write.entry.tag.name);
         Ok((write, name))
+    }
+}
+
+/// The value of a tag write sent as JSON: a number (whole numbers exact up to 64 bits), a bool,
+/// a string, or an object with one of them under `value`.
+fn json_value(value: &Json) -> Option<Value> {
+    match value {
+        Json::Number(n) => n
+            .as_i64()
+            .map(Value::Int)
+            .or_else(|| n.as_u64().map(Value::UInt))
+            .or_else(|| n.as_f64().map(Value::Float)),
+        Json::Bool(b) => Some(Value::Bool(*b)),
+        Json::String(s) => Some(Value::Text(s.clone())),
+        Json::Object(o) => o
+            .get("value")
+            .filter(|v| !v.is_object())
+            .and_then(json_value),
+        Json::Null | Json::Array(_) => None,
     }
 }
 
@@ -392,8 +409,10 @@ fn tag_value(tags: &TagDirectory, image: &ProcessImage, entry: &TagEntry) -> Opt
     let reading = tags.read(image, entry)?;
     let value = match reading.value {
         Value::Int(v) => json!(v),
+        Value::UInt(v) => json!(v),
         Value::Float(v) => json!(v),
         Value::Bool(v) => json!(v),
+        Value::Text(v) => json!(v),
     };
     let unit = (!reading.unit.is_empty()).then_some(reading.unit);
     Some(TagValue {
@@ -545,6 +564,9 @@ fn spawn_line_feeds(
             }
         });
     }
+    if let Some(monitor) = line.handle.monitor() {
+        spawn_frame_feed(bridge, Arc::clone(monitor), token, &line.token);
+    }
     let Some(mut rx) = line.handle.subscribe_rx() else {
         return;
     };
@@ -571,6 +593,45 @@ fn spawn_line_feeds(
                 Err(RecvError::Lagged(n)) => {
                     bridge.stats().dropped_many(DropReason::FeedLagged, n);
                     warn!(line = %name, missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
+                }
+                Err(RecvError::Closed) => return,
+            }
+        }
+    });
+}
+
+/// `<prefix>/<line>/frames`: every frame of the line's monitor, as the REST API shows it. The
+/// copy of each frame is made only while this feed listens (the bridge is on).
+fn spawn_frame_feed(
+    bridge: &BridgeHandle,
+    monitor: Arc<crate::line::FrameMonitor>,
+    token: &CancellationToken,
+    line_token: &CancellationToken,
+) {
+    let mut frames = monitor.subscribe();
+    let bridge = bridge.clone();
+    let (token, line_token) = (token.clone(), line_token.clone());
+    tokio::spawn(async move {
+        let ended = monitor.ended();
+        tokio::pin!(ended);
+        loop {
+            let received = tokio::select! {
+                () = token.cancelled() => return,
+                () = line_token.cancelled() => return,
+                () = &mut ended => return,
+                f = frames.recv() => f,
+            };
+            match received {
+                Ok(frame) => {
+                    let view = crate::api::model::FrameView::new(&monitor, &frame);
+                    let json = serde_json::to_vec(&view).unwrap_or_default();
+                    if bridge.publish_frame(monitor.line(), json).is_err() {
+                        debug!(line = %monitor.line(), seq = frame.seq, "zenoh frame queue full; the drop is counted");
+                    }
+                }
+                Err(RecvError::Lagged(n)) => {
+                    monitor.count_lagged(n);
+                    bridge.stats().dropped_many(DropReason::FeedLagged, n);
                 }
                 Err(RecvError::Closed) => return,
             }

@@ -28,6 +28,7 @@
 //!   port state, traffic, requests);
 //! - [`monitor`]: the frame monitor (every frame with its times, bytes and line errors, in a
 //!   bounded ring), fed by the runtime where bytes pass;
+//! - [`pcapng`]: the monitor's frames as a pcapng file for Wireshark;
 //! - `driver`: clock conversion and timer helpers of the driver loop.
 
 mod command;
@@ -38,6 +39,7 @@ mod modbus_master;
 mod modbus_slave;
 mod modbus_tap;
 pub mod monitor;
+pub mod pcapng;
 pub mod plan;
 mod probe;
 mod registers32;

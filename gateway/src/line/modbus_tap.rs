@@ -18,6 +18,7 @@ use std::time::{Duration, SystemTime};
 use proto_core::event::{ids, EventId};
 use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 use proto_core::modbus::tap::{Block, Exchange, Outcome, Tap, TapConfig, TapEvent, Values};
+use proto_core::monitor::{FrameKind, Framing as MonitorFraming, Role};
 use proto_core::serial_marks::LineError;
 use tokio::time::Instant;
 use tokio_serial::SerialPort;
@@ -357,6 +358,15 @@ impl LineEngine for TapLine {
             self.shared.metrics().device_up(&device.name, false);
         }
     }
+
+    /// The monitor cuts the bus traffic as the tap does (t3.5 of silence, 003 6.4.3) and tells
+    /// requests from answers by their shape.
+    fn monitor_framing(&self) -> MonitorFraming {
+        MonitorFraming {
+            kind: FrameKind::ModbusRtu(Role::Listener),
+            gap: Some(self.settings.tap.timing.t3_5()),
+        }
+    }
 }
 
 // === impl TapLine ===
@@ -426,7 +436,10 @@ impl TapLine {
                     self.image
                         .set_quality(unit, table, start, count, Quality::Rejected);
                 }
-                self.heard(index, |d| d.polls_exception += 1);
+                self.heard(index, |d| {
+                    d.polls_exception += 1;
+                    d.last_exception = Some(u8::from(code));
+                });
             }
             Outcome::Invalid(err) => {
                 tracing::debug!(line = %self.settings.name, device = %device.name, %err, "answer does not fit its request");

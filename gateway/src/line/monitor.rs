@@ -20,6 +20,7 @@ use proto_core::monitor::{describe, Description, Direction, FrameCutter, FrameKi
 use proto_core::serial_marks::LineError;
 use tokio::sync::broadcast;
 use tokio::time::Instant;
+use tokio_util::sync::{CancellationToken, WaitForCancellationFutureOwned};
 
 use super::driver::Clock;
 use crate::metrics::Metrics;
@@ -98,6 +99,8 @@ pub struct FrameMonitor {
     lagged: AtomicU64,
     /// `gateway_monitor_dropped_total{line, reason}` (overwritten, lagged), when counted.
     counters: Option<(IntCounter, IntCounter)>,
+    /// Cancelled when the line's task ends (no more frames come).
+    ended: CancellationToken,
 }
 
 // === impl FrameMonitor ===
@@ -130,6 +133,7 @@ impl FrameMonitor {
                     m.monitor_dropped(line, "lagged"),
                 )
             }),
+            ended: CancellationToken::new(),
         }
     }
 
@@ -189,6 +193,11 @@ impl FrameMonitor {
     pub fn subscribe(&self) -> broadcast::Receiver<Arc<Frame>> {
         let _ring = self.lock();
         self.live.subscribe()
+    }
+
+    /// Resolves when the line's task has ended: no more frames come (a follower stops).
+    pub fn ended(&self) -> WaitForCancellationFutureOwned {
+        self.ended.clone().cancelled_owned()
     }
 
     /// A live follower fell behind and missed `n` frames.
@@ -273,8 +282,17 @@ pub(crate) struct Recorder {
     /// Time of one character on the line (to date the bytes of one read).
     char_time: Duration,
     open: Option<Open>,
+    /// The estimated end of the last transmission: a received frame is not dated before it.
+    tx_end: Option<Instant>,
     bytes: Vec<u8>,
     errors: Vec<FrameLineError>,
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        self.close();
+        self.monitor.ended.cancel();
+    }
 }
 
 // === impl Recorder ===
@@ -299,6 +317,7 @@ impl Recorder {
             gap,
             char_time,
             open: None,
+            tx_end: None,
             bytes: Vec::new(),
             errors: Vec::new(),
         }
@@ -323,17 +342,18 @@ impl Recorder {
     }
 
     /// Data bytes read at `now` (the last of them arrived at `now`, the ones before it a
-    /// character time apart).
+    /// character time apart, but not before the end of the last transmission: a port that
+    /// delivers faster than the wire, such as a pty, does not date an answer before its request).
     pub(crate) fn received(&mut self, now: Instant, data: &[u8]) {
         self.expire(now);
         let n = data.len();
+        let floor = self.tx_end.map(|end| end.min(now));
         for (i, &byte) in data.iter().enumerate() {
-            let at = now
-                .checked_sub(
-                    self.char_time
-                        .saturating_mul(u32::try_from(n - 1 - i).unwrap_or(0)),
-                )
-                .unwrap_or(now);
+            let back = self
+                .char_time
+                .saturating_mul(u32::try_from(n - 1 - i).unwrap_or(0));
+            let at = now.checked_sub(back).unwrap_or(now);
+            let at = floor.map_or(at, |floor| at.max(floor));
             let open = self.open.get_or_insert(Open {
                 first: at,
                 last: at,
@@ -364,6 +384,7 @@ impl Recorder {
     /// progress ends, the transmission is a frame.
     pub(crate) fn sent(&mut self, written: Instant, end: Instant, frame: &[u8]) {
         self.close();
+        self.tx_end = Some(end);
         self.cutter.sent(frame);
         self.bytes.extend_from_slice(frame);
         let times = self.times(written, end);

@@ -55,8 +55,8 @@ pub mod labels;
 
 pub use http::serve_metrics;
 pub use labels::{
-    function_label, Direction, DropReason, PublicationKind, RejectReason, RequestResult, WritePath,
-    WriteResult,
+    function_label, Direction, DropReason, PublicationKind, RejectReason, RequestResult,
+    TcpCloseReason, WritePath, WriteResult,
 };
 
 use image_age::ImageAge;
@@ -76,6 +76,7 @@ pub const METRIC_NAMES: &[&str] = &[
     TCP_CONNECTIONS,
     TCP_CONNECTIONS_ACCEPTED,
     TCP_CONNECTIONS_REJECTED,
+    TCP_CONNECTIONS_CLOSED,
     TCP_REQUESTS,
     TCP_REFUSED,
     TCP_HANDSHAKES_FAILED,
@@ -99,6 +100,7 @@ const POLL_CYCLE: &str = "gateway_poll_cycle_seconds";
 const TCP_CONNECTIONS: &str = "gateway_modbus_tcp_connections";
 const TCP_CONNECTIONS_ACCEPTED: &str = "gateway_modbus_tcp_connections_accepted_total";
 const TCP_CONNECTIONS_REJECTED: &str = "gateway_modbus_tcp_connections_rejected_total";
+const TCP_CONNECTIONS_CLOSED: &str = "gateway_modbus_tcp_connections_closed_total";
 const TCP_REQUESTS: &str = "gateway_modbus_tcp_requests_total";
 const TCP_REFUSED: &str = "gateway_modbus_tcp_refused_total";
 const TCP_HANDSHAKES_FAILED: &str = "gateway_modbus_tcp_tls_handshakes_failed_total";
@@ -187,6 +189,8 @@ pub struct Metrics {
     tcp_accepted: IntCounter,
     /// `gateway_modbus_tcp_connections_rejected_total{reason}`.
     tcp_rejected: IntCounterVec,
+    /// `gateway_modbus_tcp_connections_closed_total{reason}`: every connection's end by reason.
+    tcp_closed: IntCounterVec,
     /// `gateway_modbus_tcp_requests_total{function,result}`.
     tcp_requests: IntCounterVec,
     /// `gateway_modbus_tcp_refused_total{role}`: Modbus/TCP Security requests refused by role.
@@ -286,6 +290,13 @@ impl Metrics {
                 ),
                 &["reason"],
             )?,
+            tcp_closed: IntCounterVec::new(
+                Opts::new(
+                    TCP_CONNECTIONS_CLOSED,
+                    "Modbus TCP connections closed, by reason (served ones and those refused at accept or at the TLS handshake).",
+                ),
+                &["reason"],
+            )?,
             tcp_requests: IntCounterVec::new(
                 Opts::new(TCP_REQUESTS, "Modbus TCP requests by function code and result."),
                 &["function", "result"],
@@ -350,6 +361,7 @@ impl Metrics {
         registry.register(Box::new(metrics.tcp_connections.clone()))?;
         registry.register(Box::new(metrics.tcp_accepted.clone()))?;
         registry.register(Box::new(metrics.tcp_rejected.clone()))?;
+        registry.register(Box::new(metrics.tcp_closed.clone()))?;
         registry.register(Box::new(metrics.tcp_requests.clone()))?;
         registry.register(Box::new(metrics.tcp_refused.clone()))?;
         registry.register(Box::new(metrics.tcp_handshakes_failed.clone()))?;
@@ -374,6 +386,9 @@ impl Metrics {
         for reason in RejectReason::ALL {
             metrics.tcp_rejected.with_label_values(&[reason.as_str()]);
         }
+        for reason in TcpCloseReason::ALL {
+            metrics.tcp_closed.with_label_values(&[reason.as_str()]);
+        }
         for kind in PublicationKind::ALL {
             metrics
                 .zenoh_publications
@@ -389,7 +404,8 @@ impl Metrics {
 
     // --- serial lines ---
 
-    /// Creates the series of a configured line at 0 (line down, no telegrams, no bytes), so that it
+    /// Creates the series of a configured line at 0 (line down, no telegrams, no bytes, no frames
+    /// let go by its monitor), so that it
     /// shows on the dashboards before its port opens. `protocol` is the line's `protocol` key.
     pub fn init_line(&self, line: &str, protocol: &str) {
         self.line_up.with_label_values(&[line, protocol]).set(0);
@@ -397,6 +413,9 @@ impl Metrics {
             self.telegrams
                 .with_label_values(&[line, direction.as_str()]);
             self.bytes.with_label_values(&[line, direction.as_str()]);
+        }
+        for reason in ["overwritten", "lagged"] {
+            self.monitor_dropped.with_label_values(&[line, reason]);
         }
     }
 
@@ -579,6 +598,11 @@ impl Metrics {
             .inc();
     }
 
+    /// A connection ended (or was refused at accept or at the TLS handshake) for `reason`.
+    pub fn tcp_connection_closed(&self, reason: TcpCloseReason) {
+        self.tcp_closed.with_label_values(&[reason.as_str()]).inc();
+    }
+
     /// Counts one Modbus TCP request with function code `function` and its answer.
     pub fn tcp_request(&self, function: u8, result: RequestResult) {
         self.tcp_request_series(function, result).inc();
@@ -688,6 +712,7 @@ mod tests {
         );
         metrics.tcp_request(0x03, RequestResult::Ok);
         metrics.frame_discarded("hmi", "trailing_data");
+        let _ = metrics.monitor_dropped("drive", "overwritten");
         let mut names: Vec<_> = registry
             .gather()
             .iter()

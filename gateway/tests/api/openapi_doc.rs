@@ -29,6 +29,8 @@ const ROUTES: &[(&str, &str)] = &[
     ("post", "/api/v1/lines/{line}/send"),
     ("get", "/api/v1/lines/{line}/signals"),
     ("put", "/api/v1/lines/{line}/signals"),
+    ("get", "/api/v1/lines/{line}/frames"),
+    ("get", "/api/v1/lines/{line}/capture"),
     ("get", "/api/v1/tags"),
     ("get", "/api/v1/lines/{line}/devices/{device}/tags"),
     ("get", "/api/v1/lines/{line}/devices/{device}/tags/{tag}"),
@@ -169,7 +171,7 @@ async fn the_document_matches_what_the_server_answers() {
         .iter()
         .filter_map(|b| b["type"].as_str())
         .collect();
-    assert_eq!(types, ["boolean", "number"], "{value}");
+    assert_eq!(types, ["boolean", "number", "string"], "{value}");
 
     // A sequence number that is not a number answers 400, which the operation documents.
     let r = api

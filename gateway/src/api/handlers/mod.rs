@@ -4,6 +4,7 @@
 pub(crate) mod config;
 pub(crate) mod health;
 pub(crate) mod lines;
+pub(crate) mod monitor;
 pub(crate) mod tags;
 
 use std::fmt::Display;
