@@ -31,6 +31,7 @@ mod report;
 mod stats;
 mod tap;
 mod tcp;
+mod tls;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -227,6 +228,11 @@ async fn run(args: &Args) -> Vec<Row> {
         match tcp::cached_reads(&plan).await {
             Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
             Err(e) => push(&mut rows, failed("TCP FC03 x125 cached", e)),
+        }
+        eprintln!("Modbus TCP cached reads over TLS (Modbus/TCP Security) against plain TCP");
+        match tcp::cached_reads_tls(&plan).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(&mut rows, failed("TLS FC03 x125 cached", e)),
         }
     }
     if wanted(Group::Write) {
