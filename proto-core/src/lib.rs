@@ -18,6 +18,7 @@
 //! - `fuzzing` (with `cfg(fuzzing)`, the `fuzzing` feature or in tests): the fuzz targets' entry
 //!   points;
 //! - [`event`]: the CP 341 event catalog (chapter 7.2), the STATUS word and the diagnostic buffer;
+//! - [`monitor`]: where a line's frames end and what they are (the frame monitor);
 //! - [`profiles`]: the register-map models of the supported devices;
 //! - [`proc3964`]: the 3964(R) procedure (6.3);
 //! - [`serial_marks`]: UART line errors and the decoder of the tty layer's `PARMRK` marks;
@@ -32,6 +33,7 @@ pub mod event;
 #[cfg(any(fuzzing, test, feature = "fuzzing"))]
 pub mod fuzzing;
 pub mod modbus;
+pub mod monitor;
 pub mod proc3964;
 pub mod profiles;
 pub mod serial_marks;

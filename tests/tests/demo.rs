@@ -500,3 +500,35 @@ async fn mbpoll_reads_the_gateway_health_from_the_diagnostic_unit() {
         Err(ExceptionCode::IllegalDataAddress)
     );
 }
+
+/// How long the demo runs in the quiet test: long enough for every periodic part of the demo
+/// (polls, the partners' telegrams, the mailbox consumer, zenoh publications, rate-limited
+/// warnings with their 10 s interval) to come round several times.
+const QUIET_RUN: Duration = Duration::from_secs(60);
+
+/// A log line above INFO (the log's level field, padded: ` WARN `, `ERROR `).
+fn above_info(line: &str) -> bool {
+    line.contains(" WARN ") || line.contains("ERROR ")
+}
+
+#[test]
+fn the_demo_runs_a_minute_and_stops_without_a_warning() {
+    let mut gw = Gateway::demo(&[]);
+    std::thread::sleep(QUIET_RUN);
+    let status = gw.stop(Duration::from_secs(15));
+    assert!(
+        status.is_some_and(|s| s.success()),
+        "exit {status:?}:\n{}",
+        gw.output()
+    );
+    let output = gw.output();
+    // One warning on purpose, at start-up: the demo's REST API takes changes without a token.
+    // Nothing else above INFO: not at start-up, not while it runs, not when it stops.
+    let above: Vec<&str> = output.lines().filter(|l| above_info(l)).collect();
+    assert!(
+        above.len() == 1 && above[0].contains("INSECURE"),
+        "{} lines above INFO, one expected (INSECURE):\n{}\n\nwhole output:\n{output}",
+        above.len(),
+        above.join("\n")
+    );
+}

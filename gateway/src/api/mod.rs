@@ -20,6 +20,8 @@
 //! POST   /api/v1/lines/{line}/telegrams/{seq}/ack        acknowledge the oldest
 //! POST   /api/v1/lines/{line}/send                       send a telegram
 //! GET    /api/v1/lines/{line}/signals                    RS232 signals
+//! GET    /api/v1/lines/{line}/frames?since=&follow=      frame monitor (JSON; SSE with follow)
+//! GET    /api/v1/lines/{line}/capture?seconds=           frame monitor as pcapng
 //! PUT    /api/v1/lines/{line}/signals                    set DTR / RTS
 //! GET    /api/v1/tags?line=&device=                      tag values
 //! GET    /api/v1/lines/{line}/devices/{device}/tags      one device's tags
@@ -200,7 +202,7 @@ impl ApiState {
 
 /// Every route with its OpenAPI operation.
 fn routes() -> OpenApiRouter<ApiState> {
-    use handlers::{config as c, health as h, lines as l, tags as t};
+    use handlers::{config as c, health as h, lines as l, monitor as m, tags as t};
     let v1 = OpenApiRouter::new()
         .routes(routes!(h::openapi_json))
         .routes(routes!(h::gateway_status))
@@ -218,6 +220,8 @@ fn routes() -> OpenApiRouter<ApiState> {
         .routes(routes!(l::ack_telegram))
         .routes(routes!(l::send_telegram))
         .routes(routes!(l::get_signals, l::set_signals))
+        .routes(routes!(m::get_frames))
+        .routes(routes!(m::get_capture))
         .routes(routes!(t::list_tags))
         .routes(routes!(t::device_tags))
         .routes(routes!(t::get_tag, t::put_tag));

@@ -7,6 +7,7 @@
 //! A write from zenoh takes the same path and checks as a Modbus TCP write ([`super::tag_io`]).
 
 use crate::audit::{self, WritePath, WriteResult};
+use crate::line::telegram::TelegramSendError;
 use std::collections::BTreeSet;
 use std::sync::{Arc, PoisonError, Weak};
 use std::time::Duration;
@@ -284,8 +285,12 @@ impl BridgeBackend for ZenohBackend {
                     Ok(json!({ "sent": len }))
                 }
                 Err(e) => {
+                    let result = match e {
+                        TelegramSendError::NotAllowed { .. } => WriteResult::Refused,
+                        _ => WriteResult::Failed,
+                    };
                     let e = e.to_string();
-                    audit(WriteResult::Failed, &e);
+                    audit(result, &e);
                     Err(e)
                 }
             }
@@ -541,6 +546,9 @@ fn spawn_line_feeds(
             }
         });
     }
+    if let Some(monitor) = line.handle.monitor() {
+        spawn_frame_feed(bridge, Arc::clone(monitor), token, &line.token);
+    }
     let Some(mut rx) = line.handle.subscribe_rx() else {
         return;
     };
@@ -567,6 +575,45 @@ fn spawn_line_feeds(
                 Err(RecvError::Lagged(n)) => {
                     bridge.stats().dropped_many(DropReason::FeedLagged, n);
                     warn!(line = %name, missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
+                }
+                Err(RecvError::Closed) => return,
+            }
+        }
+    });
+}
+
+/// `<prefix>/<line>/frames`: every frame of the line's monitor, as the REST API shows it. The
+/// copy of each frame is made only while this feed listens (the bridge is on).
+fn spawn_frame_feed(
+    bridge: &BridgeHandle,
+    monitor: Arc<crate::line::FrameMonitor>,
+    token: &CancellationToken,
+    line_token: &CancellationToken,
+) {
+    let mut frames = monitor.subscribe();
+    let bridge = bridge.clone();
+    let (token, line_token) = (token.clone(), line_token.clone());
+    tokio::spawn(async move {
+        let ended = monitor.ended();
+        tokio::pin!(ended);
+        loop {
+            let received = tokio::select! {
+                () = token.cancelled() => return,
+                () = line_token.cancelled() => return,
+                () = &mut ended => return,
+                f = frames.recv() => f,
+            };
+            match received {
+                Ok(frame) => {
+                    let view = crate::api::model::FrameView::new(&monitor, &frame);
+                    let json = serde_json::to_vec(&view).unwrap_or_default();
+                    if bridge.publish_frame(monitor.line(), json).is_err() {
+                        debug!(line = %monitor.line(), seq = frame.seq, "zenoh frame queue full; the drop is counted");
+                    }
+                }
+                Err(RecvError::Lagged(n)) => {
+                    monitor.count_lagged(n);
+                    bridge.stats().dropped_many(DropReason::FeedLagged, n);
                 }
                 Err(RecvError::Closed) => return,
             }

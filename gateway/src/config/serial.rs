@@ -33,6 +33,15 @@ pub const DEFAULT_RS485_RX_DURING_TX: bool = false;
 /// (`RS485_MAX_RTS_DELAY`); the seeds are silent on these delays.
 pub const MAX_RS485_DELAY: Duration = Duration::from_millis(100);
 
+/// Frames a line's frame monitor keeps by default (`monitor_frames`; 0 turns it off).
+pub const DEFAULT_MONITOR_FRAMES: u32 = 256;
+/// The most frames a line's frame monitor may keep.
+pub const MAX_MONITOR_FRAMES: u32 = 65_536;
+
+fn is_default_monitor_frames(n: &u32) -> bool {
+    *n == DEFAULT_MONITOR_FRAMES
+}
+
 /// The prefix of a port created by `gateway demo` (a pseudo-terminal), e.g. `pty:drive`.
 pub const PTY_PREFIX: &str = "pty:";
 
@@ -221,6 +230,9 @@ pub struct SerialConfig {
     /// Present exactly when `interface` is RS485.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rs485: Option<Rs485Config>,
+    /// Frames the line's frame monitor keeps (0: no monitor).
+    #[serde(skip_serializing_if = "is_default_monitor_frames")]
+    pub monitor_frames: u32,
 }
 
 // === impl SerialConfig ===
@@ -236,6 +248,7 @@ impl SerialConfig {
             parity: DEFAULT_PARITY,
             stop_bits: DEFAULT_STOP_BITS,
             rs485: None,
+            monitor_frames: DEFAULT_MONITOR_FRAMES,
         }
     }
 
@@ -278,6 +291,13 @@ impl SerialConfig {
             Some(2) => StopBits::Two,
             _ => DEFAULT_STOP_BITS,
         };
+        let monitor_frames = f.int_or(
+            cx,
+            "monitor_frames",
+            0..=MAX_MONITOR_FRAMES,
+            DEFAULT_MONITOR_FRAMES,
+            "",
+        );
         let rs485_table = f.table(cx, "rs485");
         let rs485 = match (interface, rs485_table) {
             (Interface::Rs485, Some(t)) => Some(read_rs485(cx, t)),
@@ -299,6 +319,7 @@ impl SerialConfig {
             parity,
             stop_bits,
             rs485,
+            monitor_frames,
         })
     }
 }

@@ -7,6 +7,8 @@
 //!   registers in the [`ProcessImage`](crate::image::ProcessImage), and carries writes and
 //!   on-demand reads from the Modbus TCP server ([`DeviceUnit`]) through a bounded command queue;
 //! - `modbus_slave` ([`spawn_modbus_slave_line`]): the Modbus slave RTU line serving the CP memory;
+//! - `modbus_tap` ([`spawn_modbus_tap_line`]): a listen-only line that stores what another
+//!   master's requests and the devices' answers show, never transmitting;
 //! - [`telegram`]: ASCII and 3964(R) lines with their mailboxes.
 //!
 //! What the Modbus master adapter builds on:
@@ -24,6 +26,9 @@
 //! - `status`: diagnostic buffer, event counters, STATUS word, device states;
 //! - `line_metrics`: the line's counters ([`LineTraffic`]) and its Prometheus metrics (events,
 //!   port state, traffic, requests);
+//! - [`monitor`]: the frame monitor (every frame with its times, bytes and line errors, in a
+//!   bounded ring), fed by the runtime where bytes pass;
+//! - [`pcapng`]: the monitor's frames as a pcapng file for Wireshark;
 //! - `driver`: clock conversion and timer helpers of the driver loop.
 
 mod command;
@@ -32,6 +37,9 @@ mod driver;
 mod line_metrics;
 mod modbus_master;
 mod modbus_slave;
+mod modbus_tap;
+pub mod monitor;
+pub mod pcapng;
 pub mod plan;
 mod probe;
 mod registers32;
@@ -54,6 +62,8 @@ pub use device_unit::DeviceUnit;
 pub use line_metrics::LineTraffic;
 pub use modbus_master::spawn_modbus_master_line;
 pub use modbus_slave::{spawn_modbus_slave_line, CpMemoryView, SlaveCounters, SlaveLineSettings};
+pub use modbus_tap::{spawn_modbus_tap_line, TapLineSettings, TAP_PROTOCOL};
+pub use monitor::{Frame, FrameMonitor, DEFAULT_MONITOR_FRAMES, MAX_MONITOR_FRAMES};
 pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
 pub use probe::{ProbeSettings, PROBE_TIMEOUT_FACTOR};
 pub use runtime::{

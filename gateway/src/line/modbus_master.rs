@@ -335,6 +335,22 @@ impl LineEngine for MasterLine {
             self.shared.metrics().device_up(&device.name, false);
         }
     }
+
+    /// RTU: t3.5 of silence ends a frame (003 6.4.3, with the line's multiplier); ASCII: CR LF
+    /// (003 6.4.2.2).
+    fn monitor_framing(&self) -> proto_core::monitor::Framing {
+        use proto_core::monitor::{FrameKind, Framing as MonitorFraming, Role};
+        match self.settings.master.framing {
+            Framing::Rtu { timing } => MonitorFraming {
+                kind: FrameKind::ModbusRtu(Role::Master),
+                gap: Some(timing.t3_5()),
+            },
+            Framing::Ascii { .. } => MonitorFraming {
+                kind: FrameKind::ModbusAscii(Role::Master),
+                gap: None,
+            },
+        }
+    }
 }
 
 // === impl MasterLine ===

@@ -303,6 +303,14 @@ impl LineEngine for SlaveLine {
     fn port_failed(&mut self, id: EventId, reason: String) {
         self.shared.raise(id, None, Some(reason));
     }
+
+    /// RTU frames end by t3.5 of silence (003 6.4.3): the default gap of 3.5 characters.
+    fn monitor_framing(&self) -> proto_core::monitor::Framing {
+        proto_core::monitor::Framing {
+            kind: proto_core::monitor::FrameKind::ModbusRtu(proto_core::monitor::Role::Slave),
+            gap: None,
+        }
+    }
 }
 
 // === impl SlaveLine ===

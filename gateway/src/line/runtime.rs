@@ -33,6 +33,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use proto_core::event::{ids, EventId};
+use proto_core::monitor::Framing;
 use proto_core::serial_marks::{LineError, MarkDecoder, Piece};
 use proto_core::telegram::Action;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
@@ -44,6 +45,7 @@ use tokio_util::sync::CancellationToken;
 
 use super::driver::{estimated_tx_end, sleep_until_opt, Clock};
 use super::line_metrics::{LineMetrics, LineTraffic};
+use super::monitor::{FrameMonitor, Recorder};
 use super::status::{DeviceStatus, LineEvent, LineStatus, Shared};
 use crate::metrics::Metrics;
 use crate::serial::{self, Backoff, PortSettings, UartCounters};
@@ -176,6 +178,11 @@ pub(crate) trait LineEngine: Send + 'static {
     /// The port failed to open or was lost (after the status took the reason): the event and
     /// what the protocol does about it.
     fn port_failed(&mut self, id: EventId, reason: String);
+    /// How the frame monitor cuts and describes the line's frames (asked once, at start): by
+    /// default bytes cut by 3.5 character times of silence.
+    fn monitor_framing(&self) -> Framing {
+        Framing::RAW
+    }
 }
 
 /// What every line is started with, whatever its protocol.
@@ -272,6 +279,7 @@ pub struct LineHandle {
     protocol: &'static str,
     shared: Arc<Shared>,
     caps: Arc<dyn LineCapabilities>,
+    monitor: Option<Arc<FrameMonitor>>,
     task: Arc<Mutex<Option<JoinHandle<()>>>>,
 }
 
@@ -324,6 +332,11 @@ impl LineHandle {
         self.caps.units()
     }
 
+    /// The line's frame monitor (`None` with `monitor_frames = 0`).
+    pub fn monitor(&self) -> Option<&Arc<FrameMonitor>> {
+        self.monitor.as_ref()
+    }
+
     /// The capabilities of the line's protocol, if they are a `T`.
     pub(crate) fn capability<T: 'static>(&self) -> Option<&T> {
         self.caps.as_any().downcast_ref()
@@ -360,6 +373,18 @@ pub(crate) fn spawn<E: LineEngine, O: PortOpener>(
     } = core;
     let name = base.name.clone();
     let protocol = base.protocol;
+    let framing = engine.monitor_framing();
+    let monitor = (base.port.monitor_frames > 0).then(|| {
+        Arc::new(FrameMonitor::new(
+            &name,
+            framing.kind,
+            base.port.monitor_frames,
+            base.metrics.as_ref(),
+        ))
+    });
+    let recorder = monitor
+        .as_ref()
+        .map(|m| Recorder::new(Arc::clone(m), clock, framing, base.port.char_time()));
     let task = PortTask {
         base,
         shared: Arc::clone(&shared),
@@ -371,6 +396,7 @@ pub(crate) fn spawn<E: LineEngine, O: PortOpener>(
         marks: MarkDecoder::new(),
         uart: None,
         no_uart_counters: false,
+        recorder,
     };
     let task = tokio::spawn(task.run());
     LineHandle {
@@ -378,6 +404,7 @@ pub(crate) fn spawn<E: LineEngine, O: PortOpener>(
         protocol,
         shared,
         caps,
+        monitor,
         task: Arc::new(Mutex::new(Some(task))),
     }
 }
@@ -405,6 +432,8 @@ struct PortTask<E: LineEngine, O> {
     uart: Option<UartCounters>,
     /// The port has no UART counters (a pty): not asked again until it is reopened.
     no_uart_counters: bool,
+    /// Records the line's frames into its monitor (`None`: the monitor is off).
+    recorder: Option<Recorder>,
 }
 
 // === impl PortTask ===
@@ -473,15 +502,23 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
     /// `handle_rx`, a faulty character or a BREAK to its `handle_line_error`, in stream order (a
     /// read without an `FF` byte goes to the engine as it is, without a copy).
     fn receive(&mut self, bytes: &[u8]) {
-        let (_, now) = self.clock.now();
+        let (at, now) = self.clock.now();
         let mut data = 0;
         for piece in self.marks.decode(bytes) {
             match piece {
                 Piece::Data(bytes) => {
                     data += bytes.len();
+                    if let Some(recorder) = &mut self.recorder {
+                        recorder.received(at, bytes);
+                    }
                     self.engine.handle_rx(now, bytes);
                 }
-                Piece::Error { error, .. } => self.engine.handle_line_error(now, error),
+                Piece::Error { error, .. } => {
+                    if let Some(recorder) = &mut self.recorder {
+                        recorder.line_error(at, error);
+                    }
+                    self.engine.handle_line_error(now, error);
+                }
             }
         }
         self.shared.metrics().received_bytes(data);
@@ -502,7 +539,10 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
                     .map_or(0, |earlier| counters.lost_since(&earlier));
                 if lost > 0 {
                     tracing::debug!(line = %self.base.name, lost, "receive overrun");
-                    let (_, now) = self.clock.now();
+                    let (at, now) = self.clock.now();
+                    if let Some(recorder) = &mut self.recorder {
+                        recorder.line_error(at, LineError::Overrun);
+                    }
                     self.engine.handle_line_error(now, LineError::Overrun);
                 }
             }
@@ -523,6 +563,9 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
         self.uart = None;
         self.check_uart(&port); // the counters' start on this opening
         self.engine.opened(port.modem());
+        if let Some(recorder) = &mut self.recorder {
+            recorder.opened();
+        }
         // The engine's deadlines can be fractions of a millisecond apart (t1.5/t3.5, 003 6.4.3;
         // the turnaround after a broadcast, 003 6.4.2.2): tokio's millisecond timer would add
         // 1.2 ms to each.
@@ -540,6 +583,9 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
             {
                 self.engine.handle_timeout(engine_now);
             }
+            if let Some(recorder) = &mut self.recorder {
+                recorder.expire(now);
+            }
             if stopping.is_none() {
                 self.engine.start(now);
             }
@@ -555,6 +601,9 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
                 }
                 let written = Instant::now();
                 let end = estimated_tx_end(written, frame.len(), char_time);
+                if let Some(recorder) = &mut self.recorder {
+                    recorder.sent(written, end, &frame);
+                }
                 self.shared.metrics().sent_bytes(frame.len());
                 self.engine
                     .transmitted(written, frame.len(), self.clock.to_engine(end));
@@ -566,6 +615,7 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
                 return PortExit::Shutdown;
             }
             let deadline = self.engine.poll_timeout().map(|t| self.clock.to_tokio(t));
+            let frame_end = self.recorder.as_ref().and_then(Recorder::deadline);
             let reading = stopping.is_none_or(|s| s.read);
             let taking = stopping.is_none();
             tokio::select! {
@@ -597,6 +647,8 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
                     self.engine.handle_timeout(engine_now);
                 }
                 () = self.engine.wake() => self.engine.woken(port.modem()),
+                // A received frame ends by silence (the turn of the loop closes it).
+                () = sleep_until_opt(frame_end) => {}
                 command = recv(&mut self.commands), if taking => match command {
                     Some(command) => self.engine.command(command, port.modem()),
                     None => self.commands = None,
@@ -804,6 +856,64 @@ mod tests {
             .await
             .expect("the line stops");
         assert!(tx.send(b"after".to_vec()).await.is_err(), "queue closed");
+    }
+
+    #[tokio::test]
+    async fn the_port_layer_records_every_frame_into_the_monitor() {
+        let (port, mut partner) = tokio::io::duplex(64);
+        let opener = Ports(Mutex::new(VecDeque::from([Ok(port)])));
+        let (core, engine) = echo_line("monitored", "/dev/in-process");
+        let shutdown = CancellationToken::new();
+        let line = spawn(
+            core,
+            engine,
+            None,
+            Arc::new(Nothing),
+            opener,
+            shutdown.clone(),
+        );
+        eventually("the port open", || line.status().port_open).await;
+        let monitor = Arc::clone(line.monitor().expect("a monitor by default"));
+
+        // Bytes in with a parity mark inside (one read), the echo out piece by piece: the first
+        // transmission ends the received frame, which carries the line error at its place.
+        partner
+            .write_all(&[b'h', b'i', 0xFF, 0x00, b'x', b'!'])
+            .await
+            .expect("write");
+        let expected: &[u8] = b"hi<ParityOrFraming>!";
+        let mut echo = vec![0u8; expected.len()];
+        partner.read_exact(&mut echo).await.expect("echo");
+        eventually("four frames", || monitor.frames_since(0).0.len() == 4).await;
+        let (frames, next) = monitor.frames_since(0);
+        assert_eq!(next, 5);
+        assert_eq!(
+            frames
+                .iter()
+                .map(|f| (f.direction, f.bytes.clone()))
+                .collect::<Vec<_>>(),
+            [
+                (proto_core::monitor::Direction::Rx, b"hi!".to_vec()),
+                (proto_core::monitor::Direction::Tx, b"hi".to_vec()),
+                (
+                    proto_core::monitor::Direction::Tx,
+                    b"<ParityOrFraming>".to_vec()
+                ),
+                (proto_core::monitor::Direction::Tx, b"!".to_vec()),
+            ]
+        );
+        assert_eq!(frames[0].errors.len(), 1);
+        assert_eq!(frames[0].errors[0].offset, 2);
+        assert!(frames[0].first_mono <= frames[0].last_mono);
+        assert!(
+            frames[0].last_mono <= frames[1].first_mono,
+            "ordered by time"
+        );
+
+        shutdown.cancel();
+        tokio::time::timeout(Duration::from_secs(2), line.join())
+            .await
+            .expect("the line stops");
     }
 
     #[tokio::test]

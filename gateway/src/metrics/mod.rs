@@ -55,8 +55,8 @@ pub mod labels;
 
 pub use http::serve_metrics;
 pub use labels::{
-    function_label, Direction, DropReason, PublicationKind, RejectReason, RequestResult, WritePath,
-    WriteResult,
+    function_label, Direction, DropReason, PublicationKind, RejectReason, RequestResult,
+    TcpCloseReason, WritePath, WriteResult,
 };
 
 use image_age::ImageAge;
@@ -76,6 +76,7 @@ pub const METRIC_NAMES: &[&str] = &[
     TCP_CONNECTIONS,
     TCP_CONNECTIONS_ACCEPTED,
     TCP_CONNECTIONS_REJECTED,
+    TCP_CONNECTIONS_CLOSED,
     TCP_REQUESTS,
     TCP_REFUSED,
     TCP_HANDSHAKES_FAILED,
@@ -83,6 +84,7 @@ pub const METRIC_NAMES: &[&str] = &[
     ZENOH_PUBLICATIONS,
     DROPPED_UPDATES,
     FRAMES_DISCARDED,
+    MONITOR_DROPPED,
 ];
 
 const BUILD_INFO: &str = "gateway_build_info";
@@ -98,6 +100,7 @@ const POLL_CYCLE: &str = "gateway_poll_cycle_seconds";
 const TCP_CONNECTIONS: &str = "gateway_modbus_tcp_connections";
 const TCP_CONNECTIONS_ACCEPTED: &str = "gateway_modbus_tcp_connections_accepted_total";
 const TCP_CONNECTIONS_REJECTED: &str = "gateway_modbus_tcp_connections_rejected_total";
+const TCP_CONNECTIONS_CLOSED: &str = "gateway_modbus_tcp_connections_closed_total";
 const TCP_REQUESTS: &str = "gateway_modbus_tcp_requests_total";
 const TCP_REFUSED: &str = "gateway_modbus_tcp_refused_total";
 const TCP_HANDSHAKES_FAILED: &str = "gateway_modbus_tcp_tls_handshakes_failed_total";
@@ -105,6 +108,7 @@ const WRITES: &str = "gateway_writes_total";
 const ZENOH_PUBLICATIONS: &str = "gateway_zenoh_publications_total";
 const DROPPED_UPDATES: &str = "gateway_dropped_updates_total";
 const FRAMES_DISCARDED: &str = "gateway_frames_discarded_total";
+const MONITOR_DROPPED: &str = "gateway_monitor_dropped_total";
 
 /// Buckets of `gateway_poll_duration_seconds`, 1 ms .. 5 s.
 ///
@@ -185,6 +189,8 @@ pub struct Metrics {
     tcp_accepted: IntCounter,
     /// `gateway_modbus_tcp_connections_rejected_total{reason}`.
     tcp_rejected: IntCounterVec,
+    /// `gateway_modbus_tcp_connections_closed_total{reason}`: every connection's end by reason.
+    tcp_closed: IntCounterVec,
     /// `gateway_modbus_tcp_requests_total{function,result}`.
     tcp_requests: IntCounterVec,
     /// `gateway_modbus_tcp_refused_total{role}`: Modbus/TCP Security requests refused by role.
@@ -197,8 +203,11 @@ pub struct Metrics {
     zenoh_publications: IntCounterVec,
     /// `gateway_dropped_updates_total{reason}`.
     dropped_updates: IntCounterVec,
-    /// `gateway_frames_discarded_total{line,reason}`: received frames a slave line did not serve.
+    /// `gateway_frames_discarded_total{line,reason}`: received frames a slave line did not serve
+    /// or a tap line did not use.
     frames_discarded: IntCounterVec,
+    /// `gateway_monitor_dropped_total{line,reason}`: frames the line's frame monitor let go.
+    monitor_dropped: IntCounterVec,
 }
 
 // === impl Metrics ===
@@ -281,6 +290,13 @@ impl Metrics {
                 ),
                 &["reason"],
             )?,
+            tcp_closed: IntCounterVec::new(
+                Opts::new(
+                    TCP_CONNECTIONS_CLOSED,
+                    "Modbus TCP connections closed, by reason (served ones and those refused at accept or at the TLS handshake).",
+                ),
+                &["reason"],
+            )?,
             tcp_requests: IntCounterVec::new(
                 Opts::new(TCP_REQUESTS, "Modbus TCP requests by function code and result."),
                 &["function", "result"],
@@ -318,7 +334,15 @@ impl Metrics {
             frames_discarded: IntCounterVec::new(
                 Opts::new(
                     FRAMES_DISCARDED,
-                    "Received frames a Modbus slave line discarded unanswered, by reason.",
+                    "Received frames a Modbus slave line discarded unanswered, or a tap line did not use, by reason.",
+                ),
+                &["line", "reason"],
+            )?,
+            monitor_dropped: IntCounterVec::new(
+                Opts::new(
+                    MONITOR_DROPPED,
+                    "Frames a line's frame monitor let go: pushed out of its full ring \
+                     (overwritten) or missed by a live follower that fell behind (lagged).",
                 ),
                 &["line", "reason"],
             )?,
@@ -337,6 +361,7 @@ impl Metrics {
         registry.register(Box::new(metrics.tcp_connections.clone()))?;
         registry.register(Box::new(metrics.tcp_accepted.clone()))?;
         registry.register(Box::new(metrics.tcp_rejected.clone()))?;
+        registry.register(Box::new(metrics.tcp_closed.clone()))?;
         registry.register(Box::new(metrics.tcp_requests.clone()))?;
         registry.register(Box::new(metrics.tcp_refused.clone()))?;
         registry.register(Box::new(metrics.tcp_handshakes_failed.clone()))?;
@@ -344,6 +369,7 @@ impl Metrics {
         registry.register(Box::new(metrics.zenoh_publications.clone()))?;
         registry.register(Box::new(metrics.dropped_updates.clone()))?;
         registry.register(Box::new(metrics.frames_discarded.clone()))?;
+        registry.register(Box::new(metrics.monitor_dropped.clone()))?;
 
         build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
@@ -360,6 +386,9 @@ impl Metrics {
         for reason in RejectReason::ALL {
             metrics.tcp_rejected.with_label_values(&[reason.as_str()]);
         }
+        for reason in TcpCloseReason::ALL {
+            metrics.tcp_closed.with_label_values(&[reason.as_str()]);
+        }
         for kind in PublicationKind::ALL {
             metrics
                 .zenoh_publications
@@ -375,7 +404,8 @@ impl Metrics {
 
     // --- serial lines ---
 
-    /// Creates the series of a configured line at 0 (line down, no telegrams, no bytes), so that it
+    /// Creates the series of a configured line at 0 (line down, no telegrams, no bytes, no frames
+    /// let go by its monitor), so that it
     /// shows on the dashboards before its port opens. `protocol` is the line's `protocol` key.
     pub fn init_line(&self, line: &str, protocol: &str) {
         self.line_up.with_label_values(&[line, protocol]).set(0);
@@ -383,6 +413,9 @@ impl Metrics {
             self.telegrams
                 .with_label_values(&[line, direction.as_str()]);
             self.bytes.with_label_values(&[line, direction.as_str()]);
+        }
+        for reason in ["overwritten", "lagged"] {
+            self.monitor_dropped.with_label_values(&[line, reason]);
         }
     }
 
@@ -410,6 +443,9 @@ impl Metrics {
                 .remove_label_values(&[line, direction.as_str()]);
             let _ = self.bytes.remove_label_values(&[line, direction.as_str()]);
         }
+        for reason in ["overwritten", "lagged"] {
+            let _ = self.monitor_dropped.remove_label_values(&[line, reason]);
+        }
     }
 
     /// Creates the discard series of a slave line on `line` at 0, one per `reasons`, so that a
@@ -420,12 +456,20 @@ impl Metrics {
         }
     }
 
-    /// Counts one received frame that a slave line on `line` discarded unanswered; `reason` is
-    /// one of the fixed names of `proto_core::modbus::slave::DiscardReason::as_str`.
+    /// Counts one received frame that a slave line on `line` discarded unanswered, or a tap line
+    /// did not use; `reason` is one of the fixed names of
+    /// `proto_core::modbus::slave::DiscardReason::as_str` or
+    /// `proto_core::modbus::tap::DiscardReason::as_str`.
     pub fn frame_discarded(&self, line: &str, reason: &'static str) {
         self.frames_discarded
             .with_label_values(&[line, reason])
             .inc();
+    }
+
+    /// The counter of frames the frame monitor of `line` let go for `reason` (`overwritten` or
+    /// `lagged`), created at 0; the monitor keeps it and counts without a label lookup.
+    pub fn monitor_dropped(&self, line: &str, reason: &'static str) -> IntCounter {
+        self.monitor_dropped.with_label_values(&[line, reason])
     }
 
     /// Counts one event raised on `line` (every event of 003 7.2, start-up included).
@@ -554,6 +598,11 @@ impl Metrics {
             .inc();
     }
 
+    /// A connection ended (or was refused at accept or at the TLS handshake) for `reason`.
+    pub fn tcp_connection_closed(&self, reason: TcpCloseReason) {
+        self.tcp_closed.with_label_values(&[reason.as_str()]).inc();
+    }
+
     /// Counts one Modbus TCP request with function code `function` and its answer.
     pub fn tcp_request(&self, function: u8, result: RequestResult) {
         self.tcp_request_series(function, result).inc();
@@ -663,6 +712,7 @@ mod tests {
         );
         metrics.tcp_request(0x03, RequestResult::Ok);
         metrics.frame_discarded("hmi", "trailing_data");
+        let _ = metrics.monitor_dropped("drive", "overwritten");
         let mut names: Vec<_> = registry
             .gather()
             .iter()

@@ -94,6 +94,8 @@ pub struct PortSettings {
     pub stop_bits: StopBits,
     /// Physical interface.
     pub interface: Interface,
+    /// Frames the line's frame monitor keeps (0: no monitor).
+    pub monitor_frames: usize,
 }
 
 // === impl PortSettings ===
@@ -109,6 +111,7 @@ impl PortSettings {
             parity: Parity::Even,
             stop_bits: StopBits::One,
             interface: Interface::Rs232,
+            monitor_frames: crate::line::DEFAULT_MONITOR_FRAMES,
         }
     }
 

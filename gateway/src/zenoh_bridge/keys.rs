@@ -7,6 +7,8 @@
 //! <prefix>/<line>/tx                       telegrams to send (subscription; queryable form)
 //! <prefix>/<line>/tx/result                result of a send (publication)
 //! <prefix>/<line>/events                   diagnostic events (publication)
+//! <prefix>/<line>/frames                   the line's frame monitor, one JSON sample per frame
+//!                                          (publication)
 //! <prefix>/<line>/<device>/<tag>           tag values (publication on change; queryable)
 //! <prefix>/<line>/<device>/<tag>/set       writes (subscription; queryable form)
 //! <prefix>/<line>/<device>/<tag>/set/result  result of a write (publication)
@@ -31,6 +33,7 @@ const RX: &str = "rx";
 const TX: &str = "tx";
 const RESULT: &str = "result";
 const EVENTS: &str = "events";
+const FRAMES: &str = "frames";
 const STATUS: &str = "status";
 const SET: &str = "set";
 /// The chunk under which zenoh-ext's advanced publishers answer history queries.
@@ -191,6 +194,11 @@ impl Keys {
         format!("{}/*/{TX}", self.prefix)
     }
 
+    /// `<prefix>/<line>/frames`.
+    pub fn frames(&self, line: &str) -> String {
+        format!("{}/{line}/{FRAMES}", self.prefix)
+    }
+
     /// `<prefix>/<line>/events`.
     pub fn events(&self, line: &str) -> String {
         format!("{}/{line}/{EVENTS}", self.prefix)
@@ -318,6 +326,7 @@ mod tests {
         assert_eq!(k.rx("r3964"), "gw/demo/r3964/rx");
         assert_eq!(k.tx_result("r3964"), "gw/demo/r3964/tx/result");
         assert_eq!(k.events("ascii"), "gw/demo/ascii/events");
+        assert_eq!(k.frames("drive"), "gw/demo/drive/frames");
         assert_eq!(k.tag("drive", "atv", "eta"), "gw/demo/drive/atv/eta");
         assert_eq!(
             k.set_result("drive", "atv", "cmd"),

@@ -89,6 +89,9 @@ use queryable::{Answerer, Queries, QueryKind};
 use subscribe::Commands;
 
 /// First wait before a client retries opening its session.
+/// Monitored frames waiting for the publisher thread (`<line>/frames`), all lines together;
+/// more are dropped and counted (`frame_queue_full`): the line's ring keeps them for REST.
+const FRAME_QUEUE: usize = 1024;
 const RETRY_MIN: Duration = Duration::from_secs(1);
 /// Longest wait between retries.
 const RETRY_MAX: Duration = Duration::from_secs(30);
@@ -243,6 +246,19 @@ impl BridgeHandle {
         }
     }
 
+    /// Queues a monitored frame (JSON) for `<prefix>/<line>/frames`. `Err` when it was dropped
+    /// (counted).
+    pub fn publish_frame(&self, line: &str, json: Vec<u8>) -> Result<(), DropReason> {
+        self.check(&[line])?;
+        self.outbox.push(Message {
+            kind: PublicationKind::Frame,
+            key: self.keys.frames(line),
+            payload: json,
+            json: true,
+            attachment: None,
+        })
+    }
+
     /// Queues an event for `<prefix>/<line>/events`. `Err` when it was dropped (counted).
     pub fn publish_event(
         &self,
@@ -351,6 +367,7 @@ impl Bridge {
             events: cfg.event_queue.get(),
             results: cfg.result_queue.get(),
             tags: cfg.tag_queue.get(),
+            frames: FRAME_QUEUE,
         };
         let outbox = Arc::new(Outbox::new(limits, stats.clone()));
 

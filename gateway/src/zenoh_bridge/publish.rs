@@ -60,6 +60,7 @@ pub(crate) struct Limits {
     pub(crate) events: usize,
     pub(crate) results: usize,
     pub(crate) tags: usize,
+    pub(crate) frames: usize,
 }
 
 /// What waits for the publisher thread.
@@ -68,6 +69,7 @@ struct Pending {
     telegrams: VecDeque<Message>,
     events: VecDeque<Message>,
     results: VecDeque<Message>,
+    frames: VecDeque<Message>,
     /// Newest value per tag key, and the order in which keys became pending.
     tags: HashMap<OwnedKeyExpr, TagValue>,
     tag_order: VecDeque<OwnedKeyExpr>,
@@ -85,6 +87,7 @@ impl Pending {
         self.telegrams.is_empty()
             && self.events.is_empty()
             && self.results.is_empty()
+            && self.frames.is_empty()
             && self.tag_order.is_empty()
             && self.presence_order.is_empty()
     }
@@ -107,6 +110,7 @@ impl Pending {
             results: std::mem::take(&mut self.results),
             telegrams: std::mem::take(&mut self.telegrams),
             events: std::mem::take(&mut self.events),
+            frames: std::mem::take(&mut self.frames),
             tags,
         }
     }
@@ -118,6 +122,7 @@ struct Batch {
     results: VecDeque<Message>,
     telegrams: VecDeque<Message>,
     events: VecDeque<Message>,
+    frames: VecDeque<Message>,
     tags: Vec<(OwnedKeyExpr, TagValue)>,
 }
 
@@ -161,6 +166,11 @@ impl Outbox {
                 &mut p.events,
                 self.limits.events,
                 DropReason::EventQueueFull,
+            ),
+            PublicationKind::Frame => (
+                &mut p.frames,
+                self.limits.frames,
+                DropReason::FrameQueueFull,
             ),
             PublicationKind::TxResult | PublicationKind::SetResult | PublicationKind::Tag => (
                 &mut p.results,
@@ -299,6 +309,7 @@ impl PublisherThread {
                 .into_iter()
                 .chain(batch.telegrams)
                 .chain(batch.events)
+                .chain(batch.frames)
             {
                 self.publish_message(&session, msg);
             }
@@ -383,10 +394,11 @@ impl PublisherThread {
 }
 
 /// Telegrams, events and results wait under congestion (they must not be lost); tag values
-/// are dropped by zenoh under congestion (a newer one follows).
+/// are dropped by zenoh under congestion (a newer one follows), and so are monitored frames (a
+/// view of the line that must never slow the bridge; the ring keeps them for REST).
 fn congestion(kind: PublicationKind) -> CongestionControl {
     match kind {
-        PublicationKind::Tag => CongestionControl::Drop,
+        PublicationKind::Tag | PublicationKind::Frame => CongestionControl::Drop,
         _ => CongestionControl::Block,
     }
 }
@@ -421,6 +433,7 @@ mod tests {
             events: limit,
             results: limit,
             tags: limit,
+            frames: limit,
         };
         (stats.clone(), Outbox::new(limits, stats))
     }

@@ -23,22 +23,25 @@ pub enum PublicationKind {
     TxResult,
     /// A write result on `<line>/<device>/<tag>/set/result`.
     SetResult,
+    /// A monitored frame on `<line>/frames`.
+    Frame,
 }
 
 impl PublicationKind {
-    const ALL: [Self; 5] = [
+    const ALL: [Self; 6] = [
         Self::Telegram,
         Self::Tag,
         Self::Event,
         Self::TxResult,
         Self::SetResult,
+        Self::Frame,
     ];
 
     /// Whether the kind is published through a declared publisher kept per key: telegrams and
-    /// events, two keys per line. Tag values (one key per tag, thousands of them) and results
+    /// events and frames, three keys per line. Tag values (one key per tag, thousands of them) and results
     /// (keys named by commands) are plain session puts.
     pub(crate) fn declared_publisher(self) -> bool {
-        matches!(self, Self::Telegram | Self::Event)
+        matches!(self, Self::Telegram | Self::Event | Self::Frame)
     }
 
     /// The label in the bridge's own counters.
@@ -49,6 +52,7 @@ impl PublicationKind {
             Self::Event => "event",
             Self::TxResult => "tx_result",
             Self::SetResult => "set_result",
+            Self::Frame => "frame",
         }
     }
 
@@ -59,6 +63,7 @@ impl PublicationKind {
             Self::Tag => metrics::PublicationKind::Tag,
             Self::Event => metrics::PublicationKind::Event,
             Self::TxResult | Self::SetResult => metrics::PublicationKind::SendResult,
+            Self::Frame => metrics::PublicationKind::Frame,
         }
     }
 }
@@ -76,6 +81,8 @@ pub enum DropReason {
     TagQueueFull,
     /// The result queue was full; the new result was dropped.
     ResultQueueFull,
+    /// The frame queue was full; the new frame was dropped.
+    FrameQueueFull,
     /// The command queue (total or of the line) was full; the command was answered `busy`.
     CommandQueueFull,
     /// The query queue was full; the query got no reply.
@@ -92,12 +99,13 @@ pub enum DropReason {
 }
 
 impl DropReason {
-    const ALL: [Self; 11] = [
+    const ALL: [Self; 12] = [
         Self::TelegramQueueFull,
         Self::EventQueueFull,
         Self::TagSuperseded,
         Self::TagQueueFull,
         Self::ResultQueueFull,
+        Self::FrameQueueFull,
         Self::CommandQueueFull,
         Self::QueryQueueFull,
         Self::BadKey,
@@ -114,6 +122,7 @@ impl DropReason {
             Self::TagSuperseded => "tag_superseded",
             Self::TagQueueFull => "tag_queue_full",
             Self::ResultQueueFull => "result_queue_full",
+            Self::FrameQueueFull => "frame_queue_full",
             Self::CommandQueueFull => "command_queue_full",
             Self::QueryQueueFull => "query_queue_full",
             Self::BadKey => "bad_key",
@@ -136,6 +145,7 @@ impl DropReason {
             | Self::EventQueueFull
             | Self::TagQueueFull
             | Self::ResultQueueFull
+            | Self::FrameQueueFull
             | Self::CommandQueueFull
             | Self::QueryQueueFull => Some(metrics::DropReason::QueueFull),
             Self::TagSuperseded | Self::FeedLagged => Some(metrics::DropReason::Lagged),

@@ -29,6 +29,8 @@ const ROUTES: &[(&str, &str)] = &[
     ("post", "/api/v1/lines/{line}/send"),
     ("get", "/api/v1/lines/{line}/signals"),
     ("put", "/api/v1/lines/{line}/signals"),
+    ("get", "/api/v1/lines/{line}/frames"),
+    ("get", "/api/v1/lines/{line}/capture"),
     ("get", "/api/v1/tags"),
     ("get", "/api/v1/lines/{line}/devices/{device}/tags"),
     ("get", "/api/v1/lines/{line}/devices/{device}/tags/{tag}"),

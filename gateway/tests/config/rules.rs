@@ -154,7 +154,7 @@ fn protocol_and_interface_rules() {
     one_issue(
         &one_line("3964r", "devices = {}"),
         "lines.a.devices",
-        "only by modbus-master-rtu and modbus-master-ascii lines, not by a 3964r line",
+        "only on modbus-master-rtu, modbus-master-ascii and modbus-rtu-tap lines, not on a 3964r line",
     );
     one_issue(
         &one_line("modbus-master-rtu", "unit_id = 3"),
@@ -363,4 +363,70 @@ key = "drive/**/"
         "{got:#?}"
     );
     assert!(got[2].1.contains("at least 100ms"), "{got:#?}");
+}
+
+#[test]
+fn a_tap_line_lists_devices_without_poll_groups() {
+    let tap = |keys: &str, device: &str| {
+        one_line(
+            "modbus-rtu-tap",
+            &format!(
+                "{keys}\n[lines.a.devices.d]\naddress = 2\nprofile = \"altivar71\"\n{device}\n"
+            ),
+        )
+    };
+    // The keys with their defaults.
+    let c = parse(&tap("", ""));
+    let ProtocolConfig::ModbusRtuTap(t) = &line(&c).protocol else {
+        panic!("a tap line");
+    };
+    assert_eq!(t.answer_timeout, ms(1000));
+    assert_eq!(t.expected_cycle, ms(1000));
+    assert_eq!(t.delay_multiplier, 1);
+    assert!(t.inter_character_check);
+    assert_eq!(line(&c).devices().count(), 1);
+    let c = parse(&tap(
+        "answer_timeout = \"300ms\"\nexpected_cycle = \"5s\"\ninter_character_check = false\ndelay_multiplier = 2",
+        "unit_id = 7",
+    ));
+    let ProtocolConfig::ModbusRtuTap(t) = &line(&c).protocol else {
+        panic!("a tap line");
+    };
+    assert_eq!((t.answer_timeout, t.expected_cycle), (ms(300), ms(5000)));
+    assert!(!t.inter_character_check);
+    assert_eq!(t.devices.get("d").map(|d| d.unit_id), Some(7));
+
+    // It polls nothing and runs no scanner: refused with the path.
+    one_issue(
+        &tap(
+            "",
+            "poll = [{ name = \"fast\", period = \"1s\", tags = [\"ETA\"] }]",
+        ),
+        "lines.a.devices.d.poll",
+        "only listens",
+    );
+    one_issue(
+        &tap("", "scanner = { enabled = true }"),
+        "lines.a.devices.d.scanner",
+        "only listens",
+    );
+    one_issue(
+        &tap("answer_timeout = \"1ms\"", ""),
+        "lines.a.answer_timeout",
+        "",
+    );
+    one_issue(
+        &tap("data_bits = 7", ""),
+        "lines.a.data_bits",
+        "8 data bits",
+    );
+    // A slave line lists no devices.
+    one_issue(
+        &one_line(
+            "modbus-slave-rtu",
+            "[lines.a.devices.d]\naddress = 2\nprofile = \"altivar71\"\n",
+        ),
+        "lines.a.devices",
+        "modbus-rtu-tap",
+    );
 }

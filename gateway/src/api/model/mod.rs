@@ -5,6 +5,7 @@
 //! catalog (proto-core, 003 7.2).
 
 mod diag;
+mod frame;
 mod status;
 mod tag;
 mod telegram;
@@ -19,6 +20,7 @@ use utoipa::openapi::RefOr;
 use utoipa::{PartialSchema, ToSchema};
 
 pub use diag::*;
+pub use frame::*;
 pub use status::*;
 pub use tag::*;
 pub use telegram::*;

@@ -182,6 +182,8 @@ pub(crate) trait EngineFactory: Send + Sync + 'static {
     type Engine: TelegramEngine;
     /// A new engine.
     fn build(&self) -> Self::Engine;
+    /// How the frame monitor cuts and describes the line's frames.
+    fn framing(&self) -> proto_core::monitor::Framing;
 }
 
 impl EngineFactory for Params3964 {
@@ -189,11 +191,31 @@ impl EngineFactory for Params3964 {
     fn build(&self) -> Proc3964 {
         Proc3964::new(self.clone())
     }
+    /// 003 6.3: control characters and telegrams ending DLE ETX (BCC in 3964R); the character
+    /// delay time ZVZ is the longest gap inside a telegram.
+    fn framing(&self) -> proto_core::monitor::Framing {
+        let settings = self.settings();
+        proto_core::monitor::Framing {
+            kind: proto_core::monitor::FrameKind::Proc3964 {
+                bcc: settings.variant == proto_core::proc3964::Variant::P3964R,
+            },
+            gap: Some(settings.zvz),
+        }
+    }
 }
 
 impl EngineFactory for AsciiParams {
     type Engine = AsciiDriver;
     fn build(&self) -> AsciiDriver {
         AsciiDriver::new(self.clone())
+    }
+    /// 003 6.2.1: the telegram's end criterion; the character delay time ZVZ is the longest gap
+    /// inside a telegram in every end mode.
+    fn framing(&self) -> proto_core::monitor::Framing {
+        let settings = self.settings();
+        proto_core::monitor::Framing {
+            kind: proto_core::monitor::FrameKind::Telegram(settings.end),
+            gap: Some(settings.zvz),
+        }
     }
 }

@@ -208,6 +208,10 @@ impl<F: EngineFactory> LineEngine for TelegramLine<F> {
     fn port_failed(&mut self, id: EventId, reason: String) {
         self.shared.raise(id, Some(reason));
     }
+
+    fn monitor_framing(&self) -> proto_core::monitor::Framing {
+        self.factory.framing()
+    }
 }
 
 // === impl TelegramLine ===
