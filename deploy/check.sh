@@ -242,12 +242,16 @@ run "Dockerfile and Containerfile.scratch runtime stages match" runtime_stages_m
 dockerfile_rules() {
   local f="$DEPLOY/Dockerfile" ok=0
   grep -q '^FROM scratch' "$f" || { echo "runtime stage is not FROM scratch"; ok=1; }
-  grep -q -- '--target x86_64-unknown-linux-musl' "$f" || { echo "no musl build"; ok=1; }
+  # Multi-arch: the builder maps TARGETARCH to both musl targets and builds for the one chosen.
+  grep -q 'x86_64-unknown-linux-musl' "$f" || { echo "no x86_64 musl build"; ok=1; }
+  grep -q 'aarch64-unknown-linux-musl' "$f" || { echo "no arm64 musl build"; ok=1; }
+  grep -q '^ARG TARGETARCH' "$f" || { echo "the builder does not take TARGETARCH"; ok=1; }
+  grep -q -- '--release --target "$target"' "$f" || { echo "no release build for the target"; ok=1; }
   grep -Eq '^USER [0-9]+:[0-9]+$' "$f" || { echo "no numeric non-root USER"; ok=1; }
   grep -Eq '^USER 0(:|$)' "$f" && { echo "runs as root"; ok=1; }
   return $ok
 }
-run "Dockerfile: musl build, FROM scratch, numeric non-root user" dockerfile_rules
+run "Dockerfile: x86_64 and arm64 musl builds, FROM scratch, numeric non-root user" dockerfile_rules
 if have hadolint; then
   run "hadolint deploy/Dockerfile" hadolint "$DEPLOY/Dockerfile"
   run "hadolint deploy/Containerfile.scratch" hadolint "$DEPLOY/Containerfile.scratch"

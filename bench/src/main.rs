@@ -10,14 +10,18 @@
 //! - Modbus TCP cached FC 03 of 125 registers: throughput and p99 against a bare tokio-modbus
 //!   server, 1 and 16 connections (`tcp`);
 //! - a write through Modbus TCP to a device: latency minus its serial time (`tcp`);
+//! - closed loop: a closed-loop FC 06 writer and a closed-loop on-demand reader against one
+//!   polled device while a third client reads its cached values: cached reads answered, the
+//!   oldest cached value and the achieved poll cycle against the group's bound (`closed`);
 //! - zenoh: serial frame end to subscriber p99, sustained samples/s (`process`, real binary);
 //! - resident memory with 4 lines, 32 devices, 10 000 points (`process`, real binary).
 //!
 //! Run `cargo build --release` first (the zenoh and memory rows start `target/release/gateway`),
-//! then `target/release/gateway-bench` (about 6.5 minutes) or `--quick` (about a minute). Progress
+//! then `target/release/gateway-bench` (about 7 minutes) or `--quick` (about a minute). Progress
 //! goes to stderr, the table to stdout.
 
 mod child;
+mod closed;
 mod dead;
 mod device;
 mod mbap;
@@ -65,6 +69,8 @@ enum Group {
     Tcp,
     /// Writes through Modbus TCP.
     Write,
+    /// A closed-loop writer and on-demand reader beside a cached reader.
+    Closed,
     /// zenoh latency and throughput.
     Zenoh,
     /// Resident memory.
@@ -90,6 +96,8 @@ pub(crate) struct Plan {
     pub(crate) tcp_slice: Duration,
     /// Writes of the write-latency row.
     pub(crate) writes: usize,
+    /// How long the closed-loop clients run.
+    pub(crate) closed_window: Duration,
     /// Telegrams of the zenoh latency row.
     pub(crate) telegrams: usize,
     /// Window of the zenoh throughput row.
@@ -113,6 +121,7 @@ impl Plan {
             tcp_rounds: 40,
             tcp_slice: Duration::from_millis(250),
             writes: 500,
+            closed_window: Duration::from_secs(20),
             telegrams: 1000,
             zenoh_window: Duration::from_secs(5),
             memory_window: Duration::from_secs(3),
@@ -129,6 +138,7 @@ impl Plan {
             tcp_rounds: 2,
             tcp_slice: Duration::from_millis(500),
             writes: 60,
+            closed_window: Duration::from_secs(4),
             telegrams: 100,
             zenoh_window: Duration::from_secs(2),
             memory_window: Duration::from_secs(1),
@@ -225,6 +235,13 @@ async fn run(args: &Args) -> Vec<Row> {
             .await
             .unwrap_or_else(|e| failed("TCP write to a device", e));
         push(&mut rows, row);
+    }
+    if wanted(Group::Closed) {
+        eprintln!("closed-loop writer and on-demand reader beside a cached reader");
+        match closed::closed_loop(&plan).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(&mut rows, failed("closed loop", e)),
+        }
     }
     if wanted(Group::Zenoh) {
         eprintln!("zenoh (gateway binary {})", bin.display());

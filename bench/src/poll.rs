@@ -59,6 +59,8 @@ pub(crate) struct Rig {
     pub(crate) master_timing: CharTiming,
     /// The paced link's counters (bytes, the latest delivery).
     pub(crate) link: Arc<LinkCounters>,
+    /// The line's process image (the cached values and when each was read).
+    pub(crate) image: ProcessImage,
     shutdown: CancellationToken,
 }
 
@@ -96,7 +98,7 @@ pub(crate) async fn rig(
         line.master.reply_timeout = timeout;
     }
     let image = ProcessImage::new(ImageConfig::default());
-    let line = spawn_modbus_master_line(line, devices, image, shutdown.clone());
+    let line = spawn_modbus_master_line(line, devices, image.clone(), shutdown.clone());
     Ok(Rig {
         line,
         master,
@@ -104,6 +106,7 @@ pub(crate) async fn rig(
         timing,
         master_timing,
         link: counters,
+        image,
         shutdown,
     })
 }

@@ -33,7 +33,7 @@ use crate::Plan;
 const UNIT: u8 = 1;
 
 /// Serves `line`'s devices over Modbus TCP on an ephemeral loopback port until `shutdown`.
-async fn serve_gateway(
+pub(crate) async fn serve_gateway(
     line: &LineHandle,
     shutdown: CancellationToken,
 ) -> std::io::Result<SocketAddr> {

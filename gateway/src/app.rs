@@ -188,6 +188,7 @@ pub async fn run(
     for warning in security_warnings(&config) {
         warn!("{}: {}", warning.path, warning.message);
     }
+    log_rest_guard(&config.http);
     let http_config = config.http.clone();
     let sup = supervisor::Supervisor::start(config, overrides.clone(), &shutdown, exported)?;
     if let Err(e) = zenoh::start(&sup).await {
@@ -242,6 +243,21 @@ pub async fn run(
 }
 
 /// Binds the HTTP listener and serves there until `shutdown`: the REST API with `/healthz`,
+/// Says, before anything starts, that REST changes are not guarded by a token (the insecure mode
+/// and the locked one, as a warning): the operator reads it first, and a script that waits for
+/// the listeners' lines finds it already written. With tokens, [`serve_http`] names them once it
+/// has read them (a token that cannot be read stops the start there, with its own message).
+fn log_rest_guard(http: &config::HttpConfig) {
+    if http.token_source().is_some() || !http.tokens.is_empty() {
+        return;
+    }
+    if http.insecure_allow_unauthenticated_changes {
+        crate::api::Auth::insecure().log_mode();
+    } else {
+        crate::api::Auth::locked().log_mode();
+    }
+}
+
 /// `/readyz` and `/metrics` from the process's registry. Prints `http listening on <addr>` on
 /// stdout once bound.
 async fn serve_http(
@@ -270,6 +286,10 @@ async fn serve_http(
             })
         })?
         .with_routes(metrics_route(sup.exported.registry.clone()));
+    // Without a token, said at start-up already (log_rest_guard).
+    if matches!(state.auth().mode(), crate::api::AuthMode::Token) {
+        state.auth().log_mode();
+    }
     let listener = tokio::net::TcpListener::bind(addr)
         .await
         .map_err(|source| AppError::Bind {
@@ -278,8 +298,6 @@ async fn serve_http(
             source,
         })?;
     let local = listener.local_addr()?;
-    // How changes are guarded, said before anything listens (the insecure mode as a warning).
-    state.auth().log_mode();
     info!(%local, "HTTP listening: /api/v1, /healthz, /readyz, /metrics");
     // A fixed line on stdout that scripts and tests wait for.
     println!("http listening on {local}");

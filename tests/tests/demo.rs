@@ -420,8 +420,8 @@ async fn mbpoll_reads_the_gateway_health_from_the_diagnostic_unit() {
     let mut ks = connect(&gw, 17).await;
     read_input_eventually(&mut ks, 1004, 3).await;
 
-    // The header through FC 04: version 1, 5 lines, 4 devices (the drives, the KS vario and the
-    // energy meter on its line), block sizes and addresses.
+    // The header through FC 04: version 1, 5 lines, 4 devices (two drives, the KS vario and
+    // the meter on its bus), block sizes and addresses.
     let out = mbpoll(
         &gw,
         &["-a", DIAGNOSTIC_UNIT, "-t", "3", "-r", "0", "-c", "9"],

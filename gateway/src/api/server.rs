@@ -33,7 +33,7 @@ const ACCEPT_BACKOFF: Duration = Duration::from_millis(100);
 /// Serves the API on `listener` until `shutdown` completes; then stops accepting, closes idle
 /// connections, lets requests in flight finish and returns when every connection has ended
 /// (the caller bounds that with its grace period). The caller says how changes are guarded
-/// (`log_mode` of the API state's guard) before it announces the listener.
+/// (`Auth::log_mode`), at its start-up.
 pub async fn serve(
     listener: TcpListener,
     state: ApiState,
