@@ -257,7 +257,8 @@ async fn serve_http(
             Some(ConfigStore::new(path.clone()))
         }
         None => {
-            warn!("no configuration file: configuration changes over the REST API are kept in memory only and are lost at exit");
+            // The demo's documented default, not a fault: said once, at INFO.
+            info!("no configuration file: configuration changes over the REST API are kept in memory only and are lost at exit");
             None
         }
     };
@@ -277,6 +278,8 @@ async fn serve_http(
             source,
         })?;
     let local = listener.local_addr()?;
+    // How changes are guarded, said before anything listens (the insecure mode as a warning).
+    state.auth().log_mode();
     info!(%local, "HTTP listening: /api/v1, /healthz, /readyz, /metrics");
     // A fixed line on stdout that scripts and tests wait for.
     println!("http listening on {local}");

@@ -3,20 +3,27 @@
 //! role, or the northbound interface), its target and its result, and counted in
 //! `gateway_writes_total{path,result}`.
 //!
-//! The log lines are rate-limited: a flood of writes writes a burst of lines a window and then
-//! one line with the number left out, so it cannot fill the disk. The counter counts every write.
+//! The log lines are rate-limited per source, path and result: the first write of a source on a
+//! path with a result is logged, then at most one line per [`AUDIT_INTERVAL`] that says how many
+//! more there were since the line before (`more`, over `in_last`). A client that writes every cycle,
+//! or a flood, leaves a few lines a minute, so it cannot fill the disk; a new client, a new path or
+//! a new result (a refusal after accepted writes) is logged at once. The counter counts every
+//! write.
 
 use std::fmt::Display;
 use std::time::Duration;
 
 use tracing::info;
 
-use crate::log_limit::{LogLimit, Verdict};
+use crate::log_limit::Limiter;
 use crate::metrics::Metrics;
 pub use crate::metrics::{WritePath, WriteResult};
 
-/// 50 audit lines per 10 s, then one line with the count left out.
-static AUDIT_LOG: LogLimit = LogLimit::new(Duration::from_secs(10), 50);
+/// At most one audit line per source, path and result in this interval.
+pub const AUDIT_INTERVAL: Duration = Duration::from_secs(10);
+
+/// When each (source, path, result) was last logged, and how many writes were left out since.
+static AUDIT_LOG: Limiter = Limiter::new(AUDIT_INTERVAL);
 
 /// Records one write: counted always, logged within the rate limit.
 pub fn record(
@@ -30,16 +37,29 @@ pub fn record(
     if let Some(m) = metrics {
         m.write_audited(path.as_str(), result.as_str());
     }
-    if let Verdict::Log { suppressed } = AUDIT_LOG.check() {
-        info!(
+    let key = format!("{}/{}/{source}", path.as_str(), result.as_str());
+    match AUDIT_LOG.admit_since(key, std::time::Instant::now()) {
+        None => {}
+        Some((0, _)) => info!(
             target: "audit",
             path = path.as_str(),
             %source,
             %target,
             result = result.as_str(),
             %detail,
-            suppressed,
             "write"
-        );
+        ),
+        Some((more, since)) => info!(
+            target: "audit",
+            path = path.as_str(),
+            %source,
+            %target,
+            result = result.as_str(),
+            %detail,
+            more,
+            in_last = ?since,
+            "write ({more} more of this source, path and result not logged in the last {}s)",
+            since.as_secs()
+        ),
     }
 }

@@ -36,6 +36,14 @@ pub struct Limiter {
     keys: Mutex<BTreeMap<String, Seen>>,
 }
 
+/// The most keys a limiter remembers. Keys whose interval is over are forgotten first (their
+/// next occurrence is logged as a first one); should that not make room, the new keys share
+/// [`OVERFLOW_KEY`], one line per interval for all of them.
+pub const MAX_KEYS: usize = 1024;
+
+/// The key of the occurrences a full limiter has no room for.
+pub const OVERFLOW_KEY: &str = "(more keys than the limiter keeps)";
+
 #[derive(Debug, Clone, Copy)]
 struct Seen {
     logged: Instant,
@@ -56,20 +64,33 @@ impl Limiter {
     /// Whether an occurrence of `key` at `now` is logged: `Some(n)` with the `n` occurrences
     /// left out since the last line, `None` to leave it out (it is counted).
     pub fn admit(&self, key: impl Into<String>, now: Instant) -> Option<u64> {
+        self.admit_since(key, now).map(|(suppressed, _)| suppressed)
+    }
+
+    /// As [`Self::admit`], with the time since the key's last line (zero for a first one): the
+    /// line can say "`n` more in the last `t`".
+    pub fn admit_since(&self, key: impl Into<String>, now: Instant) -> Option<(u64, Duration)> {
         let mut keys = self.keys.lock().unwrap_or_else(PoisonError::into_inner);
-        let key = key.into();
+        let mut key = key.into();
+        if !keys.contains_key(&key) && keys.len() >= MAX_KEYS {
+            let interval = self.interval;
+            keys.retain(|_, seen| now.saturating_duration_since(seen.logged) < interval);
+            if keys.len() >= MAX_KEYS {
+                key = OVERFLOW_KEY.to_owned();
+            }
+        }
         match keys.get_mut(&key) {
             Some(seen) if now.saturating_duration_since(seen.logged) < self.interval => {
                 seen.suppressed = seen.suppressed.saturating_add(1);
                 None
             }
             Some(seen) => {
-                let suppressed = seen.suppressed;
+                let answer = (seen.suppressed, now.saturating_duration_since(seen.logged));
                 *seen = Seen {
                     logged: now,
                     suppressed: 0,
                 };
-                Some(suppressed)
+                Some(answer)
             }
             None => {
                 keys.insert(
@@ -79,7 +100,7 @@ impl Limiter {
                         suppressed: 0,
                     },
                 );
-                Some(0)
+                Some((0, Duration::ZERO))
             }
         }
     }
@@ -114,6 +135,30 @@ mod tests {
         assert_eq!(
             limiter.admit("bad frame", t0 + Duration::from_secs(20)),
             Some(1)
+        );
+    }
+
+    #[test]
+    fn a_full_limiter_forgets_old_keys_then_shares_one_key() {
+        let limiter = Limiter::new(Duration::from_secs(10));
+        let t0 = Instant::now();
+        for n in 0..MAX_KEYS {
+            assert_eq!(limiter.admit(format!("client {n}"), t0), Some(0));
+        }
+        // No room, nothing old: the new keys share one line per interval.
+        assert_eq!(limiter.admit("client a", t0), Some(0));
+        assert_eq!(limiter.admit("client b", t0), None);
+        assert_eq!(limiter.admit("client 0", t0), None);
+        // Once the old keys' interval is over they are forgotten and a new key has its line.
+        let later = t0 + Duration::from_secs(10);
+        assert_eq!(
+            limiter.admit_since("client c", later),
+            Some((0, Duration::ZERO))
+        );
+        assert_eq!(limiter.admit("client c", later), None);
+        assert_eq!(
+            limiter.admit_since("client c", later + Duration::from_secs(12)),
+            Some((1, Duration::from_secs(12)))
         );
     }
 }

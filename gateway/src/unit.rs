@@ -40,6 +40,21 @@ pub trait UnitService: Send + Sync + 'static {
         let _ = (request, out);
         None
     }
+
+    /// Whether the unit only listens to another master's traffic (a device on a tap line): it
+    /// refuses every write with exception 01, and REST and zenoh refuse tag writes before they
+    /// reach it.
+    fn listen_only(&self) -> bool {
+        false
+    }
+
+    /// The unit's own write policy: `Some(code)` refuses `request` before it is served (the
+    /// server answers the exception and audits the request as refused). `None` (the default):
+    /// the unit serves it.
+    fn refuses(&self, request: &Request) -> Option<ExceptionCode> {
+        let _ = request;
+        None
+    }
 }
 
 /// The unit ids the server knows, each with its service.

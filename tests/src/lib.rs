@@ -195,6 +195,20 @@ impl Gateway {
         let _ = self.child.wait();
     }
 
+    /// Sends SIGTERM, waits up to `timeout` for the exit status and then for the last lines the
+    /// process wrote (its output is complete when this returns with a status).
+    pub fn stop(&mut self, timeout: Duration) -> Option<std::process::ExitStatus> {
+        let status = self.terminate(timeout)?;
+        let deadline = Instant::now() + timeout;
+        // The reader threads drop their senders at the end of the pipes: disconnected then.
+        while self
+            .lines
+            .recv_timeout(deadline.saturating_duration_since(Instant::now()))
+            .is_ok()
+        {}
+        Some(status)
+    }
+
     /// Sends SIGTERM and waits up to `timeout` for the exit status.
     pub fn terminate(&mut self, timeout: Duration) -> Option<std::process::ExitStatus> {
         let _ = Command::new("kill")

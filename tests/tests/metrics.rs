@@ -457,6 +457,7 @@ fn every_family_the_dashboards_and_alerts_query_counts_in_the_running_demo() {
         "gateway_device_up",
         "gateway_device_image_age_seconds",
         "gateway_modbus_tcp_connections_accepted_total",
+        "gateway_modbus_tcp_connections_closed_total",
         "gateway_modbus_tcp_requests_total",
         "gateway_zenoh_publications_total",
     ];

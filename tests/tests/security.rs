@@ -394,6 +394,104 @@ ranges = [{{ table = "holding", start = 9001, count = 2 }}]
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_same_forbidden_send_is_refused_over_rest_zenoh_and_the_mailbox() {
+    use tokio_modbus::client::{tcp, Reader, Writer};
+    use tokio_modbus::prelude::Slave;
+
+    let dir = temp_dir("no-sends");
+    let link = SocatLink::new(&dir, "ascii");
+    let zenoh_port = gateway_tests::free_port();
+    // The line's write policy refuses sends; every interface that can send is open.
+    let config = format!(
+        r#"
+[gateway]
+name = "nosend"
+
+[modbus_tcp]
+listen = "127.0.0.1:0"
+
+[http]
+insecure_allow_unauthenticated_changes = true
+
+[zenoh]
+mode = "peer"
+listen = ["tcp/127.0.0.1:{zenoh_port}"]
+connect = []
+multicast_scouting = false
+writes = true
+
+[lines.ascii]
+port = "{port}"
+protocol = "ascii"
+end_criterion = "end-chars"
+end_chars = [0x03]
+unit_id = 101
+sends = false
+"#,
+        port = link.a.display(),
+    );
+    let file = dir.join("gateway.toml");
+    std::fs::write(&file, config).expect("write config");
+    let gw = Gateway::run(&file);
+    let http = gw.http.expect("http");
+
+    // REST: 409 with the policy named.
+    let rest = reqwest::Client::new()
+        .post(format!("http://{http}/api/v1/lines/ascii/send"))
+        .json(&serde_json::json!({ "text": "HELLO" }))
+        .send()
+        .await
+        .expect("REST request");
+    let status = rest.status();
+    let body = rest.text().await.unwrap_or_default();
+    assert_eq!(status.as_u16(), 409, "REST send: {body}");
+    assert!(body.contains("sends = false"), "{body}");
+    // zenoh: refused on the result key.
+    let session = zenoh_session(zenoh_port).await;
+    let result = zenoh_put(&session, "gw/nosend/ascii/tx", "HELLO").await;
+    assert_eq!(result["ok"], serde_json::Value::Bool(false), "{result}");
+    assert!(result.to_string().contains("sends = false"), "{result}");
+    // Modbus TCP, the mailbox's send block: REQ, TX_LEN, TX_DATA in one FC 16, exception 01;
+    // REQ alone and TX_DATA alone too.
+    let mut mailbox = tcp::connect_slave(gw.modbus_tcp, Slave(101))
+        .await
+        .expect("connect");
+    for (address, values) in [
+        (1008, vec![1, 5, 0x4845, 0x4C4C, 0x4F00]),
+        (1008, vec![2]),
+        (1010, vec![0x4142]),
+    ] {
+        let answer = mailbox
+            .write_multiple_registers(address, &values)
+            .await
+            .expect("transport");
+        assert_eq!(
+            answer,
+            Err(tokio_modbus::ExceptionCode::IllegalFunction),
+            "FC 16 at {address}"
+        );
+    }
+    // The receive side and the acknowledgement stay open: only sends are closed.
+    let sent = mailbox
+        .read_holding_registers(524, 4)
+        .await
+        .expect("transport")
+        .expect("read SENT and SEND_FAILED");
+    assert_eq!(sent, [0, 0, 0, 0], "nothing was sent or attempted");
+
+    let metrics = scrape(http);
+    for (path, n) in [("modbus_tcp", 3), ("rest", 1), ("zenoh", 1)] {
+        let series = format!("gateway_writes_total{{path=\"{path}\",result=\"refused\"}} {n}");
+        assert!(metrics.contains(&series), "no {series} in:\n{metrics}");
+    }
+    for path in ["modbus_tcp", "rest", "zenoh"] {
+        let series = format!("gateway_writes_total{{path=\"{path}\",result=\"accepted\"}} 0");
+        assert!(metrics.contains(&series), "no {series} in:\n{metrics}");
+    }
+    session.close().await.expect("close");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn zenoh_writes_are_off_unless_switched_on() {
     let dir = temp_dir("zenoh-writes");
     let link = SocatLink::new(&dir, "ascii");

@@ -437,3 +437,75 @@ async fn the_python_binding_receives_gets_sends_and_sets() {
         .expect("read");
     assert_eq!(words[0], 65, "{words:?}");
 }
+
+/// A late subscriber gets the current value of every tag at once: the Python binding's advanced
+/// subscriber with history, declared long after the KS vario's values (which never change) were
+/// last published, receives each of them from the gateway's history queryable.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_late_advanced_subscriber_gets_the_current_values_at_once() {
+    let python = python();
+    let (_gw, port) = demo_with_zenoh(&[]);
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("python/zenoh_history.py");
+    let endpoint = format!("tcp/127.0.0.1:{port}");
+    let out = tokio::process::Command::new(python)
+        .arg(script)
+        .args(["--endpoint", &endpoint, "--prefix", "gw/demo"])
+        .args([
+            "--key",
+            "ksvario/ksvario/*",
+            "--settle",
+            "3",
+            "--window",
+            "3",
+        ])
+        .args(["--timeout", "60"])
+        .kill_on_drop(true)
+        .output();
+    let out = tokio::time::timeout(Duration::from_secs(120), out)
+        .await
+        .expect("the Python client finishes")
+        .expect("python runs");
+    let lines: Vec<Value> = String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|_| panic!("not JSON: {l}")))
+        .collect();
+    assert!(
+        out.status.success(),
+        "{lines:#?}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let get = lines.iter().find(|v| v["kind"] == "get").expect("get");
+    let history = lines
+        .iter()
+        .find(|v| v["kind"] == "history")
+        .expect("history");
+    assert!(
+        get["keys"].as_array().is_some_and(|k| !k.is_empty()),
+        "{get}"
+    );
+    // Every tag the get names arrived, within a second of the subscription.
+    assert_eq!(history["keys"], get["keys"], "{history:#}");
+    let first = history["first_after"].as_f64().expect("a first sample");
+    assert!(first < 1.0, "the first value came after {first} s");
+    // A plain subscriber declared at the same moment waits for the next change: the values
+    // came from the history, not from a publication that happened to fall in the window.
+    let plain: Vec<&Value> = history["plain"]
+        .as_array()
+        .expect("plain")
+        .iter()
+        .map(|s| &s["key"])
+        .collect();
+    assert!(
+        get["keys"]
+            .as_array()
+            .expect("keys")
+            .iter()
+            .any(|k| !plain.contains(&k)),
+        "every value was published again meanwhile: {history:#}"
+    );
+    for sample in history["samples"].as_array().expect("samples") {
+        let payload = &sample["payload"];
+        assert!(payload["value"].is_number(), "{sample}");
+        assert_eq!(payload["quality"], "good", "{sample}");
+    }
+}

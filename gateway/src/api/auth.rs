@@ -5,14 +5,20 @@
 //! - no `Authorization` header: 401 with `WWW-Authenticate: Bearer realm="gateway"`;
 //! - another scheme, or a token that is not the configured one: 401 with
 //!   `error="invalid_token"` (RFC 6750 3.1: an invalid token is answered 401, not 403);
+//! - a valid token whose role lacks the right the change needs ([`required_right`]): 403;
 //! - no token configured at all: 403, the server refuses every change, unless
 //!   `insecure_allow_unauthenticated_changes` is set, in which case every change is accepted
 //!   (and the start-up log says so).
 //!
-//! Tokens are compared in time that does not depend on where they differ.
+//! Several named tokens may be configured, each with a role ([`RestRole`]); the token of
+//! `[http] token_file` / `token_env` is named `default` and has the `admin` role. A presented
+//! token is compared with every configured token, each in time that does not depend on where
+//! they differ. Who made a change ([`Caller`]: the client address and the token's name) goes
+//! to the handlers for the audit.
 
 use std::fmt;
 use std::io;
+use std::net::SocketAddr;
 use std::path::PathBuf;
 
 use axum::extract::{Request, State};
@@ -22,7 +28,8 @@ use axum::response::{IntoResponse, Response};
 
 use super::error::ApiError;
 use super::ApiState;
-use crate::config::{HttpConfig, TokenSource};
+use crate::audit::WriteResult;
+use crate::config::{HttpConfig, RestRight, RestRole, TokenSource};
 
 /// Shortest token accepted: 16 characters (e.g. 96 random bits in base64).
 pub const MIN_TOKEN_LEN: usize = 16;
@@ -52,6 +59,14 @@ pub enum TokenError {
     TooShort(String),
     #[error("the API token from {0} has characters other than visible ASCII")]
     BadCharacters(String),
+    #[error("the API tokens {0} and {1} are the same: every token must be its own")]
+    Duplicate(String, String),
+    /// A named token (`[http.tokens.<name>]`) could not be had.
+    #[error("token {name}: {source}")]
+    Named {
+        name: String,
+        source: Box<Self>,
+    },
 }
 
 // === impl Token ===
@@ -88,17 +103,25 @@ fn constant_time_eq(a: &[u8], b: &[u8]) -> bool {
     std::hint::black_box(diff) == 0
 }
 
+/// A configured token with its name and role.
+#[derive(Clone, Debug)]
+struct NamedToken {
+    name: String,
+    role: RestRole,
+    token: Token,
+}
+
 /// Who may change things.
 #[derive(Clone, Debug)]
 pub struct Auth {
-    token: Option<Token>,
+    tokens: Vec<NamedToken>,
     insecure: bool,
 }
 
 /// The three ways [`Auth`] can be set up.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum AuthMode {
-    /// Changes need the token.
+    /// Changes need a token.
     Token,
     /// No token configured: changes refused (403).
     Locked,
@@ -106,13 +129,86 @@ pub enum AuthMode {
     Insecure,
 }
 
+/// Who a request came from, as far as the API knows.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Who {
+    /// A request that changes nothing: no token looked at.
+    Reader,
+    /// A configured token, by name.
+    Token { name: String, role: RestRole },
+    /// No token configured and changes open to anyone (the demo's insecure mode).
+    Anonymous,
+    /// A change refused before a token was recognised (none, or a wrong one).
+    Unauthenticated,
+}
+
+/// The client address of a connection, put into every request by the accept loop.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PeerAddr(pub SocketAddr);
+
+/// The source of a request for the audit: the client address (when the server knows it) and
+/// who it is; shown as e.g. `127.0.0.1:50312 token ops` or `127.0.0.1:50312 anonymous demo`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Caller {
+    pub addr: Option<SocketAddr>,
+    pub who: Who,
+}
+
+impl fmt::Display for Caller {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.addr {
+            Some(a) => write!(f, "{a} ")?,
+            None => f.write_str("(address unknown) ")?,
+        }
+        match &self.who {
+            Who::Reader => f.write_str("reader"),
+            Who::Token { name, .. } => write!(f, "token {name}"),
+            Who::Anonymous => f.write_str("anonymous demo"),
+            Who::Unauthenticated => f.write_str("no valid token"),
+        }
+    }
+}
+
+/// The right a request needs, by method and path; `None` for a request that changes nothing
+/// (GET, HEAD, and the methods no route serves, which the router answers 405).
+///
+/// - `/api/v1/config...` (replace, change or delete a line, validate): `config`;
+/// - `/api/v1/lines/{line}/send`, `/api/v1/lines/{line}/telegrams/{seq}/ack`: `send`;
+/// - `/api/v1/lines/{line}/diag`, `/api/v1/lines/{line}/signals`: `diagnostics`;
+/// - `/api/v1/lines/{line}/devices/{device}/tags/{tag}`: `write`;
+/// - any other path: `config` (the strictest right; no route serves it anyway).
+pub fn required_right(method: &Method, path: &str) -> Option<RestRight> {
+    if !matches!(
+        *method,
+        Method::PUT | Method::POST | Method::DELETE | Method::PATCH
+    ) {
+        return None;
+    }
+    let rest = path.strip_prefix(super::API_PREFIX).unwrap_or("");
+    let segments: Vec<&str> = rest.split('/').skip(1).collect();
+    Some(match segments.as_slice() {
+        ["lines", _, "send"] | ["lines", _, "telegrams", _, "ack"] => RestRight::Send,
+        ["lines", _, "diag"] | ["lines", _, "signals"] => RestRight::Diagnostics,
+        ["lines", _, "devices", _, "tags", _] => RestRight::Write,
+        _ => RestRight::Config,
+    })
+}
+
 // === impl Auth ===
 
 impl Auth {
-    /// Changes need `token`.
+    /// Changes need `token` (named `default`, every right).
     pub fn with_token(token: Token) -> Self {
+        Self::with_tokens(vec![("default".to_owned(), RestRole::Admin, token)])
+    }
+
+    /// Changes need one of `tokens` (name, role, token), and its role the change's right.
+    pub fn with_tokens(tokens: Vec<(String, RestRole, Token)>) -> Self {
         Self {
-            token: Some(token),
+            tokens: tokens
+                .into_iter()
+                .map(|(name, role, token)| NamedToken { name, role, token })
+                .collect(),
             insecure: false,
         }
     }
@@ -120,7 +216,7 @@ impl Auth {
     /// No token: every change is refused.
     pub fn locked() -> Self {
         Self {
-            token: None,
+            tokens: Vec::new(),
             insecure: false,
         }
     }
@@ -128,12 +224,12 @@ impl Auth {
     /// No token: every change is accepted. For demos only.
     pub fn insecure() -> Self {
         Self {
-            token: None,
+            tokens: Vec::new(),
             insecure: true,
         }
     }
 
-    /// The token named by `[http]` read from its file or the process environment.
+    /// The tokens named by `[http]` read from their files or the process environment.
     pub fn from_config(config: &HttpConfig) -> Result<Self, TokenError> {
         Self::from_config_with(config, |name| std::env::var(name).ok())
     }
@@ -143,54 +239,75 @@ impl Auth {
         config: &HttpConfig,
         env: impl Fn(&str) -> Option<String>,
     ) -> Result<Self, TokenError> {
-        let token = match config.token_source() {
-            None => None,
-            Some(TokenSource::File(path)) => {
-                warn_if_readable_by_others(&path);
-                let text = std::fs::read_to_string(&path).map_err(|source| TokenError::File {
-                    path: path.clone(),
-                    source,
-                })?;
-                Some(Token::new(&text, &path.display().to_string())?)
+        let mut tokens = Vec::new();
+        if let Some(source) = config.token_source() {
+            tokens.push(NamedToken {
+                name: "default".to_owned(),
+                role: RestRole::Admin,
+                token: read_token(&source, &env)?,
+            });
+        }
+        for (name, t) in &config.tokens {
+            let Some(source) = t.source() else {
+                continue;
+            };
+            let token = read_token(&source, &env).map_err(|e| TokenError::Named {
+                name: name.clone(),
+                source: Box::new(e),
+            })?;
+            tokens.push(NamedToken {
+                name: name.clone(),
+                role: t.role,
+                token,
+            });
+        }
+        for (i, a) in tokens.iter().enumerate() {
+            if let Some(b) = tokens[i + 1..].iter().find(|b| b.token.matches(&a.token.0)) {
+                return Err(TokenError::Duplicate(a.name.clone(), b.name.clone()));
             }
-            Some(TokenSource::Env(name)) => {
-                let text = env(&name).ok_or_else(|| TokenError::EnvMissing(name.clone()))?;
-                Some(Token::new(&text, &format!("${name}"))?)
-            }
-        };
+        }
         Ok(Self {
-            token,
+            tokens,
             insecure: config.insecure_allow_unauthenticated_changes,
         })
     }
 
     pub fn mode(&self) -> AuthMode {
-        match (&self.token, self.insecure) {
-            (Some(_), _) => AuthMode::Token,
-            (None, false) => AuthMode::Locked,
-            (None, true) => AuthMode::Insecure,
+        match (self.tokens.is_empty(), self.insecure) {
+            (false, _) => AuthMode::Token,
+            (true, false) => AuthMode::Locked,
+            (true, true) => AuthMode::Insecure,
         }
     }
 
-    /// Whether a request with `method` and `headers` may go on. Only the methods that change
-    /// something (PUT, POST, DELETE, PATCH) need the token; any other method (GET, HEAD, and
-    /// those no route serves, such as TRACE or OPTIONS, which the router answers 405) goes on.
+    /// Whether a request with `method` and `headers` may go on, with every right needed
+    /// (as [`authenticate`](Self::authenticate) then [`authorize`](Self::authorize) for a
+    /// configuration change).
     pub fn check(&self, method: &Method, headers: &HeaderMap) -> Result<(), ApiError> {
+        let who = self.authenticate(method, headers)?;
+        Self::authorize(&who, method, API_CONFIG_PATH)
+    }
+
+    /// Who sends a request with `method` and `headers`. Only the methods that change
+    /// something (PUT, POST, DELETE, PATCH) need a token; any other method (GET, HEAD, and
+    /// those no route serves, such as TRACE or OPTIONS, which the router answers 405) goes on
+    /// as [`Who::Reader`].
+    pub fn authenticate(&self, method: &Method, headers: &HeaderMap) -> Result<Who, ApiError> {
         if !matches!(
             *method,
             Method::PUT | Method::POST | Method::DELETE | Method::PATCH
         ) {
-            return Ok(());
+            return Ok(Who::Reader);
         }
-        let Some(token) = &self.token else {
+        if self.tokens.is_empty() {
             return if self.insecure {
-                Ok(())
+                Ok(Who::Anonymous)
             } else {
                 Err(ApiError::forbidden(
-                    "changes are disabled: no API token is configured ([http] token_file or token_env)",
+                    "changes are disabled: no API token is configured ([http] token_file, token_env or [http.tokens.<name>])",
                 ))
             };
-        };
+        }
         let Some(value) = headers.get(header::AUTHORIZATION) else {
             return Err(ApiError::unauthorized(
                 "this request needs Authorization: Bearer <token>",
@@ -202,29 +319,89 @@ impl Auth {
             .split_at_checked(7)
             .filter(|(scheme, _)| scheme.eq_ignore_ascii_case(b"bearer "))
             .map(|(_, rest)| rest.trim_ascii());
-        match presented {
-            None => Err(ApiError::unauthorized(
+        let Some(presented) = presented else {
+            return Err(ApiError::unauthorized(
                 "the Authorization scheme must be Bearer",
                 CHALLENGE_REQUEST,
-            )),
-            Some(p) if token.matches(p) => Ok(()),
-            Some(_) => Err(ApiError::unauthorized(
+            ));
+        };
+        // Every token is compared, whichever matches, so the time says nothing about which.
+        let mut found = None;
+        for t in &self.tokens {
+            if t.token.matches(presented) && found.is_none() {
+                found = Some(t);
+            }
+        }
+        match found {
+            Some(t) => Ok(Who::Token {
+                name: t.name.clone(),
+                role: t.role,
+            }),
+            None => Err(ApiError::unauthorized(
                 "the bearer token is not valid",
                 CHALLENGE_INVALID,
             )),
         }
     }
 
+    /// Whether `who` may make the change of `method` on `path`: 403 when its token's role
+    /// lacks the right ([`required_right`]).
+    pub fn authorize(who: &Who, method: &Method, path: &str) -> Result<(), ApiError> {
+        let (Some(right), Who::Token { name, role }) = (required_right(method, path), who) else {
+            return Ok(());
+        };
+        if role.allows(right) {
+            return Ok(());
+        }
+        Err(ApiError::forbidden(format!(
+            "the token {name} has the role {} which does not grant the right {:?} this change needs",
+            role.as_str(),
+            right.as_str()
+        )))
+    }
+
     /// Says in the log how changes are guarded (the insecure mode as a warning).
     pub fn log_mode(&self) {
         match self.mode() {
-            AuthMode::Token => tracing::info!("REST API: changes need the bearer token"),
+            AuthMode::Token => {
+                for t in &self.tokens {
+                    tracing::info!(
+                        token = %t.name,
+                        role = t.role.as_str(),
+                        "REST API: changes need a bearer token"
+                    );
+                }
+            }
             AuthMode::Locked => tracing::warn!(
                 "REST API: no token configured ([http] token_file or token_env): every change is refused"
             ),
             AuthMode::Insecure => tracing::warn!(
                 "REST API: INSECURE: changes are accepted without a token (insecure_allow_unauthenticated_changes = true)"
             ),
+        }
+    }
+}
+
+/// A path under the API whose changes need every right, for [`Auth::check`].
+const API_CONFIG_PATH: &str = "/api/v1/config";
+
+/// A token from its file (warned about when others may read it) or its variable.
+fn read_token(
+    source: &TokenSource,
+    env: &impl Fn(&str) -> Option<String>,
+) -> Result<Token, TokenError> {
+    match source {
+        TokenSource::File(path) => {
+            warn_if_readable_by_others(path);
+            let text = std::fs::read_to_string(path).map_err(|source| TokenError::File {
+                path: path.clone(),
+                source,
+            })?;
+            Token::new(&text, &path.display().to_string())
+        }
+        TokenSource::Env(name) => {
+            let text = env(name).ok_or_else(|| TokenError::EnvMissing(name.clone()))?;
+            Token::new(&text, &format!("${name}"))
         }
     }
 }
@@ -242,15 +419,35 @@ fn warn_if_readable_by_others(path: &std::path::Path) {
 #[cfg(not(unix))]
 fn warn_if_readable_by_others(_path: &std::path::Path) {}
 
-/// The middleware that applies [`Auth::check`] to every request.
+/// The middleware that authenticates and authorizes every request and hands the handlers its
+/// [`Caller`]. A refused change is audited here (the handler never sees it).
 pub(crate) async fn require_auth(
     State(state): State<ApiState>,
-    req: Request,
+    mut req: Request,
     next: Next,
 ) -> Response {
-    match state.auth().check(req.method(), req.headers()) {
-        Ok(()) => next.run(req).await,
-        Err(e) => e.into_response(),
+    let addr = req.extensions().get::<PeerAddr>().map(|p| p.0);
+    let method = req.method().clone();
+    let checked = match state.auth().authenticate(&method, req.headers()) {
+        Err(e) => Err((Who::Unauthenticated, e)),
+        Ok(who) => match Auth::authorize(&who, &method, req.uri().path()) {
+            Ok(()) => Ok(who),
+            Err(e) => Err((who, e)),
+        },
+    };
+    match checked {
+        Ok(who) => {
+            req.extensions_mut().insert(Caller { addr, who });
+            next.run(req).await
+        }
+        Err((who, e)) => {
+            let caller = Caller { addr, who };
+            let target = format!("{method} {}", req.uri().path());
+            state
+                .backend()
+                .audit(&caller, &target, WriteResult::Refused, &e.message());
+            e.into_response()
+        }
     }
 }
 
@@ -317,6 +514,120 @@ mod tests {
         let open = Auth::insecure();
         assert_eq!(status(&open, Method::PUT, None), None);
         assert_eq!(open.mode(), AuthMode::Insecure);
+    }
+
+    #[test]
+    fn each_change_needs_its_right_and_the_role_has_it_or_403() {
+        use RestRight::{Config, Diagnostics, Send, Write};
+        for (method, path, right) in [
+            (Method::PUT, "/api/v1/config", Some(Config)),
+            (Method::POST, "/api/v1/config/validate", Some(Config)),
+            (Method::DELETE, "/api/v1/config/lines/x", Some(Config)),
+            (Method::POST, "/api/v1/lines/x/send", Some(Send)),
+            (Method::POST, "/api/v1/lines/x/telegrams/3/ack", Some(Send)),
+            (Method::DELETE, "/api/v1/lines/x/diag", Some(Diagnostics)),
+            (Method::PUT, "/api/v1/lines/x/signals", Some(Diagnostics)),
+            (Method::PUT, "/api/v1/lines/x/devices/d/tags/t", Some(Write)),
+            // Paths that look alike but are not the routes need every right.
+            (
+                Method::PUT,
+                "/api/v1/lines/x/devices/d/tags/t/extra",
+                Some(Config),
+            ),
+            (Method::POST, "/api/v1/lines/send", Some(Config)),
+            (Method::POST, "/lines/x/send", Some(Config)),
+            (Method::POST, "/metrics", Some(Config)),
+            (Method::GET, "/api/v1/config", None),
+            (Method::OPTIONS, "/api/v1/config", None),
+        ] {
+            assert_eq!(required_right(&method, path), right, "{method} {path}");
+        }
+        let ops = Who::Token {
+            name: "ops".into(),
+            role: RestRole::Operator,
+        };
+        assert!(Auth::authorize(&ops, &Method::POST, "/api/v1/lines/x/send").is_ok());
+        let e = Auth::authorize(&ops, &Method::PUT, "/api/v1/config").unwrap_err();
+        assert_eq!(e.status(), StatusCode::FORBIDDEN);
+        assert!(e.message().contains("operator"), "{}", e.message());
+        assert!(Auth::authorize(&Who::Anonymous, &Method::PUT, "/api/v1/config").is_ok());
+    }
+
+    #[test]
+    fn several_tokens_each_find_their_name_and_equal_ones_are_refused() {
+        let token = |t: &str| Token::new(t, "test").unwrap();
+        let auth = Auth::with_tokens(vec![
+            ("a".into(), RestRole::Admin, token(SECRET)),
+            (
+                "b".into(),
+                RestRole::Viewer,
+                token("another-secret-0123456"),
+            ),
+        ]);
+        let who = |t: &str| {
+            auth.authenticate(&Method::PUT, &headers(Some(&format!("Bearer {t}"))))
+                .map_err(|e| e.status())
+        };
+        assert_eq!(
+            who(SECRET),
+            Ok(Who::Token {
+                name: "a".into(),
+                role: RestRole::Admin
+            })
+        );
+        assert_eq!(
+            who("another-secret-0123456"),
+            Ok(Who::Token {
+                name: "b".into(),
+                role: RestRole::Viewer
+            })
+        );
+        assert_eq!(
+            who("another-secret-01234567"),
+            Err(StatusCode::UNAUTHORIZED)
+        );
+
+        let mut config = HttpConfig {
+            token_env: Some("A".into()),
+            ..HttpConfig::default()
+        };
+        config.tokens.insert(
+            "ops".into(),
+            crate::config::TokenConfig {
+                role: RestRole::Operator,
+                token_file: None,
+                token_env: Some("B".into()),
+            },
+        );
+        let auth = Auth::from_config_with(&config, |n| {
+            Some(
+                if n == "A" {
+                    SECRET
+                } else {
+                    "ops-token-0123456789"
+                }
+                .to_owned(),
+            )
+        })
+        .unwrap();
+        assert_eq!(auth.mode(), AuthMode::Token);
+        assert!(matches!(
+            Auth::from_config_with(&config, |_| Some(SECRET.to_owned())),
+            Err(TokenError::Duplicate(..))
+        ));
+        let caller = Caller {
+            addr: Some("10.0.0.5:4711".parse().unwrap()),
+            who: Who::Token {
+                name: "ops".into(),
+                role: RestRole::Operator,
+            },
+        };
+        assert_eq!(caller.to_string(), "10.0.0.5:4711 token ops");
+        let demo = Caller {
+            addr: None,
+            who: Who::Anonymous,
+        };
+        assert_eq!(demo.to_string(), "(address unknown) anonymous demo");
     }
 
     #[test]

@@ -6,14 +6,17 @@
 //! future. A method answers [`ApiError`]s made by its constructors (`not_found`, `conflict`,
 //! `busy`, `device_timeout`, `device_exception`), which the API sends as they are.
 
+use std::fmt::Display;
 use std::future::Future;
 use std::pin::Pin;
 
+use super::auth::Caller;
 use super::error::ApiError;
 use super::model::{
     ApplyReport, DiagSnapshot, GatewayStatus, LineStatusView, Readiness, ScalarValue, SendResult,
     Signals, SignalsPatch, TagValue, TelegramQueue,
 };
+use crate::audit::{WritePath, WriteResult};
 use crate::config::{Config, ConfigIssue};
 
 /// A boxed future that can move between threads.
@@ -104,6 +107,19 @@ pub trait ApiBackend: Send + Sync + 'static {
 
     /// What `/readyz` checks.
     fn readiness(&self) -> Readiness;
+
+    /// Records one change made through the API (a tag write, a telegram send, a signal
+    /// change, a configuration change, or a refused one) in the audit trail; the service
+    /// counts it in its metrics too.
+    fn audit(
+        &self,
+        caller: &Caller,
+        target: &dyn Display,
+        result: WriteResult,
+        detail: &dyn Display,
+    ) {
+        crate::audit::record(None, WritePath::Rest, caller, target, result, detail);
+    }
 
     /// A line's frame monitor; `not_found` for an unknown line, `conflict` when its monitor is
     /// off.

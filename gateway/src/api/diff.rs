@@ -124,6 +124,7 @@ fn devices(line: &LineConfig) -> &BTreeMap<String, DeviceConfig> {
     match &line.protocol {
         ProtocolConfig::ModbusMasterRtu(m) => &m.devices,
         ProtocolConfig::ModbusMasterAscii(m) => &m.devices,
+        ProtocolConfig::ModbusRtuTap(t) => &t.devices,
         _ => &NONE,
     }
 }
@@ -134,6 +135,7 @@ fn without_devices(line: &LineConfig) -> LineConfig {
     match &mut line.protocol {
         ProtocolConfig::ModbusMasterRtu(m) => m.devices.clear(),
         ProtocolConfig::ModbusMasterAscii(m) => m.devices.clear(),
+        ProtocolConfig::ModbusRtuTap(t) => t.devices.clear(),
         _ => {}
     }
     line

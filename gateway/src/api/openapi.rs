@@ -60,9 +60,9 @@ pub(crate) fn finish(doc: OpenApiDoc) -> OpenApiDoc {
 }
 
 /// Completes the document for a server whose changes are guarded as `mode` says, so that it
-/// describes what that server answers: with a token, changes need it (401 without it; 403 is
-/// the answer of the same operations on a server without a token); locked, every change answers
-/// 403; insecure, changes need nothing and neither 401 nor 403 is answered.
+/// describes what that server answers: with tokens, changes need one (401 without it, 403 when
+/// its role lacks the right); locked, every change answers 403; insecure, changes need nothing
+/// and neither 401 nor 403 is answered.
 pub(crate) fn finish_for(mut doc: OpenApiDoc, mode: AuthMode) -> OpenApiDoc {
     for item in doc.paths.paths.values_mut() {
         for (changes, op) in operations(item) {
@@ -108,7 +108,12 @@ fn common_answers(op: &mut Operation, changes: bool, mode: AuthMode) {
             "No token, another scheme, or a wrong token (WWW-Authenticate says which)",
         );
     }
-    if changes && mode != AuthMode::Insecure {
+    if changes && mode == AuthMode::Token {
+        add(
+            "403",
+            "The token's role does not grant the right this change needs (write, send, diagnostics or config)",
+        );
+    } else if changes && mode == AuthMode::Locked {
         add("403", "Changes are disabled: no token is configured");
     }
     if has_parameters {

@@ -19,6 +19,7 @@ use hyper_util::service::TowerToHyperService;
 use tokio::net::TcpListener;
 use tokio::sync::Semaphore;
 
+use super::auth::PeerAddr;
 use super::{router, ApiState};
 
 /// Connections served at once by default (`[http] max_connections`); more wait in the listen
@@ -31,13 +32,13 @@ const ACCEPT_BACKOFF: Duration = Duration::from_millis(100);
 
 /// Serves the API on `listener` until `shutdown` completes; then stops accepting, closes idle
 /// connections, lets requests in flight finish and returns when every connection has ended
-/// (the caller bounds that with its grace period).
+/// (the caller bounds that with its grace period). The caller says how changes are guarded
+/// (`log_mode` of the API state's guard) before it announces the listener.
 pub async fn serve(
     listener: TcpListener,
     state: ApiState,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> io::Result<()> {
-    state.auth().log_mode();
     if let Ok(addr) = listener.local_addr() {
         tracing::info!(%addr, max_connections = state.max_connections, "REST API listening");
     }
@@ -52,13 +53,13 @@ pub async fn serve(
             p = limit.clone().acquire_owned() => p.map_err(io::Error::other)?,
             () = &mut shutdown => break,
         };
-        let stream = tokio::select! {
+        let (stream, peer) = tokio::select! {
             accepted = listener.accept() => match accepted {
                 Ok((_, peer)) if !gate.allows_peer(peer.ip()) => {
                     tracing::debug!(%peer, "REST API client outside the allowed networks, closed");
                     continue;
                 }
-                Ok((stream, _)) => stream,
+                Ok((stream, peer)) => (stream, peer),
                 Err(e) => {
                     tracing::warn!(error = %e, "REST API accept failed");
                     tokio::time::sleep(ACCEPT_BACKOFF).await;
@@ -70,7 +71,13 @@ pub async fn serve(
         let conn = http1::Builder::new()
             .timer(TokioTimer::new())
             .header_read_timeout(header_read_timeout)
-            .serve_connection(TokioIo::new(stream), service.clone());
+            .serve_connection(
+                TokioIo::new(stream),
+                WithPeer {
+                    inner: service.clone(),
+                    peer: PeerAddr(peer),
+                },
+            );
         let conn = graceful.watch(conn);
         tokio::spawn(async move {
             if let Err(e) = conn.await {
@@ -86,4 +93,25 @@ pub async fn serve(
     );
     graceful.shutdown().await;
     Ok(())
+}
+
+/// A connection's service: every request gets the client's address (for the audit).
+#[derive(Clone)]
+struct WithPeer<S> {
+    inner: S,
+    peer: PeerAddr,
+}
+
+impl<S, B> hyper::service::Service<hyper::Request<B>> for WithPeer<S>
+where
+    S: hyper::service::Service<hyper::Request<B>>,
+{
+    type Response = S::Response;
+    type Error = S::Error;
+    type Future = S::Future;
+
+    fn call(&self, mut req: hyper::Request<B>) -> Self::Future {
+        req.extensions_mut().insert(self.peer);
+        self.inner.call(req)
+    }
 }

@@ -12,7 +12,7 @@ use crate::config::{self, Config, DeviceConfig, LineConfig, ModbusTable, Protoco
 use crate::image::Table;
 use crate::line::{
     AddrRange, DeviceLimits, DeviceSettings, LineSettings, PollGroup, ProbeSettings,
-    ScannerSettings,
+    ScannerSettings, TapLineSettings,
 };
 use crate::modbus_tcp::{WriteRange, WriteTable};
 use crate::serial::{self, PortSettings};
@@ -99,6 +99,31 @@ pub(crate) fn master_line(
     settings.master = master;
     settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
     let devices = devices
+        .iter()
+        .map(|(name, device)| device_settings(name, device))
+        .collect();
+    Some((settings, devices))
+}
+
+/// The settings and devices of a listen-only tap line; `None` for lines of other protocols.
+pub(crate) fn tap_line(
+    name: &str,
+    line: &LineConfig,
+    config: &Config,
+) -> Option<(TapLineSettings, Vec<DeviceSettings>)> {
+    let ProtocolConfig::ModbusRtuTap(t) = &line.protocol else {
+        return None;
+    };
+    let port = port_settings(&line.serial);
+    let mut settings = TapLineSettings::new(name, port);
+    settings.tap.timing =
+        crate::line::rtu_timing(&settings.port).with_multiplier(t.delay_multiplier);
+    settings.tap.answer_timeout = t.answer_timeout;
+    settings.tap.check_inter_character = t.inter_character_check;
+    settings.expected_cycle = t.expected_cycle;
+    settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
+    let devices = t
+        .devices
         .iter()
         .map(|(name, device)| device_settings(name, device))
         .collect();

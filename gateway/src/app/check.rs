@@ -123,12 +123,22 @@ pub(crate) fn token_issues(
 
 /// A token error as an issue at the key that names the token's source.
 pub(crate) fn token_issue(http: &HttpConfig, e: &TokenError) -> ConfigIssue {
-    let key = match http.token_source() {
-        Some(TokenSource::Env(_)) => "http.token_env",
-        _ => "http.token_file",
+    let path = match e {
+        TokenError::Named { name, .. } => {
+            let key = match http.tokens.get(name).and_then(|t| t.source()) {
+                Some(TokenSource::Env(_)) => "token_env",
+                _ => "token_file",
+            };
+            format!("http.tokens.{name}.{key}")
+        }
+        TokenError::Duplicate(..) => "http.tokens".to_owned(),
+        _ => match http.token_source() {
+            Some(TokenSource::Env(_)) => "http.token_env".to_owned(),
+            _ => "http.token_file".to_owned(),
+        },
     };
     ConfigIssue {
-        path: key.to_owned(),
+        path,
         message: e.to_string(),
     }
 }
@@ -171,6 +181,10 @@ pub fn unpolled_tags(config: &Config) -> Vec<ConfigIssue> {
     let directory = crate::tags::TagDirectory::from_config(config);
     let mut warnings = Vec::new();
     for (line_name, line) in &config.lines {
+        if line.protocol.kind() == config::ProtocolKind::ModbusRtuTap {
+            // A tap line polls nothing: its values come from another master's traffic.
+            continue;
+        }
         for (device_name, device) in line.devices() {
             let polled = |name: &str, table: T, address: u16, words: u16| {
                 let table = match table {
@@ -387,5 +401,30 @@ mod tests {
         // The demo's loopback listeners are not warned about.
         let demo = config::parse(config::demo_toml()).expect("demo parses");
         assert_eq!(security_warnings(&demo), Vec::<ConfigIssue>::new());
+    }
+}
+
+#[cfg(test)]
+mod token_tests {
+    use super::*;
+
+    #[test]
+    fn a_named_token_that_cannot_be_read_is_an_issue_at_its_key() {
+        let http = config::parse(
+            "[http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"OPS\"\n\
+             [http.tokens.eng]\nrole = \"admin\"\ntoken_file = \"/nonexistent/eng.token\"\n",
+        )
+        .expect("parses")
+        .http;
+        let issues = token_issues(&http, |_| Some("ops-token-0123456789".to_owned()));
+        assert_eq!(issues.len(), 1, "{issues:?}");
+        assert_eq!(issues[0].path, "http.tokens.eng.token_file");
+        assert!(
+            issues[0].message.contains("/nonexistent/eng.token"),
+            "{}",
+            issues[0].message
+        );
+        let issues = token_issues(&http, |_| None);
+        assert_eq!(issues[0].path, "http.tokens.eng.token_file");
     }
 }

@@ -27,7 +27,11 @@ pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(
     // The gateway's ends of the pty pairs: kept open for the whole run so that the paths stay
     // valid while the gateway reopens them.
     let mut keep = Vec::new();
-    let sims = shutdown.child_token();
+    // The simulators (and paced relays) stop after the gateway's lines, not with them: a
+    // simulated partner that closed its end first would show the gateway's line a lost port
+    // (08 0Dh) at every shutdown. The guard stops them however `demo` returns.
+    let sims = CancellationToken::new();
+    let _stop_sims = sims.clone().drop_guard();
     for (name, line) in &mut config.lines {
         if line.serial.pty_name().is_none() {
             continue;
@@ -88,13 +92,8 @@ pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(
         start_simulator(name, line, device_end, overrides.telegram_every, &sims)?;
         line.serial.port = path;
     }
-    if config.http.insecure_allow_unauthenticated_changes && config.http.token_source().is_none() {
-        tracing::warn!(
-            "demo: INSECURE: the REST API accepts configuration and device changes without a token \
-             (insecure_allow_unauthenticated_changes = true in the demo config); never expose it"
-        );
-    }
-    info!("demo: no configuration file; changes over the REST API are kept in memory until exit");
+    // The REST API's start-up line says that changes need no token here (one WARN, the demo's
+    // only one, on purpose); the HTTP server's start says that changes are kept in memory.
     let result = run(config, overrides, shutdown).await;
     sims.cancel();
     drop(keep);
@@ -226,8 +225,8 @@ fn start_simulator(
             });
             Ok(())
         }
-        ProtocolConfig::ModbusMasterAscii(_) => {
-            // The demo has no Modbus ASCII line; a config that adds one gets no simulator.
+        ProtocolConfig::ModbusMasterAscii(_) | ProtocolConfig::ModbusRtuTap(_) => {
+            // The demo has no Modbus ASCII or tap line; a config that adds one gets no simulator.
             drop(stream);
             Ok(())
         }

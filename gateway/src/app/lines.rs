@@ -80,6 +80,12 @@ pub(crate) fn start_line(
             settings.metrics = Some(deps.metrics.clone());
             line::spawn_modbus_master_line(settings, devices, deps.image.clone(), token.clone())
         }
+        ProtocolConfig::ModbusRtuTap(_) => {
+            let (mut settings, devices) = build::tap_line(name, line, config)
+                .ok_or_else(|| AppError::Setup(format!("line {name}: not a tap line")))?;
+            settings.metrics = Some(deps.metrics.clone());
+            line::spawn_modbus_tap_line(settings, devices, deps.image.clone(), token.clone())
+        }
         ProtocolConfig::ModbusSlaveRtu(cfg) => {
             let memory = deps
                 .cp_memory
@@ -135,7 +141,9 @@ pub(crate) fn start_issues(
     let mut issues = Vec::new();
     for (name, line) in &config.lines {
         match &line.protocol {
-            ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => {}
+            ProtocolConfig::ModbusMasterRtu(_)
+            | ProtocolConfig::ModbusMasterAscii(_)
+            | ProtocolConfig::ModbusRtuTap(_) => {}
             ProtocolConfig::ModbusSlaveRtu(cfg) => {
                 if let Some(layout) = layout {
                     if let Err(found) = cpmem::config::slave_params(cfg, layout) {

@@ -8,6 +8,7 @@
 
 use std::sync::{Arc, PoisonError};
 
+use crate::api::auth::Caller;
 use crate::api::model::{
     ApplyReport, DiagRecord, DiagSnapshot, GatewayStatus, LineStatusView, ModbusTcpStatus,
     Readiness, ScalarValue, SendResult, Signals, SignalsPatch, TagQuality, TagValue, Telegram,
@@ -288,6 +289,9 @@ impl ApiBackend for RestBackend {
                 Err(e @ TelegramSendError::Refused(_)) => {
                     Err(ApiError::invalid_body(e.to_string()))
                 }
+                Err(e @ TelegramSendError::NotAllowed { .. }) => {
+                    Err(ApiError::conflict(e.to_string()))
+                }
                 Err(e @ (TelegramSendError::Failed { .. } | TelegramSendError::PortClosed)) => {
                     Ok(SendResult::failed(e.event().status_word(), len))
                 }
@@ -348,35 +352,18 @@ impl ApiBackend for RestBackend {
             )
             .map_err(refused)
         });
-        let target = format!("{line}/{device}/{tag} = {}", value.as_f64());
-        let metrics = Some(&self.sup.exported.metrics);
-        let audit = move |result, detail: &dyn std::fmt::Display| {
-            audit::record(
-                metrics,
-                WritePath::Rest,
-                &"REST API",
-                &target,
-                result,
-                detail,
-            );
-        };
         let write = match prepared {
             Ok(write) => write,
-            Err(e) => {
-                audit(WriteResult::Refused, &e.message());
-                return Box::pin(async move { Err(e) });
-            }
+            Err(e) => return Box::pin(async move { Err(e) }),
         };
         let (line, device) = (line.to_owned(), device.to_owned());
         let name = write.entry.tag.name.clone();
         Box::pin(async move {
-            match write.service.call(write.request).await {
-                Ok(_) => audit(WriteResult::Accepted, &"ok"),
-                Err(code) => {
-                    audit(WriteResult::Failed, &format_args!("{code:?}"));
-                    return Err(code.into());
-                }
-            }
+            write
+                .service
+                .call(write.request)
+                .await
+                .map_err(ApiError::from)?;
             self.read_tag(&line, &device, &name).await
         })
     }
@@ -404,6 +391,23 @@ impl ApiBackend for RestBackend {
             }
             client.read().await.map(signals_view).map_err(signal_error)
         })
+    }
+
+    fn audit(
+        &self,
+        caller: &Caller,
+        target: &dyn std::fmt::Display,
+        result: WriteResult,
+        detail: &dyn std::fmt::Display,
+    ) {
+        audit::record(
+            Some(&self.sup.exported.metrics),
+            WritePath::Rest,
+            caller,
+            target,
+            result,
+            detail,
+        );
     }
 
     fn readiness(&self) -> Readiness {

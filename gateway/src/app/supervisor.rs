@@ -161,7 +161,7 @@ impl Supervisor {
                 }
             }
         }
-        let units = Arc::new(RwLock::new(unit_map(&lines)));
+        let units = Arc::new(RwLock::new(unit_map(&lines, &config, &image)));
         let addr = overrides.modbus_tcp.unwrap_or(config.modbus_tcp.listen);
         // `[modbus_tcp] enabled = false`: no plain listener (Modbus/TCP Security only).
         let listener = if config.modbus_tcp.enabled {
@@ -487,7 +487,7 @@ impl Supervisor {
         }
 
         // The units of every line, then the new snapshot, in one swap each.
-        let map = unit_map(&lines);
+        let map = unit_map(&lines, &new, &self.image);
         *self.units.write().unwrap_or_else(PoisonError::into_inner) = map;
         let snapshot = Arc::new(Snapshot {
             tags: Arc::new(TagDirectory::from_config(&new)),
@@ -649,13 +649,25 @@ async fn stop_line(name: &str, line: RunningLine) {
     }
 }
 
-/// The unit map of `lines`.
-fn unit_map(lines: &BTreeMap<String, RunningLine>) -> UnitMap {
+/// The unit map of `lines`, with the diagnostic unit when `config` sets one (the validation
+/// keeps its unit id apart from the lines').
+fn unit_map(
+    lines: &BTreeMap<String, RunningLine>,
+    config: &Config,
+    image: &ProcessImage,
+) -> UnitMap {
     let mut map = UnitMap::new();
     for line in lines.values() {
         for (unit, service) in &line.units {
             map.insert(*unit, Arc::clone(service));
         }
+    }
+    if let Some(unit) = config.modbus_tcp.diagnostic_unit {
+        let handles = lines.values().map(|l| l.handle.clone()).collect();
+        map.insert(
+            unit,
+            Arc::new(modbus_tcp::DiagnosticUnit::new(handles, image.clone())),
+        );
     }
     map
 }

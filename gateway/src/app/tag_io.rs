@@ -33,6 +33,12 @@ pub(crate) enum WriteRefused {
     /// No unit answers the tag's unit id.
     #[error("unit {0} is not served")]
     NotServed(u8),
+    /// The device is on a listen-only tap line: the gateway does not drive its bus.
+    #[error(
+        "{line}/{device} is on a listen-only tap line: the gateway only listens to another \
+         master's traffic and never writes to the device (Modbus TCP answers exception 01)"
+    )]
+    ListenOnly { line: String, device: String },
 }
 
 /// A checked write, ready to send.
@@ -75,6 +81,12 @@ pub(crate) fn prepare_write(
         });
     }
     let service = service(units, entry.unit_id).ok_or(WriteRefused::NotServed(entry.unit_id))?;
+    if service.listen_only() {
+        return Err(WriteRefused::ListenOnly {
+            line: entry.line.clone(),
+            device: entry.device.clone(),
+        });
+    }
     Ok(PreparedWrite {
         service,
         request,

@@ -7,6 +7,7 @@
 //! A write from zenoh takes the same path and checks as a Modbus TCP write ([`super::tag_io`]).
 
 use crate::audit::{self, WritePath, WriteResult};
+use crate::line::telegram::TelegramSendError;
 use std::collections::BTreeSet;
 use std::sync::{Arc, PoisonError, Weak};
 use std::time::Duration;
@@ -283,8 +284,12 @@ impl BridgeBackend for ZenohBackend {
                     Ok(json!({ "sent": len }))
                 }
                 Err(e) => {
+                    let result = match e {
+                        TelegramSendError::NotAllowed { .. } => WriteResult::Refused,
+                        _ => WriteResult::Failed,
+                    };
                     let e = e.to_string();
-                    audit(WriteResult::Failed, &e);
+                    audit(result, &e);
                     Err(e)
                 }
             }

@@ -8,13 +8,20 @@
 //! body_limit = 1048576                      # bytes
 //! request_timeout = "30s"
 //! max_connections = 64
+//!
+//! [http.tokens.ops]                         # named tokens, each with a role
+//! role = "operator"
+//! token_env = "GATEWAY_TOKEN_OPS"           # or: token_file = "/etc/gateway/ops.token"
 //! ```
 //!
-//! Changes (PUT, POST, DELETE) need `Authorization: Bearer <token>`. The token itself never
+//! Changes (PUT, POST, DELETE) need `Authorization: Bearer <token>`. A token itself never
 //! appears in the configuration: only the file that holds it or the environment variable that
-//! holds it. With neither, changes are refused (403) unless
-//! `insecure_allow_unauthenticated_changes` is set, which the log then says at start.
+//! holds it. The token of `token_file` / `token_env` has the `admin` role (every change); each
+//! `[http.tokens.<name>]` has the role it names ([`RestRole`]). With no token at all, changes
+//! are refused (403) unless `insecure_allow_unauthenticated_changes` is set, which the log then
+//! says at start.
 
+use std::collections::BTreeMap;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -22,7 +29,7 @@ use std::time::Duration;
 use ipnet::IpNet;
 use serde::{Deserialize, Deserializer, Serialize};
 
-use super::reader::{parsed_value, Cx, Fields};
+use super::reader::{check_name, parsed_value, Cx, Fields};
 
 /// Local only by default: exposing the API is a decision (the demo serves 127.0.0.1:8080).
 pub const DEFAULT_HTTP_LISTEN: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 8080);
@@ -64,6 +71,88 @@ pub struct HttpConfig {
     pub max_connections: u32,
     /// Client networks accepted (CIDR); empty: every client. Others are closed at accept.
     pub allowed_networks: Vec<IpNet>,
+    /// Named tokens, each with a role (`[http.tokens.<name>]`).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub tokens: BTreeMap<String, TokenConfig>,
+}
+
+/// What a REST token may change. Reading (GET) needs no token.
+///
+/// The rights are named as the function classes of a Modbus/TCP Security role where they
+/// mean the same (`write`, `diagnostics`), plus the two the REST API has beyond Modbus:
+/// `send` (telegrams) and `config`:
+///
+/// | role | tag writes (`write`) | telegram send and acknowledge (`send`) | diagnostic buffer clear, DTR/RTS (`diagnostics`) | configuration (`config`) |
+/// |---|---|---|---|---|
+/// | `viewer` | no | no | no | no |
+/// | `operator` | yes | yes | yes | no |
+/// | `admin` | yes | yes | yes | yes |
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RestRole {
+    Viewer,
+    Operator,
+    Admin,
+}
+
+/// One right a REST change needs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum RestRight {
+    /// Tag writes.
+    Write,
+    /// Telegram sends and acknowledgements.
+    Send,
+    /// Clearing the diagnostic buffer, setting DTR / RTS.
+    Diagnostics,
+    /// Replacing, changing or validating the configuration.
+    Config,
+}
+
+// === impl RestRole ===
+
+impl RestRole {
+    /// The TOML spelling.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Viewer => "viewer",
+            Self::Operator => "operator",
+            Self::Admin => "admin",
+        }
+    }
+
+    /// Whether the role has `right`.
+    pub fn allows(self, right: RestRight) -> bool {
+        match self {
+            Self::Viewer => false,
+            Self::Operator => right != RestRight::Config,
+            Self::Admin => true,
+        }
+    }
+}
+
+// === impl RestRight ===
+
+impl RestRight {
+    /// The name used in answers and docs.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Write => "write",
+            Self::Send => "send",
+            Self::Diagnostics => "diagnostics",
+            Self::Config => "config",
+        }
+    }
+}
+
+/// One `[http.tokens.<name>]`: a role and where its token comes from (a file or an
+/// environment variable, exactly one).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct TokenConfig {
+    pub role: RestRole,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub token_file: Option<PathBuf>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub token_env: Option<String>,
 }
 
 impl Default for HttpConfig {
@@ -77,6 +166,7 @@ impl Default for HttpConfig {
             request_timeout: DEFAULT_HTTP_REQUEST_TIMEOUT,
             max_connections: DEFAULT_HTTP_MAX_CONNECTIONS,
             allowed_networks: Vec::new(),
+            tokens: BTreeMap::new(),
         }
     }
 }
@@ -138,24 +228,16 @@ impl HttpConfig {
         if f.has("token_file") && f.has("token_env") {
             cx.issue(f.at("token_env"), "set token_file or token_env, not both");
         }
-        if let Some(name) = &token_env {
-            let valid = !name.is_empty()
-                && !name.starts_with(|c: char| c.is_ascii_digit())
-                && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
-            if !valid {
-                cx.issue(
-                    f.at("token_env"),
-                    format!(
-                        "{name:?} is not an environment variable name ([A-Za-z_][A-Za-z0-9_]*)"
-                    ),
-                );
+        check_token_place(cx, &f, token_file.as_ref(), token_env.as_ref());
+        let mut tokens = BTreeMap::new();
+        for (name, path, v) in f.named_tables(cx, "tokens") {
+            check_name(cx, &path, &name);
+            let Some(t) = Fields::of(cx, v, path) else {
+                continue;
+            };
+            if let Some(token) = TokenConfig::read(cx, t) {
+                tokens.insert(name, token);
             }
-        }
-        if token_file
-            .as_ref()
-            .is_some_and(|p| p.as_os_str().is_empty())
-        {
-            cx.issue(f.at("token_file"), "empty path");
         }
         f.finish(cx);
         Self {
@@ -167,6 +249,7 @@ impl HttpConfig {
             request_timeout,
             max_connections,
             allowed_networks,
+            tokens,
         }
     }
 
@@ -177,6 +260,70 @@ impl HttpConfig {
             (None, Some(e)) => Some(TokenSource::Env(e.clone())),
             (None, None) => None,
         }
+    }
+}
+
+// === impl TokenConfig ===
+
+impl TokenConfig {
+    /// Reads one `[http.tokens.<name>]`; `None` when it has no role or no place for the token.
+    fn read(cx: &mut Cx, mut f: Fields<'_>) -> Option<Self> {
+        let role = f.choice::<RestRole>(cx, "role");
+        if !f.has("role") {
+            cx.issue(
+                f.at("role"),
+                "missing required key (\"viewer\", \"operator\" or \"admin\")",
+            );
+        }
+        let token_file = f.string(cx, "token_file").map(PathBuf::from);
+        let token_env = f.string(cx, "token_env");
+        match (f.has("token_file"), f.has("token_env")) {
+            (true, true) => cx.issue(f.at("token_env"), "set token_file or token_env, not both"),
+            (false, false) => cx.issue(
+                f.at("token_file"),
+                "missing: the token's file (token_file) or variable (token_env)",
+            ),
+            _ => {}
+        }
+        check_token_place(cx, &f, token_file.as_ref(), token_env.as_ref());
+        f.finish(cx);
+        Some(Self {
+            role: role?,
+            token_file,
+            token_env,
+        })
+    }
+
+    /// Where the token comes from (the file when both are set, which the reader refuses).
+    pub fn source(&self) -> Option<TokenSource> {
+        match (&self.token_file, &self.token_env) {
+            (Some(f), _) => Some(TokenSource::File(f.clone())),
+            (None, Some(e)) => Some(TokenSource::Env(e.clone())),
+            (None, None) => None,
+        }
+    }
+}
+
+/// Checks a token's file path (not empty) and variable name.
+fn check_token_place(
+    cx: &mut Cx,
+    f: &Fields<'_>,
+    token_file: Option<&PathBuf>,
+    token_env: Option<&String>,
+) {
+    if let Some(name) = token_env {
+        let valid = !name.is_empty()
+            && !name.starts_with(|c: char| c.is_ascii_digit())
+            && name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_');
+        if !valid {
+            cx.issue(
+                f.at("token_env"),
+                format!("{name:?} is not an environment variable name ([A-Za-z_][A-Za-z0-9_]*)"),
+            );
+        }
+    }
+    if token_file.is_some_and(|p| p.as_os_str().is_empty()) {
+        cx.issue(f.at("token_file"), "empty path");
     }
 }
 
@@ -256,6 +403,60 @@ mod tests {
             ],
             "{issues:?}"
         );
+    }
+
+    #[test]
+    fn named_tokens_read_with_their_roles() {
+        let c = read(
+            "[tokens.ops]\nrole = \"operator\"\ntoken_env = \"GATEWAY_TOKEN_OPS\"\n\
+             [tokens.eng]\nrole = \"admin\"\ntoken_file = \"/etc/gateway/eng.token\"\n",
+        )
+        .unwrap();
+        assert_eq!(c.tokens.len(), 2);
+        assert_eq!(c.tokens["ops"].role, RestRole::Operator);
+        assert_eq!(
+            c.tokens["ops"].source(),
+            Some(TokenSource::Env("GATEWAY_TOKEN_OPS".into()))
+        );
+        assert_eq!(
+            c.tokens["eng"].source(),
+            Some(TokenSource::File("/etc/gateway/eng.token".into()))
+        );
+        let text = toml::to_string(&c).unwrap();
+        assert_eq!(read(&text).unwrap(), c);
+
+        let issues = read(
+            "[tokens.a]\nrole = \"root\"\ntoken_env = \"A\"\n\
+             [tokens.b]\ntoken_env = \"B\"\n\
+             [tokens.c]\nrole = \"viewer\"\n\
+             [tokens.d]\nrole = \"viewer\"\ntoken_env = \"D\"\ntoken_file = \"/d\"\n\
+             [tokens.e]\nrole = \"viewer\"\ntoken_env = \"1E\"\ntoken = \"secret-in-text\"\n",
+        )
+        .unwrap_err();
+        let mut paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
+        paths.sort_unstable();
+        assert_eq!(
+            paths,
+            [
+                "http.tokens.a.role",
+                "http.tokens.b.role",
+                "http.tokens.c.token_file",
+                "http.tokens.d.token_env",
+                "http.tokens.e.token",
+                "http.tokens.e.token_env",
+            ],
+            "{issues:?}"
+        );
+    }
+
+    #[test]
+    fn roles_grant_their_rights() {
+        use RestRight::{Config, Diagnostics, Send, Write};
+        for right in [Write, Send, Diagnostics, Config] {
+            assert!(!RestRole::Viewer.allows(right));
+            assert!(RestRole::Admin.allows(right));
+            assert_eq!(RestRole::Operator.allows(right), right != Config);
+        }
     }
 
     #[test]

@@ -9,6 +9,7 @@ use super::device::DeviceConfig;
 use super::modbus::{ModbusMasterAsciiConfig, ModbusMasterRtuConfig, ModbusSlaveRtuConfig};
 use super::reader::{check_name, Cx, Fields};
 use super::serial::{SerialConfig, DEFAULT_BAUD};
+use super::tap::ModbusRtuTapConfig;
 use super::telegram::{AsciiConfig, Proc3964Config};
 
 /// A line: where and how to talk, and what protocol to speak.
@@ -30,6 +31,9 @@ pub enum ProtocolConfig {
     ModbusMasterAscii(ModbusMasterAsciiConfig),
     #[serde(rename = "modbus-slave-rtu")]
     ModbusSlaveRtu(ModbusSlaveRtuConfig),
+    /// Listen-only: stores what another master's traffic shows.
+    #[serde(rename = "modbus-rtu-tap")]
+    ModbusRtuTap(ModbusRtuTapConfig),
     #[serde(rename = "3964r")]
     Proc3964(Proc3964Config),
     #[serde(rename = "ascii")]
@@ -45,6 +49,9 @@ pub enum ProtocolKind {
     ModbusMasterAscii,
     #[serde(rename = "modbus-slave-rtu")]
     ModbusSlaveRtu,
+    /// Listen-only Modbus RTU.
+    #[serde(rename = "modbus-rtu-tap")]
+    ModbusRtuTap,
     /// 3964 or 3964R, by `block_check`.
     #[serde(rename = "3964r")]
     Proc3964,
@@ -61,6 +68,7 @@ impl ProtocolKind {
             Self::ModbusMasterRtu => "modbus-master-rtu",
             Self::ModbusMasterAscii => "modbus-master-ascii",
             Self::ModbusSlaveRtu => "modbus-slave-rtu",
+            Self::ModbusRtuTap => "modbus-rtu-tap",
             Self::Proc3964 => "3964r",
             Self::Ascii => "ascii",
         }
@@ -69,6 +77,11 @@ impl ProtocolKind {
     /// Whether the line polls devices.
     pub fn is_master(self) -> bool {
         matches!(self, Self::ModbusMasterRtu | Self::ModbusMasterAscii)
+    }
+
+    /// Whether the line lists devices (a master polls them, a tap listens to them).
+    pub fn has_devices(self) -> bool {
+        self.is_master() || self == Self::ModbusRtuTap
     }
 }
 
@@ -80,6 +93,7 @@ impl ProtocolConfig {
             Self::ModbusMasterRtu(_) => ProtocolKind::ModbusMasterRtu,
             Self::ModbusMasterAscii(_) => ProtocolKind::ModbusMasterAscii,
             Self::ModbusSlaveRtu(_) => ProtocolKind::ModbusSlaveRtu,
+            Self::ModbusRtuTap(_) => ProtocolKind::ModbusRtuTap,
             Self::Proc3964(_) => ProtocolKind::Proc3964,
             Self::Ascii(_) => ProtocolKind::Ascii,
         }
@@ -89,12 +103,13 @@ impl ProtocolConfig {
 // === impl LineConfig ===
 
 impl LineConfig {
-    /// The devices this line polls (empty unless it is a Modbus master).
+    /// The devices this line polls or listens to (empty unless it is a Modbus master or tap).
     pub fn devices(&self) -> impl Iterator<Item = (&String, &DeviceConfig)> {
         static NONE: BTreeMap<String, DeviceConfig> = BTreeMap::new();
         match &self.protocol {
             ProtocolConfig::ModbusMasterRtu(m) => m.devices.iter(),
             ProtocolConfig::ModbusMasterAscii(m) => m.devices.iter(),
+            ProtocolConfig::ModbusRtuTap(t) => t.devices.iter(),
             _ => NONE.iter(),
         }
     }
@@ -105,7 +120,19 @@ impl LineConfig {
             ProtocolConfig::ModbusSlaveRtu(s) => s.unit_id,
             ProtocolConfig::Proc3964(p) => p.unit_id,
             ProtocolConfig::Ascii(a) => a.unit_id,
-            ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => None,
+            ProtocolConfig::ModbusMasterRtu(_)
+            | ProtocolConfig::ModbusMasterAscii(_)
+            | ProtocolConfig::ModbusRtuTap(_) => None,
+        }
+    }
+
+    /// Whether telegrams may be sent on this line (`sends`); `false` for a line without
+    /// telegrams.
+    pub fn sends(&self) -> bool {
+        match &self.protocol {
+            ProtocolConfig::Proc3964(p) => p.sends,
+            ProtocolConfig::Ascii(a) => a.sends,
+            _ => false,
         }
     }
 
@@ -117,7 +144,7 @@ impl LineConfig {
         if !f.has("protocol") {
             cx.issue(
                 f.at("protocol"),
-                "missing required key (modbus-master-rtu, modbus-master-ascii, modbus-slave-rtu, 3964r or ascii)",
+                "missing required key (modbus-master-rtu, modbus-master-ascii, modbus-slave-rtu, modbus-rtu-tap, 3964r or ascii)",
             );
         }
         let serial = SerialConfig::read(cx, &mut f);
@@ -134,15 +161,18 @@ impl LineConfig {
             ProtocolKind::ModbusSlaveRtu => {
                 ProtocolConfig::ModbusSlaveRtu(ModbusSlaveRtuConfig::read(cx, &mut f))
             }
+            ProtocolKind::ModbusRtuTap => {
+                ProtocolConfig::ModbusRtuTap(ModbusRtuTapConfig::read(cx, &mut f))
+            }
             ProtocolKind::Proc3964 => ProtocolConfig::Proc3964(Proc3964Config::read(cx, &mut f)),
             ProtocolKind::Ascii => ProtocolConfig::Ascii(AsciiConfig::read(cx, &mut f, baud)),
         };
-        if !kind.is_master() && f.has("devices") {
+        if !kind.has_devices() && f.has("devices") {
             let _ = f.raw("devices");
             cx.issue(
                 f.at("devices"),
                 format!(
-                    "devices are polled only by modbus-master-rtu and modbus-master-ascii lines, not by a {} line",
+                    "devices are listed only on modbus-master-rtu, modbus-master-ascii and modbus-rtu-tap lines, not on a {} line",
                     kind.as_str()
                 ),
             );

@@ -54,6 +54,7 @@ mod modbus;
 mod reader;
 mod serial;
 mod server;
+mod tap;
 mod telegram;
 pub mod validate;
 mod zenoh;
@@ -71,6 +72,7 @@ pub use line::*;
 pub use modbus::*;
 pub use serial::*;
 pub use server::*;
+pub use tap::*;
 pub use telegram::*;
 // `self::`: the module, not the zenoh crate.
 pub use self::zenoh::*;

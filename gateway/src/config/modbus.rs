@@ -216,7 +216,7 @@ pub struct ModbusSlaveRtuConfig {
 
 // === readers ===
 
-fn read_devices(cx: &mut Cx, f: &mut Fields<'_>) -> BTreeMap<String, DeviceConfig> {
+pub(super) fn read_devices(cx: &mut Cx, f: &mut Fields<'_>) -> BTreeMap<String, DeviceConfig> {
     let mut devices = BTreeMap::new();
     for (name, path, value) in f.named_tables(cx, "devices") {
         check_name(cx, &path, &name);

@@ -123,6 +123,9 @@ pub struct ModbusTcpConfig {
     pub read_only: bool,
     /// When not empty, writes are accepted only inside these ranges.
     pub write_ranges: Vec<UnitRange>,
+    /// The unit id that serves the gateway's own health (docs/diagnostics.md); `None`: off.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub diagnostic_unit: Option<u8>,
     /// Modbus/TCP Security; `None`: off.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub tls: Option<ModbusTlsConfig>,
@@ -140,6 +143,7 @@ impl Default for ModbusTcpConfig {
             allowed_networks: Vec::new(),
             read_only: DEFAULT_READ_ONLY,
             write_ranges: Vec::new(),
+            diagnostic_unit: None,
             tls: None,
         }
     }
@@ -209,6 +213,7 @@ impl ModbusTcpConfig {
         }
         let read_only = f.bool_or(cx, "read_only", DEFAULT_READ_ONLY);
         let write_ranges = unit_ranges(cx, &mut f);
+        let diagnostic_unit = f.int(cx, "diagnostic_unit", 1..=u8::MAX, "");
         let tls = f.table(cx, "tls").map(|t| ModbusTlsConfig::read(cx, t));
         f.finish(cx);
         Self {
@@ -221,6 +226,7 @@ impl ModbusTcpConfig {
             allowed_networks,
             read_only,
             write_ranges,
+            diagnostic_unit,
             tls,
         }
     }

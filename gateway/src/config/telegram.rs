@@ -146,6 +146,9 @@ pub struct Proc3964Config {
     /// Modbus TCP unit id of the mailbox, if served.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub unit_id: Option<u8>,
+    /// Telegram sends allowed (REST, zenoh `tx`, the mailbox's send block): the line's write
+    /// policy for sends.
+    pub sends: bool,
 }
 
 /// ASCII telegrams (003 6.2.1) with their mailbox.
@@ -180,7 +183,15 @@ pub struct AsciiConfig {
     pub send_queue: u16,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub unit_id: Option<u8>,
+    /// Telegram sends allowed (REST, zenoh `tx`, the mailbox's send block): the line's write
+    /// policy for sends.
+    pub sends: bool,
 }
+
+/// Telegram sends are allowed unless a line says `sends = false`: a telegram line exists to
+/// exchange telegrams, and the demo sends from every interface. A line whose partner must only
+/// be listened to is closed with `sends = false` (every send path refuses then).
+pub const DEFAULT_SENDS: bool = true;
 
 /// 003 6.3.3: the shortest ZVZ and QVZ by baud rate (300: 60 ms, 600: 40 ms, 1200: 30 ms,
 /// 2400 ... 76800: 20 ms). 150 baud is beyond the CP; we double the 300-baud value.
@@ -283,6 +294,7 @@ impl Proc3964Config {
                 "",
             ),
             unit_id: mailbox_unit(cx, f),
+            sends: f.bool_or(cx, "sends", DEFAULT_SENDS),
         }
     }
 }
@@ -371,6 +383,7 @@ impl AsciiConfig {
                 "",
             ),
             unit_id: mailbox_unit(cx, f),
+            sends: f.bool_or(cx, "sends", DEFAULT_SENDS),
         }
     }
 }

@@ -9,6 +9,7 @@ use super::line::{LineConfig, ProtocolConfig};
 use super::modbus::{BitArea, ModbusSlaveRtuConfig};
 use super::reader::{show_duration, Cx};
 use super::serial::{DataBits, Interface};
+use super::tap::ModbusRtuTapConfig;
 use super::telegram::{
     min_3964_time, min_ascii_character_delay, AsciiConfig, EndCriterion, FlowControl,
     Proc3964Config,
@@ -63,8 +64,25 @@ pub(crate) fn check(cx: &mut Cx, config: &Config) {
         }
         check_line(cx, &path, line);
     }
+    if let Some(unit) = config.modbus_tcp.diagnostic_unit {
+        claim_unit(
+            cx,
+            &mut units,
+            unit,
+            "modbus_tcp.diagnostic_unit".to_owned(),
+            "modbus_tcp.diagnostic_unit",
+        );
+    }
     for (i, r) in config.modbus_tcp.write_ranges.iter().enumerate() {
-        if !units.contains_key(&r.unit_id) {
+        if config.modbus_tcp.diagnostic_unit == Some(r.unit_id) {
+            cx.issue(
+                format!("modbus_tcp.write_ranges[{i}].unit_id"),
+                format!(
+                    "unit id {} is the diagnostic unit, which is read-only",
+                    r.unit_id
+                ),
+            );
+        } else if !units.contains_key(&r.unit_id) {
             cx.issue(
                 format!("modbus_tcp.write_ranges[{i}].unit_id"),
                 format!("no device or line is served as unit id {}", r.unit_id),
@@ -101,7 +119,9 @@ fn claim_unit(cx: &mut Cx, units: &mut BTreeMap<u8, String>, unit: u8, path: Str
 fn check_line(cx: &mut Cx, path: &str, line: &LineConfig) {
     let serial = &line.serial;
     match &line.protocol {
-        ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusSlaveRtu(_)
+        ProtocolConfig::ModbusMasterRtu(_)
+        | ProtocolConfig::ModbusSlaveRtu(_)
+        | ProtocolConfig::ModbusRtuTap(_)
             if serial.data_bits != DataBits::Eight =>
         {
             cx.issue(
@@ -115,7 +135,28 @@ fn check_line(cx: &mut Cx, path: &str, line: &LineConfig) {
         ProtocolConfig::Proc3964(p) => check_3964(cx, path, line, p),
         ProtocolConfig::Ascii(a) => check_ascii(cx, path, line, a),
         ProtocolConfig::ModbusSlaveRtu(s) => check_slave(cx, path, s),
+        ProtocolConfig::ModbusRtuTap(t) => check_tap(cx, path, t),
         ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => {}
+    }
+}
+
+/// A tap line never transmits: its devices have no poll groups and no communication scanner.
+fn check_tap(cx: &mut Cx, path: &str, tap: &ModbusRtuTapConfig) {
+    for (name, device) in &tap.devices {
+        let dev_path = format!("{path}.devices.{name}");
+        if !device.poll.is_empty() {
+            cx.issue(
+                format!("{dev_path}.poll"),
+                "a modbus-rtu-tap line only listens: its devices have no poll groups (it stores \
+                 what another master reads and writes)",
+            );
+        }
+        if device.scanner.is_some_and(|s| s.enabled) {
+            cx.issue(
+                format!("{dev_path}.scanner"),
+                "a modbus-rtu-tap line only listens: it cannot run a communication scanner",
+            );
+        }
     }
 }
 

@@ -474,6 +474,19 @@ impl ProcessImage {
         })
     }
 
+    /// When the oldest polled value of `unit` was read (values stored with a poll period; those
+    /// written on demand only are left out); `None` when the unit has no polled value.
+    pub fn oldest_polled(&self, unit: u8) -> Option<Instant> {
+        let units = self.read_units();
+        let image = units.get(&unit)?;
+        Table::ALL
+            .into_iter()
+            .flat_map(|table| image.table(table).iter())
+            .filter(|(_, slot)| slot.max_age.is_some())
+            .map(|(_, slot)| slot.at)
+            .min()
+    }
+
     /// The units under the read lock. A poisoned lock is taken as it is: a writer that panicked
     /// leaves whole slot values, at worst some of a range newer than the rest.
     fn read_units(&self) -> RwLockReadGuard<'_, HashMap<u8, UnitImage>> {

@@ -387,3 +387,25 @@ async fn encoded_reads_are_the_responses_of_the_range_reads() {
     }
     assert!(out.is_empty());
 }
+
+#[tokio::test(start_paused = true)]
+async fn the_oldest_polled_value_leaves_out_values_written_on_demand() {
+    let image = ProcessImage::default();
+    assert_eq!(image.oldest_polled(2), None);
+    image.store_words(2, Table::HoldingRegisters, 9001, &[13], None);
+    assert_eq!(image.oldest_polled(2), None, "a value without poll period");
+    let period = Some(Duration::from_millis(100));
+    let first = Instant::now();
+    image.store_words(2, Table::InputRegisters, 10, &[1, 2], period);
+    tokio::time::advance(Duration::from_millis(500)).await;
+    image.store_bits(2, Table::Coils, 0, &[true], period);
+    image.store_words(2, Table::InputRegisters, 11, &[3], period);
+    assert_eq!(
+        image.oldest_polled(2),
+        Some(first),
+        "register 10 was read first"
+    );
+    image.store_words(2, Table::InputRegisters, 10, &[4], period);
+    assert_eq!(image.oldest_polled(2), Some(Instant::now()));
+    assert_eq!(image.oldest_polled(3), None);
+}

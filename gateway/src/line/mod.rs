@@ -7,6 +7,8 @@
 //!   registers in the [`ProcessImage`](crate::image::ProcessImage), and carries writes and
 //!   on-demand reads from the Modbus TCP server ([`DeviceUnit`]) through a bounded command queue;
 //! - `modbus_slave` ([`spawn_modbus_slave_line`]): the Modbus slave RTU line serving the CP memory;
+//! - `modbus_tap` ([`spawn_modbus_tap_line`]): a listen-only line that stores what another
+//!   master's requests and the devices' answers show, never transmitting;
 //! - [`telegram`]: ASCII and 3964(R) lines with their mailboxes.
 //!
 //! What the Modbus master adapter builds on:
@@ -35,6 +37,7 @@ mod driver;
 mod line_metrics;
 mod modbus_master;
 mod modbus_slave;
+mod modbus_tap;
 pub mod monitor;
 pub mod pcapng;
 pub mod plan;
@@ -59,6 +62,7 @@ pub use device_unit::DeviceUnit;
 pub use line_metrics::LineTraffic;
 pub use modbus_master::spawn_modbus_master_line;
 pub use modbus_slave::{spawn_modbus_slave_line, CpMemoryView, SlaveCounters, SlaveLineSettings};
+pub use modbus_tap::{spawn_modbus_tap_line, TapLineSettings, TAP_PROTOCOL};
 pub use monitor::{Frame, FrameMonitor, DEFAULT_MONITOR_FRAMES, MAX_MONITOR_FRAMES};
 pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
 pub use probe::{ProbeSettings, PROBE_TIMEOUT_FACTOR};

@@ -91,6 +91,7 @@ fn spawn_on<O: PortOpener>(
                 polls_ok: 0,
                 polls_exception: 0,
                 polls_failed: 0,
+                last_exception: None,
                 last_answer: None,
                 commands_failed: 0,
                 cycles: Vec::new(),
@@ -691,6 +692,10 @@ impl MasterLine {
         match job {
             InFlight::Scan(scan) => {
                 let answered = matches!(outcome, Outcome::Response(_) | Outcome::Exception(_));
+                let exception = match &outcome {
+                    Outcome::Exception(code) => Some(u8::from(*code)),
+                    _ => None,
+                };
                 let response = match outcome {
                     Outcome::Response(response) => Some(response),
                     _ => None,
@@ -700,7 +705,10 @@ impl MasterLine {
                         self.device_stat(scan.device, |d| d.polls_failed += 1);
                     } else if response.is_none() {
                         tracing::debug!(line = %self.settings.name, device = %device.name, ?request, "scanner request answered with an exception");
-                        self.device_stat(scan.device, |d| d.polls_exception += 1);
+                        self.device_stat(scan.device, |d| {
+                            d.polls_exception += 1;
+                            d.last_exception = exception.or(d.last_exception);
+                        });
                     } else if self
                         .scanners
                         .done(scan, request, response.clone(), &self.image, now)
@@ -751,7 +759,10 @@ impl MasterLine {
                             range.count,
                             Quality::Rejected,
                         );
-                        self.device_stat(poll.device, |d| d.polls_exception += 1);
+                        self.device_stat(poll.device, |d| {
+                            d.polls_exception += 1;
+                            d.last_exception = Some(u8::from(code));
+                        });
                         true
                     }
                     Outcome::Broadcast => true,

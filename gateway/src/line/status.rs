@@ -53,6 +53,9 @@ pub struct DeviceStatus {
     pub polls_exception: u64,
     /// Polls without a valid answer (after the master's retries).
     pub polls_failed: u64,
+    /// The exception code of the newest poll or scan the device answered with an exception
+    /// (`None` before any).
+    pub last_exception: Option<u8>,
     /// When it last answered.
     pub last_answer: Option<SystemTime>,
     /// Commands (writes, on-demand reads, pass-through requests) that got no valid answer:

@@ -342,3 +342,54 @@ fn acknowledge_by_write_and_fetch_the_next_in_one_exchange() {
         Err(ExceptionCode::IllegalDataAddress)
     );
 }
+
+#[tokio::test]
+async fn a_line_without_sends_refuses_the_send_block_and_its_client_refuses_every_send() {
+    use crate::unit::UnitService;
+
+    let (tx, mut line) = mpsc::channel(4);
+    let mb = Mailbox::new("quiet", MailboxSettings::default(), 250);
+    let client = TelegramClient::new(Arc::from("quiet"), tx, 4).with_sends(false);
+    assert!(matches!(
+        client.try_send(b"AB".to_vec()),
+        Err(TelegramSendError::NotAllowed { .. })
+    ));
+    let unit = MailboxUnit::new(mb, client);
+    let fc16 = |address: u16, values: &[u16]| Request::WriteMultipleRegisters {
+        address,
+        values: values.to_vec(),
+    };
+    // Any write touching REQ..TX_DATA's end: refused before it is served.
+    for request in [
+        fc16(TX_REQ, &[1, 2, 0x4142]),
+        fc16(TX_REQ - 1, &[0, 1]),
+        fc16(TX_REQ + 2, &[0x4142]),
+        fc16(TX_REQ + 513, &[0x4142]),
+    ] {
+        assert_eq!(
+            unit.refuses(&request),
+            Some(ExceptionCode::IllegalFunction),
+            "{request:?}"
+        );
+    }
+    // Reads and the acknowledgement are not sends.
+    for request in [
+        Request::ReadHoldingRegisters {
+            address: TX_REQ,
+            quantity: 2,
+        },
+        Request::WriteSingleRegister {
+            address: 600,
+            value: 1,
+        },
+        fc16(TX_REQ + 514, &[0x4142]),
+    ] {
+        assert_eq!(unit.refuses(&request), None, "{request:?}");
+    }
+    // Served anyway (a path that skipped the check), the line client still refuses: 01.
+    assert_eq!(
+        write(&unit, TX_REQ, &[1, 2, 0x4142]),
+        Err(ExceptionCode::IllegalFunction)
+    );
+    assert!(line.try_recv().is_err(), "nothing reached the line");
+}

@@ -122,6 +122,58 @@ pub fn function_label(function: u8) -> &'static str {
         .map_or(FUNCTION_OTHER, |(_, label)| label)
 }
 
+/// Why the Modbus TCP server's connection ended: while served, or refused at accept, or at the
+/// TLS handshake. Every connection that reached `accept()` ends with one of these.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum TcpCloseReason {
+    /// The client closed it.
+    Client,
+    /// No complete request within `idle_timeout`, or an answer not taken within it.
+    Idle,
+    /// A frame the server cannot answer (bad MBAP header: protocol id, length; no function code).
+    BadFrame,
+    /// A socket error.
+    IoError,
+    /// The gateway shut down.
+    Shutdown,
+    /// Refused at accept: the server's or the client address's connection cap was reached.
+    Limit,
+    /// Refused at accept: the client is outside `allowed_networks`.
+    Network,
+    /// Modbus/TCP Security: the TLS handshake failed or timed out.
+    TlsHandshake,
+}
+
+// === impl TcpCloseReason ===
+
+impl TcpCloseReason {
+    /// Every reason, for pre-creating series.
+    pub const ALL: [Self; 8] = [
+        Self::Client,
+        Self::Idle,
+        Self::BadFrame,
+        Self::IoError,
+        Self::Shutdown,
+        Self::Limit,
+        Self::Network,
+        Self::TlsHandshake,
+    ];
+
+    /// The `reason` label value.
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::Client => "client",
+            Self::Idle => "idle",
+            Self::BadFrame => "bad_frame",
+            Self::IoError => "io_error",
+            Self::Shutdown => "shutdown",
+            Self::Limit => "limit",
+            Self::Network => "network",
+            Self::TlsHandshake => "tls_handshake",
+        }
+    }
+}
+
 /// Why the Modbus TCP server closed a connection at accept, or failed to accept one.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum RejectReason {

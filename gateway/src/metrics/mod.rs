@@ -55,8 +55,8 @@ pub mod labels;
 
 pub use http::serve_metrics;
 pub use labels::{
-    function_label, Direction, DropReason, PublicationKind, RejectReason, RequestResult, WritePath,
-    WriteResult,
+    function_label, Direction, DropReason, PublicationKind, RejectReason, RequestResult,
+    TcpCloseReason, WritePath, WriteResult,
 };
 
 use image_age::ImageAge;
@@ -76,6 +76,7 @@ pub const METRIC_NAMES: &[&str] = &[
     TCP_CONNECTIONS,
     TCP_CONNECTIONS_ACCEPTED,
     TCP_CONNECTIONS_REJECTED,
+    TCP_CONNECTIONS_CLOSED,
     TCP_REQUESTS,
     TCP_REFUSED,
     TCP_HANDSHAKES_FAILED,
@@ -99,6 +100,7 @@ const POLL_CYCLE: &str = "gateway_poll_cycle_seconds";
 const TCP_CONNECTIONS: &str = "gateway_modbus_tcp_connections";
 const TCP_CONNECTIONS_ACCEPTED: &str = "gateway_modbus_tcp_connections_accepted_total";
 const TCP_CONNECTIONS_REJECTED: &str = "gateway_modbus_tcp_connections_rejected_total";
+const TCP_CONNECTIONS_CLOSED: &str = "gateway_modbus_tcp_connections_closed_total";
 const TCP_REQUESTS: &str = "gateway_modbus_tcp_requests_total";
 const TCP_REFUSED: &str = "gateway_modbus_tcp_refused_total";
 const TCP_HANDSHAKES_FAILED: &str = "gateway_modbus_tcp_tls_handshakes_failed_total";
@@ -187,6 +189,8 @@ pub struct Metrics {
     tcp_accepted: IntCounter,
     /// `gateway_modbus_tcp_connections_rejected_total{reason}`.
     tcp_rejected: IntCounterVec,
+    /// `gateway_modbus_tcp_connections_closed_total{reason}`: every connection's end by reason.
+    tcp_closed: IntCounterVec,
     /// `gateway_modbus_tcp_requests_total{function,result}`.
     tcp_requests: IntCounterVec,
     /// `gateway_modbus_tcp_refused_total{role}`: Modbus/TCP Security requests refused by role.
@@ -199,7 +203,8 @@ pub struct Metrics {
     zenoh_publications: IntCounterVec,
     /// `gateway_dropped_updates_total{reason}`.
     dropped_updates: IntCounterVec,
-    /// `gateway_frames_discarded_total{line,reason}`: received frames a slave line did not serve.
+    /// `gateway_frames_discarded_total{line,reason}`: received frames a slave line did not serve
+    /// or a tap line did not use.
     frames_discarded: IntCounterVec,
     /// `gateway_monitor_dropped_total{line,reason}`: frames the line's frame monitor let go.
     monitor_dropped: IntCounterVec,
@@ -285,6 +290,13 @@ impl Metrics {
                 ),
                 &["reason"],
             )?,
+            tcp_closed: IntCounterVec::new(
+                Opts::new(
+                    TCP_CONNECTIONS_CLOSED,
+                    "Modbus TCP connections closed, by reason (served ones and those refused at accept or at the TLS handshake).",
+                ),
+                &["reason"],
+            )?,
             tcp_requests: IntCounterVec::new(
                 Opts::new(TCP_REQUESTS, "Modbus TCP requests by function code and result."),
                 &["function", "result"],
@@ -322,7 +334,7 @@ impl Metrics {
             frames_discarded: IntCounterVec::new(
                 Opts::new(
                     FRAMES_DISCARDED,
-                    "Received frames a Modbus slave line discarded unanswered, by reason.",
+                    "Received frames a Modbus slave line discarded unanswered, or a tap line did not use, by reason.",
                 ),
                 &["line", "reason"],
             )?,
@@ -349,6 +361,7 @@ impl Metrics {
         registry.register(Box::new(metrics.tcp_connections.clone()))?;
         registry.register(Box::new(metrics.tcp_accepted.clone()))?;
         registry.register(Box::new(metrics.tcp_rejected.clone()))?;
+        registry.register(Box::new(metrics.tcp_closed.clone()))?;
         registry.register(Box::new(metrics.tcp_requests.clone()))?;
         registry.register(Box::new(metrics.tcp_refused.clone()))?;
         registry.register(Box::new(metrics.tcp_handshakes_failed.clone()))?;
@@ -372,6 +385,9 @@ impl Metrics {
         }
         for reason in RejectReason::ALL {
             metrics.tcp_rejected.with_label_values(&[reason.as_str()]);
+        }
+        for reason in TcpCloseReason::ALL {
+            metrics.tcp_closed.with_label_values(&[reason.as_str()]);
         }
         for kind in PublicationKind::ALL {
             metrics
@@ -440,8 +456,10 @@ impl Metrics {
         }
     }
 
-    /// Counts one received frame that a slave line on `line` discarded unanswered; `reason` is
-    /// one of the fixed names of `proto_core::modbus::slave::DiscardReason::as_str`.
+    /// Counts one received frame that a slave line on `line` discarded unanswered, or a tap line
+    /// did not use; `reason` is one of the fixed names of
+    /// `proto_core::modbus::slave::DiscardReason::as_str` or
+    /// `proto_core::modbus::tap::DiscardReason::as_str`.
     pub fn frame_discarded(&self, line: &str, reason: &'static str) {
         self.frames_discarded
             .with_label_values(&[line, reason])
@@ -580,6 +598,11 @@ impl Metrics {
             .inc();
     }
 
+    /// A connection ended (or was refused at accept or at the TLS handshake) for `reason`.
+    pub fn tcp_connection_closed(&self, reason: TcpCloseReason) {
+        self.tcp_closed.with_label_values(&[reason.as_str()]).inc();
+    }
+
     /// Counts one Modbus TCP request with function code `function` and its answer.
     pub fn tcp_request(&self, function: u8, result: RequestResult) {
         self.tcp_request_series(function, result).inc();
@@ -689,6 +712,7 @@ mod tests {
         );
         metrics.tcp_request(0x03, RequestResult::Ok);
         metrics.frame_discarded("hmi", "trailing_data");
+        let _ = metrics.monitor_dropped("drive", "overwritten");
         let mut names: Vec<_> = registry
             .gather()
             .iter()

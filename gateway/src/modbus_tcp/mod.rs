@@ -15,6 +15,7 @@
 //! is counted in [`ServerStats`].
 
 pub mod access;
+pub mod diagnostic;
 pub mod mbap;
 pub mod server;
 pub mod stats;
@@ -26,6 +27,7 @@ mod request;
 mod shared;
 
 pub use access::{Authority, FunctionClass, Refusal, RoleRights, Roles};
+pub use diagnostic::DiagnosticUnit;
 pub use server::{
     bind, serve, serve_tls, ServerOptions, SharedUnits, WriteRange, WriteTable, DEFAULT_BACKLOG,
     DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS, DEFAULT_REQUEST_TIMEOUT,

@@ -108,8 +108,9 @@ fn changes_state(pdu: &[u8]) -> bool {
     }
 }
 
-/// The audit record of a write: who (address, role), what (unit, function, first address),
-/// how it ended.
+/// The audit record of a write: who (client IP address, without the port: the audit log's limit
+/// counts per source, and a client that reconnects is the same source; and role), what (unit,
+/// function, first address), how it ended.
 fn audit_write(
     shared: &Shared,
     authority: &Authority,
@@ -140,7 +141,7 @@ fn audit_write(
     crate::audit::record(
         shared.stats.metrics(),
         path,
-        &format_args!("{peer} role={}", authority.label()),
+        &format_args!("{} role={}", peer.ip(), authority.label()),
         &format_args!("unit {unit} function {function:02X} address {address}"),
         outcome,
         &detail,
@@ -190,7 +191,11 @@ fn admit(
     let Some(service) = units.get(unit) else {
         return Admitted::Answered(Err(ExceptionCode::GatewayPathUnavailable));
     };
-    if let Some(code) = shared.options.check_write(unit, &request) {
+    if let Some(code) = shared
+        .options
+        .check_write(unit, &request)
+        .or_else(|| service.refuses(&request))
+    {
         return Admitted::Refused(code);
     }
     match service.answer_now(&request, out) {

@@ -16,7 +16,7 @@ use tracing::{debug, error, info, warn};
 use super::access::Authority;
 use super::connection::{self, Places};
 use super::shared::{ClientPlace, Shared};
-use super::stats::{AcceptError, RejectReason, ServerStats};
+use super::stats::{AcceptError, CloseReason, RejectReason, ServerStats};
 use super::tls::{role_of, TlsServer};
 use crate::log_limit::{LogLimit, Verdict};
 
@@ -191,7 +191,10 @@ fn admit(
         let handshake_timeout = shared.options.idle_timeout.min(HANDSHAKE_TIMEOUT);
         let handshake = tokio::time::timeout(handshake_timeout, tls.acceptor().accept(stream));
         let result = tokio::select! {
-            () = shutdown.cancelled() => return,
+            () = shutdown.cancelled() => {
+                shared.stats.count_closed(CloseReason::Shutdown);
+                return;
+            }
             result = handshake => result,
         };
         let stream = match result {

@@ -3,7 +3,7 @@
 //! Every label set is bounded and carries no client address, no register address. With
 //! [`ServerStats::with_metrics`] every count is mirrored into the Prometheus families of
 //! [`Metrics`]: open and accepted connections, rejected ones by reason (failed accepts as
-//! `accept_error`), requests by function and result.
+//! `accept_error`), closed ones by reason, requests by function and result.
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -223,6 +223,7 @@ impl ServerStats {
         self.handshakes_failed.fetch_add(1, Ordering::Relaxed);
         if let Some(m) = &self.metrics {
             m.tcp_handshake_failed();
+            m.tcp_connection_closed(metrics::TcpCloseReason::TlsHandshake);
         }
     }
 
@@ -242,10 +243,17 @@ impl ServerStats {
         }
         .fetch_add(1, Ordering::Relaxed);
         if let Some(m) = &self.metrics {
-            m.tcp_connection_rejected(match reason {
-                RejectReason::Limit => metrics::RejectReason::Limit,
-                RejectReason::Network => metrics::RejectReason::Network,
-            });
+            let (rejected, closed) = match reason {
+                RejectReason::Limit => {
+                    (metrics::RejectReason::Limit, metrics::TcpCloseReason::Limit)
+                }
+                RejectReason::Network => (
+                    metrics::RejectReason::Network,
+                    metrics::TcpCloseReason::Network,
+                ),
+            };
+            m.tcp_connection_rejected(rejected);
+            m.tcp_connection_closed(closed);
         }
     }
 
@@ -258,6 +266,15 @@ impl ServerStats {
 
     pub(crate) fn count_closed(&self, reason: CloseReason) {
         self.closed[reason as usize].fetch_add(1, Ordering::Relaxed);
+        if let Some(m) = &self.metrics {
+            m.tcp_connection_closed(match reason {
+                CloseReason::Peer => metrics::TcpCloseReason::Client,
+                CloseReason::Idle => metrics::TcpCloseReason::Idle,
+                CloseReason::BadFrame => metrics::TcpCloseReason::BadFrame,
+                CloseReason::Io => metrics::TcpCloseReason::IoError,
+                CloseReason::Shutdown => metrics::TcpCloseReason::Shutdown,
+            });
+        }
     }
 
     pub(crate) fn count_frame_rejected(&self, reason: FrameReject) {
@@ -390,6 +407,34 @@ mod tests {
         drop(open);
         let text = metrics::encode_text(&registry);
         assert!(text.contains("gateway_modbus_tcp_connections 0"), "{text}");
+    }
+
+    #[test]
+    fn every_connection_end_is_counted_by_reason() {
+        let registry = prometheus::Registry::new();
+        let stats = ServerStats::with_metrics(Metrics::register(&registry).expect("register"));
+        stats.count_closed(CloseReason::Peer);
+        stats.count_closed(CloseReason::Peer);
+        stats.count_closed(CloseReason::Idle);
+        stats.count_closed(CloseReason::BadFrame);
+        stats.count_closed(CloseReason::Shutdown);
+        stats.count_rejected(RejectReason::Limit);
+        stats.count_rejected(RejectReason::Network);
+        stats.count_handshake_failed();
+        assert_eq!(stats.connections_closed(CloseReason::Peer), 2);
+        let text = metrics::encode_text(&registry);
+        for expected in [
+            r#"gateway_modbus_tcp_connections_closed_total{reason="client"} 2"#,
+            r#"gateway_modbus_tcp_connections_closed_total{reason="idle"} 1"#,
+            r#"gateway_modbus_tcp_connections_closed_total{reason="bad_frame"} 1"#,
+            r#"gateway_modbus_tcp_connections_closed_total{reason="io_error"} 0"#,
+            r#"gateway_modbus_tcp_connections_closed_total{reason="shutdown"} 1"#,
+            r#"gateway_modbus_tcp_connections_closed_total{reason="limit"} 1"#,
+            r#"gateway_modbus_tcp_connections_closed_total{reason="network"} 1"#,
+            r#"gateway_modbus_tcp_connections_closed_total{reason="tls_handshake"} 1"#,
+        ] {
+            assert!(text.contains(expected), "{expected} missing in\n{text}");
+        }
     }
 
     #[test]

@@ -36,6 +36,8 @@ const EVENTS: &str = "events";
 const FRAMES: &str = "frames";
 const STATUS: &str = "status";
 const SET: &str = "set";
+/// The chunk under which zenoh-ext's advanced publishers answer history queries.
+const ADV: &str = "@adv";
 
 /// A name that cannot be one key chunk, or a prefix that is not a plain key expression.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
@@ -210,6 +212,25 @@ impl Keys {
     /// `<prefix>/*/*/*`: the tag queryable.
     pub fn tag_pattern(&self) -> String {
         format!("{}/*/*/*", self.prefix)
+    }
+
+    /// `<prefix>/*/*/*/@adv/**`: the history queryable. An advanced subscriber (zenoh-ext) with
+    /// history asks `<its key expression>/@adv/**` for the cached samples of the advanced
+    /// publishers under it; the gateway answers that query with the current value of every tag
+    /// the subscriber's key expression matches.
+    pub fn history_pattern(&self) -> String {
+        format!("{}/*/*/*/{ADV}/**", self.prefix)
+    }
+
+    /// The key expression a history query asks about: the query's key without the `/@adv/**`
+    /// that the advanced subscriber appends; `None` for a key without it.
+    pub fn history_subject(query: &str) -> Option<&str> {
+        let at = query.find(&format!("/{ADV}/")).or_else(|| {
+            query
+                .ends_with(&format!("/{ADV}"))
+                .then(|| query.len() - ADV.len() - 1)
+        })?;
+        Some(&query[..at])
     }
 
     /// `<prefix>/<line>/<device>/<tag>/set/result`.
@@ -412,6 +433,22 @@ mod tests {
         assert_eq!(k.parse_set("gw/demo/drive/*/cmd/set"), None);
         assert_eq!(k.parse_set("gw/demo/drive/atv/cmd/set/result"), None);
         assert_eq!(k.parse_set("gw/demo/drive/atv/set"), None);
+    }
+
+    #[test]
+    fn history_queries_name_the_tags_before_the_adv_chunk() {
+        let k = keys();
+        assert_eq!(k.history_pattern(), "gw/demo/*/*/*/@adv/**");
+        assert_eq!(
+            Keys::history_subject("gw/demo/ksvario/ksvario/*/@adv/**"),
+            Some("gw/demo/ksvario/ksvario/*")
+        );
+        assert_eq!(Keys::history_subject("gw/demo/**/@adv"), Some("gw/demo/**"));
+        assert_eq!(Keys::history_subject("gw/demo/**"), None);
+        // The subscriber's query reaches the history queryable, not the tag queryable.
+        assert!(intersects("gw/demo/**/@adv/**", &k.history_pattern()));
+        assert!(!intersects("gw/demo/**/@adv/**", &k.tag_pattern()));
+        assert!(!intersects("gw/demo/**", &k.history_pattern()));
     }
 
     #[test]

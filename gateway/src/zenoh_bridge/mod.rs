@@ -43,7 +43,10 @@
 //! endpoint in use, a bad config file). A client keeps retrying its first connection in the
 //! background (1 s doubling to 30 s) and publishes once connected; after a loss zenoh itself
 //! reconnects to the configured endpoints, in both modes. Publications made while no peer
-//! subscribes are not stored anywhere (zenoh has no storage here).
+//! subscribes are not stored anywhere (zenoh has no storage here); a subscriber that joins late
+//! gets the current tag values from the image instead: a get on the tag keys, or zenoh-ext's
+//! advanced subscriber with history, whose history query `<key expression>/@adv/**` the bridge
+//! answers (see `queryable.rs`).
 //!
 //! Runtime: call `start` inside a multi-threaded tokio runtime.
 //!
@@ -536,6 +539,7 @@ async fn declare(
     }
     for (key, kind) in [
         (keys.tag_pattern(), QueryKind::Tags),
+        (keys.history_pattern(), QueryKind::History),
         (keys.line_status_pattern(), QueryKind::LineStatus),
         (keys.gateway_status(), QueryKind::GatewayStatus),
     ] {

@@ -1,6 +1,17 @@
 //! Queryables: tag values from the image (`<prefix>/<line>/<device>/<tag>`, wildcards work), line
 //! status (`<prefix>/<line>/status`) and gateway status (`<prefix>/status`).
 //!
+//! Current values for late subscribers: zenoh-ext's advanced subscriber with history asks
+//! `<its key expression>/@adv/**` for the samples the advanced publishers under it keep in their
+//! caches, and accepts replies under any key. One queryable on `<prefix>/*/*/*/@adv/**` answers
+//! that query with the current value of every tag the subscriber's key expression matches, from
+//! the image: the same as a cache of depth 1 in front of every tag, without a declared publisher,
+//! queryable and cache per tag (a declared publisher alone costs about 3 KiB of routing state, 35
+//! MiB for 10 000 tags). The replies carry no zenoh timestamp and no source sequence number, so
+//! the subscriber delivers them at once, before the live samples that arrived during the query;
+//! `max_samples` is met by the one current value per tag, and a subscriber's `max_age` is not
+//! applied (a tag's age is in its JSON `timestamp`). Plain subscribers see nothing of this.
+//!
 //! The zenoh callback only queues the query (bounded; a full queue leaves the query without a
 //! reply and counts `query_queue_full`). One task serves the queue; each query is answered on
 //! the blocking pool, since the backend reads the image under a lock and a reply may wait under
@@ -28,6 +39,8 @@ use super::BridgeBackend;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(crate) enum QueryKind {
     Tags,
+    /// The history query of an advanced subscriber (`<key expression>/@adv/**`).
+    History,
     LineStatus,
     GatewayStatus,
 }
@@ -92,28 +105,10 @@ impl Answerer {
     fn answer(&self, kind: QueryKind, query: &Query) {
         let q = query.key_expr().as_str();
         match kind {
-            QueryKind::Tags => {
-                let filter = self.keys.tag_filter(q);
-                let tags = self.backend.query_tags(
-                    filter.line.as_deref(),
-                    filter.device.as_deref(),
-                    filter.tag.as_deref(),
-                );
-                for (line, device, tag, value) in tags {
-                    // Tag names compare without letter case (as in the config and REST): a
-                    // query that names the tag literally is answered under its own spelling,
-                    // which zenoh requires of a reply (`.../acc` gets `.../acc`, not `ACC`).
-                    let tag = match &filter.tag {
-                        Some(asked) if asked.eq_ignore_ascii_case(&tag) => asked.clone(),
-                        _ => tag,
-                    };
-                    let names_ok = keys::check_chunk("line", &line).is_ok()
-                        && keys::check_chunk("device", &device).is_ok()
-                        && keys::check_chunk("tag", &tag).is_ok();
-                    let key = self.keys.tag(&line, &device, &tag);
-                    if names_ok && keys::intersects(q, &key) {
-                        reply(query, key, &value.to_json());
-                    }
+            QueryKind::Tags => self.answer_tags(query, q),
+            QueryKind::History => {
+                if let Some(subject) = Keys::history_subject(q) {
+                    self.answer_tags(query, subject);
                 }
             }
             QueryKind::LineStatus => {
@@ -143,6 +138,33 @@ impl Answerer {
             }
         }
         self.stats.query_served();
+    }
+
+    /// Replies with the value of every tag whose key intersects `q` (a tag query's key, or the
+    /// key expression a history query names).
+    fn answer_tags(&self, query: &Query, q: &str) {
+        let filter = self.keys.tag_filter(q);
+        let tags = self.backend.query_tags(
+            filter.line.as_deref(),
+            filter.device.as_deref(),
+            filter.tag.as_deref(),
+        );
+        for (line, device, tag, value) in tags {
+            // Tag names compare without letter case (as in the config and REST): a
+            // query that names the tag literally is answered under its own spelling,
+            // which zenoh requires of a reply (`.../acc` gets `.../acc`, not `ACC`).
+            let tag = match &filter.tag {
+                Some(asked) if asked.eq_ignore_ascii_case(&tag) => asked.clone(),
+                _ => tag,
+            };
+            let names_ok = keys::check_chunk("line", &line).is_ok()
+                && keys::check_chunk("device", &device).is_ok()
+                && keys::check_chunk("tag", &tag).is_ok();
+            let key = self.keys.tag(&line, &device, &tag);
+            if names_ok && keys::intersects(q, &key) {
+                reply(query, key, &value.to_json());
+            }
+        }
     }
 }
 

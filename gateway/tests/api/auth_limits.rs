@@ -2,7 +2,8 @@
 
 use std::time::{Duration, Instant};
 
-use gateway::api::Auth;
+use gateway::api::{Auth, Token};
+use gateway::config::RestRole;
 use reqwest::Method;
 use serde_json::{json, Value};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -92,6 +93,99 @@ async fn no_token_401_wrong_token_401_right_token_2xx() {
     }
     // Reads need no token.
     assert_eq!(api.get("/api/v1/config").await.status, 200);
+}
+
+/// The right each change of [`changes`] needs (in its order).
+const RIGHTS: [&str; 9] = [
+    "config",
+    "config",
+    "config",
+    "diagnostics",
+    "send",
+    "send",
+    "diagnostics",
+    "write",
+    "config",
+];
+
+#[tokio::test]
+async fn a_token_without_the_right_role_gets_403_and_is_audited_by_name() {
+    const OPS: &str = "operator-token-0123456789";
+    const VIEW: &str = "viewer-token-0123456789ab";
+    let auth = || {
+        Auth::with_tokens(vec![
+            (
+                "eng".to_owned(),
+                RestRole::Admin,
+                Token::new(TOKEN, "test").unwrap(),
+            ),
+            (
+                "ops".to_owned(),
+                RestRole::Operator,
+                Token::new(OPS, "test").unwrap(),
+            ),
+            (
+                "view".to_owned(),
+                RestRole::Viewer,
+                Token::new(VIEW, "test").unwrap(),
+            ),
+        ])
+    };
+    for (name, token, role) in [
+        ("view", VIEW, RestRole::Viewer),
+        ("ops", OPS, RestRole::Operator),
+        ("eng", TOKEN, RestRole::Admin),
+    ] {
+        // A fresh gateway per role: the changes of one do not disturb the next (an ack).
+        let api = start_with(Setup {
+            auth: auth(),
+            ..Setup::default()
+        })
+        .await;
+        for ((method, path, body), right) in changes(&api).await.into_iter().zip(RIGHTS) {
+            let allowed = match role {
+                RestRole::Viewer => false,
+                RestRole::Operator => right != "config",
+                RestRole::Admin => true,
+            };
+            let r = api
+                .request(method.clone(), path, Some(token), body.as_ref())
+                .await;
+            if allowed {
+                assert!(
+                    (200..300).contains(&r.status),
+                    "{name} {method} {path}: {} {}",
+                    r.status,
+                    r.text
+                );
+            } else {
+                assert_eq!(
+                    (r.status, r.code()),
+                    (403, "forbidden"),
+                    "{name} {method} {path}"
+                );
+                assert!(r.text.contains(right), "{name} {method} {path}: {}", r.text);
+            }
+            if allowed && path.ends_with("/validate") {
+                // A validation changes nothing: not audited when it may run.
+                continue;
+            }
+            // Once, with the client's address and the token's name.
+            let audits = api.gw.audits();
+            let last = audits.last().expect("audited");
+            assert!(
+                last.0.starts_with("127.0.0.1:") && last.0.ends_with(&format!("token {name}")),
+                "{last:?}"
+            );
+            let result = if allowed { "accepted" } else { "refused" };
+            assert_eq!(last.2, result, "{name} {method} {path}: {last:?}");
+        }
+        // Every change once (the validation changes nothing and is audited only when the
+        // role check refuses it).
+        let audited = api.gw.audits().len();
+        let expected = if role == RestRole::Admin { 8 } else { 9 };
+        assert_eq!(audited, expected, "{name}: {:?}", api.gw.audits());
+    }
 }
 
 #[tokio::test]

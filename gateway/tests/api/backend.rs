@@ -7,12 +7,14 @@ use std::collections::{BTreeMap, VecDeque};
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, SystemTime};
 
+use gateway::api::auth::Caller;
 use gateway::api::model::{
     ApplyReport, DeviceStatusView, DiagRecord, DiagSnapshot, EventCount, EventView, GatewayStatus,
     LineCounters, LineState, LineStatusView, ModbusTcpStatus, Readiness, ScalarValue, SendResult,
     Signals, SignalsPatch, TagQuality, TagValue, Telegram, TelegramQueue, Timestamp, ZenohStatus,
 };
 use gateway::api::{ApiBackend, ApiError, BoxFuture, ConfigDiff};
+use gateway::audit::WriteResult;
 use gateway::config::{Config, ConfigIssue, Interface, LineConfig, ProtocolConfig};
 use proto_core::event::EventId;
 
@@ -132,6 +134,8 @@ pub(crate) struct MemGateway {
     started: SystemTime,
     /// How long `apply` takes (a restart is not instant).
     apply_delay: Duration,
+    /// The audit records: source, target, result.
+    audits: Mutex<Vec<(String, String, String)>>,
 }
 
 impl MemGateway {
@@ -162,7 +166,16 @@ impl MemGateway {
             }),
             started: SystemTime::now(),
             apply_delay: Duration::from_millis(5),
+            audits: Mutex::new(Vec::new()),
         }
+    }
+
+    /// The audit records so far: (source, target, result).
+    pub(crate) fn audits(&self) -> Vec<(String, String, String)> {
+        self.audits
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone()
     }
 
     fn lock(&self) -> MutexGuard<'_, Inner> {
@@ -594,5 +607,22 @@ impl ApiBackend for MemGateway {
             modbus_tcp: true,
             zenoh: inner.zenoh,
         }
+    }
+
+    fn audit(
+        &self,
+        caller: &Caller,
+        target: &dyn std::fmt::Display,
+        result: WriteResult,
+        _detail: &dyn std::fmt::Display,
+    ) {
+        self.audits
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .push((
+                caller.to_string(),
+                target.to_string(),
+                result.as_str().to_owned(),
+            ));
     }
 }

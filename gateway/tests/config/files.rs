@@ -347,7 +347,7 @@ fn check_reports_counts_or_issues() {
     );
     let (text, code) = gateway::app::check_report(&bad);
     assert_eq!(code, 1);
-    assert_eq!(text.lines().collect::<Vec<_>>(), ["gateway.name: invalid name \"A\": use 1 to 64 characters of a-z, 0-9, '_' and '-' (names appear in metric labels and zenoh keys)", "lines.a.protocol: missing required key (modbus-master-rtu, modbus-master-ascii, modbus-slave-rtu, 3964r or ascii)"]);
+    assert_eq!(text.lines().collect::<Vec<_>>(), ["gateway.name: invalid name \"A\": use 1 to 64 characters of a-z, 0-9, '_' and '-' (names appear in metric labels and zenoh keys)", "lines.a.protocol: missing required key (modbus-master-rtu, modbus-master-ascii, modbus-slave-rtu, modbus-rtu-tap, 3964r or ascii)"]);
     assert_eq!(gateway::app::check_command(&bad), 1);
 
     let missing = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("no-such-config.toml");
@@ -532,4 +532,33 @@ fn check_refuses_a_zenoh_file_or_a_cp_memory_file_that_run_cannot_read() {
         ),
     );
     assert_eq!(gateway::app::check_report(&fresh).1, 0);
+}
+
+/// The example's tap line is commented out (its adapter is not plugged in here): with the
+/// comment marks removed it is a valid tap line with its keys at their defaults.
+#[test]
+fn the_examples_commented_tap_line_is_valid() {
+    let start = EXAMPLE.find("# [lines.tap]").expect("the tap block");
+    let (head, block) = EXAMPLE.split_at(start);
+    let block: String = block
+        .lines()
+        .map(|l| l.strip_prefix("# ").unwrap_or(l))
+        .map(|l| if l == "#" { "" } else { l })
+        .collect::<Vec<_>>()
+        .join("\n");
+    let c = parse(&format!("{head}{block}\n"));
+    let tap = c.lines.get("tap").expect("the tap line");
+    let ProtocolConfig::ModbusRtuTap(t) = &tap.protocol else {
+        panic!("a tap line: {tap:?}");
+    };
+    assert_eq!(t.answer_timeout, config::DEFAULT_ANSWER_TIMEOUT);
+    assert_eq!(t.expected_cycle, config::DEFAULT_EXPECTED_CYCLE);
+    assert_eq!(t.delay_multiplier, 1);
+    assert!(t.inter_character_check);
+    assert_eq!(
+        tap.devices()
+            .map(|(n, d)| (n.as_str(), d.unit_id))
+            .collect::<Vec<_>>(),
+        [("pump", 5)]
+    );
 }

@@ -35,6 +35,49 @@ unit_id = 4
 }
 
 #[test]
+fn the_diagnostic_unit_is_its_own_read_only_unit() {
+    let text = r#"
+[modbus_tcp]
+diagnostic_unit = 4
+write_ranges = [{ unit_id = 4, table = "holding", start = 0, count = 1 }]
+[lines.a]
+port = "/dev/ttyS0"
+protocol = "modbus-master-rtu"
+[lines.a.devices.x]
+profile = "altivar71"
+address = 3
+unit_id = 4
+"#;
+    assert_eq!(
+        issues(text),
+        [
+            (
+                "modbus_tcp.diagnostic_unit".to_owned(),
+                "unit id 4 is already used by lines.a.devices.x; unit ids must be unique in the gateway".to_owned()
+            ),
+            (
+                "modbus_tcp.write_ranges[0].unit_id".to_owned(),
+                "unit id 4 is the diagnostic unit, which is read-only".to_owned()
+            ),
+        ]
+    );
+    let ok = parse(
+        &text
+            .replace("diagnostic_unit = 4", "diagnostic_unit = 247")
+            .replace(
+                "write_ranges = [{ unit_id = 4, table = \"holding\", start = 0, count = 1 }]\n",
+                "",
+            ),
+    );
+    assert_eq!(ok.modbus_tcp.diagnostic_unit, Some(247));
+    one_issue(
+        "[modbus_tcp]\ndiagnostic_unit = 0\n",
+        "modbus_tcp.diagnostic_unit",
+        "must be between 1 and 255, found 0",
+    );
+}
+
+#[test]
 fn protocol_and_interface_rules() {
     one_issue(
         &one_line("3964r", "interface = \"rs485\""),
@@ -111,7 +154,7 @@ fn protocol_and_interface_rules() {
     one_issue(
         &one_line("3964r", "devices = {}"),
         "lines.a.devices",
-        "only by modbus-master-rtu and modbus-master-ascii lines, not by a 3964r line",
+        "only on modbus-master-rtu, modbus-master-ascii and modbus-rtu-tap lines, not on a 3964r line",
     );
     one_issue(
         &one_line("modbus-master-rtu", "unit_id = 3"),
@@ -270,4 +313,70 @@ fn write_ranges_must_name_a_served_unit() {
     assert!(!c.modbus_tcp.allows_write(2, ModbusTable::Holding, 9001, 3));
     assert!(c.modbus_tcp.allows("10.1.2.3".parse().unwrap()));
     assert!(!c.modbus_tcp.allows("192.168.1.1".parse().unwrap()));
+}
+
+#[test]
+fn a_tap_line_lists_devices_without_poll_groups() {
+    let tap = |keys: &str, device: &str| {
+        one_line(
+            "modbus-rtu-tap",
+            &format!(
+                "{keys}\n[lines.a.devices.d]\naddress = 2\nprofile = \"altivar71\"\n{device}\n"
+            ),
+        )
+    };
+    // The keys with their defaults.
+    let c = parse(&tap("", ""));
+    let ProtocolConfig::ModbusRtuTap(t) = &line(&c).protocol else {
+        panic!("a tap line");
+    };
+    assert_eq!(t.answer_timeout, ms(1000));
+    assert_eq!(t.expected_cycle, ms(1000));
+    assert_eq!(t.delay_multiplier, 1);
+    assert!(t.inter_character_check);
+    assert_eq!(line(&c).devices().count(), 1);
+    let c = parse(&tap(
+        "answer_timeout = \"300ms\"\nexpected_cycle = \"5s\"\ninter_character_check = false\ndelay_multiplier = 2",
+        "unit_id = 7",
+    ));
+    let ProtocolConfig::ModbusRtuTap(t) = &line(&c).protocol else {
+        panic!("a tap line");
+    };
+    assert_eq!((t.answer_timeout, t.expected_cycle), (ms(300), ms(5000)));
+    assert!(!t.inter_character_check);
+    assert_eq!(t.devices.get("d").map(|d| d.unit_id), Some(7));
+
+    // It polls nothing and runs no scanner: refused with the path.
+    one_issue(
+        &tap(
+            "",
+            "poll = [{ name = \"fast\", period = \"1s\", tags = [\"ETA\"] }]",
+        ),
+        "lines.a.devices.d.poll",
+        "only listens",
+    );
+    one_issue(
+        &tap("", "scanner = { enabled = true }"),
+        "lines.a.devices.d.scanner",
+        "only listens",
+    );
+    one_issue(
+        &tap("answer_timeout = \"1ms\"", ""),
+        "lines.a.answer_timeout",
+        "",
+    );
+    one_issue(
+        &tap("data_bits = 7", ""),
+        "lines.a.data_bits",
+        "8 data bits",
+    );
+    // A slave line lists no devices.
+    one_issue(
+        &one_line(
+            "modbus-slave-rtu",
+            "[lines.a.devices.d]\naddress = 2\nprofile = \"altivar71\"\n",
+        ),
+        "lines.a.devices",
+        "modbus-rtu-tap",
+    );
 }

@@ -6,7 +6,8 @@
 //! - the PDU ([`pdu`]): function code and data; a request a server cannot decode is a
 //!   [`pdu::PduError`] that maps to the exception it answers, a response that does not fit its
 //!   request is a [`pdu::PduError`] that maps to the CP's events 0E 51h..0E 56h;
-//! - the engines ([`master`], [`slave`]): timing, addresses, retries, events.
+//! - the engines ([`master`], [`slave`]): timing, addresses, retries, events;
+//! - [`tap`]: a listen-only station that pairs another master's requests with their answers.
 
 pub mod ascii;
 pub mod master;
@@ -14,6 +15,7 @@ pub mod pdu;
 pub mod rtu;
 pub mod slave;
 mod table;
+pub mod tap;
 
 pub use table::Table;
 

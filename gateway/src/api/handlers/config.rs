@@ -13,16 +13,18 @@ use axum::body::Bytes;
 use axum::extract::{FromRequest, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue};
 use axum::response::{IntoResponse, Response};
-use axum::Json;
+use axum::{Extension, Json};
 use utoipa::openapi::schema::{ObjectBuilder, Schema, Type};
 use utoipa::openapi::RefOr;
 use utoipa::{PartialSchema, ToSchema};
 
-use super::ApiPath;
+use super::{audit, caller_of, ApiPath};
+use crate::api::auth::Caller;
 use crate::api::body::{self, TOML_MEDIA_TYPE};
 use crate::api::error::{body_error, ApiError, ErrorBody, Issue};
 use crate::api::model::{ConfigChangeResult, ValidationResult};
 use crate::api::{ApiBackend, ApiState};
+use crate::audit::WriteResult;
 use crate::config::Config;
 
 /// The configuration as JSON: the TOML file's tables and keys (see
@@ -117,14 +119,17 @@ pub(crate) async fn get_config(State(state): State<ApiState>, headers: HeaderMap
 )]
 pub(crate) async fn put_config(
     State(state): State<ApiState>,
+    caller: Option<Extension<Caller>>,
     headers: HeaderMap,
     ApiBytes(bytes): ApiBytes,
 ) -> Result<Response, ApiError> {
+    let audit = Audit::new(caller, "config: replace".to_owned());
     let backend = state.backend();
-    let new = body::config(body::content_format(&headers)?, &bytes, &|c, found| {
-        backend.config_issues(c, found)
-    })?;
-    change(state, &headers, move |_, _| Ok(new)).await
+    let new = body::content_format(&headers).and_then(|format| {
+        body::config(format, &bytes, &|c, found| backend.config_issues(c, found))
+    });
+    let new = audit.early(&state, new)?;
+    change(state, &headers, audit, move |_, _| Ok(new)).await
 }
 
 /// Validates a configuration without applying it.
@@ -206,12 +211,15 @@ pub(crate) async fn get_line_config(
 )]
 pub(crate) async fn put_line_config(
     State(state): State<ApiState>,
+    caller: Option<Extension<Caller>>,
     ApiPath(line): ApiPath<String>,
     headers: HeaderMap,
     ApiBytes(bytes): ApiBytes,
 ) -> Result<Response, ApiError> {
-    let table = body::table(body::content_format(&headers)?, &bytes)?;
-    change(state, &headers, move |current, backend| {
+    let audit = Audit::new(caller, format!("config: replace lines.{line}"));
+    let table = body::content_format(&headers).and_then(|format| body::table(format, &bytes));
+    let table = audit.early(&state, table)?;
+    change(state, &headers, audit, move |current, backend| {
         let mut root = body::to_table(current)?;
         let lines = root
             .entry("lines")
@@ -243,10 +251,12 @@ pub(crate) async fn put_line_config(
 )]
 pub(crate) async fn delete_line_config(
     State(state): State<ApiState>,
+    caller: Option<Extension<Caller>>,
     ApiPath(line): ApiPath<String>,
     headers: HeaderMap,
 ) -> Result<Response, ApiError> {
-    change(state, &headers, move |current, _| {
+    let audit = Audit::new(caller, format!("config: remove lines.{line}"));
+    change(state, &headers, audit, move |current, _| {
         let mut new = current.clone();
         if new.lines.remove(&line).is_none() {
             return Err(ApiError::not_found("line", &line));
@@ -258,48 +268,53 @@ pub(crate) async fn delete_line_config(
     .await
 }
 
+/// Who asked for a configuration change and what it was, for the audit trail.
+struct Audit {
+    caller: Caller,
+    target: String,
+}
+
+impl Audit {
+    fn new(caller: Option<Extension<Caller>>, target: String) -> Self {
+        Self {
+            caller: caller_of(caller),
+            target,
+        }
+    }
+
+    /// Audits a request refused before the change ran (a body that does not parse).
+    fn early<T>(&self, state: &ApiState, result: Result<T, ApiError>) -> Result<T, ApiError> {
+        if result.is_err() {
+            audit(state, &self.caller, &self.target, &result);
+        }
+        result
+    }
+}
+
 /// Runs a change to completion in its own task: lock, `If-Match`, edit, validate, persist,
-/// apply. The task goes on if the request is dropped (timeout, client gone).
-async fn change<F>(state: ApiState, headers: &HeaderMap, edit: F) -> Result<Response, ApiError>
+/// apply, audit. The task goes on if the request is dropped (timeout, client gone).
+async fn change<F>(
+    state: ApiState,
+    headers: &HeaderMap,
+    who: Audit,
+    edit: F,
+) -> Result<Response, ApiError>
 where
     F: FnOnce(&Config, &dyn ApiBackend) -> Result<Config, ApiError> + Send + 'static,
 {
     let if_match = headers.clone();
     let task = tokio::spawn(async move {
-        let _one_at_a_time = state.change_lock().lock().await;
-        let backend = state.backend();
-        let current = backend.config();
-        if !body::if_match_admits(&if_match, &body::etag(&current)) {
-            return Err(ApiError::precondition_failed(
-                "the configuration changed since it was read (If-Match)",
-            ));
+        let result = change_in_task(&state, &if_match, edit).await;
+        match &result {
+            Ok(r) => state.backend().audit(
+                &who.caller,
+                &who.target,
+                WriteResult::Accepted,
+                &format_args!("etag {}", r.etag),
+            ),
+            Err(_) => audit(&state, &who.caller, &who.target, &result),
         }
-        let new = edit(&current, backend.as_ref())?;
-        backend.validate(&new).map_err(backend_issues)?;
-        let etag = body::etag(&new);
-        let persisted = state.store().is_some();
-        if new == current {
-            return Ok(ConfigChangeResult {
-                etag,
-                persisted,
-                applied: Default::default(),
-            });
-        }
-        if let Some(store) = state.store() {
-            let (in_force, to_save) = (current.clone(), new.clone());
-            tokio::task::spawn_blocking(move || store.save_change(&in_force, &to_save))
-                .await
-                .map_err(|e| ApiError::internal(format!("the save task failed: {e}")))?
-                .map_err(|e| ApiError::persist_failed(format!("not applied: {e}")))?;
-            tracing::info!(file = %state.store().map(|s| s.path().display().to_string()).unwrap_or_default(), %etag, "configuration saved");
-        }
-        let applied = backend.apply(new).await?;
-        tracing::info!(%etag, ?applied, "configuration applied");
-        Ok(ConfigChangeResult {
-            etag,
-            persisted,
-            applied,
-        })
+        result
     });
     let result = task
         .await
@@ -307,6 +322,51 @@ where
     let mut response = Json(&result).into_response();
     set_etag(&mut response, &result.etag);
     Ok(response)
+}
+
+/// The steps of [`change`] in its task.
+async fn change_in_task<F>(
+    state: &ApiState,
+    if_match: &HeaderMap,
+    edit: F,
+) -> Result<ConfigChangeResult, ApiError>
+where
+    F: FnOnce(&Config, &dyn ApiBackend) -> Result<Config, ApiError> + Send + 'static,
+{
+    let _one_at_a_time = state.change_lock().lock().await;
+    let backend = state.backend();
+    let current = backend.config();
+    if !body::if_match_admits(if_match, &body::etag(&current)) {
+        return Err(ApiError::precondition_failed(
+            "the configuration changed since it was read (If-Match)",
+        ));
+    }
+    let new = edit(&current, backend.as_ref())?;
+    backend.validate(&new).map_err(backend_issues)?;
+    let etag = body::etag(&new);
+    let persisted = state.store().is_some();
+    if new == current {
+        return Ok(ConfigChangeResult {
+            etag,
+            persisted,
+            applied: Default::default(),
+        });
+    }
+    if let Some(store) = state.store() {
+        let (in_force, to_save) = (current.clone(), new.clone());
+        tokio::task::spawn_blocking(move || store.save_change(&in_force, &to_save))
+            .await
+            .map_err(|e| ApiError::internal(format!("the save task failed: {e}")))?
+            .map_err(|e| ApiError::persist_failed(format!("not applied: {e}")))?;
+        tracing::info!(file = %state.store().map(|s| s.path().display().to_string()).unwrap_or_default(), %etag, "configuration saved");
+    }
+    let applied = backend.apply(new).await?;
+    tracing::info!(%etag, ?applied, "configuration applied");
+    Ok(ConfigChangeResult {
+        etag,
+        persisted,
+        applied,
+    })
 }
 
 fn backend_issues(issues: Vec<crate::config::ConfigIssue>) -> ApiError {

@@ -2,14 +2,16 @@
 
 use axum::extract::State;
 use axum::http::StatusCode;
-use axum::Json;
+use axum::{Extension, Json};
 
-use super::{ApiJson, ApiPath};
+use super::{audit, caller_of, ApiJson, ApiPath};
+use crate::api::auth::Caller;
 use crate::api::error::{ApiError, ErrorBody};
 use crate::api::model::{
     DiagView, LineStatusView, SendRequest, SendResult, Signals, SignalsPatch, TelegramQueue,
 };
 use crate::api::ApiState;
+use crate::audit::WriteResult;
 
 /// Every line's status.
 #[utoipa::path(
@@ -72,11 +74,17 @@ pub(crate) async fn get_diag(
 )]
 pub(crate) async fn clear_diag(
     State(state): State<ApiState>,
+    caller: Option<Extension<Caller>>,
     ApiPath(line): ApiPath<String>,
 ) -> Result<StatusCode, ApiError> {
-    state.backend().clear_diag(&line)?;
-    tracing::info!(line, "diagnostic buffer cleared");
-    Ok(StatusCode::NO_CONTENT)
+    let result = state.backend().clear_diag(&line);
+    audit(
+        &state,
+        &caller_of(caller),
+        &format_args!("{line}/diag clear"),
+        &result,
+    );
+    result.map(|()| StatusCode::NO_CONTENT)
 }
 
 /// Received telegrams waiting for acknowledgement, oldest first (ASCII and 3964(R) lines).
@@ -115,10 +123,17 @@ pub(crate) async fn get_telegrams(
 )]
 pub(crate) async fn ack_telegram(
     State(state): State<ApiState>,
+    caller: Option<Extension<Caller>>,
     ApiPath((line, seq)): ApiPath<(String, u32)>,
 ) -> Result<StatusCode, ApiError> {
-    state.backend().ack_telegram(&line, seq)?;
-    Ok(StatusCode::NO_CONTENT)
+    let result = state.backend().ack_telegram(&line, seq);
+    audit(
+        &state,
+        &caller_of(caller),
+        &format_args!("{line}/telegrams/{seq} ack"),
+        &result,
+    );
+    result.map(|()| StatusCode::NO_CONTENT)
 }
 
 /// Sends a telegram and waits for the outcome (DONE / ERROR / STATUS as FB 8 P_SND_RK).
@@ -131,7 +146,7 @@ pub(crate) async fn ack_telegram(
     responses(
         (status = 200, description = "Sent (`done`), or ended with the event in `status_word`", body = SendResult),
         (status = 404, description = "No such line", body = ErrorBody),
-        (status = 409, description = "The line does not send telegrams", body = ErrorBody),
+        (status = 409, description = "The line does not send telegrams, or its write policy does not allow sends (sends = false)", body = ErrorBody),
         (status = 422, description = "Neither or both of hex and text, bad hex, or too long", body = ErrorBody),
         (status = 503, description = "The line's send queue is full", body = ErrorBody),
         (status = 504, description = "The partner did not answer", body = ErrorBody),
@@ -139,11 +154,28 @@ pub(crate) async fn ack_telegram(
 )]
 pub(crate) async fn send_telegram(
     State(state): State<ApiState>,
+    caller: Option<Extension<Caller>>,
     ApiPath(line): ApiPath<String>,
     ApiJson(request): ApiJson<SendRequest>,
 ) -> Result<Json<SendResult>, ApiError> {
-    let data = request.bytes()?;
-    state.backend().send_telegram(&line, data).await.map(Json)
+    let caller = caller_of(caller);
+    let data = request.bytes();
+    let target = format!("{line}/tx ({} bytes)", data.as_ref().map_or(0, Vec::len));
+    let result = match data {
+        Ok(data) => state.backend().send_telegram(&line, data).await,
+        Err(e) => Err(e),
+    };
+    match &result {
+        // Sent, but the partner or the line ended it with an event.
+        Ok(sent) if !sent.done => state.backend().audit(
+            &caller,
+            &target,
+            WriteResult::Failed,
+            &format_args!("status word {:04X}h", sent.status_word),
+        ),
+        _ => audit(&state, &caller, &target, &result),
+    }
+    result.map(Json)
 }
 
 /// The RS232 signals of a line (000 5.4).
@@ -181,10 +213,25 @@ pub(crate) async fn get_signals(
 )]
 pub(crate) async fn set_signals(
     State(state): State<ApiState>,
+    caller: Option<Extension<Caller>>,
     ApiPath(line): ApiPath<String>,
     ApiJson(patch): ApiJson<SignalsPatch>,
 ) -> Result<Json<Signals>, ApiError> {
-    let signals = state.backend().set_signals(&line, patch).await?;
-    tracing::info!(line, ?patch, "RS232 signals set");
-    Ok(Json(signals))
+    let result = state.backend().set_signals(&line, patch).await;
+    let target = format!(
+        "{line}/signals DTR={} RTS={}",
+        on_off(patch.dtr),
+        on_off(patch.rts)
+    );
+    audit(&state, &caller_of(caller), &target, &result);
+    result.map(Json)
+}
+
+/// A signal's requested state for the audit.
+fn on_off(v: Option<bool>) -> &'static str {
+    match v {
+        Some(true) => "on",
+        Some(false) => "off",
+        None => "unchanged",
+    }
 }

@@ -7,12 +7,51 @@ pub(crate) mod lines;
 pub(crate) mod monitor;
 pub(crate) mod tags;
 
+use std::fmt::Display;
+
 use axum::extract::{FromRequest, FromRequestParts, Path, Query, Request};
 use axum::http::request::Parts;
-use axum::Json;
+use axum::{Extension, Json};
 use serde::de::DeserializeOwned;
 
+use super::auth::{Caller, Who};
 use super::error::ApiError;
+use super::ApiState;
+use crate::audit::WriteResult;
+
+/// The caller the auth middleware put into the request; a request that did not pass it (none
+/// does in the served router) is shown without address as unauthenticated.
+pub(crate) fn caller_of(ext: Option<Extension<Caller>>) -> Caller {
+    ext.map_or(
+        Caller {
+            addr: None,
+            who: Who::Unauthenticated,
+        },
+        |Extension(c)| c,
+    )
+}
+
+/// The audit result of an answer: accepted; refused for a 4xx (the request, the policy or a
+/// precondition refused it, nothing was changed); failed for a 5xx (the device, the line or
+/// the store did not take it).
+pub(crate) fn outcome<T>(result: &Result<T, ApiError>) -> (WriteResult, String) {
+    match result {
+        Ok(_) => (WriteResult::Accepted, "ok".to_owned()),
+        Err(e) if e.status().is_server_error() => (WriteResult::Failed, e.message().to_owned()),
+        Err(e) => (WriteResult::Refused, e.message().to_owned()),
+    }
+}
+
+/// Records a change's answer in the audit trail.
+pub(crate) fn audit<T>(
+    state: &ApiState,
+    caller: &Caller,
+    target: &dyn Display,
+    result: &Result<T, ApiError>,
+) {
+    let (result, detail) = outcome(result);
+    state.backend().audit(caller, target, result, &detail);
+}
 
 /// A JSON body; rejections answer in the API's error shape (400, 413, 415, 422).
 pub(crate) struct ApiJson<T>(pub(crate) T);

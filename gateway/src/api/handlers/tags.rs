@@ -1,9 +1,10 @@
 //! `/api/v1/tags` and `/api/v1/lines/{line}/devices/{device}/tags/...`: device values by name.
 
 use axum::extract::State;
-use axum::Json;
+use axum::{Extension, Json};
 
-use super::{ApiJson, ApiPath, ApiQuery};
+use super::{audit, caller_of, ApiJson, ApiPath, ApiQuery};
+use crate::api::auth::Caller;
 use crate::api::error::{ApiError, ErrorBody};
 use crate::api::model::{TagQuery, TagValue, TagWrite};
 use crate::api::ApiState;
@@ -112,13 +113,15 @@ pub(crate) async fn get_tag(
 )]
 pub(crate) async fn put_tag(
     State(state): State<ApiState>,
+    caller: Option<Extension<Caller>>,
     ApiPath((line, device, tag)): ApiPath<(String, String, String)>,
     ApiJson(write): ApiJson<TagWrite>,
 ) -> Result<Json<TagValue>, ApiError> {
-    let value = state
+    let result = state
         .backend()
         .write_tag(&line, &device, &tag, write.value)
-        .await?;
-    tracing::info!(line, device, tag, value = ?write.value, "tag written");
-    Ok(Json(value))
+        .await;
+    let target = format!("{line}/{device}/{tag} = {}", write.value.as_f64());
+    audit(&state, &caller_of(caller), &target, &result);
+    result.map(Json)
 }

@@ -47,6 +47,7 @@ pub enum LineState {
 pub struct LineStatusView {
     pub name: String,
     /// The line's `protocol` (`modbus-master-rtu`, `modbus-master-ascii`, `modbus-slave-rtu`,
+    /// `modbus-rtu-tap` (a listen-only tap: it never transmits, its devices refuse writes),
     /// `3964r`, `ascii`).
     pub protocol: String,
     /// The serial port's path.

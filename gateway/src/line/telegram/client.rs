@@ -96,6 +96,12 @@ pub enum TelegramSendError {
     /// The line is stopping.
     #[error("the line is shutting down")]
     ShuttingDown,
+    /// The line's write policy does not allow sends (`sends = false`).
+    #[error("telegram sends are not allowed on line {line} (sends = false)")]
+    NotAllowed {
+        /// The line's name.
+        line: String,
+    },
 }
 
 // === impl TelegramSendError ===
@@ -109,16 +115,20 @@ impl TelegramSendError {
         match self {
             Self::Failed { event, .. } => *event,
             Self::Refused(e) => e.event().unwrap_or(ids::REQUEST_NOT_PERMITTED),
-            Self::QueueFull { .. } | Self::PortClosed => ids::REQUEST_NOT_PERMITTED,
+            Self::QueueFull { .. } | Self::PortClosed | Self::NotAllowed { .. } => {
+                ids::REQUEST_NOT_PERMITTED
+            }
             Self::ShuttingDown => ids::REQUEST_ABORTED_BY_RESTART,
         }
     }
 
-    /// The Modbus exception for a send refused before it started: 06 for a full queue, 04
-    /// otherwise.
+    /// The Modbus exception for a send refused before it started: 06 for a full queue; 01 when
+    /// the line does not allow sends (the answer MODBUS/TCP Security gives a request that is not
+    /// authorized); 04 otherwise.
     pub fn exception(&self) -> ExceptionCode {
         match self {
             Self::QueueFull { .. } => ExceptionCode::ServerDeviceBusy,
+            Self::NotAllowed { .. } => ExceptionCode::IllegalFunction,
             _ => ExceptionCode::ServerDeviceFailure,
         }
     }
@@ -147,13 +157,33 @@ pub struct TelegramClient {
     line: Arc<str>,
     tx: mpsc::Sender<Command>,
     capacity: usize,
+    /// The line's write policy: sends allowed. The one check every send path passes (REST,
+    /// zenoh `tx`, the mailbox's send block).
+    sends: bool,
 }
 
 // === impl TelegramClient ===
 
 impl TelegramClient {
     pub(crate) fn new(line: Arc<str>, tx: mpsc::Sender<Command>, capacity: usize) -> Self {
-        Self { line, tx, capacity }
+        Self {
+            line,
+            tx,
+            capacity,
+            sends: true,
+        }
+    }
+
+    /// The client of a line whose write policy allows sends (`true`) or refuses them.
+    #[must_use]
+    pub fn with_sends(mut self, sends: bool) -> Self {
+        self.sends = sends;
+        self
+    }
+
+    /// Whether the line allows sends.
+    pub fn sends_allowed(&self) -> bool {
+        self.sends
     }
 
     /// The line's name.
@@ -165,9 +195,15 @@ impl TelegramClient {
     ///
     /// # Errors
     ///
+    /// [`TelegramSendError::NotAllowed`] when the line's write policy refuses sends,
     /// [`TelegramSendError::QueueFull`] at once when the queue is full,
     /// [`TelegramSendError::ShuttingDown`] when the line has stopped.
     pub fn try_send(&self, data: Vec<u8>) -> Result<PendingSend, TelegramSendError> {
+        if !self.sends {
+            return Err(TelegramSendError::NotAllowed {
+                line: self.line.to_string(),
+            });
+        }
         let (reply, rx) = oneshot::channel();
         match self.tx.try_send(Command::Send { data, reply }) {
             Ok(()) => Ok(PendingSend { rx }),

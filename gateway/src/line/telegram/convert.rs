@@ -185,6 +185,7 @@ impl TelegramLineSettings {
         settings.max_len = usize::from(max_len);
         settings.send_queue = usize::from(send_queue);
         settings.unit_id = line.unit_id();
+        settings.sends = line.sends();
         Ok(settings)
     }
 }

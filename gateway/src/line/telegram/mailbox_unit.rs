@@ -100,9 +100,37 @@ async fn wait_for_result(mailbox: Arc<Mailbox>, req: u16, pending: PendingSend) 
     mailbox.finish_send(req, failure);
 }
 
+/// The registers a write of `request` touches, if it writes.
+fn written_span(request: &Request) -> Option<(u16, usize)> {
+    match request {
+        Request::WriteSingleRegister { address, .. } => Some((*address, 1)),
+        Request::WriteMultipleRegisters { address, values } => Some((*address, values.len())),
+        Request::ReadWriteMultipleRegisters {
+            write_address,
+            values,
+            ..
+        } => Some((*write_address, values.len())),
+        _ => None,
+    }
+}
+
 impl UnitService for MailboxUnit {
     fn call(&self, request: Request) -> UnitFuture {
         let answer = self.answer(request);
         Box::pin(async move { answer })
+    }
+
+    /// A line that does not allow sends (`sends = false`) refuses every write to the send block
+    /// (REQ, TX_LEN, TX_DATA) with exception 01, the answer MODBUS/TCP Security gives a request
+    /// that is not authorized; the line client refuses such a send too.
+    fn refuses(&self, request: &Request) -> Option<ExceptionCode> {
+        if self.client.sends_allowed() {
+            return None;
+        }
+        let (address, count) = written_span(request)?;
+        let end = usize::from(address) + count;
+        let touches =
+            usize::from(address) < usize::from(layout::TX_END) && end > usize::from(layout::TX_REQ);
+        touches.then_some(ExceptionCode::IllegalFunction)
     }
 }

@@ -121,6 +121,9 @@ pub struct TelegramLineSettings {
     pub metrics: Option<crate::metrics::Metrics>,
     /// The unit id under which Modbus TCP serves the mailbox (`None`: not served there).
     pub unit_id: Option<u8>,
+    /// Sends allowed; when not, every client's send is refused at once
+    /// ([`TelegramSendError::NotAllowed`]).
+    pub sends: bool,
 }
 
 // === impl TelegramLineSettings ===
@@ -142,6 +145,7 @@ impl TelegramLineSettings {
             shutdown_grace: DEFAULT_SHUTDOWN_GRACE,
             metrics: None,
             unit_id: None,
+            sends: true,
         }
     }
 
@@ -364,7 +368,8 @@ fn spawn_on<O: PortOpener>(
         mailbox: Mailbox::new(&settings.name, settings.mailbox, settings.max_len),
         protocol: settings.protocol.name(),
         signals_error: Mutex::new(None),
-        client: TelegramClient::new(Arc::clone(&name), tx, settings.send_queue),
+        client: TelegramClient::new(Arc::clone(&name), tx, settings.send_queue)
+            .with_sends(settings.sends),
         unit_id: settings.unit_id,
     });
     match settings.engine_protocol() {
