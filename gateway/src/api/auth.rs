@@ -63,10 +63,7 @@ pub enum TokenError {
     Duplicate(String, String),
     /// A named token (`[http.tokens.<name>]`) could not be had.
     #[error("token {name}: {source}")]
-    Named {
-        name: String,
-        source: Box<Self>,
-    },
+    Named { name: String, source: Box<Self> },
 }
 
 // === impl Token ===
