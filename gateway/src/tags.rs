@@ -26,7 +26,7 @@ use std::sync::Arc;
 use std::time::SystemTime;
 
 use proto_core::modbus::pdu::{ExceptionCode, Request};
-use proto_core::profiles::{self, DeviceProfile, EncodeError, Tag, Value};
+use proto_core::profiles::{self, BitUpdate, DeviceProfile, EncodeError, Tag, Value};
 
 use crate::config::{self, Config, DeviceConfig};
 use crate::image::{ProcessImage, Table};
@@ -73,12 +73,38 @@ pub enum TagWriteError {
     #[error("value {value} does not fit tag {tag}: {reason}")]
     Value {
         tag: String,
-        value: f64,
+        /// The value as given (a text in quotes).
+        value: String,
         reason: String,
     },
     /// The device (or the gateway's policy) answered with an exception.
     #[error("the write was answered with exception {0:?}")]
     Exception(ExceptionCode),
+}
+
+/// What a tag write sends to the device.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum TagWriteOp {
+    /// One request (FC 05, 06 or 16).
+    Request(Request),
+    /// A bit tag: a read-modify-write of its register, one job on the line.
+    Bit(BitUpdate),
+}
+
+// === impl TagWriteOp ===
+
+impl TagWriteOp {
+    /// The request the server's write policy (read-only mode, write ranges) is checked against:
+    /// a bit write writes its whole register (FC 06).
+    pub fn policy_request(&self) -> Request {
+        match self {
+            Self::Request(r) => r.clone(),
+            Self::Bit(update) => Request::WriteSingleRegister {
+                address: update.address,
+                value: 0,
+            },
+        }
+    }
 }
 
 /// Every tag of the configured devices.
@@ -173,43 +199,67 @@ impl TagDirectory {
         })
     }
 
-    /// The Modbus request that writes `value` (engineering units) to the tag, checked against
-    /// the tag's type, range and write permission.
+    /// The Modbus request that writes the number `value` (engineering units) to a tag that is
+    /// not a bit, checked against the tag's type, range and write permission.
     pub fn write_request(entry: &TagEntry, value: f64) -> Result<Request, TagWriteError> {
+        match Self::write_op(entry, &Value::Float(value))? {
+            TagWriteOp::Request(request) => Ok(request),
+            TagWriteOp::Bit(_) => Err(TagWriteError::Value {
+                tag: format!("{}/{}/{}", entry.line, entry.device, entry.tag.name),
+                value: value.to_string(),
+                reason: "a bit tag is written by read-modify-write".to_owned(),
+            }),
+        }
+    }
+
+    /// What writes `value` to the tag: a number in engineering units, a whole number (exact up
+    /// to 64 bits), a bool, or a text for a string tag; checked against the tag's type, range
+    /// and write permission.
+    pub fn write_op(entry: &TagEntry, value: &Value) -> Result<TagWriteOp, TagWriteError> {
         let name = || format!("{}/{}/{}", entry.line, entry.device, entry.tag.name);
         if !entry.tag.writable {
             return Err(TagWriteError::ReadOnly(name()));
         }
         let refused = |reason: String| TagWriteError::Value {
             tag: name(),
-            value,
+            value: value.to_string(),
             reason,
         };
-        let words = entry
-            .profile
-            .encode(&entry.tag, value)
-            .map_err(|e| match e {
-                EncodeError::OutOfRange { min, max, .. } => {
-                    let nearest = if value < min { min } else { max };
-                    refused(format!(
-                        "outside the range {}..={} of the tag; nearest: {}",
-                        show(&entry.tag, min),
-                        show(&entry.tag, max),
-                        show(&entry.tag, nearest)
-                    ))
-                }
-                other => refused(other.to_string()),
-            })?;
-        if let Some(nearest) = inexact(entry, value) {
-            let shown: Vec<String> = nearest.iter().map(|&v| show(&entry.tag, v)).collect();
-            return Err(refused(format!(
-                "the tag holds steps of {}; nearest: {}",
-                show(&entry.tag, entry.tag.factor()),
-                shown.join(" or ")
-            )));
+        let tag = &entry.tag;
+        let explain = |e: EncodeError| match e {
+            EncodeError::OutOfRange { min, max, .. } => {
+                let number = value.as_f64();
+                let (lo, hi) = match exact_bounds(entry) {
+                    Some((lo, hi)) => (lo.to_string(), hi.to_string()),
+                    None => (show(tag, min), show(tag, max)),
+                };
+                let nearest = if number < min { &lo } else { &hi };
+                refused(format!(
+                    "outside the range {lo}..={hi} of the tag; nearest: {nearest}"
+                ))
+            }
+            other => refused(other.to_string()),
+        };
+        if let Some(update) = entry.profile.bit_update(tag, value) {
+            if tag.table != Table::HoldingRegisters {
+                return Err(TagWriteError::ReadOnly(name()));
+            }
+            return update.map(TagWriteOp::Bit).map_err(explain);
         }
-        let address = entry.tag.address;
-        Ok(match (entry.tag.table, words.as_slice()) {
+        let words = entry.profile.encode_value(tag, value).map_err(explain)?;
+        let exact = value.as_i128().is_some() && exact_bounds(entry).is_some();
+        if !exact {
+            if let Some(nearest) = inexact(entry, value.as_f64()) {
+                let shown: Vec<String> = nearest.iter().map(|&v| show(tag, v)).collect();
+                return Err(refused(format!(
+                    "the tag holds steps of {}; nearest: {}",
+                    show_in(tag.factor(), 0.0, tag.factor()),
+                    shown.join(" or ")
+                )));
+            }
+        }
+        let address = tag.address;
+        Ok(TagWriteOp::Request(match (tag.table, words.as_slice()) {
             (Table::Coils, [w]) => Request::WriteSingleCoil {
                 address,
                 value: *w != 0,
@@ -220,19 +270,33 @@ impl TagDirectory {
                 values: words,
             },
             _ => return Err(TagWriteError::ReadOnly(name())),
-        })
+        }))
     }
+}
+
+/// The exact raw range of a plain integer tag (no decimals, scale, offset or device range),
+/// whose whole numbers are written without a detour through floats.
+fn exact_bounds(entry: &TagEntry) -> Option<(i128, i128)> {
+    let tag = &entry.tag;
+    let plain = tag.is_plain()
+        && tag.raw_range.is_none()
+        && entry.profile.special_values == profiles::SpecialValues::None;
+    plain.then(|| tag.data_type.int_bounds()).flatten()
 }
 
 /// The nearest values the tag holds when it cannot hold `value` exactly (between two steps of
 /// its fix point and scale); `None` when it holds it. Only neighbours the tag accepts (its range)
 /// are named. Floats hold any value in their range.
 fn inexact(entry: &TagEntry, value: f64) -> Option<Vec<f64>> {
-    if matches!(entry.tag.data_type, profiles::DataType::F32(_)) {
+    if entry.tag.data_type.is_float()
+        || matches!(
+            entry.tag.data_type,
+            profiles::DataType::String { .. } | profiles::DataType::Bit(_)
+        )
+    {
         return None;
     }
-    let factor = entry.tag.factor();
-    let raw = value / factor;
+    let raw = entry.tag.to_raw(value);
     // A decimal value such as 4.5 is not exactly 45 x 0.1 in binary: compare with a tolerance
     // far below one step.
     if (raw - raw.round()).abs() <= 1e-9 * raw.abs().max(1.0) {
@@ -240,7 +304,7 @@ fn inexact(entry: &TagEntry, value: f64) -> Option<Vec<f64>> {
     }
     let nearest: Vec<f64> = [raw.floor(), raw.ceil()]
         .into_iter()
-        .map(|r| r * factor)
+        .map(|r| entry.tag.to_engineering(r))
         .filter(|&v| entry.profile.encode(&entry.tag, v).is_ok())
         .collect();
     Some(nearest)
@@ -249,12 +313,17 @@ fn inexact(entry: &TagEntry, value: f64) -> Option<Vec<f64>> {
 /// An engineering value with as many decimals as the tag's steps have (4.6, not
 /// 4.6000000000000005).
 fn show(tag: &Tag, value: f64) -> String {
-    let factor = tag.factor().abs();
+    show_in(tag.factor(), tag.offset, value)
+}
+
+/// `value` with as many decimals as steps of `factor` from `offset` need.
+fn show_in(factor: f64, offset: f64, value: f64) -> String {
+    let whole_at = |x: f64, d: usize| {
+        let scaled = x.abs() * 10f64.powi(i32::try_from(d).unwrap_or(0));
+        (scaled - scaled.round()).abs() < 1e-9 * scaled.max(1.0)
+    };
     let decimals = (0..=9usize)
-        .find(|&d| {
-            let scaled = factor * 10f64.powi(i32::try_from(d).unwrap_or(0));
-            (scaled - scaled.round()).abs() < 1e-9 * scaled.max(1.0)
-        })
+        .find(|&d| whole_at(factor, d) && whole_at(offset, d))
         .unwrap_or(9);
     format!("{value:.decimals$}")
 }
@@ -349,22 +418,37 @@ fn profile_of(name: &str, device: &DeviceConfig) -> DeviceProfile {
 
 /// A config tag as a profile tag.
 fn tag_of(t: &config::TagConfig) -> Tag {
-    use profiles::{DataType as D, WordOrder as W};
-    let order = match t.word_order {
-        config::WordOrder::HighFirst => W::HighFirst,
-        config::WordOrder::LowFirst => W::LowFirst,
+    use profiles::{ByteOrder as B, CharOrder, DataType as D};
+    let order = match t.byte_order() {
+        config::ByteOrder::Abcd => B::Abcd,
+        config::ByteOrder::Cdab => B::Cdab,
+        config::ByteOrder::Badc => B::Badc,
+        config::ByteOrder::Dcba => B::Dcba,
     };
-    let data_type = match t.data_type {
-        config::DataType::Bool => D::Bool,
-        config::DataType::U16 => D::U16,
-        config::DataType::I16 => D::I16,
-        config::DataType::U32 => D::U32(order),
-        config::DataType::I32 => D::I32(order),
-        config::DataType::F32 => D::F32(order),
+    let data_type = match (t.data_type, t.bit) {
+        (config::DataType::Bool, Some(bit)) => D::Bit(bit),
+        (config::DataType::Bool, None) => D::Bool,
+        (config::DataType::U16, _) => D::U16,
+        (config::DataType::I16, _) => D::I16,
+        (config::DataType::U32, _) => D::U32(order),
+        (config::DataType::I32, _) => D::I32(order),
+        (config::DataType::F32, _) => D::F32(order),
+        (config::DataType::U64, _) => D::U64(order),
+        (config::DataType::I64, _) => D::I64(order),
+        (config::DataType::F64, _) => D::F64(order),
+        (config::DataType::String, _) => D::String {
+            registers: t.registers.unwrap_or(1),
+            order: if order.bytes_swapped() {
+                CharOrder::LowFirst
+            } else {
+                CharOrder::HighFirst
+            },
+        },
     };
     let mut tag = Tag::new(t.name.clone(), t.table.into(), t.address, data_type)
         .decimals(t.decimals)
         .scale(t.scale)
+        .offset(t.offset)
         .unit(t.unit.clone());
     if t.writable {
         tag = tag.writable();
@@ -521,6 +605,68 @@ mod tests {
             "the tag holds steps of 0.5; nearest: 0.0 or 0.5"
         );
         assert!(TagDirectory::write_request(mode, 1.5).is_ok());
+    }
+
+    #[test]
+    fn new_tag_kinds_are_written_exactly_or_refused_with_a_reason() {
+        // The demo's meter has a tag of each kind.
+        let dir = TagDirectory::from_config(&config::demo());
+        let find = |name| dir.find("ksvario", "meter", name).expect(name);
+        let op = |name, value: Value| TagDirectory::write_op(find(name), &value);
+        // u64, registers reversed: exact beyond 2^53 and i64::MAX.
+        assert_eq!(
+            op("preset", Value::UInt(u64::MAX - 1)),
+            Ok(TagWriteOp::Request(Request::WriteMultipleRegisters {
+                address: 50,
+                values: vec![0xFFFE, 0xFFFF, 0xFFFF, 0xFFFF]
+            }))
+        );
+        let refused = |name, value: Value| match op(name, value) {
+            Err(TagWriteError::Value { reason, .. }) => reason,
+            other => panic!("{other:?}"),
+        };
+        assert_eq!(
+            refused("preset", Value::Int(-1)),
+            "outside the range 0..=18446744073709551615 of the tag; nearest: 0"
+        );
+        assert_eq!(
+            op("serial", Value::Text("AB".into())),
+            Ok(TagWriteOp::Request(Request::WriteMultipleRegisters {
+                address: 20,
+                values: vec![0x4142, 0, 0, 0, 0, 0, 0, 0]
+            }))
+        );
+        assert!(refused("serial", Value::Text("0123456789ABCDEFG".into()))
+            .contains("at most 16 ASCII characters"));
+        assert!(refused("serial", Value::Int(5)).contains("holds text"));
+        assert_eq!(
+            op("relay", Value::Bool(true)),
+            Ok(TagWriteOp::Bit(BitUpdate {
+                address: 30,
+                and: !8,
+                or: 8
+            }))
+        );
+        assert!(matches!(
+            op("running", Value::Bool(true)),
+            Err(TagWriteError::ReadOnly(_))
+        ));
+        // value = raw x 0.5 - 20: 30.25 lies between two steps.
+        assert_eq!(
+            refused("setpoint", Value::Float(30.25)),
+            "the tag holds steps of 0.5; nearest: 30.0 or 30.5"
+        );
+        assert_eq!(
+            op("setpoint", Value::Float(30.0)),
+            Ok(TagWriteOp::Request(Request::WriteSingleRegister {
+                address: 31,
+                value: 100
+            }))
+        );
+        assert_eq!(
+            refused("setpoint", Value::Int(-21)),
+            "outside the range -20.0..=32747.5 of the tag; nearest: -20.0"
+        );
     }
 
     #[test]

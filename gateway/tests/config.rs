@@ -8,9 +8,9 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use gateway::config::{
-    self, Config, DataBits, DataType, EndCriterion, FlowControl, Interface, LineConfig,
+    self, ByteOrder, Config, DataBits, DataType, EndCriterion, FlowControl, Interface, LineConfig,
     ModbusTable, OperatingMode, Overflow3964, Parity, Priority, Profile, ProtocolConfig,
-    ScannerConfig, StopBits, WordOrder,
+    ScannerConfig, StopBits,
 };
 
 #[path = "config/defaults.rs"]

@@ -9,8 +9,8 @@ use proto_core::modbus::pdu::FunctionCode;
 use proto_core::profiles::altivar::{self, DriveState};
 use proto_core::profiles::ksvario::{self, Address, AddressError, Area, Format};
 use proto_core::profiles::{
-    DataType, DeviceProfile, EncodeError, ProfileKind, Quality, SpecialValues, Table, Tag, Value,
-    WordOrder,
+    ByteOrder, DataType, DeviceProfile, EncodeError, ProfileKind, Quality, SpecialValues, Table,
+    Tag, Value,
 };
 
 fn f32_words(value: f32) -> [u16; 2] {
@@ -381,9 +381,9 @@ fn ksvario_writes_stay_in_the_transfer_range() {
 #[test]
 fn generic_profile_word_orders() {
     let tags = vec![
-        Tag::holding("u32_hf", 0, DataType::U32(WordOrder::HighFirst)),
-        Tag::holding("i32_lf", 2, DataType::I32(WordOrder::LowFirst)).writable(),
-        Tag::holding("f32_lf", 4, DataType::F32(WordOrder::LowFirst)),
+        Tag::holding("u32_hf", 0, DataType::U32(ByteOrder::Abcd)),
+        Tag::holding("i32_lf", 2, DataType::I32(ByteOrder::Cdab)).writable(),
+        Tag::holding("f32_lf", 4, DataType::F32(ByteOrder::Cdab)),
         Tag::new("coil", Table::Coils, 0, DataType::Bool),
     ];
     let profile = DeviceProfile::generic("meter", 5, tags);

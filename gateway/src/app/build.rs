@@ -162,12 +162,7 @@ pub(crate) fn device_settings(name: &str, device: &DeviceConfig) -> DeviceSettin
                 .iter()
                 .find(|t| t.name.eq_ignore_ascii_case(tag))
             {
-                push_range(
-                    &mut by_table,
-                    t.table.into(),
-                    t.address,
-                    t.data_type.width(),
-                );
+                push_range(&mut by_table, t.table.into(), t.address, t.width());
             } else if let Some((t, address, width)) = profile_tag(device.profile, tag) {
                 push_range(&mut by_table, t, address, width);
             }

@@ -64,7 +64,34 @@ pub fn run_issues(config: &Config) -> Vec<ConfigIssue> {
     issues.extend(super::lines::start_issues(config, None));
     issues.extend(zenoh_issues(config));
     issues.extend(cp_memory_issues(config));
+    issues.extend(tls_issues(config));
     issues
+}
+
+/// Modbus/TCP Security's files read and made into TLS settings as `run` makes them at start
+/// (certificate chain, private key matching it, client CA): a missing, unreadable or unusable
+/// file is an issue at its key, with the path.
+fn tls_issues(config: &Config) -> Vec<ConfigIssue> {
+    let Some(tls) = config.modbus_tcp.tls.as_ref() else {
+        return Vec::new();
+    };
+    match crate::modbus_tcp::TlsServer::new(super::tls::files(tls), super::tls::roles(tls)) {
+        Ok(_) => Vec::new(),
+        Err(e) => {
+            let key = match &e {
+                crate::modbus_tcp::TlsError::File { what, .. } => match *what {
+                    "certificate" => "modbus_tcp.tls.cert",
+                    "private key" => "modbus_tcp.tls.key",
+                    _ => "modbus_tcp.tls.ca",
+                },
+                crate::modbus_tcp::TlsError::Settings(_) => "modbus_tcp.tls",
+            };
+            vec![ConfigIssue {
+                path: key.to_owned(),
+                message: format!("Modbus/TCP Security: {e}"),
+            }]
+        }
+    }
 }
 
 /// The zenoh session's settings as the bridge builds them at start: `config_file` read and
@@ -407,6 +434,79 @@ mod tests {
 #[cfg(test)]
 mod token_tests {
     use super::*;
+
+    #[test]
+    fn modbus_tcp_security_files_are_loaded_as_run_loads_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let ca_key = rcgen::KeyPair::generate().unwrap();
+        let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
+        ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
+        let ca = ca_params.self_signed(&ca_key).unwrap();
+        let key = rcgen::KeyPair::generate().unwrap();
+        let cert = rcgen::CertificateParams::new(vec!["localhost".to_owned()])
+            .unwrap()
+            .self_signed(&key)
+            .unwrap();
+        let path = |name: &str| dir.path().join(name);
+        std::fs::write(path("ca.crt"), ca.pem()).unwrap();
+        std::fs::write(path("server.crt"), cert.pem()).unwrap();
+        std::fs::write(path("server.key"), key.serialize_pem()).unwrap();
+        std::fs::write(path("empty.crt"), "").unwrap();
+        let config = |cert: &str, key: &str, ca: &str| {
+            config::parse(&format!(
+                "[modbus_tcp.tls]\ncert = \"{}\"\nkey = \"{}\"\nca = \"{}\"\n",
+                path(cert).display(),
+                path(key).display(),
+                path(ca).display()
+            ))
+            .expect("parses")
+        };
+        assert_eq!(
+            tls_issues(&config("server.crt", "server.key", "ca.crt")),
+            Vec::<ConfigIssue>::new()
+        );
+        for (c, k, a, at, file) in [
+            (
+                "absent.crt",
+                "server.key",
+                "ca.crt",
+                "modbus_tcp.tls.cert",
+                "absent.crt",
+            ),
+            (
+                "server.crt",
+                "absent.key",
+                "ca.crt",
+                "modbus_tcp.tls.key",
+                "absent.key",
+            ),
+            (
+                "server.crt",
+                "server.key",
+                "absent.crt",
+                "modbus_tcp.tls.ca",
+                "absent.crt",
+            ),
+            (
+                "server.crt",
+                "server.key",
+                "empty.crt",
+                "modbus_tcp.tls.ca",
+                "empty.crt",
+            ),
+        ] {
+            let issues = tls_issues(&config(c, k, a));
+            assert_eq!(issues.len(), 1, "{issues:?}");
+            assert_eq!(issues[0].path, at);
+            assert!(issues[0].message.contains(file), "{}", issues[0].message);
+        }
+        // run refuses the same before a port opens.
+        let issues = run_issues(&config("server.crt", "absent.key", "ca.crt"));
+        assert!(
+            issues.iter().any(|i| i.path == "modbus_tcp.tls.key"),
+            "{issues:?}"
+        );
+    }
 
     #[test]
     fn a_named_token_that_cannot_be_read_is_an_issue_at_its_key() {

@@ -16,7 +16,7 @@ use tracing::info;
 
 use super::{run, AppError, Overrides};
 use crate::config::{self, LineConfig, Profile, ProtocolConfig, ASCII_CHARACTER_DELAY_RANGE};
-use crate::sim::{self, altivar::AltivarSim, ksvario::KsVarioSim, ModbusDevice};
+use crate::sim::{self, altivar::AltivarSim, ksvario::KsVarioSim, meter::MeterSim, ModbusDevice};
 
 /// The delay-time multiplier of the Modbus lines of `gateway demo --paced` (003 6.4.2.1: 1..10).
 const PACED_DELAY_MULTIPLIER: u8 = 10;
@@ -168,11 +168,8 @@ fn start_simulator(
                 devices.push(match device.profile {
                     Profile::Altivar71 => Box::new(AltivarSim::new(device.address)),
                     Profile::Ksvario => Box::new(KsVarioSim::new(device.address)),
-                    Profile::Generic => {
-                        return Err(AppError::Setup(format!(
-                            "line {name}: the demo has no simulator for generic devices"
-                        )))
-                    }
+                    // The demo's generic device is the meter of every tag type.
+                    Profile::Generic => Box::new(MeterSim::new(device.address)),
                 });
             }
             if devices.is_empty() {

@@ -348,7 +348,7 @@ impl ApiBackend for RestBackend {
                 line,
                 device,
                 tag,
-                value.as_f64(),
+                &value.clone().into(),
             )
             .map_err(refused)
         });
@@ -359,11 +359,7 @@ impl ApiBackend for RestBackend {
         let (line, device) = (line.to_owned(), device.to_owned());
         let name = write.entry.tag.name.clone();
         Box::pin(async move {
-            write
-                .service
-                .call(write.request)
-                .await
-                .map_err(ApiError::from)?;
+            write.send().await.map_err(ApiError::from)?;
             self.read_tag(&line, &device, &name).await
         })
     }

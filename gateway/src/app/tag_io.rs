@@ -13,8 +13,10 @@ use proto_core::modbus::Table;
 
 use super::supervisor::Snapshot;
 use crate::modbus_tcp::SharedUnits;
-use crate::tags::{TagDirectory, TagEntry, TagReading, TagWriteError};
-use crate::unit::UnitService;
+use proto_core::profiles::Value;
+
+use crate::tags::{TagDirectory, TagEntry, TagReading, TagWriteError, TagWriteOp};
+use crate::unit::{UnitFuture, UnitService};
 
 /// Why a tag write was not sent to the device.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -44,8 +46,21 @@ pub(crate) enum WriteRefused {
 /// A checked write, ready to send.
 pub(crate) struct PreparedWrite {
     pub(crate) service: Arc<dyn UnitService>,
-    pub(crate) request: Request,
+    pub(crate) op: TagWriteOp,
     pub(crate) entry: TagEntry,
+}
+
+// === impl PreparedWrite ===
+
+impl PreparedWrite {
+    /// Sends the write to the device's unit: one request, or for a bit tag one
+    /// read-modify-write job of the line.
+    pub(crate) fn send(self) -> UnitFuture {
+        match self.op {
+            TagWriteOp::Request(request) => self.service.call(request),
+            TagWriteOp::Bit(update) => self.service.mask_write(update),
+        }
+    }
 }
 
 /// The unit service of `unit`.
@@ -64,17 +79,20 @@ pub(crate) fn prepare_write(
     line: &str,
     device: &str,
     tag: &str,
-    value: f64,
+    value: &Value,
 ) -> Result<PreparedWrite, WriteRefused> {
     let entry = snapshot
         .tags
         .find(line, device, tag)
         .ok_or_else(|| TagWriteError::UnknownTag(format!("{line}/{device}/{tag}")))?;
-    let request = TagDirectory::write_request(entry, value)?;
+    let op = TagDirectory::write_op(entry, value)?;
     if snapshot.server.read_only {
         return Err(WriteRefused::ReadOnlyGateway);
     }
-    if let Some(code) = snapshot.server.check_write(entry.unit_id, &request) {
+    if let Some(code) = snapshot
+        .server
+        .check_write(entry.unit_id, &op.policy_request())
+    {
         return Err(WriteRefused::OutsideRanges {
             tag: format!("{line}/{device}/{}", entry.tag.name),
             code,
@@ -89,7 +107,7 @@ pub(crate) fn prepare_write(
     }
     Ok(PreparedWrite {
         service,
-        request,
+        op,
         entry: entry.clone(),
     })
 }

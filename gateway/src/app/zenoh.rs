@@ -326,7 +326,7 @@ impl BridgeBackend for ZenohBackend {
                     return Err(e);
                 }
             };
-            match write.service.call(write.request).await {
+            match write.send().await {
                 Ok(_) => {
                     audit(WriteResult::Accepted, &"ok");
                     Ok(json!({ "tag": name, "written": value }))
@@ -373,17 +373,34 @@ impl ZenohBackend {
         value: &Json,
     ) -> Result<(tag_io::PreparedWrite, String), String> {
         let sup = self.sup.upgrade().ok_or("the gateway is stopping")?;
-        let number = match value {
-            Json::Number(n) => n.as_f64(),
-            Json::Bool(b) => Some(f64::from(u8::from(*b))),
-            Json::Object(o) => o.get("value").and_then(Json::as_f64),
-            _ => None,
-        }
-        .ok_or_else(|| format!("value {value} is not a number (send a JSON number)"))?;
-        let write = tag_io::prepare_write(&sup.snapshot(), &sup.units, line, device, tag, number)
+        let value = json_value(value).ok_or_else(|| {
+            format!(
+                "value {value} is not a number, a bool or a text (send JSON: 4.5, true, \"SN-1\")"
+            )
+        })?;
+        let write = tag_io::prepare_write(&sup.snapshot(), &sup.units, line, device, tag, &value)
             .map_err(|e| e.to_string())?;
         let name = format!("{line}/{device}/{}", write.entry.tag.name);
         Ok((write, name))
+    }
+}
+
+/// The value of a tag write sent as JSON: a number (whole numbers exact up to 64 bits), a bool,
+/// a string, or an object with one of them under `value`.
+fn json_value(value: &Json) -> Option<Value> {
+    match value {
+        Json::Number(n) => n
+            .as_i64()
+            .map(Value::Int)
+            .or_else(|| n.as_u64().map(Value::UInt))
+            .or_else(|| n.as_f64().map(Value::Float)),
+        Json::Bool(b) => Some(Value::Bool(*b)),
+        Json::String(s) => Some(Value::Text(s.clone())),
+        Json::Object(o) => o
+            .get("value")
+            .filter(|v| !v.is_object())
+            .and_then(json_value),
+        Json::Null | Json::Array(_) => None,
     }
 }
 
@@ -392,8 +409,10 @@ fn tag_value(tags: &TagDirectory, image: &ProcessImage, entry: &TagEntry) -> Opt
     let reading = tags.read(image, entry)?;
     let value = match reading.value {
         Value::Int(v) => json!(v),
+        Value::UInt(v) => json!(v),
         Value::Float(v) => json!(v),
         Value::Bool(v) => json!(v),
+        Value::Text(v) => json!(v),
     };
     let unit = (!reading.unit.is_empty()).then_some(reading.unit);
     Some(TagValue {

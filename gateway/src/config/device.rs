@@ -10,6 +10,7 @@ use proto_core::profiles::{DeviceProfile, ReadWriteLimits, RequestLimits};
 use serde::{Deserialize, Serialize};
 
 use super::reader::{check_name, int_value, string_value, Cx, Fields};
+use super::validate::serde_name;
 
 /// Modbus Application Protocol V1.1b3, 4.4 / Modbus over Serial Line V1.02 2.2: unicast
 /// addresses are 1..=247; 0 is broadcast. 002 (Altivar, "Adressen") agrees: 1..247.
@@ -57,9 +58,16 @@ pub const DEFAULT_SCALE: f64 = 1.0;
 pub const DEFAULT_DECIMALS: u8 = 0;
 /// Most decimals a tag may declare.
 pub const MAX_DECIMALS: u8 = 9;
-/// 32-bit values: high word first, the Modbus convention (001: KS vario floats in "Motorola
-/// format").
-pub const DEFAULT_WORD_ORDER: WordOrder = WordOrder::HighFirst;
+/// 32 and 64-bit values: high word first, high byte first, the Modbus convention (001: KS vario
+/// floats in "Motorola format"); strings: the first character in the high byte.
+pub const DEFAULT_BYTE_ORDER: ByteOrder = ByteOrder::Abcd;
+/// A tag value is `raw * scale + offset`, by default no offset.
+pub const DEFAULT_OFFSET: f64 = 0.0;
+/// Most registers of a string tag: what one FC 16 writes (Modbus Application Protocol V1.1b3
+/// 6.12: 1..123 registers).
+pub const MAX_STRING_REGISTERS: u16 = 123;
+/// Bits of a register a bit tag may name (0 the least significant).
+pub const MAX_BIT: u8 = 15;
 
 pub fn default_offline_backoff_min() -> Duration {
     DEFAULT_OFFLINE_BACKOFF_MIN
@@ -226,7 +234,7 @@ impl AddressRange {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum DataType {
-    /// One coil or discrete input.
+    /// One coil or discrete input, or with `bit` one bit of a register.
     Bool,
     U16,
     I16,
@@ -236,26 +244,54 @@ pub enum DataType {
     I32,
     /// Two registers, IEEE 754.
     F32,
+    /// Four registers.
+    U64,
+    /// Four registers.
+    I64,
+    /// Four registers, IEEE 754.
+    F64,
+    /// ASCII text over `registers` registers, two characters a register.
+    String,
 }
 
 impl DataType {
-    /// Addresses the value occupies.
-    pub fn width(self) -> u32 {
+    /// Registers the type occupies (1 for bool), `None` for a string (its `registers`).
+    pub fn fixed_width(self) -> Option<u32> {
         match self {
-            Self::Bool | Self::U16 | Self::I16 => 1,
-            Self::U32 | Self::I32 | Self::F32 => 2,
+            Self::Bool | Self::U16 | Self::I16 => Some(1),
+            Self::U32 | Self::I32 | Self::F32 => Some(2),
+            Self::U64 | Self::I64 | Self::F64 => Some(4),
+            Self::String => None,
         }
+    }
+
+    /// Whether the type has more than one register to order (32 and 64-bit numbers).
+    pub fn is_multi_word(self) -> bool {
+        self.fixed_width().is_some_and(|w| w > 1)
     }
 }
 
-/// Order of the two registers of a 32-bit value.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum WordOrder {
-    /// The register at `address` holds the high word.
-    HighFirst,
-    /// The register at `address` holds the low word.
-    LowFirst,
+/// Where the bytes of a 32 or 64-bit value sit in its registers (docs/tags.md has the table).
+/// The letters name the value's bytes from the most significant down, as they appear on the
+/// wire from the tag's address on; for 64-bit values the four names stand for ABCDEFGH,
+/// GHEFCDAB, BADCFEHG and HGFEDCBA, which are accepted as well. For a string, `ABCD`
+/// (`high-first`) puts the first character of each register in its high byte, `BADC`
+/// (`low-first`) in its low byte.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub enum ByteOrder {
+    /// Big endian (the Modbus convention): high word first, high byte first.
+    #[default]
+    #[serde(rename = "ABCD", alias = "ABCDEFGH", alias = "high-first")]
+    Abcd,
+    /// The registers in reverse order (low word first), each big endian.
+    #[serde(rename = "CDAB", alias = "GHEFCDAB", alias = "low-first")]
+    Cdab,
+    /// The registers in order, the bytes of each swapped.
+    #[serde(rename = "BADC", alias = "BADCFEHG")]
+    Badc,
+    /// Little endian: registers reversed and bytes swapped.
+    #[serde(rename = "DCBA", alias = "HGFEDCBA")]
+    Dcba,
 }
 
 /// A named value of a device.
@@ -264,18 +300,47 @@ pub struct TagConfig {
     pub name: String,
     pub table: ModbusTable,
     pub address: u16,
-    /// Defaults to `bool` for coils and discrete inputs, `u16` for registers.
+    /// Defaults to `bool` for coils and discrete inputs (and for a `bit`), `u16` for registers.
     #[serde(rename = "type")]
     pub data_type: DataType,
-    pub word_order: WordOrder,
-    /// The value is `raw * scale`.
+    /// The byte order of a 32/64-bit value or the character order of a string; absent: ABCD.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub byte_order: Option<ByteOrder>,
+    /// The registers of a string (required for strings; others may only give their width).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub registers: Option<u16>,
+    /// A bit (0..=15) of a holding or input register, read as a bool.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bit: Option<u8>,
+    /// The value is `raw * scale + offset`.
     pub scale: f64,
+    /// Added after the scale.
+    pub offset: f64,
     /// Decimals shown (fix point), 0..=9.
     pub decimals: u8,
     /// Engineering unit, free text.
     pub unit: String,
     /// Writes from Modbus TCP, zenoh or REST are accepted (holding registers and coils only).
     pub writable: bool,
+}
+
+impl TagConfig {
+    /// The byte order in effect (ABCD unless given).
+    pub fn byte_order(&self) -> ByteOrder {
+        self.byte_order.unwrap_or(DEFAULT_BYTE_ORDER)
+    }
+
+    /// Whether the value occupies more than `registers` registers.
+    pub fn words_exceed(&self, registers: u16) -> bool {
+        self.width() > u32::from(registers)
+    }
+
+    /// Registers (or bits) the value occupies.
+    pub fn width(&self) -> u32 {
+        self.data_type
+            .fixed_width()
+            .unwrap_or_else(|| u32::from(self.registers.unwrap_or(1)))
+    }
 }
 
 /// Addresses read together at one period.
@@ -463,22 +528,52 @@ fn read_tag(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<TagConfig> {
     }
     let address = f.required_int::<u16>(cx, "address", 0..=u16::MAX, "");
     let data_type = f.choice::<DataType>(cx, "type");
+    let bit = f.int::<u8>(cx, "bit", 0..=MAX_BIT, "a register has bits 0..15");
     // A missing or bad table is reported above; the stand-in keeps the tag (so that poll groups
     // naming it raise nothing more) and agrees with its type.
     let table_or_standin = table.unwrap_or(match data_type {
-        Some(DataType::Bool) => ModbusTable::Coil,
+        Some(DataType::Bool) if bit.is_none() => ModbusTable::Coil,
         _ => ModbusTable::Holding,
     });
+    // A bad bit is reported above; the stand-in type raises nothing more.
+    let data_type = data_type.unwrap_or(if table_or_standin.is_register() && bit.is_none() {
+        DataType::U16
+    } else {
+        DataType::Bool
+    });
+    let registers = f.int::<u16>(cx, "registers", 1..=MAX_STRING_REGISTERS, "FC 16: 1..123");
+    match (data_type.fixed_width(), registers) {
+        (None, None) => cx.issue(
+            f.at("registers"),
+            "a string tag needs registers = N (two characters a register)",
+        ),
+        (Some(width), Some(given)) if u32::from(given) != width => cx.issue(
+            f.at("registers"),
+            format!(
+                "a {} value occupies {width} register{}, not {given}",
+                serde_name(data_type),
+                if width == 1 { "" } else { "s" }
+            ),
+        ),
+        _ => {}
+    }
+    let byte_order = read_byte_order(cx, &mut f, data_type);
+    let scale = f.float_or(cx, "scale", DEFAULT_SCALE);
+    if scale == 0.0 {
+        cx.issue(
+            f.at("scale"),
+            "scale 0 makes every raw value 0 and cannot be written back",
+        );
+    }
     let tag = TagConfig {
         table: table_or_standin,
         address: address.unwrap_or_default(),
-        data_type: data_type.unwrap_or(if table_or_standin.is_register() {
-            DataType::U16
-        } else {
-            DataType::Bool
-        }),
-        word_order: f.choice_or(cx, "word_order", DEFAULT_WORD_ORDER),
-        scale: f.float_or(cx, "scale", DEFAULT_SCALE),
+        data_type,
+        byte_order,
+        registers,
+        bit,
+        scale,
+        offset: f.float_or(cx, "offset", DEFAULT_OFFSET),
         decimals: f.int_or(cx, "decimals", 0..=MAX_DECIMALS, DEFAULT_DECIMALS, ""),
         unit: f.string_or(cx, "unit", ""),
         writable: f.bool_or(cx, "writable", false),
@@ -486,6 +581,53 @@ fn read_tag(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<TagConfig> {
     };
     f.finish(cx);
     name.map(|_| tag)
+}
+
+/// The `byte_order` key (or its older name `word_order`): one of the four orders for 32 and
+/// 64-bit values; `high-first` / `low-first` (ABCD / BADC) for a string; for a 16-bit value or a
+/// bool only the order the wire has anyway (ABCD, `high-first`), since one register carries its
+/// high byte first (Modbus Application Protocol V1.1b3 4.2) and there is no word to order.
+fn read_byte_order(cx: &mut Cx, f: &mut Fields<'_>, data_type: DataType) -> Option<ByteOrder> {
+    let key = match (f.has("byte_order"), f.has("word_order")) {
+        (true, true) => {
+            cx.issue(
+                f.at("word_order"),
+                "give byte_order or its older name word_order, not both",
+            );
+            f.raw("word_order");
+            "byte_order"
+        }
+        (false, true) => "word_order",
+        _ => "byte_order",
+    };
+    let raw = f.raw(key)?;
+    let at = f.at(key);
+    if data_type == DataType::String {
+        return match raw.as_str() {
+            Some("high-first" | "ABCD") => Some(ByteOrder::Abcd),
+            Some("low-first" | "BADC") => Some(ByteOrder::Badc),
+            _ => {
+                cx.issue(
+                    at,
+                    "a string's order is \"high-first\" (first character in the high byte, \
+                     ABCD) or \"low-first\" (in the low byte, BADC)",
+                );
+                None
+            }
+        };
+    }
+    let order = super::reader::choice_value::<ByteOrder>(cx, raw, &at)?;
+    if !data_type.is_multi_word() && order != ByteOrder::Abcd {
+        cx.issue(
+            at,
+            format!(
+                "a {} value is one register sent high byte first; only ABCD (high-first) applies",
+                serde_name(data_type)
+            ),
+        );
+        return None;
+    }
+    Some(order)
 }
 
 fn read_poll(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<PollGroup> {

@@ -376,16 +376,43 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
                 ),
             );
         }
-        let is_bool = tag.data_type == DataType::Bool;
+        // A bool with a bit is a register's bit; on a bit table the bit is refused below.
+        let is_bool =
+            tag.data_type == DataType::Bool && (tag.bit.is_none() || !tag.table.is_register());
         if is_bool == tag.table.is_register() {
             let want = if tag.table.is_register() {
-                "u16, i16, u32, i32 or f32"
+                "u16, i16, u32, i32, u64, i64, f32, f64, string, or bool with a bit"
             } else {
-                "bool"
+                "bool (a string or a number needs registers)"
             };
             cx.issue(
                 format!("{p}.type"),
                 format!("a {} tag must be {want}", serde_name(tag.table)),
+            );
+        }
+        if tag.bit.is_some() {
+            if !tag.table.is_register() {
+                cx.issue(
+                    format!("{p}.bit"),
+                    format!(
+                        "a {} is a bit already; bit names a bit of a holding or input register",
+                        serde_name(tag.table)
+                    ),
+                );
+            } else if tag.data_type != DataType::Bool {
+                cx.issue(
+                    format!("{p}.type"),
+                    "a bit of a register is a bool: leave type out or give \"bool\"",
+                );
+            }
+        }
+        if tag.words_exceed(dev.limits.read_registers) && tag.table.is_register() {
+            cx.issue(
+                format!("{p}.registers"),
+                format!(
+                    "the value takes more registers than one read of this device carries (limits.read_registers = {})",
+                    dev.limits.read_registers
+                ),
             );
         }
         if tag.writable && !tag.table.is_writable() {
@@ -394,7 +421,7 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
                 format!("{} addresses cannot be written", serde_name(tag.table)),
             );
         }
-        if u32::from(tag.address) + tag.data_type.width() > 65_536 {
+        if u32::from(tag.address) + tag.width() > 65_536 {
             cx.issue(format!("{p}.address"), "the value runs past address 65535");
         }
     }
@@ -427,7 +454,7 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
 }
 
 /// The TOML spelling of a unit-like enum value.
-fn serde_name<T: serde::Serialize>(value: T) -> String {
+pub(super) fn serde_name<T: serde::Serialize>(value: T) -> String {
     toml::Value::try_from(value)
         .ok()
         .and_then(|v| v.as_str().map(str::to_owned))

@@ -11,6 +11,7 @@ use std::time::Duration;
 
 use proto_core::event::EventId;
 use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
+use proto_core::profiles::BitUpdate;
 use tokio::sync::{mpsc, oneshot, OwnedSemaphorePermit, Semaphore};
 
 /// The device's answer ([`Response`] or its exception), or why there is none.
@@ -81,6 +82,10 @@ pub(crate) struct Command {
     pub(crate) slave: u8,
     /// The request.
     pub(crate) request: Request,
+    /// A read-modify-write of one register: `request` reads it (FC 03), and the line writes
+    /// the changed word (FC 06) as the next exchange of the same job, so that no other request
+    /// of this gateway comes between the two.
+    pub(crate) mask: Option<BitUpdate>,
     /// Where the answer goes.
     pub(crate) reply: oneshot::Sender<CommandResult>,
     /// The command's place in the bounded queue, freed when it is answered.
@@ -92,14 +97,15 @@ pub(crate) struct Command {
 impl Command {
     /// Whether the command writes (queued ahead of reads): FC 05, 06, 15, 16 and 23.
     pub(crate) fn is_write(&self) -> bool {
-        matches!(
-            self.request,
-            Request::WriteSingleCoil { .. }
-                | Request::WriteSingleRegister { .. }
-                | Request::WriteMultipleCoils { .. }
-                | Request::WriteMultipleRegisters { .. }
-                | Request::ReadWriteMultipleRegisters { .. }
-        )
+        self.mask.is_some()
+            || matches!(
+                self.request,
+                Request::WriteSingleCoil { .. }
+                    | Request::WriteSingleRegister { .. }
+                    | Request::WriteMultipleCoils { .. }
+                    | Request::WriteMultipleRegisters { .. }
+                    | Request::ReadWriteMultipleRegisters { .. }
+            )
     }
 
     /// Answers the command; a requester that gave up meanwhile is no error.
@@ -146,6 +152,16 @@ impl LineClient {
         slave: u8,
         request: Request,
     ) -> Result<oneshot::Receiver<CommandResult>, QueueError> {
+        self.try_submit_job(slave, request, None)
+    }
+
+    /// Queues `request`, with the write of a read-modify-write when `mask` is given.
+    fn try_submit_job(
+        &self,
+        slave: u8,
+        request: Request,
+        mask: Option<BitUpdate>,
+    ) -> Result<oneshot::Receiver<CommandResult>, QueueError> {
         if self.tx.is_closed() {
             return Err(QueueError::Closed);
         }
@@ -157,6 +173,7 @@ impl LineClient {
             .try_send(Command {
                 slave,
                 request,
+                mask,
                 reply,
                 _permit: permit,
             })
@@ -170,8 +187,35 @@ impl LineClient {
     /// Sends `request` to `slave` and waits for the device's answer, at most the line's deadline:
     /// the answer or the exception the Modbus TCP client receives.
     pub async fn request(&self, slave: u8, request: Request) -> Result<Response, ExceptionCode> {
+        self.job(slave, request, None).await
+    }
+
+    /// Changes bits of one holding register of `slave` by read-modify-write: one job on the
+    /// line, an FC 03 read of the register and an FC 06 write of
+    /// `(read AND update.and) OR (update.or AND NOT update.and)`, with no other request of this
+    /// gateway between them. Another master on the same bus can still write the register
+    /// between the two exchanges; Modbus has no lock. The answer is the device's answer to the
+    /// write (or to the read, if that failed).
+    pub async fn mask_write(
+        &self,
+        slave: u8,
+        update: BitUpdate,
+    ) -> Result<Response, ExceptionCode> {
+        let read = Request::ReadHoldingRegisters {
+            address: update.address,
+            quantity: 1,
+        };
+        self.job(slave, read, Some(update)).await
+    }
+
+    async fn job(
+        &self,
+        slave: u8,
+        request: Request,
+        mask: Option<BitUpdate>,
+    ) -> Result<Response, ExceptionCode> {
         let rx = self
-            .try_submit(slave, request)
+            .try_submit_job(slave, request, mask)
             .map_err(exception_for_queue)?;
         match tokio::time::timeout(self.deadline, rx).await {
             Ok(Ok(Ok(answer))) => answer,

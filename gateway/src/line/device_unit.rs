@@ -11,6 +11,7 @@
 use std::sync::Arc;
 
 use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
+use proto_core::profiles::BitUpdate;
 
 use super::command::LineClient;
 use super::status::Shared;
@@ -222,6 +223,12 @@ impl UnitService for DeviceUnit {
             };
         out.truncate(mark);
         answer
+    }
+
+    fn mask_write(&self, update: BitUpdate) -> UnitFuture {
+        let client = self.client.clone();
+        let slave = self.device.slave;
+        Box::pin(async move { client.mask_write(slave, update).await })
     }
 
     fn call(&self, request: Request) -> UnitFuture {

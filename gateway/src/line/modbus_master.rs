@@ -779,7 +779,41 @@ impl MasterLine {
                 self.publish_cycle(&poll);
                 self.apply(poll.device, transition);
             }
-            InFlight::Command { device, command } => {
+            InFlight::Command {
+                device,
+                mut command,
+            } => {
+                // The read of a read-modify-write: the write follows at once, in the same job.
+                if let (Some(update), Outcome::Response(Response::ReadHoldingRegisters(words))) =
+                    (command.mask, &outcome)
+                {
+                    if let [current] = words.as_slice() {
+                        command.mask = None;
+                        command.request = Request::WriteSingleRegister {
+                            address: update.address,
+                            value: update.apply(*current),
+                        };
+                        let engine_now = self.clock.to_engine(now);
+                        let registers32 = registers32::enabled(&self.settings.master);
+                        match registers32::submit(
+                            &mut self.master,
+                            registers32,
+                            engine_now,
+                            command.slave,
+                            command.request.clone(),
+                            Attempts::default(),
+                        ) {
+                            Ok(id) => {
+                                self.sent_at = None;
+                                self.inflight = Some((id, InFlight::Command { device, command }));
+                            }
+                            Err(err) => {
+                                command.answer(Err(CommandError::Refused(err.to_string())));
+                            }
+                        }
+                        return;
+                    }
+                }
                 let result: CommandResult = match outcome {
                     Outcome::Response(response) => {
                         if let Some(d) = device.and_then(|d| self.devices.get(d)) {

@@ -6,6 +6,8 @@
 //!
 //! - [`altivar::AltivarSim`]: Altivar 61/71 (seed manual 002), default slave 2;
 //! - [`ksvario::KsVarioSim`]: KS vario (seed manual 001), default slave 17;
+//! - [`meter::MeterSim`]: a generic device with plain register tables, the demo's energy meter
+//!   holding one value of every tag type;
 //! - [`telegram`]: the 3964(R) and ASCII partners (echo, own telegrams every interval);
 //! - [`bus::Bus`]: several of them on one port, a multi-drop RS485 bus (`gateway sim
 //!   --also-address`, the demo's drive line with two drives);
@@ -21,6 +23,7 @@ pub mod altivar;
 pub mod bus;
 pub mod ksvario;
 pub mod master;
+pub mod meter;
 pub mod runner;
 pub mod telegram;
 

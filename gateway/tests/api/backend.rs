@@ -301,7 +301,7 @@ impl MemGateway {
             line: line.to_owned(),
             device: device.to_owned(),
             tag: tag.to_owned(),
-            value: spec.value,
+            value: spec.value.clone(),
             unit: spec.unit.to_owned(),
             quality: if online {
                 TagQuality::Good
@@ -560,6 +560,12 @@ impl ApiBackend for MemGateway {
                     .tags
                     .get_mut(&(line.clone(), device.clone(), tag.clone()))
                     .expect("tag");
+                // As the gateway: a text fits only a string tag, and the fake has none.
+                if matches!(value, ScalarValue::Text(_)) {
+                    return Err(ApiError::invalid_body(format!(
+                        "tag {line}/{device}/{tag} holds a number, not a text"
+                    )));
+                }
                 let (lo, hi) = spec.range;
                 if !(lo..=hi).contains(&value.as_f64()) {
                     return Err(ApiError::device_exception(0x03, "illegal data value"));

@@ -225,7 +225,7 @@ fn tag_defaults_follow_the_table() {
     let (_, d) = line(&c).devices().next().expect("device");
     assert_eq!(d.tags[0].data_type, DataType::Bool);
     assert_eq!(d.tags[1].data_type, DataType::U16);
-    assert_eq!(d.tags[1].word_order, WordOrder::HighFirst);
+    assert_eq!(d.tags[1].byte_order(), ByteOrder::Abcd);
     assert_eq!(d.tags[1].scale, 1.0);
     assert_eq!(d.tags[1].decimals, 0);
     assert!(!d.tags[1].writable);

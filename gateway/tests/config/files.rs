@@ -67,7 +67,18 @@ fn demo_follows_the_spec() {
     };
     assert_eq!(a.end_criterion, EndCriterion::EndChars);
     assert_eq!(a.end_chars, [0x03]);
-    assert_eq!(c.device_count(), 3);
+    // Two drives, the KS vario, and the meter of every tag type on the KS vario's bus.
+    assert_eq!(c.device_count(), 4);
+    let ks: Vec<_> = c.lines["ksvario"].devices().collect();
+    assert_eq!(
+        (
+            ks[1].0.as_str(),
+            ks[1].1.profile,
+            ks[1].1.address,
+            ks[1].1.unit_id
+        ),
+        ("meter", Profile::Generic, 30, 30)
+    );
 }
 
 #[test]
@@ -165,7 +176,8 @@ fn configs_changed_in_code_are_checked_by_the_same_rules() {
         [
             "lines.drive.reply_timeout",
             "lines.ksvario.port",
-            "lines.ksvario.devices.ksvario.unit_id"
+            "lines.ksvario.devices.ksvario.unit_id",
+            "lines.ksvario.devices.meter.unit_id"
         ],
     );
     assert_eq!(Config::default(), parse(""));

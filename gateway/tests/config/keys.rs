@@ -472,9 +472,9 @@ fn device_range_checks() {
         ))
     };
     one_issue(
-        &tag("name = \"t\", table = \"holding\", address = 0, type = \"u64\""),
+        &tag("name = \"t\", table = \"holding\", address = 0, type = \"u128\""),
         "lines.a.devices.d.tags[0].type",
-        "unknown variant `u64`",
+        "unknown variant `u128`",
     );
     one_issue(
         &tag("name = \"t\", table = \"holding\", address = 0, decimals = 10"),
@@ -505,6 +505,102 @@ fn device_range_checks() {
         &tag("name = \"t\", table = \"holding\", address = 70000"),
         "lines.a.devices.d.tags[0].address",
         "between 0 and 65535",
+    );
+}
+
+#[test]
+fn impossible_tag_types_are_refused_with_their_path() {
+    let tag = |keys: &str| {
+        one_line(
+            "modbus-master-rtu",
+            &format!(
+                "[lines.a.devices.d]\nprofile = \"generic\"\naddress = 1\ntags = [{{ name = \"t\", {keys} }}]\n"
+            ),
+        )
+    };
+    let at = |key: &str| format!("lines.a.devices.d.tags[0].{key}");
+    one_issue(
+        &tag("table = \"coil\", address = 0, type = \"string\", registers = 2"),
+        &at("type"),
+        "a coil tag must be bool",
+    );
+    one_issue(
+        &tag("table = \"discrete\", address = 0, type = \"string\", registers = 2"),
+        &at("type"),
+        "a discrete tag must be bool",
+    );
+    one_issue(
+        &tag("table = \"holding\", address = 0, type = \"u64\", registers = 3"),
+        &at("registers"),
+        "a u64 value occupies 4 registers, not 3",
+    );
+    one_issue(
+        &tag("table = \"holding\", address = 0, type = \"string\""),
+        &at("registers"),
+        "a string tag needs registers",
+    );
+    one_issue(
+        &tag("table = \"holding\", address = 0, bit = 16"),
+        &at("bit"),
+        "between 0 and 15",
+    );
+    one_issue(
+        &tag("table = \"coil\", address = 0, bit = 3"),
+        &at("bit"),
+        "a coil is a bit already",
+    );
+    one_issue(
+        &tag("table = \"holding\", address = 0, type = \"u16\", bit = 3"),
+        &at("type"),
+        "a bit of a register is a bool",
+    );
+    one_issue(
+        &tag("table = \"holding\", address = 0, type = \"u16\", byte_order = \"BADC\""),
+        &at("byte_order"),
+        "only ABCD (high-first) applies",
+    );
+    one_issue(
+        &tag("table = \"holding\", address = 0, type = \"string\", registers = 2, byte_order = \"CDAB\""),
+        &at("byte_order"),
+        "a string's order is",
+    );
+    one_issue(
+        &tag("table = \"holding\", address = 0, scale = 0"),
+        &at("scale"),
+        "scale 0",
+    );
+    one_issue(
+        &tag("table = \"holding\", address = 0, type = \"u32\", byte_order = \"ABCD\", word_order = \"low-first\""),
+        &at("word_order"),
+        "not both",
+    );
+    // Every name of the four orders, the aliases, and the older key name are accepted.
+    for (order, expected) in [
+        ("ABCD", ByteOrder::Abcd),
+        ("high-first", ByteOrder::Abcd),
+        ("ABCDEFGH", ByteOrder::Abcd),
+        ("CDAB", ByteOrder::Cdab),
+        ("low-first", ByteOrder::Cdab),
+        ("GHEFCDAB", ByteOrder::Cdab),
+        ("BADC", ByteOrder::Badc),
+        ("BADCFEHG", ByteOrder::Badc),
+        ("DCBA", ByteOrder::Dcba),
+        ("HGFEDCBA", ByteOrder::Dcba),
+    ] {
+        for key in ["byte_order", "word_order"] {
+            let c = parse(&tag(&format!(
+                "table = \"holding\", address = 0, type = \"f64\", {key} = \"{order}\""
+            )));
+            let (_, d) = line(&c).devices().next().expect("device");
+            assert_eq!(d.tags[0].byte_order(), expected, "{key} = {order}");
+        }
+    }
+    // A bit tag is a bool of a register; `type` may be left out.
+    let c = parse(&tag("table = \"input\", address = 4, bit = 15"));
+    let (_, d) = line(&c).devices().next().expect("device");
+    assert_eq!(
+        (d.tags[0].data_type, d.tags[0].bit),
+        (DataType::Bool, Some(15))
     );
 }
 

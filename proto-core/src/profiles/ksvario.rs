@@ -13,7 +13,7 @@
 //! is not among the seeds; the tags here are the data 001's examples name.
 
 use super::{
-    DataType, DeviceProfile, ProfileKind, RequestLimits, SpecialValues, Table, Tag, WordOrder,
+    ByteOrder, DataType, DeviceProfile, ProfileKind, RequestLimits, SpecialValues, Table, Tag,
 };
 use crate::modbus::pdu::FunctionCode;
 
@@ -252,7 +252,7 @@ pub fn tag(
     Ok(match format {
         Format::Integer => Tag::new(name, table, address, DataType::I16),
         Format::FixPoint1 => Tag::new(name, table, address, DataType::I16).decimals(1),
-        Format::Float => Tag::new(name, table, address, DataType::F32(WordOrder::HighFirst)),
+        Format::Float => Tag::new(name, table, address, DataType::F32(ByteOrder::Abcd)),
     })
 }
 
@@ -309,7 +309,7 @@ pub fn tags() -> Vec<Tag> {
             Tag::holding(
                 format!("data_{index}"),
                 address,
-                DataType::F32(WordOrder::HighFirst),
+                DataType::F32(ByteOrder::Abcd),
             )
             .describe("parameter written by 001 4.5's float example")
             .writable(),

@@ -24,34 +24,63 @@ use core::time::Duration;
 use crate::modbus::pdu::FunctionCode;
 
 pub use quality::Quality;
-pub use tag::{BitField, DataType, Tag, WordOrder};
+pub use tag::{BitField, ByteOrder, CharOrder, DataType, Tag};
 
 pub use crate::modbus::Table;
 
 /// A decoded tag value.
 ///
-/// Integer tags without decimals or scale decode to `Int`, bit tags to `Bool`, everything else to
-/// `Float` in engineering units. When the quality is not good, the value is the raw number the
-/// device sent (e.g. `Int(31000)`), so that it can still be shown.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// Integer tags without decimals, scale or offset decode to `Int` (`UInt` for `u64`, which may
+/// exceed `i64`), bit tags to `Bool`, strings to `Text`, everything else to `Float` in
+/// engineering units. When the quality is not good, the value is the raw number the device sent
+/// (e.g. `Int(31000)`), so that it can still be shown. A value to write is one of these too.
+#[derive(Clone, Debug, PartialEq)]
 pub enum Value {
     /// A whole number.
     Int(i64),
+    /// A whole number above `i64::MAX` or of a `u64` tag.
+    UInt(u64),
     /// A number in engineering units.
     Float(f64),
-    /// A coil or discrete input.
+    /// A coil, a discrete input or a bit of a register.
     Bool(bool),
+    /// The text of a string tag.
+    Text(String),
 }
 
 // === impl Value ===
 
 impl Value {
-    /// The value as a float (true = 1.0).
-    pub fn as_f64(self) -> f64 {
+    /// The value as a float (true = 1.0; a text is not a number: NaN).
+    pub fn as_f64(&self) -> f64 {
         match self {
-            Self::Int(v) => v as f64,
-            Self::Float(v) => v,
-            Self::Bool(v) => f64::from(u8::from(v)),
+            Self::Int(v) => *v as f64,
+            Self::UInt(v) => *v as f64,
+            Self::Float(v) => *v,
+            Self::Bool(v) => f64::from(u8::from(*v)),
+            Self::Text(_) => f64::NAN,
+        }
+    }
+
+    /// The value as an exact integer, if it is a whole number (a bool is 0 or 1).
+    pub fn as_i128(&self) -> Option<i128> {
+        match self {
+            Self::Int(v) => Some(i128::from(*v)),
+            Self::UInt(v) => Some(i128::from(*v)),
+            Self::Bool(v) => Some(i128::from(u8::from(*v))),
+            Self::Float(_) | Self::Text(_) => None,
+        }
+    }
+}
+
+impl core::fmt::Display for Value {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Int(v) => write!(f, "{v}"),
+            Self::UInt(v) => write!(f, "{v}"),
+            Self::Float(v) => write!(f, "{v}"),
+            Self::Bool(v) => write!(f, "{v}"),
+            Self::Text(v) => write!(f, "{v:?}"),
         }
     }
 }
@@ -223,6 +252,43 @@ pub enum EncodeError {
     /// The value is not a finite number.
     #[error("value of tag {0} is not a finite number")]
     NotFinite(String),
+    /// A text for a number tag, or a number for a string tag.
+    #[error("tag {tag} holds {holds}, not {given}")]
+    WrongKind {
+        tag: String,
+        holds: &'static str,
+        given: &'static str,
+    },
+    /// A text longer than the string tag's registers hold, or not ASCII.
+    #[error("tag {tag} holds at most {max} ASCII characters; the text has {len} bytes{ascii}")]
+    TextTooLong {
+        tag: String,
+        len: usize,
+        max: usize,
+        ascii: &'static str,
+    },
+}
+
+/// The change a write of a bit tag makes to its register: keep the bits of `and`, then set
+/// those of `or` (the Modbus mask write, Modbus Application Protocol V1.1b3 6.16:
+/// result = (current AND and) OR (or AND NOT and)).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct BitUpdate {
+    /// The register.
+    pub address: u16,
+    /// The bits kept.
+    pub and: u16,
+    /// The bits set (within those not kept).
+    pub or: u16,
+}
+
+// === impl BitUpdate ===
+
+impl BitUpdate {
+    /// The register's new content from its current one.
+    pub const fn apply(self, current: u16) -> u16 {
+        (current & self.and) | (self.or & !self.and)
+    }
 }
 
 // === impl DeviceProfile ===
@@ -276,6 +342,168 @@ impl DeviceProfile {
     pub fn encode(&self, tag: &Tag, value: f64) -> Result<Vec<u16>, EncodeError> {
         encode_with(self.special_values, tag, value)
     }
+
+    /// The raw words that write `value` to `tag`: a text to a string tag (NUL padded), a whole
+    /// number to an integer tag exactly (also beyond 2^53), any other number in engineering
+    /// units as [`Self::encode`]. A bit tag is written with [`Self::bit_update`].
+    pub fn encode_value(&self, tag: &Tag, value: &Value) -> Result<Vec<u16>, EncodeError> {
+        if !tag.writable {
+            return Err(EncodeError::ReadOnly(tag.name.clone()));
+        }
+        let wrong = |holds, given| EncodeError::WrongKind {
+            tag: tag.name.clone(),
+            holds,
+            given,
+        };
+        match (tag.data_type, value) {
+            (DataType::String { registers, order }, Value::Text(text)) => {
+                encode_text(tag, text, registers, order)
+            }
+            (DataType::String { .. }, _) => Err(wrong("text", "a number")),
+            (_, Value::Text(_)) => Err(wrong("a number", "a text")),
+            (DataType::Bit(_), _) => Err(wrong("a bit of a register", "a whole register")),
+            (data_type, value) => match (data_type.int_bounds(), value.as_i128()) {
+                (Some(bounds), Some(raw))
+                    if tag.is_plain()
+                        && tag.raw_range.is_none()
+                        && self.special_values == SpecialValues::None =>
+                {
+                    encode_int(tag, raw, bounds)
+                }
+                _ => encode_with(self.special_values, tag, value.as_f64()),
+            },
+        }
+    }
+
+    /// The register change that writes `value` (a bool, or 0 / 1) to bit tag `tag`; `None` for
+    /// a tag that is not a bit of a register.
+    pub fn bit_update(&self, tag: &Tag, value: &Value) -> Option<Result<BitUpdate, EncodeError>> {
+        let DataType::Bit(bit) = tag.data_type else {
+            return None;
+        };
+        if !tag.writable {
+            return Some(Err(EncodeError::ReadOnly(tag.name.clone())));
+        }
+        let on = match value {
+            Value::Bool(b) => *b,
+            Value::Text(_) => {
+                return Some(Err(EncodeError::WrongKind {
+                    tag: tag.name.clone(),
+                    holds: "a bit",
+                    given: "a text",
+                }))
+            }
+            other => match other.as_i128() {
+                Some(0) => false,
+                Some(1) => true,
+                _ if other.as_f64() == 0.0 => false,
+                _ if other.as_f64() == 1.0 => true,
+                _ => {
+                    return Some(Err(EncodeError::OutOfRange {
+                        tag: tag.name.clone(),
+                        value: other.as_f64(),
+                        min: 0.0,
+                        max: 1.0,
+                    }))
+                }
+            },
+        };
+        let mask = 1u16.checked_shl(u32::from(bit)).unwrap_or(0);
+        Some(Ok(BitUpdate {
+            address: tag.address,
+            and: !mask,
+            or: if on { mask } else { 0 },
+        }))
+    }
+}
+
+/// The registers of a text: two ASCII characters each, padded with NUL.
+fn encode_text(
+    tag: &Tag,
+    text: &str,
+    registers: u16,
+    order: CharOrder,
+) -> Result<Vec<u16>, EncodeError> {
+    let max = usize::from(registers) * 2;
+    if text.len() > max || !text.is_ascii() {
+        return Err(EncodeError::TextTooLong {
+            tag: tag.name.clone(),
+            len: text.len(),
+            max,
+            ascii: if text.is_ascii() {
+                ""
+            } else {
+                " and is not ASCII"
+            },
+        });
+    }
+    let mut bytes = text.as_bytes().to_vec();
+    bytes.resize(max, 0);
+    Ok(bytes
+        .chunks(2)
+        .map(|c| {
+            let (first, second) = (
+                c.first().copied().unwrap_or(0),
+                c.get(1).copied().unwrap_or(0),
+            );
+            match order {
+                CharOrder::HighFirst => u16::from_be_bytes([first, second]),
+                CharOrder::LowFirst => u16::from_le_bytes([first, second]),
+            }
+        })
+        .collect())
+}
+
+/// The text of a string tag's registers, trailing NUL and space removed; a byte outside ASCII
+/// is shown as U+FFFD.
+fn decode_text(raw: &[u16], order: CharOrder) -> String {
+    let bytes: Vec<u8> = raw
+        .iter()
+        .flat_map(|w| match order {
+            CharOrder::HighFirst => w.to_be_bytes(),
+            CharOrder::LowFirst => w.to_le_bytes(),
+        })
+        .collect();
+    let end = bytes
+        .iter()
+        .rposition(|b| *b != 0 && *b != b' ')
+        .map_or(0, |i| i + 1);
+    bytes
+        .get(..end)
+        .unwrap_or_default()
+        .iter()
+        .map(|&b| {
+            if b.is_ascii() {
+                char::from(b)
+            } else {
+                '\u{FFFD}'
+            }
+        })
+        .collect()
+}
+
+/// The registers of an exact whole number on a plain integer tag.
+fn encode_int(tag: &Tag, raw: i128, (min, max): (i128, i128)) -> Result<Vec<u16>, EncodeError> {
+    if raw < min || raw > max {
+        return Err(EncodeError::OutOfRange {
+            tag: tag.name.clone(),
+            value: raw as f64,
+            min: min as f64,
+            max: max as f64,
+        });
+    }
+    Ok(int_words(tag.data_type, raw))
+}
+
+/// The registers of a raw integer already checked against the type's bounds.
+fn int_words(data_type: DataType, raw: i128) -> Vec<u16> {
+    match data_type {
+        DataType::Bool | DataType::Bit(_) => vec![u16::from(raw != 0)],
+        DataType::U16 | DataType::I16 => vec![raw as u16],
+        DataType::U32(order) | DataType::I32(order) => order.registers(&(raw as u32).to_be_bytes()),
+        DataType::U64(order) | DataType::I64(order) => order.registers(&(raw as u64).to_be_bytes()),
+        DataType::F32(_) | DataType::F64(_) | DataType::String { .. } => Vec::new(),
+    }
 }
 
 fn decode_with(special: SpecialValues, tag: &Tag, raw: &[u16]) -> (Value, Quality) {
@@ -283,13 +511,14 @@ fn decode_with(special: SpecialValues, tag: &Tag, raw: &[u16]) -> (Value, Qualit
     let Some(raw) = raw.get(..words) else {
         return (Value::Int(0), Quality::CommFailure);
     };
+    let word = raw.first().copied().unwrap_or_default();
     match tag.data_type {
-        DataType::Bool => (
-            Value::Bool(raw.first().is_some_and(|w| *w != 0)),
+        DataType::Bool => (Value::Bool(word != 0), Quality::Good),
+        DataType::Bit(bit) => (
+            Value::Bool(word.checked_shr(u32::from(bit)).unwrap_or(0) & 1 == 1),
             Quality::Good,
         ),
         DataType::U16 | DataType::I16 => {
-            let word = raw.first().copied().unwrap_or_default();
             let number = if tag.data_type == DataType::I16 {
                 i64::from(word as i16)
             } else {
@@ -309,9 +538,19 @@ fn decode_with(special: SpecialValues, tag: &Tag, raw: &[u16]) -> (Value, Qualit
             let value = f32::from_bits(join(raw, order));
             match special.classify_float(value) {
                 Some(quality) => (Value::Float(f64::from(value)), quality),
-                None => (Value::Float(f64::from(value) * tag.factor()), Quality::Good),
+                None => (
+                    Value::Float(tag.to_engineering(f64::from(value))),
+                    Quality::Good,
+                ),
             }
         }
+        DataType::U64(order) => (tag.engineering_u64(join64(raw, order)), Quality::Good),
+        DataType::I64(order) => (tag.engineering(join64(raw, order) as i64), Quality::Good),
+        DataType::F64(order) => (
+            Value::Float(tag.to_engineering(f64::from_bits(join64(raw, order)))),
+            Quality::Good,
+        ),
+        DataType::String { order, .. } => (Value::Text(decode_text(raw, order)), Quality::Good),
     }
 }
 
@@ -322,15 +561,36 @@ fn encode_with(special: SpecialValues, tag: &Tag, value: f64) -> Result<Vec<u16>
     if !value.is_finite() {
         return Err(EncodeError::NotFinite(tag.name.clone()));
     }
-    let raw = value / tag.factor();
-    if let DataType::F32(order) = tag.data_type {
-        let (min, max) = match (tag.raw_range, special) {
-            (Some((min, max)), _) => (f64::from(min), f64::from(max)),
-            (None, SpecialValues::KsVario) => (-ksvario::FLOAT_LIMIT, ksvario::FLOAT_LIMIT),
-            (None, _) => (f64::from(f32::MIN), f64::from(f32::MAX)),
-        };
-        check_range(tag, raw, min, max)?;
-        return Ok(split((raw as f32).to_bits(), order));
+    let raw = tag.to_raw(value);
+    if !raw.is_finite() {
+        return Err(EncodeError::NotFinite(tag.name.clone()));
+    }
+    match tag.data_type {
+        DataType::F32(order) => {
+            let (min, max) = match (tag.raw_range, special) {
+                (Some((min, max)), _) => (f64::from(min), f64::from(max)),
+                (None, SpecialValues::KsVario) => (-ksvario::FLOAT_LIMIT, ksvario::FLOAT_LIMIT),
+                (None, _) => (f64::from(f32::MIN), f64::from(f32::MAX)),
+            };
+            check_range(tag, raw, min, max)?;
+            return Ok(split((raw as f32).to_bits(), order));
+        }
+        DataType::F64(order) => {
+            let (min, max) = match tag.raw_range {
+                Some((min, max)) => (f64::from(min), f64::from(max)),
+                None => (f64::MIN, f64::MAX),
+            };
+            check_range(tag, raw, min, max)?;
+            return Ok(order.registers(&raw.to_bits().to_be_bytes()));
+        }
+        DataType::String { .. } => {
+            return Err(EncodeError::WrongKind {
+                tag: tag.name.clone(),
+                holds: "text",
+                given: "a number",
+            })
+        }
+        _ => {}
     }
     let raw = raw.round();
     let (type_min, type_max) = tag.data_type.raw_bounds();
@@ -342,45 +602,54 @@ fn encode_with(special: SpecialValues, tag: &Tag, value: f64) -> Result<Vec<u16>
         (None, _, _) => (type_min, type_max),
     };
     check_range(tag, raw, min.max(type_min), max.min(type_max))?;
-    // In range of the type, so the casts below are exact.
-    let number = raw as i64;
-    Ok(match tag.data_type {
-        DataType::Bool => vec![u16::from(number != 0)],
-        DataType::U16 | DataType::I16 => vec![number as u16],
-        DataType::U32(order) | DataType::I32(order) => split(number as u32, order),
-        DataType::F32(_) => Vec::new(),
-    })
+    // In range of the type, so the cast is exact.
+    Ok(int_words(tag.data_type, raw as i128))
 }
 
 fn check_range(tag: &Tag, raw: f64, min: f64, max: f64) -> Result<(), EncodeError> {
     if raw < min || raw > max {
-        let factor = tag.factor();
+        // A negative scale turns the raw range around.
+        let (a, b) = (tag.to_engineering(min), tag.to_engineering(max));
         return Err(EncodeError::OutOfRange {
             tag: tag.name.clone(),
-            value: raw * factor,
-            min: min * factor,
-            max: max * factor,
+            value: tag.to_engineering(raw),
+            min: a.min(b),
+            max: a.max(b),
         });
     }
     Ok(())
 }
 
-/// Joins two registers into 32 bits in the given word order.
-pub fn join(words: &[u16], order: WordOrder) -> u32 {
-    let first = u32::from(words.first().copied().unwrap_or_default());
-    let second = u32::from(words.get(1).copied().unwrap_or_default());
-    match order {
-        WordOrder::HighFirst => (first << 16) | second,
-        WordOrder::LowFirst => (second << 16) | first,
+/// Joins two registers into 32 bits in the given byte order.
+pub fn join(words: &[u16], order: ByteOrder) -> u32 {
+    let mut two = [0u16; 2];
+    for (slot, w) in two.iter_mut().zip(words) {
+        *slot = *w;
     }
+    let bytes = order.bytes(&two);
+    let mut be = [0u8; 4];
+    be.copy_from_slice(bytes.get(..4).unwrap_or(&[0; 4]));
+    u32::from_be_bytes(be)
 }
 
-/// Splits 32 bits into two registers in the given word order.
-pub fn split(value: u32, order: WordOrder) -> Vec<u16> {
-    let high = (value >> 16) as u16;
-    let low = value as u16;
-    match order {
-        WordOrder::HighFirst => vec![high, low],
-        WordOrder::LowFirst => vec![low, high],
+/// Joins four registers into 64 bits in the given byte order.
+pub fn join64(words: &[u16], order: ByteOrder) -> u64 {
+    let mut four = [0u16; 4];
+    for (slot, w) in four.iter_mut().zip(words) {
+        *slot = *w;
     }
+    let bytes = order.bytes(&four);
+    let mut be = [0u8; 8];
+    be.copy_from_slice(bytes.get(..8).unwrap_or(&[0; 8]));
+    u64::from_be_bytes(be)
+}
+
+/// Splits 32 bits into two registers in the given byte order.
+pub fn split(value: u32, order: ByteOrder) -> Vec<u16> {
+    order.registers(&value.to_be_bytes())
+}
+
+/// Splits 64 bits into four registers in the given byte order.
+pub fn split64(value: u64, order: ByteOrder) -> Vec<u16> {
+    order.registers(&value.to_be_bytes())
 }

@@ -3,13 +3,98 @@
 use super::Value;
 use crate::modbus::Table;
 
-/// The order of the two registers of a 32-bit value.
+/// Where the bytes of a 32 or 64-bit value sit in its registers. The letters name the value's
+/// bytes from the most significant (A) down, in the order they appear on the wire from the
+/// register at the tag's address on (each register sends its high byte first, Modbus Application
+/// Protocol V1.1b3 4.2):
+///
+/// | order  | 32-bit registers | 64-bit registers      | 64-bit name  |
+/// |--------|------------------|-----------------------|--------------|
+/// | `Abcd` | AB CD            | AB CD EF GH           | ABCDEFGH     |
+/// | `Cdab` | CD AB            | GH EF CD AB           | GHEFCDAB     |
+/// | `Badc` | BA DC            | BA DC FE HG           | BADCFEHG     |
+/// | `Dcba` | DC BA            | HG FE DC BA           | HGFEDCBA     |
+///
+/// `Cdab` reverses the order of the registers, `Badc` swaps the two bytes inside each register,
+/// `Dcba` does both (the whole value little endian).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub enum WordOrder {
-    /// The high word at the lower address ("Motorola format", KS vario 001 4.5).
+pub enum ByteOrder {
+    /// Big endian: the high word at the lower address, its high byte first ("Motorola format",
+    /// KS vario 001 4.5). The config's `high-first`.
+    #[default]
+    Abcd,
+    /// The registers in reverse order (the low word at the lower address), each big endian. The
+    /// config's `low-first`.
+    Cdab,
+    /// The registers in order, the two bytes of each swapped.
+    Badc,
+    /// Little endian: the registers in reverse order and the bytes of each swapped.
+    Dcba,
+}
+
+// === impl ByteOrder ===
+
+impl ByteOrder {
+    /// Whether the registers come in reverse order (the low word first).
+    pub const fn words_reversed(self) -> bool {
+        matches!(self, Self::Cdab | Self::Dcba)
+    }
+
+    /// Whether the two bytes of each register are swapped.
+    pub const fn bytes_swapped(self) -> bool {
+        matches!(self, Self::Badc | Self::Dcba)
+    }
+
+    /// The registers that carry `bytes` (most significant byte first, an even number of them).
+    pub fn registers(self, bytes: &[u8]) -> Vec<u16> {
+        let mut words: Vec<u16> = bytes
+            .chunks(2)
+            .map(|c| {
+                let w = u16::from_be_bytes([
+                    c.first().copied().unwrap_or(0),
+                    c.get(1).copied().unwrap_or(0),
+                ]);
+                if self.bytes_swapped() {
+                    w.swap_bytes()
+                } else {
+                    w
+                }
+            })
+            .collect();
+        if self.words_reversed() {
+            words.reverse();
+        }
+        words
+    }
+
+    /// The value's bytes, most significant first, from its registers: the inverse of
+    /// [`Self::registers`].
+    pub fn bytes(self, registers: &[u16]) -> Vec<u8> {
+        let mut words = registers.to_vec();
+        if self.words_reversed() {
+            words.reverse();
+        }
+        words
+            .into_iter()
+            .flat_map(|w| {
+                if self.bytes_swapped() {
+                    w.swap_bytes()
+                } else {
+                    w
+                }
+                .to_be_bytes()
+            })
+            .collect()
+    }
+}
+
+/// The order of the two characters of a string in each register.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum CharOrder {
+    /// The first character in the high byte (sent first on the wire). The config's `high-first`.
     #[default]
     HighFirst,
-    /// The low word at the lower address.
+    /// The first character in the low byte. The config's `low-first`.
     LowFirst,
 }
 
@@ -18,16 +103,31 @@ pub enum WordOrder {
 pub enum DataType {
     /// One coil or discrete input.
     Bool,
+    /// One bit (0..=15, 0 the least significant) of a register, as a bool.
+    Bit(u8),
     /// One register, unsigned.
     U16,
     /// One register, two's complement.
     I16,
     /// Two registers, unsigned.
-    U32(WordOrder),
+    U32(ByteOrder),
     /// Two registers, two's complement.
-    I32(WordOrder),
+    I32(ByteOrder),
     /// Two registers, IEEE-754 single precision.
-    F32(WordOrder),
+    F32(ByteOrder),
+    /// Four registers, unsigned.
+    U64(ByteOrder),
+    /// Four registers, two's complement.
+    I64(ByteOrder),
+    /// Four registers, IEEE-754 double precision.
+    F64(ByteOrder),
+    /// ASCII text, two characters a register; trailing NUL and space are not part of the value.
+    String {
+        /// The registers the text occupies (its longest length is twice this).
+        registers: u16,
+        /// Which byte of a register holds the first of its two characters.
+        order: CharOrder,
+    },
 }
 
 // === impl DataType ===
@@ -36,21 +136,48 @@ impl DataType {
     /// How many registers (or bits) the type occupies.
     pub const fn words(self) -> u16 {
         match self {
-            Self::Bool | Self::U16 | Self::I16 => 1,
+            Self::Bool | Self::Bit(_) | Self::U16 | Self::I16 => 1,
             Self::U32(_) | Self::I32(_) | Self::F32(_) => 2,
+            Self::U64(_) | Self::I64(_) | Self::F64(_) => 4,
+            Self::String { registers, .. } => registers,
         }
     }
 
-    /// The smallest and largest raw number of an integer type (the float range for `F32`).
+    /// The smallest and largest raw number of an integer type (the float range for floats, 0..1
+    /// for bits and 0..0 for strings).
     pub fn raw_bounds(self) -> (f64, f64) {
         match self {
-            Self::Bool => (0.0, 1.0),
+            Self::Bool | Self::Bit(_) => (0.0, 1.0),
             Self::U16 => (0.0, f64::from(u16::MAX)),
             Self::I16 => (f64::from(i16::MIN), f64::from(i16::MAX)),
             Self::U32(_) => (0.0, f64::from(u32::MAX)),
             Self::I32(_) => (f64::from(i32::MIN), f64::from(i32::MAX)),
             Self::F32(_) => (f64::from(f32::MIN), f64::from(f32::MAX)),
+            // The nearest doubles inside the range (2^64 - 2048 and 2^63 - 1024).
+            Self::U64(_) => (0.0, 18_446_744_073_709_549_568.0),
+            Self::I64(_) => (-9_223_372_036_854_775_808.0, 9_223_372_036_854_774_784.0),
+            Self::F64(_) => (f64::MIN, f64::MAX),
+            Self::String { .. } => (0.0, 0.0),
         }
+    }
+
+    /// The smallest and largest raw number of an integer type, exactly; `None` for floats,
+    /// strings and bits.
+    pub const fn int_bounds(self) -> Option<(i128, i128)> {
+        Some(match self {
+            Self::U16 => (0, u16::MAX as i128),
+            Self::I16 => (i16::MIN as i128, i16::MAX as i128),
+            Self::U32(_) => (0, u32::MAX as i128),
+            Self::I32(_) => (i32::MIN as i128, i32::MAX as i128),
+            Self::U64(_) => (0, u64::MAX as i128),
+            Self::I64(_) => (i64::MIN as i128, i64::MAX as i128),
+            _ => return None,
+        })
+    }
+
+    /// Whether the type is a float (any value in its range, no steps).
+    pub const fn is_float(self) -> bool {
+        matches!(self, Self::F32(_) | Self::F64(_))
     }
 }
 
@@ -104,6 +231,8 @@ pub struct Tag {
     pub decimals: u8,
     /// A factor applied after the decimals (1.0 when the decimals say it all).
     pub scale: f64,
+    /// Added after the scale: value = raw x scale / 10^decimals + offset (0.0 by default).
+    pub offset: f64,
     /// The engineering unit, empty for plain numbers.
     pub unit: String,
     /// Whether the gateway may write the tag.
@@ -127,6 +256,7 @@ impl Tag {
             data_type,
             decimals: 0,
             scale: 1.0,
+            offset: 0.0,
             unit: String::new(),
             writable: false,
             raw_range: None,
@@ -157,6 +287,13 @@ impl Tag {
     #[must_use]
     pub fn scale(mut self, scale: f64) -> Self {
         self.scale = scale;
+        self
+    }
+
+    /// Sets the offset added after the scale.
+    #[must_use]
+    pub fn offset(mut self, offset: f64) -> Self {
+        self.offset = offset;
         self
     }
 
@@ -204,9 +341,19 @@ impl Tag {
         self.scale / 10f64.powi(i32::from(self.decimals))
     }
 
-    /// Whether a raw number is shown as is (no decimals, scale 1).
+    /// Whether a raw number is shown as is (no decimals, scale 1, offset 0).
     pub fn is_plain(&self) -> bool {
-        self.decimals == 0 && self.scale == 1.0
+        self.decimals == 0 && self.scale == 1.0 && self.offset == 0.0
+    }
+
+    /// The engineering value of a raw number: raw x [`Self::factor`] + offset.
+    pub fn to_engineering(&self, raw: f64) -> f64 {
+        raw * self.factor() + self.offset
+    }
+
+    /// The raw number of an engineering value: (value - offset) / [`Self::factor`].
+    pub fn to_raw(&self, value: f64) -> f64 {
+        (value - self.offset) / self.factor()
     }
 
     /// The bit field named `name`.
@@ -219,7 +366,16 @@ impl Tag {
         if self.is_plain() {
             Value::Int(raw)
         } else {
-            Value::Float(raw as f64 * self.factor())
+            Value::Float(self.to_engineering(raw as f64))
+        }
+    }
+
+    /// The engineering value of a raw unsigned 64-bit integer.
+    pub(crate) fn engineering_u64(&self, raw: u64) -> Value {
+        if self.is_plain() {
+            Value::UInt(raw)
+        } else {
+            Value::Float(self.to_engineering(raw as f64))
         }
     }
 }

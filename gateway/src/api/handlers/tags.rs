@@ -119,9 +119,9 @@ pub(crate) async fn put_tag(
 ) -> Result<Json<TagValue>, ApiError> {
     let result = state
         .backend()
-        .write_tag(&line, &device, &tag, write.value)
+        .write_tag(&line, &device, &tag, write.value.clone())
         .await;
-    let target = format!("{line}/{device}/{tag} = {}", write.value.as_f64());
+    let target = format!("{line}/{device}/{tag} = {}", proto_core::profiles::Value::from(write.value));
     audit(&state, &caller_of(caller), &target, &result);
     result.map(Json)
 }

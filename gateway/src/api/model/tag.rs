@@ -7,24 +7,30 @@ use super::Timestamp;
 use crate::image::Quality;
 use crate::tags::TagReading;
 
-/// A value: a number or a bit.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+/// A value: a number, a bit or a text. Whole numbers are JSON integers, exact up to 64 bits
+/// (a `u64` above `i64::MAX` too).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(untagged)]
 pub enum ScalarValue {
     Bool(bool),
     Int(i64),
+    UInt(u64),
     Float(f64),
+    Text(String),
 }
 
-/// A boolean or a number. Integers are numbers too, so the schema has no separate integer
-/// branch: `oneOf` branches must not overlap (a value has to match exactly one).
+/// A boolean, a number or a string. Integers are numbers too, so the schema has no separate
+/// integer branch: `oneOf` branches must not overlap (a value has to match exactly one).
 impl utoipa::PartialSchema for ScalarValue {
     fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
         use utoipa::openapi::schema::{ObjectBuilder, OneOfBuilder, Type};
         OneOfBuilder::new()
             .item(ObjectBuilder::new().schema_type(Type::Boolean))
             .item(ObjectBuilder::new().schema_type(Type::Number))
-            .description(Some("A value: a number or a bit"))
+            .item(ObjectBuilder::new().schema_type(Type::String))
+            .description(Some(
+                "A value: a number (whole numbers exact up to 64 bits), a bit, or the text of a string tag",
+            ))
             .into()
     }
 }
@@ -34,15 +40,9 @@ impl ToSchema for ScalarValue {}
 // === impl ScalarValue ===
 
 impl ScalarValue {
-    /// The value as a number (a bit as 0 or 1).
-    pub fn as_f64(self) -> f64 {
-        match self {
-            Self::Bool(b) => f64::from(u8::from(b)),
-            // Tags are at most 32 bits wide; the conversion is exact there.
-            #[allow(clippy::cast_precision_loss)]
-            Self::Int(i) => i as f64,
-            Self::Float(f) => f,
-        }
+    /// The value as a number (a bit as 0 or 1, a text as NaN).
+    pub fn as_f64(&self) -> f64 {
+        proto_core::profiles::Value::from(self.clone()).as_f64()
     }
 }
 
@@ -104,8 +104,22 @@ impl From<proto_core::profiles::Value> for ScalarValue {
         use proto_core::profiles::Value;
         match v {
             Value::Int(i) => Self::Int(i),
+            Value::UInt(u) => Self::UInt(u),
             Value::Float(f) => Self::Float(f),
             Value::Bool(b) => Self::Bool(b),
+            Value::Text(t) => Self::Text(t),
+        }
+    }
+}
+
+impl From<ScalarValue> for proto_core::profiles::Value {
+    fn from(v: ScalarValue) -> Self {
+        match v {
+            ScalarValue::Int(i) => Self::Int(i),
+            ScalarValue::UInt(u) => Self::UInt(u),
+            ScalarValue::Float(f) => Self::Float(f),
+            ScalarValue::Bool(b) => Self::Bool(b),
+            ScalarValue::Text(t) => Self::Text(t),
         }
     }
 }
@@ -154,7 +168,7 @@ pub struct TagValue {
 }
 
 /// The body of a tag write.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ToSchema)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TagWrite {
     /// In the tag's engineering unit; the gateway scales and encodes it.
@@ -211,7 +225,16 @@ mod tests {
         assert_eq!(v.value, ScalarValue::Float(5.5));
         let v: TagWrite = serde_json::from_str(r#"{"value": true}"#).unwrap();
         assert_eq!(v.value.as_f64(), 1.0);
-        assert!(serde_json::from_str::<TagWrite>(r#"{"value": "5"}"#).is_err());
+        // A text is for string tags; the tag decides whether it fits.
+        let v: TagWrite = serde_json::from_str(r#"{"value": "5"}"#).unwrap();
+        assert_eq!(v.value, ScalarValue::Text("5".into()));
+        // Whole numbers beyond i64 stay exact, also when written out again.
+        let v: TagWrite = serde_json::from_str(r#"{"value": 18446744073709551615}"#).unwrap();
+        assert_eq!(v.value, ScalarValue::UInt(u64::MAX));
+        assert_eq!(
+            serde_json::to_string(&v).unwrap(),
+            r#"{"value":18446744073709551615}"#
+        );
         assert!(serde_json::from_str::<SignalsPatch>(r#"{"dsr": true}"#).is_err());
     }
 
