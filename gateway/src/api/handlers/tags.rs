@@ -121,7 +121,10 @@ pub(crate) async fn put_tag(
         .backend()
         .write_tag(&line, &device, &tag, write.value.clone())
         .await;
-    let target = format!("{line}/{device}/{tag} = {}", proto_core::profiles::Value::from(write.value));
+    let target = format!(
+        "{line}/{device}/{tag} = {}",
+        proto_core::profiles::Value::from(write.value)
+    );
     audit(&state, &caller_of(caller), &target, &result);
     result.map(Json)
 }
