@@ -57,6 +57,18 @@ struct Args {
     /// Only these groups of rows (comma separated; default: all).
     #[arg(long, value_enum, value_delimiter = ',')]
     only: Vec<Group>,
+    /// Frames each line's frame monitor keeps in the poll and memory rows (0: no monitor; the
+    /// gateway's default otherwise), to measure what the monitor costs.
+    #[arg(long, value_name = "N")]
+    monitor_frames: Option<usize>,
+}
+
+/// Frames each line's frame monitor keeps in the poll and memory rows (`--monitor-frames`).
+static MONITOR_FRAMES: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+
+/// The frame monitor's size for the rows' lines: `--monitor-frames`, else the gateway's default.
+pub(crate) fn monitor_frames() -> usize {
+    *MONITOR_FRAMES.get_or_init(|| gateway::line::DEFAULT_MONITOR_FRAMES)
 }
 
 /// Groups of rows.
@@ -149,6 +161,9 @@ impl Plan {
 
 fn main() -> ExitCode {
     let args = Args::parse();
+    if let Some(n) = args.monitor_frames {
+        let _ = MONITOR_FRAMES.set(n);
+    }
     let runtime = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
