@@ -420,14 +420,15 @@ async fn mbpoll_reads_the_gateway_health_from_the_diagnostic_unit() {
     let mut ks = connect(&gw, 17).await;
     read_input_eventually(&mut ks, 1004, 3).await;
 
-    // The header through FC 04: version 1, 5 lines, 3 devices, block sizes and addresses.
+    // The header through FC 04: version 1, 5 lines, 4 devices (two drives, the KS vario and
+    // the meter on its bus), block sizes and addresses.
     let out = mbpoll(
         &gw,
         &["-a", DIAGNOSTIC_UNIT, "-t", "3", "-r", "0", "-c", "9"],
         &[],
     );
     let header = mbpoll_values(&out);
-    assert_eq!(header, [1, 5, 3, 16, 32, 8, 16, 176, 10], "{out}");
+    assert_eq!(header, [1, 5, 4, 16, 32, 8, 16, 176, 10], "{out}");
 
     // The block of line `drive` (the second line by name: ascii, drive, hmi, ksvario, r3964),
     // through FC 03: STATUS word, port open, devices online and polled, frames sent/received.
@@ -494,7 +495,7 @@ async fn mbpoll_reads_the_gateway_health_from_the_diagnostic_unit() {
         Err(ExceptionCode::IllegalFunction)
     );
     assert_eq!(
-        diag.read_holding_registers(176 + 3 * 8 - 1, 2)
+        diag.read_holding_registers(176 + 4 * 8 - 1, 2)
             .await
             .expect("transport"),
         Err(ExceptionCode::IllegalDataAddress)

@@ -815,6 +815,11 @@ impl MasterLine {
                     }
                 }
                 let result: CommandResult = match outcome {
+                    // The read of a read-modify-write answered, but not with one register: the
+                    // write is not made.
+                    Outcome::Response(_) if command.mask.is_some() => Err(CommandError::Refused(
+                        "the read of a read-modify-write did not return one register".into(),
+                    )),
                     Outcome::Response(response) => {
                         if let Some(d) = device.and_then(|d| self.devices.get(d)) {
                             refresh_image(&self.image, d.unit_id, request, &response);
