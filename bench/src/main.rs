@@ -31,6 +31,7 @@ mod report;
 mod stats;
 mod tap;
 mod tcp;
+mod tls;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -56,6 +57,18 @@ struct Args {
     /// Only these groups of rows (comma separated; default: all).
     #[arg(long, value_enum, value_delimiter = ',')]
     only: Vec<Group>,
+    /// Frames each line's frame monitor keeps in the poll and memory rows (0: no monitor; the
+    /// gateway's default otherwise), to measure what the monitor costs.
+    #[arg(long, value_name = "N")]
+    monitor_frames: Option<usize>,
+}
+
+/// Frames each line's frame monitor keeps in the poll and memory rows (`--monitor-frames`).
+static MONITOR_FRAMES: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+
+/// The frame monitor's size for the rows' lines: `--monitor-frames`, else the gateway's default.
+pub(crate) fn monitor_frames() -> usize {
+    *MONITOR_FRAMES.get_or_init(|| gateway::line::DEFAULT_MONITOR_FRAMES)
 }
 
 /// Groups of rows.
@@ -148,6 +161,9 @@ impl Plan {
 
 fn main() -> ExitCode {
     let args = Args::parse();
+    if let Some(n) = args.monitor_frames {
+        let _ = MONITOR_FRAMES.set(n);
+    }
     let runtime = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -227,6 +243,11 @@ async fn run(args: &Args) -> Vec<Row> {
         match tcp::cached_reads(&plan).await {
             Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
             Err(e) => push(&mut rows, failed("TCP FC03 x125 cached", e)),
+        }
+        eprintln!("Modbus TCP cached reads over TLS (Modbus/TCP Security) against plain TCP");
+        match tcp::cached_reads_tls(&plan).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(&mut rows, failed("TLS FC03 x125 cached", e)),
         }
     }
     if wanted(Group::Write) {

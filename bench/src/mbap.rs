@@ -5,17 +5,21 @@
 use std::io;
 use std::net::SocketAddr;
 
+use rustls_pki_types::ServerName;
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpStream;
+use tokio_rustls::client::TlsStream;
+use tokio_rustls::TlsConnector;
+use tokio_util::either::Either;
 
 /// MBAP header (7 bytes) + function, byte count and 125 registers.
 const FC03_125_ANSWER: usize = 7 + 2 + 250;
 /// MBAP header + FC 06 echo (function, address, value).
 const FC06_ANSWER: usize = 7 + 5;
 
-/// One client connection.
+/// One client connection, plain or over TLS (Modbus/TCP Security).
 pub(crate) struct Client {
-    stream: TcpStream,
+    stream: Either<TcpStream, TlsStream<TcpStream>>,
     transaction: u16,
     answer: Vec<u8>,
 }
@@ -27,7 +31,27 @@ impl Client {
         let stream = TcpStream::connect(addr).await?;
         stream.set_nodelay(true)?;
         Ok(Self {
-            stream,
+            stream: Either::Left(stream),
+            transaction: 0,
+            answer: vec![0; FC03_125_ANSWER],
+        })
+    }
+
+    /// A connection over TLS with `connector`'s client certificate; `connect_to` with `tls`,
+    /// else a plain one.
+    pub(crate) async fn connect_to(
+        addr: SocketAddr,
+        tls: Option<&TlsConnector>,
+    ) -> io::Result<Self> {
+        let Some(connector) = tls else {
+            return Self::connect(addr).await;
+        };
+        let stream = TcpStream::connect(addr).await?;
+        stream.set_nodelay(true)?;
+        let name = ServerName::try_from("localhost").map_err(io::Error::other)?;
+        let stream = connector.connect(name, stream).await?;
+        Ok(Self {
+            stream: Either::Right(stream),
             transaction: 0,
             answer: vec![0; FC03_125_ANSWER],
         })

@@ -93,7 +93,9 @@ pub(crate) async fn rig(
         master_timing.t3_5(),
         shutdown.clone(),
     )?;
-    let mut line = LineSettings::rtu("bench", PortSettings::new(master.path.clone(), baud));
+    let mut port = PortSettings::new(master.path.clone(), baud);
+    port.monitor_frames = crate::monitor_frames();
+    let mut line = LineSettings::rtu("bench", port);
     if let Some(timeout) = reply_timeout {
         line.master.reply_timeout = timeout;
     }

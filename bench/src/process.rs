@@ -70,7 +70,8 @@ fn head(name: &str) -> String {
 fn master_line(name: &str, path: &str, devices: &[(u8, u8, usize)], period: &str) -> String {
     let mut s = format!(
         "[lines.{name}]\nport = \"{path}\"\nprotocol = \"modbus-master-rtu\"\nbaud = {BAUD}\n\
-         parity = \"even\"\nreply_timeout = \"200ms\"\n\n"
+         parity = \"even\"\nreply_timeout = \"200ms\"\nmonitor_frames = {}\n\n",
+        crate::monitor_frames()
     );
     for &(slave, unit, tags) in devices {
         let device = format!("lines.{name}.devices.d{slave}");

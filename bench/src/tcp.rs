@@ -13,11 +13,12 @@ use std::time::{Duration, Instant};
 use gateway::app::MetricsRegistry;
 use gateway::image::{ImageConfig, ProcessImage};
 use gateway::line::{spawn_modbus_master_line, DeviceSettings, LineHandle, LineSettings};
-use gateway::modbus_tcp::{self, ServerOptions, ServerStats};
+use gateway::modbus_tcp::{self, ServerOptions, ServerStats, TlsServer};
 use gateway::serial::PortSettings;
 use gateway::sim::serve_modbus;
 use gateway::unit::UnitMap;
 use proto_core::modbus::rtu::CharTiming;
+use tokio_rustls::TlsConnector;
 use tokio_serial::SerialStream;
 use tokio_util::sync::CancellationToken;
 
@@ -37,6 +38,15 @@ pub(crate) async fn serve_gateway(
     line: &LineHandle,
     shutdown: CancellationToken,
 ) -> std::io::Result<SocketAddr> {
+    serve_gateway_over(line, None, shutdown).await
+}
+
+/// [`serve_gateway`], over Modbus/TCP Security with `tls`, or plain without.
+async fn serve_gateway_over(
+    line: &LineHandle,
+    tls: Option<TlsServer>,
+    shutdown: CancellationToken,
+) -> std::io::Result<SocketAddr> {
     let mut units = UnitMap::new();
     for (id, unit) in line.device_units() {
         units.insert(id, Arc::new(unit));
@@ -49,19 +59,30 @@ pub(crate) async fn serve_gateway(
     };
     // Counted into the Prometheus families as in the gateway binary, which always registers them.
     let metrics = MetricsRegistry::new().map_err(std::io::Error::other)?;
-    tokio::spawn(modbus_tcp::serve(
-        listener,
-        Arc::new(RwLock::new(units)),
-        options,
-        shutdown,
-        Arc::new(ServerStats::with_metrics(metrics.metrics)),
-    ));
+    let units = Arc::new(RwLock::new(units));
+    let stats = Arc::new(ServerStats::with_metrics(metrics.metrics));
+    match tls {
+        None => {
+            tokio::spawn(modbus_tcp::serve(listener, units, options, shutdown, stats));
+        }
+        Some(tls) => {
+            tokio::spawn(modbus_tcp::serve_tls(
+                listener, units, options, tls, shutdown, stats,
+            ));
+        }
+    }
     Ok(addr)
 }
 
 /// The gateway with a device polled (125 registers every 100 ms) on a plain pty pair, so that the
 /// image stays fresh, served over Modbus TCP.
 async fn cached_gateway(shutdown: &CancellationToken) -> std::io::Result<SocketAddr> {
+    let line = cached_line(shutdown)?;
+    serve_gateway(&line, shutdown.clone()).await
+}
+
+/// The line of [`cached_gateway`]: a device polled (125 registers every 100 ms) on a pty pair.
+fn cached_line(shutdown: &CancellationToken) -> std::io::Result<LineHandle> {
     const BAUD: u32 = 115_200;
     let (device_end, line_end) = SerialStream::pair().map_err(std::io::Error::from)?;
     let path = tokio_serial::SerialPort::name(&line_end)
@@ -91,7 +112,7 @@ async fn cached_gateway(shutdown: &CancellationToken) -> std::io::Result<SocketA
         }),
         shutdown.clone(),
     );
-    serve_gateway(&line, shutdown.clone()).await
+    Ok(line)
 }
 
 /// A tokio-modbus server answering FC 03 from a flat image of 65536 registers.
@@ -185,12 +206,29 @@ fn worker_cpu() -> Duration {
 /// `connections` clients reading 125 registers as fast as answers come, for `duration`, on a
 /// runtime of their own on a separate thread.
 async fn load(addr: SocketAddr, connections: usize, duration: Duration) -> std::io::Result<Load> {
+    load_over(addr, None, connections, duration).await
+}
+
+/// [`load`] over TLS with `tls`'s client certificate, or plain without.
+async fn load_over(
+    addr: SocketAddr,
+    tls: Option<TlsConnector>,
+    connections: usize,
+    duration: Duration,
+) -> std::io::Result<Load> {
     let (tx, rx) = tokio::sync::oneshot::channel();
     std::thread::spawn(move || {
         let result = tokio::runtime::Builder::new_current_thread()
             .enable_all()
             .build()
-            .and_then(|rt| rt.block_on(load_on_this_thread(addr, connections, duration)));
+            .and_then(|rt| {
+                rt.block_on(load_on_this_thread(
+                    addr,
+                    tls.as_ref(),
+                    connections,
+                    duration,
+                ))
+            });
         let _ = tx.send(result);
     });
     rx.await
@@ -199,12 +237,13 @@ async fn load(addr: SocketAddr, connections: usize, duration: Duration) -> std::
 
 async fn load_on_this_thread(
     addr: SocketAddr,
+    tls: Option<&TlsConnector>,
     connections: usize,
     duration: Duration,
 ) -> std::io::Result<Load> {
     let mut clients = Vec::with_capacity(connections);
     for _ in 0..connections {
-        let mut client = Client::connect(addr).await?;
+        let mut client = Client::connect_to(addr, tls).await?;
         client.read_125(UNIT).await?;
         clients.push(client);
     }
@@ -238,9 +277,14 @@ async fn load_on_this_thread(
 
 /// Waits until `addr` answers a read of 125 registers from unit 1 (the image is filled).
 async fn until_answers(addr: SocketAddr) -> std::io::Result<()> {
+    until_answers_over(addr, None).await
+}
+
+/// [`until_answers`] over TLS with `tls`, or plain without.
+async fn until_answers_over(addr: SocketAddr, tls: Option<&TlsConnector>) -> std::io::Result<()> {
     let deadline = Instant::now() + Duration::from_secs(10);
     loop {
-        let result = async { Client::connect(addr).await?.read_125(UNIT).await }.await;
+        let result = async { Client::connect_to(addr, tls).await?.read_125(UNIT).await }.await;
         match result {
             Ok(()) => return Ok(()),
             Err(e) if Instant::now() > deadline => return Err(e),
@@ -311,6 +355,85 @@ pub(crate) async fn cached_reads(plan: &Plan) -> std::io::Result<Vec<Row>> {
             measured: ms(gw_p99),
             reference: ms(bare_p99),
             score: gw_p99.as_secs_f64() / bare_p99.as_secs_f64().max(1e-12),
+            target: Target::at_most(2.0),
+            note: String::new(),
+        });
+    }
+    Ok(rows)
+}
+
+/// Throughput and p99 rows for 1 and 16 connections of the gateway over Modbus/TCP Security
+/// against the same gateway (one line, one image) over plain Modbus TCP: the cost of TLS.
+/// Connections are opened (handshake included) before each timed slice, so the rows measure the
+/// record layer of a kept connection, as a SCADA client uses it.
+pub(crate) async fn cached_reads_tls(plan: &Plan) -> std::io::Result<Vec<Row>> {
+    let shutdown = CancellationToken::new();
+    let _stop = shutdown.clone().drop_guard();
+    let tls = crate::tls::make()?;
+    let line = cached_line(&shutdown)?;
+    let plain = serve_gateway(&line, shutdown.clone()).await?;
+    let secure = serve_gateway_over(&line, Some(tls.server.clone()), shutdown.clone()).await?;
+    until_answers(plain).await?;
+    until_answers_over(secure, Some(&tls.connector)).await?;
+    let mut rows = Vec::new();
+    for connections in [1usize, 16] {
+        let (mut over_tls, mut over_tcp) = (Load::default(), Load::default());
+        for round in 0..plan.tcp_rounds {
+            let order = if round % 2 == 0 {
+                [false, true]
+            } else {
+                [true, false]
+            };
+            for is_tls in order {
+                let run = if is_tls {
+                    load_over(
+                        secure,
+                        Some(tls.connector.clone()),
+                        connections,
+                        plan.tcp_slice,
+                    )
+                    .await?
+                } else {
+                    load(plain, connections, plan.tcp_slice).await?
+                };
+                let into = if is_tls { &mut over_tls } else { &mut over_tcp };
+                into.requests += run.requests;
+                into.elapsed += run.elapsed;
+                into.latencies.extend(run.latencies);
+                into.server_cpu += run.server_cpu;
+            }
+        }
+        let rate = |l: &Load| l.requests as f64 / l.elapsed.as_secs_f64().max(1e-9);
+        let (tls_rate, tcp_rate) = (rate(&over_tls), rate(&over_tcp));
+        let p = |l: &Load, q| percentile(&l.latencies, q);
+        let cpu = |l: &Load| l.server_cpu.as_secs_f64() * 1e6 / (l.requests as f64).max(1.0);
+        let conditions = format!(
+            "TLS 1.3 (ring, client certificate with a role), {} rounds of {:.2} s each, \
+             alternating; p50 TLS {} / plain {} = {:.2}; server threads' CPU per request TLS \
+             {:.1} us / plain {:.1} us = {:.2}",
+            plan.tcp_rounds,
+            plan.tcp_slice.as_secs_f64(),
+            ms(p(&over_tls, 50.0)),
+            ms(p(&over_tcp, 50.0)),
+            p(&over_tls, 50.0).as_secs_f64() / p(&over_tcp, 50.0).as_secs_f64().max(1e-12),
+            cpu(&over_tls),
+            cpu(&over_tcp),
+            cpu(&over_tls) / cpu(&over_tcp).max(1e-12),
+        );
+        rows.push(Row {
+            name: format!("TLS FC03 x125 cached, {connections} conn: requests/s / plain TCP"),
+            measured: format!("{tls_rate:.0}/s"),
+            reference: format!("{tcp_rate:.0}/s"),
+            score: tls_rate / tcp_rate,
+            // TLS may cost up to half the plain throughput of cached reads.
+            target: Target::at_least(0.5),
+            note: conditions,
+        });
+        rows.push(Row {
+            name: format!("TLS FC03 x125 cached, {connections} conn: p99 / plain TCP p99"),
+            measured: ms(p(&over_tls, 99.0)),
+            reference: ms(p(&over_tcp, 99.0)),
+            score: p(&over_tls, 99.0).as_secs_f64() / p(&over_tcp, 99.0).as_secs_f64().max(1e-12),
             target: Target::at_most(2.0),
             note: String::new(),
         });

@@ -3,6 +3,8 @@
 
 #[path = "zenoh_bridge/flow.rs"]
 mod flow;
+#[path = "zenoh_bridge/policy.rs"]
+mod policy;
 #[path = "zenoh_bridge/python.rs"]
 mod python;
 #[path = "zenoh_bridge/reconnect.rs"]

@@ -11,7 +11,8 @@ then, in order:
 3. declares an advanced subscriber with history (zenoh.ext.declare_advanced_subscriber with
    HistoryConfig) on <prefix>/<key>, collects what it receives for --window seconds, and prints
    {"kind": "history", "keys": [...], "first_after": seconds, "samples": [...], "plain": [...]}
-   ("plain": what a plain subscriber declared at the same moment received meanwhile);
+   (a sample's "live": it carries a timestamp, as publications do and history replies do not;
+   "plain": what a plain subscriber declared at the same moment received meanwhile);
 4. prints {"kind": "done"} and exits 0. Any wait longer than --timeout prints
    {"kind": "error", ...} and exits 1.
 
@@ -93,6 +94,8 @@ def main():
                 "at": at,
                 "key": str(s.key_expr),
                 "payload": json.loads(s.payload.to_bytes()),
+                # A live publication carries the session's timestamp, a history reply none.
+                "live": s.timestamp is not None,
             }
         )
     sub.undeclare()

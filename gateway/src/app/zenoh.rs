@@ -66,8 +66,8 @@ impl Follower for ZenohFollower {
     }
 }
 
-/// The bridge's session settings: the command line's endpoint, or the config's `[zenoh]`;
-/// `None` when the gateway joins no zenoh fabric.
+/// The bridge's session settings: the command line's endpoint (with the config's prefix and
+/// publishing policy), or the config's `[zenoh]`; `None` when the gateway joins no zenoh fabric.
 fn session_config(sup: &Supervisor, snapshot: &Snapshot) -> Result<Option<ZenohConfig>, AppError> {
     Ok(
         match (&sup.overrides.zenoh_listen, &snapshot.config.zenoh) {
@@ -75,6 +75,7 @@ fn session_config(sup: &Supervisor, snapshot: &Snapshot) -> Result<Option<ZenohC
                 let mut cfg = ZenohConfig::loopback_peer(endpoint).map_err(AppError::Setup)?;
                 if let Some(base) = base {
                     cfg.prefix.clone_from(&base.prefix);
+                    cfg.publish.clone_from(&base.publish);
                 }
                 Some(cfg)
             }

@@ -16,6 +16,14 @@
 //! result_queue = 256                  # tx / set results waiting to be published
 //! command_queue = 64                  # tx / set commands waiting for their line
 //! query_queue = 64                    # queries waiting to be answered
+//!
+//! [zenoh.publish]                      # how tag values are published (default: every change)
+//! deadband = 0.0                       # publish a number when it moved by more than this
+//! deadband_percent = 0.0               # ... and by more than this % of the last one published
+//! heartbeat = "0s"                     # publish at least this often, changed or not; 0s: off
+//! [[zenoh.publish.tags]]               # for the tags a key expression matches (first rule wins)
+//! key = "drive/*/SFr"                  # <line>/<device>/<tag>, wildcards allowed
+//! deadband = 0.5                       # keys left out take the section's
 //! ```
 //!
 //! Precedence: `config_file` is read first (as zenoh documents it, json5), then every key set in
@@ -40,11 +48,134 @@
 use std::num::NonZeroUsize;
 use std::path::PathBuf;
 use std::str::FromStr;
+use std::time::Duration;
 
 use ::zenoh::key_expr::OwnedKeyExpr;
 use serde::{Deserialize, Deserializer, Serialize};
 
 use super::reader::{string_value, Cx, Fields};
+
+/// A deadband: a finite amount, 0 or more (checked when read).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+#[serde(transparent)]
+pub struct Deadband(pub f64);
+
+// The reader accepts finite numbers only, so equality is total.
+impl Eq for Deadband {}
+
+/// How the tags a rule (or the section) covers are published. With a deadband or a heartbeat
+/// set, a value equal to the last one published (same quality) is not published again by a
+/// change elsewhere in its poll's range; a numeric value is published when it moved by more
+/// than `deadband` and by more than `deadband_percent` of the last value published (each only
+/// when above 0); a change of quality, and every change of a value that is not a number, is
+/// always published. With a `heartbeat`, the current value is published again
+/// whenever nothing was published for that long, changed or not, so that silence means trouble.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct TagPolicy {
+    /// Absolute deadband in the tag's unit; 0: every change.
+    pub deadband: Deadband,
+    /// Deadband in percent of the last published value; 0: off.
+    pub deadband_percent: Deadband,
+    /// Publish at least this often; 0: only on change.
+    #[serde(with = "humantime_serde")]
+    pub heartbeat: Duration,
+}
+
+impl TagPolicy {
+    /// Whether the policy changes anything (a deadband or a heartbeat is set).
+    pub fn is_active(&self) -> bool {
+        self.deadband.0 > 0.0 || self.deadband_percent.0 > 0.0 || !self.heartbeat.is_zero()
+    }
+}
+
+/// One `[[zenoh.publish.tags]]` entry: the policy of the tags its key expression matches.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize)]
+pub struct TagRule {
+    /// `<line>/<device>/<tag>` below the prefix, wildcards allowed.
+    pub key: String,
+    /// The policy, the keys the entry leaves out taken from the section.
+    #[serde(flatten)]
+    pub policy: TagPolicy,
+}
+
+/// The `[zenoh.publish]` table.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct PublishConfig {
+    /// The policy of every tag no rule matches.
+    #[serde(flatten)]
+    pub default: TagPolicy,
+    /// Rules, the first that matches a tag wins.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub tags: Vec<TagRule>,
+}
+
+impl PublishConfig {
+    /// The policy of the tag `<line>/<device>/<tag>`.
+    pub fn policy(&self, line: &str, device: &str, tag: &str) -> TagPolicy {
+        if self.tags.is_empty() {
+            return self.default;
+        }
+        let Ok(key) = OwnedKeyExpr::new(format!("{line}/{device}/{tag}")) else {
+            return self.default;
+        };
+        self.tags
+            .iter()
+            .find(|r| ::zenoh::key_expr::keyexpr::new(&r.key).is_ok_and(|rule| rule.includes(&key)))
+            .map_or(self.default, |r| r.policy)
+    }
+
+    fn read(cx: &mut Cx, mut f: Fields<'_>) -> Self {
+        let default = read_policy(cx, &mut f, TagPolicy::default());
+        let mut tags = Vec::new();
+        for (path, value) in f.array(cx, "tags") {
+            let Some(mut t) = Fields::of(cx, value, path) else {
+                continue;
+            };
+            let key = t.required_string(cx, "key").unwrap_or_default();
+            if !key.is_empty() {
+                if let Err(e) = OwnedKeyExpr::new(key.as_str()) {
+                    cx.issue(
+                        t.at("key"),
+                        format!("not a canonical key expression (<line>/<device>/<tag>, wildcards allowed): {e}"),
+                    );
+                }
+            }
+            let policy = read_policy(cx, &mut t, default);
+            t.finish(cx);
+            tags.push(TagRule { key, policy });
+        }
+        f.finish(cx);
+        Self { default, tags }
+    }
+}
+
+/// The policy keys of a table, those left out taken from `inherit`.
+fn read_policy(cx: &mut Cx, f: &mut Fields<'_>, inherit: TagPolicy) -> TagPolicy {
+    let mut amount = |cx: &mut Cx, key: &'static str, default: f64, max: f64| {
+        let had = f.has(key);
+        let v = f.float_or(cx, key, default);
+        if had && !(0.0..=max).contains(&v) {
+            cx.issue(f.at(key), format!("must be between 0 and {max}, found {v}"));
+            return Deadband(default);
+        }
+        Deadband(v)
+    };
+    let deadband = amount(cx, "deadband", inherit.deadband.0, f64::MAX);
+    let deadband_percent = amount(cx, "deadband_percent", inherit.deadband_percent.0, 100.0);
+    let heartbeat = match f.duration(cx, "heartbeat", Duration::ZERO..=MAX_HEARTBEAT, "") {
+        Some(h) if !h.is_zero() && h < MIN_HEARTBEAT => {
+            cx.issue(f.at("heartbeat"), "must be 0s (off) or at least 100ms");
+            inherit.heartbeat
+        }
+        Some(h) => h,
+        None => inherit.heartbeat,
+    };
+    TagPolicy {
+        deadband,
+        deadband_percent,
+        heartbeat,
+    }
+}
 
 /// Default for [`ZenohConfig::telegram_queue`].
 pub const DEFAULT_TELEGRAM_QUEUE: usize = 1024;
@@ -58,6 +189,10 @@ pub const DEFAULT_RESULT_QUEUE: usize = 256;
 pub const DEFAULT_COMMAND_QUEUE: usize = 64;
 /// Default for [`ZenohConfig::query_queue`].
 pub const DEFAULT_QUERY_QUEUE: usize = 64;
+/// The shortest heartbeat other than 0 (off).
+pub const MIN_HEARTBEAT: Duration = Duration::from_millis(100);
+/// The longest heartbeat.
+pub const MAX_HEARTBEAT: Duration = Duration::from_secs(24 * 3600);
 /// The bridge starts when the section is there, unless `enabled = false`.
 pub const DEFAULT_ZENOH_ENABLED: bool = true;
 /// zenoh carries no credentials of its own: `tx` and tag `set` puts are refused unless
@@ -192,6 +327,8 @@ pub struct ZenohConfig {
     pub command_queue: NonZeroUsize,
     /// Queries waiting to be answered (overflow counted, the query gets no reply).
     pub query_queue: NonZeroUsize,
+    /// How tag values are published (`[zenoh.publish]`): deadbands and heartbeats.
+    pub publish: PublishConfig,
 }
 
 fn nonzero(n: usize) -> NonZeroUsize {
@@ -215,6 +352,7 @@ impl Default for ZenohConfig {
             result_queue: nonzero(DEFAULT_RESULT_QUEUE),
             command_queue: nonzero(DEFAULT_COMMAND_QUEUE),
             query_queue: nonzero(DEFAULT_QUERY_QUEUE),
+            publish: PublishConfig::default(),
         }
     }
 }
@@ -258,6 +396,10 @@ impl ZenohConfig {
         let result_queue = queue("result_queue", DEFAULT_RESULT_QUEUE);
         let command_queue = queue("command_queue", DEFAULT_COMMAND_QUEUE);
         let query_queue = queue("query_queue", DEFAULT_QUERY_QUEUE);
+        let publish = f
+            .table(cx, "publish")
+            .map(|t| PublishConfig::read(cx, t))
+            .unwrap_or_default();
         f.finish(cx);
         Self {
             enabled,
@@ -274,6 +416,7 @@ impl ZenohConfig {
             result_queue,
             command_queue,
             query_queue,
+            publish,
         }
     }
 }

@@ -58,6 +58,7 @@ pub mod config;
 pub mod keys;
 pub mod stats;
 
+mod policy;
 mod presence;
 mod publish;
 mod queryable;
@@ -77,10 +78,12 @@ use zenoh::pubsub::Subscriber;
 use zenoh::query::Queryable;
 use zenoh::Session;
 
+pub use crate::config::{Deadband, PublishConfig, TagPolicy, TagRule};
 pub use config::{Endpoint, Mode, Prefix, ZenohConfig};
 pub use keys::{KeyError, Keys};
 pub use stats::{BridgeStats, CommandKind, CommandOutcome, DropReason, PublicationKind};
 
+use policy::{Publishing, Verdict};
 use publish::{Limits, Message, Outbox, PublisherThread};
 use queryable::{Answerer, Queries, QueryKind};
 use subscribe::Commands;
@@ -187,6 +190,8 @@ pub struct BridgeHandle {
     keys: Arc<Keys>,
     outbox: Arc<Outbox>,
     stats: Arc<BridgeStats>,
+    /// Deadbands and heartbeats of the tags.
+    publishing: Arc<Publishing>,
 }
 
 // === impl BridgeHandle ===
@@ -224,7 +229,16 @@ impl BridgeHandle {
             return;
         }
         match OwnedKeyExpr::try_from(self.keys.tag(line, device, tag)) {
-            Ok(key) => self.outbox.push_tag(key, value),
+            Ok(key) => {
+                let now = tokio::time::Instant::now();
+                match self
+                    .publishing
+                    .admit(&key, (line, device, tag), &value, now)
+                {
+                    Verdict::Publish => self.outbox.push_tag(key, value),
+                    Verdict::WithinDeadband => self.stats.suppressed_by_deadband(),
+                }
+            }
             Err(e) => {
                 self.stats.dropped(DropReason::BadKey);
                 tracing::warn!(%line, %device, %tag, error = %e, "tag value not published on zenoh");
@@ -387,12 +401,22 @@ impl Bridge {
             command_queue: cfg.command_queue.get(),
             query_queue: cfg.query_queue.get(),
         };
-        let driver = tokio::spawn(drive(parts, session, zcfg, thread, shutdown));
+        let publishing = Arc::new(Publishing::new(cfg.publish.clone()));
         let handle = BridgeHandle {
             keys,
             outbox,
             stats: stats.clone(),
+            publishing,
         };
+        if let Some(tick) = handle.publishing.tick() {
+            tokio::spawn(heartbeats(
+                handle.clone(),
+                parts.backend.clone(),
+                tick,
+                shutdown.clone(),
+            ));
+        }
+        let driver = tokio::spawn(drive(parts, session, zcfg, thread, shutdown));
         Ok((Self { driver, stats }, handle))
     }
 
@@ -406,6 +430,58 @@ impl Bridge {
     pub async fn join(self) {
         if let Err(e) = self.driver.await {
             tracing::error!(error = %e, "zenoh bridge task failed");
+        }
+    }
+}
+
+/// Publishes the current value of every tag whose heartbeat fell due, every `tick`, until
+/// shutdown; first every current value once (through the policy). The values come from the
+/// backend (the image), with the time their poll read them.
+async fn heartbeats(
+    handle: BridgeHandle,
+    backend: Arc<dyn BridgeBackend>,
+    tick: Duration,
+    shutdown: CancellationToken,
+) {
+    let mut ticker = tokio::time::interval(tick);
+    ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let mut first_round = true;
+    loop {
+        tokio::select! {
+            () = shutdown.cancelled() => return,
+            _ = ticker.tick() => {}
+        }
+        let (handle, backend) = (handle.clone(), backend.clone());
+        let first = std::mem::take(&mut first_round);
+        let round = tokio::task::spawn_blocking(move || {
+            let now = tokio::time::Instant::now();
+            if first {
+                // Values read before the bridge started were never announced to it: publish
+                // those of tags with a policy once, which starts their heartbeats.
+                for (line, device, tag, value) in backend.query_tags(None, None, None) {
+                    if handle.publishing.has_policy(&line, &device, &tag) {
+                        handle.publish_tag(&line, &device, &tag, value);
+                    }
+                }
+            }
+            for (line, device, tag) in handle.publishing.due(now) {
+                let current = backend
+                    .query_tags(Some(&line), Some(&device), Some(&tag))
+                    .into_iter()
+                    .find(|(l, d, t, _)| *l == line && *d == device && *t == tag);
+                let Ok(key) = OwnedKeyExpr::try_from(handle.keys.tag(&line, &device, &tag)) else {
+                    continue;
+                };
+                if let Some((_, _, _, value)) = current {
+                    handle.publishing.record(&key, &value, now);
+                    handle.stats.heartbeat_sent();
+                    handle.outbox.push_tag(key, value);
+                }
+            }
+        })
+        .await;
+        if let Err(e) = round {
+            tracing::error!(error = %e, "zenoh heartbeat round failed");
         }
     }
 }

@@ -211,6 +211,10 @@ pub struct BridgeStats {
     drops: [AtomicU64; DropReason::ALL.len()],
     commands: [[AtomicU64; CommandOutcome::ALL.len()]; CommandKind::ALL.len()],
     queries: AtomicU64,
+    /// Tag values left unpublished by a deadband.
+    within_deadband: AtomicU64,
+    /// Tag values published again by a heartbeat.
+    heartbeats: AtomicU64,
     /// The Prometheus families the counts are mirrored into, if any.
     metrics: Option<Metrics>,
 }
@@ -269,6 +273,24 @@ impl BridgeStats {
         if let Some(m) = &self.metrics {
             m.zenoh_published(metrics::PublicationKind::Reply);
         }
+    }
+
+    pub(crate) fn suppressed_by_deadband(&self) {
+        self.within_deadband.fetch_add(1, Ordering::Relaxed);
+    }
+
+    pub(crate) fn heartbeat_sent(&self) {
+        self.heartbeats.fetch_add(1, Ordering::Relaxed);
+    }
+
+    /// Tag values left unpublished because they stayed within their deadband.
+    pub fn within_deadband(&self) -> u64 {
+        self.within_deadband.load(Ordering::Relaxed)
+    }
+
+    /// Tag values published again by a heartbeat (also counted as tag publications).
+    pub fn heartbeats(&self) -> u64 {
+        self.heartbeats.load(Ordering::Relaxed)
     }
 
     /// Publications of one kind so far.
@@ -331,6 +353,8 @@ impl BridgeStats {
             "publications": map(self.publication_counts()),
             "dropped": map(self.drop_counts()),
             "queries": self.queries(),
+            "within_deadband": self.within_deadband(),
+            "heartbeats": self.heartbeats(),
         })
     }
 }

@@ -316,6 +316,56 @@ fn write_ranges_must_name_a_served_unit() {
 }
 
 #[test]
+fn publishing_policy_rules_inherit_the_section_and_are_checked() {
+    let c = parse(
+        r#"
+[zenoh.publish]
+deadband = 2
+heartbeat = "5s"
+[[zenoh.publish.tags]]
+key = "drive/*/SFr"
+deadband_percent = 1.5
+[[zenoh.publish.tags]]
+key = "ksvario/**"
+heartbeat = "0s"
+"#,
+    );
+    let p = &c.zenoh.expect("zenoh section").publish;
+    let secs = Duration::from_secs;
+    assert_eq!(p.default.deadband.0, 2.0);
+    assert_eq!(p.default.heartbeat, secs(5));
+    assert_eq!(p.tags[0].policy.deadband.0, 2.0, "inherited");
+    assert_eq!(p.tags[0].policy.deadband_percent.0, 1.5);
+    assert_eq!(p.tags[0].policy.heartbeat, secs(5), "inherited");
+    assert_eq!(p.tags[1].policy.heartbeat, secs(0), "off for this rule");
+    assert_eq!(p.policy("drive", "atv71", "SFr"), p.tags[0].policy);
+    assert_eq!(p.policy("drive", "atv71", "ETA"), p.default);
+
+    let got = issues(
+        r#"
+[zenoh.publish]
+deadband = -1
+deadband_percent = 101
+heartbeat = "50ms"
+[[zenoh.publish.tags]]
+key = "drive/**/"
+"#,
+    );
+    let paths: Vec<&str> = got.iter().map(|(p, _)| p.as_str()).collect();
+    assert_eq!(
+        paths,
+        [
+            "zenoh.publish.deadband",
+            "zenoh.publish.deadband_percent",
+            "zenoh.publish.heartbeat",
+            "zenoh.publish.tags[0].key",
+        ],
+        "{got:#?}"
+    );
+    assert!(got[2].1.contains("at least 100ms"), "{got:#?}");
+}
+
+#[test]
 fn a_tap_line_lists_devices_without_poll_groups() {
     let tap = |keys: &str, device: &str| {
         one_line(
