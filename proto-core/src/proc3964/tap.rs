@@ -119,7 +119,7 @@ pub enum Fault {
         after_telegram: bool,
     },
     /// No DLE within the acknowledgement delay time: after the STX (`after_telegram` false) or
-    /// after the telegram (003 6.3.1, 7.2 08 0Ch area: QVZ expired).
+    /// after the telegram (003 6.3.1: the acknowledgement delay time ran out).
     MissingDle {
         /// Whether the DLE after the telegram was missing rather than after the STX.
         after_telegram: bool,
