@@ -18,6 +18,7 @@
 
 pub mod frame;
 mod machine;
+pub mod tap;
 
 use core::time::Duration;
 
