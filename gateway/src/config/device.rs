@@ -10,7 +10,6 @@ use proto_core::profiles::{DeviceProfile, ReadWriteLimits, RequestLimits};
 use serde::{Deserialize, Serialize};
 
 use super::reader::{check_name, int_value, string_value, Cx, Fields};
-use super::validate::serde_name;
 
 /// Modbus Application Protocol V1.1b3, 4.4 / Modbus over Serial Line V1.02 2.2: unicast
 /// addresses are 1..=247; 0 is broadcast. 002 (Altivar, "Adressen") agrees: 1..247.
@@ -767,6 +766,14 @@ impl DeviceConfig {
             scanner,
         })
     }
+}
+
+/// The TOML spelling of a unit-like enum value.
+pub(super) fn serde_name<T: Serialize>(value: T) -> String {
+    toml::Value::try_from(value)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_owned))
+        .unwrap_or_default()
 }
 
 #[cfg(test)]

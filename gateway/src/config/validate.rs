@@ -4,7 +4,7 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::device::{DataType, DeviceConfig};
+use super::device::{serde_name, DataType, DeviceConfig};
 use super::line::{LineConfig, ProtocolConfig};
 use super::modbus::{BitArea, ModbusSlaveRtuConfig};
 use super::reader::{show_duration, Cx};
@@ -451,14 +451,6 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
             }
         }
     }
-}
-
-/// The TOML spelling of a unit-like enum value.
-pub(super) fn serde_name<T: serde::Serialize>(value: T) -> String {
-    toml::Value::try_from(value)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_owned))
-        .unwrap_or_default()
 }
 
 #[cfg(test)]

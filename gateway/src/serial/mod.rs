@@ -111,7 +111,7 @@ impl PortSettings {
             parity: Parity::Even,
             stop_bits: StopBits::One,
             interface: Interface::Rs232,
-            monitor_frames: crate::line::DEFAULT_MONITOR_FRAMES,
+            monitor_frames: crate::config::DEFAULT_MONITOR_FRAMES as usize,
         }
     }
 
