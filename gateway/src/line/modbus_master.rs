@@ -83,19 +83,7 @@ fn spawn_on<O: PortOpener>(
     let core = base.core(
         devices
             .iter()
-            .map(|d| DeviceStatus {
-                name: d.name.clone(),
-                slave: d.slave,
-                unit_id: d.unit_id,
-                online: true,
-                polls_ok: 0,
-                polls_exception: 0,
-                polls_failed: 0,
-                last_exception: None,
-                last_answer: None,
-                commands_failed: 0,
-                cycles: Vec::new(),
-            })
+            .map(|d| DeviceStatus::new(&d.name, d.slave, d.unit_id))
             .collect(),
     );
     let (shared, clock) = (Arc::clone(&core.shared), core.clock);

@@ -65,6 +65,28 @@ pub struct DeviceStatus {
     pub cycles: Vec<PollCycle>,
 }
 
+// === impl DeviceStatus ===
+
+impl DeviceStatus {
+    /// A device before its first exchange: online (until its own polls say otherwise), nothing
+    /// counted yet.
+    pub fn new(name: &str, slave: u8, unit_id: u8) -> Self {
+        Self {
+            name: name.to_owned(),
+            slave,
+            unit_id,
+            online: true,
+            polls_ok: 0,
+            polls_exception: 0,
+            polls_failed: 0,
+            last_exception: None,
+            last_answer: None,
+            commands_failed: 0,
+            cycles: Vec::new(),
+        }
+    }
+}
+
 /// The planned and achieved cycle of one poll block of a device (one read of its poll groups of
 /// one table and period).
 #[derive(Clone, Debug, PartialEq, Eq)]
