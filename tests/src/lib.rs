@@ -413,3 +413,17 @@ pub fn check_config(config: &Path) -> (bool, String) {
         String::from_utf8_lossy(&out.stdout).into_owned(),
     )
 }
+
+/// A zenoh client session connected to the gateway's zenoh port on loopback, multicast scouting
+/// off.
+pub async fn zenoh_client(port: u16) -> zenoh::Session {
+    let mut c = zenoh::Config::default();
+    c.insert_json5("mode", r#""client""#).expect("mode");
+    c.insert_json5("connect/endpoints", &format!(r#"["tcp/127.0.0.1:{port}"]"#))
+        .expect("connect");
+    c.insert_json5("scouting/multicast/enabled", "false")
+        .expect("scouting");
+    zenoh::open(c)
+        .await
+        .expect("a zenoh session to the gateway")
+}

@@ -338,13 +338,7 @@ async fn the_drive_line_frames_follow_and_capture_decode_with_tshark() {
 async fn a_zenoh_session_receives_the_drive_frames() {
     let gw = Gateway::demo(&[]);
     let port = gw.zenoh_port.expect("a zenoh port");
-    let mut c = zenoh::Config::default();
-    c.insert_json5("mode", r#""client""#).expect("mode");
-    c.insert_json5("connect/endpoints", &format!(r#"["tcp/127.0.0.1:{port}"]"#))
-        .expect("connect");
-    c.insert_json5("scouting/multicast/enabled", "false")
-        .expect("scouting");
-    let session = zenoh::open(c).await.expect("a zenoh session to the demo");
+    let session = gateway_tests::zenoh_client(port).await;
     let sub = session
         .declare_subscriber("gw/demo/drive/frames")
         .await

@@ -261,18 +261,6 @@ fn scrape(http: std::net::SocketAddr) -> String {
     text
 }
 
-async fn zenoh_session(port: u16) -> zenoh::Session {
-    let mut c = zenoh::Config::default();
-    c.insert_json5("mode", r#""client""#).expect("mode");
-    c.insert_json5("connect/endpoints", &format!(r#"["tcp/127.0.0.1:{port}"]"#))
-        .expect("connect");
-    c.insert_json5("scouting/multicast/enabled", "false")
-        .expect("scouting");
-    zenoh::open(c)
-        .await
-        .expect("a zenoh session to the gateway")
-}
-
 /// Puts `payload` on `key` and returns the JSON result published on `key/result`.
 async fn zenoh_put(session: &zenoh::Session, key: &str, payload: &str) -> serde_json::Value {
     let result = session
@@ -373,7 +361,7 @@ ranges = [{{ table = "holding", start = 9001, count = 2 }}]
     assert!(status.is_client_error(), "REST write: {status} {body}");
     assert!(body.contains("write_ranges"), "{body}");
     // zenoh: refused on the result key.
-    let session = zenoh_session(zenoh_port).await;
+    let session = gateway_tests::zenoh_client(zenoh_port).await;
     let result = zenoh_put(&session, "gw/policy/drive/atv71/ACC/set", "9.9").await;
     assert_eq!(result["ok"], serde_json::Value::Bool(false), "{result}");
     assert!(result.to_string().contains("write_ranges"), "{result}");
@@ -447,7 +435,7 @@ sends = false
     assert_eq!(status.as_u16(), 409, "REST send: {body}");
     assert!(body.contains("sends = false"), "{body}");
     // zenoh: refused on the result key.
-    let session = zenoh_session(zenoh_port).await;
+    let session = gateway_tests::zenoh_client(zenoh_port).await;
     let result = zenoh_put(&session, "gw/nosend/ascii/tx", "HELLO").await;
     assert_eq!(result["ok"], serde_json::Value::Bool(false), "{result}");
     assert!(result.to_string().contains("sends = false"), "{result}");
@@ -518,7 +506,7 @@ end_chars = [0x03]
     let file = dir.join("gateway.toml");
     std::fs::write(&file, config).expect("write config");
     let mut gw = Gateway::run(&file);
-    let session = zenoh_session(zenoh_port).await;
+    let session = gateway_tests::zenoh_client(zenoh_port).await;
     let result = zenoh_put(&session, "gw/quiet/ascii/tx", "HELLO").await;
     assert_eq!(result["ok"], serde_json::Value::Bool(false), "{result}");
     assert!(result.to_string().contains("writes = false"), "{result}");

@@ -71,16 +71,6 @@ async fn holding(ctx: &mut Context, address: u16, count: u16) -> Vec<u16> {
         .expect("read")
 }
 
-async fn session(port: u16) -> zenoh::Session {
-    let mut c = zenoh::Config::default();
-    c.insert_json5("mode", r#""client""#).expect("mode");
-    c.insert_json5("connect/endpoints", &format!(r#"["tcp/127.0.0.1:{port}"]"#))
-        .expect("connect");
-    c.insert_json5("scouting/multicast/enabled", "false")
-        .expect("scouting");
-    zenoh::open(c).await.expect("a zenoh session to the demo")
-}
-
 /// Puts `payload` on `<tag>/set` and returns the JSON result the gateway publishes.
 async fn zenoh_set(s: &zenoh::Session, tag: &str, payload: &str) -> Value {
     let key = format!("gw/demo/ksvario/meter/{tag}/set");
@@ -182,7 +172,7 @@ async fn every_tag_type_reads_and_writes_over_modbus_tcp_rest_and_zenoh() {
     );
 
     // --- zenoh: the same values by query ---
-    let s = session(gw.zenoh_port.expect("zenoh port")).await;
+    let s = gateway_tests::zenoh_client(gw.zenoh_port.expect("zenoh port")).await;
     let mut got = std::collections::BTreeMap::new();
     let replies = s.get("gw/demo/ksvario/meter/*").await.expect("get");
     while let Ok(reply) = replies.recv_async().await {

@@ -20,18 +20,6 @@ fn frame(address: u8, pdu: &[u8]) -> Vec<u8> {
     out
 }
 
-async fn zenoh_session(port: u16) -> zenoh::Session {
-    let mut c = zenoh::Config::default();
-    c.insert_json5("mode", r#""client""#).expect("mode");
-    c.insert_json5("connect/endpoints", &format!(r#"["tcp/127.0.0.1:{port}"]"#))
-        .expect("connect");
-    c.insert_json5("scouting/multicast/enabled", "false")
-        .expect("scouting");
-    zenoh::open(c)
-        .await
-        .expect("a zenoh session to the gateway")
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_tap_line_serves_another_masters_values_and_refuses_every_write() {
     let dir = temp_dir("tap-line");
@@ -145,7 +133,7 @@ unit_id = 2
     assert!(body.contains("listen-only"), "{body}");
 
     // zenoh: the set is refused on its result key.
-    let session = zenoh_session(zenoh_port).await;
+    let session = gateway_tests::zenoh_client(zenoh_port).await;
     let key = "gw/tap/bus/atv71/ACC/set";
     let result = session
         .declare_subscriber(format!("{key}/result"))

@@ -27,16 +27,6 @@ fn demo_with_zenoh(extra: &[&str]) -> (Gateway, u16) {
     (gw, port)
 }
 
-async fn session(port: u16) -> zenoh::Session {
-    let mut c = zenoh::Config::default();
-    c.insert_json5("mode", r#""client""#).expect("mode");
-    c.insert_json5("connect/endpoints", &format!(r#"["tcp/127.0.0.1:{port}"]"#))
-        .expect("connect");
-    c.insert_json5("scouting/multicast/enabled", "false")
-        .expect("scouting");
-    zenoh::open(c).await.expect("a zenoh session to the demo")
-}
-
 fn json(sample: &zenoh::sample::Sample) -> Value {
     serde_json::from_slice(&sample.payload().to_bytes()).expect("JSON payload")
 }
@@ -65,7 +55,7 @@ fn keep_mailbox_empty(gw: &Gateway) -> tokio::task::JoinHandle<()> {
 async fn a_zenoh_session_receives_gets_sends_and_sets() {
     let (gw, port) = demo_with_zenoh(&["--telegram-every", "20ms"]);
     let _acks = keep_mailbox_empty(&gw);
-    let s = session(port).await;
+    let s = gateway_tests::zenoh_client(port).await;
 
     // Tag values on change, as JSON.
     let tags = s
@@ -267,7 +257,7 @@ async fn a_zenoh_session_receives_gets_sends_and_sets() {
 async fn thousand_telegrams_in_order_each_published_once() {
     let (gw, port) = demo_with_zenoh(&["--telegram-every", "3ms"]);
     let _acks = keep_mailbox_empty(&gw);
-    let s = session(port).await;
+    let s = gateway_tests::zenoh_client(port).await;
     let rx = s
         .declare_subscriber("gw/demo/r3964/rx")
         .await
@@ -296,7 +286,7 @@ async fn thousand_telegrams_in_order_each_published_once() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_gateway_outlives_its_zenoh_peer_and_publishes_again() {
     let (gw, port) = demo_with_zenoh(&[]);
-    let s = session(port).await;
+    let s = gateway_tests::zenoh_client(port).await;
     let sub = s
         .declare_subscriber("gw/demo/drive/atv71/*")
         .await
@@ -320,7 +310,7 @@ async fn the_gateway_outlives_its_zenoh_peer_and_publishes_again() {
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
     // A peer comes back and receives publications again (a write makes a value change).
-    let s = session(port).await;
+    let s = gateway_tests::zenoh_client(port).await;
     let sub = s
         .declare_subscriber("gw/demo/drive/atv71/DEC")
         .await
