@@ -28,6 +28,11 @@ pub enum Direction {
     Rx,
     /// Sent by the gateway.
     Tx,
+    /// Received on the first port of a listen-only line with two ports (a Y-cable tap of a
+    /// point-to-point link): what partner A transmits.
+    A,
+    /// Received on the second port of such a line: what partner B transmits.
+    B,
 }
 
 // === impl Direction ===
@@ -38,6 +43,8 @@ impl Direction {
         match self {
             Self::Rx => "rx",
             Self::Tx => "tx",
+            Self::A => "a",
+            Self::B => "b",
         }
     }
 }
@@ -287,7 +294,7 @@ const fn is_request(role: Role, direction: Direction) -> Option<bool> {
     match (role, direction) {
         (Role::Master, Direction::Tx) | (Role::Slave, Direction::Rx) => Some(true),
         (Role::Master, Direction::Rx) | (Role::Slave, Direction::Tx) => Some(false),
-        (Role::Listener, _) => None,
+        (Role::Listener, _) | (_, Direction::A | Direction::B) => None,
     }
 }
 

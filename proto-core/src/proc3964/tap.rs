@@ -38,6 +38,7 @@
 use std::collections::VecDeque;
 use std::time::Duration;
 
+use crate::serial_marks::LineError;
 use crate::time::Instant;
 
 use super::frame::{Deframer, FrameError, Progress};
@@ -134,6 +135,13 @@ pub enum Fault {
         /// How many bytes.
         len: usize,
     },
+    /// The tap's UART received a character of this side with a parity or framing error, a
+    /// BREAK, or lost characters to an overrun (7.2 08 07h/08 0Bh/08 0Ch): inside a telegram the
+    /// tap's copy is damaged and is not delivered, even if the receiver acknowledged its own.
+    LineError {
+        /// What the UART reported.
+        error: LineError,
+    },
 }
 
 // === impl Fault ===
@@ -148,6 +156,7 @@ impl Fault {
             Self::Frame(_) => "bad_telegram",
             Self::Conflict => "conflict",
             Self::Stray { .. } => "stray",
+            Self::LineError { .. } => "line_error",
         }
     }
 }
@@ -197,6 +206,8 @@ pub struct TapCounters3964 {
     pub conflicts: u64,
     /// Bytes outside any exchange.
     pub stray_bytes: u64,
+    /// Line errors the tap's UART reported (parity, framing, BREAK, overrun).
+    pub line_errors: u64,
 }
 
 #[derive(Clone, Debug)]
@@ -213,12 +224,15 @@ enum State {
         sender: Side,
         deframer: Deframer,
         deadline: Instant,
+        /// A line error inside the telegram: the tap's copy is damaged.
+        damaged: Option<LineError>,
     },
     /// The telegram ended (or was cut off); waiting for the receiver's DLE or NAK.
     Ack {
         sender: Side,
         result: Result<Vec<u8>, FrameError>,
         deadline: Instant,
+        damaged: Option<LineError>,
     },
 }
 
@@ -279,6 +293,22 @@ impl Tap3964 {
         }
     }
 
+    /// The tap's UART reported a line error on `side`'s port at `now`, between the bytes handed
+    /// over before and after it (7.2 08 07h/08 0Bh/08 0Ch). Inside a telegram of `side` the
+    /// telegram is marked damaged: when it is acknowledged it is reported as a
+    /// [`Fault::LineError`], not delivered. Anywhere else the error is reported at once.
+    pub fn handle_line_error(&mut self, side: Side, now: Instant, error: LineError) {
+        self.handle_timeout(now);
+        match &mut self.state {
+            State::Data {
+                sender, damaged, ..
+            } if *sender == side => {
+                damaged.get_or_insert(error);
+            }
+            _ => self.line_error_fault(side, error),
+        }
+    }
+
     /// Handles every deadline that passed at or before `now`, each at its own time.
     pub fn handle_timeout(&mut self, now: Instant) {
         while let Some(deadline) = self.poll_timeout().filter(|&deadline| deadline <= now) {
@@ -326,6 +356,7 @@ impl Tap3964 {
                                 usize::from(self.config.max_len),
                             ),
                             deadline: now + zvz,
+                            damaged: None,
                         };
                         true
                     }
@@ -376,6 +407,7 @@ impl Tap3964 {
                 sender,
                 mut deframer,
                 deadline,
+                damaged,
             } => {
                 if side == sender {
                     if deframer.push(byte) == Progress::Complete {
@@ -383,12 +415,14 @@ impl Tap3964 {
                             sender,
                             result: deframer.finish(),
                             deadline: now + qvz,
+                            damaged,
                         };
                     } else {
                         self.state = State::Data {
                             sender,
                             deframer,
                             deadline: now + zvz,
+                            damaged,
                         };
                     }
                     true
@@ -407,6 +441,7 @@ impl Tap3964 {
                         sender,
                         deframer,
                         deadline,
+                        damaged,
                     };
                     false
                 }
@@ -415,9 +450,15 @@ impl Tap3964 {
                 sender,
                 result,
                 deadline,
+                damaged,
             } => {
                 if side == sender.other() && byte == DLE {
                     match result {
+                        // The receiver took it, but the tap's copy has a line error in it.
+                        Ok(_) if damaged.is_some() => {
+                            self.failed[sender.index()] = false;
+                            self.damaged(sender, damaged);
+                        }
                         Ok(data) => {
                             self.failed[sender.index()] = false;
                             self.counters.telegrams[sender.index()] += 1;
@@ -429,10 +470,14 @@ impl Tap3964 {
                         }
                         // The receiver took a telegram the tap received damaged: reported, not
                         // delivered.
-                        Err(error) => self.frame_fault(sender, error),
+                        Err(error) => {
+                            self.damaged(sender, damaged);
+                            self.frame_fault(sender, error);
+                        }
                     }
                     true
                 } else if side == sender.other() && byte == NAK {
+                    self.damaged(sender, damaged);
                     if let Err(error) = result {
                         self.frame_fault(sender, error);
                     }
@@ -445,6 +490,7 @@ impl Tap3964 {
                     true
                 } else if byte == STX {
                     // A new request before the acknowledgement: the one awaited is missing.
+                    self.damaged(sender, damaged);
                     if let Err(error) = result {
                         self.frame_fault(sender, error);
                     }
@@ -461,6 +507,7 @@ impl Tap3964 {
                         sender,
                         result,
                         deadline,
+                        damaged,
                     };
                     false
                 }
@@ -507,7 +554,10 @@ impl Tap3964 {
                 }
             }
             State::Data {
-                sender, deframer, ..
+                sender,
+                deframer,
+                damaged,
+                ..
             } => {
                 // 7.2 08 06h: the character delay time ran out inside the telegram. The receiver
                 // answers NAK; it is awaited like the acknowledgement.
@@ -516,9 +566,16 @@ impl Tap3964 {
                     sender,
                     result: Err(error),
                     deadline: now + self.config.qvz,
+                    damaged,
                 };
             }
-            State::Ack { sender, result, .. } => {
+            State::Ack {
+                sender,
+                result,
+                damaged,
+                ..
+            } => {
+                self.damaged(sender, damaged);
                 if let Err(error) = result {
                     self.frame_fault(sender, error);
                 }
@@ -530,6 +587,21 @@ impl Tap3964 {
                 );
             }
         }
+    }
+
+    /// Reports the line error inside `sender`'s telegram, if there was one.
+    fn damaged(&mut self, sender: Side, damaged: Option<LineError>) {
+        if let Some(error) = damaged {
+            self.line_error_fault(sender, error);
+        }
+    }
+
+    fn line_error_fault(&mut self, side: Side, error: LineError) {
+        self.counters.line_errors += 1;
+        self.events.push_back(TapEvent3964::Fault {
+            side,
+            fault: Fault::LineError { error },
+        });
     }
 
     fn frame_fault(&mut self, sender: Side, error: FrameError) {
@@ -555,6 +627,10 @@ impl Tap3964 {
             }
             Fault::Conflict => self.counters.conflicts += 1,
             Fault::Stray { len } => self.count_stray(len),
+            Fault::LineError { error } => {
+                self.line_error_fault(sender, error);
+                return;
+            }
         }
         self.failed[sender.index()] = true;
         self.events.push_back(TapEvent3964::Fault {

@@ -241,3 +241,93 @@ fn without_block_check_the_telegram_ends_at_dle_etx() {
         [TapEvent3964::Telegram { data, .. }] if data == b"ABC"
     ));
 }
+
+/// 7.2 08 07h: a character with a parity error inside a telegram damages the tap's copy. The
+/// receiver may still acknowledge its own (its UART saw no error): the tap reports the line error
+/// (and the BCC the missing character breaks) and delivers nothing. Outside a telegram the error is reported at once; the next exchange is
+/// delivered as usual.
+#[test]
+fn a_line_error_inside_a_telegram_is_reported_and_the_telegram_not_delivered() {
+    let mut tap = tap();
+    tap.handle_rx(Side::A, at(0), &[STX]);
+    tap.handle_rx(Side::B, at(2), &[DLE]);
+    tap.handle_rx(Side::A, at(10), &[0x41]);
+    tap.handle_line_error(Side::A, at(11), LineError::ParityOrFraming);
+    tap.handle_rx(Side::A, at(12), &[0x43, DLE, ETX, 0x53]);
+    tap.handle_rx(Side::B, at(14), &[DLE]);
+    // The faulty 'B' is not in the data, so the BCC does not match either.
+    assert_eq!(
+        events(&mut tap),
+        [
+            TapEvent3964::Fault {
+                side: Side::A,
+                fault: Fault::LineError {
+                    error: LineError::ParityOrFraming
+                },
+            },
+            TapEvent3964::Fault {
+                side: Side::A,
+                fault: Fault::Frame(FrameError::BadBcc {
+                    expected: 0x41 ^ 0x43 ^ DLE ^ ETX,
+                    actual: 0x53
+                }),
+            },
+        ]
+    );
+    assert_eq!(tap.counters().telegrams, [0, 0]);
+
+    // A BREAK on B's port while idle: reported for B at once.
+    tap.handle_line_error(Side::B, at(20), LineError::Break);
+    assert_eq!(
+        events(&mut tap),
+        [TapEvent3964::Fault {
+            side: Side::B,
+            fault: Fault::LineError {
+                error: LineError::Break
+            },
+        }]
+    );
+
+    // A damaged telegram the receiver refuses: the line error and the NAK, then A repeats.
+    tap.handle_rx(Side::A, at(30), &[STX]);
+    tap.handle_rx(Side::B, at(32), &[DLE]);
+    tap.handle_line_error(Side::A, at(33), LineError::Overrun);
+    tap.handle_rx(Side::A, at(34), &encode(b"AB", Variant::P3964R));
+    tap.handle_rx(Side::B, at(36), &[NAK]);
+    exchange(&mut tap, Side::A, 40, b"ABC", DLE);
+    assert_eq!(
+        events(&mut tap),
+        [
+            TapEvent3964::Fault {
+                side: Side::A,
+                fault: Fault::LineError {
+                    error: LineError::Overrun
+                },
+            },
+            TapEvent3964::Fault {
+                side: Side::A,
+                fault: Fault::Nak {
+                    after_telegram: true
+                },
+            },
+            TapEvent3964::Repetition { side: Side::A },
+            TapEvent3964::Telegram {
+                side: Side::A,
+                data: b"ABC".to_vec(),
+                at: at(52),
+            },
+        ]
+    );
+    let counters = tap.counters();
+    assert_eq!(
+        (counters.line_errors, counters.naks, counters.telegrams),
+        (3, 1, [1, 0])
+    );
+    assert_eq!(
+        Fault::LineError {
+            error: LineError::Break
+        }
+        .as_str(),
+        "line_error"
+    );
+}
