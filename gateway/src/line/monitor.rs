@@ -101,6 +101,9 @@ pub struct FrameMonitor {
     counters: Option<(IntCounter, IntCounter)>,
     /// Cancelled when the line's task ends (no more frames come).
     ended: CancellationToken,
+    /// The line's two directions: received and sent (`rx`, `tx`), or the two received sides of
+    /// a line with two receive-only ports (`a`, `b`).
+    directions: [Direction; 2],
 }
 
 // === impl FrameMonitor ===
@@ -134,11 +137,25 @@ impl FrameMonitor {
                 )
             }),
             ended: CancellationToken::new(),
+            directions: [Direction::Rx, Direction::Tx],
         }
     }
 
     fn lock(&self) -> MutexGuard<'_, Ring> {
         self.ring.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The monitor of a line whose frames go the two `directions` (see [`Self::directions`]).
+    #[must_use]
+    pub fn with_directions(mut self, directions: [Direction; 2]) -> Self {
+        self.directions = directions;
+        self
+    }
+
+    /// The line's two directions: `[Rx, Tx]`, or `[A, B]` for a line with two receive-only
+    /// ports (a capture has one interface for each).
+    pub fn directions(&self) -> [Direction; 2] {
+        self.directions
     }
 
     /// The line's name.
@@ -286,6 +303,11 @@ pub(crate) struct Recorder {
     tx_end: Option<Instant>,
     bytes: Vec<u8>,
     errors: Vec<FrameLineError>,
+    /// The direction of the frames it receives (`Rx`, or `A`/`B` on a two-port line).
+    rx: Direction,
+    /// The byte of the last received frame, if it was one byte long and ended in the last
+    /// [`Self::received`] (a control character for the other port, see [`Self::take_control`]).
+    control: Option<u8>,
 }
 
 impl Drop for Recorder {
@@ -320,7 +342,27 @@ impl Recorder {
             tx_end: None,
             bytes: Vec::new(),
             errors: Vec::new(),
+            rx: Direction::Rx,
+            control: None,
         }
+    }
+
+    /// Records received frames as going `direction` (a port of a two-port line).
+    #[must_use]
+    pub(crate) fn receiving_as(mut self, direction: Direction) -> Self {
+        self.rx = direction;
+        self
+    }
+
+    /// The byte of a one-byte frame the last [`Self::received`] ended, once.
+    pub(crate) fn take_control(&mut self) -> Option<u8> {
+        self.control.take()
+    }
+
+    /// The partner on the line's other port sent `frame`: to this port's framing it is what the
+    /// gateway's own transmission would be (3964(R): a DLE answers STX, a telegram follows).
+    pub(crate) fn peer_sent(&mut self, frame: &[u8]) {
+        self.cutter.sent(frame);
     }
 
     /// The port was (re)opened: a frame cut off by the loss of the port ends.
@@ -346,6 +388,7 @@ impl Recorder {
     /// delivers faster than the wire, such as a pty, does not date an answer before its request).
     pub(crate) fn received(&mut self, now: Instant, data: &[u8]) {
         self.expire(now);
+        self.control = None;
         let n = data.len();
         let floor = self.tx_end.map(|end| end.min(now));
         for (i, &byte) in data.iter().enumerate() {
@@ -396,9 +439,13 @@ impl Recorder {
     fn close(&mut self) {
         let Some(open) = self.open.take() else { return };
         self.cutter.reset();
+        self.control = match self.bytes[..] {
+            [byte] => Some(byte),
+            _ => None,
+        };
         let times = self.times(open.first, open.last);
         self.monitor
-            .push(Direction::Rx, times, &mut self.bytes, &mut self.errors);
+            .push(self.rx, times, &mut self.bytes, &mut self.errors);
     }
 
     fn times(&self, first: Instant, last: Instant) -> FrameTimes {

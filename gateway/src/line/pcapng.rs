@@ -75,13 +75,16 @@ pub fn capture(monitor: &FrameMonitor, frames: &[Frame]) -> Vec<u8> {
     block(&mut out, SHB, &body);
 
     let link = link_type(monitor.kind());
-    for direction in [Direction::Rx, Direction::Tx] {
+    let directions = monitor.directions();
+    for direction in directions {
         let mut opts = Vec::new();
         let name = format!("{} {}", monitor.line(), direction.as_str());
         option(&mut opts, IF_NAME, name.as_bytes());
         let what = match direction {
             Direction::Rx => "received by the gateway",
             Direction::Tx => "sent by the gateway",
+            Direction::A => "partner A transmitted (first port)",
+            Direction::B => "partner B transmitted (second port)",
         };
         option(
             &mut opts,
@@ -99,9 +102,12 @@ pub fn capture(monitor: &FrameMonitor, frames: &[Frame]) -> Vec<u8> {
     }
 
     for frame in frames {
-        let (interface, flags) = match frame.direction {
-            Direction::Rx => (0u32, INBOUND),
-            Direction::Tx => (1u32, OUTBOUND),
+        // One interface per direction, in the monitor's order; a listener's two sides are both
+        // inbound to it.
+        let interface = u32::from(frame.direction == directions[1]);
+        let flags = match frame.direction {
+            Direction::Tx => OUTBOUND,
+            Direction::Rx | Direction::A | Direction::B => INBOUND,
         };
         let ts = micros(frame.first);
         let len = u32::try_from(frame.bytes.len()).unwrap_or(u32::MAX);

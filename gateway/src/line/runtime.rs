@@ -33,7 +33,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use proto_core::event::{ids, EventId};
-use proto_core::monitor::Framing;
+use proto_core::monitor::{Direction, Framing};
 use proto_core::serial_marks::{LineError, MarkDecoder, Piece};
 use proto_core::telegram::Action;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
@@ -140,6 +140,12 @@ pub(crate) trait LineEngine: Send + 'static {
     /// A character received with a parity or framing error, a BREAK, or characters lost to an
     /// overrun, at `now`, between the bytes handed to `handle_rx` before and after it.
     fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError);
+    /// Bytes received on the line's second, receive-only port at `now` (only a line started
+    /// with one, see [`LineBase::with_second_port`]: a listen-only tap of both directions of a
+    /// point-to-point link).
+    fn handle_rx_second(&mut self, _now: proto_core::time::Instant, _bytes: &[u8]) {}
+    /// A line error on the second port, as [`Self::handle_line_error`] on the first.
+    fn handle_line_error_second(&mut self, _now: proto_core::time::Instant, _error: LineError) {}
     /// The engine's deadline has come.
     fn handle_timeout(&mut self, now: proto_core::time::Instant);
     /// The engine's next deadline.
@@ -204,6 +210,8 @@ pub(crate) struct LineBase {
     pub(crate) reopen_max: Duration,
     /// Where the line counts its events, traffic and requests (`None`: nowhere).
     pub(crate) metrics: Option<Metrics>,
+    /// A second port the line only reads, with the first port's settings (`None`: one port).
+    pub(crate) second_port: Option<String>,
 }
 
 // === impl LineBase ===
@@ -226,7 +234,17 @@ impl LineBase {
             reopen_min: reopen.0,
             reopen_max: reopen.1,
             metrics: metrics.cloned(),
+            second_port: None,
         }
+    }
+
+    /// The line also reads the port at `path` (same settings as the first, never written): the
+    /// two directions of a point-to-point link seen through a Y-cable. Both ports open and fail
+    /// together; the monitor records the first port's frames as direction `a`, the second's as
+    /// `b`; the engine gets the second port's bytes through [`LineEngine::handle_rx_second`].
+    pub(crate) fn with_second_port(mut self, path: &str) -> Self {
+        self.second_port = Some(path.to_owned());
+        self
     }
 
     /// The line's shared state (status with `devices`, diagnostic buffer, events, metrics) on its
@@ -374,17 +392,34 @@ pub(crate) fn spawn<E: LineEngine, O: PortOpener>(
     let name = base.name.clone();
     let protocol = base.protocol;
     let framing = engine.monitor_framing();
+    let two_ports = base.second_port.is_some();
+    let directions = if two_ports {
+        [Direction::A, Direction::B]
+    } else {
+        [Direction::Rx, Direction::Tx]
+    };
     let monitor = (base.port.monitor_frames > 0).then(|| {
-        Arc::new(FrameMonitor::new(
-            &name,
-            framing.kind,
-            base.port.monitor_frames,
-            base.metrics.as_ref(),
-        ))
+        Arc::new(
+            FrameMonitor::new(
+                &name,
+                framing.kind,
+                base.port.monitor_frames,
+                base.metrics.as_ref(),
+            )
+            .with_directions(directions),
+        )
     });
-    let recorder = monitor
-        .as_ref()
-        .map(|m| Recorder::new(Arc::clone(m), clock, framing, base.port.char_time()));
+    let reader = |direction| Reader {
+        marks: MarkDecoder::new(),
+        uart: None,
+        no_uart_counters: false,
+        recorder: monitor.as_ref().map(|m| {
+            Recorder::new(Arc::clone(m), clock, framing, base.port.char_time())
+                .receiving_as(direction)
+        }),
+    };
+    let first = reader(directions[0]);
+    let second = two_ports.then(|| reader(Direction::B));
     let task = PortTask {
         base,
         shared: Arc::clone(&shared),
@@ -393,10 +428,8 @@ pub(crate) fn spawn<E: LineEngine, O: PortOpener>(
         commands,
         opener,
         shutdown,
-        marks: MarkDecoder::new(),
-        uart: None,
-        no_uart_counters: false,
-        recorder,
+        first,
+        second,
     };
     let task = tokio::spawn(task.run());
     LineHandle {
@@ -426,14 +459,79 @@ struct PortTask<E: LineEngine, O> {
     commands: Option<mpsc::Receiver<E::Command>>,
     opener: O,
     shutdown: CancellationToken,
+    /// What the line keeps of the port it reads (and writes).
+    first: Reader,
+    /// The same of its second, receive-only port, if it has one.
+    second: Option<Reader>,
+}
+
+/// Which of a line's ports bytes came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Which {
+    First,
+    Second,
+}
+
+/// The receive side of one port of a line.
+#[derive(Debug)]
+struct Reader {
     /// Undoes the tty layer's line error marks of the open port (reset on every opening).
     marks: MarkDecoder,
     /// The UART's counters at the last look; `None` before the first look on this opening.
     uart: Option<UartCounters>,
     /// The port has no UART counters (a pty): not asked again until it is reopened.
     no_uart_counters: bool,
-    /// Records the line's frames into its monitor (`None`: the monitor is off).
+    /// Records the port's frames into the line's monitor (`None`: the monitor is off).
     recorder: Option<Recorder>,
+}
+
+// === impl Reader ===
+
+impl Reader {
+    /// The port was (re)opened: nothing carries over.
+    fn opened(&mut self) {
+        self.marks.reset();
+        self.no_uart_counters = false;
+        self.uart = None;
+        if let Some(recorder) = &mut self.recorder {
+            recorder.opened();
+        }
+    }
+
+    /// Ends the received frame in progress if its silence has passed at `now`.
+    fn expire(&mut self, now: Instant) {
+        if let Some(recorder) = &mut self.recorder {
+            recorder.expire(now);
+        }
+    }
+
+    /// When the received frame in progress ends by silence.
+    fn frame_end(&self) -> Option<Instant> {
+        self.recorder.as_ref().and_then(Recorder::deadline)
+    }
+
+    /// Characters lost to an overrun since the last look at the UART's counters (0 without
+    /// counters; a port without them is not asked again).
+    fn overruns<P: LinePort>(&mut self, port: &P, line: &str) -> u32 {
+        if self.no_uart_counters {
+            return 0;
+        }
+        match port.uart_counters() {
+            Some(Ok(counters)) => self
+                .uart
+                .replace(counters)
+                .map_or(0, |earlier| counters.lost_since(&earlier)),
+            Some(Err(err)) => {
+                tracing::debug!(line, %err, "no UART counters on this port");
+                self.no_uart_counters = true;
+                0
+            }
+            None => {
+                self.no_uart_counters = true;
+                0
+            }
+        }
+    }
 }
 
 // === impl PortTask ===
@@ -444,13 +542,13 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
         let name = self.base.name.clone();
         let mut reopen = Backoff::clamped(self.base.reopen_min, self.base.reopen_max);
         loop {
-            match self.opener.open(&self.base.port) {
-                Ok(port) => {
+            match self.open() {
+                Ok((port, second)) => {
                     reopen.reset();
-                    tracing::info!(line = %name, path = %self.base.port.path, protocol = self.base.protocol, "port open");
+                    tracing::info!(line = %name, path = %self.base.port.path, second = self.base.second_port.as_deref(), protocol = self.base.protocol, "port open");
                     // 00 03h "parameter accepted": status, diag buffer, log, metrics.
                     self.shared.started();
-                    let exit = self.drive(port).await;
+                    let exit = self.drive(port, second).await;
                     self.shared.port_closed();
                     let shutting_down = matches!(exit, PortExit::Shutdown);
                     self.engine.closed(shutting_down);
@@ -476,6 +574,23 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
         tracing::info!(line = %name, "line stopped");
     }
 
+    /// Opens the line's port and its second port, if it has one: both or neither.
+    fn open(&self) -> Result<(O::Port, Option<O::Port>), String> {
+        let first = self.opener.open(&self.base.port)?;
+        let Some(path) = &self.base.second_port else {
+            return Ok((first, None));
+        };
+        let settings = PortSettings {
+            path: path.clone(),
+            ..self.base.port.clone()
+        };
+        let second = self
+            .opener
+            .open(&settings)
+            .map_err(|err| format!("second port {path}: {err}"))?;
+        Ok((first, Some(second)))
+    }
+
     fn port_failed(&mut self, id: EventId, reason: String) {
         self.shared.update(|s| s.port_error = Some(reason.clone()));
         self.engine.port_failed(id, reason);
@@ -497,75 +612,101 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
         }
     }
 
-    /// Hands bytes read from the port to the engine: the one place where received bytes pass
+    /// Hands bytes read from a port to the engine: the one place where received bytes pass
     /// from the port to the protocol. The tty layer's marks are undone here: data to the engine's
     /// `handle_rx`, a faulty character or a BREAK to its `handle_line_error`, in stream order (a
-    /// read without an `FF` byte goes to the engine as it is, without a copy).
-    fn receive(&mut self, bytes: &[u8]) {
+    /// read without an `FF` byte goes to the engine as it is, without a copy). Bytes of the
+    /// second port go to the engine's `*_second` hooks.
+    fn receive(&mut self, which: Which, bytes: &[u8]) {
         let (at, now) = self.clock.now();
         let mut data = 0;
-        for piece in self.marks.decode(bytes) {
+        let reader = match which {
+            Which::First => &mut self.first,
+            Which::Second => match &mut self.second {
+                Some(second) => second,
+                None => return,
+            },
+        };
+        for piece in reader.marks.decode(bytes) {
             match piece {
                 Piece::Data(bytes) => {
                     data += bytes.len();
-                    if let Some(recorder) = &mut self.recorder {
+                    if let Some(recorder) = &mut reader.recorder {
                         recorder.received(at, bytes);
                     }
-                    self.engine.handle_rx(now, bytes);
+                    match which {
+                        Which::First => self.engine.handle_rx(now, bytes),
+                        Which::Second => self.engine.handle_rx_second(now, bytes),
+                    }
                 }
                 Piece::Error { error, .. } => {
-                    if let Some(recorder) = &mut self.recorder {
+                    if let Some(recorder) = &mut reader.recorder {
                         recorder.line_error(at, error);
                     }
-                    self.engine.handle_line_error(now, error);
+                    match which {
+                        Which::First => self.engine.handle_line_error(now, error),
+                        Which::Second => self.engine.handle_line_error_second(now, error),
+                    }
                 }
+            }
+        }
+        // A control character one port received tells the other port's framing what comes
+        // next, as the gateway's own transmission would (3964(R): a DLE answers STX, so the
+        // partner's telegram follows).
+        let control = reader.recorder.as_mut().and_then(Recorder::take_control);
+        let other = match which {
+            Which::First => self.second.as_mut(),
+            Which::Second => Some(&mut self.first),
+        };
+        if let (Some(byte), Some(other)) = (control, other) {
+            if let Some(recorder) = &mut other.recorder {
+                recorder.peer_sent(&[byte]);
             }
         }
         self.shared.metrics().received_bytes(data);
     }
 
-    /// Looks at the UART's counters (after a read): characters lost to an overrun since the last
-    /// look go to the engine as [`LineError::Overrun`] (003 7.2, 08 0Ch), the one line error the
-    /// stream's marks cannot show. A port without counters is not asked again.
-    fn check_uart(&mut self, port: &O::Port) {
-        if self.no_uart_counters {
+    /// Looks at the UART's counters of a port (after a read): characters lost to an overrun
+    /// since the last look go to the engine as [`LineError::Overrun`] (003 7.2, 08 0Ch), the one
+    /// line error the stream's marks cannot show. A port without counters is not asked again.
+    fn check_uart(&mut self, which: Which, port: &O::Port) {
+        let line = self.base.name.as_str();
+        let reader = match which {
+            Which::First => &mut self.first,
+            Which::Second => match &mut self.second {
+                Some(second) => second,
+                None => return,
+            },
+        };
+        let lost = reader.overruns(port, line);
+        if lost == 0 {
             return;
         }
-        match port.uart_counters() {
-            Some(Ok(counters)) => {
-                let lost = self
-                    .uart
-                    .replace(counters)
-                    .map_or(0, |earlier| counters.lost_since(&earlier));
-                if lost > 0 {
-                    tracing::debug!(line = %self.base.name, lost, "receive overrun");
-                    let (at, now) = self.clock.now();
-                    if let Some(recorder) = &mut self.recorder {
-                        recorder.line_error(at, LineError::Overrun);
-                    }
-                    self.engine.handle_line_error(now, LineError::Overrun);
-                }
-            }
-            Some(Err(err)) => {
-                tracing::debug!(line = %self.base.name, %err, "no UART counters on this port");
-                self.no_uart_counters = true;
-            }
-            None => self.no_uart_counters = true,
+        tracing::debug!(line, lost, "receive overrun");
+        let (at, now) = self.clock.now();
+        if let Some(recorder) = &mut reader.recorder {
+            recorder.line_error(at, LineError::Overrun);
+        }
+        match which {
+            Which::First => self.engine.handle_line_error(now, LineError::Overrun),
+            Which::Second => self
+                .engine
+                .handle_line_error_second(now, LineError::Overrun),
         }
     }
 
     /// The driver loop on an open port.
-    async fn drive(&mut self, mut port: O::Port) -> PortExit {
+    async fn drive(&mut self, mut port: O::Port, mut second: Option<O::Port>) -> PortExit {
         let path = self.base.port.path.clone();
+        let second_path = self.base.second_port.clone().unwrap_or_default();
         let char_time = self.base.port.char_time();
-        self.marks.reset();
-        self.no_uart_counters = false;
-        self.uart = None;
-        self.check_uart(&port); // the counters' start on this opening
-        self.engine.opened(port.modem());
-        if let Some(recorder) = &mut self.recorder {
-            recorder.opened();
+        self.first.opened();
+        self.check_uart(Which::First, &port); // the counters' start on this opening
+        if let (Some(reader), Some(port)) = (&mut self.second, &second) {
+            reader.opened();
+            let _ = reader.overruns(port, &self.base.name);
         }
+        self.engine.opened(port.modem());
         // The engine's deadlines can be fractions of a millisecond apart (t1.5/t3.5, 003 6.4.3;
         // the turnaround after a broadcast, 003 6.4.2.2): tokio's millisecond timer would add
         // 1.2 ms to each.
@@ -573,6 +714,7 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
         let mut stopping: Option<Stop> = None;
         let mut stop_at: Option<Instant> = None;
         let mut buf = [0u8; READ_BUF];
+        let mut buf_second = [0u8; READ_BUF];
         loop {
             let (now, engine_now) = self.clock.now();
             // A deadline already passed is handled without sleeping (quinn drive_timer).
@@ -583,8 +725,9 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
             {
                 self.engine.handle_timeout(engine_now);
             }
-            if let Some(recorder) = &mut self.recorder {
-                recorder.expire(now);
+            self.first.expire(now);
+            if let Some(reader) = &mut self.second {
+                reader.expire(now);
             }
             if stopping.is_none() {
                 self.engine.start(now);
@@ -601,7 +744,7 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
                 }
                 let written = Instant::now();
                 let end = estimated_tx_end(written, frame.len(), char_time);
-                if let Some(recorder) = &mut self.recorder {
+                if let Some(recorder) = &mut self.first.recorder {
                     recorder.sent(written, end, &frame);
                 }
                 self.shared.metrics().sent_bytes(frame.len());
@@ -615,7 +758,13 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
                 return PortExit::Shutdown;
             }
             let deadline = self.engine.poll_timeout().map(|t| self.clock.to_tokio(t));
-            let frame_end = self.recorder.as_ref().and_then(Recorder::deadline);
+            let frame_end = match (
+                self.first.frame_end(),
+                self.second.as_ref().and_then(Reader::frame_end),
+            ) {
+                (Some(a), Some(b)) => Some(a.min(b)),
+                (a, b) => a.or(b),
+            };
             let reading = stopping.is_none_or(|s| s.read);
             let taking = stopping.is_none();
             tokio::select! {
@@ -637,10 +786,20 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
                 read = port.read(&mut buf), if reading => match read {
                     Ok(0) => return PortExit::Lost(format!("{path} reached end of file")),
                     Ok(n) => {
-                        self.receive(buf.get(..n).unwrap_or_default());
-                        self.check_uart(&port);
+                        self.receive(Which::First, buf.get(..n).unwrap_or_default());
+                        self.check_uart(Which::First, &port);
                     }
                     Err(err) => return PortExit::Lost(format!("read from {path} failed: {err}")),
+                },
+                read = read_opt(&mut second, &mut buf_second), if reading => match read {
+                    Ok(0) => return PortExit::Lost(format!("{second_path} reached end of file")),
+                    Ok(n) => {
+                        self.receive(Which::Second, buf_second.get(..n).unwrap_or_default());
+                        if let Some(port) = &second {
+                            self.check_uart(Which::Second, port);
+                        }
+                    }
+                    Err(err) => return PortExit::Lost(format!("read from {second_path} failed: {err}")),
                 },
                 () = timer.sleep_until_opt(deadline) => {
                     let (_, engine_now) = self.clock.now();
@@ -655,6 +814,14 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
                 },
             }
         }
+    }
+}
+
+/// Reads the port if there is one; never completes without one.
+async fn read_opt<P: LinePort>(port: &mut Option<P>, buf: &mut [u8]) -> std::io::Result<usize> {
+    match port {
+        Some(port) => port.read(buf).await,
+        None => std::future::pending().await,
     }
 }
 
@@ -964,6 +1131,169 @@ mod tests {
         let mut zeros = [0xAAu8; 2];
         partner2.read_exact(&mut zeros).await.expect("echo");
         assert_eq!(zeros, [0x00, 0x00]);
+
+        shutdown.cancel();
+        tokio::time::timeout(Duration::from_secs(2), line.join())
+            .await
+            .expect("the line stops");
+    }
+
+    /// Keeps what each port of a two-port line hands it; never transmits.
+    struct Listener {
+        shared: Arc<Shared>,
+        got: Arc<Mutex<Vec<(Which, Vec<u8>)>>>,
+    }
+
+    impl LineEngine for Listener {
+        type Command = ();
+
+        fn opened(&mut self, _modem: Option<&mut dyn SerialPort>) {}
+        fn handle_rx(&mut self, _now: proto_core::time::Instant, bytes: &[u8]) {
+            let mut got = self.got.lock().unwrap_or_else(PoisonError::into_inner);
+            got.push((Which::First, bytes.to_vec()));
+        }
+        fn handle_rx_second(&mut self, _now: proto_core::time::Instant, bytes: &[u8]) {
+            let mut got = self.got.lock().unwrap_or_else(PoisonError::into_inner);
+            got.push((Which::Second, bytes.to_vec()));
+        }
+        fn handle_line_error(&mut self, _now: proto_core::time::Instant, _error: LineError) {}
+        fn handle_line_error_second(&mut self, _now: proto_core::time::Instant, error: LineError) {
+            let mut got = self.got.lock().unwrap_or_else(PoisonError::into_inner);
+            got.push((Which::Second, format!("<{error:?}>").into_bytes()));
+        }
+        fn handle_timeout(&mut self, _now: proto_core::time::Instant) {}
+        fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
+            None
+        }
+        fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+            None
+        }
+        fn transmitted(&mut self, _at: Instant, _len: usize, _end: proto_core::time::Instant) {}
+        fn handle_events(&mut self) -> bool {
+            false
+        }
+        fn command(&mut self, (): (), _modem: Option<&mut dyn SerialPort>) {}
+        fn refuse(&mut self, (): (), _shutting_down: bool) {}
+        fn stop(&mut self) -> Stop {
+            Stop {
+                read: false,
+                close_queue: true,
+                grace: None,
+            }
+        }
+        fn done(&self) -> bool {
+            true
+        }
+        fn closed(&mut self, _shutting_down: bool) {}
+        fn port_failed(&mut self, id: EventId, reason: String) {
+            self.shared.raise(id, None, Some(reason));
+        }
+        fn monitor_framing(&self) -> Framing {
+            Framing {
+                kind: proto_core::monitor::FrameKind::Proc3964 { bcc: true },
+                gap: Some(Duration::from_millis(50)),
+            }
+        }
+    }
+
+    #[tokio::test]
+    async fn a_line_with_a_second_port_reads_both_and_records_each_as_its_side() {
+        use proto_core::monitor::Direction;
+        use proto_core::proc3964::{DLE, STX};
+
+        // First opening: the second port is missing, so neither stays open (02 0Fh names it).
+        let (a, mut partner_a) = tokio::io::duplex(64);
+        let (b, mut partner_b) = tokio::io::duplex(64);
+        let (unused, _unused_partner) = tokio::io::duplex(64);
+        let opener = Ports(Mutex::new(VecDeque::from([
+            Ok(unused),
+            Err("busy".to_owned()),
+            Ok(a),
+            Ok(b),
+        ])));
+        let base = LineBase::new(
+            "y",
+            "listener",
+            &PortSettings::new("/dev/in-process-a", 9600),
+            8,
+            (Duration::from_millis(10), Duration::from_millis(20)),
+            None,
+        )
+        .with_second_port("/dev/in-process-b");
+        let core = base.core(Vec::new());
+        let got = Arc::new(Mutex::new(Vec::new()));
+        let engine = Listener {
+            shared: Arc::clone(&core.shared),
+            got: Arc::clone(&got),
+        };
+        let shutdown = CancellationToken::new();
+        let line = spawn(
+            core,
+            engine,
+            None,
+            Arc::new(Nothing),
+            opener,
+            shutdown.clone(),
+        );
+        eventually("the ports open", || line.status().port_open).await;
+        assert_eq!(events(&line, EVENT_PORT_SETUP), 1);
+        assert_eq!(line.status().port_opens, 1);
+        let monitor = Arc::clone(line.monitor().expect("a monitor"));
+        assert_eq!(monitor.directions(), [Direction::A, Direction::B]);
+
+        // A asks, B acknowledges, A's telegram begins with a doubled DLE (data 10 20): B's DLE
+        // tells A's framing that a telegram follows, so it is one frame, not a DLE and the rest.
+        let telegram = [DLE, DLE, 0x20, DLE, 0x03, 0x20 ^ 0x03];
+        partner_a.write_all(&[STX]).await.expect("write");
+        eventually("A's STX", || monitor.frames_since(0).0.len() == 1).await;
+        partner_b.write_all(&[DLE]).await.expect("write");
+        eventually("B's DLE", || monitor.frames_since(0).0.len() == 2).await;
+        partner_a.write_all(&telegram).await.expect("write");
+        eventually("A's telegram", || monitor.frames_since(0).0.len() == 3).await;
+        // A parity mark on B's port reaches the engine's second-port hook.
+        partner_b
+            .write_all(&[0xFF, 0x00, b'x', DLE])
+            .await
+            .expect("write");
+        eventually("B's answer", || monitor.frames_since(0).0.len() == 4).await;
+        let (frames, _) = monitor.frames_since(0);
+        assert_eq!(
+            frames
+                .iter()
+                .map(|f| (f.direction, f.bytes.clone()))
+                .collect::<Vec<_>>(),
+            [
+                (Direction::A, vec![STX]),
+                (Direction::B, vec![DLE]),
+                (Direction::A, telegram.to_vec()),
+                (Direction::B, vec![DLE]),
+            ]
+        );
+        assert_eq!(
+            frames[3].errors.len(),
+            1,
+            "the parity error inside B's frame"
+        );
+        let got = got.lock().unwrap_or_else(PoisonError::into_inner).clone();
+        let first: Vec<u8> = got
+            .iter()
+            .filter(|(w, _)| *w == Which::First)
+            .flat_map(|(_, b)| b.clone())
+            .collect();
+        let second: Vec<u8> = got
+            .iter()
+            .filter(|(w, _)| *w == Which::Second)
+            .flat_map(|(_, b)| b.clone())
+            .collect();
+        assert_eq!(first, [&[STX][..], &telegram].concat());
+        assert_eq!(second, b"\x10<ParityOrFraming>\x10");
+        assert_eq!(line.traffic().bytes_received, 1 + 6 + 1 + 1);
+
+        // Losing the second port loses the line: 08 0Dh naming it.
+        drop(partner_b);
+        eventually("the port lost", || events(&line, EVENT_PORT_LOST) == 1).await;
+        let error = line.status().port_error.unwrap_or_default();
+        assert!(error.contains("/dev/in-process-b"), "{error}");
 
         shutdown.cancel();
         tokio::time::timeout(Duration::from_secs(2), line.join())
