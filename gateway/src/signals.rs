@@ -148,6 +148,12 @@ pub enum SignalError {
         /// The flow control, e.g. "RTS/CTS flow control".
         flow: &'static str,
     },
+    /// The line only listens (a 3964(R) tap): it neither reads nor sets modem signals.
+    #[error("line {line} only listens (3964r-tap): its modem signals are not used")]
+    ListenOnly {
+        /// The line's name.
+        line: String,
+    },
     /// The line's port is not open (it is being reopened after a failure).
     #[error("the port of line {line} is not open")]
     PortClosed {

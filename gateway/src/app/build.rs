@@ -10,6 +10,7 @@ use proto_core::modbus::master::{Framing, MasterConfig, OperatingMode};
 
 use crate::config::{self, Config, DeviceConfig, LineConfig, ModbusTable, ProtocolConfig};
 use crate::image::Table;
+use crate::line::telegram::Tap3964LineSettings;
 use crate::line::{
     AddrRange, DeviceLimits, DeviceSettings, LineSettings, PollGroup, ProbeSettings,
     ScannerSettings, TapLineSettings,
@@ -128,6 +129,31 @@ pub(crate) fn tap_line(
         .map(|(name, device)| device_settings(name, device))
         .collect();
     Some((settings, devices))
+}
+
+/// The settings of a listen-only 3964(R) tap line; `None` for lines of other protocols.
+pub(crate) fn tap_3964_line(
+    name: &str,
+    line: &LineConfig,
+    config: &Config,
+) -> Option<Tap3964LineSettings> {
+    let ProtocolConfig::Proc3964Tap(t) = &line.protocol else {
+        return None;
+    };
+    let variant = if t.block_check {
+        proto_core::proc3964::Variant::P3964R
+    } else {
+        proto_core::proc3964::Variant::P3964
+    };
+    let mut settings =
+        Tap3964LineSettings::new(name, port_settings(&line.serial), &t.port_b, variant);
+    settings.tap.zvz = t.character_delay;
+    settings.tap.qvz = t.ack_delay;
+    settings.tap.max_len = t.max_telegram_len;
+    settings.mailbox_depth = usize::from(t.receive_buffer);
+    settings.unit_id = t.unit_id;
+    settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
+    Some(settings)
 }
 
 /// A polled device: its limits, and its poll groups split by table (a config group may mix

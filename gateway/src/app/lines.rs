@@ -86,6 +86,12 @@ pub(crate) fn start_line(
             settings.metrics = Some(deps.metrics.clone());
             line::spawn_modbus_tap_line(settings, devices, deps.image.clone(), token.clone())
         }
+        ProtocolConfig::Proc3964Tap(_) => {
+            let mut settings = build::tap_3964_line(name, line, config)
+                .ok_or_else(|| AppError::Setup(format!("line {name}: not a 3964(R) tap line")))?;
+            settings.metrics = Some(deps.metrics.clone());
+            line::telegram::spawn_3964_tap_line(settings, token.clone())
+        }
         ProtocolConfig::ModbusSlaveRtu(cfg) => {
             let memory = deps
                 .cp_memory
@@ -143,7 +149,8 @@ pub(crate) fn start_issues(
         match &line.protocol {
             ProtocolConfig::ModbusMasterRtu(_)
             | ProtocolConfig::ModbusMasterAscii(_)
-            | ProtocolConfig::ModbusRtuTap(_) => {}
+            | ProtocolConfig::ModbusRtuTap(_)
+            | ProtocolConfig::Proc3964Tap(_) => {}
             ProtocolConfig::ModbusSlaveRtu(cfg) => {
                 if let Some(layout) = layout {
                     if let Err(found) = cpmem::config::slave_params(cfg, layout) {

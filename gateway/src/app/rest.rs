@@ -123,7 +123,8 @@ fn signal_error(e: SignalError) -> ApiError {
         }
         SignalError::Unsupported { .. }
         | SignalError::NotRs232 { .. }
-        | SignalError::DrivenByDriver { .. } => ApiError::conflict(e.to_string()),
+        | SignalError::DrivenByDriver { .. }
+        | SignalError::ListenOnly { .. } => ApiError::conflict(e.to_string()),
     }
 }
 
@@ -250,7 +251,10 @@ impl ApiBackend for RestBackend {
             telegrams: mailbox
                 .waiting()
                 .iter()
-                .map(|t| Telegram::new(u32::from(t.seq), t.received, &t.data))
+                .map(|t| {
+                    Telegram::new(u32::from(t.seq), t.received, &t.data)
+                        .from_side(t.side.map(proto_core::proc3964::tap::Side::as_str))
+                })
                 .collect(),
         })
     }
@@ -289,9 +293,10 @@ impl ApiBackend for RestBackend {
                 Err(e @ TelegramSendError::Refused(_)) => {
                     Err(ApiError::invalid_body(e.to_string()))
                 }
-                Err(e @ TelegramSendError::NotAllowed { .. }) => {
-                    Err(ApiError::conflict(e.to_string()))
-                }
+                Err(
+                    e @ (TelegramSendError::NotAllowed { .. }
+                    | TelegramSendError::ListenOnly { .. }),
+                ) => Err(ApiError::conflict(e.to_string())),
                 Err(e @ (TelegramSendError::Failed { .. } | TelegramSendError::PortClosed)) => {
                     Ok(SendResult::failed(e.event().status_word(), len))
                 }

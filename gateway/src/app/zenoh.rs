@@ -286,7 +286,8 @@ impl BridgeBackend for ZenohBackend {
                 }
                 Err(e) => {
                     let result = match e {
-                        TelegramSendError::NotAllowed { .. } => WriteResult::Refused,
+                        TelegramSendError::NotAllowed { .. }
+                        | TelegramSendError::ListenOnly { .. } => WriteResult::Refused,
                         _ => WriteResult::Failed,
                     };
                     let e = e.to_string();
@@ -585,7 +586,13 @@ fn spawn_line_feeds(
                 Ok(t) => {
                     let data = t.data.to_vec();
                     if bridge
-                        .publish_telegram(&t.line, u64::from(t.seq), t.received, data)
+                        .publish_telegram_from(
+                            &t.line,
+                            u64::from(t.seq),
+                            t.received,
+                            t.side.map(proto_core::proc3964::tap::Side::as_str),
+                            data,
+                        )
                         .is_err()
                     {
                         debug!(line = %t.line, seq = t.seq, "zenoh telegram queue full; the drop is counted");

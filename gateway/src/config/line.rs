@@ -9,7 +9,7 @@ use super::device::DeviceConfig;
 use super::modbus::{ModbusMasterAsciiConfig, ModbusMasterRtuConfig, ModbusSlaveRtuConfig};
 use super::reader::{check_name, Cx, Fields};
 use super::serial::{SerialConfig, DEFAULT_BAUD};
-use super::tap::ModbusRtuTapConfig;
+use super::tap::{ModbusRtuTapConfig, Proc3964TapConfig};
 use super::telegram::{AsciiConfig, Proc3964Config};
 
 /// A line: where and how to talk, and what protocol to speak.
@@ -36,6 +36,9 @@ pub enum ProtocolConfig {
     ModbusRtuTap(ModbusRtuTapConfig),
     #[serde(rename = "3964r")]
     Proc3964(Proc3964Config),
+    /// Listen-only: both directions of a 3964(R) link on two ports.
+    #[serde(rename = "3964r-tap")]
+    Proc3964Tap(Proc3964TapConfig),
     #[serde(rename = "ascii")]
     Ascii(AsciiConfig),
 }
@@ -55,6 +58,9 @@ pub enum ProtocolKind {
     /// 3964 or 3964R, by `block_check`.
     #[serde(rename = "3964r")]
     Proc3964,
+    /// Listen-only 3964(R) on two ports.
+    #[serde(rename = "3964r-tap")]
+    Proc3964Tap,
     #[serde(rename = "ascii")]
     Ascii,
 }
@@ -70,6 +76,7 @@ impl ProtocolKind {
             Self::ModbusSlaveRtu => "modbus-slave-rtu",
             Self::ModbusRtuTap => "modbus-rtu-tap",
             Self::Proc3964 => "3964r",
+            Self::Proc3964Tap => "3964r-tap",
             Self::Ascii => "ascii",
         }
     }
@@ -95,6 +102,7 @@ impl ProtocolConfig {
             Self::ModbusSlaveRtu(_) => ProtocolKind::ModbusSlaveRtu,
             Self::ModbusRtuTap(_) => ProtocolKind::ModbusRtuTap,
             Self::Proc3964(_) => ProtocolKind::Proc3964,
+            Self::Proc3964Tap(_) => ProtocolKind::Proc3964Tap,
             Self::Ascii(_) => ProtocolKind::Ascii,
         }
     }
@@ -114,11 +122,20 @@ impl LineConfig {
         }
     }
 
+    /// The second receive port of a line that has one (`port_b` of a 3964(R) tap).
+    pub fn second_port(&self) -> Option<&str> {
+        match &self.protocol {
+            ProtocolConfig::Proc3964Tap(t) => Some(&t.port_b),
+            _ => None,
+        }
+    }
+
     /// The Modbus TCP unit id of the line itself (slave memory or telegram mailbox), if any.
     pub fn unit_id(&self) -> Option<u8> {
         match &self.protocol {
             ProtocolConfig::ModbusSlaveRtu(s) => s.unit_id,
             ProtocolConfig::Proc3964(p) => p.unit_id,
+            ProtocolConfig::Proc3964Tap(t) => t.unit_id,
             ProtocolConfig::Ascii(a) => a.unit_id,
             ProtocolConfig::ModbusMasterRtu(_)
             | ProtocolConfig::ModbusMasterAscii(_)
@@ -144,7 +161,7 @@ impl LineConfig {
         if !f.has("protocol") {
             cx.issue(
                 f.at("protocol"),
-                "missing required key (modbus-master-rtu, modbus-master-ascii, modbus-slave-rtu, modbus-rtu-tap, 3964r or ascii)",
+                "missing required key (modbus-master-rtu, modbus-master-ascii, modbus-slave-rtu, modbus-rtu-tap, 3964r, 3964r-tap or ascii)",
             );
         }
         let serial = SerialConfig::read(cx, &mut f);
@@ -165,6 +182,9 @@ impl LineConfig {
                 ProtocolConfig::ModbusRtuTap(ModbusRtuTapConfig::read(cx, &mut f))
             }
             ProtocolKind::Proc3964 => ProtocolConfig::Proc3964(Proc3964Config::read(cx, &mut f)),
+            ProtocolKind::Proc3964Tap => {
+                ProtocolConfig::Proc3964Tap(Proc3964TapConfig::read(cx, &mut f))
+            }
             ProtocolKind::Ascii => ProtocolConfig::Ascii(AsciiConfig::read(cx, &mut f, baud)),
         };
         if !kind.has_devices() && f.has("devices") {

@@ -235,7 +235,21 @@ fn mailbox_unit(cx: &mut Cx, f: &mut Fields<'_>) -> Option<u8> {
     f.int(cx, "unit_id", 1..=u8::MAX, "")
 }
 
-impl Proc3964Config {
+/// The keys a 3964(R) line and a 3964(R) tap share: the link's procedure (003 6.3.3).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) struct Link3964 {
+    pub(crate) block_check: bool,
+    pub(crate) character_delay: Duration,
+    pub(crate) ack_delay: Duration,
+    pub(crate) max_telegram_len: u16,
+    pub(crate) receive_buffer: u16,
+}
+
+// === impl Link3964 ===
+
+impl Link3964 {
+    /// Reads `block_check`, `character_delay`, `ack_delay`, `max_telegram_len` and
+    /// `receive_buffer`.
     pub(crate) fn read(cx: &mut Cx, f: &mut Fields<'_>) -> Self {
         const CITE: &str = "003 6.3.3";
         let block_check = f.bool_or(cx, "block_check", DEFAULT_3964_BLOCK_CHECK);
@@ -254,23 +268,8 @@ impl Proc3964Config {
         let ack_delay = time(cx, f, "ack_delay", ack_default);
         Self {
             block_check,
-            priority: f.choice_or(cx, "priority", DEFAULT_3964_PRIORITY),
             character_delay,
             ack_delay,
-            setup_attempts: f.int_or(
-                cx,
-                "setup_attempts",
-                1..=u8::MAX,
-                DEFAULT_3964_SETUP_ATTEMPTS,
-                CITE,
-            ),
-            transmission_attempts: f.int_or(
-                cx,
-                "transmission_attempts",
-                1..=u8::MAX,
-                DEFAULT_3964_TRANSMISSION_ATTEMPTS,
-                CITE,
-            ),
             max_telegram_len: f.int_or(
                 cx,
                 "max_telegram_len",
@@ -285,6 +284,40 @@ impl Proc3964Config {
                 DEFAULT_3964_RECEIVE_BUFFER,
                 "",
             ),
+        }
+    }
+}
+
+/// The Modbus TCP unit id of a telegram mailbox (`unit_id`).
+pub(crate) fn mailbox_unit_id(cx: &mut Cx, f: &mut Fields<'_>) -> Option<u8> {
+    mailbox_unit(cx, f)
+}
+
+impl Proc3964Config {
+    pub(crate) fn read(cx: &mut Cx, f: &mut Fields<'_>) -> Self {
+        const CITE: &str = "003 6.3.3";
+        let link = Link3964::read(cx, f);
+        Self {
+            block_check: link.block_check,
+            priority: f.choice_or(cx, "priority", DEFAULT_3964_PRIORITY),
+            character_delay: link.character_delay,
+            ack_delay: link.ack_delay,
+            setup_attempts: f.int_or(
+                cx,
+                "setup_attempts",
+                1..=u8::MAX,
+                DEFAULT_3964_SETUP_ATTEMPTS,
+                CITE,
+            ),
+            transmission_attempts: f.int_or(
+                cx,
+                "transmission_attempts",
+                1..=u8::MAX,
+                DEFAULT_3964_TRANSMISSION_ATTEMPTS,
+                CITE,
+            ),
+            max_telegram_len: link.max_telegram_len,
+            receive_buffer: link.receive_buffer,
             overflow: f.choice_or(cx, "overflow", DEFAULT_3964_OVERFLOW),
             send_queue: f.int_or(
                 cx,

@@ -3,6 +3,7 @@
 //! nothing stops at the first one.
 
 use std::collections::{BTreeMap, BTreeSet};
+use std::time::Duration;
 
 use super::device::{serde_name, DataType, DeviceConfig};
 use super::line::{LineConfig, ProtocolConfig};
@@ -35,6 +36,22 @@ pub(crate) fn check(cx: &mut Cx, config: &Config) {
             );
         } else {
             ports.insert(&line.serial.port, path.clone());
+        }
+        if let Some(port_b) = line.second_port().filter(|p| !p.is_empty()) {
+            if port_b == line.serial.port {
+                cx.issue(
+                    format!("{path}.port_b"),
+                    "port_b must be another port than port: each receives one direction of the \
+                     link (one partner's transmit line)",
+                );
+            } else if let Some(first) = ports.get(port_b) {
+                cx.issue(
+                    format!("{path}.port_b"),
+                    format!("port {port_b:?} is already used by {first}"),
+                );
+            } else {
+                ports.insert(port_b, path.clone());
+            }
         }
         if let Some(unit) = line.unit_id() {
             claim_unit(cx, &mut units, unit, format!("{path}.unit_id"), &path);
@@ -133,6 +150,9 @@ fn check_line(cx: &mut Cx, path: &str, line: &LineConfig) {
     }
     match &line.protocol {
         ProtocolConfig::Proc3964(p) => check_3964(cx, path, line, p),
+        ProtocolConfig::Proc3964Tap(t) => {
+            check_3964_link(cx, path, line, (t.character_delay, t.ack_delay));
+        }
         ProtocolConfig::Ascii(a) => check_ascii(cx, path, line, a),
         ProtocolConfig::ModbusSlaveRtu(s) => check_slave(cx, path, s),
         ProtocolConfig::ModbusRtuTap(t) => check_tap(cx, path, t),
@@ -161,6 +181,12 @@ fn check_tap(cx: &mut Cx, path: &str, tap: &ModbusRtuTapConfig) {
 }
 
 fn check_3964(cx: &mut Cx, path: &str, line: &LineConfig, p: &Proc3964Config) {
+    check_3964_link(cx, path, line, (p.character_delay, p.ack_delay));
+}
+
+/// The checks a 3964(R) line and a 3964(R) tap share: a full-duplex link, and the character
+/// and acknowledgement delay times (`times`) at least the baud rate's minimum.
+fn check_3964_link(cx: &mut Cx, path: &str, line: &LineConfig, times: (Duration, Duration)) {
     if line.serial.interface == Interface::Rs485 {
         cx.issue(
             format!("{path}.interface"),
@@ -169,10 +195,7 @@ fn check_3964(cx: &mut Cx, path: &str, line: &LineConfig, p: &Proc3964Config) {
         );
     }
     let min = min_3964_time(line.serial.baud);
-    for (key, d) in [
-        ("character_delay", p.character_delay),
-        ("ack_delay", p.ack_delay),
-    ] {
+    for (key, d) in [("character_delay", times.0), ("ack_delay", times.1)] {
         if d < min {
             cx.issue(
                 format!("{path}.{key}"),

@@ -1060,13 +1060,10 @@ mod tests {
                 .map(|f| (f.direction, f.bytes.clone()))
                 .collect::<Vec<_>>(),
             [
-                (proto_core::monitor::Direction::Rx, b"hi!".to_vec()),
-                (proto_core::monitor::Direction::Tx, b"hi".to_vec()),
-                (
-                    proto_core::monitor::Direction::Tx,
-                    b"<ParityOrFraming>".to_vec()
-                ),
-                (proto_core::monitor::Direction::Tx, b"!".to_vec()),
+                (Direction::Rx, b"hi!".to_vec()),
+                (Direction::Tx, b"hi".to_vec()),
+                (Direction::Tx, b"<ParityOrFraming>".to_vec()),
+                (Direction::Tx, b"!".to_vec()),
             ]
         );
         assert_eq!(frames[0].errors.len(), 1);
@@ -1138,10 +1135,13 @@ mod tests {
             .expect("the line stops");
     }
 
+    /// What each port of a two-port line handed the engine, in order.
+    type Got = Arc<Mutex<Vec<(Which, Vec<u8>)>>>;
+
     /// Keeps what each port of a two-port line hands it; never transmits.
     struct Listener {
         shared: Arc<Shared>,
-        got: Arc<Mutex<Vec<(Which, Vec<u8>)>>>,
+        got: Got,
     }
 
     impl LineEngine for Listener {

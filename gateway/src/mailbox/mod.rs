@@ -111,6 +111,8 @@ pub struct TelegramRx {
     /// The user data (3964(R): without control codes; ASCII: as received, end characters
     /// included).
     pub data: Arc<[u8]>,
+    /// On a 3964(R) tap line, the partner that sent it (`None` on every other line).
+    pub side: Option<proto_core::proc3964::tap::Side>,
 }
 
 /// What became of a telegram handed to the mailbox.
@@ -285,6 +287,16 @@ impl Mailbox {
     /// subscribers and queues it under the overflow policy. Under [`Overflow::Refuse`] the line
     /// only calls this while [`Mailbox::accepts`]; a full queue then drops the new telegram.
     pub fn deliver(&self, data: Vec<u8>, received: SystemTime) -> Delivery {
+        self.deliver_from(data, received, None)
+    }
+
+    /// [`Self::deliver`] for a telegram `side` sent (a 3964(R) tap line's mailbox).
+    pub fn deliver_from(
+        &self,
+        data: Vec<u8>,
+        received: SystemTime,
+        side: Option<proto_core::proc3964::tap::Side>,
+    ) -> Delivery {
         let mut state = self.lock();
         let seq = next_seq(state.last_seq);
         state.last_seq = seq;
@@ -295,6 +307,7 @@ impl Mailbox {
             seq,
             received,
             data: Arc::from(data),
+            side,
         };
         let delivery = if state.queue.len() < self.settings.queue_depth {
             state.queue.push_back(telegram.clone());

@@ -206,8 +206,28 @@ impl BridgeHandle {
         received: SystemTime,
         bytes: Vec<u8>,
     ) -> Result<(), DropReason> {
+        self.publish_telegram_from(line, seq, received, None, bytes)
+    }
+
+    /// [`Self::publish_telegram`] for a telegram partner `side` sent (a 3964(R) tap line): the
+    /// attachment also carries `"side": "a"` or `"b"`.
+    ///
+    /// # Errors
+    ///
+    /// As [`Self::publish_telegram`].
+    pub fn publish_telegram_from(
+        &self,
+        line: &str,
+        seq: u64,
+        received: SystemTime,
+        side: Option<&str>,
+        bytes: Vec<u8>,
+    ) -> Result<(), DropReason> {
         self.check(&[line])?;
-        let attachment = json!({"seq": seq, "time": publish::rfc3339(received)});
+        let mut attachment = json!({"seq": seq, "time": publish::rfc3339(received)});
+        if let Some(side) = side {
+            attachment["side"] = json!(side);
+        }
         let pushed = self.outbox.push(Message {
             kind: PublicationKind::Telegram,
             key: self.keys.rx(line),

@@ -430,3 +430,64 @@ fn a_tap_line_lists_devices_without_poll_groups() {
         "modbus-rtu-tap",
     );
 }
+
+#[test]
+fn a_3964r_tap_line_reads_two_different_ports() {
+    let tap = |keys: &str| one_line("3964r-tap", &format!("port_b = \"/dev/ttyS1\"\n{keys}"));
+    // The keys with their defaults: the 3964R procedure's (003 6.3.3).
+    let c = parse(&tap(""));
+    let ProtocolConfig::Proc3964Tap(t) = &line(&c).protocol else {
+        panic!("a 3964(R) tap line");
+    };
+    assert_eq!(t.port_b, "/dev/ttyS1");
+    assert!(t.block_check);
+    assert_eq!((t.character_delay, t.ack_delay), (ms(220), ms(2000)));
+    assert_eq!((t.max_telegram_len, t.receive_buffer), (250, 250));
+    assert_eq!(t.unit_id, None);
+    assert_eq!(line(&c).second_port(), Some("/dev/ttyS1"));
+    let c = parse(&tap(
+        "block_check = false\nunit_id = 41\nreceive_buffer = 10",
+    ));
+    let ProtocolConfig::Proc3964Tap(t) = &line(&c).protocol else {
+        panic!("a 3964(R) tap line");
+    };
+    assert_eq!(
+        (t.block_check, t.ack_delay, t.unit_id),
+        (false, ms(550), Some(41))
+    );
+    assert_eq!(line(&c).unit_id(), Some(41));
+
+    // port_b: required, another port than port, and no other line's.
+    one_issue(&one_line("3964r-tap", ""), "lines.a.port_b", "missing");
+    one_issue(
+        &one_line("3964r-tap", "port_b = \"/dev/ttyS0\""),
+        "lines.a.port_b",
+        "another port than port",
+    );
+    one_issue(
+        &format!(
+            "{}[lines.b]\nport = \"/dev/ttyS1\"\nprotocol = \"3964r\"\n",
+            tap("")
+        ),
+        "lines.b.port",
+        "already used by lines.a",
+    );
+    // A tap sends nothing: the keys of sending are unknown; a full-duplex link; the times'
+    // minimum at the baud rate.
+    one_issue(&tap("sends = true"), "lines.a.sends", "unknown key");
+    one_issue(
+        &tap("priority = \"low\""),
+        "lines.a.priority",
+        "unknown key",
+    );
+    one_issue(
+        &tap("interface = \"rs485\""),
+        "lines.a.interface",
+        "full-duplex",
+    );
+    one_issue(
+        &tap("baud = 300\ncharacter_delay = \"20ms\""),
+        "lines.a.character_delay",
+        "at 300 baud must be at least 60ms (003 6.3.3)",
+    );
+}

@@ -136,7 +136,7 @@ pub enum Fault {
         len: usize,
     },
     /// The tap's UART received a character of this side with a parity or framing error, a
-    /// BREAK, or lost characters to an overrun (7.2 08 07h/08 0Bh/08 0Ch): inside a telegram the
+    /// BREAK, or lost characters to an overrun (7.2 08 0Ch, 08 0Dh): inside a telegram the
     /// tap's copy is damaged and is not delivered, even if the receiver acknowledged its own.
     LineError {
         /// What the UART reported.
@@ -294,7 +294,7 @@ impl Tap3964 {
     }
 
     /// The tap's UART reported a line error on `side`'s port at `now`, between the bytes handed
-    /// over before and after it (7.2 08 07h/08 0Bh/08 0Ch). Inside a telegram of `side` the
+    /// over before and after it (7.2 08 0Ch, 08 0Dh). Inside a telegram of `side` the
     /// telegram is marked damaged: when it is acknowledged it is reported as a
     /// [`Fault::LineError`], not delivered. Anywhere else the error is reported at once.
     pub fn handle_line_error(&mut self, side: Side, now: Instant, error: LineError) {

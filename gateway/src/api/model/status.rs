@@ -48,7 +48,8 @@ pub struct LineStatusView {
     pub name: String,
     /// The line's `protocol` (`modbus-master-rtu`, `modbus-master-ascii`, `modbus-slave-rtu`,
     /// `modbus-rtu-tap` (a listen-only tap: it never transmits, its devices refuse writes),
-    /// `3964r`, `ascii`).
+    /// `3964r`, `3964r-tap` (a listen-only tap of both directions of a 3964(R) link: its
+    /// mailbox refuses sends), `ascii`).
     pub protocol: String,
     /// The serial port's path.
     pub port: String,

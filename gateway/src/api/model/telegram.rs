@@ -25,6 +25,10 @@ pub struct Telegram {
     /// The bytes as text when they are printable ASCII (with CR, LF, TAB).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub text: Option<String>,
+    /// On a `3964r-tap` line, the partner that sent it: `a` (the line's `port`) or `b`
+    /// (`port_b`); absent on every other line.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub side: Option<String>,
 }
 
 // === impl Telegram ===
@@ -40,7 +44,15 @@ impl Telegram {
             len: data.len(),
             hex: hex(data),
             text: printable.then(|| String::from_utf8_lossy(data).into_owned()),
+            side: None,
         }
+    }
+
+    /// The telegram as sent by `side` (a tap line's telegram), if it says.
+    #[must_use]
+    pub fn from_side(mut self, side: Option<&str>) -> Self {
+        self.side = side.map(str::to_owned);
+        self
     }
 }
 

@@ -96,6 +96,12 @@ pub enum TelegramSendError {
     /// The line is stopping.
     #[error("the line is shutting down")]
     ShuttingDown,
+    /// The line only listens (a 3964(R) tap): it never sends.
+    #[error("line {line} only listens (3964r-tap): it never sends a telegram")]
+    ListenOnly {
+        /// The line's name.
+        line: String,
+    },
     /// The line's write policy does not allow sends (`sends = false`).
     #[error("telegram sends are not allowed on line {line} (sends = false)")]
     NotAllowed {
@@ -115,20 +121,21 @@ impl TelegramSendError {
         match self {
             Self::Failed { event, .. } => *event,
             Self::Refused(e) => e.event().unwrap_or(ids::REQUEST_NOT_PERMITTED),
-            Self::QueueFull { .. } | Self::PortClosed | Self::NotAllowed { .. } => {
-                ids::REQUEST_NOT_PERMITTED
-            }
+            Self::QueueFull { .. }
+            | Self::PortClosed
+            | Self::NotAllowed { .. }
+            | Self::ListenOnly { .. } => ids::REQUEST_NOT_PERMITTED,
             Self::ShuttingDown => ids::REQUEST_ABORTED_BY_RESTART,
         }
     }
 
     /// The Modbus exception for a send refused before it started: 06 for a full queue; 01 when
     /// the line does not allow sends (the answer MODBUS/TCP Security gives a request that is not
-    /// authorized); 04 otherwise.
+    /// authorized) or only listens (the function is not one this line offers); 04 otherwise.
     pub fn exception(&self) -> ExceptionCode {
         match self {
             Self::QueueFull { .. } => ExceptionCode::ServerDeviceBusy,
-            Self::NotAllowed { .. } => ExceptionCode::IllegalFunction,
+            Self::NotAllowed { .. } | Self::ListenOnly { .. } => ExceptionCode::IllegalFunction,
             _ => ExceptionCode::ServerDeviceFailure,
         }
     }
@@ -160,6 +167,8 @@ pub struct TelegramClient {
     /// The line's write policy: sends allowed. The one check every send path passes (REST,
     /// zenoh `tx`, the mailbox's send block).
     sends: bool,
+    /// The line only listens (a 3964(R) tap): every send is refused.
+    listen_only: bool,
 }
 
 // === impl TelegramClient ===
@@ -171,7 +180,17 @@ impl TelegramClient {
             tx,
             capacity,
             sends: true,
+            listen_only: false,
         }
+    }
+
+    /// The client of a line that only listens: every send is refused
+    /// ([`TelegramSendError::ListenOnly`]).
+    #[must_use]
+    pub fn listen_only(mut self) -> Self {
+        self.listen_only = true;
+        self.sends = false;
+        self
     }
 
     /// The client of a line whose write policy allows sends (`true`) or refuses them.
@@ -184,6 +203,11 @@ impl TelegramClient {
     /// Whether the line allows sends.
     pub fn sends_allowed(&self) -> bool {
         self.sends
+    }
+
+    /// Whether the line only listens (a 3964(R) tap): it has no send side at all.
+    pub fn is_listen_only(&self) -> bool {
+        self.listen_only
     }
 
     /// The line's name.
@@ -199,6 +223,11 @@ impl TelegramClient {
     /// [`TelegramSendError::QueueFull`] at once when the queue is full,
     /// [`TelegramSendError::ShuttingDown`] when the line has stopped.
     pub fn try_send(&self, data: Vec<u8>) -> Result<PendingSend, TelegramSendError> {
+        if self.listen_only {
+            return Err(TelegramSendError::ListenOnly {
+                line: self.line.to_string(),
+            });
+        }
         if !self.sends {
             return Err(TelegramSendError::NotAllowed {
                 line: self.line.to_string(),

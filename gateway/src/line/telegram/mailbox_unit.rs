@@ -44,6 +44,10 @@ impl MailboxUnit {
                 .mailbox
                 .ack(seq)
                 .map_err(|_| ExceptionCode::IllegalDataValue),
+            // A listening line has no send block: nothing is staged that could never go.
+            WritePlan::SendBlock { .. } if self.client.is_listen_only() => {
+                Err(ExceptionCode::IllegalFunction)
+            }
             WritePlan::SendBlock { offset, values } => {
                 let client = &self.client;
                 let started = self.mailbox.write_send_block(offset, &values, |telegram| {

@@ -25,6 +25,7 @@ mod convert;
 pub(crate) mod engine;
 mod mailbox_unit;
 pub(crate) mod pump;
+mod tap;
 mod task;
 
 use std::sync::{Arc, Mutex, PoisonError};
@@ -41,6 +42,7 @@ pub(crate) use client::Command;
 pub use client::{PendingSend, SendResult, SignalsClient, TelegramClient, TelegramSendError};
 pub use convert::{params_3964, params_ascii, TelegramConfigError};
 pub use mailbox_unit::MailboxUnit;
+pub use tap::{spawn_3964_tap_line, Tap3964LineSettings, DEFAULT_TAP_MAILBOX, TAP_3964_PROTOCOL};
 
 use super::line_metrics::{LineMetrics, LineTraffic};
 use super::runtime::{self, LineBase, LineCapabilities, LineHandle, PortOpener, SerialOpener};

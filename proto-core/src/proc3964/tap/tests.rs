@@ -242,7 +242,7 @@ fn without_block_check_the_telegram_ends_at_dle_etx() {
     ));
 }
 
-/// 7.2 08 07h: a character with a parity error inside a telegram damages the tap's copy. The
+/// 7.2 08 0Ch: a character with a parity error inside a telegram damages the tap's copy. The
 /// receiver may still acknowledge its own (its UART saw no error): the tap reports the line error
 /// (and the BCC the missing character breaks) and delivers nothing. Outside a telegram the error is reported at once; the next exchange is
 /// delivered as usual.
