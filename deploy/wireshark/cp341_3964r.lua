@@ -69,7 +69,11 @@ function p.dissector(tvb, pinfo, tree)
   end
   t:add(f_len, data:len())
   if data:len() > 0 then
-    t:add(f_data, tvb(0, math.max(1, (etx_at or n) - (etx_at and 1 or 0))), data:tohex())
+    -- The undoubled data is not in the packet as such: it gets a data source of its own, and
+    -- the field's value comes from there (a value given as a string would be taken as the
+    -- characters of the string, cut to the length of the packet range).
+    local undoubled = data:tvb("Data (DLE undoubled)")
+    t:add(f_data, undoubled())
   end
   if etx_at == nil then
     pinfo.cols.info = string.format("telegram, %d data bytes, no DLE ETX", data:len())
