@@ -45,8 +45,10 @@ const BAUD: u32 = 9600;
 /// (220 ms) and the acknowledgement delay time (2 s) of 003 6.3.3.
 const STEP: Duration = Duration::from_millis(20);
 
-/// The mailbox layout (gateway/src/mailbox/layout.rs): the receive block and the send block.
+/// The mailbox layout (gateway/src/mailbox/layout.rs): the receive block, the counters and the
+/// send block.
 const RX_SEQ: u16 = 1;
+const DIAG: u16 = 520;
 const TX_REQ: u16 = 1008;
 
 /// The telegrams of the exchanges, user data.
@@ -335,6 +337,14 @@ async fn a_3964r_tap_line_shows_both_partners_telegrams_and_refuses_every_send()
     assert_eq!(status["port_opens"], 1, "{status:#}");
     assert_eq!(status["counters"]["frames_sent"], 0, "{status:#}");
     assert_eq!(status["counters"]["bytes_sent"], 0, "{status:#}");
+    assert_eq!(status["counters"]["frames_received"], 3, "{status:#}");
+    // A telegram line counts the user bytes of its telegrams (the mailbox's counts).
+    let user_bytes = A1.len() + B2.len() + A3.len();
+    assert_eq!(
+        status["counters"]["bytes_received"].as_u64(),
+        u64::try_from(user_bytes).ok(),
+        "{status:#}"
+    );
     // The diagnostic buffer has the NAK's event, and the log says whose telegram it was.
     let diag = get_json(&client, &format!("{line_url}/diag")).await;
     assert!(
@@ -380,6 +390,18 @@ async fn a_3964r_tap_line_shows_both_partners_telegrams_and_refuses_every_send()
     ] {
         assert_eq!(discarded(reason), "0", "{reason}\n{metrics}");
     }
+    // The bytes on the wire, both ports'.
+    let wire_bytes: usize = expected_frames().iter().map(|f| f.2.len()).sum();
+    let bytes = format!("gateway_bytes_total{{direction=\"rx\",line=\"{LINE}\"}} {wire_bytes}");
+    assert!(
+        metrics.lines().any(|l| l == bytes),
+        "no {bytes}:\n{metrics}"
+    );
+    let telegrams = format!("gateway_telegrams_total{{direction=\"rx\",line=\"{LINE}\"}} 3");
+    assert!(
+        metrics.lines().any(|l| l == telegrams),
+        "no {telegrams}:\n{metrics}"
+    );
 
     // /frames: every frame under the side that sent it, in order on the wire; B's telegram
     // (data beginning with DLE, doubled) is one frame.
@@ -518,6 +540,18 @@ async fn a_3964r_tap_line_shows_both_partners_telegrams_and_refuses_every_send()
     assert_eq!(head[2], 3, "LEN of A's first telegram: {head:?}");
     assert_eq!(head[3], 3, "telegrams waiting: {head:?}");
     assert_eq!(&head[4..6], &[0x412D, 0x3100], "{head:?}");
+    let counters = scada
+        .read_holding_registers(DIAG, 11)
+        .await
+        .expect("transport")
+        .expect("the counters");
+    // Received 3, overflows 0, sent 0, send failures 0; depth 16, drop-oldest (2), port open.
+    assert_eq!(
+        &counters[..10],
+        &[0, 3, 0, 0, 0, 0, 0, 0, 16, 2],
+        "{counters:?}"
+    );
+    assert_eq!(counters[10], 1, "port open: {counters:?}");
     let send = scada
         .write_multiple_registers(TX_REQ, &[1, 2, 0x4142])
         .await
