@@ -49,6 +49,7 @@ const STEP: Duration = Duration::from_millis(20);
 /// send block.
 const RX_SEQ: u16 = 1;
 const DIAG: u16 = 520;
+const ACK: u16 = 600;
 const TX_REQ: u16 = 1008;
 
 /// The telegrams of the exchanges, user data.
@@ -552,6 +553,22 @@ async fn a_3964r_tap_line_shows_both_partners_telegrams_and_refuses_every_send()
         "{counters:?}"
     );
     assert_eq!(counters[10], 1, "port open: {counters:?}");
+    // Reading goes on as on every mailbox: acknowledging A's first telegram shows B's.
+    scada
+        .write_single_register(ACK, 1)
+        .await
+        .expect("transport")
+        .expect("acknowledge");
+    let head = scada
+        .read_holding_registers(0, 6)
+        .await
+        .expect("transport")
+        .expect("the receive block");
+    assert_eq!(
+        &head[1..6],
+        &[2, 4, 2, 0x1042, 0x2D32],
+        "B's telegram: {head:?}"
+    );
     let send = scada
         .write_multiple_registers(TX_REQ, &[1, 2, 0x4142])
         .await
