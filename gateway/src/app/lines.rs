@@ -29,6 +29,8 @@ pub(crate) struct RunningLine {
     pub(crate) protocol: &'static str,
     /// The serial port's path.
     pub(crate) port: String,
+    /// The second receive port's path, for a line that has one (`3964r-tap`).
+    pub(crate) port_b: Option<String>,
     /// The Modbus TCP units the line answers.
     pub(crate) units: Vec<(u8, Arc<dyn UnitService>)>,
     /// The CP memory mirror a slave line keeps in the image: its unit id and address map.
@@ -134,6 +136,7 @@ pub(crate) fn start_line(
         token,
         protocol,
         port: line.serial.port.clone(),
+        port_b: line.second_port().map(str::to_owned),
         mirror,
     })
 }

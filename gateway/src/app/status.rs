@@ -69,6 +69,7 @@ pub(crate) fn line_view(
         name: name.to_owned(),
         protocol: line.protocol.to_owned(),
         port: line.port.clone(),
+        port_b: line.port_b.clone(),
         state,
         started: Timestamp(status.started),
         port_error: status.port_error.clone(),

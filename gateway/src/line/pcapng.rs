@@ -233,6 +233,57 @@ mod tests {
         assert_eq!(u32_at(&file, 8), BYTE_ORDER_MAGIC);
     }
 
+    /// A two-port tap line's capture: interface 0 is side a, interface 1 side b, named so, and
+    /// both inbound.
+    #[test]
+    fn a_two_port_lines_sides_are_its_two_interfaces_both_inbound() {
+        let monitor = FrameMonitor::new("y", FrameKind::Proc3964 { bcc: true }, 4, None)
+            .with_directions([Direction::A, Direction::B]);
+        let frame = |seq, direction, byte| Frame {
+            seq,
+            direction,
+            first: UNIX_EPOCH + Duration::from_secs(1_700_000_000),
+            last: UNIX_EPOCH + Duration::from_secs(1_700_000_000),
+            first_mono: Duration::ZERO,
+            last_mono: Duration::ZERO,
+            bytes: vec![byte],
+            errors: Vec::new(),
+        };
+        let file = capture(
+            &monitor,
+            &[frame(1, Direction::A, 0x02), frame(2, Direction::B, 0x10)],
+        );
+        let (mut at, mut names, mut packets) = (0, Vec::new(), Vec::new());
+        while at < file.len() {
+            let kind = u32_at(&file, at);
+            let total = u32_at(&file, at + 4) as usize;
+            let block = &file[at..at + total];
+            if kind == IDB {
+                let text = String::from_utf8_lossy(block);
+                names.push(
+                    ["y a", "y b"]
+                        .into_iter()
+                        .find(|n| text.contains(n))
+                        .unwrap_or("?"),
+                );
+            }
+            if kind == EPB {
+                // The flags option (code 2, length 4) follows the comment: its value's low bits.
+                let flags = block
+                    .windows(4)
+                    .rposition(|w| w == [0x02, 0x00, 0x04, 0x00])
+                    .map(|i| u32_at(block, i + 4));
+                packets.push((u32_at(block, 8), block[28], flags));
+            }
+            at += total;
+        }
+        assert_eq!(names, ["y a", "y b"]);
+        assert_eq!(
+            packets,
+            [(0, 0x02, Some(INBOUND)), (1, 0x10, Some(INBOUND))]
+        );
+    }
+
     #[test]
     fn link_types_by_protocol() {
         assert_eq!(link_type(FrameKind::ModbusRtu(Role::Slave)), 147);

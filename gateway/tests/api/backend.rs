@@ -244,6 +244,7 @@ impl MemGateway {
             name: name.to_owned(),
             protocol: line.protocol.kind().as_str().to_owned(),
             port: line.serial.port.clone(),
+            port_b: line.second_port().map(str::to_owned),
             state: if rt.port_opened {
                 LineState::Running
             } else {

@@ -359,7 +359,7 @@ fn check_reports_counts_or_issues() {
     );
     let (text, code) = gateway::app::check_report(&bad);
     assert_eq!(code, 1);
-    assert_eq!(text.lines().collect::<Vec<_>>(), ["gateway.name: invalid name \"A\": use 1 to 64 characters of a-z, 0-9, '_' and '-' (names appear in metric labels and zenoh keys)", "lines.a.protocol: missing required key (modbus-master-rtu, modbus-master-ascii, modbus-slave-rtu, modbus-rtu-tap, 3964r or ascii)"]);
+    assert_eq!(text.lines().collect::<Vec<_>>(), ["gateway.name: invalid name \"A\": use 1 to 64 characters of a-z, 0-9, '_' and '-' (names appear in metric labels and zenoh keys)", "lines.a.protocol: missing required key (modbus-master-rtu, modbus-master-ascii, modbus-slave-rtu, modbus-rtu-tap, 3964r, 3964r-tap or ascii)"]);
     assert_eq!(gateway::app::check_command(&bad), 1);
 
     let missing = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("no-such-config.toml");
@@ -546,19 +546,27 @@ fn check_refuses_a_zenoh_file_or_a_cp_memory_file_that_run_cannot_read() {
     assert_eq!(gateway::app::check_report(&fresh).1, 0);
 }
 
-/// The example's tap line is commented out (its adapter is not plugged in here): with the
-/// comment marks removed it is a valid tap line with its keys at their defaults.
-#[test]
-fn the_examples_commented_tap_line_is_valid() {
-    let start = EXAMPLE.find("# [lines.tap]").expect("the tap block");
-    let (head, block) = EXAMPLE.split_at(start);
+/// The example with the commented block that begins at `start` uncommented, up to the next
+/// empty line followed by prose, or the end.
+fn uncommented(start: &str) -> String {
+    let at = EXAMPLE.find(start).expect("the block");
+    let (head, rest) = EXAMPLE.split_at(at);
+    let end = rest.find("\n\n# A ").map_or(rest.len(), |e| e + 1);
+    let (block, tail) = rest.split_at(end);
     let block: String = block
         .lines()
         .map(|l| l.strip_prefix("# ").unwrap_or(l))
         .map(|l| if l == "#" { "" } else { l })
         .collect::<Vec<_>>()
         .join("\n");
-    let c = parse(&format!("{head}{block}\n"));
+    format!("{head}{block}\n{tail}")
+}
+
+/// The example's tap line is commented out (its adapter is not plugged in here): with the
+/// comment marks removed it is a valid tap line with its keys at their defaults.
+#[test]
+fn the_examples_commented_tap_line_is_valid() {
+    let c = parse(&uncommented("# [lines.tap]"));
     let tap = c.lines.get("tap").expect("the tap line");
     let ProtocolConfig::ModbusRtuTap(t) = &tap.protocol else {
         panic!("a tap line: {tap:?}");
@@ -573,4 +581,25 @@ fn the_examples_commented_tap_line_is_valid() {
             .collect::<Vec<_>>(),
         [("pump", 5)]
     );
+}
+
+/// The example's 3964(R) tap of a Y-cable, commented out as the Modbus tap is: uncommented it is
+/// a valid line on two ports with the procedure's defaults, and `check` passes.
+#[test]
+fn the_examples_commented_3964r_tap_line_is_valid() {
+    let text = uncommented("# [lines.y_link]");
+    let c = parse(&text);
+    let tap = c.lines.get("y_link").expect("the 3964(R) tap line");
+    let ProtocolConfig::Proc3964Tap(t) = &tap.protocol else {
+        panic!("a 3964(R) tap line: {tap:?}");
+    };
+    assert_eq!(tap.serial.port, "/dev/ttyS5");
+    assert_eq!(t.port_b, "/dev/ttyS6");
+    assert!(t.block_check);
+    assert_eq!(t.character_delay, config::DEFAULT_3964_CHARACTER_DELAY);
+    assert_eq!(t.ack_delay, config::DEFAULT_3964_ACK_DELAY);
+    assert_eq!(t.max_telegram_len, config::DEFAULT_3964_MAX_TELEGRAM_LEN);
+    assert_eq!(t.receive_buffer, config::DEFAULT_3964_RECEIVE_BUFFER);
+    assert_eq!(tap.unit_id(), Some(102));
+    assert_eq!(c.check(), Ok(()));
 }

@@ -53,6 +53,9 @@ pub struct LineStatusView {
     pub protocol: String,
     /// The serial port's path.
     pub port: String,
+    /// The second receive port of a `3964r-tap` line (`port_b`: partner B's transmit line).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub port_b: Option<String>,
     pub state: LineState,
     /// When the line's task started: a configuration change that restarts the line moves it,
     /// one that leaves the line alone does not.
