@@ -230,6 +230,16 @@ async fn a_3964r_tap_line_shows_both_partners_telegrams_and_refuses_every_send()
         let status = get_json(&client, &line_url).await;
         if status["state"] == "running" {
             assert_eq!(status["protocol"], "3964r-tap", "{status}");
+            assert_eq!(
+                status["port"],
+                a_link.a.to_str().expect("utf-8"),
+                "{status}"
+            );
+            assert_eq!(
+                status["port_b"],
+                b_link.a.to_str().expect("utf-8"),
+                "{status}"
+            );
             break;
         }
         assert!(
