@@ -69,6 +69,16 @@ impl Gateway {
     /// Starts `gateway demo` with the given extra arguments, Modbus TCP and HTTP on ephemeral
     /// ports.
     pub fn demo(extra: &[&str]) -> Self {
+        // Tests run in parallel: every demo gets its own zenoh port (zenoh cannot be given
+        // port 0 and tell the port it took, so the port is chosen free and, should another
+        // process take it before the gateway binds it, chosen again).
+        Self::on_free_zenoh_port(|zenoh_port| Self::try_demo(zenoh_port, extra))
+    }
+
+    /// Starts `gateway demo` (as [`Self::demo`]) with zenoh on `zenoh_port`; the output when it
+    /// did not start.
+    pub fn try_demo(zenoh_port: u16, extra: &[&str]) -> Result<Self, String> {
+        let zenoh = format!("tcp/127.0.0.1:{zenoh_port}");
         let mut args = vec![
             "demo",
             "--modbus-tcp",
@@ -76,32 +86,76 @@ impl Gateway {
             "--http",
             "127.0.0.1:0",
             "--zenoh-listen",
+            &zenoh,
         ];
-        // Tests run in parallel: every demo gets its own zenoh port.
-        let zenoh_port = free_port();
-        let zenoh = format!("tcp/127.0.0.1:{zenoh_port}");
-        args.push(&zenoh);
         args.extend_from_slice(extra);
-        let mut gw = Self::start(&args);
-        gw.zenoh_port = Some(zenoh_port);
-        gw
+        Self::try_start(&args)
+    }
+
+    /// Starts `gateway run --config FILE` with the config `config` makes for a zenoh port that
+    /// was free a moment ago, written to `file`; should another process take the port before the
+    /// gateway binds it, with another port (at most three tries). `zenoh_port` is the port used.
+    pub fn run_on_free_zenoh_port(file: &Path, config: impl Fn(u16) -> String) -> Self {
+        Self::on_free_zenoh_port(|zenoh_port| {
+            std::fs::write(file, config(zenoh_port)).expect("write config");
+            Self::try_start(&Self::run_args(file))
+        })
+    }
+
+    /// Runs `start` with a free zenoh port until the gateway did not fail to bind it.
+    fn on_free_zenoh_port(start: impl Fn(u16) -> Result<Self, String>) -> Self {
+        Self::on_zenoh_ports(free_port, start)
+    }
+
+    /// Runs `start` with the ports `next` gives until the gateway did not fail to bind one (at
+    /// most three tries).
+    pub fn on_zenoh_ports(
+        mut next: impl FnMut() -> u16,
+        start: impl Fn(u16) -> Result<Self, String>,
+    ) -> Self {
+        const TRIES: usize = 3;
+        let mut failed = String::new();
+        for _ in 0..TRIES {
+            let port = next();
+            match start(port) {
+                Ok(mut gw) => {
+                    gw.zenoh_port = Some(port);
+                    return gw;
+                }
+                Err(output) if output.contains("Address already in use") => failed = output,
+                Err(output) => panic!("the gateway did not start; output:\n{output}"),
+            }
+        }
+        panic!("the zenoh port was taken {TRIES} times; last output:\n{failed}")
     }
 
     /// Starts `gateway run --config FILE`, HTTP (REST API, `/metrics`) on an ephemeral port
     /// (never the config's `[http] listen`, which tests running in parallel would share).
     pub fn run(config: &Path) -> Self {
-        Self::start(&[
+        Self::start(&Self::run_args(config))
+    }
+
+    fn run_args(config: &Path) -> [&str; 5] {
+        [
             "run",
             "--config",
             config.to_str().expect("utf-8 path"),
             "--http",
             "127.0.0.1:0",
-        ])
+        ]
     }
 
     /// Starts the binary with `args` and waits for its Modbus TCP announcement (printed last,
     /// after the HTTP one when it serves HTTP).
     pub fn start(args: &[&str]) -> Self {
+        Self::try_start(args).unwrap_or_else(|output| {
+            panic!("no line containing \"modbus-tcp listening on \" within {START_TIMEOUT:?}; output:\n{output}")
+        })
+    }
+
+    /// [`Self::start`], or the process's output when it did not announce its Modbus TCP address
+    /// in time (it exited, or it hangs: then it is killed).
+    pub fn try_start(args: &[&str]) -> Result<Self, String> {
         let mut child = Command::new(gateway_bin())
             .args(args)
             .env(
@@ -138,7 +192,12 @@ impl Gateway {
             output,
             lines,
         };
-        let line = gw.wait_for("modbus-tcp listening on ", START_TIMEOUT);
+        let Some(line) = gw.try_wait_for("modbus-tcp listening on ", START_TIMEOUT) else {
+            gw.kill();
+            // The reader threads end with the pipes: the output is complete.
+            while gw.lines.recv_timeout(Duration::from_secs(5)).is_ok() {}
+            return Err(gw.output());
+        };
         let addr = line
             .rsplit("modbus-tcp listening on ")
             .next()
@@ -159,22 +218,30 @@ impl Gateway {
                 addr.parse()
                     .unwrap_or_else(|e| panic!("bad address {addr:?}: {e}"))
             });
-        gw
+        Ok(gw)
     }
 
     /// Waits until a line containing `needle` appears and returns it; panics with the whole
     /// output after `timeout`.
     pub fn wait_for(&mut self, needle: &str, timeout: Duration) -> String {
+        self.try_wait_for(needle, timeout).unwrap_or_else(|| {
+            panic!(
+                "no line containing {needle:?} within {timeout:?}; output:\n{}",
+                self.output()
+            )
+        })
+    }
+
+    /// Waits until a line containing `needle` appears and returns it; `None` after `timeout`, or
+    /// at once when the process has ended.
+    pub fn try_wait_for(&mut self, needle: &str, timeout: Duration) -> Option<String> {
         let deadline = Instant::now() + timeout;
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
             match self.lines.recv_timeout(left) {
-                Ok(line) if line.contains(needle) => return line,
+                Ok(line) if line.contains(needle) => return Some(line),
                 Ok(_) => {}
-                Err(_) => panic!(
-                    "no line containing {needle:?} within {timeout:?}; output:\n{}",
-                    self.output()
-                ),
+                Err(_) => return None,
             }
         }
     }

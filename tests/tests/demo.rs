@@ -533,3 +533,27 @@ fn the_demo_runs_a_minute_and_stops_without_a_warning() {
         above.join("\n")
     );
 }
+
+/// The harness's answer to a zenoh port another process took between choosing it and the
+/// gateway binding it: the gateway refuses to start ("Address already in use") and the next port
+/// is tried.
+#[test]
+fn a_demo_whose_zenoh_port_was_taken_starts_again_on_another() {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").expect("bind");
+    let taken_port = taken.local_addr().expect("addr").port();
+    let Err(output) = Gateway::try_demo(taken_port, &[]) else {
+        panic!("the demo started on a taken port");
+    };
+    assert!(output.contains("Address already in use"), "{output}");
+
+    let mut ports = [taken_port, gateway_tests::free_port()].into_iter();
+    let mut gw = Gateway::on_zenoh_ports(
+        || ports.next().unwrap_or_else(gateway_tests::free_port),
+        |port| Gateway::try_demo(port, &[]),
+    );
+    assert_ne!(gw.zenoh_port, Some(taken_port));
+    assert!(gw.zenoh_port.is_some());
+    assert!(gw
+        .stop(Duration::from_secs(10))
+        .is_some_and(|s| s.success()));
+}

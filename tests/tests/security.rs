@@ -283,10 +283,10 @@ async fn the_same_forbidden_write_is_refused_over_modbus_tcp_rest_and_zenoh() {
     let dir = temp_dir("one-policy");
     let link = SocatLink::new(&dir, "drive");
     let _sim = device_sim("altivar71", &link.b);
-    let zenoh_port = gateway_tests::free_port();
     // Only CMD (W8501) of the drive may be written: ACC (W9001) is outside the write ranges.
-    let config = format!(
-        r#"
+    let config = |zenoh_port: u16| {
+        format!(
+            r#"
 [gateway]
 name = "policy"
 
@@ -320,11 +320,12 @@ name = "settings"
 period = "200ms"
 ranges = [{{ table = "holding", start = 9001, count = 2 }}]
 "#,
-        port = link.a.display(),
-    );
+            port = link.a.display(),
+        )
+    };
     let file = dir.join("gateway.toml");
-    std::fs::write(&file, config).expect("write config");
-    let gw = Gateway::run(&file);
+    let gw = Gateway::run_on_free_zenoh_port(&file, config);
+    let zenoh_port = gw.zenoh_port.expect("zenoh port");
     let http = gw.http.expect("http");
     let mut drive = tcp::connect_slave(gw.modbus_tcp, Slave(2))
         .await
@@ -388,10 +389,10 @@ async fn the_same_forbidden_send_is_refused_over_rest_zenoh_and_the_mailbox() {
 
     let dir = temp_dir("no-sends");
     let link = SocatLink::new(&dir, "ascii");
-    let zenoh_port = gateway_tests::free_port();
     // The line's write policy refuses sends; every interface that can send is open.
-    let config = format!(
-        r#"
+    let config = |zenoh_port: u16| {
+        format!(
+            r#"
 [gateway]
 name = "nosend"
 
@@ -416,11 +417,12 @@ end_chars = [0x03]
 unit_id = 101
 sends = false
 "#,
-        port = link.a.display(),
-    );
+            port = link.a.display(),
+        )
+    };
     let file = dir.join("gateway.toml");
-    std::fs::write(&file, config).expect("write config");
-    let gw = Gateway::run(&file);
+    let gw = Gateway::run_on_free_zenoh_port(&file, config);
+    let zenoh_port = gw.zenoh_port.expect("zenoh port");
     let http = gw.http.expect("http");
 
     // REST: 409 with the policy named.
@@ -483,9 +485,9 @@ sends = false
 async fn zenoh_writes_are_off_unless_switched_on() {
     let dir = temp_dir("zenoh-writes");
     let link = SocatLink::new(&dir, "ascii");
-    let zenoh_port = gateway_tests::free_port();
-    let config = format!(
-        r#"
+    let config = |zenoh_port: u16| {
+        format!(
+            r#"
 [gateway]
 name = "quiet"
 
@@ -501,11 +503,12 @@ protocol = "ascii"
 end_criterion = "end-chars"
 end_chars = [0x03]
 "#,
-        port = link.a.display(),
-    );
+            port = link.a.display(),
+        )
+    };
     let file = dir.join("gateway.toml");
-    std::fs::write(&file, config).expect("write config");
-    let mut gw = Gateway::run(&file);
+    let mut gw = Gateway::run_on_free_zenoh_port(&file, config);
+    let zenoh_port = gw.zenoh_port.expect("zenoh port");
     let session = gateway_tests::zenoh_client(zenoh_port).await;
     let result = zenoh_put(&session, "gw/quiet/ascii/tx", "HELLO").await;
     assert_eq!(result["ok"], serde_json::Value::Bool(false), "{result}");

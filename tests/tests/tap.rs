@@ -24,9 +24,9 @@ fn frame(address: u8, pdu: &[u8]) -> Vec<u8> {
 async fn a_tap_line_serves_another_masters_values_and_refuses_every_write() {
     let dir = temp_dir("tap-line");
     let link = SocatLink::new(&dir, "bus");
-    let zenoh_port = free_port();
-    let config = format!(
-        r#"
+    let config = |zenoh_port: u16| {
+        format!(
+            r#"
 [gateway]
 name = "tap"
 
@@ -56,14 +56,16 @@ profile = "altivar71"
 address = 2
 unit_id = 2
 "#,
-        port = link.a.display()
-    );
+            port = link.a.display()
+        )
+    };
     let cfg = dir.join("gateway.toml");
-    std::fs::write(&cfg, config).expect("write config");
+    std::fs::write(&cfg, config(free_port())).expect("write config");
     let (passed, report) = check_config(&cfg);
     assert!(passed, "{report}");
 
-    let gw = Gateway::run(&cfg);
+    let gw = Gateway::run_on_free_zenoh_port(&cfg, config);
+    let zenoh_port = gw.zenoh_port.expect("zenoh port");
     let mut bus = tokio_serial::SerialStream::open(&tokio_serial::new(
         link.b.to_str().expect("utf-8 path"),
         1200,

@@ -88,6 +88,11 @@ fn layout(bytes: &[u8], words_reversed: bool, bytes_swapped: bool) -> Vec<u16> {
 // === impl MeterSim ===
 
 impl MeterSim {
+    /// Sets the injected faults.
+    pub fn set_faults(&mut self, faults: Faults) {
+        self.faults = faults;
+    }
+
     /// The demo meter at slave `address` with the values of [`map`].
     pub fn new(address: u8) -> Self {
         let mut sim = Self {

@@ -18,6 +18,7 @@ use tokio_util::sync::CancellationToken;
 use super::altivar::AltivarSim;
 use super::bus::Bus;
 use super::ksvario::KsVarioSim;
+use super::meter::MeterSim;
 use super::{Faults, ModbusDevice};
 use crate::timer::LineTimer;
 
@@ -39,6 +40,10 @@ pub enum DeviceKind {
     /// PMA KS vario (Modbus RTU, default slave 17).
     #[value(name = "ksvario")]
     KsVario,
+    /// The demo's energy meter, one tag of every data type and byte order (Modbus RTU, default
+    /// slave 30; docs/tags.md).
+    #[value(name = "meter")]
+    Meter,
     /// A 3964(R) partner that echoes telegrams.
     #[value(name = "3964r")]
     Proc3964r,
@@ -52,6 +57,7 @@ impl core::fmt::Display for DeviceKind {
         f.write_str(match self {
             Self::Altivar71 => "altivar71",
             Self::KsVario => "ksvario",
+            Self::Meter => "meter",
             Self::Proc3964r => "3964r",
             Self::Ascii => "ascii",
         })
@@ -94,7 +100,7 @@ pub struct SimArgs {
     /// The serial port (a pty end or a real port).
     #[arg(long)]
     pub port: String,
-    /// The slave address (default: the device's, Altivar 2, KS vario 17).
+    /// The slave address (default: the device's, Altivar 2, KS vario 17, meter 30).
     #[arg(long)]
     pub address: Option<u8>,
     /// Modbus devices: more devices of the same kind on the same port, a multi-drop bus, at
@@ -176,6 +182,7 @@ impl SimArgs {
         let default = match self.device {
             DeviceKind::Altivar71 => 2,
             DeviceKind::KsVario => 17,
+            DeviceKind::Meter => 30,
             other => return Err(SimError::NotYetAvailable(other)),
         };
         let first = self.address.unwrap_or(default);
@@ -215,6 +222,11 @@ impl SimArgs {
                 device.set_faults(faults);
                 Box::new(device)
             }
+            DeviceKind::Meter => {
+                let mut device = MeterSim::new(address);
+                device.set_faults(faults);
+                Box::new(device)
+            }
             other => return Err(SimError::NotYetAvailable(other)),
         })
     }
@@ -238,7 +250,7 @@ pub async fn run(args: SimArgs, shutdown: CancellationToken) -> Result<(), SimEr
     let telegram = match args.device {
         DeviceKind::Proc3964r => Some(super::telegram::TelegramDevice::P3964r),
         DeviceKind::Ascii => Some(super::telegram::TelegramDevice::Ascii),
-        DeviceKind::Altivar71 | DeviceKind::KsVario => None,
+        DeviceKind::Altivar71 | DeviceKind::KsVario | DeviceKind::Meter => None,
     };
     if let Some(device) = telegram {
         let mut port = crate::serial::PortSettings::new(args.port.clone(), args.baud);
@@ -539,6 +551,28 @@ mod tests {
         // Without the option the echo is answered.
         let mut plain = args(None).device().unwrap();
         assert!(plain.handle_frame(&echo).is_some());
+    }
+
+    /// `--device meter`: the demo's meter at slave 30 by default, with its faults.
+    #[test]
+    fn the_meter_answers_at_30_by_default_and_takes_its_faults() {
+        let mut a = args(None);
+        a.device = DeviceKind::Meter;
+        let mut meter = a.device().expect("a meter");
+        let mut read = Vec::new();
+        let address = crate::sim::meter::map::TEMPERATURE;
+        let [hi, lo] = address.to_be_bytes();
+        rtu::encode_frame(30, &[0x04, hi, lo, 0x00, 0x01], &mut read);
+        let answer = meter.handle_frame(&read).expect("answered");
+        let [t_hi, t_lo] = crate::sim::meter::map::TEMPERATURE_RAW.to_be_bytes();
+        assert_eq!(
+            decode_frame(&answer).expect("a frame").pdu,
+            [0x04, 0x02, t_hi, t_lo]
+        );
+        a.fault = Some(SimFault::Silent);
+        let mut silent = a.device().expect("a meter");
+        assert_eq!(silent.handle_frame(&read), None);
+        assert_eq!(DeviceKind::Meter.to_string(), "meter");
     }
 
     /// FC 04 at 1004, three registers, of slave 17 (001's example).
