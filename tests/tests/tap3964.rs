@@ -204,10 +204,10 @@ async fn a_3964r_tap_line_shows_both_partners_telegrams_and_refuses_every_send()
     // One link per direction: partner A writes on `a_link.b`, the gateway reads `a_link.a`.
     let a_link = SocatLink::new(&dir, "txd-a");
     let b_link = SocatLink::new(&dir, "txd-b");
-    let zenoh_port = free_port();
 
     // `gateway check` accepts the config; `port_b = port` is refused at `lines.link.port_b`.
     let cfg = dir.join("gateway.toml");
+    let zenoh_port = free_port();
     std::fs::write(&cfg, config(&a_link.a, &b_link.a, zenoh_port)).expect("write config");
     let (passed, report) = check_config(&cfg);
     assert!(passed, "{report}");
@@ -217,7 +217,9 @@ async fn a_3964r_tap_line_shows_both_partners_telegrams_and_refuses_every_send()
     assert!(!passed, "port_b = port was accepted:\n{report}");
     assert!(report.contains(&format!("lines.{LINE}.port_b")), "{report}");
 
-    let gw = Gateway::run(&cfg);
+    // (The zenoh port is chosen again should another process take it before the gateway.)
+    let gw = Gateway::run_on_free_zenoh_port(&cfg, |port| config(&a_link.a, &b_link.a, port));
+    let zenoh_port = gw.zenoh_port.expect("zenoh port");
     let http = format!("http://{}", gw.http.expect("HTTP"));
     let client = reqwest::Client::new();
     let partner_a = open_partner(&a_link.b);
