@@ -48,6 +48,8 @@ mod scanner;
 mod scheduler;
 mod status;
 pub mod telegram;
+#[cfg(test)]
+mod testing;
 mod writeback;
 
 use std::time::Duration;

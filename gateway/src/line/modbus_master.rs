@@ -1010,7 +1010,7 @@ impl ReadBlockParts {
 
 #[cfg(test)]
 mod tests {
-    use std::sync::{Mutex, PoisonError};
+    use std::sync::Mutex;
     use std::time::Duration;
 
     use proto_core::event::ids;
@@ -1019,24 +1019,9 @@ mod tests {
     use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 
     use super::*;
+    use crate::line::testing::OnePort;
     use crate::line::{AddrRange, PollGroup};
     use crate::serial::PortSettings;
-
-    /// Hands out one in-process port: the test's end plays the device and writes what the tty
-    /// layer delivers from a UART with `INPCK | PARMRK` (a pty cannot produce a parity error).
-    struct OnePort(Mutex<Option<DuplexStream>>);
-
-    impl PortOpener for OnePort {
-        type Port = DuplexStream;
-
-        fn open(&self, _settings: &PortSettings) -> Result<DuplexStream, String> {
-            self.0
-                .lock()
-                .unwrap_or_else(PoisonError::into_inner)
-                .take()
-                .ok_or_else(|| "no second port".to_owned())
-        }
-    }
 
     /// Reads one FC 03 request of the line.
     async fn request(device: &mut DuplexStream) -> Vec<u8> {

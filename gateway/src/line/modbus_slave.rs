@@ -383,23 +383,7 @@ mod tests {
     use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 
     use super::*;
-
-    /// Hands out one in-process port: the test's end stands in for the tty layer, writing what
-    /// the kernel delivers from a UART with `INPCK | PARMRK` (a pty cannot produce a parity
-    /// error or a BREAK: its other end writes bytes only).
-    struct OnePort(Mutex<Option<DuplexStream>>);
-
-    impl PortOpener for OnePort {
-        type Port = DuplexStream;
-
-        fn open(&self, _settings: &PortSettings) -> Result<DuplexStream, String> {
-            self.0
-                .lock()
-                .unwrap_or_else(PoisonError::into_inner)
-                .take()
-                .ok_or_else(|| "no second port".to_owned())
-        }
-    }
+    use crate::line::testing::{events, eventually, OnePort};
 
     const ADDRESS: u8 = 222;
 
@@ -407,16 +391,6 @@ mod tests {
         let mut frame = Vec::new();
         encode_frame(ADDRESS, &[0x03, 0x00, 0x00, 0x00, 0x01], &mut frame);
         frame
-    }
-
-    async fn eventually(what: &str, mut check: impl FnMut() -> bool) {
-        for _ in 0..500 {
-            if check() {
-                return;
-            }
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
-        panic!("{what} did not happen");
     }
 
     /// The answer to a request: what arrives until the line is silent for 50 ms.
@@ -467,10 +441,6 @@ mod tests {
         );
         eventually("the port open", || line.status().port_open).await;
         (line, partner, registry, shutdown)
-    }
-
-    fn events(line: &LineHandle, id: EventId) -> u64 {
-        line.status().event_counts.get(&id).copied().unwrap_or(0)
     }
 
     #[tokio::test]

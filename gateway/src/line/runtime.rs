@@ -840,21 +840,7 @@ mod tests {
     use tokio::io::DuplexStream;
 
     use super::*;
-
-    /// Hands out the ports of a queue, then refuses.
-    struct Ports(Mutex<VecDeque<Result<DuplexStream, String>>>);
-
-    impl PortOpener for Ports {
-        type Port = DuplexStream;
-
-        fn open(&self, _settings: &PortSettings) -> Result<DuplexStream, String> {
-            self.0
-                .lock()
-                .unwrap_or_else(PoisonError::into_inner)
-                .pop_front()
-                .unwrap_or_else(|| Err("no such port".into()))
-        }
-    }
+    use crate::line::testing::{events, eventually, Ports};
 
     /// Echoes what it receives and writes what it is sent as a command.
     struct Echo {
@@ -921,20 +907,6 @@ mod tests {
         fn as_any(&self) -> &dyn Any {
             self
         }
-    }
-
-    async fn eventually(what: &str, mut check: impl FnMut() -> bool) {
-        for _ in 0..500 {
-            if check() {
-                return;
-            }
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
-        panic!("{what} did not happen");
-    }
-
-    fn events(line: &LineHandle, id: EventId) -> u64 {
-        line.status().event_counts.get(&id).copied().unwrap_or(0)
     }
 
     /// The core of a test line named `name` on `path` (diag depth 8, reopen after 10 to 20 ms,

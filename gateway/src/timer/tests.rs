@@ -90,7 +90,9 @@ async fn it_can_be_re_armed_earlier_and_later() {
 #[tokio::test]
 async fn a_sleep_in_select_loses_to_an_earlier_branch_and_fires_next_time() {
     let mut timer = LineTimer::new();
-    let deadline = Instant::now() + Duration::from_millis(3);
+    // Far beyond the two short sleeps that must win first, even on a loaded machine (with 3 ms a
+    // busy runtime let the deadline pass during the second sleep).
+    let deadline = Instant::now() + Duration::from_millis(200);
     let mut turns = 0;
     loop {
         turns += 1;

@@ -1,42 +1,18 @@
 //! The tap line on an in-process stream: what its units answer, and a device whose requests go
 //! unanswered going offline.
 
-use std::sync::{Mutex, PoisonError};
+use std::sync::Mutex;
 
 use proto_core::modbus::rtu::encode_frame;
-use tokio::io::{AsyncWriteExt, DuplexStream};
+use tokio::io::AsyncWriteExt;
 
 use super::*;
-
-/// Hands out one in-process port, the test's end being the bus.
-struct OnePort(Mutex<Option<DuplexStream>>);
-
-impl PortOpener for OnePort {
-    type Port = DuplexStream;
-
-    fn open(&self, _settings: &PortSettings) -> Result<DuplexStream, String> {
-        self.0
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .take()
-            .ok_or_else(|| "no second port".to_owned())
-    }
-}
+use crate::line::testing::{eventually, OnePort};
 
 fn frame(address: u8, pdu: &[u8]) -> Vec<u8> {
     let mut out = Vec::new();
     encode_frame(address, pdu, &mut out);
     out
-}
-
-async fn eventually(what: &str, mut check: impl FnMut() -> bool) {
-    for _ in 0..500 {
-        if check() {
-            return;
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
-    panic!("{what} did not happen");
 }
 
 fn answer_now(unit: &dyn UnitService, request: &Request) -> Result<Vec<u8>, ExceptionCode> {

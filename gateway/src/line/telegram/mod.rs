@@ -402,46 +402,15 @@ fn start<F: engine::EngineFactory, O: PortOpener>(
 
 #[cfg(test)]
 mod tests {
-    use std::sync::PoisonError;
     use std::time::Duration;
 
-    use proto_core::event::{ids, EventId};
+    use proto_core::event::ids;
     use proto_core::proc3964::{Params3964, Priority, Settings3964};
     use proto_core::serial_marks::{encode, Received};
-    use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
     use super::*;
-
-    /// Hands out one in-process port: the test's end plays the partner and writes what the tty
-    /// layer delivers from a UART with `INPCK | PARMRK` (a pty cannot produce a parity error or
-    /// a BREAK).
-    struct OnePort(Mutex<Option<DuplexStream>>);
-
-    impl PortOpener for OnePort {
-        type Port = DuplexStream;
-
-        fn open(&self, _settings: &PortSettings) -> Result<DuplexStream, String> {
-            self.0
-                .lock()
-                .unwrap_or_else(PoisonError::into_inner)
-                .take()
-                .ok_or_else(|| "no second port".to_owned())
-        }
-    }
-
-    async fn eventually(what: &str, mut check: impl FnMut() -> bool) {
-        for _ in 0..500 {
-            if check() {
-                return;
-            }
-            tokio::time::sleep(Duration::from_millis(10)).await;
-        }
-        panic!("{what} did not happen");
-    }
-
-    fn events(line: &LineHandle, id: EventId) -> u64 {
-        line.status().event_counts.get(&id).copied().unwrap_or(0)
-    }
+    use crate::line::testing::{events, eventually, OnePort};
 
     #[tokio::test]
     async fn a_3964r_line_reports_a_faulty_character_and_a_break_in_idle_at_once() {

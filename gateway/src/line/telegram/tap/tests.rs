@@ -2,7 +2,6 @@
 //! lines (and, with `PARMRK` marks, a UART's line errors a pty cannot produce).
 
 use std::collections::VecDeque;
-use std::sync::PoisonError;
 
 use proto_core::modbus::pdu::{ExceptionCode, Request};
 use proto_core::monitor::Direction;
@@ -12,36 +11,8 @@ use proto_core::serial_marks::{self, Received};
 use tokio::io::{AsyncReadExt, AsyncWriteExt, DuplexStream};
 
 use super::*;
+use crate::line::testing::{events, eventually, Ports};
 use crate::mailbox::layout;
-
-/// Hands out the ports of a queue (first `port`, then `port_b`), then refuses.
-struct Ports(Mutex<VecDeque<DuplexStream>>);
-
-impl PortOpener for Ports {
-    type Port = DuplexStream;
-
-    fn open(&self, _settings: &PortSettings) -> Result<DuplexStream, String> {
-        self.0
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .pop_front()
-            .ok_or_else(|| "no such port".to_owned())
-    }
-}
-
-async fn eventually(what: &str, mut check: impl FnMut() -> bool) {
-    for _ in 0..500 {
-        if check() {
-            return;
-        }
-        tokio::time::sleep(Duration::from_millis(10)).await;
-    }
-    panic!("{what} did not happen");
-}
-
-fn events(line: &LineHandle, id: EventId) -> u64 {
-    line.status().event_counts.get(&id).copied().unwrap_or(0)
-}
 
 /// A tap line on two in-process ports; the partners' ends.
 fn tap_line(shutdown: &CancellationToken) -> (LineHandle, DuplexStream, DuplexStream) {
@@ -58,7 +29,7 @@ fn tap_line(shutdown: &CancellationToken) -> (LineHandle, DuplexStream, DuplexSt
     let line = spawn_on(
         settings,
         shutdown.clone(),
-        Ports(Mutex::new(VecDeque::from([a, b]))),
+        Ports(Mutex::new(VecDeque::from([Ok(a), Ok(b)]))),
     );
     (line, partner_a, partner_b)
 }
