@@ -15,6 +15,12 @@ Run from anywhere: python3 fuzz/make-seeds.py. The seeds are committed; rerun af
          address), all of them pipelined in one stream, and a frame with protocol id 1
 - telegram: the fuzz_telegram input: setup, fixed length, then the script; telegrams ended by
          the character delay time, ETX, CR LF and a fixed length, received and sent
+- rtu_tap: the fuzz_rtu_tap input: setup 0x21 (9600 Bd, answer timeout 1 s), then each request of the vectors and
+         its answers as another master's exchange with silences between the frames, and a
+         request left without an answer
+- tap3964: the fuzz_tap_3964 input: a setup byte, then both partners' exchanges of the 3964(R)
+         vectors (STX, DLE, the telegram, DLE), one refused with NAK and repeated, and an
+         initialization conflict
 """
 
 import pathlib
@@ -122,6 +128,73 @@ def write_telegrams():
               + bytes([TIMEOUT, CONFIRM, TIMEOUT, CONFIRM, TIMEOUT]))
 
 
+# Script operations of proto_core::fuzzing (tap.rs). RTU tap: op & 3, argument op >> 2.
+TAP_RX, TAP_SILENCE, TAP_TIMEOUT = 0, 1, 2
+# 3964(R) tap: op & 7, argument op >> 3.
+A_RX, B_RX, Y_TIMEOUT, A_CONTROL, B_CONTROL, Y_TELEGRAM = 0, 1, 3, 5, 6, 7
+STX_I, DLE_I, NAK_I = 0, 1, 3
+
+
+def tap_frame(frame):
+    out = bytearray()
+    for i in range(0, len(frame), 64):
+        part = frame[i : i + 64]
+        out.append(TAP_RX | (len(part) - 1) << 2)
+        out.extend(part)
+    # 10 ms of silence ends the frame at every baud rate from 9600 up.
+    out.append(TAP_SILENCE | 10 << 2)
+    return bytes(out)
+
+
+def write_rtu_tap(frames):
+    for name, frame in frames.items():
+        m = re.fullmatch(r"(.*)-request", name)
+        if not m:
+            continue
+        answers = [f for other, f in frames.items()
+                   if other != name and other.startswith(m.group(1) + "-")
+                   and other.endswith(("-response", "-exception"))]
+        script = bytearray([0x01 | 2 << 4])  # 9600 Bd, answer timeout 1 s
+        for answer in answers:
+            script += tap_frame(frame) + tap_frame(answer)
+        # A request nobody answers, then the deadlines.
+        script += tap_frame(frame) + bytes([TAP_TIMEOUT, TAP_TIMEOUT])
+        write("rtu_tap", m.group(1), bytes(script))
+
+
+def y_telegram(side_b, user):
+    out = bytearray()
+    for i in range(0, len(user), 32):
+        part = user[i : i + 32]
+        out.append(Y_TELEGRAM | ((len(part) - 1) << 1 | int(side_b)) << 3)
+        out.extend(part)
+    return bytes(out)
+
+
+def y_exchange(sender_b, user, ack=DLE_I):
+    sender, receiver = (B_CONTROL, A_CONTROL) if sender_b else (A_CONTROL, B_CONTROL)
+    return (bytes([sender | STX_I << 3, receiver | DLE_I << 3]) + y_telegram(sender_b, user)
+            + bytes([receiver | ack << 3]))
+
+
+def write_tap3964(vectors):
+    for name, wire in vectors.items():
+        if not name.startswith("3964") or "bad" in name:
+            continue
+        setup = 0 if name.startswith("3964r") else 1
+        user = (wire[:-3] if setup == 0 else wire[:-2]).replace(b"\x10\x10", b"\x10")
+        write("tap3964", name + "-both-sides",
+              bytes([setup]) + y_exchange(False, user) + y_exchange(True, user)
+              + bytes([Y_TIMEOUT]))
+        write("tap3964", name + "-nak-repeated",
+              bytes([setup]) + y_exchange(False, user, NAK_I) + y_exchange(False, user)
+              + bytes([Y_TIMEOUT]))
+    # Both partners send STX; B answers DLE (A has the higher priority), A's telegram follows.
+    write("tap3964", "conflict",
+          bytes([0, A_CONTROL | STX_I << 3, B_CONTROL | STX_I << 3, B_CONTROL | DLE_I << 3])
+          + y_telegram(False, b"AB") + bytes([B_CONTROL | DLE_I << 3, Y_TIMEOUT]))
+
+
 def write_marks(frames):
     # What a tty opened with INPCK|PARMRK delivers: FF doubled, FF 00 x a faulty character x,
     # FF 00 00 a BREAK. The first byte chooses the fuzzer's chunk size.
@@ -155,6 +228,8 @@ def main():
             write("slave", name, slave_script(frame))
     write_telegrams()
     write_marks(frames)
+    write_rtu_tap(frames)
+    write_tap3964({n: d for n, d in vectors.items() if n.startswith("3964")})
     # MBAP frames of the request PDUs.
     stream = b""
     for number, (name, frame) in enumerate(sorted(frames.items())):

@@ -14,11 +14,13 @@
 mod marks;
 mod modbus;
 mod slave;
+mod tap;
 mod telegram;
 
 pub use marks::fuzz_marks;
 pub use modbus::{fuzz_ascii, fuzz_pdu, fuzz_rtu};
 pub use slave::fuzz_slave;
+pub use tap::{fuzz_rtu_tap, fuzz_tap_3964};
 pub use telegram::{fuzz_3964, fuzz_telegram};
 
 /// `n` as a `u64` (saturating; `usize` is at most 64 bits on every target we build for).

@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use super::slave::run_slave_script;
+use super::tap::{run_rtu_tap, run_tap_3964};
 use super::telegram::{run_3964, run_telegram};
 use super::*;
 use crate::modbus::ascii::{self, AsciiEvent, AsciiFrameAssembler};
@@ -143,6 +144,16 @@ fn marks_seeds_and_mutations() {
 }
 
 #[test]
+fn rtu_tap_seeds_and_mutations() {
+    exercise("rtu_tap", fuzz_rtu_tap);
+}
+
+#[test]
+fn tap3964_seeds_and_mutations() {
+    exercise("tap3964", fuzz_tap_3964);
+}
+
+#[test]
 fn telegram_seeds_and_mutations() {
     exercise("telegram", fuzz_telegram);
 }
@@ -224,4 +235,40 @@ fn the_slave_script_answers_a_request() {
     // The same request from another address is ignored.
     input[0] = 3;
     assert_eq!(run_slave_script(&input), 0);
+}
+
+/// The tap seeds are exchanges the taps understand: every RTU seed pairs its request with each
+/// answer of the vectors and misses the last; the 3964(R) seeds deliver both partners' telegrams,
+/// a repetition after a NAK, and the winner of a conflict.
+#[test]
+fn the_tap_seeds_pair_and_deliver_what_they_carry() {
+    for (path, seed) in seeds("rtu_tap") {
+        let c = run_rtu_tap(&seed).expect("a setup");
+        assert_eq!(c.missing_answers, 1, "{path}: {c:?}");
+        assert_eq!((c.bad_crc, c.discarded), (0, 0), "{path}: {c:?}");
+        assert_eq!(c.frames, 2 * c.pairs + 1, "{path}: {c:?}");
+    }
+    assert!(seeds("rtu_tap")
+        .iter()
+        .any(|(_, seed)| run_rtu_tap(seed).is_some_and(|c| c.pairs >= 2)));
+    for (path, seed) in seeds("tap3964") {
+        let c = run_tap_3964(&seed).expect("a setup");
+        let expected = if path.ends_with("-both-sides") {
+            ([1, 1], 0, 0, 0)
+        } else if path.ends_with("-nak-repeated") {
+            ([1, 0], 1, 1, 0)
+        } else {
+            ([1, 0], 0, 0, 1)
+        };
+        assert_eq!(
+            (c.telegrams, c.naks, c.repetitions, c.conflicts),
+            expected,
+            "{path}: {c:?}"
+        );
+        assert_eq!(
+            (c.stray_bytes, c.bad_bcc, c.missing_dle),
+            (0, 0, 0),
+            "{path}: {c:?}"
+        );
+    }
 }
