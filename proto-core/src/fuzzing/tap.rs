@@ -65,10 +65,10 @@ pub(super) fn run_rtu_tap(data: &[u8]) -> Option<TapCounters> {
                 let n = usize::from(a) + 1;
                 let bytes = script.get(i..(i + n).min(script.len())).unwrap_or_default();
                 i += n;
-                now = now + timing.transmit_time(bytes.len());
+                now += timing.transmit_time(bytes.len());
                 tap.handle_rx(now, bytes);
             }
-            1 => now = now + Duration::from_micros(u64::from(a) * u64::from(a) * 100),
+            1 => now += Duration::from_micros(u64::from(a) * u64::from(a) * 100),
             2 => {
                 now = tap
                     .poll_timeout()
@@ -203,10 +203,10 @@ pub(super) fn run_tap_3964(data: &[u8]) -> Option<TapCounters3964> {
                 let n = usize::from(a) + 1;
                 let bytes = script.get(i..(i + n).min(script.len())).unwrap_or_default();
                 i += n;
-                now = now + step;
+                now += step;
                 tap.handle_rx(side(code == 0), now, bytes);
             }
-            2 => now = now + Duration::from_millis(u64::from(a) * u64::from(a)),
+            2 => now += Duration::from_millis(u64::from(a) * u64::from(a)),
             3 => {
                 now = tap
                     .poll_timeout()
@@ -217,12 +217,12 @@ pub(super) fn run_tap_3964(data: &[u8]) -> Option<TapCounters3964> {
                 }
             }
             4 => {
-                now = now + step;
+                now += step;
                 let error = LINE_ERRORS[usize::from(a >> 1 & 3)];
                 tap.handle_line_error(side(a % 2 == 0), now, error);
             }
             code @ (5 | 6) => {
-                now = now + step;
+                now += step;
                 let control = [STX, DLE, ETX, NAK][usize::from(a % 4)];
                 tap.handle_rx(side(code == 5), now, &[control]);
             }
@@ -230,7 +230,7 @@ pub(super) fn run_tap_3964(data: &[u8]) -> Option<TapCounters3964> {
                 let n = usize::from(a >> 1) + 1;
                 let user = script.get(i..(i + n).min(script.len())).unwrap_or_default();
                 i += n;
-                now = now + step;
+                now += step;
                 tap.handle_rx(side(a % 2 == 0), now, &frame::encode(user, variant));
             }
         }
