@@ -126,8 +126,11 @@ struct Gateway {
 }
 
 impl Gateway {
-    /// Starts `gateway run --config <config>` and returns it with its Modbus TCP address.
-    fn start(config: &std::path::Path) -> (Self, std::net::SocketAddr) {
+    /// Starts `gateway run --config <config>` and returns it with its Modbus TCP and HTTP
+    /// addresses.
+    fn start(
+        config: &std::path::Path,
+    ) -> (Self, std::net::SocketAddr, Option<std::net::SocketAddr>) {
         let mut child = Command::new(env!("CARGO_BIN_EXE_gateway"))
             .args(["run", "--config"])
             .arg(config)
@@ -160,7 +163,12 @@ impl Gateway {
                 .unwrap_or_else(|_| panic!("no Modbus TCP announcement; output:\n{seen:#?}"));
             if let Some((_, addr)) = line.split_once("modbus-tcp listening on ") {
                 let addr = addr.trim().parse().expect("Modbus TCP address");
-                return (gw, addr);
+                // The HTTP line comes first, on the same stream.
+                let http = seen.iter().find_map(|l: &String| {
+                    l.split_once("http listening on ")
+                        .and_then(|(_, a)| a.trim().parse().ok())
+                });
+                return (gw, addr, http);
             }
             seen.push(line);
         }
@@ -182,6 +190,9 @@ name = "registers32"
 
 [modbus_tcp]
 listen = "127.0.0.1:0"
+
+[http]
+insecure_allow_unauthenticated_changes = true
 
 [lines.meters]
 port = "{port}"
@@ -212,6 +223,14 @@ address = 2
 type = "f32"
 writable = true
 
+# Bit 3 of image register 5: the low half of slave register 2.
+[[lines.meters.devices.meter.tags]]
+name = "relay"
+table = "holding"
+address = 5
+bit = 3
+writable = true
+
 [[lines.meters.devices.meter.poll]]
 name = "all"
 period = "100ms"
@@ -229,13 +248,14 @@ async fn a_32_bit_master_ascii_line_reads_and_writes_32_bit_registers_as_registe
         let mut r = regs.lock().expect("registers");
         r.values.insert(0, 0x1234_5678);
         r.values.insert(1, 222.0f32.to_bits());
+        r.values.insert(2, 0x1234_0001);
     }
     let slave = tokio::spawn(run_slave(slave_end, Arc::clone(&regs)));
 
     let dir = tempfile::tempdir().expect("temp dir");
     let file = dir.path().join("gateway.toml");
     std::fs::write(&file, config(&path)).expect("write config");
-    let (_gw, addr) = Gateway::start(&file);
+    let (gw, addr, http) = Gateway::start(&file);
 
     let mut ctx = tcp::connect_slave(addr, Slave(SLAVE))
         .await
@@ -292,6 +312,33 @@ async fn a_32_bit_master_ascii_line_reads_and_writes_32_bit_registers_as_registe
         assert!(Instant::now() < deadline, "image still {words:04X?}");
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
+
+    // A bit tag: the read-modify-write reads the whole 32-bit register (43h) and writes it back
+    // with only its bit changed (46h); the other half and the other bits stay.
+    let http = http.expect("the gateway serves HTTP");
+    let url = format!("http://{http}/api/v1/lines/meters/devices/meter/tags/relay");
+    let answer = reqwest::Client::new()
+        .put(&url)
+        .json(&serde_json::json!({ "value": true }))
+        .send()
+        .await
+        .expect("PUT the bit tag");
+    let status = answer.status();
+    let body = answer.text().await.unwrap_or_default();
+    assert!(status.is_success(), "{status}: {body}");
+    assert_eq!(
+        regs.lock().expect("registers").values.get(&2),
+        Some(&0x1234_0009)
+    );
+    // Half of an unpolled 32-bit register read on demand: the whole register is read (43h), the
+    // client gets its half.
+    let low = ctx
+        .read_holding_registers(5, 1)
+        .await
+        .expect("transport")
+        .expect("read of half a register");
+    assert_eq!(low, [0x0009]);
     slave.abort();
     drop(line_end);
+    drop(gw);
 }

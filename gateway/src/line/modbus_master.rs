@@ -530,7 +530,7 @@ impl MasterLine {
         let engine_now = self.clock.to_engine(now);
         while let Some(job) = self.sched.next_job(now) {
             match job {
-                Job::Command(command) => {
+                Job::Command(mut command) => {
                     let device = self.sched.device_index(command.slave);
                     if device.is_some_and(|d| !self.sched.accepts_commands(d, now)) {
                         let slave = command.slave;
@@ -538,7 +538,18 @@ impl MasterLine {
                         continue;
                     }
                     let registers32 = registers32::enabled(&self.settings.master);
-                    let request = command.request.clone();
+                    if let (Some(update), true) = (command.mask, registers32) {
+                        // The bit's register is half of a 32-bit register of the slave: the
+                        // read-modify-write reads and writes the whole of it (003 6.4.4).
+                        command.request = registers32::bit_update_read(update);
+                    }
+                    // An on-demand read of part of a 32-bit register reads the whole of it; the
+                    // client gets what it asked for (`registers32::narrow`).
+                    let request = match (registers32, command.mask) {
+                        (true, None) => registers32::widen_read(&command.request),
+                        _ => None,
+                    }
+                    .unwrap_or_else(|| command.request.clone());
                     let attempts = Attempts::default();
                     match registers32::submit(
                         &mut self.master,
@@ -772,17 +783,14 @@ impl MasterLine {
                 mut command,
             } => {
                 // The read of a read-modify-write: the write follows at once, in the same job.
+                let registers32 = registers32::enabled(&self.settings.master);
                 if let (Some(update), Outcome::Response(Response::ReadHoldingRegisters(words))) =
                     (command.mask, &outcome)
                 {
-                    if let [current] = words.as_slice() {
+                    if let Some(write) = registers32::bit_update_write(update, words, registers32) {
                         command.mask = None;
-                        command.request = Request::WriteSingleRegister {
-                            address: update.address,
-                            value: update.apply(*current),
-                        };
+                        command.request = write;
                         let engine_now = self.clock.to_engine(now);
-                        let registers32 = registers32::enabled(&self.settings.master);
                         match registers32::submit(
                             &mut self.master,
                             registers32,
@@ -806,13 +814,14 @@ impl MasterLine {
                     // The read of a read-modify-write answered, but not with one register: the
                     // write is not made.
                     Outcome::Response(_) if command.mask.is_some() => Err(CommandError::Refused(
-                        "the read of a read-modify-write did not return one register".into(),
+                        "the read of a read-modify-write did not return the register it asked for"
+                            .into(),
                     )),
                     Outcome::Response(response) => {
                         if let Some(d) = device.and_then(|d| self.devices.get(d)) {
                             refresh_image(&self.image, d.unit_id, request, &response);
                         }
-                        Ok(Ok(response))
+                        Ok(Ok(registers32::narrow(&command.request, request, response)))
                     }
                     Outcome::Exception(code) => Ok(Err(code)),
                     Outcome::Broadcast => broadcast_echo(request)

@@ -30,6 +30,7 @@ use proto_core::modbus::master::{
     Attempts, Master, MasterEvent, Outcome, Request32, RequestId, Response32, SubmitError,
 };
 use proto_core::modbus::pdu::{Request, Response};
+use proto_core::profiles::BitUpdate;
 use proto_core::time::Instant;
 
 use super::plan::DeviceLimits;
@@ -100,6 +101,80 @@ pub(crate) fn limits(mut limits: DeviceLimits) -> DeviceLimits {
     limits.max_read_regs = even(limits.max_read_regs, MAX_READ_32);
     limits.max_write_regs = even(limits.max_write_regs, MAX_WRITE_32);
     limits
+}
+
+/// The read of a read-modify-write of a bit on a 32-bit line: the two image registers of the
+/// 32-bit register the bit's register is half of (one 43h read of it).
+pub(crate) fn bit_update_read(update: BitUpdate) -> Request {
+    Request::ReadHoldingRegisters {
+        address: update.address & !1,
+        quantity: IMAGE_WORDS,
+    }
+}
+
+/// The write of a read-modify-write from what its read returned, `None` when the read did not
+/// return what it asked for: on a 16-bit line the changed register (FC 06); on a 32-bit line
+/// (`registers32`) the whole 32-bit register with the changed half (two image registers from
+/// the even address: 46h), since half of one cannot be written.
+pub(crate) fn bit_update_write(
+    update: BitUpdate,
+    words: &[u16],
+    registers32: bool,
+) -> Option<Request> {
+    match (registers32, words) {
+        (false, [current]) => Some(Request::WriteSingleRegister {
+            address: update.address,
+            value: update.apply(*current),
+        }),
+        (true, [high, low]) => {
+            let (high, low) = if update.address % 2 == 0 {
+                (update.apply(*high), *low)
+            } else {
+                (*high, update.apply(*low))
+            };
+            Some(Request::WriteMultipleRegisters {
+                address: update.address & !1,
+                values: vec![high, low],
+            })
+        }
+        _ => None,
+    }
+}
+
+/// A read of holding registers that starts or ends inside a 32-bit register of the slave, widened
+/// to the whole 32-bit registers it touches (a slave register cannot be read by halves, 003
+/// 6.4.4); `None` when it needs no widening (or is no such read).
+pub(crate) fn widen_read(request: &Request) -> Option<Request> {
+    let Request::ReadHoldingRegisters { address, quantity } = *request else {
+        return None;
+    };
+    if address % IMAGE_WORDS == 0 && quantity % IMAGE_WORDS == 0 {
+        return None;
+    }
+    let start = address & !1;
+    let end = (u32::from(address) + u32::from(quantity)).next_multiple_of(u32::from(IMAGE_WORDS));
+    Some(Request::ReadHoldingRegisters {
+        address: start,
+        quantity: u16::try_from(end - u32::from(start)).ok()?,
+    })
+}
+
+/// The answer to the read a client `asked` for, out of the answer to the read `sent` for it
+/// ([`widen_read`]); any other answer as it is.
+pub(crate) fn narrow(asked: &Request, sent: &Request, response: Response) -> Response {
+    let (
+        Request::ReadHoldingRegisters { address, quantity },
+        Request::ReadHoldingRegisters { address: from, .. },
+        Response::ReadHoldingRegisters(words),
+    ) = (asked, sent, &response)
+    else {
+        return response;
+    };
+    let offset = usize::from(address.saturating_sub(*from));
+    match words.get(offset..offset + usize::from(*quantity)) {
+        Some(part) if part.len() != words.len() => Response::ReadHoldingRegisters(part.to_vec()),
+        _ => response,
+    }
 }
 
 /// The 32-bit job for a request of the 16-bit image; `None` for a request the mode leaves alone
@@ -237,6 +312,99 @@ mod tests {
             Some(Ok(job)) => job,
             other => panic!("{request:?} gave {other:?}"),
         }
+    }
+
+    /// A bit of image register 5 (the low half of slave register 2): the whole 32-bit register
+    /// is read and written back with only that half changed; a 16-bit line writes the register.
+    #[test]
+    fn a_bit_write_reads_and_writes_the_whole_32_bit_register() {
+        let set_bit_3 = |address| BitUpdate {
+            address,
+            and: !0x0008,
+            or: 0x0008,
+        };
+        let read = bit_update_read(set_bit_3(5));
+        assert_eq!(
+            read,
+            Request::ReadHoldingRegisters {
+                address: 4,
+                quantity: 2
+            }
+        );
+        assert_eq!(
+            job(read),
+            Request32::ReadHoldingRegisters {
+                address: 2,
+                quantity: 1
+            }
+        );
+        let write = bit_update_write(set_bit_3(5), &[0x1234, 0x0001], true).expect("a write");
+        assert_eq!(
+            write,
+            Request::WriteMultipleRegisters {
+                address: 4,
+                values: vec![0x1234, 0x0009]
+            }
+        );
+        assert_eq!(
+            job(write),
+            Request32::WriteSingleRegister {
+                address: 2,
+                value: 0x1234_0009
+            }
+        );
+        // The high half, from an even address.
+        assert_eq!(
+            bit_update_write(set_bit_3(4), &[0x1234, 0x0001], true),
+            Some(Request::WriteMultipleRegisters {
+                address: 4,
+                values: vec![0x123C, 0x0001]
+            })
+        );
+        // A 16-bit line: one register; a read that returned something else: no write.
+        assert_eq!(
+            bit_update_write(set_bit_3(5), &[0x0001], false),
+            Some(Request::WriteSingleRegister {
+                address: 5,
+                value: 0x0009
+            })
+        );
+        assert_eq!(bit_update_write(set_bit_3(5), &[0x0001], true), None);
+        assert_eq!(bit_update_write(set_bit_3(5), &[1, 2], false), None);
+    }
+
+    /// An on-demand read of part of a 32-bit register reads all of it, and the client gets the
+    /// part it asked for.
+    #[test]
+    fn a_read_of_half_a_register_reads_the_whole_and_answers_the_half() {
+        let read = |address, quantity| Request::ReadHoldingRegisters { address, quantity };
+        assert_eq!(widen_read(&read(4, 2)), None, "whole registers");
+        assert_eq!(widen_read(&read(5, 1)), Some(read(4, 2)));
+        assert_eq!(widen_read(&read(4, 1)), Some(read(4, 2)));
+        assert_eq!(widen_read(&read(3, 4)), Some(read(2, 6)));
+        assert_eq!(widen_read(&read(65_535, 1)), Some(read(65_534, 2)));
+        assert_eq!(
+            widen_read(&Request::ReadInputRegisters {
+                address: 5,
+                quantity: 1
+            }),
+            None,
+            "only holding registers are 32 bits wide"
+        );
+        let answer = Response::ReadHoldingRegisters(vec![0xA, 0xB, 0xC, 0xD, 0xE, 0xF]);
+        assert_eq!(
+            narrow(&read(3, 4), &read(2, 6), answer.clone()),
+            Response::ReadHoldingRegisters(vec![0xB, 0xC, 0xD, 0xE])
+        );
+        assert_eq!(
+            narrow(
+                &read(5, 1),
+                &read(4, 2),
+                Response::ReadHoldingRegisters(vec![1, 2])
+            ),
+            Response::ReadHoldingRegisters(vec![2])
+        );
+        assert_eq!(narrow(&read(2, 6), &read(2, 6), answer.clone()), answer);
     }
 
     #[test]
