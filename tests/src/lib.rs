@@ -316,6 +316,35 @@ pub fn free_port() -> u16 {
         .port()
 }
 
+/// The repository's root (deploy/, docs/ and the Python clients are found from it).
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The `tshark` command, after checking that it runs (a clear message when it is missing).
+pub fn tshark() -> &'static str {
+    let ok = Command::new("tshark")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    assert!(
+        ok,
+        "tshark is missing: install it with `DEBIAN_FRONTEND=noninteractive apt-get install -y \
+         tshark` (.ci/run does)"
+    );
+    "tshark"
+}
+
+/// tshark's `-X` argument that loads the project's 3964(R) dissector.
+pub fn lua_3964_dissector() -> String {
+    format!(
+        "lua_script:{}",
+        repo_root()
+            .join("deploy/wireshark/cp341_3964r.lua")
+            .display()
+    )
+}
+
 /// A fresh directory under the system temp dir for one test.
 pub fn temp_dir(test: &str) -> PathBuf {
     static COUNTER: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);

@@ -10,7 +10,7 @@
 //! - zenoh `<prefix>/drive/frames`: one JSON sample per frame in a second zenoh session.
 
 use std::collections::BTreeSet;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
@@ -30,10 +30,6 @@ const DEMO_DRIVE_POLLS: &[(u64, u64, u64, u64)] = &[
     (3, 3, 3201, 9),
     (3, 3, 3102, 4),
 ];
-
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
 
 fn base(gw: &Gateway) -> String {
     format!("http://{}", gw.http.expect("the demo serves HTTP"))
@@ -71,19 +67,6 @@ fn request(bytes: &[u8]) -> (u64, u64, u64, u64) {
     (u64::from(bytes[0]), u64::from(bytes[1]), word(2), word(4))
 }
 
-fn tshark() -> &'static str {
-    let ok = Command::new("tshark")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    assert!(
-        ok,
-        "tshark is missing: install it with `DEBIAN_FRONTEND=noninteractive apt-get install -y \
-         tshark` (.ci/run does)"
-    );
-    "tshark"
-}
-
 async fn capture(client: &reqwest::Client, url: &str, file: &Path) {
     let r = client.get(url).send().await.expect("GET capture");
     assert_eq!(r.status(), 200, "{url}");
@@ -104,7 +87,7 @@ async fn capture(client: &reqwest::Client, url: &str, file: &Path) {
 
 /// tshark's fields of every packet, tab-separated.
 fn tshark_fields(file: &Path, extra: &[&str], fields: &[&str]) -> Vec<Vec<String>> {
-    let mut cmd = Command::new(tshark());
+    let mut cmd = Command::new(gateway_tests::tshark());
     cmd.arg("-r").arg(file).args(extra).args(["-T", "fields"]);
     for f in fields {
         cmd.args(["-e", f]);
@@ -312,8 +295,7 @@ async fn the_drive_line_frames_follow_and_capture_decode_with_tshark() {
         &r3964,
     )
     .await;
-    let lua = root().join("deploy/wireshark/cp341_3964r.lua");
-    let lua = format!("lua_script:{}", lua.display());
+    let lua = gateway_tests::lua_3964_dissector();
     let rows = tshark_fields(
         &r3964,
         &["-X", &lua],

@@ -63,14 +63,10 @@ impl Ca {
     }
 }
 
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
-
 /// A Python with pymodbus: `<workspace>/.venv-sec` or `<workspace>/.venv` (`.ci/run`).
 fn python() -> PathBuf {
     for venv in [".venv-sec", ".venv"] {
-        let python = root().join(venv).join("bin/python");
+        let python = gateway_tests::repo_root().join(venv).join("bin/python");
         if Command::new(&python)
             .args(["-c", "import pymodbus"])
             .output()
@@ -81,7 +77,7 @@ fn python() -> PathBuf {
     }
     panic!(
         "pymodbus not found: run `python3 -m venv .venv && .venv/bin/pip install pymodbus` at {}",
-        root().display()
+        gateway_tests::repo_root().display()
     );
 }
 
@@ -94,7 +90,7 @@ fn pymodbus(
     ops: &[&str],
 ) -> Vec<String> {
     let out = Command::new(python())
-        .arg(root().join("gateway/tests/modbus_tls/client.py"))
+        .arg(gateway_tests::repo_root().join("gateway/tests/modbus_tls/client.py"))
         .arg(port.to_string())
         .arg(ca)
         .arg(&files.0)

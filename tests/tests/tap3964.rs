@@ -20,7 +20,7 @@
 //! zenoh, Modbus TCP) and that nothing is ever written to either port, and what `gateway check`
 //! says of the config and of one with `port_b = port`.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
@@ -56,10 +56,6 @@ const TX_REQ: u16 = 1008;
 const A1: &[u8] = b"A-1";
 const B2: &[u8] = b"\x10B-2";
 const A3: &[u8] = b"A-3";
-
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
 
 fn hex(bytes: &[u8]) -> String {
     bytes.iter().map(|b| format!("{b:02x}")).collect()
@@ -164,19 +160,6 @@ async fn get_json(client: &reqwest::Client, url: &str) -> Value {
     let r = client.get(url).send().await.expect("GET");
     assert_eq!(r.status(), 200, "{url}");
     r.json().await.expect("JSON")
-}
-
-fn tshark() -> &'static str {
-    let ok = Command::new("tshark")
-        .arg("--version")
-        .output()
-        .is_ok_and(|o| o.status.success());
-    assert!(
-        ok,
-        "tshark is missing: install it with `DEBIAN_FRONTEND=noninteractive apt-get install -y \
-         tshark` (.ci/run does)"
-    );
-    "tshark"
 }
 
 /// What the monitor shows of the four exchanges: (direction, verdict, bytes on the wire, user
@@ -452,11 +435,8 @@ async fn a_3964r_tap_line_shows_both_partners_telegrams_and_refuses_every_send()
     assert_eq!(r.status(), 200);
     let pcap = dir.join("tap.pcapng");
     std::fs::write(&pcap, r.bytes().await.expect("capture body")).expect("write the capture");
-    let lua = format!(
-        "lua_script:{}",
-        root().join("deploy/wireshark/cp341_3964r.lua").display()
-    );
-    let out = Command::new(tshark())
+    let lua = gateway_tests::lua_3964_dissector();
+    let out = Command::new(gateway_tests::tshark())
         .arg("-r")
         .arg(&pcap)
         .args(["-X", &lua, "-T", "fields"])

@@ -477,12 +477,10 @@ impl Tap3964 {
                     }
                     true
                 } else if side == sender.other() && byte == NAK {
-                    self.damaged(sender, damaged);
-                    if let Err(error) = result {
-                        self.frame_fault(sender, error);
-                    }
-                    self.fail(
+                    self.telegram_failed(
                         sender,
+                        &result,
+                        damaged,
                         Fault::Nak {
                             after_telegram: true,
                         },
@@ -490,12 +488,10 @@ impl Tap3964 {
                     true
                 } else if byte == STX {
                     // A new request before the acknowledgement: the one awaited is missing.
-                    self.damaged(sender, damaged);
-                    if let Err(error) = result {
-                        self.frame_fault(sender, error);
-                    }
-                    self.fail(
+                    self.telegram_failed(
                         sender,
+                        &result,
+                        damaged,
                         Fault::MissingDle {
                             after_telegram: true,
                         },
@@ -575,18 +571,32 @@ impl Tap3964 {
                 damaged,
                 ..
             } => {
-                self.damaged(sender, damaged);
-                if let Err(error) = result {
-                    self.frame_fault(sender, error);
-                }
-                self.fail(
+                self.telegram_failed(
                     sender,
+                    &result,
+                    damaged,
                     Fault::MissingDle {
                         after_telegram: true,
                     },
                 );
             }
         }
+    }
+
+    /// `sender`'s telegram was not acknowledged (`fault`: a NAK, or no DLE): what the tap found
+    /// wrong with its own copy is reported first (a line error inside, a malformed telegram).
+    fn telegram_failed(
+        &mut self,
+        sender: Side,
+        result: &Result<Vec<u8>, FrameError>,
+        damaged: Option<LineError>,
+        fault: Fault,
+    ) {
+        self.damaged(sender, damaged);
+        if let Err(error) = result {
+            self.frame_fault(sender, *error);
+        }
+        self.fail(sender, fault);
     }
 
     /// Reports the line error inside `sender`'s telegram, if there was one.
