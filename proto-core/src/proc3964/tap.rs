@@ -147,7 +147,18 @@ pub enum Fault {
 // === impl Fault ===
 
 impl Fault {
-    /// A short stable name (metrics label).
+    /// Every name [`Self::as_str`] gives, in a fixed order (to create the metrics' series).
+    pub const REASONS: [&'static str; 7] = [
+        "nak",
+        "missing_dle",
+        "bad_bcc",
+        "bad_telegram",
+        "conflict",
+        "stray",
+        "line_error",
+    ];
+
+    /// A short stable name (metrics label), one of [`Self::REASONS`].
     pub const fn as_str(self) -> &'static str {
         match self {
             Self::Nak { .. } => "nak",

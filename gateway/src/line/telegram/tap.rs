@@ -49,20 +49,9 @@ use crate::signals::SignalError;
 /// The config's `protocol` key of a 3964(R) tap line.
 pub const TAP_3964_PROTOCOL: &str = "3964r-tap";
 /// Telegrams the mailbox keeps by default (the 3964(R) line's default receive buffer).
-pub const DEFAULT_TAP_MAILBOX: usize = 250;
+pub const DEFAULT_TAP_MAILBOX: usize = crate::config::DEFAULT_3964_RECEIVE_BUFFER as usize;
 /// Signal requests that may wait for the line (they are all refused).
 const COMMAND_QUEUE: usize = 4;
-
-/// Every reason a 3964(R) tap counts a fault under (`gateway_frames_discarded_total`).
-const FAULT_REASONS: [&str; 7] = [
-    "nak",
-    "missing_dle",
-    "bad_bcc",
-    "bad_telegram",
-    "conflict",
-    "stray",
-    "line_error",
-];
 
 /// Settings of one 3964(R) tap line.
 #[derive(Clone, Debug)]
@@ -144,7 +133,7 @@ pub(crate) fn spawn_on<O: PortOpener>(
     )
     .with_second_port(&settings.port_b);
     let core = base.core(Vec::new());
-    core.shared.metrics().init_frames_discarded(&FAULT_REASONS);
+    core.shared.metrics().init_frames_discarded(&Fault::REASONS);
     let mailbox = MailboxSettings {
         queue_depth: settings.mailbox_depth,
         overflow: Overflow::DropOldest,

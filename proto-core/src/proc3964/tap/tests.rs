@@ -331,3 +331,29 @@ fn a_line_error_inside_a_telegram_is_reported_and_the_telegram_not_delivered() {
         "line_error"
     );
 }
+
+/// Every fault's name is one of the names the line creates its counters under, and every such
+/// name belongs to a fault.
+#[test]
+fn the_fault_names_are_the_listed_reasons() {
+    let faults = [
+        Fault::Nak {
+            after_telegram: false,
+        },
+        Fault::MissingDle {
+            after_telegram: true,
+        },
+        Fault::Frame(FrameError::BadBcc {
+            expected: 0,
+            actual: 1,
+        }),
+        Fault::Frame(FrameError::Incomplete),
+        Fault::Conflict,
+        Fault::Stray { len: 1 },
+        Fault::LineError {
+            error: LineError::Break,
+        },
+    ];
+    let names: Vec<&str> = faults.iter().map(|f| f.as_str()).collect();
+    assert_eq!(names, Fault::REASONS);
+}
