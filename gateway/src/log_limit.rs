@@ -26,6 +26,16 @@ macro_rules! warn_limited {
     };
 }
 
+/// [`warn_limited!`] at ERROR level (the same limiter and keys).
+#[macro_export]
+macro_rules! error_limited {
+    ($key:expr, $($arg:tt)+) => {
+        if let Some(suppressed) = $crate::log_limit::LIMITER.admit($key, std::time::Instant::now()) {
+            tracing::error!(suppressed, $($arg)+);
+        }
+    };
+}
+
 /// The gateway's limiter, shared by every warning site.
 pub static LIMITER: Limiter = Limiter::new(INTERVAL);
 

@@ -232,7 +232,8 @@ ranges = [{{ table = "input", start = 1004, count = 3 }}]
         assert!(metrics.contains(&series), "no {series} in:\n{metrics}");
     }
     // The viewer's write is in the audit count and the audit log, with its source.
-    let series = r#"gateway_writes_total{path="modbus_tcp_tls",result="refused"} 1"#;
+    let series =
+        r#"gateway_writes_total{path="modbus_tcp_tls",reason="policy",result="refused"} 1"#;
     assert!(metrics.contains(series), "no {series} in:\n{metrics}");
     let output = gw.output();
     assert!(
@@ -372,7 +373,9 @@ ranges = [{{ table = "holding", start = 9001, count = 2 }}]
     assert_eq!(now, [acc]);
     let metrics = scrape(http);
     for path in ["modbus_tcp", "rest", "zenoh"] {
-        let series = format!("gateway_writes_total{{path=\"{path}\",result=\"refused\"}} 1");
+        let series = format!(
+            "gateway_writes_total{{path=\"{path}\",reason=\"policy\",result=\"refused\"}} 1"
+        );
         assert!(metrics.contains(&series), "no {series} in:\n{metrics}");
     }
     session.close().await.expect("close");
@@ -467,11 +470,15 @@ sends = false
 
     let metrics = scrape(http);
     for (path, n) in [("modbus_tcp", 3), ("rest", 1), ("zenoh", 1)] {
-        let series = format!("gateway_writes_total{{path=\"{path}\",result=\"refused\"}} {n}");
+        let series = format!(
+            "gateway_writes_total{{path=\"{path}\",reason=\"policy\",result=\"refused\"}} {n}"
+        );
         assert!(metrics.contains(&series), "no {series} in:\n{metrics}");
     }
     for path in ["modbus_tcp", "rest", "zenoh"] {
-        let series = format!("gateway_writes_total{{path=\"{path}\",result=\"accepted\"}} 0");
+        let series = format!(
+            "gateway_writes_total{{path=\"{path}\",reason=\"none\",result=\"accepted\"}} 0"
+        );
         assert!(metrics.contains(&series), "no {series} in:\n{metrics}");
     }
     session.close().await.expect("close");
@@ -510,7 +517,7 @@ end_chars = [0x03]
     assert_eq!(result["ok"], serde_json::Value::Bool(false), "{result}");
     assert!(result.to_string().contains("writes = false"), "{result}");
     let metrics = scrape(gw.http.expect("http"));
-    let series = r#"gateway_writes_total{path="zenoh",result="refused"} 1"#;
+    let series = r#"gateway_writes_total{path="zenoh",reason="writes_off",result="refused"} 1"#;
     assert!(metrics.contains(series), "no {series} in:\n{metrics}");
     gw.wait_for("writes over zenoh are off", Duration::from_secs(5));
     session.close().await.expect("close");

@@ -6,7 +6,6 @@
 //! telegrams) run under that line's token and stop with it; a line started later gets its own.
 //! A write from zenoh takes the same path and checks as a Modbus TCP write ([`super::tag_io`]).
 
-use crate::audit::{self, WritePath, WriteResult};
 use crate::line::telegram::TelegramSendError;
 use std::collections::BTreeSet;
 use std::sync::{Arc, PoisonError, Weak};
@@ -17,16 +16,17 @@ use proto_core::profiles::Value;
 use serde_json::{json, Value as Json};
 use tokio::sync::broadcast::error::RecvError;
 use tokio_util::sync::CancellationToken;
-use tracing::{debug, info, warn};
+use tracing::{debug, info};
 
 use super::lines::RunningLine;
 use super::supervisor::{Follower, Snapshot, Supervisor, ZenohState};
-use super::tag_io;
+use super::tag_io::{self, WriteRefused};
 use super::AppError;
 use crate::api::BoxFuture;
 use crate::image::ProcessImage;
 use crate::line::{LineEvent, LineStatus};
 use crate::tags::{TagDirectory, TagEntry, TagWriteError};
+use crate::zenoh_bridge::accounting::{self, WriteReason};
 use crate::zenoh_bridge::{
     BackendFuture, Bridge, BridgeBackend, BridgeHandle, BridgeStats, DropReason, TagValue,
     ZenohConfig,
@@ -174,7 +174,7 @@ async fn restart(follower: &ZenohFollower, sup: &Arc<Supervisor>) -> bool {
     match open(follower, sup).await {
         Ok(()) => true,
         Err(e) => {
-            warn!(error = %e, "zenoh did not restart");
+            crate::warn_limited!("zenoh did not restart", error = %e, "zenoh did not restart");
             false
         }
     }
@@ -251,101 +251,6 @@ impl BridgeBackend for ZenohBackend {
         })
     }
 
-    fn send_telegram(&self, line: &str, bytes: Vec<u8>) -> BackendFuture<Result<Json, String>> {
-        let metrics = self.metrics();
-        let target = format!("{line}/tx ({} bytes)", bytes.len());
-        let audit = move |result, detail: &dyn std::fmt::Display| {
-            audit::record(
-                metrics.as_ref(),
-                WritePath::Zenoh,
-                &"zenoh",
-                &target,
-                result,
-                detail,
-            );
-        };
-        if let Err(e) = self.writes_allowed() {
-            audit(WriteResult::Refused, &e);
-            return Box::pin(async move { Err(e) });
-        }
-        let client = self
-            .sup
-            .upgrade()
-            .and_then(|s| s.snapshot().lines.get(line)?.handle.telegram_client());
-        let Some(client) = client else {
-            let answer = format!("line {line} does not send telegrams");
-            audit(WriteResult::Refused, &answer);
-            return Box::pin(async move { Err(answer) });
-        };
-        Box::pin(async move {
-            let len = bytes.len();
-            match client.send(bytes).await {
-                Ok(()) => {
-                    audit(WriteResult::Accepted, &"sent");
-                    Ok(json!({ "sent": len }))
-                }
-                Err(e) => {
-                    let result = match e {
-                        TelegramSendError::NotAllowed { .. }
-                        | TelegramSendError::ListenOnly { .. } => WriteResult::Refused,
-                        _ => WriteResult::Failed,
-                    };
-                    let e = e.to_string();
-                    audit(result, &e);
-                    Err(e)
-                }
-            }
-        })
-    }
-
-    fn write_tag(
-        &self,
-        line: &str,
-        device: &str,
-        tag: &str,
-        value: Json,
-    ) -> BackendFuture<Result<Json, String>> {
-        let prepared = self
-            .writes_allowed()
-            .and_then(|()| self.prepare_write(line, device, tag, &value));
-        let metrics = self.metrics();
-        let target = format!("{line}/{device}/{tag} = {value}");
-        let audit = move |result, detail: &dyn std::fmt::Display| {
-            audit::record(
-                metrics.as_ref(),
-                WritePath::Zenoh,
-                &"zenoh",
-                &target,
-                result,
-                detail,
-            );
-        };
-        Box::pin(async move {
-            let (write, name) = match prepared {
-                Ok(prepared) => prepared,
-                Err(e) => {
-                    audit(WriteResult::Refused, &e);
-                    return Err(e);
-                }
-            };
-            match write.send().await {
-                Ok(_) => {
-                    audit(WriteResult::Accepted, &"ok");
-                    Ok(json!({ "tag": name, "written": value }))
-                }
-                Err(code) => {
-                    let e = TagWriteError::Exception(code).to_string();
-                    audit(WriteResult::Failed, &e);
-                    Err(e)
-                }
-            }
-        })
-    }
-}
-
-impl ZenohBackend {
-    /// `Err` with the reason when `[zenoh] writes` is off: zenoh carries no credentials, so
-    /// writes through it are refused unless switched on.
     fn writes_allowed(&self) -> Result<(), String> {
         let on = self.sup.upgrade().is_some_and(|sup| {
             sup.snapshot()
@@ -361,27 +266,116 @@ impl ZenohBackend {
         }
     }
 
+    fn send_telegram(&self, line: &str, bytes: Vec<u8>) -> BackendFuture<Result<Json, String>> {
+        let metrics = self.metrics();
+        let target = format!("{line}/tx ({} bytes)", bytes.len());
+        if let Err(e) = self.writes_allowed() {
+            accounting::refused(metrics.as_ref(), &target, WriteReason::WritesOff, &e);
+            return Box::pin(async move { Err(e) });
+        }
+        let client = self
+            .sup
+            .upgrade()
+            .and_then(|s| s.snapshot().lines.get(line)?.handle.telegram_client());
+        let Some(client) = client else {
+            let answer = format!("line {line} does not send telegrams");
+            accounting::refused(metrics.as_ref(), &target, WriteReason::Policy, &answer);
+            return Box::pin(async move { Err(answer) });
+        };
+        Box::pin(async move {
+            let len = bytes.len();
+            match client.send(bytes).await {
+                Ok(()) => {
+                    accounting::finished(metrics.as_ref(), &target, true, &"sent");
+                    Ok(json!({ "sent": len }))
+                }
+                Err(e) => {
+                    let refused = matches!(
+                        e,
+                        TelegramSendError::NotAllowed { .. } | TelegramSendError::ListenOnly { .. }
+                    );
+                    let e = e.to_string();
+                    if refused {
+                        accounting::refused(metrics.as_ref(), &target, WriteReason::Policy, &e);
+                    } else {
+                        accounting::finished(metrics.as_ref(), &target, false, &e);
+                    }
+                    Err(e)
+                }
+            }
+        })
+    }
+
+    fn write_tag(
+        &self,
+        line: &str,
+        device: &str,
+        tag: &str,
+        value: Json,
+    ) -> BackendFuture<Result<Json, String>> {
+        let prepared = self
+            .writes_allowed()
+            .map_err(|e| (WriteReason::WritesOff, e))
+            .and_then(|()| self.prepare_write(line, device, tag, &value));
+        let metrics = self.metrics();
+        let target = format!("{line}/{device}/{tag} = {value}");
+        Box::pin(async move {
+            let (write, name) = match prepared {
+                Ok(prepared) => prepared,
+                Err((reason, e)) => {
+                    accounting::refused(metrics.as_ref(), &target, reason, &e);
+                    return Err(e);
+                }
+            };
+            match write.send().await {
+                Ok(_) => {
+                    accounting::finished(metrics.as_ref(), &target, true, &"ok");
+                    Ok(json!({ "tag": name, "written": value }))
+                }
+                Err(code) => {
+                    let e = TagWriteError::Exception(code).to_string();
+                    accounting::finished(metrics.as_ref(), &target, false, &e);
+                    Err(e)
+                }
+            }
+        })
+    }
+}
+
+impl ZenohBackend {
     /// The Prometheus families, while the gateway runs.
     fn metrics(&self) -> Option<crate::metrics::Metrics> {
         self.sup.upgrade().map(|sup| sup.exported.metrics.clone())
     }
 
-    /// The checked write of a JSON value, or why there is none.
+    /// The checked write of a JSON value, or why there is none (and which check refused it).
     fn prepare_write(
         &self,
         line: &str,
         device: &str,
         tag: &str,
         value: &Json,
-    ) -> Result<(tag_io::PreparedWrite, String), String> {
-        let sup = self.sup.upgrade().ok_or("the gateway is stopping")?;
+    ) -> Result<(tag_io::PreparedWrite, String), (WriteReason, String)> {
+        let sup = self
+            .sup
+            .upgrade()
+            .ok_or((WriteReason::Policy, "the gateway is stopping".to_owned()))?;
         let value = json_value(value).ok_or_else(|| {
-            format!(
-                "value {value} is not a number, a bool or a text (send JSON: 4.5, true, \"SN-1\")"
+            (
+                WriteReason::BadPayload,
+                format!(
+                    "value {value} is not a number, a bool or a text (send JSON: 4.5, true, \"SN-1\")"
+                ),
             )
         })?;
         let write = tag_io::prepare_write(&sup.snapshot(), &sup.units, line, device, tag, &value)
-            .map_err(|e| e.to_string())?;
+            .map_err(|e| {
+            let reason = match e {
+                WriteRefused::Tag(TagWriteError::UnknownTag(_)) => WriteReason::UnknownTarget,
+                _ => WriteReason::Policy,
+            };
+            (reason, e.to_string())
+        })?;
         let name = format!("{line}/{device}/{}", write.entry.tag.name);
         Ok((write, name))
     }
@@ -559,7 +553,11 @@ fn spawn_line_feeds(
                     Ok(e) => publish_event(&bridge, &e),
                     Err(RecvError::Lagged(n)) => {
                         bridge.stats().dropped_many(DropReason::FeedLagged, n);
-                        warn!(missed = n, "zenoh event feed fell behind a line");
+                        crate::warn_limited!(
+                            "zenoh event feed lagged",
+                            missed = n,
+                            "zenoh event feed fell behind a line"
+                        );
                     }
                     Err(RecvError::Closed) => return,
                 }
@@ -600,7 +598,7 @@ fn spawn_line_feeds(
                 }
                 Err(RecvError::Lagged(n)) => {
                     bridge.stats().dropped_many(DropReason::FeedLagged, n);
-                    warn!(line = %name, missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
+                    crate::warn_limited!(format!("zenoh telegram feed lagged {name}"), line = %name, missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
                 }
                 Err(RecvError::Closed) => return,
             }

@@ -16,6 +16,7 @@
 //! result_queue = 256                  # tx / set results waiting to be published
 //! command_queue = 64                  # tx / set commands waiting for their line
 //! query_queue = 64                    # queries waiting to be answered
+//! max_payload = 65536                 # bytes; a larger put or query payload is refused
 //!
 //! [zenoh.publish]                      # how tag values are published (default: every change)
 //! deadband = 0.0                       # publish a number when it moved by more than this
@@ -44,6 +45,12 @@
 //!
 //! The publisher thread takes everything pending at once, so up to twice a queue's size can be
 //! held (one batch being published, one queue filling).
+//!
+//! Size: `max_payload` bounds what one put or query may carry. zenoh itself is told to drop
+//! any message larger than `max_payload` + [`PAYLOAD_HEADROOM`] while reassembling it (its
+//! `transport/link/rx/max_message_size`), so a huge put costs the gateway at most that much
+//! memory; a payload between the two reaches the bridge, which refuses it (see the bridge's
+//! module docs for what is counted where).
 
 use std::num::NonZeroUsize;
 use std::path::PathBuf;
@@ -189,6 +196,15 @@ pub const DEFAULT_RESULT_QUEUE: usize = 256;
 pub const DEFAULT_COMMAND_QUEUE: usize = 64;
 /// Default for [`ZenohConfig::query_queue`].
 pub const DEFAULT_QUERY_QUEUE: usize = 64;
+/// Default for [`ZenohConfig::max_payload`]: 64 KiB, a zenoh batch, far more than a telegram
+/// or a tag value takes.
+pub const DEFAULT_MAX_PAYLOAD: usize = 65_536;
+/// The largest [`ZenohConfig::max_payload`]: 16 MiB.
+pub const MAX_MAX_PAYLOAD: usize = 16 * 1024 * 1024;
+/// What a message may carry besides its payload before zenoh drops it unread: the key
+/// expression, the attachment (a command's correlation data) and zenoh's framing. zenoh's
+/// `transport/link/rx/max_message_size` is `max_payload` plus this (131 072 bytes by default).
+pub const PAYLOAD_HEADROOM: usize = 65_536;
 /// The shortest heartbeat other than 0 (off).
 pub const MIN_HEARTBEAT: Duration = Duration::from_millis(100);
 /// The longest heartbeat.
@@ -327,6 +343,9 @@ pub struct ZenohConfig {
     pub command_queue: NonZeroUsize,
     /// Queries waiting to be answered (overflow counted, the query gets no reply).
     pub query_queue: NonZeroUsize,
+    /// The largest payload of a put or query, in bytes; a larger one is refused (and zenoh drops
+    /// a message larger than this plus [`PAYLOAD_HEADROOM`] before it reaches the bridge).
+    pub max_payload: NonZeroUsize,
     /// How tag values are published (`[zenoh.publish]`): deadbands and heartbeats.
     pub publish: PublishConfig,
 }
@@ -352,6 +371,7 @@ impl Default for ZenohConfig {
             result_queue: nonzero(DEFAULT_RESULT_QUEUE),
             command_queue: nonzero(DEFAULT_COMMAND_QUEUE),
             query_queue: nonzero(DEFAULT_QUERY_QUEUE),
+            max_payload: nonzero(DEFAULT_MAX_PAYLOAD),
             publish: PublishConfig::default(),
         }
     }
@@ -396,6 +416,15 @@ impl ZenohConfig {
         let result_queue = queue("result_queue", DEFAULT_RESULT_QUEUE);
         let command_queue = queue("command_queue", DEFAULT_COMMAND_QUEUE);
         let query_queue = queue("query_queue", DEFAULT_QUERY_QUEUE);
+        let max_payload = f
+            .int::<u32>(
+                cx,
+                "max_payload",
+                1..=u32::try_from(MAX_MAX_PAYLOAD).unwrap_or(u32::MAX),
+                "",
+            )
+            .and_then(|n| usize::try_from(n).ok())
+            .map_or(nonzero(DEFAULT_MAX_PAYLOAD), nonzero);
         let publish = f
             .table(cx, "publish")
             .map(|t| PublishConfig::read(cx, t))
@@ -416,6 +445,7 @@ impl ZenohConfig {
             result_queue,
             command_queue,
             query_queue,
+            max_payload,
             publish,
         }
     }

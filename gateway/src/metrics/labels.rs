@@ -253,13 +253,15 @@ pub enum DropReason {
     Lagged,
     /// The receiving side had gone (shutdown or restart of a task).
     Closed,
+    /// A request (a zenoh query) was larger than the gateway takes (`[zenoh] max_payload`).
+    TooLarge,
 }
 
 // === impl DropReason ===
 
 impl DropReason {
     /// Every reason, for pre-creating series.
-    pub const ALL: [Self; 3] = [Self::QueueFull, Self::Lagged, Self::Closed];
+    pub const ALL: [Self; 4] = [Self::QueueFull, Self::Lagged, Self::Closed, Self::TooLarge];
 
     /// The `reason` label value.
     pub const fn as_str(self) -> &'static str {
@@ -267,6 +269,7 @@ impl DropReason {
             Self::QueueFull => "queue_full",
             Self::Lagged => "lagged",
             Self::Closed => "closed",
+            Self::TooLarge => "too_large",
         }
     }
 }
@@ -363,6 +366,74 @@ impl WriteResult {
             Self::Accepted => "accepted",
             Self::Refused => "refused",
             Self::Failed => "failed",
+        }
+    }
+}
+
+/// Why a write ended as it did: the `reason` label of `gateway_writes_total`. Accepted and failed
+/// writes say `none` (the result says it all); a refusal says which check refused it. Modbus TCP
+/// and REST refusals are `policy`; the zenoh side names each of its checks, so that a flood of
+/// one kind is told apart from the others.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum WriteReason {
+    /// Not refused: accepted, or failed at the device or line.
+    None,
+    /// The write or send policy, the role, the token, or a check of the request itself (a
+    /// read-only tag, a value that does not fit, a line that does not send).
+    Policy,
+    /// `[zenoh] writes = false`.
+    WritesOff,
+    /// The payload is larger than `[zenoh] max_payload`.
+    TooLarge,
+    /// The payload is not what the key takes: not a JSON value, an empty telegram.
+    BadPayload,
+    /// No such line, device or tag.
+    UnknownTarget,
+    /// A command queue was full: the command was answered `busy`.
+    QueueFull,
+}
+
+impl WriteReason {
+    /// Every reason.
+    pub const ALL: [Self; 7] = [
+        Self::None,
+        Self::Policy,
+        Self::WritesOff,
+        Self::TooLarge,
+        Self::BadPayload,
+        Self::UnknownTarget,
+        Self::QueueFull,
+    ];
+
+    /// The reasons a refusal over zenoh can have, for the zero series.
+    pub const ZENOH_REFUSALS: [Self; 6] = [
+        Self::Policy,
+        Self::WritesOff,
+        Self::TooLarge,
+        Self::BadPayload,
+        Self::UnknownTarget,
+        Self::QueueFull,
+    ];
+
+    /// The reason of a write of `result` on a path that does not say more: `none` for accepted
+    /// and failed writes, `policy` for a refusal.
+    pub const fn of(result: WriteResult) -> Self {
+        match result {
+            WriteResult::Accepted | WriteResult::Failed => Self::None,
+            WriteResult::Refused => Self::Policy,
+        }
+    }
+
+    /// The label value (`queue_full` as in `gateway_dropped_updates_total`).
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Policy => "policy",
+            Self::WritesOff => "writes_off",
+            Self::TooLarge => "too_large",
+            Self::BadPayload => "bad_payload",
+            Self::UnknownTarget => "unknown_target",
+            Self::QueueFull => "queue_full",
         }
     }
 }

@@ -56,7 +56,7 @@ pub mod labels;
 pub use http::serve_metrics;
 pub use labels::{
     function_label, Direction, DropReason, PublicationKind, RejectReason, RequestResult,
-    TcpCloseReason, WritePath, WriteResult,
+    TcpCloseReason, WritePath, WriteReason, WriteResult,
 };
 
 use image_age::ImageAge;
@@ -197,7 +197,7 @@ pub struct Metrics {
     tcp_refused: IntCounterVec,
     /// `gateway_modbus_tcp_tls_handshakes_failed_total`: TLS handshakes that failed or timed out.
     tcp_handshakes_failed: IntCounter,
-    /// `gateway_writes_total{path,result}`: audited writes from outside.
+    /// `gateway_writes_total{path,result,reason}`: audited writes from outside.
     writes: IntCounterVec,
     /// `gateway_zenoh_publications_total{kind}`.
     zenoh_publications: IntCounterVec,
@@ -311,9 +311,10 @@ impl Metrics {
             writes: IntCounterVec::new(
                 Opts::new(
                     WRITES,
-                    "Writes from outside (Modbus TCP, Modbus/TCP Security, REST, zenoh) by path and result.",
+                    "Writes from outside (Modbus TCP, Modbus/TCP Security, REST, zenoh) by path, \
+                     result and the reason of a refusal.",
                 ),
-                &["path", "result"],
+                &["path", "result", "reason"],
             )?,
             tcp_handshakes_failed: IntCounter::new(
                 TCP_HANDSHAKES_FAILED,
@@ -378,10 +379,11 @@ impl Metrics {
         metrics.tcp_refused.with_label_values(&["none"]);
         for path in WritePath::ALL {
             for result in WriteResult::ALL {
-                metrics
-                    .writes
-                    .with_label_values(&[path.as_str(), result.as_str()]);
+                metrics.write_series(path, result, WriteReason::of(result));
             }
+        }
+        for reason in WriteReason::ZENOH_REFUSALS {
+            metrics.write_series(WritePath::Zenoh, WriteResult::Refused, reason);
         }
         for reason in RejectReason::ALL {
             metrics.tcp_rejected.with_label_values(&[reason.as_str()]);
@@ -621,8 +623,18 @@ impl Metrics {
     }
 
     /// Counts one audited write (see [`crate::audit`]).
-    pub fn write_audited(&self, path: &str, result: &str) {
-        self.writes.with_label_values(&[path, result]).inc();
+    pub fn write_audited(&self, path: WritePath, result: WriteResult, reason: WriteReason) {
+        self.write_series(path, result, reason).inc();
+    }
+
+    fn write_series(
+        &self,
+        path: WritePath,
+        result: WriteResult,
+        reason: WriteReason,
+    ) -> IntCounter {
+        self.writes
+            .with_label_values(&[path.as_str(), result.as_str(), reason.as_str()])
     }
 
     /// Counts one failed Modbus/TCP Security handshake.

@@ -5,7 +5,8 @@ use std::path::Path;
 
 pub use crate::config::{
     Endpoint, Mode, Prefix, ZenohConfig, DEFAULT_COMMAND_QUEUE, DEFAULT_EVENT_QUEUE,
-    DEFAULT_QUERY_QUEUE, DEFAULT_RESULT_QUEUE, DEFAULT_TAG_QUEUE, DEFAULT_TELEGRAM_QUEUE,
+    DEFAULT_MAX_PAYLOAD, DEFAULT_QUERY_QUEUE, DEFAULT_RESULT_QUEUE, DEFAULT_TAG_QUEUE,
+    DEFAULT_TELEGRAM_QUEUE, MAX_MAX_PAYLOAD, PAYLOAD_HEADROOM,
 };
 
 use super::keys::{self, KeyError};
@@ -14,6 +15,9 @@ use super::BridgeError;
 /// Where a peer listens when neither `[zenoh] listen` nor a zenoh file says: loopback, zenoh's
 /// port. Other hosts reach the gateway only once an endpoint is configured.
 pub const SAFE_LISTEN: &str = "tcp/127.0.0.1:7447";
+
+/// zenoh's key for the largest message a link reassembles.
+const MAX_MESSAGE_SIZE: &str = "transport/link/rx/max_message_size";
 
 // === impl ZenohConfig ===
 
@@ -29,7 +33,9 @@ impl ZenohConfig {
     /// The zenoh configuration: the file (if any), then this section's keys on top. Without a
     /// file, what the section leaves unset is the safe default, not zenoh's: a peer listens on
     /// [`SAFE_LISTEN`] (loopback) only, and multicast scouting is off, so that an empty
-    /// `[zenoh]` section opens nothing to the plant network. A file is taken as written.
+    /// `[zenoh]` section opens nothing to the plant network. A file is taken as written, except
+    /// that the largest message a link reassembles is at most [`Self::max_message_size`] (a
+    /// smaller one in the file stays).
     pub fn to_zenoh(&self) -> Result<(zenoh::Config, Mode), BridgeError> {
         let (mut z, safe_defaults) = match &self.config_file {
             Some(path) => (read_file(path)?, false),
@@ -58,11 +64,29 @@ impl ZenohConfig {
             None if safe_defaults => set("scouting/multicast/enabled", "false".to_owned())?,
             None => {}
         }
+        let limit = self.max_message_size();
+        let in_file = z
+            .get_json(MAX_MESSAGE_SIZE)
+            .ok()
+            .and_then(|v| v.parse::<usize>().ok());
+        if in_file.is_none_or(|n| n > limit) {
+            z.insert_json5(MAX_MESSAGE_SIZE, &limit.to_string())
+                .map_err(|e| {
+                    BridgeError::Config(format!("zenoh config {MAX_MESSAGE_SIZE}: {e}"))
+                })?;
+        }
         let mode = match z.get_json("mode").ok().as_deref() {
             Some("\"client\"") => Mode::Client,
             _ => Mode::Peer,
         };
         Ok((z, mode))
+    }
+
+    /// The largest message zenoh reassembles for the gateway: `max_payload` plus
+    /// [`PAYLOAD_HEADROOM`] for the key, the attachment and the framing. A larger put is dropped
+    /// by zenoh while its fragments arrive, so it never takes more memory than this.
+    pub fn max_message_size(&self) -> usize {
+        self.max_payload.get().saturating_add(PAYLOAD_HEADROOM)
     }
 }
 
@@ -110,6 +134,8 @@ mod tests {
             r#"["tcp/127.0.0.1:7447"]"#
         );
         assert_eq!(z.get_json("scouting/multicast/enabled").unwrap(), "false");
+        assert_eq!(c.max_payload.get(), 65_536);
+        assert_eq!(z.get_json(MAX_MESSAGE_SIZE).unwrap(), "131072");
     }
 
     #[test]
@@ -128,17 +154,23 @@ mod tests {
             result_queue = 13
             command_queue = 14
             query_queue = 15
+            max_payload = 1000
             "#,
         )
         .unwrap();
         assert_eq!(c.mode, Some(Mode::Client));
         assert_eq!(c.prefix_for("x").unwrap(), "plant/hall2/gw1");
         assert_eq!(c.query_queue.get(), 15);
+        assert_eq!(c.max_payload.get(), 1000);
         let (z, mode) = c.to_zenoh().unwrap();
         assert_eq!(mode, Mode::Client);
         assert_eq!(
             z.get_json("connect/endpoints").unwrap().replace(' ', ""),
             r#"["tcp/10.0.0.1:7447","tcp/[::1]:7448"]"#
+        );
+        assert_eq!(
+            z.get_json(MAX_MESSAGE_SIZE).unwrap(),
+            (1000 + PAYLOAD_HEADROOM).to_string()
         );
         assert_eq!(z.get_json("scouting/multicast/enabled").unwrap(), "false");
     }
@@ -153,6 +185,9 @@ mod tests {
             "prefix = \"gw/*\"",
             "prefix = \"gw//x\"",
             "telegram_queue = 0",
+            "max_payload = 0",
+            "max_payload = 16777217",
+            "max_payload = \"64k\"",
         ] {
             assert!(parse(text).is_err(), "{text}");
         }
@@ -189,6 +224,21 @@ mod tests {
         c.mode = Some(Mode::Peer);
         let (_, mode) = c.to_zenoh().unwrap();
         assert_eq!(mode, Mode::Peer);
+        // The file's own limit stays when it is smaller, and is lowered when it is larger.
+        std::fs::write(
+            &file,
+            r#"{ transport: { link: { rx: { max_message_size: 4096 } } } }"#,
+        )
+        .unwrap();
+        let (z, _) = c.to_zenoh().unwrap();
+        assert_eq!(z.get_json(MAX_MESSAGE_SIZE).unwrap(), "4096");
+        std::fs::write(
+            &file,
+            r#"{ transport: { link: { rx: { max_message_size: 1073741824 } } } }"#,
+        )
+        .unwrap();
+        let (z, _) = c.to_zenoh().unwrap();
+        assert_eq!(z.get_json(MAX_MESSAGE_SIZE).unwrap(), "131072");
         c.config_file = Some(dir.join("missing.json5"));
         assert!(matches!(c.to_zenoh(), Err(BridgeError::ConfigFile { .. })));
         std::fs::remove_dir_all(&dir).unwrap();

@@ -23,7 +23,8 @@
 //!   (Python: `json.loads(sample.attachment.to_string())`). The sample timestamp is the
 //!   session's (its HLC if timestamping is on, else the wall clock) at publication.
 //! - `<prefix>/<line>/<device>/<tag>` (and its query replies): JSON
-//!   `{"value": .., "unit": "rpm" | null, "quality": "good", "timestamp": "<RFC 3339>"}`.
+//!   `{"value": .., "unit": "rpm" | "", "quality": "good", "timestamp": "<RFC 3339>"}` (`""`
+//!   for a tag without a unit, as REST shows it).
 //! - `<prefix>/<line>/events`: JSON `{"class": 8, "number": 10, "event": "080A", "name": ..,
 //!   "text": .., "time": "<RFC 3339>"}`.
 //! - `<prefix>/<line>/tx`: the telegram bytes to send. `<prefix>/<line>/<device>/<tag>/set`: the
@@ -38,6 +39,21 @@
 //! yet published). Between keys there is none: a write's result and the tag value the write
 //! changed come in either order, so a subscriber waiting for both must not skip the other key's
 //! samples while it waits for one.
+//!
+//! Bounds: what a peer sends is bounded before it costs anything. A message larger than
+//! `[zenoh] max_payload` + [`config::PAYLOAD_HEADROOM`] (64 KiB for the key, the attachment and
+//! zenoh's framing) is dropped by zenoh while it reassembles the fragments
+//! (`transport/link/rx/max_message_size`), so it never takes more memory than that; zenoh drops
+//! it silently (a TRACE line of its own), the gateway never sees it and cannot count it, and the
+//! link stays up. A payload over `max_payload` that gets through (up to the headroom, or from a
+//! local or shared-memory path) is refused in the callback before it is copied. Every command
+//! refused (too large, not JSON, unknown line, device or tag, writes off, queue full) is answered
+//! on its result key and counted and audited in one place, [`accounting`]:
+//! `gateway_writes_total{path="zenoh",result="refused",reason}`. A read query (tags, status)
+//! with a payload over `max_payload` gets no reply and is counted in the bridge's `dropped`
+//! (`query_too_large`) and `gateway_dropped_updates_total{reason="too_large"}`. Nothing a peer
+//! can make happen is logged at WARN or above more than once per [`crate::log_limit::INTERVAL`]
+//! per kind (the audit log likewise), checked by a test over these sources.
 //!
 //! Session: peer by default; `Bridge::start` fails if a peer cannot open its session (a listen
 //! endpoint in use, a bad config file). A client keeps retrying its first connection in the
@@ -54,6 +70,7 @@
 //! `zenoh-tls` feature for `tls/` endpoints (TLS certificates and mutual authentication are set
 //! in the zenoh config file); access control (`access_control` in the file) needs no feature.
 
+pub mod accounting;
 pub mod config;
 pub mod keys;
 pub mod stats;
@@ -86,7 +103,7 @@ pub use stats::{BridgeStats, CommandKind, CommandOutcome, DropReason, Publicatio
 use policy::{Publishing, Verdict};
 use publish::{Limits, Message, Outbox, PublisherThread};
 use queryable::{Answerer, Queries, QueryKind};
-use subscribe::Commands;
+use subscribe::{Commands, CommandsConfig};
 
 /// First wait before a client retries opening its session.
 /// Monitored frames waiting for the publisher thread (`<line>/frames`), all lines together;
@@ -104,7 +121,7 @@ pub type BackendFuture<T> = Pin<Box<dyn Future<Output = T> + Send + 'static>>;
 pub struct TagValue {
     /// The value in engineering units (number, bool, string...).
     pub value: Value,
-    /// The unit, if the tag has one.
+    /// The unit, if the tag has one (published as `""` when it has none, as REST shows it).
     pub unit: Option<String>,
     /// `good`, `stale`, `not_defined`, `off`, `out_of_range`, `comm_failure`...
     pub quality: &'static str,
@@ -113,11 +130,12 @@ pub struct TagValue {
 }
 
 impl TagValue {
-    /// The JSON published and replied: `{"value", "unit", "quality", "timestamp"}`.
+    /// The JSON published and replied: `{"value", "unit", "quality", "timestamp"}`; a tag
+    /// without a unit has `"unit": ""`, as in the REST API.
     pub fn to_json(&self) -> Value {
         json!({
             "value": self.value,
-            "unit": self.unit,
+            "unit": self.unit.as_deref().unwrap_or(""),
             "quality": self.quality,
             "timestamp": publish::rfc3339(self.timestamp),
         })
@@ -147,6 +165,13 @@ pub trait BridgeBackend: Send + Sync + 'static {
 
     /// Sends one telegram on `line`; the result (or the error text) becomes `<line>/tx/result`.
     fn send_telegram(&self, line: &str, bytes: Vec<u8>) -> BackendFuture<Result<Value, String>>;
+
+    /// Whether commands (`tx`, `set`) over zenoh are taken at all; `Err` with the text of the
+    /// refusal when they are switched off. Asked in the zenoh callback before a command is
+    /// queued (so it must be quick); the command methods check again when they run.
+    fn writes_allowed(&self) -> Result<(), String> {
+        Ok(())
+    }
 
     /// Writes `value` to a tag, with the same checks as a Modbus TCP write; the result (or the
     /// error text) becomes `<line>/<device>/<tag>/set/result`.
@@ -236,7 +261,7 @@ impl BridgeHandle {
             attachment: Some(attachment.to_string().into_bytes()),
         });
         if let Err(reason) = pushed {
-            tracing::warn!(%line, seq, reason = reason.as_str(), "telegram not published on zenoh");
+            crate::warn_limited!(format!("zenoh telegram dropped {line}"), %line, seq, reason = reason.as_str(), "telegram not published on zenoh");
         }
         pushed
     }
@@ -261,7 +286,7 @@ impl BridgeHandle {
             }
             Err(e) => {
                 self.stats.dropped(DropReason::BadKey);
-                tracing::warn!(%line, %device, %tag, error = %e, "tag value not published on zenoh");
+                crate::warn_limited!("zenoh bad tag key", %line, %device, %tag, error = %e, "tag value not published on zenoh");
             }
         }
     }
@@ -305,7 +330,7 @@ impl BridgeHandle {
             attachment: None,
         });
         if let Err(reason) = pushed {
-            tracing::warn!(%line, class, number, reason = reason.as_str(), "event not published on zenoh");
+            crate::warn_limited!(format!("zenoh event dropped {line}"), %line, class, number, reason = reason.as_str(), "event not published on zenoh");
         }
         pushed
     }
@@ -332,7 +357,7 @@ impl BridgeHandle {
         for name in names {
             if let Err(e) = keys::check_chunk("name", name) {
                 self.stats.dropped(DropReason::BadKey);
-                tracing::warn!(error = %e, "update not published on zenoh");
+                crate::warn_limited!("zenoh bad name", error = %e, "update not published on zenoh");
                 return Err(DropReason::BadKey);
             }
         }
@@ -394,7 +419,7 @@ impl Bridge {
         let session = match zenoh::open(zcfg.clone()).await {
             Ok(s) => Some(s),
             Err(e) if mode == Mode::Client => {
-                tracing::warn!(error = %e, "zenoh client not connected yet, retrying in the background");
+                crate::warn_limited!("zenoh client not connected", error = %e, "zenoh client not connected yet, retrying in the background");
                 None
             }
             Err(e) => return Err(BridgeError::Open(e.to_string())),
@@ -420,6 +445,7 @@ impl Bridge {
             mode,
             command_queue: cfg.command_queue.get(),
             query_queue: cfg.query_queue.get(),
+            max_payload: cfg.max_payload.get(),
         };
         let publishing = Arc::new(Publishing::new(cfg.publish.clone()));
         let handle = BridgeHandle {
@@ -449,7 +475,7 @@ impl Bridge {
     /// tokens undeclared, session closed.
     pub async fn join(self) {
         if let Err(e) = self.driver.await {
-            tracing::error!(error = %e, "zenoh bridge task failed");
+            crate::error_limited!("zenoh bridge task failed", error = %e, "zenoh bridge task failed");
         }
     }
 }
@@ -501,7 +527,7 @@ async fn heartbeats(
         })
         .await;
         if let Err(e) = round {
-            tracing::error!(error = %e, "zenoh heartbeat round failed");
+            crate::error_limited!("zenoh heartbeat round failed", error = %e, "zenoh heartbeat round failed");
         }
     }
 }
@@ -515,6 +541,7 @@ struct Parts {
     mode: Mode,
     command_queue: usize,
     query_queue: usize,
+    max_payload: usize,
 }
 
 /// The subscribers and queryables; dropping them undeclares them.
@@ -538,7 +565,9 @@ async fn drive(
     if let Some(session) = &session {
         match declare(&parts, session, &shutdown).await {
             Ok(d) => declared = Some(d),
-            Err(e) => tracing::error!(error = %e, "zenoh subscribers and queryables not declared"),
+            Err(e) => {
+                crate::error_limited!("zenoh declare failed", error = %e, "zenoh subscribers and queryables not declared")
+            }
         }
         parts.outbox.push_presence(parts.keys.gateway_token(), true);
         parts.outbox.set_session(session.clone());
@@ -554,11 +583,14 @@ async fn drive(
         .await
         .is_err()
     {
-        tracing::error!("zenoh publisher thread panicked");
+        crate::error_limited!(
+            "zenoh publisher thread panicked",
+            "zenoh publisher thread panicked"
+        );
     }
     if let Some(session) = session {
         if let Err(e) = session.close().await {
-            tracing::warn!(error = %e, "zenoh session close failed");
+            crate::warn_limited!("zenoh session close failed", error = %e, "zenoh session close failed");
         }
     }
     parts.stats.set_session_open(false);
@@ -576,7 +608,7 @@ async fn open_with_retry(zcfg: zenoh::Config, shutdown: &CancellationToken) -> O
         match zenoh::open(zcfg.clone()).await {
             Ok(s) => return Some(s),
             Err(e) => {
-                tracing::warn!(error = %e, retry_in = ?wait, "zenoh client still not connected")
+                crate::warn_limited!("zenoh client not connected", error = %e, retry_in = ?wait, "zenoh client still not connected");
             }
         }
         wait = (wait * 2).min(RETRY_MAX);
@@ -593,7 +625,11 @@ async fn declare(
         keys.clone(),
         parts.outbox.clone(),
         parts.stats.clone(),
-        parts.command_queue,
+        parts.backend.clone(),
+        &CommandsConfig {
+            capacity: parts.command_queue,
+            max_payload: parts.max_payload,
+        },
         tokio::runtime::Handle::current(),
     );
     tokio::spawn(subscribe::dispatch(
@@ -602,7 +638,8 @@ async fn declare(
         parts.backend.clone(),
         shutdown.clone(),
     ));
-    let (queries, query_rx) = Queries::new(parts.stats.clone(), parts.query_queue);
+    let (queries, query_rx) =
+        Queries::new(parts.stats.clone(), parts.query_queue, parts.max_payload);
     let answerer = Arc::new(Answerer {
         keys: keys.clone(),
         backend: parts.backend.clone(),
@@ -651,4 +688,59 @@ async fn declare(
         _subscribers: subscribers,
         _queryables: queryables,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::Path;
+
+    /// A peer decides how often the bridge's paths run: no WARN or ERROR line may be written
+    /// there except through the rate-limited macros (`warn_limited!`, `error_limited!`) or the
+    /// audit. Checked over every source of the bridge and of its wiring in the app.
+    #[test]
+    fn no_warning_without_a_rate_limit() {
+        let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
+        let mut files: Vec<_> = std::fs::read_dir(src.join("zenoh_bridge"))
+            .expect("zenoh_bridge sources")
+            .map(|e| e.expect("dir entry").path())
+            .filter(|p| p.extension().is_some_and(|e| e == "rs"))
+            .collect();
+        files.push(src.join("app/zenoh.rs"));
+        assert!(files.len() > 5, "{files:?}");
+        // Spelled in pieces so that this test does not find itself.
+        let plain = [
+            concat!("warn", "!"),
+            concat!("error", "!"),
+            concat!("Level::", "WARN"),
+            concat!("Level::", "ERROR"),
+        ];
+        let mut found = Vec::new();
+        for file in &files {
+            let text = std::fs::read_to_string(file).expect("read source");
+            for (n, line) in text.lines().enumerate() {
+                let code = line.split("//").next().unwrap_or_default();
+                if plain.iter().any(|p| code.contains(p)) {
+                    found.push(format!("{}:{}: {}", file.display(), n + 1, line.trim()));
+                }
+            }
+        }
+        assert!(
+            found.is_empty(),
+            "warnings without a rate limit (use crate::warn_limited! or crate::error_limited!):\n{}",
+            found.join("\n")
+        );
+    }
+
+    #[test]
+    fn a_tag_without_a_unit_has_an_empty_unit_as_in_rest() {
+        let mut value = super::TagValue {
+            value: serde_json::json!(1),
+            unit: None,
+            quality: "good",
+            timestamp: std::time::SystemTime::UNIX_EPOCH,
+        };
+        assert_eq!(value.to_json()["unit"], "");
+        value.unit = Some("rpm".to_owned());
+        assert_eq!(value.to_json()["unit"], "rpm");
+    }
 }

@@ -32,7 +32,7 @@ impl Presence {
         if !online {
             if let Some(token) = self.tokens.remove(&key) {
                 if let Err(e) = token.undeclare().wait() {
-                    tracing::warn!(%key, error = %e, "liveliness token not undeclared");
+                    crate::warn_limited!("zenoh token not undeclared", %key, error = %e, "liveliness token not undeclared");
                 }
             }
             return;
@@ -44,7 +44,9 @@ impl Presence {
             Ok(token) => {
                 self.tokens.insert(key, token);
             }
-            Err(e) => tracing::warn!(%key, error = %e, "liveliness token not declared"),
+            Err(e) => {
+                crate::warn_limited!("zenoh token not declared", %key, error = %e, "liveliness token not declared");
+            }
         }
     }
 

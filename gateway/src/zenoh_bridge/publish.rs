@@ -232,7 +232,7 @@ impl Outbox {
             *slot = online;
         } else if p.presence.len() >= PRESENCE_LIMIT {
             drop(p);
-            tracing::warn!(%key, online, "zenoh presence queue full, change dropped");
+            crate::warn_limited!("zenoh presence queue full", %key, online, "zenoh presence queue full, change dropped");
             return;
         } else {
             p.presence_order.push_back(key.clone());
@@ -357,7 +357,7 @@ impl PublisherThread {
                     Ok(p) => self.publishers.entry(key.clone()).or_insert(p),
                     Err(e) => {
                         self.stats.dropped(DropReason::BadKey);
-                        tracing::warn!(%key, error = %e, "zenoh publisher not declared, update dropped");
+                        crate::warn_limited!("zenoh publisher not declared", %key, error = %e, "zenoh publisher not declared, update dropped");
                         return;
                     }
                 },
@@ -387,7 +387,7 @@ impl PublisherThread {
             Ok(()) => self.stats.published(kind),
             Err(e) => {
                 self.stats.dropped(DropReason::PublishError);
-                tracing::warn!(%key, kind = kind.as_str(), error = %e, "zenoh put failed");
+                crate::warn_limited!(format!("zenoh put failed {}", kind.as_str()), %key, kind = kind.as_str(), error = %e, "zenoh put failed");
             }
         }
     }

@@ -13,7 +13,8 @@
 //! applied (a tag's age is in its JSON `timestamp`). Plain subscribers see nothing of this.
 //!
 //! The zenoh callback only queues the query (bounded; a full queue leaves the query without a
-//! reply and counts `query_queue_full`). One task serves the queue; each query is answered on
+//! reply and counts `query_queue_full`; a query whose payload is over `[zenoh] max_payload`
+//! gets no reply either and counts `query_too_large`; both warnings are rate-limited). One task serves the queue; each query is answered on
 //! the blocking pool, since the backend reads the image under a lock and a reply may wait under
 //! congestion. A wildcard query asks the backend for the tags its literal chunks name (see
 //! [`Keys::tag_filter`]) and replies with every tag whose key intersects the query.
@@ -49,6 +50,8 @@ pub(crate) enum QueryKind {
 pub(crate) struct Queries {
     queue: mpsc::Sender<(QueryKind, Query)>,
     stats: Arc<BridgeStats>,
+    /// The largest payload a query may carry (`[zenoh] max_payload`); these queries use none.
+    max_payload: usize,
 }
 
 // === impl Queries ===
@@ -57,16 +60,37 @@ impl Queries {
     pub(crate) fn new(
         stats: Arc<BridgeStats>,
         capacity: usize,
+        max_payload: usize,
     ) -> (Arc<Self>, mpsc::Receiver<(QueryKind, Query)>) {
         let (queue, rx) = mpsc::channel(capacity);
-        (Arc::new(Self { queue, stats }), rx)
+        let this = Self {
+            queue,
+            stats,
+            max_payload,
+        };
+        (Arc::new(this), rx)
     }
 
-    /// The queryable callback: queue without waiting.
+    /// The queryable callback: queue without waiting. A query with a payload over
+    /// `max_payload` is left without a reply (and dropped at once, with its payload).
     pub(crate) fn on_query(&self, kind: QueryKind, query: Query) {
+        let len = query.payload().map_or(0, zenoh::bytes::ZBytes::len);
+        if len > self.max_payload {
+            self.stats.dropped(DropReason::QueryTooLarge);
+            crate::warn_limited!(
+                "zenoh query too large",
+                len,
+                max_payload = self.max_payload,
+                "zenoh query with a payload over [zenoh] max_payload left without reply"
+            );
+            return;
+        }
         if self.queue.try_send((kind, query)).is_err() {
             self.stats.dropped(DropReason::QueryQueueFull);
-            tracing::warn!("zenoh query queue full, query left without reply");
+            crate::warn_limited!(
+                "zenoh query queue full",
+                "zenoh query queue full, queries left without reply"
+            );
         }
     }
 }
@@ -94,7 +118,7 @@ pub(crate) async fn serve(
         let answerer = answerer.clone();
         let done = tokio::task::spawn_blocking(move || answerer.answer(kind, &query)).await;
         if let Err(e) = done {
-            tracing::error!(error = %e, "zenoh query task failed");
+            crate::error_limited!("zenoh query task failed", error = %e, "zenoh query task failed");
         }
     }
 }

@@ -87,6 +87,8 @@ pub enum DropReason {
     CommandQueueFull,
     /// The query queue was full; the query got no reply.
     QueryQueueFull,
+    /// A query (tag, status) carried a payload larger than `max_payload`; it got no reply.
+    QueryTooLarge,
     /// A line, device or tag name that is not one key chunk.
     BadKey,
     /// zenoh refused the publication (session closed, access control).
@@ -99,7 +101,7 @@ pub enum DropReason {
 }
 
 impl DropReason {
-    const ALL: [Self; 12] = [
+    const ALL: [Self; 13] = [
         Self::TelegramQueueFull,
         Self::EventQueueFull,
         Self::TagSuperseded,
@@ -108,6 +110,7 @@ impl DropReason {
         Self::FrameQueueFull,
         Self::CommandQueueFull,
         Self::QueryQueueFull,
+        Self::QueryTooLarge,
         Self::BadKey,
         Self::PublishError,
         Self::BridgeClosed,
@@ -125,6 +128,7 @@ impl DropReason {
             Self::FrameQueueFull => "frame_queue_full",
             Self::CommandQueueFull => "command_queue_full",
             Self::QueryQueueFull => "query_queue_full",
+            Self::QueryTooLarge => "query_too_large",
             Self::BadKey => "bad_key",
             Self::PublishError => "publish_error",
             Self::BridgeClosed => "bridge_closed",
@@ -138,7 +142,7 @@ impl DropReason {
     ///
     /// A full queue of any kind is `queue_full`; an update replaced by a newer one before it was
     /// published, or lost by a feed that fell behind, is `lagged`; a bridge or session that had
-    /// closed is `closed`.
+    /// closed is `closed`; a query refused for its size is `too_large`.
     pub const fn metric(self) -> Option<metrics::DropReason> {
         match self {
             Self::TelegramQueueFull
@@ -150,6 +154,7 @@ impl DropReason {
             | Self::QueryQueueFull => Some(metrics::DropReason::QueueFull),
             Self::TagSuperseded | Self::FeedLagged => Some(metrics::DropReason::Lagged),
             Self::PublishError | Self::BridgeClosed => Some(metrics::DropReason::Closed),
+            Self::QueryTooLarge => Some(metrics::DropReason::TooLarge),
             Self::BadKey => None,
         }
     }
@@ -250,6 +255,11 @@ impl BridgeStats {
         if let Some(m) = &self.metrics {
             m.zenoh_published(kind.metric());
         }
+    }
+
+    /// The Prometheus families the counts go to, if any (for the audit of commands).
+    pub fn metrics(&self) -> Option<&Metrics> {
+        self.metrics.as_ref()
     }
 
     pub(crate) fn dropped(&self, reason: DropReason) {

@@ -29,6 +29,9 @@ use zenoh::query::Query;
 use zenoh::sample::Sample;
 use zenoh::Wait;
 
+use zenoh::bytes::ZBytes;
+
+use super::accounting::{self, WriteReason};
 use super::keys::Keys;
 use super::publish::{Message, Outbox};
 use super::stats::{BridgeStats, CommandKind, CommandOutcome, PublicationKind};
@@ -63,65 +66,56 @@ impl Command {
             Op::Set { .. } => CommandKind::Set,
         }
     }
-}
 
-/// A key that is ours but not usable as a command: answered on the result key if it names a
-/// line (and tag), otherwise only logged.
-#[derive(Debug)]
-enum Parsed {
-    Command(Command),
-    Rejected(Command, String),
-    NotACommand,
-}
-
-/// Parses a command from its key, payload and attachment. `query` is kept for the reply.
-fn parse(
-    keys: &Keys,
-    key: &str,
-    payload: Option<Vec<u8>>,
-    attachment: Option<Vec<u8>>,
-    query: Option<Query>,
-) -> Parsed {
-    if let Some(line) = keys.parse_tx(key) {
-        let bytes = payload.unwrap_or_default();
-        let cmd = Command {
-            line,
-            op: Op::Tx(Vec::new()),
-            attachment,
-            query,
-        };
-        if bytes.is_empty() {
-            return Parsed::Rejected(cmd, "empty telegram".to_owned());
+    /// What the command asks for, as the audit names it: `<line>/tx (<n> bytes)`,
+    /// `<line>/<device>/<tag> = <value>` (without the value when there is none).
+    fn target(&self) -> String {
+        match &self.op {
+            Op::Tx(bytes) => format!("{}/tx ({} bytes)", self.line, bytes.len()),
+            Op::Set { device, tag, value } if value.is_null() => {
+                format!("{}/{device}/{tag}", self.line)
+            }
+            Op::Set { device, tag, value } => format!("{}/{device}/{tag} = {value}", self.line),
         }
-        return Parsed::Command(Command {
-            op: Op::Tx(bytes),
-            ..cmd
-        });
     }
-    if let Some((line, device, tag)) = keys.parse_set(key) {
-        let parsed = payload
-            .as_deref()
-            .ok_or_else(|| "no value".to_owned())
-            .and_then(|p| serde_json::from_slice::<Value>(p).map_err(|e| e.to_string()));
-        let (value, error) = match parsed {
-            Ok(v) => (v, None),
-            Err(e) => (
-                Value::Null,
-                Some(format!("payload is not a JSON value: {e}")),
-            ),
-        };
-        let cmd = Command {
-            line,
-            op: Op::Set { device, tag, value },
-            attachment,
-            query,
-        };
-        return match error {
-            None => Parsed::Command(cmd),
-            Some(e) => Parsed::Rejected(cmd, e),
-        };
+}
+
+/// A command's key, before its payload is looked at: `Op::Tx` with no bytes yet, `Op::Set`
+/// with a null value.
+fn parse_key(keys: &Keys, key: &str) -> Option<(String, Op)> {
+    if let Some(line) = keys.parse_tx(key) {
+        return Some((line, Op::Tx(Vec::new())));
     }
-    Parsed::NotACommand
+    let (line, device, tag) = keys.parse_set(key)?;
+    Some((
+        line,
+        Op::Set {
+            device,
+            tag,
+            value: Value::Null,
+        },
+    ))
+}
+
+/// Fills the command's payload in: the telegram's bytes, or the JSON value to write; else why
+/// the payload does not do.
+fn parse_payload(op: &mut Op, payload: Option<&ZBytes>) -> Result<(), String> {
+    match op {
+        Op::Tx(bytes) => {
+            *bytes = payload
+                .map(|p| p.to_bytes().into_owned())
+                .unwrap_or_default();
+            if bytes.is_empty() {
+                return Err("empty telegram".to_owned());
+            }
+        }
+        Op::Set { value, .. } => {
+            let payload = payload.ok_or_else(|| "no value".to_owned())?;
+            *value = serde_json::from_slice::<Value>(&payload.to_bytes())
+                .map_err(|e| format!("payload is not a JSON value: {e}"))?;
+        }
+    }
+    Ok(())
 }
 
 /// Where commands go: shared by the zenoh callbacks, the dispatcher and the line workers.
@@ -131,9 +125,22 @@ pub(crate) struct Commands {
     stats: Arc<BridgeStats>,
     queue: mpsc::Sender<Command>,
     per_line: usize,
+    /// The largest payload taken (`[zenoh] max_payload`).
+    max_payload: usize,
+    /// Asked whether writes are on before a command is queued, so that a flood of refused
+    /// commands never fills the queue.
+    backend: Arc<dyn BridgeBackend>,
     /// The gateway's runtime: replies are sent from its blocking pool (callbacks run on zenoh's
     /// threads, which have no runtime of ours).
     runtime: tokio::runtime::Handle,
+}
+
+/// How the command entry is set up.
+pub(crate) struct CommandsConfig {
+    /// Commands waiting, in total and per line.
+    pub(crate) capacity: usize,
+    /// The largest payload taken.
+    pub(crate) max_payload: usize,
 }
 
 // === impl Commands ===
@@ -144,69 +151,110 @@ impl Commands {
         keys: Arc<Keys>,
         outbox: Arc<Outbox>,
         stats: Arc<BridgeStats>,
-        capacity: usize,
+        backend: Arc<dyn BridgeBackend>,
+        config: &CommandsConfig,
         runtime: tokio::runtime::Handle,
     ) -> (Arc<Self>, mpsc::Receiver<Command>) {
-        let (queue, rx) = mpsc::channel(capacity);
+        let (queue, rx) = mpsc::channel(config.capacity);
         let this = Self {
             keys,
             outbox,
             stats,
             queue,
-            per_line: capacity,
+            per_line: config.capacity,
+            max_payload: config.max_payload,
+            backend,
             runtime,
         };
         (Arc::new(this), rx)
     }
 
-    /// The subscriber callback: parse, then queue without waiting.
+    /// The subscriber callback: check, then queue without waiting.
     pub(crate) fn on_sample(&self, sample: &Sample) {
-        let key = sample.key_expr().as_str();
-        let payload = Some(sample.payload().to_bytes().into_owned());
         let attachment = sample.attachment().map(|a| a.to_bytes().into_owned());
-        self.accept(key, parse(&self.keys, key, payload, attachment, None));
+        self.take(
+            sample.key_expr().as_str(),
+            Some(sample.payload()),
+            attachment,
+            None,
+        );
     }
 
     /// The queryable callback: as a sample, but the result is also the reply. Queries that do
     /// not name one line (wildcards) are not commands and get no reply.
     pub(crate) fn on_query(&self, query: Query) {
         let key = query.key_expr().as_str().to_owned();
-        let payload = query.payload().map(|p| p.to_bytes().into_owned());
+        let payload = query.payload().cloned();
         let attachment = query.attachment().map(|a| a.to_bytes().into_owned());
-        self.accept(
-            &key,
-            parse(&self.keys, &key, payload, attachment, Some(query)),
-        );
+        self.take(&key, payload.as_ref(), attachment, Some(query));
     }
 
-    fn accept(&self, key: &str, parsed: Parsed) {
-        match parsed {
-            Parsed::Command(cmd) => {
-                if let Err(e) = self.queue.try_send(cmd) {
-                    let cmd = match e {
-                        mpsc::error::TrySendError::Full(c)
-                        | mpsc::error::TrySendError::Closed(c) => c,
-                    };
-                    self.busy(cmd);
-                }
-            }
-            Parsed::Rejected(cmd, error) => {
-                tracing::debug!(%key, %error, "zenoh command rejected");
-                self.finish(cmd, CommandOutcome::Rejected, Err(error));
-            }
-            Parsed::NotACommand => {}
+    /// Checks a command in the order that costs least under a flood: its key, its size (before
+    /// the payload is copied), whether writes are on, its payload; then queues it. Each refusal
+    /// goes through [`Self::refuse`].
+    fn take(
+        &self,
+        key: &str,
+        payload: Option<&ZBytes>,
+        attachment: Option<Vec<u8>>,
+        query: Option<Query>,
+    ) {
+        let Some((line, op)) = parse_key(&self.keys, key) else {
+            return;
+        };
+        let mut cmd = Command {
+            line,
+            op,
+            attachment,
+            query,
+        };
+        let len = payload.map_or(0, ZBytes::len);
+        if len > self.max_payload {
+            let error = format!(
+                "payload of {len} bytes is larger than [zenoh] max_payload = {}",
+                self.max_payload
+            );
+            return self.refuse(cmd, WriteReason::TooLarge, error);
+        }
+        if let Err(error) = self.backend.writes_allowed() {
+            return self.refuse(cmd, WriteReason::WritesOff, error);
+        }
+        if let Err(error) = parse_payload(&mut cmd.op, payload) {
+            return self.refuse(cmd, WriteReason::BadPayload, error);
+        }
+        if let Err(e) = self.queue.try_send(cmd) {
+            let cmd = match e {
+                mpsc::error::TrySendError::Full(c) | mpsc::error::TrySendError::Closed(c) => c,
+            };
+            self.busy(cmd);
         }
     }
 
+    /// A command that found its queue full: answered `busy`.
     fn busy(&self, cmd: Command) {
         self.stats
             .dropped(super::stats::DropReason::CommandQueueFull);
-        tracing::warn!(line = %cmd.line, "zenoh command queue full, command answered busy");
-        self.finish(
-            cmd,
-            CommandOutcome::Busy,
-            Err("busy: command queue full".to_owned()),
+        crate::warn_limited!(
+            "zenoh command queue full",
+            "zenoh command queue full, commands answered busy"
         );
+        self.refuse(
+            cmd,
+            WriteReason::QueueFull,
+            "busy: command queue full".to_owned(),
+        );
+    }
+
+    /// Refuses `cmd`: counted and audited ([`accounting::refused`]), answered on its result key
+    /// (and to its query) with `error`. Every command the bridge itself refuses ends here.
+    pub(crate) fn refuse(&self, cmd: Command, reason: WriteReason, error: String) {
+        accounting::refused(self.stats.metrics(), &cmd.target(), reason, &error);
+        let outcome = if reason == WriteReason::QueueFull {
+            CommandOutcome::Busy
+        } else {
+            CommandOutcome::Rejected
+        };
+        self.finish(cmd, outcome, Err(error));
     }
 
     /// Publishes the result of `cmd` (and replies to its query).
@@ -300,7 +348,7 @@ pub(crate) async fn dispatch(
             _ => {
                 if !backend.lines().contains(&cmd.line) {
                     let error = format!("unknown line {:?}", cmd.line);
-                    commands.finish(cmd, CommandOutcome::Rejected, Err(error));
+                    commands.refuse(cmd, WriteReason::UnknownTarget, error);
                     continue;
                 }
                 let (tx, wrx) = mpsc::channel(commands.per_line);
@@ -358,56 +406,60 @@ mod tests {
         Keys::new("gw/demo").unwrap()
     }
 
+    fn command(key: &str, payload: &[u8]) -> Result<(String, Op), String> {
+        let (line, mut op) = parse_key(&keys(), key).expect("a command key");
+        parse_payload(&mut op, Some(&ZBytes::from(payload.to_vec()))).map(|()| (line, op))
+    }
+
     #[test]
     fn tx_needs_bytes() {
-        match parse(&keys(), "gw/demo/r3964/tx", Some(vec![1, 2]), None, None) {
-            Parsed::Command(c) => {
-                assert_eq!(c.line, "r3964");
-                assert!(matches!(c.op, Op::Tx(ref b) if b == &[1, 2]));
-            }
-            other => panic!("{other:?}"),
-        }
-        assert!(matches!(
-            parse(&keys(), "gw/demo/r3964/tx", Some(vec![]), None, None),
-            Parsed::Rejected(..)
-        ));
+        let (line, op) = command("gw/demo/r3964/tx", &[1, 2]).unwrap();
+        assert_eq!(line, "r3964");
+        assert!(matches!(op, Op::Tx(ref b) if b == &[1, 2]));
+        assert_eq!(
+            command("gw/demo/r3964/tx", &[]).unwrap_err(),
+            "empty telegram"
+        );
+        let (line, mut op) = parse_key(&keys(), "gw/demo/r3964/tx").unwrap();
+        assert!(parse_payload(&mut op, None).is_err());
+        let cmd = Command {
+            line,
+            op: Op::Tx(vec![0; 5]),
+            attachment: None,
+            query: None,
+        };
+        assert_eq!(cmd.target(), "r3964/tx (5 bytes)");
     }
 
     #[test]
     fn set_needs_a_json_value() {
-        match parse(
-            &keys(),
-            "gw/demo/drive/atv/cmd/set",
-            Some(b"15".to_vec()),
-            None,
-            None,
-        ) {
-            Parsed::Command(c) => {
-                assert!(matches!(c.op, Op::Set { ref value, .. } if value == &json!(15)));
-            }
-            other => panic!("{other:?}"),
-        }
+        let (line, op) = command("gw/demo/drive/atv/cmd/set", b"15").unwrap();
+        assert!(matches!(op, Op::Set { ref value, .. } if value == &json!(15)));
+        let cmd = Command {
+            line,
+            op,
+            attachment: None,
+            query: None,
+        };
+        assert_eq!(cmd.target(), "drive/atv/cmd = 15");
         for bad in [&b"on"[..], b"", b"\xff"] {
-            assert!(matches!(
-                parse(
-                    &keys(),
-                    "gw/demo/drive/atv/cmd/set",
-                    Some(bad.to_vec()),
-                    None,
-                    None
-                ),
-                Parsed::Rejected(..)
-            ));
+            let error = command("gw/demo/drive/atv/cmd/set", bad).unwrap_err();
+            assert!(error.starts_with("payload is not a JSON value"), "{error}");
         }
+        let (line, op) = parse_key(&keys(), "gw/demo/drive/atv/cmd/set").unwrap();
+        let cmd = Command {
+            line,
+            op,
+            attachment: None,
+            query: None,
+        };
+        assert_eq!(cmd.target(), "drive/atv/cmd", "no value yet");
     }
 
     #[test]
     fn other_keys_are_not_commands() {
         for key in ["gw/demo/*/tx", "gw/demo/**", "gw/demo/drive/atv/cmd", "x/y"] {
-            assert!(matches!(
-                parse(&keys(), key, Some(b"1".to_vec()), None, None),
-                Parsed::NotACommand
-            ));
+            assert!(parse_key(&keys(), key).is_none(), "{key}");
         }
     }
 }
