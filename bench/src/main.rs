@@ -14,7 +14,9 @@
 //!   polled device while a third client reads its cached values: cached reads answered, the
 //!   oldest cached value and the achieved poll cycle against the group's bound (`closed`);
 //! - zenoh: serial frame end to subscriber p99, sustained samples/s (`process`, real binary);
-//! - resident memory with 4 lines, 32 devices, 10 000 points (`process`, real binary).
+//! - resident memory with 4 lines, 32 devices, 10 000 points (`process`, real binary);
+//! - zenoh bounds: log lines and counted refusals of a flood of refused puts, resident memory
+//!   growth for an 8 MiB and a 256 MiB put (`zenoh_bounds`, real binary).
 //!
 //! Run `cargo build --release` first (the zenoh and memory rows start `target/release/gateway`),
 //! then `target/release/gateway-bench` (about 7 minutes) or `--quick` (about a minute). Progress
@@ -32,6 +34,7 @@ mod stats;
 mod tap;
 mod tcp;
 mod tls;
+mod zenoh_bounds;
 
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -88,6 +91,8 @@ enum Group {
     Zenoh,
     /// Resident memory.
     Memory,
+    /// What a zenoh peer can cost: a flood of refused puts, 8 MiB and 256 MiB puts.
+    Bounds,
 }
 
 /// How long each measurement runs.
@@ -281,6 +286,20 @@ async fn run(args: &Args) -> Vec<Row> {
             .await
             .unwrap_or_else(|e| failed("RSS, 4 lines / 32 devices / 10 000 points", e));
         push(&mut rows, row);
+    }
+    if wanted(Group::Bounds) {
+        eprintln!("zenoh bounds (gateway binary {})", bin.display());
+        let seconds = if args.quick { 3 } else { 10 };
+        match zenoh_bounds::flood(&bin, seconds).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(&mut rows, failed("zenoh flood", e)),
+        }
+        for mib in [8, 256] {
+            let row = zenoh_bounds::large_put(&bin, mib)
+                .await
+                .unwrap_or_else(|e| failed(&format!("zenoh {mib} MiB put"), e));
+            push(&mut rows, row);
+        }
     }
     rows
 }

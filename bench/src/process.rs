@@ -46,7 +46,7 @@ async fn drain_mailbox(mailbox: &mut Client) -> std::io::Result<()> {
 
 /// A plain pty pair: the path for the gateway, the other end for the benchmark. The gateway's end
 /// is kept open until `shutdown` so that the benchmark's end never hangs up.
-fn pty(shutdown: &CancellationToken) -> std::io::Result<(String, SerialStream)> {
+pub(crate) fn pty(shutdown: &CancellationToken) -> std::io::Result<(String, SerialStream)> {
     let (ours, theirs) = SerialStream::pair().map_err(std::io::Error::from)?;
     let path = tokio_serial::SerialPort::name(&theirs)
         .ok_or_else(|| std::io::Error::other("the pty has no path"))?;
@@ -61,7 +61,7 @@ fn pty(shutdown: &CancellationToken) -> std::io::Result<(String, SerialStream)> 
 /// The gateway's own sections: every listener on loopback, on a port the kernel picks (the
 /// REST API would otherwise take its default port 8080 on loopback, which another gateway or
 /// bench run on the machine may hold).
-fn head(name: &str) -> String {
+pub(crate) fn head(name: &str) -> String {
     format!("[gateway]\nname = \"{name}\"\n\n[modbus_tcp]\nlisten = \"127.0.0.1:0\"\nmax_connections = 64\n\n[http]\nlisten = \"127.0.0.1:0\"\n\n")
 }
 
@@ -102,7 +102,7 @@ fn master_line(name: &str, path: &str, devices: &[(u8, u8, usize)], period: &str
 
 /// Starts the gateway on a written config with zenoh on `endpoint` (blocking start on a worker
 /// that may block).
-async fn start(
+pub(crate) async fn start(
     bin: &Path,
     name: &str,
     config: String,
@@ -125,7 +125,7 @@ async fn start(
 }
 
 /// A zenoh client session connected to `endpoint`, multicast scouting off.
-async fn zenoh_client(endpoint: &str) -> std::io::Result<zenoh::Session> {
+pub(crate) async fn zenoh_client(endpoint: &str) -> std::io::Result<zenoh::Session> {
     let err = |e: zenoh::Error| std::io::Error::other(e.to_string());
     let mut config = zenoh::Config::default();
     config.insert_json5("mode", "\"client\"").map_err(err)?;

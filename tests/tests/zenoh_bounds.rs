@@ -12,6 +12,8 @@ use zenoh::qos::CongestionControl;
 
 /// The flood of the issue: 2 000 puts a second for 10 s.
 const FLOOD_RATE: u32 = 2_000;
+/// Puts sent back to back in one burst of the flood (the command queue holds 64 by default).
+const BURST: u32 = 200;
 const FLOOD_SECONDS: u32 = 10;
 
 /// A gateway named `bounds` with one ASCII line and zenoh writes off (the default).
@@ -118,10 +120,14 @@ async fn a_flood_of_refused_puts_is_counted_one_by_one_and_logs_little() {
 
     let total = FLOOD_RATE * FLOOD_SECONDS;
     let start = tokio::time::Instant::now();
-    let step = Duration::from_secs(1) / FLOOD_RATE;
-    for i in 0..total {
+    // Bursts of BURST puts back to back, BURST / FLOOD_RATE seconds apart: the rate of the
+    // issue, arriving as a client that sends in batches does (more than a command queue holds).
+    let step = Duration::from_secs(1) * BURST / FLOOD_RATE;
+    for i in 0..total / BURST {
         tokio::time::sleep_until(start + step * i).await;
-        put(&session, key, b"1500".to_vec()).await;
+        for _ in 0..BURST {
+            put(&session, key, b"1500".to_vec()).await;
+        }
     }
     let took = start.elapsed();
     let expected = before + u64::from(total);
