@@ -41,7 +41,9 @@
 //!   counted (`telegram_queue_full`, `event_queue_full`, `result_queue_full`), and the caller
 //!   is told. Order per line is kept, nothing is published twice;
 //! - commands and queries: when full, the command is answered `busy` on its result key
-//!   (`command_queue_full`), the query gets no reply (`query_queue_full`).
+//!   (`command_queue_full`, and `gateway_writes_total{path="zenoh",result="refused",
+//!   reason="queue_full"}` as every refused command), the query gets no reply
+//!   (`query_queue_full`). With `writes = false` a command is refused before it is queued.
 //!
 //! The publisher thread takes everything pending at once, so up to twice a queue's size can be
 //! held (one batch being published, one queue filling).
