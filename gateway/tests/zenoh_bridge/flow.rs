@@ -206,3 +206,64 @@ async fn every_write_publishes_its_value_and_its_result() {
     bridge.join().await;
     session.close().await.unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_payload_over_max_payload_is_refused_in_the_callback() {
+    use gateway::zenoh_bridge::{CommandKind, CommandOutcome};
+    use std::num::NonZeroUsize;
+
+    let backend = TestBackend::new();
+    let port = free_port();
+    let mut cfg = ZenohConfig::loopback_peer(&endpoint(port)).unwrap();
+    cfg.max_payload = NonZeroUsize::new(16).unwrap();
+    let (bridge, handle, shutdown) = start(cfg, backend.clone()).await;
+    let session = peer(&[endpoint(port)], &[]).await;
+    let (_sub, mut rx) = subscribe(&session, "gw/test/**").await;
+    publish_until_seen(&handle, &mut rx, 7).await;
+
+    // 17 bytes (a valid JSON number): refused by its size, never written.
+    let result_key = "gw/test/drive/atv/cmd/set/result";
+    session
+        .put("gw/test/drive/atv/cmd/set", "1".repeat(17))
+        .await
+        .unwrap();
+    let got = recv_keys(&mut rx, LIMIT, &[result_key]).await;
+    let r = json_of(&got[result_key]);
+    assert_eq!(r["ok"], json!(false), "{r}");
+    assert!(
+        r["error"].as_str().unwrap().contains("max_payload = 16"),
+        "{r}"
+    );
+    assert!(backend.writes.lock().unwrap().is_empty());
+    assert_eq!(
+        handle
+            .stats()
+            .commands(CommandKind::Set, CommandOutcome::Rejected),
+        1
+    );
+    // 16 bytes are taken.
+    session
+        .put("gw/test/drive/atv/cmd/set", "1".repeat(16))
+        .await
+        .unwrap();
+    let got = recv_keys(&mut rx, LIMIT, &[result_key]).await;
+    assert_eq!(json_of(&got[result_key])["ok"], json!(true));
+    assert_eq!(backend.writes.lock().unwrap().len(), 1);
+
+    // A tag query carrying 17 bytes gets no reply; without a payload it does, and a tag
+    // without a unit has "unit": "".
+    let replies = session
+        .get("gw/test/drive/atv/eta")
+        .payload("x".repeat(17))
+        .timeout(Duration::from_secs(2))
+        .await
+        .unwrap();
+    assert!(replies.recv_async().await.is_err(), "no reply");
+    assert_eq!(handle.stats().drops(DropReason::QueryTooLarge), 1);
+    let eta = get_json(&session, "gw/test/drive/atv/eta").await;
+    assert_eq!(eta["gw/test/drive/atv/eta"]["unit"], "", "{eta:?}");
+
+    shutdown.cancel();
+    bridge.join().await;
+    session.close().await.unwrap();
+}
