@@ -10,9 +10,13 @@
 //!                                                                               of a query)
 //! ```
 //!
-//! The bridge checks only the shape of a command (key, payload). The backend sends the telegram
-//! or writes the tag on the same path and with the same checks as a Modbus TCP write, and its
-//! answer (or refusal) becomes the result.
+//! The bridge checks the shape of a command in its callback, cheapest first: its key, its size
+//! (`[zenoh] max_payload`, before the payload is copied), whether writes are on (the backend
+//! says), its payload; then the line (in the dispatcher). The backend sends the telegram or
+//! writes the tag on the same path and with the same checks as a Modbus TCP write, and its answer
+//! (or refusal) becomes the result. Every refusal, wherever it happens, is counted and audited
+//! through [`super::accounting`] and answered on the result key; nothing here logs at WARN per
+//! command (a full queue warns through the rate limiter).
 //!
 //! Result payload (JSON): `{"ok": true, "line": .., "len": N, "result": <backend>}` for a send,
 //! `{"ok": true, "line": .., "device": .., "tag": .., "value": <requested>, "result": <backend>}`
@@ -25,11 +29,10 @@ use std::sync::Arc;
 use serde_json::{json, Value};
 use tokio::sync::mpsc;
 use tokio_util::sync::CancellationToken;
+use zenoh::bytes::ZBytes;
 use zenoh::query::Query;
 use zenoh::sample::Sample;
 use zenoh::Wait;
-
-use zenoh::bytes::ZBytes;
 
 use super::accounting::{self, WriteReason};
 use super::keys::Keys;
