@@ -404,17 +404,20 @@ impl Tag {
     }
 
     fn present_decimal(&self, raw: Decimal, raw_places: u32) -> f64 {
+        let (scale, offset) = (
+            Decimal::from_f64(self.scale),
+            Decimal::from_f64(self.offset),
+        );
         let places = self.decimals.map_or_else(
             || {
-                let scaled = raw_places
-                    .saturating_add(decimal::places_of(self.scale).unwrap_or(MAX_IMPLIED_PLACES));
-                scaled.max(decimal::places_of(self.offset).unwrap_or(0))
+                let of = |d: Option<Decimal>| d.map_or(MAX_IMPLIED_PLACES, Decimal::places);
+                raw_places.saturating_add(of(scale)).max(of(offset))
             },
             u32::from,
         );
-        let exact = Decimal::from_f64(self.scale)
+        let exact = scale
             .and_then(|scale| raw.mul(scale))
-            .zip(Decimal::from_f64(self.offset))
+            .zip(offset)
             .and_then(|(scaled, offset)| scaled.add(offset));
         match exact {
             Some(value) => value.round(places).to_f64(),
