@@ -552,6 +552,10 @@ tags = ["u16", "u16_d2", "u16_d1", "i16", "bit", "u32", "i32", "u64", "i64", "f3
             .declare_subscriber(format!("{key}/result"))
             .await
             .expect("subscribe");
+        let published = s
+            .declare_subscriber(format!("gw/values/meters/meter/{tag}"))
+            .await
+            .expect("subscribe");
         s.put(&key, payload.to_owned()).await.expect("put");
         let r = tokio::time::timeout(Duration::from_secs(20), result.recv_async())
             .await
@@ -559,6 +563,18 @@ tags = ["u16", "u16_d2", "u16_d1", "i16", "bit", "u32", "i32", "u64", "i64", "f3
             .expect("sample");
         let r: Value = serde_json::from_slice(&r.payload().to_bytes()).expect("JSON result");
         assert_eq!(r["ok"], json!(true), "{tag}: {r}");
+        // Published on change by the next poll, as written.
+        let deadline = Instant::now() + Duration::from_secs(20);
+        loop {
+            let sample = tokio::time::timeout_at(deadline.into(), published.recv_async())
+                .await
+                .unwrap_or_else(|_| panic!("no sample of {tag} = {payload} within 20 s"))
+                .expect("sample");
+            let v: Value = serde_json::from_slice(&sample.payload().to_bytes()).expect("JSON");
+            if serde_json::to_string(&v["value"]).ok().as_deref() == Some(payload) {
+                break;
+            }
+        }
         let got = query(format!("gw/values/meters/meter/{tag}")).await;
         assert_eq!(
             got.get(tag).map(String::as_str),

@@ -351,6 +351,11 @@ impl Tag {
         self.address as u32 + self.data_type.words() as u32
     }
 
+    /// The factor from raw number to engineering value: the scale (`decimals` does not scale).
+    pub fn factor(&self) -> f64 {
+        self.scale
+    }
+
     /// Whether a raw number is shown as is (scale 1, offset 0): an integer stays a whole
     /// number; `decimals` cannot change a whole number.
     pub fn is_plain(&self) -> bool {
