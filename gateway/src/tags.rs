@@ -17,10 +17,12 @@
 //! subscription is matched by zenoh itself, which compares keys exactly: subscribe with that
 //! spelling (or a wildcard).
 //!
-//! Values: a write is refused unless the tag holds the value exactly: a value between two steps
-//! of the tag's fix point and scale (4.55 where the tag holds tenths) or outside its range (200
-//! where it holds 0..=100) is refused with the nearest values it can hold, never rounded or
-//! clipped. Float tags (`f32`) hold what the float holds.
+//! Values: value = raw x scale + offset, presented at the tag's places (`decimals`, else those
+//! scale and offset imply) by the profile's decode. A write is refused unless the tag holds the
+//! value exactly: raw = round((value - offset) / scale) must present as the value written. A value
+//! between two steps (4.55 where the tag holds tenths) or outside its range (200 where it holds
+//! 0..=100) is refused with the nearest values it can hold, never rounded or clipped. Float tags
+//! hold what the float holds (at their `decimals` places, when set).
 
 use std::sync::Arc;
 use std::time::SystemTime;
@@ -252,8 +254,8 @@ impl TagDirectory {
             if let Some(nearest) = inexact(entry, value.as_f64()) {
                 let shown: Vec<String> = nearest.iter().map(|&v| show(tag, v)).collect();
                 return Err(refused(format!(
-                    "the tag holds steps of {}; nearest: {}",
-                    show_in(tag.factor(), 0.0, tag.factor()),
+                    "{}; nearest: {}",
+                    steps(tag),
                     shown.join(" or ")
                 )));
             }
@@ -274,7 +276,7 @@ impl TagDirectory {
     }
 }
 
-/// The exact raw range of a plain integer tag (no decimals, scale, offset or device range),
+/// The exact raw range of a plain integer tag (no scale, offset or device range),
 /// whose whole numbers are written without a detour through floats.
 fn exact_bounds(entry: &TagEntry) -> Option<(i128, i128)> {
     let tag = &entry.tag;
@@ -284,48 +286,79 @@ fn exact_bounds(entry: &TagEntry) -> Option<(i128, i128)> {
     plain.then(|| tag.data_type.int_bounds()).flatten()
 }
 
-/// The nearest values the tag holds when it cannot hold `value` exactly (between two steps of
-/// its fix point and scale); `None` when it holds it. Only neighbours the tag accepts (its range)
-/// are named. Floats hold any value in their range.
+/// The nearest values the tag holds when it cannot hold `value` exactly; `None` when it holds
+/// it. The check is the conversion a write makes: raw = round((value - offset) / scale) on the
+/// decimals of the three numbers, and the value that raw number is presented as must be `value`
+/// itself (at the tag's places: 4.6 on a tag of 0.1 steps is raw 46, presented 4.6; 4.55 would
+/// be raw 46 too, presented 4.6, so it is refused). With `decimals` coarser than the steps, the
+/// value must have no more places than `decimals`. Only neighbours the tag accepts (its range)
+/// are named. Floats hold any value in their range, at their `decimals` places when set.
 fn inexact(entry: &TagEntry, value: f64) -> Option<Vec<f64>> {
-    if entry.tag.data_type.is_float()
-        || matches!(
-            entry.tag.data_type,
-            profiles::DataType::String { .. } | profiles::DataType::Bit(_)
-        )
+    let tag = &entry.tag;
+    if matches!(
+        tag.data_type,
+        profiles::DataType::String { .. } | profiles::DataType::Bit(_)
+    ) || !value.is_finite()
     {
         return None;
     }
-    let raw = entry.tag.to_raw(value);
-    // A decimal value such as 4.5 is not exactly 45 x 0.1 in binary: compare with a tolerance
-    // far below one step.
-    if (raw - raw.round()).abs() <= 1e-9 * raw.abs().max(1.0) {
+    let accepted = |v: &f64| entry.profile.encode(tag, *v).is_ok();
+    let at_places = |v: f64| {
+        let (below, above) = tag.neighbours_at_places(v);
+        let mut nearest = vec![below];
+        if above != below {
+            nearest.push(above);
+        }
+        nearest.into_iter().filter(accepted).collect::<Vec<f64>>()
+    };
+    if tag.data_type.is_float() {
+        return match tag.decimals {
+            Some(_) if !tag.fits_places(value) => Some(at_places(value)),
+            _ => None,
+        };
+    }
+    let raw = tag.to_raw_rounded(value)?;
+    if tag.present(raw) == value {
         return None;
     }
-    let nearest: Vec<f64> = [raw.floor(), raw.ceil()]
+    // Steps finer than the places presented: the neighbours are the decimals at those places
+    // (each one some raw number presents); else the neighbouring raw numbers.
+    let steps_finer = tag
+        .decimals
+        .is_some_and(|d| tag.implied_places() > u32::from(d));
+    if steps_finer {
+        return Some(at_places(value));
+    }
+    let exact = tag.to_raw(value);
+    let mut nearest: Vec<f64> = [exact.floor(), exact.ceil()]
         .into_iter()
-        .map(|r| entry.tag.to_engineering(r))
-        .filter(|&v| entry.profile.encode(&entry.tag, v).is_ok())
+        .map(|r| tag.present(r))
+        .filter(accepted)
         .collect();
+    nearest.dedup();
     Some(nearest)
 }
 
-/// An engineering value with as many decimals as the tag's steps have (4.6, not
-/// 4.6000000000000005).
+/// An engineering value with the places the tag presents (4.6, not 4.6000000000000005; 30.0
+/// for a tag of 0.5 steps).
 fn show(tag: &Tag, value: f64) -> String {
-    show_in(tag.factor(), tag.offset, value)
+    let places = usize::try_from(tag.places()).unwrap_or(0);
+    format!("{:.places$}", tag.round_to_places(value))
 }
 
-/// `value` with as many decimals as steps of `factor` from `offset` need.
-fn show_in(factor: f64, offset: f64, value: f64) -> String {
-    let whole_at = |x: f64, d: usize| {
-        let scaled = x.abs() * 10f64.powi(i32::try_from(d).unwrap_or(0));
-        (scaled - scaled.round()).abs() < 1e-9 * scaled.max(1.0)
-    };
-    let decimals = (0..=9usize)
-        .find(|&d| whole_at(factor, d) && whole_at(offset, d))
-        .unwrap_or(9);
-    format!("{value:.decimals$}")
+/// What the tag holds, for a refusal: its steps (the scale, with the scale's places), or the
+/// places it presents when they are coarser than the steps.
+fn steps(tag: &Tag) -> String {
+    match tag.decimals {
+        Some(d) if tag.data_type.is_float() || tag.implied_places() > u32::from(d) => {
+            let plural = if d == 1 { "" } else { "s" };
+            format!("the tag holds values with at most {d} decimal{plural}")
+        }
+        _ => {
+            let step = Tag::new("", tag.table, 0, tag.data_type).scale(tag.scale);
+            format!("the tag holds steps of {}", show(&step, tag.scale.abs()))
+        }
+    }
 }
 
 /// The device name of a slave line's CP memory in tag keys (`<line>/memory/DB800.DBW20`).
@@ -446,10 +479,10 @@ fn tag_of(t: &config::TagConfig) -> Tag {
         },
     };
     let mut tag = Tag::new(t.name.clone(), t.table.into(), t.address, data_type)
-        .decimals(t.decimals)
         .scale(t.scale)
         .offset(t.offset)
         .unit(t.unit.clone());
+    tag.decimals = t.decimals;
     if t.writable {
         tag = tag.writable();
     }
@@ -486,10 +519,7 @@ mod tests {
         );
         let reading = dir.read(&image, acc).expect("ACC in the image");
         assert_eq!(reading.quality, "good");
-        assert!(
-            (reading.value.as_f64() - 13.0 * acc.tag.factor()).abs() < 1e-9,
-            "{reading:?}"
-        );
+        assert!(reading.value == Value::Float(1.3), "{reading:?}");
         assert_eq!(reading.unit, acc.tag.unit);
 
         // 0x8000 is the Altivar's "not available".
@@ -605,6 +635,85 @@ mod tests {
             "the tag holds steps of 0.5; nearest: 0.0 or 0.5"
         );
         assert!(TagDirectory::write_request(mode, 1.5).is_ok());
+    }
+
+    /// The demo config with `tags` (inline tables) on the KS vario, and its directory.
+    fn with_ksvario_tags(tags: &str) -> TagDirectory {
+        let text = config::demo_toml().replace(
+            "[lines.ksvario.devices.ksvario]\nprofile = \"ksvario\"\naddress = 17\nunit_id = 17\n",
+            &format!(
+                "[lines.ksvario.devices.ksvario]\nprofile = \"ksvario\"\naddress = 17\nunit_id = 17\n\
+                 tags = [{tags}]\n"
+            ),
+        );
+        TagDirectory::from_config(&config::parse(&text).expect("valid"))
+    }
+
+    #[test]
+    fn values_are_raw_times_scale_plus_offset_and_decimals_only_round() {
+        let dir = with_ksvario_tags(
+            "{ name = \"t\", table = \"holding\", address = 3415, type = \"i16\", scale = 0.1, offset = -273.15, writable = true }, \
+             { name = \"t2\", table = \"holding\", address = 3415, type = \"i16\", scale = 0.1, offset = -273.15, decimals = 2 }, \
+             { name = \"t1\", table = \"holding\", address = 3415, type = \"i16\", scale = 0.1, offset = -273.15, decimals = 1 }, \
+             { name = \"fine\", table = \"holding\", address = 3416, type = \"u16\", scale = 0.01, decimals = 1, writable = true }, \
+             { name = \"pf\", table = \"holding\", address = 3417, type = \"f32\", writable = true }, \
+             { name = \"pf2\", table = \"holding\", address = 3417, type = \"f32\", decimals = 2, writable = true }",
+        );
+        let find = |name| dir.find("ksvario", "ksvario", name).expect(name);
+        assert_eq!(find("t").tag.decimals, None);
+        assert_eq!(find("t2").tag.decimals, Some(2));
+        let image = ProcessImage::new(ImageConfig::default());
+        image.store_words(17, Table::HoldingRegisters, 3415, &[2931, 460], None);
+        image.store_words(
+            17,
+            Table::HoldingRegisters,
+            3417,
+            &[(0.95f32.to_bits() >> 16) as u16, 0.95f32.to_bits() as u16],
+            None,
+        );
+        let json = |name| {
+            let value = dir.read(&image, find(name)).expect("in the image").value;
+            serde_json::to_string(&crate::api::model::ScalarValue::from(value)).expect("JSON")
+        };
+        // Before: 19.950000000000045 (no decimals), -270.219 (decimals = 2 divided by 100).
+        assert_eq!(json("t"), "19.95");
+        assert_eq!(json("t2"), "19.95");
+        assert_eq!(json("t1"), "20.0");
+        assert_eq!(json("fine"), "4.6");
+        // Before: 0.949999988079071.
+        assert_eq!(json("pf"), "0.95");
+
+        // Writes: raw = round((value - offset) / scale), presented as the value written.
+        assert_eq!(
+            TagDirectory::write_request(find("t"), 19.95),
+            Ok(Request::WriteSingleRegister {
+                address: 3415,
+                value: 2931
+            })
+        );
+        assert_eq!(
+            refusal(find("t"), 19.97),
+            "the tag holds steps of 0.1; nearest: 19.95 or 20.05"
+        );
+        // Steps of 0.01 shown with one place: a value is written at the places shown.
+        assert_eq!(
+            TagDirectory::write_request(find("fine"), 4.6),
+            Ok(Request::WriteSingleRegister {
+                address: 3416,
+                value: 460
+            })
+        );
+        assert_eq!(
+            refusal(find("fine"), 4.57),
+            "the tag holds values with at most 1 decimal; nearest: 4.5 or 4.6"
+        );
+        // A float holds any value, at its decimals when set.
+        assert!(TagDirectory::write_request(find("pf"), 0.123_456).is_ok());
+        assert!(TagDirectory::write_request(find("pf2"), 0.12).is_ok());
+        assert_eq!(
+            refusal(find("pf2"), 0.123),
+            "the tag holds values with at most 2 decimals; nearest: 0.12 or 0.13"
+        );
     }
 
     #[test]

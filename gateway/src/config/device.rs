@@ -53,9 +53,8 @@ pub const POLL_PERIOD_RANGE: (Duration, Duration) =
     (Duration::from_millis(10), Duration::from_secs(86_400));
 /// A tag value is `raw * scale`, by default the raw value.
 pub const DEFAULT_SCALE: f64 = 1.0;
-/// Decimals shown for a tag (fix point), by default none.
-pub const DEFAULT_DECIMALS: u8 = 0;
-/// Most decimals a tag may declare.
+/// Most decimals a tag may declare (`decimals` only rounds what is presented; without it a value
+/// has the places its scale and offset imply).
 pub const MAX_DECIMALS: u8 = 9;
 /// 32 and 64-bit values: high word first, high byte first, the Modbus convention (001: KS vario
 /// floats in "Motorola format"); strings: the first character in the high byte.
@@ -315,8 +314,10 @@ pub struct TagConfig {
     pub scale: f64,
     /// Added after the scale.
     pub offset: f64,
-    /// Decimals shown (fix point), 0..=9.
-    pub decimals: u8,
+    /// The places a value is presented with and a write is checked at, 0..=9; absent: the
+    /// places scale and offset imply. Rounds only: the value is `raw * scale + offset`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub decimals: Option<u8>,
     /// Engineering unit, free text.
     pub unit: String,
     /// Writes from Modbus TCP, zenoh or REST are accepted (holding registers and coils only).
@@ -573,7 +574,7 @@ fn read_tag(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<TagConfig> {
         bit,
         scale,
         offset: f.float_or(cx, "offset", DEFAULT_OFFSET),
-        decimals: f.int_or(cx, "decimals", 0..=MAX_DECIMALS, DEFAULT_DECIMALS, ""),
+        decimals: f.int::<u8>(cx, "decimals", 0..=MAX_DECIMALS, ""),
         unit: f.string_or(cx, "unit", ""),
         writable: f.bool_or(cx, "writable", false),
         name: name.clone().unwrap_or_default(),

@@ -227,6 +227,9 @@ fn tag_defaults_follow_the_table() {
     assert_eq!(d.tags[1].data_type, DataType::U16);
     assert_eq!(d.tags[1].byte_order(), ByteOrder::Abcd);
     assert_eq!(d.tags[1].scale, 1.0);
-    assert_eq!(d.tags[1].decimals, 0);
+    assert_eq!(
+        d.tags[1].decimals, None,
+        "absent: the places scale and offset imply"
+    );
     assert!(!d.tags[1].writable);
 }

@@ -278,22 +278,22 @@ pub fn tags() -> Vec<Tag> {
     let mut tags = vec![
         Tag::holding("SFr", SFR, U16)
             .describe("switching frequency")
-            .decimals(1)
+            .fix_point(1)
             .unit("kHz")
             .writable_within(10, 160),
         Tag::holding("tFr", TFR, U16)
             .describe("maximum output frequency")
-            .decimals(1)
+            .fix_point(1)
             .unit("Hz")
             .writable_within(100, 16000),
         Tag::holding("HSP", HSP, U16)
             .describe("high speed")
-            .decimals(1)
+            .fix_point(1)
             .unit("Hz")
             .writable_within(0, 16000),
         Tag::holding("LSP", LSP, U16)
             .describe("low speed")
-            .decimals(1)
+            .fix_point(1)
             .unit("Hz")
             .writable_within(0, 16000),
         Tag::holding("ETA", ETA, U16)
@@ -301,14 +301,14 @@ pub fn tags() -> Vec<Tag> {
             .bits(eta_bits()),
         Tag::holding("LCR", LCR, U16)
             .describe("motor current")
-            .decimals(1)
+            .fix_point(1)
             .unit("A"),
         Tag::holding("OTR", OTR, I16)
             .describe("motor torque")
             .unit("%"),
         Tag::holding("ULN", ULN, U16)
             .describe("mains voltage")
-            .decimals(1)
+            .fix_point(1)
             .unit("V"),
         Tag::holding("THD", THD, U16)
             .describe("drive thermal state")
@@ -335,12 +335,12 @@ pub fn tags() -> Vec<Tag> {
             .unit("rpm"),
         Tag::holding("ACC", ACC, U16)
             .describe("acceleration ramp time")
-            .decimals(1)
+            .fix_point(1)
             .unit("s")
             .writable_within(1, 9999),
         Tag::holding("DEC", DEC, U16)
             .describe("deceleration ramp time")
-            .decimals(1)
+            .fix_point(1)
             .unit("s")
             .writable_within(1, 9999),
         Tag::holding("THR", THR, U16)

@@ -251,7 +251,7 @@ pub fn tag(
     let address = Address::new(format, index).encode()?;
     Ok(match format {
         Format::Integer => Tag::new(name, table, address, DataType::I16),
-        Format::FixPoint1 => Tag::new(name, table, address, DataType::I16).decimals(1),
+        Format::FixPoint1 => Tag::new(name, table, address, DataType::I16).fix_point(1),
         Format::Float => Tag::new(name, table, address, DataType::F32(ByteOrder::Abcd)),
     })
 }

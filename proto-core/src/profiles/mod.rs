@@ -16,6 +16,7 @@ pub mod altivar;
 pub mod ksvario;
 pub mod registry;
 
+mod decimal;
 mod quality;
 mod tag;
 
@@ -30,9 +31,10 @@ pub use crate::modbus::Table;
 
 /// A decoded tag value.
 ///
-/// Integer tags without decimals, scale or offset decode to `Int` (`UInt` for `u64`, which may
-/// exceed `i64`), bit tags to `Bool`, strings to `Text`, everything else to `Float` in
-/// engineering units. When the quality is not good, the value is the raw number the device sent
+/// Integer tags without scale or offset decode to `Int` (`UInt` for `u64`, which may exceed
+/// `i64`), bit tags to `Bool`, strings to `Text`, everything else to `Float` in engineering
+/// units, as presented ([`Tag::present`]: the decimal raw x scale + offset rounded to the tag's
+/// places, so that its shortest form is 19.95 and not 19.950000000000045). When the quality is not good, the value is the raw number the device sent
 /// (e.g. `Int(31000)`), so that it can still be shown. A value to write is one of these too.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Value {
@@ -537,17 +539,14 @@ fn decode_with(special: SpecialValues, tag: &Tag, raw: &[u16]) -> (Value, Qualit
         DataType::F32(order) => {
             let value = f32::from_bits(join(raw, order));
             match special.classify_float(value) {
-                Some(quality) => (Value::Float(f64::from(value)), quality),
-                None => (
-                    Value::Float(tag.to_engineering(f64::from(value))),
-                    Quality::Good,
-                ),
+                Some(quality) => (Value::Float(decimal::f32_shortest(value)), quality),
+                None => (Value::Float(tag.present_f32(value)), Quality::Good),
             }
         }
         DataType::U64(order) => (tag.engineering_u64(join64(raw, order)), Quality::Good),
         DataType::I64(order) => (tag.engineering(join64(raw, order) as i64), Quality::Good),
         DataType::F64(order) => (
-            Value::Float(tag.to_engineering(f64::from_bits(join64(raw, order)))),
+            Value::Float(tag.present(f64::from_bits(join64(raw, order)))),
             Quality::Good,
         ),
         DataType::String { order, .. } => (Value::Text(decode_text(raw, order)), Quality::Good),
@@ -592,7 +591,10 @@ fn encode_with(special: SpecialValues, tag: &Tag, value: f64) -> Result<Vec<u16>
         }
         _ => {}
     }
-    let raw = raw.round();
+    // value -> raw on the decimals of value, offset and scale: 4.6 / 0.1 is 46 exactly.
+    let raw = tag
+        .to_raw_rounded(value)
+        .ok_or_else(|| EncodeError::NotFinite(tag.name.clone()))?;
     let (type_min, type_max) = tag.data_type.raw_bounds();
     let (min, max) = match (tag.raw_range, special, tag.data_type) {
         (Some((min, max)), _, _) => (f64::from(min), f64::from(max)),
@@ -609,7 +611,7 @@ fn encode_with(special: SpecialValues, tag: &Tag, value: f64) -> Result<Vec<u16>
 fn check_range(tag: &Tag, raw: f64, min: f64, max: f64) -> Result<(), EncodeError> {
     if raw < min || raw > max {
         // A negative scale turns the raw range around.
-        let (a, b) = (tag.to_engineering(min), tag.to_engineering(max));
+        let (a, b) = (tag.present(min), tag.present(max));
         return Err(EncodeError::OutOfRange {
             tag: tag.name.clone(),
             value: tag.to_engineering(raw),

@@ -1,7 +1,11 @@
 //! The tag model: one named datum of a device.
 
+use super::decimal::{self, Decimal};
 use super::Value;
 use crate::modbus::Table;
+
+/// The most places implied by a scale or offset (a scale of 1e-30 is presented with 30).
+const MAX_IMPLIED_PLACES: u32 = 30;
 
 /// Where the bytes of a 32 or 64-bit value sit in its registers. The letters name the value's
 /// bytes from the most significant (A) down, in the order they appear on the wire from the
@@ -227,11 +231,12 @@ pub struct Tag {
     pub address: u16,
     /// How the words are read.
     pub data_type: DataType,
-    /// Fix point decimals: the engineering value is the raw number / 10^decimals.
-    pub decimals: u8,
-    /// A factor applied after the decimals (1.0 when the decimals say it all).
+    /// The places a value is presented with (REST, zenoh) and a write is checked at; `None`:
+    /// the places scale and offset imply ([`Self::places`]). Only rounds, never scales.
+    pub decimals: Option<u8>,
+    /// The factor from raw number to engineering value: value = raw x scale + offset.
     pub scale: f64,
-    /// Added after the scale: value = raw x scale / 10^decimals + offset (0.0 by default).
+    /// Added after the scale (0.0 by default).
     pub offset: f64,
     /// The engineering unit, empty for plain numbers.
     pub unit: String,
@@ -254,7 +259,7 @@ impl Tag {
             table,
             address,
             data_type,
-            decimals: 0,
+            decimals: None,
             scale: 1.0,
             offset: 0.0,
             unit: String::new(),
@@ -276,11 +281,21 @@ impl Tag {
         self
     }
 
-    /// Sets the fix point decimals.
+    /// Sets the places a value is presented with (rounding only: the value stays
+    /// raw x scale + offset).
     #[must_use]
     pub fn decimals(mut self, decimals: u8) -> Self {
-        self.decimals = decimals;
+        self.decimals = Some(decimals);
         self
+    }
+
+    /// A fix point register with `decimals` places: scale 10^-decimals, presented with as many
+    /// places (KS vario "Fix Point 1", 001 4.2: raw 1234 = 123.4).
+    #[must_use]
+    pub fn fix_point(self, decimals: u8) -> Self {
+        // "1e-N" reads as the float nearest 10^-N, whose shortest form is that decimal.
+        let scale = format!("1e-{decimals}").parse().unwrap_or(1.0);
+        self.scale(scale).decimals(decimals)
     }
 
     /// Sets the scale factor.
@@ -336,29 +351,154 @@ impl Tag {
         self.address as u32 + self.data_type.words() as u32
     }
 
-    /// The factor from raw number to engineering value: scale / 10^decimals.
+    /// The factor from raw number to engineering value: the scale (`decimals` does not scale).
     pub fn factor(&self) -> f64 {
-        self.scale / 10f64.powi(i32::from(self.decimals))
+        self.scale
     }
 
-    /// Whether a raw number is shown as is (no decimals, scale 1, offset 0).
+    /// Whether a raw number is shown as is (scale 1, offset 0): an integer stays a whole
+    /// number; `decimals` cannot change a whole number.
     pub fn is_plain(&self) -> bool {
-        self.decimals == 0 && self.scale == 1.0 && self.offset == 0.0
+        self.scale == 1.0 && self.offset == 0.0
     }
 
-    /// The engineering value of a raw number: raw x [`Self::factor`] + offset.
+    /// The places a whole raw number's value has: those of the scale or the offset, whichever
+    /// has more (scale 0.1 and offset -273.15 give 2; scale 0.5 and offset -20 give 1).
+    pub fn implied_places(&self) -> u32 {
+        let of = |x: f64| decimal::places_of(x).unwrap_or(MAX_IMPLIED_PLACES);
+        of(self.scale).max(of(self.offset)).min(MAX_IMPLIED_PLACES)
+    }
+
+    /// The places a whole raw number's value is presented with: `decimals`, else
+    /// [`Self::implied_places`].
+    pub fn places(&self) -> u32 {
+        self.decimals
+            .map_or_else(|| self.implied_places(), u32::from)
+    }
+
+    /// The value of a raw number as presented: raw x scale + offset, computed on the decimals
+    /// of the three numbers and rounded to `decimals` places, or without `decimals` to the places
+    /// the raw number, scale and offset imply (raw 2931 x 0.1 - 273.15 = 19.95, never
+    /// 19.950000000000045). A whole raw number implies none; a float register's value has the
+    /// places of its own shortest form (pass an `f32` through [`Self::present_f32`]).
+    pub fn present(&self, raw: f64) -> f64 {
+        if self.is_plain() && self.decimals.is_none() {
+            return raw;
+        }
+        match Decimal::from_f64(raw) {
+            Some(raw) => self.present_decimal(raw, raw.places()),
+            None => self.present_float(raw),
+        }
+    }
+
+    /// The value of a raw `f32` as presented: its shortest form (0.95, not 0.949999988079071),
+    /// then as [`Self::present`].
+    pub fn present_f32(&self, raw: f32) -> f64 {
+        if self.is_plain() && self.decimals.is_none() {
+            return decimal::f32_shortest(raw);
+        }
+        match Decimal::from_f32(raw) {
+            Some(raw) => self.present_decimal(raw, raw.places()),
+            None => self.present(decimal::f32_shortest(raw)),
+        }
+    }
+
+    /// The value of a raw whole number as presented, exact over 64 bits.
+    pub fn present_int(&self, raw: i128) -> f64 {
+        self.present_decimal(Decimal::int(raw), 0)
+    }
+
+    fn present_decimal(&self, raw: Decimal, raw_places: u32) -> f64 {
+        let (scale, offset) = (
+            Decimal::from_f64(self.scale),
+            Decimal::from_f64(self.offset),
+        );
+        let places = self.decimals.map_or_else(
+            || {
+                let of = |d: Option<Decimal>| d.map_or(MAX_IMPLIED_PLACES, Decimal::places);
+                raw_places.saturating_add(of(scale)).max(of(offset))
+            },
+            u32::from,
+        );
+        let exact = scale
+            .and_then(|scale| raw.mul(scale))
+            .zip(offset)
+            .and_then(|(scaled, offset)| scaled.add(offset));
+        match exact {
+            Some(value) => value.round(places).to_f64(),
+            None => decimal::round_f64(raw.to_f64() * self.scale + self.offset, places),
+        }
+    }
+
+    /// raw x scale + offset in floats, rounded to the places presented.
+    fn present_float(&self, raw: f64) -> f64 {
+        let value = raw * self.scale + self.offset;
+        match self.decimals {
+            Some(places) => decimal::round_f64(value, u32::from(places)),
+            None => value,
+        }
+    }
+
+    /// `value` rounded to the places a whole raw number's value is presented with: what a write
+    /// is compared with.
+    pub fn round_to_places(&self, value: f64) -> f64 {
+        match Decimal::from_f64(value) {
+            Some(v) => v.round(self.places()).to_f64(),
+            None => decimal::round_f64(value, self.places()),
+        }
+    }
+
+    /// Whether `value` has no more places than [`Self::places`]: a decimal the tag can present.
+    pub fn fits_places(&self, value: f64) -> bool {
+        Decimal::from_f64(value).is_none_or(|v| v.places() <= self.places())
+    }
+
+    /// The two values at [`Self::places`] places nearest `value` (below and above; equal when
+    /// `value` has no more places).
+    pub fn neighbours_at_places(&self, value: f64) -> (f64, f64) {
+        match Decimal::from_f64(value) {
+            Some(v) => (
+                v.floor(self.places()).to_f64(),
+                v.ceil(self.places()).to_f64(),
+            ),
+            None => (value, value),
+        }
+    }
+
+    /// The engineering value of a raw number in floats, unrounded (for ranges): raw x scale +
+    /// offset.
     pub fn to_engineering(&self, raw: f64) -> f64 {
-        raw * self.factor() + self.offset
+        raw * self.scale + self.offset
     }
 
-    /// The raw number of an engineering value: (value - offset) / [`Self::factor`].
+    /// The raw number of an engineering value: (value - offset) / scale, computed on the
+    /// decimals of the three numbers where they fit (4.6 / 0.1 = 46, not 45.99999999999999).
     pub fn to_raw(&self, value: f64) -> f64 {
-        (value - self.offset) / self.factor()
+        if self.is_plain() {
+            return value;
+        }
+        self.raw_ratio(value)
+            .and_then(|(v, scale)| v.div_f64(scale))
+            .unwrap_or_else(|| (value - self.offset) / self.scale)
     }
 
-    /// The bit field named `name`.
-    pub fn bit_field(&self, name: &str) -> Option<&BitField> {
-        self.bits.iter().find(|b| b.name == name)
+    /// The whole raw number nearest (value - offset) / scale, halves away from zero; `None`
+    /// for a value that is not finite.
+    pub fn to_raw_rounded(&self, value: f64) -> Option<f64> {
+        if !value.is_finite() {
+            return None;
+        }
+        let exact = self
+            .raw_ratio(value)
+            .and_then(|(v, scale)| v.div_round(scale))
+            .map(|raw| raw as f64);
+        let raw = exact.unwrap_or_else(|| ((value - self.offset) / self.scale).round());
+        raw.is_finite().then_some(raw)
+    }
+
+    fn raw_ratio(&self, value: f64) -> Option<(Decimal, Decimal)> {
+        let v = Decimal::from_f64(value)?.sub(Decimal::from_f64(self.offset)?)?;
+        Some((v, Decimal::from_f64(self.scale)?))
     }
 
     /// The engineering value of a raw integer.
@@ -366,7 +506,7 @@ impl Tag {
         if self.is_plain() {
             Value::Int(raw)
         } else {
-            Value::Float(self.to_engineering(raw as f64))
+            Value::Float(self.present_int(i128::from(raw)))
         }
     }
 
@@ -375,7 +515,12 @@ impl Tag {
         if self.is_plain() {
             Value::UInt(raw)
         } else {
-            Value::Float(self.to_engineering(raw as f64))
+            Value::Float(self.present_int(i128::from(raw)))
         }
+    }
+
+    /// The bit field named `name`.
+    pub fn bit_field(&self, name: &str) -> Option<&BitField> {
+        self.bits.iter().find(|b| b.name == name)
     }
 }

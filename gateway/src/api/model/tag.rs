@@ -155,7 +155,8 @@ pub struct TagValue {
     pub line: String,
     pub device: String,
     pub tag: String,
-    /// Scaled value; null when there is none (never read, or a special value).
+    /// raw x scale + offset, at the tag's places (`decimals`, else those scale and offset
+    /// imply: 19.95, not 19.950000000000045); null when there is none (never read).
     pub value: Option<ScalarValue>,
     /// Engineering unit (`Hz`, `%`, `°C`), empty when none.
     pub unit: String,
@@ -171,7 +172,8 @@ pub struct TagValue {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct TagWrite {
-    /// In the tag's engineering unit; the gateway scales and encodes it.
+    /// In the tag's engineering unit; the gateway writes raw = round((value - offset) / scale),
+    /// and refuses a value the tag cannot hold exactly (422, with the nearest values).
     pub value: ScalarValue,
 }
 
