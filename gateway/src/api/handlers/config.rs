@@ -20,12 +20,15 @@ use utoipa::{PartialSchema, ToSchema};
 
 use super::{audit, caller_of, ApiPath};
 use crate::api::auth::Caller;
-use crate::api::body::{self, TOML_MEDIA_TYPE};
+use crate::api::body::{self, JsonView, TOML_MEDIA_TYPE};
 use crate::api::error::{body_error, ApiError, ErrorBody, Issue};
-use crate::api::model::{ConfigChangeResult, ValidationResult};
+use crate::api::model::{ConfigChangeResult, ConfigOverride, ValidationResult};
 use crate::api::{ApiBackend, ApiState};
 use crate::audit::WriteResult;
 use crate::config::Config;
+use crate::persist::edit;
+use crate::persist::ConfigText;
+use toml_edit::DocumentMut;
 
 /// The configuration as JSON: the TOML file's tables and keys (see
 /// `deploy/gateway.example.toml`). Also accepted and returned as TOML (`application/toml`).
@@ -86,18 +89,63 @@ impl<S: Send + Sync> FromRequest<S> for ApiBytes {
     )
 )]
 pub(crate) async fn get_config(State(state): State<ApiState>, headers: HeaderMap) -> Response {
-    let config = state.backend().config();
+    let backend = state.backend();
+    let config = backend.config();
     let etag = body::etag(&config);
+    let text = state.document(&config);
+    let overrides = backend.overrides();
     let mut response = if body::wants_toml(&headers) {
-        match toml::to_string(&config) {
-            Ok(text) => ([(header::CONTENT_TYPE, TOML_MEDIA_TYPE)], text).into_response(),
-            Err(e) => return ApiError::internal(format!("cannot write TOML: {e}")).into_response(),
-        }
+        let mut answer = overrides_comment(&overrides);
+        answer.push_str(text.text());
+        ([(header::CONTENT_TYPE, TOML_MEDIA_TYPE)], answer).into_response()
     } else {
-        Json(&config).into_response()
+        Json(ConfigView {
+            doc: &text.document(),
+            overrides: &overrides,
+        })
+        .into_response()
     };
     set_etag(&mut response, &etag);
     response
+}
+
+/// The JSON answer of `GET /config`: the document's tables in its order, then `overrides`.
+struct ConfigView<'a> {
+    doc: &'a toml_edit::DocumentMut,
+    overrides: &'a [ConfigOverride],
+}
+
+impl serde::Serialize for ConfigView<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = s.serialize_map(None)?;
+        for (key, item) in self.doc.iter() {
+            if !item.is_none() {
+                map.serialize_entry(key, &JsonView(item))?;
+            }
+        }
+        map.serialize_entry(body::OVERRIDES_KEY, self.overrides)?;
+        map.end()
+    }
+}
+
+/// The comment a TOML answer starts with when settings of the command line are in force.
+fn overrides_comment(overrides: &[ConfigOverride]) -> String {
+    if overrides.is_empty() {
+        return String::new();
+    }
+    let mut text = format!("{}\n", body::OVERRIDES_BANNER);
+    for o in overrides {
+        text.push_str(&format!(
+            "#   {} = {:?}   ({} {})\n",
+            o.key, o.in_force, o.option, o.given
+        ));
+        if let Some(note) = &o.note {
+            text.push_str(&format!("#     {note}\n"));
+        }
+    }
+    text.push('\n');
+    text
 }
 
 /// Replaces the whole configuration.
@@ -126,10 +174,17 @@ pub(crate) async fn put_config(
     let audit = Audit::new(caller, "config: replace".to_owned());
     let backend = state.backend();
     let new = body::content_format(&headers).and_then(|format| {
-        body::config(format, &bytes, &|c, found| backend.config_issues(c, found))
+        body::config_document(format, &bytes, &|c, found| backend.config_issues(c, found))
     });
-    let new = audit.early(&state, new)?;
-    change(state, &headers, audit, move |_, _| Ok(new)).await
+    let (_, sent) = audit.early(&state, new)?;
+    change(state, &headers, audit, move |current, backend| {
+        // The file is made to say what the body says; what it already said stays as written.
+        let mut doc = current.document();
+        edit::merge_table(doc.as_table_mut(), false, sent.doc.as_table());
+        let new = body::from_document(&doc, backend)?;
+        Ok((new, doc))
+    })
+    .await
 }
 
 /// Validates a configuration without applying it.
@@ -180,11 +235,14 @@ pub(crate) async fn get_line_config(
     ApiPath(line): ApiPath<String>,
 ) -> Result<Response, ApiError> {
     let config = state.backend().config();
-    let table = config
-        .lines
-        .get(&line)
-        .ok_or_else(|| ApiError::not_found("line", &line))?;
-    let mut response = Json(table).into_response();
+    if !config.lines.contains_key(&line) {
+        return Err(ApiError::not_found("line", &line));
+    }
+    let doc = state.document(&config).document();
+    let mut response = match doc.get("lines").and_then(|lines| lines.get(&line)) {
+        Some(item) => Json(JsonView(item)).into_response(),
+        None => Json(&config.lines[&line]).into_response(),
+    };
     set_etag(&mut response, &body::etag(&config));
     Ok(response)
 }
@@ -217,19 +275,41 @@ pub(crate) async fn put_line_config(
     ApiBytes(bytes): ApiBytes,
 ) -> Result<Response, ApiError> {
     let audit = Audit::new(caller, format!("config: replace lines.{line}"));
-    let table = body::content_format(&headers).and_then(|format| body::table(format, &bytes));
-    let table = audit.early(&state, table)?;
+    let sent = body::content_format(&headers)
+        .and_then(|format| body::document(format, &bytes, body::LINE_EXPECTED));
+    let sent = audit.early(&state, sent)?;
     change(state, &headers, audit, move |current, backend| {
-        let mut root = body::to_table(current)?;
-        let lines = root
+        let mut doc = current.document();
+        let lines = doc
             .entry("lines")
-            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-        if let toml::Value::Table(lines) = lines {
-            lines.insert(line, toml::Value::Table(table));
+            .or_insert_with(|| toml_edit::Item::Table(implicit_table()));
+        let mut table = sent.doc.as_table().clone();
+        // The body's own document is not a table of the file: its header is the file's.
+        table.decor_mut().clear();
+        table.set_implicit(false);
+        let item = toml_edit::Item::Table(table);
+        match lines.get_mut(&line) {
+            Some(existing) if !existing.is_none() => edit::merge_item(existing, &item),
+            _ => {
+                let Some(lines) = lines.as_table_like_mut() else {
+                    return Err(ApiError::conflict(
+                        "the configuration file's `lines` is not a table: edit the file",
+                    ));
+                };
+                lines.insert(&line, item);
+            }
         }
-        body::from_table(&root, backend)
+        let new = body::from_document(&doc, backend)?;
+        Ok((new, doc))
     })
     .await
+}
+
+/// A table that only holds tables (no header of its own).
+fn implicit_table() -> toml_edit::Table {
+    let mut t = toml_edit::Table::new();
+    t.set_implicit(true);
+    t
 }
 
 /// Removes one line and stops it.
@@ -257,13 +337,16 @@ pub(crate) async fn delete_line_config(
 ) -> Result<Response, ApiError> {
     let audit = Audit::new(caller, format!("config: remove lines.{line}"));
     change(state, &headers, audit, move |current, _| {
-        let mut new = current.clone();
-        if new.lines.remove(&line).is_none() {
+        if !current.config().lines.contains_key(&line) {
             return Err(ApiError::not_found("line", &line));
         }
+        let mut doc = current.document();
+        if let Some(lines) = doc.get_mut("lines").and_then(|l| l.as_table_like_mut()) {
+            lines.remove(&line);
+        }
         // Rules across lines (unit ids, ports) still hold after a removal, but run them anyway.
-        new.check().map_err(body::validation)?;
-        Ok(new)
+        let new = body::from_document_unchecked(&doc)?;
+        Ok((new, doc))
     })
     .await
 }
@@ -291,6 +374,11 @@ impl Audit {
     }
 }
 
+/// What a change makes of the configuration in force (as written): the new configuration and
+/// the document that reads as it.
+type Edit =
+    Box<dyn FnOnce(&ConfigText, &dyn ApiBackend) -> Result<(Config, DocumentMut), ApiError> + Send>;
+
 /// Runs a change to completion in its own task: lock, `If-Match`, edit, validate, persist,
 /// apply, audit. The task goes on if the request is dropped (timeout, client gone).
 async fn change<F>(
@@ -300,9 +388,12 @@ async fn change<F>(
     edit: F,
 ) -> Result<Response, ApiError>
 where
-    F: FnOnce(&Config, &dyn ApiBackend) -> Result<Config, ApiError> + Send + 'static,
+    F: FnOnce(&ConfigText, &dyn ApiBackend) -> Result<(Config, DocumentMut), ApiError>
+        + Send
+        + 'static,
 {
     let if_match = headers.clone();
+    let edit: Edit = Box::new(edit);
     let task = tokio::spawn(async move {
         let result = change_in_task(&state, &if_match, edit).await;
         match &result {
@@ -325,14 +416,11 @@ where
 }
 
 /// The steps of [`change`] in its task.
-async fn change_in_task<F>(
+async fn change_in_task(
     state: &ApiState,
     if_match: &HeaderMap,
-    edit: F,
-) -> Result<ConfigChangeResult, ApiError>
-where
-    F: FnOnce(&Config, &dyn ApiBackend) -> Result<Config, ApiError> + Send + 'static,
-{
+    edit: Edit,
+) -> Result<ConfigChangeResult, ApiError> {
     let _one_at_a_time = state.change_lock().lock().await;
     let backend = state.backend();
     let current = backend.config();
@@ -341,25 +429,34 @@ where
             "the configuration changed since it was read (If-Match)",
         ));
     }
-    let new = edit(&current, backend.as_ref())?;
+    let written = state.document(&current);
+    let (new, doc) = edit(&written, backend.as_ref())?;
     backend.validate(&new).map_err(backend_issues)?;
     let etag = body::etag(&new);
     let persisted = state.store().is_some();
     if new == current {
+        // Nothing that means anything changed: the file stays byte for byte.
         return Ok(ConfigChangeResult {
             etag,
             persisted,
             applied: Default::default(),
         });
     }
+    let text = ConfigText::edited(&doc, new.clone());
     if let Some(store) = state.store() {
-        let (in_force, to_save) = (current.clone(), new.clone());
-        tokio::task::spawn_blocking(move || store.save_change(&in_force, &to_save))
+        let to_save = text.text().to_owned();
+        tokio::task::spawn_blocking(move || store.save_atomic(&to_save))
             .await
             .map_err(|e| ApiError::internal(format!("the save task failed: {e}")))?
-            .map_err(|e| ApiError::persist_failed(format!("not applied: {e}")))?;
+            .map_err(|e| {
+                ApiError::persist_failed(format!(
+                    "the configuration is valid but was not saved, so it was not applied: {e}; \
+                     check that the gateway may write the file and its directory"
+                ))
+            })?;
         tracing::info!(file = %state.store().map(|s| s.path().display().to_string()).unwrap_or_default(), %etag, "configuration saved");
     }
+    state.set_document(text);
     let applied = backend.apply(new).await?;
     tracing::info!(%etag, ?applied, "configuration applied");
     Ok(ConfigChangeResult {
