@@ -152,7 +152,7 @@ impl ApiState {
     /// Accepted changes are written to `store` before they are applied.
     pub fn with_store(mut self, store: ConfigStore) -> Self {
         self.store = Some(Arc::new(store));
-        self
+        self.primed()
     }
 
     /// The text the configuration in force was read from, for a gateway without a configuration
@@ -160,6 +160,12 @@ impl ApiState {
     /// force written in) instead of every key with its default.
     pub fn with_source_text(mut self, text: impl Into<Arc<str>>) -> Self {
         self.source_text = Some(text.into());
+        self.primed()
+    }
+
+    /// Reads the configuration as written now, so that the first request finds it read.
+    fn primed(self) -> Self {
+        self.document(&self.backend.config());
         self
     }
 

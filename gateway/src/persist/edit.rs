@@ -237,9 +237,8 @@ pub(crate) fn merge_table(table: &mut dyn TableLike, inline: bool, body: &dyn Ta
 
 /// Makes the file's `item` say what `body` says (see [`merge_table`]).
 pub(crate) fn merge_item(item: &mut Item, body: &Item) {
-    if plain(item) == plain(body) {
-        return;
-    }
+    // Tables and arrays are walked down to their values (only a value is compared whole), so
+    // that a large document is compared once, not once per level.
     if let Some(body_table) = body.as_table_like() {
         let inline = item.is_value();
         if let Some(table) = item.as_table_like_mut() {
@@ -268,6 +267,9 @@ pub(crate) fn merge_item(item: &mut Item, body: &Item) {
             }
         }
         _ => {}
+    }
+    if plain(item) == plain(body) {
+        return;
     }
     let inline = item.is_value();
     let Some(replacement) = placed(body, inline) else {

@@ -176,12 +176,17 @@ pub(crate) async fn put_config(
     let new = body::content_format(&headers).and_then(|format| {
         body::config_document(format, &bytes, &|c, found| backend.config_issues(c, found))
     });
-    let (_, sent) = audit.early(&state, new)?;
+    let (new, sent) = audit.early(&state, new)?;
     change(state, &headers, audit, move |current, backend| {
         // The file is made to say what the body says; what it already said stays as written.
         let mut doc = current.document();
         edit::merge_table(doc.as_table_mut(), false, sent.doc.as_table());
-        let new = body::from_document(&doc, backend)?;
+        // The merged file says what the body said (read above); read again only if not.
+        let new = if edit::plain_table(doc.as_table()) == sent.table {
+            new
+        } else {
+            body::from_document(&doc, backend)?
+        };
         Ok((new, doc))
     })
     .await
