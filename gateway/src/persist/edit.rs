@@ -276,8 +276,24 @@ pub(crate) fn merge_item(item: &mut Item, body: &Item) {
         return;
     };
     match (item, replacement) {
-        (Item::Value(current), Item::Value(new)) => replace_value(current, new),
+        (Item::Value(current), Item::Value(new)) => replace_keeping_comment(current, new),
         (item, replacement) => *item = replacement,
+    }
+}
+
+/// Replaces `current` by the client's `new`: the file's spaces and comment stay, unless only the
+/// client wrote a comment.
+fn replace_keeping_comment(current: &mut toml_edit::Value, new: toml_edit::Value) {
+    let has_comment = |v: &toml_edit::Value| {
+        v.decor()
+            .suffix()
+            .and_then(toml_edit::RawString::as_str)
+            .is_some_and(|s| s.contains('#'))
+    };
+    if has_comment(&new) && !has_comment(current) {
+        *current = new;
+    } else {
+        replace_value(current, new);
     }
 }
 
@@ -295,7 +311,7 @@ fn merge_value(value: &mut toml_edit::Value, body: &toml_edit::Value) {
                 merge_value(element, b);
             }
         }
-        (value, body) => replace_value(value, body.clone()),
+        (value, body) => replace_keeping_comment(value, body.clone()),
     }
 }
 
