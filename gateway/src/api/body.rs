@@ -9,7 +9,7 @@
 
 use std::hash::{Hash, Hasher};
 
-use axum::http::{header, HeaderMap};
+use axum::http::{header, HeaderMap, StatusCode};
 
 use serde::de::{DeserializeOwned, MapAccess, SeqAccess, Visitor};
 use serde::{Deserialize, Serialize, Serializer};
@@ -163,6 +163,22 @@ fn without_banner(text: &str) -> &str {
         rest = rest.split_once('\n').map_or("", |(_, after)| after);
     }
     rest
+}
+
+/// A body that could not be read: 413 over `[http] body_limit` (the rest is never read), 400
+/// otherwise; `text` is axum's account.
+pub(crate) fn read_error(status: StatusCode, text: &str) -> ApiError {
+    if status == StatusCode::PAYLOAD_TOO_LARGE {
+        ApiError::payload_too_large(
+            "the request body is larger than this gateway takes ([http] body_limit): send a \
+             smaller body, or raise body_limit in the configuration",
+        )
+    } else {
+        let what = text
+            .strip_prefix("Failed to buffer the request body: ")
+            .unwrap_or(text);
+        ApiError::bad_request(format!("cannot read the request body: {what}"))
+    }
 }
 
 /// Why a body is not JSON, and what to send instead.

@@ -3,7 +3,7 @@
 //! added over REST is written with the keys the client sent in its order, a value the file
 //! already had keeps its spelling (`0x0D`), and the command line's listeners are shown beside
 //! the configuration (`overrides`), never baked into it. Bodies that are not what an endpoint
-//! takes are answered with what it takes.
+//! takes, and paths and queries that do not fit, are answered with what belongs there.
 
 use std::path::Path;
 
@@ -351,6 +351,31 @@ async fn the_demo_shows_its_command_line_listeners_and_bad_bodies_hear_what_to_s
             400,
             "the body is empty: send a JSON object with the line's keys",
         ),
+        // Paths and queries that do not fit: which part, and what belongs there.
+        (
+            Method::POST,
+            "/api/v1/lines/r3964/telegrams/abc/ack",
+            "application/json",
+            "",
+            400,
+            "\"abc\" in the path: expected a whole number, 0 or more there",
+        ),
+        (
+            Method::GET,
+            "/api/v1/tags?lien=drive",
+            "application/json",
+            "",
+            400,
+            "unknown query parameter \"lien\": this path takes `line` or `device`",
+        ),
+        (
+            Method::GET,
+            "/api/v1/lines/drive/frames?since=soon",
+            "application/json",
+            "",
+            400,
+            "query parameter since: expected a whole number, 0 or more",
+        ),
     ] {
         let (got, answer) = raw(&base, method.clone(), path, ctype, body).await;
         assert_eq!(got, status, "{method} {path} {body:?}: {answer:#}");
@@ -359,7 +384,7 @@ async fn the_demo_shows_its_command_line_listeners_and_bad_bodies_hear_what_to_s
             text.contains(&says.replace('"', "\\\"")),
             "{method} {path} {body:?}: {answer:#}"
         );
-        for raw_word in ["Failed to", "struct ", "untagged enum"] {
+        for raw_word in ["Failed to", "Invalid URL", "struct ", "untagged enum"] {
             assert!(!text.contains(raw_word), "{method} {path}: {answer:#}");
         }
     }

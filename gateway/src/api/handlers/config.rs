@@ -21,7 +21,7 @@ use utoipa::{PartialSchema, ToSchema};
 use super::{audit, caller_of, ApiPath};
 use crate::api::auth::Caller;
 use crate::api::body::{self, JsonView, TOML_MEDIA_TYPE};
-use crate::api::error::{body_error, ApiError, ErrorBody, Issue};
+use crate::api::error::{ApiError, ErrorBody, Issue};
 use crate::api::model::{ConfigChangeResult, ConfigOverride, ValidationResult};
 use crate::api::{ApiBackend, ApiState};
 use crate::audit::WriteResult;
@@ -74,7 +74,7 @@ impl<S: Send + Sync> FromRequest<S> for ApiBytes {
         Bytes::from_request(req, state)
             .await
             .map(Self)
-            .map_err(|e| body_error(e.status(), e.body_text()))
+            .map_err(|e| body::read_error(e.status(), &e.body_text()))
     }
 }
 

@@ -17,7 +17,7 @@ use serde::de::DeserializeOwned;
 
 use super::auth::{Caller, Who};
 use super::body::{self, JsonBody};
-use super::error::{body_error, ApiError};
+use super::error::ApiError;
 use super::ApiState;
 use crate::audit::WriteResult;
 
@@ -70,7 +70,7 @@ where
         body::require_json::<T>(req.headers())?;
         let bytes = Bytes::from_request(req, state)
             .await
-            .map_err(|e| body_error(e.status(), e.body_text()))?;
+            .map_err(|e| body::read_error(e.status(), &e.body_text()))?;
         body::json::<T>(&bytes).map(Self)
     }
 }
