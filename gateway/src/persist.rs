@@ -14,10 +14,13 @@
 //! A crash between steps 2 and 3 leaves `<name>.prev` equal to the current file; it is never
 //! newer than it.
 //!
-//! A change is written into the file as the operator wrote it ([`ConfigStore::save_change`]):
-//! comments, the order of tables and keys and the keys left out stay; only what changed is
-//! written. A file that cannot be edited so (missing, not TOML, or no longer the configuration in
-//! force) is replaced by the whole new configuration.
+//! A change is written into the file as the operator wrote it: comments, the order of tables and
+//! keys and the keys left out stay; only what changed is written. The REST API keeps the text
+//! ([`ConfigText`]) and merges the client's document into it ([`edit::merge_table`]: the
+//! client's keys and order where the file had nothing, the file's spelling where the value is
+//! the same); a change made in code goes through [`ConfigStore::save_change`] (the difference of
+//! two configurations). A file that cannot be edited so (missing, not TOML, or no longer the
+//! configuration in force) is replaced by the whole new configuration.
 //!
 //! Only one writer may save at a time: [`ConfigStore::save_atomic`] holds an in-process lock, and
 //! the gateway is the only process that writes its configuration. A temporary file left by a

@@ -261,9 +261,9 @@ enum OrderedJson {
     Big(u64),
     Float(f64),
     Str(String),
-    Array(Vec<OrderedJson>),
+    Array(Vec<Self>),
     /// Keys in the client's order; a key given twice keeps its first place and its last value.
-    Object(Vec<(String, OrderedJson)>),
+    Object(Vec<(String, Self)>),
 }
 
 impl OrderedJson {

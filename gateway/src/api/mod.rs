@@ -6,7 +6,8 @@
 //! GET    /readyz                                         ready (lines opened, Modbus TCP, zenoh)
 //! GET    /api/v1/openapi.json                            this API, generated from the code
 //! GET    /api/v1/status                                  the gateway and every line
-//! GET    /api/v1/config                                  the configuration (ETag; TOML on Accept)
+//! GET    /api/v1/config                                  the configuration as written, with the
+//!                                                        command line's overrides (ETag; TOML)
 //! PUT    /api/v1/config                                  replace it: validate, persist, apply
 //! POST   /api/v1/config/validate                         validate without applying
 //! GET    /api/v1/config/lines/{line}                     one line's table

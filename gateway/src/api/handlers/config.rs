@@ -1,5 +1,10 @@
 //! `/api/v1/config`: read, replace and validate the configuration, or one line of it.
 //!
+//! What is shown and written is the configuration as its operator wrote it ([`ConfigText`]): a
+//! read answers the file's keys (no defaults), with the command line's listeners beside them
+//! (`overrides`, never in the file); a change merges the client's document into the file, so a
+//! value that keeps its meaning keeps its spelling and a new key is written as sent.
+//!
 //! A change is validated whole (the configuration's own rules, then the backend's), written to
 //! the configuration file atomically, and then applied; changes run one at a time. `If-Match`
 //! with the `ETag` of `GET /config` makes a change conditional on the version it was made from.
@@ -14,7 +19,7 @@ use axum::extract::{FromRequest, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue};
 use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
-use utoipa::openapi::schema::{ObjectBuilder, Schema, Type};
+use utoipa::openapi::schema::{ArrayBuilder, ObjectBuilder, Schema, Type};
 use utoipa::openapi::RefOr;
 use utoipa::{PartialSchema, ToSchema};
 
@@ -40,8 +45,26 @@ impl PartialSchema for ConfigDocument {
             .schema_type(Type::Object)
             .description(Some(
                 "The gateway configuration: the TOML file's tables ([gateway], [modbus_tcp], \
-                 [lines.<name>] ...) as a JSON object. Keys left out take their defaults.",
+                 [lines.<name>] ...) as a JSON object. Keys left out take their defaults. GET \
+                 answers the keys the file gives, in its order (no defaults written in), and \
+                 `overrides`; a PUT changes only what it changes in meaning: a value the file \
+                 already had keeps the file's spelling (0x0D stays 0x0D), new keys are written \
+                 as sent, in the order sent, and a PUT of what GET answered leaves the file byte \
+                 for byte. As TOML, GET answers the file's text (comments included), with the \
+                 overrides as a leading comment.",
             ))
+            .property(
+                body::OVERRIDES_KEY,
+                ArrayBuilder::new()
+                    .items(ConfigOverride::schema())
+                    .description(Some(
+                        "Answers only: settings given on the command line (--modbus-tcp, --http, \
+                         --zenoh-listen) that are in force in place of the keys named, with what \
+                         runs (the port bound for port 0). Not part of the configuration: a PUT \
+                         or validate body may carry it and it is left out, so the file keeps its \
+                         own values.",
+                    )),
+            )
             .into()
     }
 }
@@ -57,7 +80,9 @@ impl PartialSchema for LineDocument {
             .schema_type(Type::Object)
             .description(Some(
                 "One line's table [lines.<name>] as a JSON object: port, protocol, serial \
-                 settings, the protocol's parameters and, for Modbus masters, devices.",
+                 settings, the protocol's parameters and, for Modbus masters, devices. GET \
+                 answers the keys the file gives, in its order; a PUT writes the keys sent, in \
+                 the order sent, and keeps the file's spelling of values it does not change.",
             ))
             .into()
     }
@@ -84,7 +109,7 @@ impl<S: Send + Sync> FromRequest<S> for ApiBytes {
     path = "/config",
     tag = "config",
     responses(
-        (status = 200, description = "The configuration (TOML with `Accept: application/toml`)",
+        (status = 200, description = "The configuration as the file gives it, with the command line's `overrides` (the file's TOML text with `Accept: application/toml`)",
          body = ConfigDocument, headers(("ETag" = String, description = "The configuration's version"))),
     )
 )]
