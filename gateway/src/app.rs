@@ -180,6 +180,17 @@ pub async fn run(
     overrides: Overrides,
     shutdown: CancellationToken,
 ) -> Result<(), AppError> {
+    run_from(config, None, overrides, shutdown).await
+}
+
+/// [`run`] for a configuration read from `source` rather than from a file (the demo's embedded
+/// text): `GET /config` shows that text, with what differs in force written in.
+pub(crate) async fn run_from(
+    config: Config,
+    source: Option<&'static str>,
+    overrides: Overrides,
+    shutdown: CancellationToken,
+) -> Result<(), AppError> {
     let exported = match overrides.metrics.clone() {
         Some(exported) => exported,
         None => MetricsRegistry::new()
@@ -196,7 +207,7 @@ pub async fn run(
         return Err(e);
     }
     let http_token = shutdown.child_token();
-    let http = match serve_http(&sup, &http_config, &overrides, http_token.clone()).await {
+    let http = match serve_http(&sup, &http_config, &overrides, source, http_token.clone()).await {
         Ok(task) => task,
         Err(e) => {
             sup.stop().await;
@@ -264,6 +275,7 @@ async fn serve_http(
     sup: &Arc<supervisor::Supervisor>,
     http: &config::HttpConfig,
     overrides: &Overrides,
+    source: Option<&'static str>,
     shutdown: CancellationToken,
 ) -> Result<JoinHandle<()>, AppError> {
     let addr = overrides.http.unwrap_or(http.listen);
@@ -279,13 +291,17 @@ async fn serve_http(
         }
     };
     let backend = Arc::new(rest::RestBackend::new(Arc::clone(sup)));
-    let state = ApiState::from_config(backend, http, store)
+    let state = ApiState::from_config(Arc::clone(&backend) as _, http, store)
         .map_err(|e| {
             AppError::Config(config::ConfigErrors {
                 issues: vec![check::token_issue(http, &e)],
             })
         })?
         .with_routes(metrics_route(sup.exported.registry.clone()));
+    let state = match source {
+        Some(text) => state.with_source_text(text),
+        None => state,
+    };
     // Without a token, said at start-up already (log_rest_guard).
     if matches!(state.auth().mode(), crate::api::AuthMode::Token) {
         state.auth().log_mode();
@@ -298,6 +314,7 @@ async fn serve_http(
             source,
         })?;
     let local = listener.local_addr()?;
+    backend.set_http_local(local);
     info!(%local, "HTTP listening: /api/v1, /healthz, /readyz, /metrics");
     // A fixed line on stdout that scripts and tests wait for.
     println!("http listening on {local}");

@@ -14,10 +14,13 @@
 //! A crash between steps 2 and 3 leaves `<name>.prev` equal to the current file; it is never
 //! newer than it.
 //!
-//! A change is written into the file as the operator wrote it ([`ConfigStore::save_change`]):
-//! comments, the order of tables and keys and the keys left out stay; only what changed is
-//! written. A file that cannot be edited so (missing, not TOML, or no longer the configuration in
-//! force) is replaced by the whole new configuration.
+//! A change is written into the file as the operator wrote it: comments, the order of tables and
+//! keys and the keys left out stay; only what changed is written. The REST API keeps the text
+//! ([`ConfigText`]) and merges the client's document into it ([`edit::merge_table`]: the
+//! client's keys and order where the file had nothing, the file's spelling where the value is
+//! the same); a change made in code goes through [`ConfigStore::save_change`] (the difference of
+//! two configurations). A file that cannot be edited so (missing, not TOML, or no longer the
+//! configuration in force) is replaced by the whole new configuration.
 //!
 //! Only one writer may save at a time: [`ConfigStore::save_atomic`] holds an in-process lock, and
 //! the gateway is the only process that writes its configuration. A temporary file left by a
@@ -37,6 +40,97 @@ pub struct ConfigStore {
     path: PathBuf,
     /// Serializes the writers of this store.
     write_lock: Mutex<()>,
+}
+
+/// The configuration as its operator wrote it: the TOML text (comments, order, spelling, the keys
+/// left out) and the configuration it reads as. `GET /config` shows it; a change over the REST
+/// API edits it ([`edit::merge_table`]) and writes it to the file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ConfigText {
+    text: String,
+    config: Config,
+}
+
+// === impl ConfigText ===
+
+impl ConfigText {
+    /// `text` when it reads as `config`; otherwise `text` with only what differs written into it
+    /// (e.g. the demo's `pty:` placeholders replaced by the ports it made); `config` written out
+    /// whole when `text` is not a configuration.
+    pub fn new(text: &str, config: &Config) -> Self {
+        match config::parse(text) {
+            Ok(read) if read == *config => Self {
+                text: text.to_owned(),
+                config: read,
+            },
+            Ok(read) => {
+                let edited = toml::Table::try_from(&read)
+                    .ok()
+                    .zip(toml::Table::try_from(config).ok())
+                    .and_then(|(old, new)| edit::edit_in_place(text, &old, &new))
+                    .filter(|edited| config::parse(edited).is_ok_and(|c| c == *config));
+                match edited {
+                    Some(text) => Self {
+                        text,
+                        config: config.clone(),
+                    },
+                    None => Self::of(config),
+                }
+            }
+            Err(_) => Self::of(config),
+        }
+    }
+
+    /// `text` if it reads as `config` (and nothing else).
+    pub fn read(text: String, config: &Config) -> Option<Self> {
+        let read = config::parse(&text).ok().filter(|c| c == config)?;
+        Some(Self { text, config: read })
+    }
+
+    /// `config` written out whole (every key, defaults included): for a configuration that was
+    /// never text.
+    pub fn of(config: &Config) -> Self {
+        Self {
+            text: toml::to_string(config).unwrap_or_default(),
+            config: config.clone(),
+        }
+    }
+
+    /// An edited document and the configuration it reads as (the caller read it).
+    pub(crate) fn edited(doc: &toml_edit::DocumentMut, config: Config) -> Self {
+        Self {
+            text: doc.to_string(),
+            config,
+        }
+    }
+
+    /// This text, or (when the configuration in force is no longer the one it reads as) this
+    /// text edited to read as `in_force`.
+    pub fn following(&self, in_force: &Config) -> Self {
+        if self.config == *in_force {
+            self.clone()
+        } else {
+            Self::new(&self.text, in_force)
+        }
+    }
+
+    /// The TOML text.
+    pub fn text(&self) -> &str {
+        &self.text
+    }
+
+    /// The configuration it reads as.
+    pub fn config(&self) -> &Config {
+        &self.config
+    }
+
+    /// The text as a document to edit or show.
+    pub fn document(&self) -> toml_edit::DocumentMut {
+        self.text.parse().unwrap_or_else(|_| {
+            // Only texts that read as a configuration are kept; this is never reached.
+            toml_edit::DocumentMut::new()
+        })
+    }
 }
 
 /// What failed while saving; the file at the store's path is unchanged unless the error says the
@@ -74,6 +168,11 @@ impl ConfigStore {
     /// Where the version before the last save is kept: `<file>.prev`.
     pub fn previous_path(&self) -> PathBuf {
         sibling(&self.path, "", ".prev")
+    }
+
+    /// The file's text, if it can be read.
+    pub fn read_text(&self) -> Option<String> {
+        fs::read_to_string(&self.path).ok()
     }
 
     /// Reads, parses and validates the configuration file.
@@ -212,7 +311,7 @@ fn sync_dir(dir: &Path) -> Result<(), PersistError> {
     }
 }
 
-mod edit;
+pub(crate) mod edit;
 
 #[cfg(test)]
 mod tests;

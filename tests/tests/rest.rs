@@ -23,6 +23,8 @@ use tokio_modbus::prelude::Slave;
 #[path = "rest/support.rs"]
 mod support;
 
+#[path = "rest/as_written.rs"]
+mod as_written;
 #[path = "rest/config.rs"]
 mod config;
 #[path = "rest/routes.rs"]

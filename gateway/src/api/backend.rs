@@ -13,8 +13,8 @@ use std::pin::Pin;
 use super::auth::Caller;
 use super::error::ApiError;
 use super::model::{
-    ApplyReport, DiagSnapshot, GatewayStatus, LineStatusView, Readiness, ScalarValue, SendResult,
-    Signals, SignalsPatch, TagValue, TelegramQueue,
+    ApplyReport, ConfigOverride, DiagSnapshot, GatewayStatus, LineStatusView, Readiness,
+    ScalarValue, SendResult, Signals, SignalsPatch, TagValue, TelegramQueue,
 };
 use crate::audit::{WritePath, WriteResult};
 use crate::config::{Config, ConfigIssue};
@@ -26,6 +26,12 @@ pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
 pub trait ApiBackend: Send + Sync + 'static {
     /// The configuration in force.
     fn config(&self) -> Config;
+
+    /// Settings given on the command line that are in force in place of keys of the
+    /// configuration (listeners), shown by `GET /config` beside it.
+    fn overrides(&self) -> Vec<ConfigOverride> {
+        Vec::new()
+    }
 
     /// Checks that need the running system on a configuration the parser already accepted
     /// (e.g. a serial port that does not exist); every problem with its path. The parser's own

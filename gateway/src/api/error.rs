@@ -8,7 +8,7 @@
 //! `code` is a stable snake_case word clients can match on; `message` is for people; `issues` is
 //! present only where a request had several problems (configuration validation, readiness).
 
-use axum::extract::rejection::{JsonRejection, PathRejection, QueryRejection};
+use axum::extract::rejection::{PathRejection, QueryRejection};
 use axum::http::{header, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use serde::{Deserialize, Serialize};
@@ -315,29 +315,93 @@ impl IntoResponse for ApiError {
     }
 }
 
-impl From<JsonRejection> for ApiError {
-    fn from(r: JsonRejection) -> Self {
-        match r {
-            JsonRejection::JsonSyntaxError(e) => Self::bad_request(e.body_text()),
-            JsonRejection::JsonDataError(e) => Self::invalid_body(e.body_text()),
-            JsonRejection::MissingJsonContentType(_) => {
-                Self::unsupported_media_type("expected Content-Type: application/json")
-            }
-            JsonRejection::BytesRejection(e) => body_error(e.status(), e.body_text()),
-            other => body_error(other.status(), other.body_text()),
-        }
-    }
-}
-
+/// A path that does not fit its route (`/telegrams/abc/ack`): which part, and what belongs there.
 impl From<PathRejection> for ApiError {
     fn from(r: PathRejection) -> Self {
-        Self::bad_request(r.body_text())
+        use axum::extract::path::ErrorKind;
+        let message = match &r {
+            PathRejection::FailedToDeserializePathParams(e) => match e.kind() {
+                ErrorKind::ParseErrorAtKey {
+                    key,
+                    value,
+                    expected_type,
+                } => format!(
+                    "{key} in the path is {value:?}: expected {}",
+                    expected_kind(expected_type)
+                ),
+                ErrorKind::ParseErrorAtIndex {
+                    value,
+                    expected_type,
+                    ..
+                }
+                | ErrorKind::ParseError {
+                    value,
+                    expected_type,
+                } => format!(
+                    "{value:?} in the path: expected {} there",
+                    expected_kind(expected_type)
+                ),
+                ErrorKind::InvalidUtf8InPathParam { key } => {
+                    format!("{key} in the path is not UTF-8 text")
+                }
+                _ => format!("the path does not fit this route ({})", e.body_text()),
+            },
+            other => format!("the path does not fit this route ({})", other.body_text()),
+        };
+        Self::bad_request(message)
     }
 }
 
+/// A query that does not fit its route: which parameter, and what it takes.
 impl From<QueryRejection> for ApiError {
     fn from(r: QueryRejection) -> Self {
-        Self::bad_request(r.body_text())
+        Self::bad_request(query_message(&r.body_text()))
+    }
+}
+
+/// What a Rust type named in a parser's message is, for people.
+fn expected_kind(type_name: &str) -> &str {
+    match type_name {
+        "u8" | "u16" | "u32" | "u64" | "u128" | "usize" => "a whole number, 0 or more",
+        "i8" | "i16" | "i32" | "i64" | "i128" | "isize" => "a whole number",
+        "f32" | "f64" => "a number",
+        "bool" => "true or false",
+        "alloc::string::String" | "String" | "&str" => "text",
+        other => other,
+    }
+}
+
+/// axum's query message (`Failed to deserialize query string: since: invalid digit found in
+/// string`) in words that say what to send (`query parameter since: expected a whole number`).
+fn query_message(text: &str) -> String {
+    let inner = text
+        .strip_prefix("Failed to deserialize query string: ")
+        .unwrap_or(text);
+    let (key, what) = match inner.split_once(": ") {
+        Some((key, what)) if !key.contains(' ') => (key, what),
+        _ => ("", inner),
+    };
+    if let Some(rest) = what.strip_prefix("unknown field ") {
+        let name = rest.split(',').next().unwrap_or(rest).trim_matches('`');
+        return match rest.split_once(", expected ") {
+            Some((_, expected)) => {
+                format!("unknown query parameter {name:?}: this path takes {expected}")
+            }
+            None => format!("unknown query parameter {name:?}: this path takes none"),
+        };
+    }
+    let what = match what {
+        "invalid digit found in string"
+        | "cannot parse integer from empty string"
+        | "number too large to fit in target type"
+        | "number too small to fit in target type" => "expected a whole number, 0 or more",
+        "provided string was not `true` or `false`" => "expected true or false",
+        other => other,
+    };
+    if key.is_empty() {
+        format!("the query does not fit this path: {what}")
+    } else {
+        format!("query parameter {key}: {what}")
     }
 }
 
@@ -388,15 +452,6 @@ impl From<TagWriteError> for ApiError {
             TagWriteError::Value { .. } => Self::invalid_body(e.to_string()),
             TagWriteError::Exception(code) => code.into(),
         }
-    }
-}
-
-/// A failure to read the body: 413 when it is over the limit.
-pub(crate) fn body_error(status: StatusCode, text: String) -> ApiError {
-    if status == StatusCode::PAYLOAD_TOO_LARGE {
-        ApiError::payload_too_large(text)
-    } else {
-        ApiError::bad_request(text)
     }
 }
 
@@ -475,6 +530,28 @@ mod tests {
         );
         let e = ApiError::from(TagWriteError::Exception(ExceptionCode::IllegalDataAddress));
         assert_eq!(e.code(), "device_exception");
+    }
+
+    #[test]
+    fn query_refusals_name_the_parameter_and_what_it_takes() {
+        assert_eq!(
+            query_message(
+                "Failed to deserialize query string: foo: unknown field `foo`, expected `line` or `device`"
+            ),
+            "unknown query parameter \"foo\": this path takes `line` or `device`"
+        );
+        assert_eq!(
+            query_message(
+                "Failed to deserialize query string: since: invalid digit found in string"
+            ),
+            "query parameter since: expected a whole number, 0 or more"
+        );
+        assert_eq!(
+            query_message(
+                "Failed to deserialize query string: follow: provided string was not `true` or `false`"
+            ),
+            "query parameter follow: expected true or false"
+        );
     }
 
     #[test]

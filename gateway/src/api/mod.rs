@@ -6,7 +6,8 @@
 //! GET    /readyz                                         ready (lines opened, Modbus TCP, zenoh)
 //! GET    /api/v1/openapi.json                            this API, generated from the code
 //! GET    /api/v1/status                                  the gateway and every line
-//! GET    /api/v1/config                                  the configuration (ETag; TOML on Accept)
+//! GET    /api/v1/config                                  the configuration as written, with the
+//!                                                        command line's overrides (ETag; TOML)
 //! PUT    /api/v1/config                                  replace it: validate, persist, apply
 //! POST   /api/v1/config/validate                         validate without applying
 //! GET    /api/v1/config/lines/{line}                     one line's table
@@ -65,7 +66,8 @@ pub use diff::ConfigDiff;
 pub use error::{ApiError, ErrorBody, ErrorDetail, Issue};
 pub use server::{serve, DEFAULT_HEADER_READ_TIMEOUT, DEFAULT_MAX_CONNECTIONS};
 
-use crate::persist::ConfigStore;
+use crate::config::Config;
+use crate::persist::{ConfigStore, ConfigText};
 
 /// The prefix of the versioned API.
 pub const API_PREFIX: &str = "/api/v1";
@@ -89,6 +91,10 @@ pub struct ApiState {
     /// Routes served beside the API on the same listener (e.g. `/metrics`), outside its
     /// OpenAPI document.
     extra: Option<Router>,
+    /// The text the configuration was read from when there is no file (the demo's own).
+    source_text: Option<Arc<str>>,
+    /// The configuration in force as its operator wrote it, once shown or changed.
+    document: Arc<std::sync::Mutex<Option<ConfigText>>>,
 }
 
 impl std::fmt::Debug for ApiState {
@@ -122,6 +128,8 @@ impl ApiState {
             allowed_networks: Vec::new(),
             change_lock: Arc::default(),
             extra: None,
+            source_text: None,
+            document: Arc::default(),
         }
     }
 
@@ -145,6 +153,20 @@ impl ApiState {
     /// Accepted changes are written to `store` before they are applied.
     pub fn with_store(mut self, store: ConfigStore) -> Self {
         self.store = Some(Arc::new(store));
+        self.primed()
+    }
+
+    /// The text the configuration in force was read from, for a gateway without a configuration
+    /// file (the demo's embedded one): `GET /config` shows it (with what differs from it in
+    /// force written in) instead of every key with its default.
+    pub fn with_source_text(mut self, text: impl Into<Arc<str>>) -> Self {
+        self.source_text = Some(text.into());
+        self.primed()
+    }
+
+    /// Reads the configuration as written now, so that the first request finds it read.
+    fn primed(self) -> Self {
+        self.document(&self.backend.config());
         self
     }
 
@@ -197,6 +219,43 @@ impl ApiState {
 
     pub(crate) fn change_lock(&self) -> &tokio::sync::Mutex<()> {
         &self.change_lock
+    }
+
+    /// The configuration in force (`in_force`) as its operator wrote it: the file's text when
+    /// it reads as `in_force` (a comment added by hand since is kept); else the text of the last
+    /// change, or the source text, with what differs in force written in; else `in_force`
+    /// written out whole.
+    pub(crate) fn document(&self, in_force: &Config) -> ConfigText {
+        let mut kept = self
+            .document
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let from_file = self.store.as_ref().and_then(|s| s.read_text());
+        let current = match (from_file, kept.take()) {
+            (Some(text), Some(k)) if k.text() == text && k.config() == in_force => k,
+            (Some(text), k) => ConfigText::read(text, in_force)
+                .unwrap_or_else(|| self.derived(k.as_ref(), in_force)),
+            (None, k) => self.derived(k.as_ref(), in_force),
+        };
+        *kept = Some(current.clone());
+        current
+    }
+
+    /// The kept text, else the source text, following `in_force`.
+    fn derived(&self, kept: Option<&ConfigText>, in_force: &Config) -> ConfigText {
+        match (kept, &self.source_text) {
+            (Some(k), _) => k.following(in_force),
+            (None, Some(source)) => ConfigText::new(source, in_force),
+            (None, None) => ConfigText::of(in_force),
+        }
+    }
+
+    /// Keeps `text` as the configuration in force as written (after a change).
+    pub(crate) fn set_document(&self, text: ConfigText) {
+        *self
+            .document
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(text);
     }
 }
 

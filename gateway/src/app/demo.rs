@@ -14,7 +14,7 @@ use tokio_serial::{SerialPort, SerialPortBuilderExt, SerialStream};
 use tokio_util::sync::CancellationToken;
 use tracing::info;
 
-use super::{run, AppError, Overrides};
+use super::{run_from, AppError, Overrides};
 use crate::config::{self, LineConfig, Profile, ProtocolConfig, ASCII_CHARACTER_DELAY_RANGE};
 use crate::sim::{self, altivar::AltivarSim, ksvario::KsVarioSim, meter::MeterSim, ModbusDevice};
 
@@ -94,7 +94,7 @@ pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(
     }
     // The REST API's start-up line says that changes need no token here (one WARN, the demo's
     // only one, on purpose); the HTTP server's start says that changes are kept in memory.
-    let result = run(config, overrides, shutdown).await;
+    let result = run_from(config, Some(config::demo_toml()), overrides, shutdown).await;
     sims.cancel();
     drop(keep);
     result

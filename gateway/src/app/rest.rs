@@ -10,9 +10,9 @@ use std::sync::{Arc, PoisonError};
 
 use crate::api::auth::Caller;
 use crate::api::model::{
-    ApplyReport, DiagRecord, DiagSnapshot, GatewayStatus, LineStatusView, ModbusTcpStatus,
-    Readiness, ScalarValue, SendResult, Signals, SignalsPatch, TagQuality, TagValue, Telegram,
-    TelegramQueue, Timestamp, ZenohStatus,
+    ApplyReport, ConfigOverride, DiagRecord, DiagSnapshot, GatewayStatus, LineStatusView,
+    ModbusTcpStatus, Readiness, ScalarValue, SendResult, Signals, SignalsPatch, TagQuality,
+    TagValue, Telegram, TelegramQueue, Timestamp, ZenohStatus,
 };
 use crate::api::{ApiBackend, ApiError, BoxFuture};
 use crate::config::{Config, ConfigIssue};
@@ -30,13 +30,23 @@ use crate::audit::{self, WritePath, WriteResult};
 /// The API's view of the running gateway.
 pub(crate) struct RestBackend {
     sup: Arc<Supervisor>,
+    /// The address the HTTP listener bound, once bound (for `--http` in `GET /config`).
+    http_local: std::sync::OnceLock<std::net::SocketAddr>,
 }
 
 // === impl RestBackend ===
 
 impl RestBackend {
     pub(crate) fn new(sup: Arc<Supervisor>) -> Self {
-        Self { sup }
+        Self {
+            sup,
+            http_local: std::sync::OnceLock::new(),
+        }
+    }
+
+    /// Where the HTTP listener listens, once bound.
+    pub(crate) fn set_http_local(&self, local: std::net::SocketAddr) {
+        let _ = self.http_local.set(local);
     }
 
     fn line<'a>(snapshot: &'a Snapshot, line: &str) -> Result<&'a RunningLine, ApiError> {
@@ -142,6 +152,48 @@ fn signals_view(s: crate::signals::ModemSignals) -> Signals {
 impl ApiBackend for RestBackend {
     fn config(&self) -> Config {
         self.sup.snapshot().config.clone()
+    }
+
+    fn overrides(&self) -> Vec<ConfigOverride> {
+        let given = &self.sup.overrides;
+        let mut overrides = Vec::new();
+        if let Some(addr) = given.modbus_tcp {
+            let in_force = if self.sup.snapshot().config.modbus_tcp.enabled {
+                self.sup.tcp_listen().0.to_string()
+            } else {
+                "switched off (modbus_tcp.enabled = false)".to_owned()
+            };
+            overrides.push(ConfigOverride {
+                key: "modbus_tcp.listen".into(),
+                option: "--modbus-tcp".into(),
+                given: addr.to_string(),
+                in_force,
+                note: None,
+            });
+        }
+        if let Some(addr) = given.http {
+            overrides.push(ConfigOverride {
+                key: "http.listen".into(),
+                option: "--http".into(),
+                given: addr.to_string(),
+                in_force: self.http_local.get().unwrap_or(&addr).to_string(),
+                note: None,
+            });
+        }
+        if let Some(endpoint) = &given.zenoh_listen {
+            overrides.push(ConfigOverride {
+                key: "zenoh.listen".into(),
+                option: "--zenoh-listen".into(),
+                given: endpoint.clone(),
+                in_force: endpoint.clone(),
+                note: Some(
+                    "a peer that listens there only: zenoh.mode = \"peer\", no zenoh.connect, \
+                     zenoh.multicast_scouting = false; prefix and publishing from the configuration"
+                        .into(),
+                ),
+            });
+        }
+        overrides
     }
 
     fn validate(&self, config: &Config) -> Result<(), Vec<ConfigIssue>> {

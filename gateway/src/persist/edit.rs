@@ -6,8 +6,15 @@
 //! written: a changed value replaces the old one (keeping the comment after it), a key the new
 //! configuration has and the old one had not is added, a key it no longer has is removed.
 //!
-//! The two configurations are compared in their serialized form (every key, defaults included),
-//! so a key that keeps its value is never touched, whether the file writes it out or not.
+//! Two ways in:
+//!
+//! - [`edit_in_place`]: a change made in code (two configurations). They are compared in their
+//!   serialized form (every key, defaults included), so a key that keeps its value is never
+//!   touched, whether the file writes it out or not.
+//! - [`merge_table`] / [`merge_item`]: a document a client sent (a REST body, JSON or TOML). The
+//!   file is made to say what the body says, key by key: the client's keys in the client's order
+//!   and spelling where the file had nothing, the file's spelling (`0x0D`, not `13`) and comment
+//!   where the value means the same. No default is written that neither side wrote.
 
 use toml::{Table, Value};
 use toml_edit::{DocumentMut, Item, TableLike};
@@ -187,6 +194,201 @@ fn to_value(value: &Value) -> Option<toml_edit::Value> {
     to_item(value)?.into_value().ok()
 }
 
+// === a document sent by a client ===
+
+/// Makes the file's `table` say what the client's `body` says (a table it sends replaces the
+/// file's): a key the body leaves out is removed, a key the file does not have is added as the
+/// client wrote it and in its order, a value that means what the file's means (`0x0D` and `13`,
+/// `"500ms"` written the same) is left as the file spells it, with its comment; a changed one
+/// takes the client's spelling and keeps the file's comment. `inline` when `table` is an inline
+/// table of the file.
+pub(crate) fn merge_table(table: &mut dyn TableLike, inline: bool, body: &dyn TableLike) {
+    let gone: Vec<String> = table
+        .iter()
+        .map(|(k, _)| k.to_owned())
+        .filter(|k| body.get(k).is_none_or(Item::is_none))
+        .collect();
+    for key in gone {
+        table.remove(&key);
+    }
+    for (key, body_item) in body.iter() {
+        if body_item.is_none() {
+            continue;
+        }
+        match table.get_mut(key) {
+            Some(item) if !item.is_none() => merge_item(item, body_item),
+            _ => {
+                let Some(item) = placed(body_item, inline) else {
+                    continue;
+                };
+                table.remove(key);
+                match body.key(key) {
+                    Some(k) => {
+                        table.entry_format(k).or_insert(item);
+                    }
+                    None => {
+                        table.insert(key, item);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Makes the file's `item` say what `body` says (see [`merge_table`]).
+pub(crate) fn merge_item(item: &mut Item, body: &Item) {
+    // Tables and arrays are walked down to their values (only a value is compared whole), so
+    // that a large document is compared once, not once per level.
+    if let Some(body_table) = body.as_table_like() {
+        let inline = item.is_value();
+        if let Some(table) = item.as_table_like_mut() {
+            merge_table(table, inline, body_table);
+            return;
+        }
+    }
+    match item {
+        Item::ArrayOfTables(tables) => {
+            let body_tables = tables_of(body);
+            if body_tables.len() == tables.len() && !body_tables.is_empty() {
+                for (table, b) in tables.iter_mut().zip(body_tables) {
+                    merge_table(table, false, b);
+                }
+                return;
+            }
+        }
+        Item::Value(toml_edit::Value::Array(array)) => {
+            if let Some(toml_edit::Value::Array(body_array)) = body.as_value() {
+                if body_array.len() == array.len() {
+                    for (element, b) in array.iter_mut().zip(body_array.iter()) {
+                        merge_value(element, b);
+                    }
+                    return;
+                }
+            }
+        }
+        _ => {}
+    }
+    if plain(item) == plain(body) {
+        return;
+    }
+    let inline = item.is_value();
+    let Some(replacement) = placed(body, inline) else {
+        return;
+    };
+    match (item, replacement) {
+        (Item::Value(current), Item::Value(new)) => replace_keeping_comment(current, new),
+        (item, replacement) => *item = replacement,
+    }
+}
+
+/// Replaces `current` by the client's `new`: the file's spaces and comment stay, unless only the
+/// client wrote a comment.
+fn replace_keeping_comment(current: &mut toml_edit::Value, new: toml_edit::Value) {
+    let has_comment = |v: &toml_edit::Value| {
+        v.decor()
+            .suffix()
+            .and_then(toml_edit::RawString::as_str)
+            .is_some_and(|s| s.contains('#'))
+    };
+    if has_comment(&new) && !has_comment(current) {
+        *current = new;
+    } else {
+        replace_value(current, new);
+    }
+}
+
+/// Makes the file's `value` (in an array or inline table) say what `body` says.
+fn merge_value(value: &mut toml_edit::Value, body: &toml_edit::Value) {
+    if plain_value(value) == plain_value(body) {
+        return;
+    }
+    match (value, body) {
+        (toml_edit::Value::InlineTable(table), toml_edit::Value::InlineTable(b)) => {
+            merge_table(table, true, b);
+        }
+        (toml_edit::Value::Array(array), toml_edit::Value::Array(b)) if array.len() == b.len() => {
+            for (element, b) in array.iter_mut().zip(b.iter()) {
+                merge_value(element, b);
+            }
+        }
+        (value, body) => replace_keeping_comment(value, body.clone()),
+    }
+}
+
+/// The tables of an array of tables, or of an array of inline tables.
+fn tables_of(item: &Item) -> Vec<&dyn TableLike> {
+    match item {
+        Item::ArrayOfTables(tables) => tables.iter().map(|t| t as &dyn TableLike).collect(),
+        Item::Value(toml_edit::Value::Array(array)) => {
+            let tables: Vec<&dyn TableLike> = array
+                .iter()
+                .filter_map(|v| v.as_inline_table().map(|t| t as &dyn TableLike))
+                .collect();
+            if tables.len() == array.len() {
+                tables
+            } else {
+                Vec::new()
+            }
+        }
+        _ => Vec::new(),
+    }
+}
+
+/// A copy of the client's `item` to put into the file: inline (a value) in an inline table,
+/// its tables written where it is inserted.
+fn placed(item: &Item, inline: bool) -> Option<Item> {
+    let mut item = item.clone();
+    forget_positions(&mut item);
+    if inline {
+        return item.into_value().ok().map(Item::Value);
+    }
+    (!item.is_none()).then_some(item)
+}
+
+/// What an item means, as a plain TOML value (its spelling, comments and layout left aside).
+pub(crate) fn plain(item: &Item) -> Option<Value> {
+    match item {
+        Item::None => None,
+        Item::Value(v) => Some(plain_value(v)),
+        Item::Table(t) => Some(Value::Table(plain_table(t))),
+        Item::ArrayOfTables(tables) => Some(Value::Array(
+            tables
+                .iter()
+                .map(|t| Value::Table(plain_table(t)))
+                .collect(),
+        )),
+    }
+}
+
+/// What a table means (see [`plain`]).
+pub(crate) fn plain_table(table: &dyn TableLike) -> Table {
+    table
+        .iter()
+        .filter_map(|(k, item)| Some((k.to_owned(), plain(item)?)))
+        .collect()
+}
+
+/// What a value means (see [`plain`]).
+fn plain_value(value: &toml_edit::Value) -> Value {
+    use toml_edit::Value as V;
+    match value {
+        V::String(s) => Value::String(s.value().clone()),
+        V::Integer(i) => Value::Integer(*i.value()),
+        V::Float(f) => Value::Float(*f.value()),
+        V::Boolean(b) => Value::Boolean(*b.value()),
+        V::Datetime(d) => {
+            let text = d.value().to_string();
+            text.parse().map_or(Value::String(text), Value::Datetime)
+        }
+        V::Array(a) => Value::Array(a.iter().map(plain_value).collect()),
+        V::InlineTable(t) => Value::Table(
+            t.iter()
+                .map(|(k, v)| (k.to_owned(), plain_value(v)))
+                .collect(),
+        ),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -248,6 +450,63 @@ mod tests {
             edited,
             "[[poll]]\nname = \"fast\" # the status\nranges = [\n  { table = \"holding\", start = 1, count = 4 }, # ETA\n]\n"
         );
+    }
+
+    /// The file after the client's `body` (TOML) was merged into its root.
+    fn merged(file: &str, body: &str) -> String {
+        let mut doc: DocumentMut = file.parse().unwrap();
+        let body: DocumentMut = body.parse().unwrap();
+        merge_table(doc.as_table_mut(), false, body.as_table());
+        doc.to_string()
+    }
+
+    #[test]
+    fn a_body_that_means_what_the_file_says_changes_nothing() {
+        let file = "# the plant\n[gateway]\nname = \"a\" # shown in metrics\n\n\
+                    [lines.term]\nport = \"/dev/ttyS1\"\nend_chars = [0x0D, 0x0A] # CR LF\n\
+                    ranges = [\n  { start = 0x10, count = 2 }, # first\n]\n";
+        let body = "[lines.term]\nend_chars = [13, 10]\nport = \"/dev/ttyS1\"\n\
+                    ranges = [{ count = 2, start = 16 }]\n[gateway]\nname = \"a\"\n";
+        assert_eq!(merged(file, body), file);
+    }
+
+    #[test]
+    fn changed_values_take_the_clients_spelling_and_keep_the_files_comment() {
+        let file = "[lines.term]\nport = \"/dev/ttyS1\" # left\nbaud = 9600 # the PLC's\n\
+                    end_chars = [0x0D, 0x0A]\nparity = \"even\"\n";
+        // baud changed, end_chars the same in decimal, parity left out, two keys added.
+        let body = "[lines.term]\nport = \"/dev/ttyS1\"\nbaud = 19200\nend_chars = [13, 10]\n\
+                    stx = 0x02\nunit_id = 5\n";
+        assert_eq!(
+            merged(file, body),
+            "[lines.term]\nport = \"/dev/ttyS1\" # left\nbaud = 19200 # the PLC's\n\
+             end_chars = [0x0D, 0x0A]\nstx = 0x02\nunit_id = 5\n"
+        );
+        // One element of an array changes: the others keep their spelling.
+        let edited = merged("end_chars = [0x0D, 0x0A]\n", "end_chars = [13, 0x03]\n");
+        assert_eq!(edited, "end_chars = [0x0D, 0x03]\n");
+    }
+
+    #[test]
+    fn arrays_of_tables_are_merged_table_by_table_or_replaced_when_their_count_changes() {
+        let file = "[[poll]]\nname = \"fast\" # the status\nperiod = \"1s\"\n";
+        assert_eq!(
+            merged(file, "[[poll]]\nname = \"fast\"\nperiod = \"2s\"\n"),
+            "[[poll]]\nname = \"fast\" # the status\nperiod = \"2s\"\n"
+        );
+        let two = merged(
+            file,
+            "[[poll]]\nname = \"fast\"\n[[poll]]\nname = \"slow\"\n",
+        );
+        let parsed: Table = two.parse().unwrap();
+        assert_eq!(parsed["poll"].as_array().map(Vec::len), Some(2), "{two}");
+    }
+
+    #[test]
+    fn plain_values_compare_meaning_not_spelling() {
+        let a: DocumentMut = "x = 0x0D\ny = 'a'\nz = 1_000\n".parse().unwrap();
+        let b: DocumentMut = "z = 1000\ny = \"a\"\nx = 13\n".parse().unwrap();
+        assert_eq!(plain_table(a.as_table()), plain_table(b.as_table()));
     }
 
     #[test]

@@ -1,5 +1,10 @@
 //! `/api/v1/config`: read, replace and validate the configuration, or one line of it.
 //!
+//! What is shown and written is the configuration as its operator wrote it ([`ConfigText`]): a
+//! read answers the file's keys (no defaults), with the command line's listeners beside them
+//! (`overrides`, never in the file); a change merges the client's document into the file, so a
+//! value that keeps its meaning keeps its spelling and a new key is written as sent.
+//!
 //! A change is validated whole (the configuration's own rules, then the backend's), written to
 //! the configuration file atomically, and then applied; changes run one at a time. `If-Match`
 //! with the `ETag` of `GET /config` makes a change conditional on the version it was made from.
@@ -14,18 +19,21 @@ use axum::extract::{FromRequest, Request, State};
 use axum::http::{header, HeaderMap, HeaderValue};
 use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
-use utoipa::openapi::schema::{ObjectBuilder, Schema, Type};
+use utoipa::openapi::schema::{ArrayBuilder, ObjectBuilder, Schema, Type};
 use utoipa::openapi::RefOr;
 use utoipa::{PartialSchema, ToSchema};
 
 use super::{audit, caller_of, ApiPath};
 use crate::api::auth::Caller;
-use crate::api::body::{self, TOML_MEDIA_TYPE};
-use crate::api::error::{body_error, ApiError, ErrorBody, Issue};
-use crate::api::model::{ConfigChangeResult, ValidationResult};
+use crate::api::body::{self, JsonView, TOML_MEDIA_TYPE};
+use crate::api::error::{ApiError, ErrorBody, Issue};
+use crate::api::model::{ConfigChangeResult, ConfigOverride, ValidationResult};
 use crate::api::{ApiBackend, ApiState};
 use crate::audit::WriteResult;
 use crate::config::Config;
+use crate::persist::edit;
+use crate::persist::ConfigText;
+use toml_edit::DocumentMut;
 
 /// The configuration as JSON: the TOML file's tables and keys (see
 /// `deploy/gateway.example.toml`). Also accepted and returned as TOML (`application/toml`).
@@ -37,8 +45,26 @@ impl PartialSchema for ConfigDocument {
             .schema_type(Type::Object)
             .description(Some(
                 "The gateway configuration: the TOML file's tables ([gateway], [modbus_tcp], \
-                 [lines.<name>] ...) as a JSON object. Keys left out take their defaults.",
+                 [lines.<name>] ...) as a JSON object. Keys left out take their defaults. GET \
+                 answers the keys the file gives, in its order (no defaults written in), and \
+                 `overrides`; a PUT changes only what it changes in meaning: a value the file \
+                 already had keeps the file's spelling (0x0D stays 0x0D), new keys are written \
+                 as sent, in the order sent, and a PUT of what GET answered leaves the file byte \
+                 for byte. As TOML, GET answers the file's text (comments included), with the \
+                 overrides as a leading comment.",
             ))
+            .property(
+                body::OVERRIDES_KEY,
+                ArrayBuilder::new()
+                    .items(ConfigOverride::schema())
+                    .description(Some(
+                        "Answers only: settings given on the command line (--modbus-tcp, --http, \
+                         --zenoh-listen) that are in force in place of the keys named, with what \
+                         runs (the port bound for port 0). Not part of the configuration: a PUT \
+                         or validate body may carry it and it is left out, so the file keeps its \
+                         own values.",
+                    )),
+            )
             .into()
     }
 }
@@ -54,7 +80,9 @@ impl PartialSchema for LineDocument {
             .schema_type(Type::Object)
             .description(Some(
                 "One line's table [lines.<name>] as a JSON object: port, protocol, serial \
-                 settings, the protocol's parameters and, for Modbus masters, devices.",
+                 settings, the protocol's parameters and, for Modbus masters, devices. GET \
+                 answers the keys the file gives, in its order; a PUT writes the keys sent, in \
+                 the order sent, and keeps the file's spelling of values it does not change.",
             ))
             .into()
     }
@@ -71,7 +99,7 @@ impl<S: Send + Sync> FromRequest<S> for ApiBytes {
         Bytes::from_request(req, state)
             .await
             .map(Self)
-            .map_err(|e| body_error(e.status(), e.body_text()))
+            .map_err(|e| body::read_error(e.status(), &e.body_text()))
     }
 }
 
@@ -81,23 +109,68 @@ impl<S: Send + Sync> FromRequest<S> for ApiBytes {
     path = "/config",
     tag = "config",
     responses(
-        (status = 200, description = "The configuration (TOML with `Accept: application/toml`)",
+        (status = 200, description = "The configuration as the file gives it, with the command line's `overrides` (the file's TOML text with `Accept: application/toml`)",
          body = ConfigDocument, headers(("ETag" = String, description = "The configuration's version"))),
     )
 )]
 pub(crate) async fn get_config(State(state): State<ApiState>, headers: HeaderMap) -> Response {
-    let config = state.backend().config();
+    let backend = state.backend();
+    let config = backend.config();
     let etag = body::etag(&config);
+    let text = state.document(&config);
+    let overrides = backend.overrides();
     let mut response = if body::wants_toml(&headers) {
-        match toml::to_string(&config) {
-            Ok(text) => ([(header::CONTENT_TYPE, TOML_MEDIA_TYPE)], text).into_response(),
-            Err(e) => return ApiError::internal(format!("cannot write TOML: {e}")).into_response(),
-        }
+        let mut answer = overrides_comment(&overrides);
+        answer.push_str(text.text());
+        ([(header::CONTENT_TYPE, TOML_MEDIA_TYPE)], answer).into_response()
     } else {
-        Json(&config).into_response()
+        Json(ConfigView {
+            doc: &text.document(),
+            overrides: &overrides,
+        })
+        .into_response()
     };
     set_etag(&mut response, &etag);
     response
+}
+
+/// The JSON answer of `GET /config`: the document's tables in its order, then `overrides`.
+struct ConfigView<'a> {
+    doc: &'a toml_edit::DocumentMut,
+    overrides: &'a [ConfigOverride],
+}
+
+impl serde::Serialize for ConfigView<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let mut map = s.serialize_map(None)?;
+        for (key, item) in self.doc.iter() {
+            if !item.is_none() {
+                map.serialize_entry(key, &JsonView(item))?;
+            }
+        }
+        map.serialize_entry(body::OVERRIDES_KEY, self.overrides)?;
+        map.end()
+    }
+}
+
+/// The comment a TOML answer starts with when settings of the command line are in force.
+fn overrides_comment(overrides: &[ConfigOverride]) -> String {
+    if overrides.is_empty() {
+        return String::new();
+    }
+    let mut text = format!("{}\n", body::OVERRIDES_BANNER);
+    for o in overrides {
+        text.push_str(&format!(
+            "#   {} = {:?}   ({} {})\n",
+            o.key, o.in_force, o.option, o.given
+        ));
+        if let Some(note) = &o.note {
+            text.push_str(&format!("#     {note}\n"));
+        }
+    }
+    text.push('\n');
+    text
 }
 
 /// Replaces the whole configuration.
@@ -126,10 +199,22 @@ pub(crate) async fn put_config(
     let audit = Audit::new(caller, "config: replace".to_owned());
     let backend = state.backend();
     let new = body::content_format(&headers).and_then(|format| {
-        body::config(format, &bytes, &|c, found| backend.config_issues(c, found))
+        body::config_document(format, &bytes, &|c, found| backend.config_issues(c, found))
     });
-    let new = audit.early(&state, new)?;
-    change(state, &headers, audit, move |_, _| Ok(new)).await
+    let (new, sent) = audit.early(&state, new)?;
+    change(state, &headers, audit, move |current, backend| {
+        // The file is made to say what the body says; what it already said stays as written.
+        let mut doc = current.document();
+        edit::merge_table(doc.as_table_mut(), false, sent.doc.as_table());
+        // The merged file says what the body said (read above); read again only if not.
+        let new = if edit::plain_table(doc.as_table()) == sent.table {
+            new
+        } else {
+            body::from_document(&doc, backend)?
+        };
+        Ok((new, doc))
+    })
+    .await
 }
 
 /// Validates a configuration without applying it.
@@ -180,11 +265,14 @@ pub(crate) async fn get_line_config(
     ApiPath(line): ApiPath<String>,
 ) -> Result<Response, ApiError> {
     let config = state.backend().config();
-    let table = config
-        .lines
-        .get(&line)
-        .ok_or_else(|| ApiError::not_found("line", &line))?;
-    let mut response = Json(table).into_response();
+    if !config.lines.contains_key(&line) {
+        return Err(ApiError::not_found("line", &line));
+    }
+    let doc = state.document(&config).document();
+    let mut response = match doc.get("lines").and_then(|lines| lines.get(&line)) {
+        Some(item) => Json(JsonView(item)).into_response(),
+        None => Json(&config.lines[&line]).into_response(),
+    };
     set_etag(&mut response, &body::etag(&config));
     Ok(response)
 }
@@ -217,19 +305,41 @@ pub(crate) async fn put_line_config(
     ApiBytes(bytes): ApiBytes,
 ) -> Result<Response, ApiError> {
     let audit = Audit::new(caller, format!("config: replace lines.{line}"));
-    let table = body::content_format(&headers).and_then(|format| body::table(format, &bytes));
-    let table = audit.early(&state, table)?;
+    let sent = body::content_format(&headers)
+        .and_then(|format| body::document(format, &bytes, body::LINE_EXPECTED));
+    let sent = audit.early(&state, sent)?;
     change(state, &headers, audit, move |current, backend| {
-        let mut root = body::to_table(current)?;
-        let lines = root
+        let mut doc = current.document();
+        let lines = doc
             .entry("lines")
-            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-        if let toml::Value::Table(lines) = lines {
-            lines.insert(line, toml::Value::Table(table));
+            .or_insert_with(|| toml_edit::Item::Table(implicit_table()));
+        let mut table = sent.doc.as_table().clone();
+        // The body's own document is not a table of the file: its header is the file's.
+        table.decor_mut().clear();
+        table.set_implicit(false);
+        let item = toml_edit::Item::Table(table);
+        match lines.get_mut(&line) {
+            Some(existing) if !existing.is_none() => edit::merge_item(existing, &item),
+            _ => {
+                let Some(lines) = lines.as_table_like_mut() else {
+                    return Err(ApiError::conflict(
+                        "the configuration file's `lines` is not a table: edit the file",
+                    ));
+                };
+                lines.insert(&line, item);
+            }
         }
-        body::from_table(&root, backend)
+        let new = body::from_document(&doc, backend)?;
+        Ok((new, doc))
     })
     .await
+}
+
+/// A table that only holds tables (no header of its own).
+fn implicit_table() -> toml_edit::Table {
+    let mut t = toml_edit::Table::new();
+    t.set_implicit(true);
+    t
 }
 
 /// Removes one line and stops it.
@@ -257,13 +367,16 @@ pub(crate) async fn delete_line_config(
 ) -> Result<Response, ApiError> {
     let audit = Audit::new(caller, format!("config: remove lines.{line}"));
     change(state, &headers, audit, move |current, _| {
-        let mut new = current.clone();
-        if new.lines.remove(&line).is_none() {
+        if !current.config().lines.contains_key(&line) {
             return Err(ApiError::not_found("line", &line));
         }
+        let mut doc = current.document();
+        if let Some(lines) = doc.get_mut("lines").and_then(|l| l.as_table_like_mut()) {
+            lines.remove(&line);
+        }
         // Rules across lines (unit ids, ports) still hold after a removal, but run them anyway.
-        new.check().map_err(body::validation)?;
-        Ok(new)
+        let new = body::from_document_unchecked(&doc)?;
+        Ok((new, doc))
     })
     .await
 }
@@ -291,6 +404,11 @@ impl Audit {
     }
 }
 
+/// What a change makes of the configuration in force (as written): the new configuration and
+/// the document that reads as it.
+type Edit =
+    Box<dyn FnOnce(&ConfigText, &dyn ApiBackend) -> Result<(Config, DocumentMut), ApiError> + Send>;
+
 /// Runs a change to completion in its own task: lock, `If-Match`, edit, validate, persist,
 /// apply, audit. The task goes on if the request is dropped (timeout, client gone).
 async fn change<F>(
@@ -300,9 +418,12 @@ async fn change<F>(
     edit: F,
 ) -> Result<Response, ApiError>
 where
-    F: FnOnce(&Config, &dyn ApiBackend) -> Result<Config, ApiError> + Send + 'static,
+    F: FnOnce(&ConfigText, &dyn ApiBackend) -> Result<(Config, DocumentMut), ApiError>
+        + Send
+        + 'static,
 {
     let if_match = headers.clone();
+    let edit: Edit = Box::new(edit);
     let task = tokio::spawn(async move {
         let result = change_in_task(&state, &if_match, edit).await;
         match &result {
@@ -325,14 +446,11 @@ where
 }
 
 /// The steps of [`change`] in its task.
-async fn change_in_task<F>(
+async fn change_in_task(
     state: &ApiState,
     if_match: &HeaderMap,
-    edit: F,
-) -> Result<ConfigChangeResult, ApiError>
-where
-    F: FnOnce(&Config, &dyn ApiBackend) -> Result<Config, ApiError> + Send + 'static,
-{
+    edit: Edit,
+) -> Result<ConfigChangeResult, ApiError> {
     let _one_at_a_time = state.change_lock().lock().await;
     let backend = state.backend();
     let current = backend.config();
@@ -341,25 +459,34 @@ where
             "the configuration changed since it was read (If-Match)",
         ));
     }
-    let new = edit(&current, backend.as_ref())?;
+    let written = state.document(&current);
+    let (new, doc) = edit(&written, backend.as_ref())?;
     backend.validate(&new).map_err(backend_issues)?;
     let etag = body::etag(&new);
     let persisted = state.store().is_some();
     if new == current {
+        // Nothing that means anything changed: the file stays byte for byte.
         return Ok(ConfigChangeResult {
             etag,
             persisted,
             applied: Default::default(),
         });
     }
+    let text = ConfigText::edited(&doc, new.clone());
     if let Some(store) = state.store() {
-        let (in_force, to_save) = (current.clone(), new.clone());
-        tokio::task::spawn_blocking(move || store.save_change(&in_force, &to_save))
+        let to_save = text.text().to_owned();
+        tokio::task::spawn_blocking(move || store.save_atomic(&to_save))
             .await
             .map_err(|e| ApiError::internal(format!("the save task failed: {e}")))?
-            .map_err(|e| ApiError::persist_failed(format!("not applied: {e}")))?;
+            .map_err(|e| {
+                ApiError::persist_failed(format!(
+                    "the configuration is valid but was not saved, so it was not applied: {e}; \
+                     check that the gateway may write the file and its directory"
+                ))
+            })?;
         tracing::info!(file = %state.store().map(|s| s.path().display().to_string()).unwrap_or_default(), %etag, "configuration saved");
     }
+    state.set_document(text);
     let applied = backend.apply(new).await?;
     tracing::info!(%etag, ?applied, "configuration applied");
     Ok(ConfigChangeResult {

@@ -9,12 +9,14 @@ pub(crate) mod tags;
 
 use std::fmt::Display;
 
+use axum::body::Bytes;
 use axum::extract::{FromRequest, FromRequestParts, Path, Query, Request};
 use axum::http::request::Parts;
-use axum::{Extension, Json};
+use axum::Extension;
 use serde::de::DeserializeOwned;
 
 use super::auth::{Caller, Who};
+use super::body::{self, JsonBody};
 use super::error::ApiError;
 use super::ApiState;
 use crate::audit::WriteResult;
@@ -53,19 +55,23 @@ pub(crate) fn audit<T>(
     state.backend().audit(caller, target, result, &detail);
 }
 
-/// A JSON body; rejections answer in the API's error shape (400, 413, 415, 422).
+/// A JSON body, read by [`body::json`]: every refusal (415, 400, 413, 422) says what the endpoint
+/// takes.
 pub(crate) struct ApiJson<T>(pub(crate) T);
 
 impl<T, S> FromRequest<S> for ApiJson<T>
 where
-    T: DeserializeOwned,
+    T: JsonBody,
     S: Send + Sync,
 {
     type Rejection = ApiError;
 
     async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
-        let Json(value) = Json::<T>::from_request(req, state).await?;
-        Ok(Self(value))
+        body::require_json::<T>(req.headers())?;
+        let bytes = Bytes::from_request(req, state)
+            .await
+            .map_err(|e| body::read_error(e.status(), &e.body_text()))?;
+        body::json::<T>(&bytes).map(Self)
     }
 }
 

@@ -151,6 +151,26 @@ pub struct ConfigChangeResult {
     pub applied: ApplyReport,
 }
 
+/// A setting given on the command line that is in force in place of a key of the configuration
+/// (`--modbus-tcp`, `--http`, `--zenoh-listen`). `GET /config` shows it beside the configuration
+/// (JSON: the array `overrides`; TOML: a comment before the tables), never in it: a `PUT` of what
+/// `GET` answered leaves it out, and the file keeps its own value.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+pub struct ConfigOverride {
+    /// The key of the configuration it stands in for: `modbus_tcp.listen`, `http.listen`,
+    /// `zenoh.listen`.
+    pub key: String,
+    /// The command-line option: `--modbus-tcp`, `--http`, `--zenoh-listen`.
+    pub option: String,
+    /// What the command line gave (`127.0.0.1:0`).
+    pub given: String,
+    /// What runs: the address bound (the port the system chose for port 0), the endpoint.
+    pub in_force: String,
+    /// What else the option implies, when it does more than replace the key.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+}
+
 /// The answer to `POST /config/validate` for a valid configuration.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
 pub struct ValidationResult {
