@@ -55,17 +55,226 @@ pub fn load_config(path: &Path) -> Result<Config, ConfigErrors> {
     config::load_with(path, &config_issues)
 }
 
-/// What `gateway run` refuses in `config` beyond the file's own rules: the REST API token (read
-/// from its file or variable, at least 16 visible characters), what would keep a line from
-/// starting, the zenoh settings (`config_file` included) and an unreadable persisted CP memory
-/// file. Run exits 64 on any of them before a port is opened.
+/// Where a configuration comes from, for [`start_issues`].
+#[derive(Clone, Copy, Debug)]
+pub enum Door<'a> {
+    /// The host's file (`gateway check`, `gateway run`, a SIGHUP re-read): it may name any path.
+    File,
+    /// A change over the REST API (`PUT /config...`, `POST /config/validate`): a path it changes
+    /// must lie inside the directories `in_force`'s `[gateway]` allows for it.
+    Api {
+        /// The configuration in force, which the change is made from.
+        in_force: &'a Config,
+    },
+}
+
+/// What `gateway run` refuses in `config` beyond the file's own rules ([`start_issues`] for
+/// the host's file). Run exits 64 on any of them before a port is opened.
 pub fn run_issues(config: &Config) -> Vec<ConfigIssue> {
-    let mut issues = token_issues(&config.http, |name| std::env::var(name).ok());
-    issues.extend(super::lines::start_issues(config, None));
-    issues.extend(zenoh_issues(config));
-    issues.extend(cp_memory_issues(config));
-    issues.extend(tls_issues(config));
+    start_issues(config, Door::File)
+}
+
+/// The start checks, one function for every door (`gateway check`, `gateway run`, a SIGHUP
+/// re-read, `POST /config/validate`, `PUT /config` and `PUT /config/lines/{line}`): every token
+/// read from its file or variable (at least 16 visible characters, no two alike), what would
+/// keep a line from starting, the zenoh settings (`config_file` read and parsed), the
+/// Modbus/TCP Security files loaded, a persisted CP memory file readable. Through the API
+/// ([`Door::Api`]) the paths a change names are confined first ([`api_path_issues`]), and a
+/// file outside its directories is not opened at all. Every problem comes with its path.
+pub fn start_issues(config: &Config, door: Door<'_>) -> Vec<ConfigIssue> {
+    let mut issues = match door {
+        Door::File => Vec::new(),
+        Door::Api { in_force } => api_path_issues(config, in_force),
+    };
+    let refused: Vec<String> = issues.iter().map(|i| i.path.clone()).collect();
+    let refused = |key: &str| refused.iter().any(|p| p == key);
+    issues.extend(all_token_issues(
+        &config.http,
+        |name| std::env::var(name).ok(),
+        &refused,
+    ));
+    let layout = super::supervisor::slave_layout(config);
+    issues.extend(super::lines::start_issues(config, layout.as_ref()));
+    if !refused("zenoh.config_file") {
+        issues.extend(zenoh_issues(config));
+    }
+    if !refused("cp_memory.persist_file") {
+        issues.extend(cp_memory_issues(config));
+    }
+    if !TLS_KEYS.iter().any(|k| refused(k)) {
+        issues.extend(tls_issues(config));
+    }
     issues
+}
+
+/// The keys of the Modbus/TCP Security files.
+const TLS_KEYS: [&str; 3] = [
+    "modbus_tcp.tls.cert",
+    "modbus_tcp.tls.key",
+    "modbus_tcp.tls.ca",
+];
+
+/// The paths a change over the REST API names, each confined to the directories the host's file
+/// allows for it (`[gateway]` of `in_force`): a serial port (that must exist, and not be a
+/// demo `pty:`) under `port_dirs`, the CP memory file under `state_dirs`, token files, the zenoh
+/// config file and the TLS files under `config_dirs`. A path that is the one in force (the host
+/// set it) is not checked again. The directories themselves change only in the host's file.
+///
+/// A new key that names a file adds one [`confine`] call here.
+pub fn api_path_issues(new: &Config, in_force: &Config) -> Vec<ConfigIssue> {
+    let dirs = &in_force.gateway;
+    let mut issues = Vec::new();
+    for (name, line) in &new.lines {
+        let old = in_force.lines.get(name);
+        let ports = [
+            (
+                "port",
+                Some(line.serial.port.as_str()),
+                old.map(|o| o.serial.port.as_str()),
+            ),
+            (
+                "port_b",
+                line.second_port(),
+                old.and_then(|o| o.second_port()),
+            ),
+        ];
+        for (key, port, old_port) in ports {
+            let Some(port) = port.filter(|p| !p.is_empty() && Some(*p) != old_port) else {
+                continue;
+            };
+            let path = format!("lines.{name}.{key}");
+            if port.starts_with(config::PTY_PREFIX) {
+                issues.push(issue(
+                    &path,
+                    "a pty: port is created by `gateway demo` at start only; name an existing port",
+                ));
+            } else if !Path::new(port).exists() {
+                issues.push(issue(&path, format!("no such serial port {port}")));
+            } else if !inside(Path::new(port), &dirs.port_dirs) {
+                issues.push(issue(
+                    &path,
+                    format!(
+                        "{port} is outside [gateway] port_dirs {:?}: a change over the API names \
+                         serial ports there only",
+                        dirs.port_dirs
+                    ),
+                ));
+            }
+        }
+    }
+    for (key, new_dirs, old_dirs) in [
+        ("gateway.port_dirs", &new.gateway.port_dirs, &dirs.port_dirs),
+        (
+            "gateway.state_dirs",
+            &new.gateway.state_dirs,
+            &dirs.state_dirs,
+        ),
+        (
+            "gateway.config_dirs",
+            &new.gateway.config_dirs,
+            &dirs.config_dirs,
+        ),
+    ] {
+        if new_dirs != old_dirs {
+            issues.push(issue(
+                key,
+                "changed only in the configuration file on the host, not over the API",
+            ));
+        }
+    }
+    let state = ("state_dirs", dirs.state_dirs.as_slice());
+    let conf = ("config_dirs", dirs.config_dirs.as_slice());
+    let mut confined = |key: &str,
+                        new: Option<&Path>,
+                        old: Option<&Path>,
+                        allowed: (&str, &[std::path::PathBuf])| {
+        issues.extend(confine(key, new, old, allowed));
+    };
+    confined(
+        "cp_memory.persist_file",
+        new.cp_memory.persist_file.as_deref(),
+        in_force.cp_memory.persist_file.as_deref(),
+        state,
+    );
+    confined(
+        "http.token_file",
+        new.http.token_file.as_deref(),
+        in_force.http.token_file.as_deref(),
+        conf,
+    );
+    for (name, token) in &new.http.tokens {
+        let old = in_force.http.tokens.get(name);
+        confined(
+            &format!("http.tokens.{name}.token_file"),
+            token.token_file.as_deref(),
+            old.and_then(|t| t.token_file.as_deref()),
+            conf,
+        );
+    }
+    let zenoh_file = |c: &Config| c.zenoh.as_ref().and_then(|z| z.config_file.clone());
+    confined(
+        "zenoh.config_file",
+        zenoh_file(new).as_deref(),
+        zenoh_file(in_force).as_deref(),
+        conf,
+    );
+    let tls = new.modbus_tcp.tls.as_ref();
+    let old_tls = in_force.modbus_tcp.tls.as_ref();
+    let files: [fn(&config::ModbusTlsConfig) -> &Path; 3] = [|t| &t.cert, |t| &t.key, |t| &t.ca];
+    for (key, file) in TLS_KEYS.iter().zip(files) {
+        confined(key, tls.map(file), old_tls.map(file), conf);
+    }
+    issues
+}
+
+/// A file a change over the REST API names at `key`, confined to `allowed` (the `[gateway]`
+/// key and its directories): an issue when `new` is set, is not `old` (the path in force, set
+/// by the host) and does not lie inside one of the directories ([`inside`]).
+pub fn confine(
+    key: &str,
+    new: Option<&Path>,
+    old: Option<&Path>,
+    (dirs_key, dirs): (&str, &[std::path::PathBuf]),
+) -> Option<ConfigIssue> {
+    let new = new?;
+    if Some(new) == old || inside(new, dirs) {
+        return None;
+    }
+    Some(issue(
+        key,
+        format!(
+            "{} is outside [gateway] {dirs_key} {dirs:?}: a change over the API names this file \
+             there only",
+            new.display()
+        ),
+    ))
+}
+
+/// Whether `path` (resolved: symbolic links and `..` followed; a file that does not exist yet by
+/// its directory) lies inside one of `dirs`.
+pub fn inside(path: &Path, dirs: &[std::path::PathBuf]) -> bool {
+    let resolved = std::fs::canonicalize(path).or_else(|_| {
+        let name = path.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
+        let parent = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        std::fs::canonicalize(parent).map(|dir| dir.join(name))
+    });
+    let Ok(resolved) = resolved else {
+        return false;
+    };
+    dirs.iter().any(|dir| {
+        let dir = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.clone());
+        resolved.starts_with(dir)
+    })
+}
+
+fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
+    ConfigIssue {
+        path: path.to_owned(),
+        message: message.into(),
+    }
 }
 
 /// Modbus/TCP Security's files read and made into TLS settings as `run` makes them at start
@@ -137,7 +346,8 @@ fn cp_memory_issues(config: &Config) -> Vec<ConfigIssue> {
     }
 }
 
-/// The token of `[http]` as run reads it, with `env` for the process environment.
+/// The token of `[http]` as run reads it, with `env` for the process environment: the first
+/// problem only (what `run` stops on); [`all_token_issues`] finds every one.
 pub(crate) fn token_issues(
     http: &HttpConfig,
     env: impl Fn(&str) -> Option<String>,
@@ -146,6 +356,62 @@ pub(crate) fn token_issues(
         Ok(_) => Vec::new(),
         Err(e) => vec![token_issue(http, &e)],
     }
+}
+
+/// Every token of `[http]` read as run reads it, each on its own, so that every file or
+/// variable that cannot be had is an issue at its key; then, when all could be read, whether
+/// two are alike. A token whose key `refused` names (a file outside its directories) is not read.
+pub(crate) fn all_token_issues(
+    http: &HttpConfig,
+    env: impl Fn(&str) -> Option<String>,
+    refused: &dyn Fn(&str) -> bool,
+) -> Vec<ConfigIssue> {
+    let key = |source: &TokenSource| match source {
+        TokenSource::File(_) => "token_file",
+        TokenSource::Env(_) => "token_env",
+    };
+    let mut issues = Vec::new();
+    let mut skipped = false;
+    // One source at a time, as the default token of an otherwise empty section.
+    let alone = |source: TokenSource| HttpConfig {
+        token_file: match &source {
+            TokenSource::File(p) => Some(p.clone()),
+            TokenSource::Env(_) => None,
+        },
+        token_env: match source {
+            TokenSource::Env(n) => Some(n),
+            TokenSource::File(_) => None,
+        },
+        ..HttpConfig::default()
+    };
+    let sources = http.token_source().map(|s| (None, s)).into_iter().chain(
+        http.tokens
+            .iter()
+            .filter_map(|(name, t)| Some((Some(name.as_str()), t.source()?))),
+    );
+    for (name, source) in sources {
+        let path = match name {
+            None => format!("http.{}", key(&source)),
+            Some(name) => format!("http.tokens.{name}.{}", key(&source)),
+        };
+        if refused(&path) {
+            skipped = true;
+            continue;
+        }
+        if let Err(e) = Auth::from_config_with(&alone(source), &env) {
+            issues.push(ConfigIssue {
+                path,
+                message: match name {
+                    None => e.to_string(),
+                    Some(name) => format!("token {name}: {e}"),
+                },
+            });
+        }
+    }
+    if issues.is_empty() && !skipped {
+        issues.extend(token_issues(http, env));
+    }
+    issues
 }
 
 /// A token error as an issue at the key that names the token's source.
@@ -526,5 +792,37 @@ mod token_tests {
         );
         let issues = token_issues(&http, |_| None);
         assert_eq!(issues[0].path, "http.tokens.eng.token_file");
+    }
+}
+
+#[cfg(test)]
+mod path_tests {
+    use super::*;
+    use std::path::Path;
+
+    #[test]
+    fn paths_are_resolved_before_they_are_compared() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let state = dir.path().join("state");
+        std::fs::create_dir(&state).expect("mkdir");
+        let dirs = [state.clone()];
+        assert!(
+            inside(&state.join("cp.bin"), &dirs),
+            "a new file in the directory"
+        );
+        assert!(!inside(&state.join("../cp.bin"), &dirs), "`..` out of it");
+        assert!(!inside(Path::new("/etc/passwd"), &dirs));
+        assert!(
+            !inside(&state.join("missing/cp.bin"), &dirs),
+            "no such directory"
+        );
+        // A link inside pointing outside is outside.
+        let link = state.join("escape");
+        std::os::unix::fs::symlink("/etc", &link).expect("symlink");
+        assert!(!inside(&link.join("passwd"), &dirs));
+        assert!(inside(
+            Path::new("/dev/null"),
+            &[std::path::PathBuf::from("/dev")]
+        ));
     }
 }
