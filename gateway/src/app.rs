@@ -37,8 +37,8 @@ mod tls;
 mod zenoh;
 
 pub use check::{
-    api_path_issues, check_command, check_report, config_issues, confine, inside, load_config,
-    port_issues, run_issues, security_warnings, start_issues, unpolled_tags, Door,
+    api_path_issues, check_command, check_report, config_issues, confine, ignored_keys_of, inside,
+    load_config, port_issues, run_issues, security_warnings, start_issues, unpolled_tags, Door,
 };
 pub use demo::demo;
 

@@ -149,7 +149,7 @@ pub fn api_path_issues(new: &Config, in_force: &Config) -> Vec<ConfigIssue> {
                     "a pty: port is created by `gateway demo` at start only; name an existing port",
                 ));
             } else if !Path::new(port).exists() {
-                issues.push(issue(&path, format!("no such serial port {port}")));
+                issues.push(issue(&path, no_such_port(port)));
             } else if !inside(Path::new(port), &dirs.port_dirs) {
                 issues.push(issue(
                     &path,
@@ -436,30 +436,76 @@ pub(crate) fn token_issue(http: &HttpConfig, e: &TokenError) -> ConfigIssue {
     }
 }
 
-/// Opens every RS485 line's port with its settings and closes it again: a refused RS485 mode is
-/// an error (the line could never work), a port that cannot be opened now a warning (the line
-/// opens it again with back-off).
+/// What a port that does not exist is called, by `gateway check` (a warning) and by a change
+/// over the REST API (refused): the same words.
+pub(crate) fn no_such_port(port: &str) -> String {
+    format!("no such serial port {port}")
+}
+
+/// What to set instead when a port's driver refuses RS485 mode.
+const RS485_INSTEAD: &str = "with an adapter that switches its transmitter itself (automatic \
+     send/receive, as most USB-RS485 adapters do) set interface = \"rs422\" (the port as it is, \
+     no kernel RS485 mode); on a UART with a transceiver on RTS, switch the driver's RS485 \
+     support on (device tree linux,rs485-enabled-at-boot-time, or a driver with TIOCSRS485)";
+
+/// The ports of every line: one that does not exist is a warning (the line opens it with
+/// back-off until it appears), in the words the REST API refuses it with; an RS485 line's port
+/// is opened with its settings and closed again: a refused RS485 mode is an error (the line
+/// could never work) that says what to set instead, a port that cannot be opened now a
+/// warning.
 pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
     let (mut errors, mut warnings) = (Vec::new(), Vec::new());
     for (name, line) in &config.lines {
-        if !matches!(line.serial.interface, Interface::Rs485) {
+        let ports = [
+            ("port", Some(line.serial.port.as_str())),
+            ("port_b", line.second_port()),
+        ];
+        let mut present = true;
+        for (key, port) in ports {
+            let Some(port) = port.filter(|p| !p.is_empty() && !p.starts_with(config::PTY_PREFIX))
+            else {
+                continue;
+            };
+            if !Path::new(port).exists() {
+                present = false;
+                warnings.push(issue(
+                    &format!("lines.{name}.{key}"),
+                    format!(
+                        "{} (the line opens it with back-off until it appears)",
+                        no_such_port(port)
+                    ),
+                ));
+            }
+        }
+        if !present
+            || !matches!(line.serial.interface, Interface::Rs485)
+            || line.serial.pty_name().is_some()
+        {
             continue;
         }
         let path = format!("lines.{name}.port");
         match serial::probe(&super::build::port_settings(&line.serial)) {
             Ok(()) => {}
-            Err(e @ (OpenError::Rs485Refused { .. } | OpenError::Flags { .. })) => {
+            Err(e @ OpenError::Rs485Refused { .. }) => {
+                errors.push(ConfigIssue {
+                    path: format!("lines.{name}.interface"),
+                    message: format!("{e}; {RS485_INSTEAD}"),
+                });
+            }
+            Err(e @ OpenError::Flags { .. }) => {
                 errors.push(ConfigIssue {
                     path: format!("lines.{name}.interface"),
                     message: e.to_string(),
                 });
             }
-            Err(e @ OpenError::Open { .. }) => warnings.push(ConfigIssue {
-                path,
-                message: format!(
-                    "{e}; RS485 mode not tested (the line opens the port again with back-off)"
-                ),
-            }),
+            Err(e @ (OpenError::Open { .. } | OpenError::NotFound { .. })) => {
+                warnings.push(ConfigIssue {
+                    path,
+                    message: format!(
+                        "{e}; RS485 mode not tested (the line opens the port again with back-off)"
+                    ),
+                });
+            }
         }
     }
     (errors, warnings)
@@ -634,6 +680,16 @@ fn endpoint_is_loopback(endpoint: &str) -> bool {
             .is_ok_and(|ip| ip.is_loopback())
 }
 
+/// The keys of the file at `path` that take no effect ([`config::validate::ignored_keys`]);
+/// none when it cannot be read or parsed (then the loader said so already).
+pub fn ignored_keys_of(path: &Path) -> Vec<ConfigIssue> {
+    std::fs::read_to_string(path)
+        .ok()
+        .and_then(|text| text.parse::<toml::Table>().ok())
+        .map(|table| config::validate::ignored_keys(&table))
+        .unwrap_or_default()
+}
+
 /// What [`check_command`] prints, and its exit code: the counts or every problem (each with
 /// its path), then every warning (`warning: <path>: <message>`).
 pub fn check_report(path: &Path) -> (String, i32) {
@@ -643,6 +699,7 @@ pub fn check_report(path: &Path) -> (String, i32) {
     };
     let mut errors = run_issues(&config);
     let (port_errors, mut warnings) = port_issues(&config);
+    warnings.extend(ignored_keys_of(path));
     warnings.extend(unpolled_tags(&config));
     errors.extend(port_errors);
     let code = i32::from(!errors.is_empty());
