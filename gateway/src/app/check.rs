@@ -6,14 +6,24 @@
 //! write limits are one byte range for M, one for Q and one range of DB numbers (003 6.4.5
 //! "Limits"), so a write enable inside a byte or a DB is refused here, never silently widened.
 //!
-//! `gateway run` refuses more than the file's rules: the REST API's token must be readable and
-//! at least 16 visible characters, a line must be startable (telegram settings, CP memory), the
-//! zenoh settings must load (its `config_file` included) and a persisted CP memory file must be
-//! readable ([`run_issues`], exit 64 before any port opens). `gateway check` reports all of
-//! that, and also opens every RS485 line's port as the line would and closes it again: a port
-//! whose driver refuses RS485 mode (a pseudo-terminal, a UART without RS485 support) never
-//! works, so it is an error; a port that cannot be opened now (not plugged in, in use) is a
-//! warning, because the running line opens it again with back-off.
+//! Beyond the file's rules, one function, [`start_issues`], holds the start checks, and every
+//! door calls it: `gateway check`, `gateway run` (exit 64 before any port opens), a SIGHUP
+//! re-read (`super::reload`), `POST /config/validate` and `PUT /config...` (through the
+//! supervisor's `validate`: 422, nothing saved). Before, the REST API saved what `run` refused at
+//! the next start, and systemd does not restart on 64: a gateway changed over REST stayed down
+//! after the next reboot. The checks: every REST token readable and at least 16 visible
+//! characters, no two alike; every line startable (telegram settings, CP memory); the zenoh
+//! settings loadable (`config_file` included); the Modbus/TCP Security files loadable; a
+//! persisted CP memory file readable. Through the REST API the paths a change names are confined
+//! first ([`api_path_issues`]: ports under `port_dirs`, the CP memory file under `state_dirs`,
+//! token, zenoh and TLS files under `config_dirs`), and a file outside is never opened.
+//!
+//! `gateway check` also opens every RS485 line's port as the line would and closes it again: a
+//! port whose driver refuses RS485 mode (a pseudo-terminal, a UART without RS485 support) never
+//! works, so it is an error that says what to set instead; a port that does not exist or cannot
+//! be opened now (not plugged in, in use) is a warning, because the running line opens it again
+//! with back-off. It warns, too, about keys another key's value leaves without effect
+//! (`config::validate::ignored_keys`) and tags that no poll group reads.
 //!
 //! Exit codes: `gateway check` 0 (valid, warnings may be printed) or 1 (problems); `gateway run`
 //! 64 (the configuration is refused: file, token, line settings, zenoh or CP memory file) or 70

@@ -8,7 +8,9 @@
 //! the Modbus TCP clients of its units keep their connections. The Modbus TCP server restarts
 //! only when `[modbus_tcp]` changed; the zenoh session only when the gateway's name (its key
 //! prefix) changed. Other sections (`[cp_memory]`, `[http]`, `[zenoh]`) take effect at the next
-//! start of the process and are reported as pending.
+//! start of the process and are reported as pending. A SIGHUP re-read of the configuration file
+//! (`super::reload`) applies the file the same way, one change at a time with the REST API's
+//! (`change_lock`).
 //!
 //! Readers (the REST API, zenoh, the feeds) take a [`Snapshot`]: the configuration, the lines and
 //! the tag directory in force, swapped as a whole when a change is applied.
