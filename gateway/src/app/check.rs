@@ -893,3 +893,127 @@ mod path_tests {
         ));
     }
 }
+
+#[cfg(test)]
+mod api_path_tests {
+    use super::*;
+
+    #[test]
+    fn files_a_rest_change_names_are_confined_to_config_dirs_and_not_read() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let conf = dir.path().join("conf");
+        std::fs::create_dir(&conf).expect("mkdir");
+        let token = conf.join("api.token");
+        std::fs::write(&token, "in-force-token-0123456789\n").expect("token");
+        let text = |token_file: &str, zenoh_file: &str, tls_dir: &str| {
+            format!(
+                "[gateway]\nconfig_dirs = [\"{conf}\"]\n[http]\ntoken_file = \"{token_file}\"\n\
+                 [http.tokens.ops]\nrole = \"operator\"\ntoken_file = \"{token_file}.ops\"\n\
+                 [zenoh]\nconfig_file = \"{zenoh_file}\"\n\
+                 [modbus_tcp.tls]\ncert = \"{tls_dir}/s.crt\"\nkey = \"{tls_dir}/s.key\"\nca = \"{tls_dir}/ca.crt\"\n",
+                conf = conf.display()
+            )
+        };
+        let in_force = config::parse(&text(
+            &token.display().to_string(),
+            "/opt/zenoh.json5",
+            "/opt/tls",
+        ))
+        .expect("parses");
+        // The paths in force were set by the host: not checked again, even outside.
+        assert_eq!(api_path_issues(&in_force, &in_force), Vec::new());
+        // Changed to paths outside config_dirs: every one refused at its key.
+        let changed =
+            config::parse(&text("/etc/shadow", "/etc/zenoh.json5", "/etc/ssl")).expect("parses");
+        let issues = api_path_issues(&changed, &in_force);
+        let paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
+        assert_eq!(
+            paths,
+            [
+                "http.token_file",
+                "http.tokens.ops.token_file",
+                "zenoh.config_file",
+                "modbus_tcp.tls.cert",
+                "modbus_tcp.tls.key",
+                "modbus_tcp.tls.ca",
+            ],
+            "{issues:#?}"
+        );
+        assert!(
+            issues[0]
+                .message
+                .starts_with("/etc/shadow is outside [gateway] config_dirs"),
+            "{}",
+            issues[0].message
+        );
+        // The start checks do not open what was refused: the token issue is the confinement
+        // alone (no read error of /etc/shadow), the zenoh and TLS files are not loaded.
+        let all = start_issues(
+            &changed,
+            Door::Api {
+                in_force: &in_force,
+            },
+        );
+        assert_eq!(all, issues, "{all:#?}");
+        // Inside config_dirs, a file that cannot be read is the start check's issue.
+        let inside_dir = text(
+            &conf.join("missing.token").display().to_string(),
+            "/opt/zenoh.json5",
+            "/opt/tls",
+        );
+        let changed = config::parse(&inside_dir).expect("parses");
+        assert_eq!(api_path_issues(&changed, &in_force), Vec::new());
+        let all = start_issues(
+            &changed,
+            Door::Api {
+                in_force: &in_force,
+            },
+        );
+        assert!(
+            all.iter().any(|i| i.path == "http.token_file"
+                && i.message.starts_with("cannot read the API token file")),
+            "{all:#?}"
+        );
+        // The directories themselves cannot be widened over the API.
+        let mut wider = in_force.clone();
+        wider.gateway.config_dirs.push("/".into());
+        let issues = api_path_issues(&wider, &in_force);
+        assert_eq!(issues.len(), 1);
+        assert_eq!(issues[0].path, "gateway.config_dirs");
+    }
+
+    #[test]
+    fn every_token_problem_is_reported_at_its_key() {
+        let http = config::parse(
+            "[http]\ntoken_file = \"/nonexistent/admin.token\"\n\
+             [http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"OPS\"\n\
+             [http.tokens.hmi]\nrole = \"viewer\"\ntoken_env = \"HMI\"\n",
+        )
+        .expect("parses")
+        .http;
+        let issues = all_token_issues(&http, |_| None, &|_| false);
+        let paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
+        assert_eq!(
+            paths,
+            [
+                "http.token_file",
+                "http.tokens.hmi.token_env",
+                "http.tokens.ops.token_env"
+            ],
+            "{issues:#?}"
+        );
+        assert_eq!(
+            issues[2].message,
+            "token ops: the API token variable OPS is not set"
+        );
+        // All readable, two alike: one issue at http.tokens.
+        let http = config::parse(
+            "[http]\ntoken_env = \"A\"\n[http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"B\"\n",
+        )
+        .expect("parses")
+        .http;
+        let issues = all_token_issues(&http, |_| Some("same-token-0123456789".into()), &|_| false);
+        assert_eq!(issues.len(), 1, "{issues:#?}");
+        assert_eq!(issues[0].path, "http.tokens");
+    }
+}
