@@ -183,9 +183,13 @@ async fn async_main(command: Command) -> ExitCode {
             };
             gateway::app::demo(overrides, shutdown).await
         }
-        Command::Sim(args) => gateway::sim::run(args, shutdown)
-            .await
-            .map_err(gateway::app::AppError::from),
+        Command::Sim(args) => {
+            // A simulator has nothing to re-read: a SIGHUP is logged as such and ignored.
+            drop(hangups);
+            gateway::sim::run(args, shutdown)
+                .await
+                .map_err(gateway::app::AppError::from)
+        }
         Command::Check { config } => {
             return match gateway::app::check_command(&config) {
                 0 => ExitCode::SUCCESS,
