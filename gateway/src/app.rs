@@ -28,6 +28,7 @@ mod build;
 mod check;
 mod demo;
 mod lines;
+mod reload;
 mod rest;
 mod status;
 mod supervisor;
@@ -36,8 +37,8 @@ mod tls;
 mod zenoh;
 
 pub use check::{
-    check_command, check_report, config_issues, load_config, port_issues, run_issues,
-    security_warnings, unpolled_tags,
+    api_path_issues, check_command, check_report, config_issues, confine, ignored_keys_of, inside,
+    load_config, port_issues, run_issues, security_warnings, start_issues, unpolled_tags, Door,
 };
 pub use demo::demo;
 
@@ -69,7 +70,14 @@ pub struct Overrides {
     /// mailbox so that at most half of it is in use (it never overflows; clients still see
     /// recent telegrams).
     pub acknowledge_mailboxes: bool,
+    /// The SIGHUP counter of [`handle_signals`]: every SIGHUP re-reads `config_file` and the TLS
+    /// files; `None`: no reload on SIGHUP (a gateway run inside another program).
+    pub hangups: Option<Hangups>,
 }
+
+/// The number of SIGHUPs received, raised by [`handle_signals`]; [`run`] reloads on every rise
+/// (one received before it listened included).
+pub type Hangups = tokio::sync::watch::Receiver<u64>;
 
 /// The Prometheus registry of the process and the gateway's families registered in it.
 #[derive(Clone, Debug)]
@@ -141,32 +149,55 @@ pub fn init_logging() {
         .try_init();
 }
 
-/// Cancels `shutdown` on SIGINT or SIGTERM.
-pub async fn cancel_on_signal(shutdown: CancellationToken) {
+/// Installs the process's signal handlers at once and handles them until `shutdown`: SIGINT and
+/// SIGTERM cancel `shutdown`; SIGHUP raises the returned counter, which [`run`] answers by
+/// re-reading the configuration file and the TLS files. Called first thing (within the
+/// runtime), so that a SIGHUP during start is remembered rather than killing the process
+/// (its default action).
+pub fn handle_signals(shutdown: CancellationToken) -> Hangups {
+    let (tx, rx) = tokio::sync::watch::channel(0u64);
     #[cfg(unix)]
     {
         use tokio::signal::unix::{signal, SignalKind};
-        let (Ok(mut term), Ok(mut int)) = (
+        let (Ok(mut term), Ok(mut int), Ok(mut hup)) = (
             signal(SignalKind::terminate()),
             signal(SignalKind::interrupt()),
+            signal(SignalKind::hangup()),
         ) else {
             warn!("cannot install signal handlers; stop the gateway with SIGKILL");
-            return;
+            return rx;
         };
-        tokio::select! {
-            _ = term.recv() => info!("SIGTERM received, stopping"),
-            _ = int.recv() => info!("SIGINT received, stopping"),
-            () = shutdown.cancelled() => return,
-        }
+        tokio::spawn(async move {
+            loop {
+                tokio::select! {
+                    _ = term.recv() => info!("SIGTERM received, stopping"),
+                    _ = int.recv() => info!("SIGINT received, stopping"),
+                    _ = hup.recv() => {
+                        if tx.receiver_count() == 0 {
+                            info!("SIGHUP received: nothing to reload in this command");
+                        } else {
+                            info!("SIGHUP received: reading the configuration and TLS files again");
+                        }
+                        tx.send_modify(|n| *n = n.wrapping_add(1));
+                        continue;
+                    }
+                    () = shutdown.cancelled() => return,
+                }
+                shutdown.cancel();
+                return;
+            }
+        });
     }
     #[cfg(not(unix))]
-    {
+    tokio::spawn(async move {
+        let _tx = tx;
         tokio::select! {
             _ = tokio::signal::ctrl_c() => info!("Ctrl-C received, stopping"),
             () = shutdown.cancelled() => return,
         }
-    }
-    shutdown.cancel();
+        shutdown.cancel();
+    });
+    rx
 }
 
 /// Runs `config` until `shutdown` is cancelled.
@@ -214,6 +245,13 @@ pub(crate) async fn run_from(
             return Err(e);
         }
     };
+    if let Some(hangups) = overrides.hangups.clone() {
+        tokio::spawn(reload::on_hangup(
+            Arc::clone(&sup),
+            hangups,
+            shutdown.child_token(),
+        ));
+    }
     if overrides.acknowledge_mailboxes {
         tokio::spawn(demo::consume_mailboxes(
             Arc::clone(&sup),
@@ -297,7 +335,8 @@ async fn serve_http(
                 issues: vec![check::token_issue(http, &e)],
             })
         })?
-        .with_routes(metrics_route(sup.exported.registry.clone()));
+        .with_routes(metrics_route(sup.exported.registry.clone()))
+        .with_change_lock(Arc::clone(&sup.change_lock));
     let state = match source {
         Some(text) => state.with_source_text(text),
         None => state,

@@ -3,7 +3,8 @@
 //! A thin main (linkerd2-proxy order): parse the command line, set up logging, load and validate
 //! the config (exit 64 before any port is opened when it is wrong), create the Prometheus registry
 //! of the process, then hand over to [`gateway::app`], which runs until SIGINT or SIGTERM and
-//! drains within a grace period. `gateway run` saves configuration changes made over the REST API
+//! drains within a grace period. The signal handlers are installed first of all: SIGHUP re-reads
+//! the configuration file and the TLS files (`gateway run`), and never kills the process. `gateway run` saves configuration changes made over the REST API
 //! to its `--config` file; `gateway demo` keeps them in memory.
 
 use std::net::SocketAddr;
@@ -112,7 +113,9 @@ fn metrics_registry() -> Result<MetricsRegistry, ExitCode> {
 
 async fn async_main(command: Command) -> ExitCode {
     let shutdown = CancellationToken::new();
-    tokio::spawn(gateway::app::cancel_on_signal(shutdown.clone()));
+    // First thing: a SIGHUP from here on is remembered (and handled once the gateway runs)
+    // instead of killing the process.
+    let hangups = gateway::app::handle_signals(shutdown.clone());
     let result = match command {
         Command::Run {
             config,
@@ -143,6 +146,7 @@ async fn async_main(command: Command) -> ExitCode {
                     config_file: Some(config.clone()),
                     metrics: Some(metrics),
                     acknowledge_mailboxes: false,
+                    hangups: Some(hangups),
                 };
                 gateway::app::run(cfg, overrides, shutdown).await
             }
@@ -175,12 +179,17 @@ async fn async_main(command: Command) -> ExitCode {
                 config_file: None,
                 metrics: Some(metrics),
                 acknowledge_mailboxes: !no_mailbox_consumer,
+                hangups: Some(hangups),
             };
             gateway::app::demo(overrides, shutdown).await
         }
-        Command::Sim(args) => gateway::sim::run(args, shutdown)
-            .await
-            .map_err(gateway::app::AppError::from),
+        Command::Sim(args) => {
+            // A simulator has nothing to re-read: a SIGHUP is logged as such and ignored.
+            drop(hangups);
+            gateway::sim::run(args, shutdown)
+                .await
+                .map_err(gateway::app::AppError::from)
+        }
         Command::Check { config } => {
             return match gateway::app::check_command(&config) {
                 0 => ExitCode::SUCCESS,

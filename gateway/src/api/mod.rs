@@ -217,6 +217,13 @@ impl ApiState {
         self.store.clone()
     }
 
+    /// Runs configuration changes one at a time with whatever else holds `lock` (the SIGHUP
+    /// re-read of the configuration file).
+    pub fn with_change_lock(mut self, lock: Arc<tokio::sync::Mutex<()>>) -> Self {
+        self.change_lock = lock;
+        self
+    }
+
     pub(crate) fn change_lock(&self) -> &tokio::sync::Mutex<()> {
         &self.change_lock
     }

@@ -6,14 +6,24 @@
 //! write limits are one byte range for M, one for Q and one range of DB numbers (003 6.4.5
 //! "Limits"), so a write enable inside a byte or a DB is refused here, never silently widened.
 //!
-//! `gateway run` refuses more than the file's rules: the REST API's token must be readable and
-//! at least 16 visible characters, a line must be startable (telegram settings, CP memory), the
-//! zenoh settings must load (its `config_file` included) and a persisted CP memory file must be
-//! readable ([`run_issues`], exit 64 before any port opens). `gateway check` reports all of
-//! that, and also opens every RS485 line's port as the line would and closes it again: a port
-//! whose driver refuses RS485 mode (a pseudo-terminal, a UART without RS485 support) never
-//! works, so it is an error; a port that cannot be opened now (not plugged in, in use) is a
-//! warning, because the running line opens it again with back-off.
+//! Beyond the file's rules, one function, [`start_issues`], holds the start checks, and every
+//! door calls it: `gateway check`, `gateway run` (exit 64 before any port opens), a SIGHUP
+//! re-read (`super::reload`), `POST /config/validate` and `PUT /config...` (through the
+//! supervisor's `validate`: 422, nothing saved). Before, the REST API saved what `run` refused at
+//! the next start, and systemd does not restart on 64: a gateway changed over REST stayed down
+//! after the next reboot. The checks: every REST token readable and at least 16 visible
+//! characters, no two alike; every line startable (telegram settings, CP memory); the zenoh
+//! settings loadable (`config_file` included); the Modbus/TCP Security files loadable; a
+//! persisted CP memory file readable. Through the REST API the paths a change names are confined
+//! first ([`api_path_issues`]: ports under `port_dirs`, the CP memory file under `state_dirs`,
+//! token, zenoh and TLS files under `config_dirs`), and a file outside is never opened.
+//!
+//! `gateway check` also opens every RS485 line's port as the line would and closes it again: a
+//! port whose driver refuses RS485 mode (a pseudo-terminal, a UART without RS485 support) never
+//! works, so it is an error that says what to set instead; a port that does not exist or cannot
+//! be opened now (not plugged in, in use) is a warning, because the running line opens it again
+//! with back-off. It warns, too, about keys another key's value leaves without effect
+//! (`config::validate::ignored_keys`) and tags that no poll group reads.
 //!
 //! Exit codes: `gateway check` 0 (valid, warnings may be printed) or 1 (problems); `gateway run`
 //! 64 (the configuration is refused: file, token, line settings, zenoh or CP memory file) or 70
@@ -55,17 +65,226 @@ pub fn load_config(path: &Path) -> Result<Config, ConfigErrors> {
     config::load_with(path, &config_issues)
 }
 
-/// What `gateway run` refuses in `config` beyond the file's own rules: the REST API token (read
-/// from its file or variable, at least 16 visible characters), what would keep a line from
-/// starting, the zenoh settings (`config_file` included) and an unreadable persisted CP memory
-/// file. Run exits 64 on any of them before a port is opened.
+/// Where a configuration comes from, for [`start_issues`].
+#[derive(Clone, Copy, Debug)]
+pub enum Door<'a> {
+    /// The host's file (`gateway check`, `gateway run`, a SIGHUP re-read): it may name any path.
+    File,
+    /// A change over the REST API (`PUT /config...`, `POST /config/validate`): a path it changes
+    /// must lie inside the directories `in_force`'s `[gateway]` allows for it.
+    Api {
+        /// The configuration in force, which the change is made from.
+        in_force: &'a Config,
+    },
+}
+
+/// What `gateway run` refuses in `config` beyond the file's own rules ([`start_issues`] for
+/// the host's file). Run exits 64 on any of them before a port is opened.
 pub fn run_issues(config: &Config) -> Vec<ConfigIssue> {
-    let mut issues = token_issues(&config.http, |name| std::env::var(name).ok());
-    issues.extend(super::lines::start_issues(config, None));
-    issues.extend(zenoh_issues(config));
-    issues.extend(cp_memory_issues(config));
-    issues.extend(tls_issues(config));
+    start_issues(config, Door::File)
+}
+
+/// The start checks, one function for every door (`gateway check`, `gateway run`, a SIGHUP
+/// re-read, `POST /config/validate`, `PUT /config` and `PUT /config/lines/{line}`): every token
+/// read from its file or variable (at least 16 visible characters, no two alike), what would
+/// keep a line from starting, the zenoh settings (`config_file` read and parsed), the
+/// Modbus/TCP Security files loaded, a persisted CP memory file readable. Through the API
+/// ([`Door::Api`]) the paths a change names are confined first ([`api_path_issues`]), and a
+/// file outside its directories is not opened at all. Every problem comes with its path.
+pub fn start_issues(config: &Config, door: Door<'_>) -> Vec<ConfigIssue> {
+    let mut issues = match door {
+        Door::File => Vec::new(),
+        Door::Api { in_force } => api_path_issues(config, in_force),
+    };
+    let refused: Vec<String> = issues.iter().map(|i| i.path.clone()).collect();
+    let refused = |key: &str| refused.iter().any(|p| p == key);
+    issues.extend(all_token_issues(
+        &config.http,
+        |name| std::env::var(name).ok(),
+        &refused,
+    ));
+    let layout = super::supervisor::slave_layout(config);
+    issues.extend(super::lines::start_issues(config, layout.as_ref()));
+    if !refused("zenoh.config_file") {
+        issues.extend(zenoh_issues(config));
+    }
+    if !refused("cp_memory.persist_file") {
+        issues.extend(cp_memory_issues(config));
+    }
+    if !TLS_KEYS.iter().any(|k| refused(k)) {
+        issues.extend(tls_issues(config));
+    }
     issues
+}
+
+/// The keys of the Modbus/TCP Security files.
+const TLS_KEYS: [&str; 3] = [
+    "modbus_tcp.tls.cert",
+    "modbus_tcp.tls.key",
+    "modbus_tcp.tls.ca",
+];
+
+/// The paths a change over the REST API names, each confined to the directories the host's file
+/// allows for it (`[gateway]` of `in_force`): a serial port (that must exist, and not be a
+/// demo `pty:`) under `port_dirs`, the CP memory file under `state_dirs`, token files, the zenoh
+/// config file and the TLS files under `config_dirs`. A path that is the one in force (the host
+/// set it) is not checked again. The directories themselves change only in the host's file.
+///
+/// A new key that names a file adds one [`confine`] call here.
+pub fn api_path_issues(new: &Config, in_force: &Config) -> Vec<ConfigIssue> {
+    let dirs = &in_force.gateway;
+    let mut issues = Vec::new();
+    for (name, line) in &new.lines {
+        let old = in_force.lines.get(name);
+        let ports = [
+            (
+                "port",
+                Some(line.serial.port.as_str()),
+                old.map(|o| o.serial.port.as_str()),
+            ),
+            (
+                "port_b",
+                line.second_port(),
+                old.and_then(|o| o.second_port()),
+            ),
+        ];
+        for (key, port, old_port) in ports {
+            let Some(port) = port.filter(|p| !p.is_empty() && Some(*p) != old_port) else {
+                continue;
+            };
+            let path = format!("lines.{name}.{key}");
+            if port.starts_with(config::PTY_PREFIX) {
+                issues.push(issue(
+                    &path,
+                    "a pty: port is created by `gateway demo` at start only; name an existing port",
+                ));
+            } else if !Path::new(port).exists() {
+                issues.push(issue(&path, no_such_port(port)));
+            } else if !inside(Path::new(port), &dirs.port_dirs) {
+                issues.push(issue(
+                    &path,
+                    format!(
+                        "{port} is outside [gateway] port_dirs {:?}: a change over the API names \
+                         serial ports there only",
+                        dirs.port_dirs
+                    ),
+                ));
+            }
+        }
+    }
+    for (key, new_dirs, old_dirs) in [
+        ("gateway.port_dirs", &new.gateway.port_dirs, &dirs.port_dirs),
+        (
+            "gateway.state_dirs",
+            &new.gateway.state_dirs,
+            &dirs.state_dirs,
+        ),
+        (
+            "gateway.config_dirs",
+            &new.gateway.config_dirs,
+            &dirs.config_dirs,
+        ),
+    ] {
+        if new_dirs != old_dirs {
+            issues.push(issue(
+                key,
+                "changed only in the configuration file on the host, not over the API",
+            ));
+        }
+    }
+    let state = ("state_dirs", dirs.state_dirs.as_slice());
+    let conf = ("config_dirs", dirs.config_dirs.as_slice());
+    let mut confined = |key: &str,
+                        new: Option<&Path>,
+                        old: Option<&Path>,
+                        allowed: (&str, &[std::path::PathBuf])| {
+        issues.extend(confine(key, new, old, allowed));
+    };
+    confined(
+        "cp_memory.persist_file",
+        new.cp_memory.persist_file.as_deref(),
+        in_force.cp_memory.persist_file.as_deref(),
+        state,
+    );
+    confined(
+        "http.token_file",
+        new.http.token_file.as_deref(),
+        in_force.http.token_file.as_deref(),
+        conf,
+    );
+    for (name, token) in &new.http.tokens {
+        let old = in_force.http.tokens.get(name);
+        confined(
+            &format!("http.tokens.{name}.token_file"),
+            token.token_file.as_deref(),
+            old.and_then(|t| t.token_file.as_deref()),
+            conf,
+        );
+    }
+    let zenoh_file = |c: &Config| c.zenoh.as_ref().and_then(|z| z.config_file.clone());
+    confined(
+        "zenoh.config_file",
+        zenoh_file(new).as_deref(),
+        zenoh_file(in_force).as_deref(),
+        conf,
+    );
+    let tls = new.modbus_tcp.tls.as_ref();
+    let old_tls = in_force.modbus_tcp.tls.as_ref();
+    let files: [fn(&config::ModbusTlsConfig) -> &Path; 3] = [|t| &t.cert, |t| &t.key, |t| &t.ca];
+    for (key, file) in TLS_KEYS.iter().zip(files) {
+        confined(key, tls.map(file), old_tls.map(file), conf);
+    }
+    issues
+}
+
+/// A file a change over the REST API names at `key`, confined to `allowed` (the `[gateway]`
+/// key and its directories): an issue when `new` is set, is not `old` (the path in force, set
+/// by the host) and does not lie inside one of the directories ([`inside`]).
+pub fn confine(
+    key: &str,
+    new: Option<&Path>,
+    old: Option<&Path>,
+    (dirs_key, dirs): (&str, &[std::path::PathBuf]),
+) -> Option<ConfigIssue> {
+    let new = new?;
+    if Some(new) == old || inside(new, dirs) {
+        return None;
+    }
+    Some(issue(
+        key,
+        format!(
+            "{} is outside [gateway] {dirs_key} {dirs:?}: a change over the API names this file \
+             there only",
+            new.display()
+        ),
+    ))
+}
+
+/// Whether `path` (resolved: symbolic links and `..` followed; a file that does not exist yet by
+/// its directory) lies inside one of `dirs`.
+pub fn inside(path: &Path, dirs: &[std::path::PathBuf]) -> bool {
+    let resolved = std::fs::canonicalize(path).or_else(|_| {
+        let name = path.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
+        let parent = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        std::fs::canonicalize(parent).map(|dir| dir.join(name))
+    });
+    let Ok(resolved) = resolved else {
+        return false;
+    };
+    dirs.iter().any(|dir| {
+        let dir = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.clone());
+        resolved.starts_with(dir)
+    })
+}
+
+fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
+    ConfigIssue {
+        path: path.to_owned(),
+        message: message.into(),
+    }
 }
 
 /// Modbus/TCP Security's files read and made into TLS settings as `run` makes them at start
@@ -137,7 +356,8 @@ fn cp_memory_issues(config: &Config) -> Vec<ConfigIssue> {
     }
 }
 
-/// The token of `[http]` as run reads it, with `env` for the process environment.
+/// The token of `[http]` as run reads it, with `env` for the process environment: the first
+/// problem only (what `run` stops on); [`all_token_issues`] finds every one.
 pub(crate) fn token_issues(
     http: &HttpConfig,
     env: impl Fn(&str) -> Option<String>,
@@ -146,6 +366,62 @@ pub(crate) fn token_issues(
         Ok(_) => Vec::new(),
         Err(e) => vec![token_issue(http, &e)],
     }
+}
+
+/// Every token of `[http]` read as run reads it, each on its own, so that every file or
+/// variable that cannot be had is an issue at its key; then, when all could be read, whether
+/// two are alike. A token whose key `refused` names (a file outside its directories) is not read.
+pub(crate) fn all_token_issues(
+    http: &HttpConfig,
+    env: impl Fn(&str) -> Option<String>,
+    refused: &dyn Fn(&str) -> bool,
+) -> Vec<ConfigIssue> {
+    let key = |source: &TokenSource| match source {
+        TokenSource::File(_) => "token_file",
+        TokenSource::Env(_) => "token_env",
+    };
+    let mut issues = Vec::new();
+    let mut skipped = false;
+    // One source at a time, as the default token of an otherwise empty section.
+    let alone = |source: TokenSource| HttpConfig {
+        token_file: match &source {
+            TokenSource::File(p) => Some(p.clone()),
+            TokenSource::Env(_) => None,
+        },
+        token_env: match source {
+            TokenSource::Env(n) => Some(n),
+            TokenSource::File(_) => None,
+        },
+        ..HttpConfig::default()
+    };
+    let sources = http.token_source().map(|s| (None, s)).into_iter().chain(
+        http.tokens
+            .iter()
+            .filter_map(|(name, t)| Some((Some(name.as_str()), t.source()?))),
+    );
+    for (name, source) in sources {
+        let path = match name {
+            None => format!("http.{}", key(&source)),
+            Some(name) => format!("http.tokens.{name}.{}", key(&source)),
+        };
+        if refused(&path) {
+            skipped = true;
+            continue;
+        }
+        if let Err(e) = Auth::from_config_with(&alone(source), &env) {
+            issues.push(ConfigIssue {
+                path,
+                message: match name {
+                    None => e.to_string(),
+                    Some(name) => format!("token {name}: {e}"),
+                },
+            });
+        }
+    }
+    if issues.is_empty() && !skipped {
+        issues.extend(token_issues(http, env));
+    }
+    issues
 }
 
 /// A token error as an issue at the key that names the token's source.
@@ -170,30 +446,76 @@ pub(crate) fn token_issue(http: &HttpConfig, e: &TokenError) -> ConfigIssue {
     }
 }
 
-/// Opens every RS485 line's port with its settings and closes it again: a refused RS485 mode is
-/// an error (the line could never work), a port that cannot be opened now a warning (the line
-/// opens it again with back-off).
+/// What a port that does not exist is called, by `gateway check` (a warning) and by a change
+/// over the REST API (refused): the same words.
+pub(crate) fn no_such_port(port: &str) -> String {
+    format!("no such serial port {port}")
+}
+
+/// What to set instead when a port's driver refuses RS485 mode.
+const RS485_INSTEAD: &str = "with an adapter that switches its transmitter itself (automatic \
+     send/receive, as most USB-RS485 adapters do) set interface = \"rs422\" (the port as it is, \
+     no kernel RS485 mode); on a UART with a transceiver on RTS, switch the driver's RS485 \
+     support on (device tree linux,rs485-enabled-at-boot-time, or a driver with TIOCSRS485)";
+
+/// The ports of every line: one that does not exist is a warning (the line opens it with
+/// back-off until it appears), in the words the REST API refuses it with; an RS485 line's port
+/// is opened with its settings and closed again: a refused RS485 mode is an error (the line
+/// could never work) that says what to set instead, a port that cannot be opened now a
+/// warning.
 pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
     let (mut errors, mut warnings) = (Vec::new(), Vec::new());
     for (name, line) in &config.lines {
-        if !matches!(line.serial.interface, Interface::Rs485) {
+        let ports = [
+            ("port", Some(line.serial.port.as_str())),
+            ("port_b", line.second_port()),
+        ];
+        let mut present = true;
+        for (key, port) in ports {
+            let Some(port) = port.filter(|p| !p.is_empty() && !p.starts_with(config::PTY_PREFIX))
+            else {
+                continue;
+            };
+            if !Path::new(port).exists() {
+                present = false;
+                warnings.push(issue(
+                    &format!("lines.{name}.{key}"),
+                    format!(
+                        "{} (the line opens it with back-off until it appears)",
+                        no_such_port(port)
+                    ),
+                ));
+            }
+        }
+        if !present
+            || !matches!(line.serial.interface, Interface::Rs485)
+            || line.serial.pty_name().is_some()
+        {
             continue;
         }
         let path = format!("lines.{name}.port");
         match serial::probe(&super::build::port_settings(&line.serial)) {
             Ok(()) => {}
-            Err(e @ (OpenError::Rs485Refused { .. } | OpenError::Flags { .. })) => {
+            Err(e @ OpenError::Rs485Refused { .. }) => {
+                errors.push(ConfigIssue {
+                    path: format!("lines.{name}.interface"),
+                    message: format!("{e}; {RS485_INSTEAD}"),
+                });
+            }
+            Err(e @ OpenError::Flags { .. }) => {
                 errors.push(ConfigIssue {
                     path: format!("lines.{name}.interface"),
                     message: e.to_string(),
                 });
             }
-            Err(e @ OpenError::Open { .. }) => warnings.push(ConfigIssue {
-                path,
-                message: format!(
-                    "{e}; RS485 mode not tested (the line opens the port again with back-off)"
-                ),
-            }),
+            Err(e @ (OpenError::Open { .. } | OpenError::NotFound { .. })) => {
+                warnings.push(ConfigIssue {
+                    path,
+                    message: format!(
+                        "{e}; RS485 mode not tested (the line opens the port again with back-off)"
+                    ),
+                });
+            }
         }
     }
     (errors, warnings)
@@ -368,6 +690,16 @@ fn endpoint_is_loopback(endpoint: &str) -> bool {
             .is_ok_and(|ip| ip.is_loopback())
 }
 
+/// The keys of the file at `path` that take no effect ([`config::validate::ignored_keys`]);
+/// none when it cannot be read or parsed (then the loader said so already).
+pub fn ignored_keys_of(path: &Path) -> Vec<ConfigIssue> {
+    std::fs::read_to_string(path)
+        .ok()
+        .and_then(|text| text.parse::<toml::Table>().ok())
+        .map(|table| config::validate::ignored_keys(&table))
+        .unwrap_or_default()
+}
+
 /// What [`check_command`] prints, and its exit code: the counts or every problem (each with
 /// its path), then every warning (`warning: <path>: <message>`).
 pub fn check_report(path: &Path) -> (String, i32) {
@@ -377,6 +709,7 @@ pub fn check_report(path: &Path) -> (String, i32) {
     };
     let mut errors = run_issues(&config);
     let (port_errors, mut warnings) = port_issues(&config);
+    warnings.extend(ignored_keys_of(path));
     warnings.extend(unpolled_tags(&config));
     errors.extend(port_errors);
     let code = i32::from(!errors.is_empty());
@@ -526,5 +859,161 @@ mod token_tests {
         );
         let issues = token_issues(&http, |_| None);
         assert_eq!(issues[0].path, "http.tokens.eng.token_file");
+    }
+}
+
+#[cfg(test)]
+mod path_tests {
+    use super::*;
+    use std::path::Path;
+
+    #[test]
+    fn paths_are_resolved_before_they_are_compared() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let state = dir.path().join("state");
+        std::fs::create_dir(&state).expect("mkdir");
+        let dirs = [state.clone()];
+        assert!(
+            inside(&state.join("cp.bin"), &dirs),
+            "a new file in the directory"
+        );
+        assert!(!inside(&state.join("../cp.bin"), &dirs), "`..` out of it");
+        assert!(!inside(Path::new("/etc/passwd"), &dirs));
+        assert!(
+            !inside(&state.join("missing/cp.bin"), &dirs),
+            "no such directory"
+        );
+        // A link inside pointing outside is outside.
+        let link = state.join("escape");
+        std::os::unix::fs::symlink("/etc", &link).expect("symlink");
+        assert!(!inside(&link.join("passwd"), &dirs));
+        assert!(inside(
+            Path::new("/dev/null"),
+            &[std::path::PathBuf::from("/dev")]
+        ));
+    }
+}
+
+#[cfg(test)]
+mod api_path_tests {
+    use super::*;
+
+    #[test]
+    fn files_a_rest_change_names_are_confined_to_config_dirs_and_not_read() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let conf = dir.path().join("conf");
+        std::fs::create_dir(&conf).expect("mkdir");
+        let token = conf.join("api.token");
+        std::fs::write(&token, "in-force-token-0123456789\n").expect("token");
+        let text = |token_file: &str, zenoh_file: &str, tls_dir: &str| {
+            format!(
+                "[gateway]\nconfig_dirs = [\"{conf}\"]\n[http]\ntoken_file = \"{token_file}\"\n\
+                 [http.tokens.ops]\nrole = \"operator\"\ntoken_file = \"{token_file}.ops\"\n\
+                 [zenoh]\nconfig_file = \"{zenoh_file}\"\n\
+                 [modbus_tcp.tls]\ncert = \"{tls_dir}/s.crt\"\nkey = \"{tls_dir}/s.key\"\nca = \"{tls_dir}/ca.crt\"\n",
+                conf = conf.display()
+            )
+        };
+        let in_force = config::parse(&text(
+            &token.display().to_string(),
+            "/opt/zenoh.json5",
+            "/opt/tls",
+        ))
+        .expect("parses");
+        // The paths in force were set by the host: not checked again, even outside.
+        assert_eq!(api_path_issues(&in_force, &in_force), Vec::new());
+        // Changed to paths outside config_dirs: every one refused at its key.
+        let changed =
+            config::parse(&text("/etc/shadow", "/etc/zenoh.json5", "/etc/ssl")).expect("parses");
+        let issues = api_path_issues(&changed, &in_force);
+        let paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
+        assert_eq!(
+            paths,
+            [
+                "http.token_file",
+                "http.tokens.ops.token_file",
+                "zenoh.config_file",
+                "modbus_tcp.tls.cert",
+                "modbus_tcp.tls.key",
+                "modbus_tcp.tls.ca",
+            ],
+            "{issues:#?}"
+        );
+        assert!(
+            issues[0]
+                .message
+                .starts_with("/etc/shadow is outside [gateway] config_dirs"),
+            "{}",
+            issues[0].message
+        );
+        // The start checks do not open what was refused: the token issue is the confinement
+        // alone (no read error of /etc/shadow), the zenoh and TLS files are not loaded.
+        let all = start_issues(
+            &changed,
+            Door::Api {
+                in_force: &in_force,
+            },
+        );
+        assert_eq!(all, issues, "{all:#?}");
+        // Inside config_dirs, a file that cannot be read is the start check's issue.
+        let inside_dir = text(
+            &conf.join("missing.token").display().to_string(),
+            "/opt/zenoh.json5",
+            "/opt/tls",
+        );
+        let changed = config::parse(&inside_dir).expect("parses");
+        assert_eq!(api_path_issues(&changed, &in_force), Vec::new());
+        let all = start_issues(
+            &changed,
+            Door::Api {
+                in_force: &in_force,
+            },
+        );
+        assert!(
+            all.iter().any(|i| i.path == "http.token_file"
+                && i.message.starts_with("cannot read the API token file")),
+            "{all:#?}"
+        );
+        // The directories themselves cannot be widened over the API.
+        let mut wider = in_force.clone();
+        wider.gateway.config_dirs.push("/".into());
+        let issues = api_path_issues(&wider, &in_force);
+        assert_eq!(issues.len(), 1);
+        assert_eq!(issues[0].path, "gateway.config_dirs");
+    }
+
+    #[test]
+    fn every_token_problem_is_reported_at_its_key() {
+        let http = config::parse(
+            "[http]\ntoken_file = \"/nonexistent/admin.token\"\n\
+             [http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"OPS\"\n\
+             [http.tokens.hmi]\nrole = \"viewer\"\ntoken_env = \"HMI\"\n",
+        )
+        .expect("parses")
+        .http;
+        let issues = all_token_issues(&http, |_| None, &|_| false);
+        let paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
+        assert_eq!(
+            paths,
+            [
+                "http.token_file",
+                "http.tokens.hmi.token_env",
+                "http.tokens.ops.token_env"
+            ],
+            "{issues:#?}"
+        );
+        assert_eq!(
+            issues[2].message,
+            "token ops: the API token variable OPS is not set"
+        );
+        // All readable, two alike: one issue at http.tokens.
+        let http = config::parse(
+            "[http]\ntoken_env = \"A\"\n[http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"B\"\n",
+        )
+        .expect("parses")
+        .http;
+        let issues = all_token_issues(&http, |_| Some("same-token-0123456789".into()), &|_| false);
+        assert_eq!(issues.len(), 1, "{issues:#?}");
+        assert_eq!(issues[0].path, "http.tokens");
     }
 }

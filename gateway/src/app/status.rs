@@ -75,7 +75,16 @@ pub(crate) fn line_view(
         port_error: status.port_error.clone(),
         port_opens: status.port_opens,
         status_word: status.status_word,
-        last_event: EventView::from_status_word(status.status_word),
+        last_event: EventView::from_status_word(status.status_word).map(|mut view| {
+            // The newest event's own words (the catalog's are generic: 02 0Fh says "invalid
+            // parameterization" where the port was not found).
+            view.detail = status
+                .last_event
+                .as_ref()
+                .filter(|e| e.id.status_word() == status.status_word)
+                .and_then(|e| e.detail.clone());
+            view
+        }),
         counters,
         event_counts: status
             .event_counts

@@ -8,14 +8,15 @@
 //! the Modbus TCP clients of its units keep their connections. The Modbus TCP server restarts
 //! only when `[modbus_tcp]` changed; the zenoh session only when the gateway's name (its key
 //! prefix) changed. Other sections (`[cp_memory]`, `[http]`, `[zenoh]`) take effect at the next
-//! start of the process and are reported as pending.
+//! start of the process and are reported as pending. A SIGHUP re-read of the configuration file
+//! (`super::reload`) applies the file the same way, one change at a time with the REST API's
+//! (`change_lock`).
 //!
 //! Readers (the REST API, zenoh, the feeds) take a [`Snapshot`]: the configuration, the lines and
 //! the tag directory in force, swapped as a whole when a change is applied.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::net::SocketAddr;
-use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 use std::time::SystemTime;
@@ -112,6 +113,10 @@ pub(crate) struct Supervisor {
     follower: std::sync::OnceLock<Arc<dyn Follower>>,
     /// What status and readiness show of zenoh; `None` when it is not configured.
     pub(crate) zenoh_state: Mutex<Option<ZenohState>>,
+    /// "Read your files again" (SIGHUP): the TLS servers subscribe.
+    pub(crate) reload: super::reload::Reload,
+    /// Configuration changes run one at a time: the REST API's and the SIGHUP re-reads.
+    pub(crate) change_lock: Arc<tokio::sync::Mutex<()>>,
     /// Lines (name, port) whose port was opened by an earlier task of the line, before a
     /// configuration change restarted it: readiness does not wait for the new task to reopen
     /// the same port.
@@ -181,7 +186,14 @@ impl Supervisor {
             lines,
         };
         let tcp_stats = Arc::new(ServerStats::with_metrics(exported.metrics.clone()));
-        let tls = super::tls::start(&snapshot.config.modbus_tcp, &units, &tcp_stats, shutdown)?;
+        let reload = super::reload::Reload::new();
+        let tls = super::tls::start(
+            &snapshot.config.modbus_tcp,
+            &units,
+            &tcp_stats,
+            shutdown,
+            &reload,
+        )?;
         let sup = Arc::new(Self {
             started: SystemTime::now(),
             image,
@@ -203,6 +215,8 @@ impl Supervisor {
             follower: std::sync::OnceLock::new(),
             zenoh_state: Mutex::new(None),
             opened_before: Mutex::new(BTreeSet::new()),
+            reload,
+            change_lock: Arc::default(),
         });
         if let Some(listener) = listener {
             let server = sup.spawn_tcp(listener)?;
@@ -277,76 +291,33 @@ impl Supervisor {
         })
     }
 
-    /// Checks that need the running system: the serial ports of added or changed lines exist,
-    /// a new Modbus TCP address can be bound, the slave lines fit the CP memory, every line's
-    /// settings convert to its runtime's.
+    /// The start checks of every door with the paths of the change confined
+    /// ([`super::check::start_issues`]), and what needs the running system: a new Modbus TCP
+    /// address can be bound, a persisted CP memory keeps its layout.
     pub(crate) fn validate(&self, new: &Config) -> Result<(), Vec<ConfigIssue>> {
         let old = self.snapshot();
+        // The start checks every door runs, with the paths of the change confined.
+        let mut issues = super::check::start_issues(
+            new,
+            super::check::Door::Api {
+                in_force: &old.config,
+            },
+        );
+        if let Err(more) = self.running_issues(new) {
+            issues.extend(more);
+        }
+        if issues.is_empty() {
+            Ok(())
+        } else {
+            Err(issues)
+        }
+    }
+
+    /// What `new` needs from the running system: a new Modbus TCP address can be bound, a
+    /// persisted CP memory keeps its layout (it takes another only at a restart).
+    pub(crate) fn running_issues(&self, new: &Config) -> Result<(), Vec<ConfigIssue>> {
+        let old = self.snapshot();
         let mut issues = Vec::new();
-        for (name, line) in &new.lines {
-            let port = &line.serial.port;
-            let changed = old
-                .config
-                .lines
-                .get(name)
-                .is_none_or(|o| &o.serial.port != port);
-            if !changed {
-                continue;
-            }
-            let path = format!("lines.{name}.port");
-            if line.serial.pty_name().is_some() {
-                issues.push(issue(
-                    &path,
-                    "a pty: port is created by `gateway demo` at start only; name an existing port",
-                ));
-            } else if !Path::new(port).exists() {
-                issues.push(issue(&path, format!("no such serial port {port}")));
-            } else if !inside(Path::new(port), &old.config.gateway.port_dirs) {
-                issues.push(issue(
-                    &path,
-                    format!(
-                        "{port} is outside [gateway] port_dirs {:?}: a change over the API names \
-                         serial ports there only",
-                        old.config.gateway.port_dirs
-                    ),
-                ));
-            }
-        }
-        // The directories themselves are the host's decision: a change over the API cannot widen
-        // them (they are read from the file at start).
-        for (key, new_dirs, old_dirs) in [
-            (
-                "gateway.port_dirs",
-                &new.gateway.port_dirs,
-                &old.config.gateway.port_dirs,
-            ),
-            (
-                "gateway.state_dirs",
-                &new.gateway.state_dirs,
-                &old.config.gateway.state_dirs,
-            ),
-        ] {
-            if new_dirs != old_dirs {
-                issues.push(issue(
-                    key,
-                    "changed only in the configuration file on the host, not over the API",
-                ));
-            }
-        }
-        if let Some(file) = &new.cp_memory.persist_file {
-            let changed = old.config.cp_memory.persist_file.as_ref() != Some(file);
-            if changed && !inside(file, &old.config.gateway.state_dirs) {
-                issues.push(issue(
-                    "cp_memory.persist_file",
-                    format!(
-                        "{} is outside [gateway] state_dirs {:?}: a change over the API names the \
-                         persistence file there only",
-                        file.display(),
-                        old.config.gateway.state_dirs
-                    ),
-                ));
-            }
-        }
         if self.overrides.modbus_tcp.is_none()
             && new.modbus_tcp.listen != old.config.modbus_tcp.listen
         {
@@ -374,7 +345,6 @@ impl Supervisor {
                 ));
             }
         }
-        issues.extend(lines::start_issues(new, layout.as_ref()));
         if issues.is_empty() {
             Ok(())
         } else {
@@ -508,8 +478,15 @@ impl Supervisor {
             }
             let cfg = &self.snapshot().config.modbus_tcp;
             let mut tls = self.tls.lock().await;
-            if let Err(e) =
-                super::tls::apply(&mut tls, cfg, &self.units, &self.tcp_stats, &self.root).await
+            if let Err(e) = super::tls::apply(
+                &mut tls,
+                cfg,
+                &self.units,
+                &self.tcp_stats,
+                &self.root,
+                &self.reload,
+            )
+            .await
             {
                 failures.push(e);
             }
@@ -672,26 +649,6 @@ fn unit_map(
     map
 }
 
-/// Whether `path` (resolved: symbolic links and `..` followed; a file that does not exist yet by
-/// its directory) lies inside one of `dirs`.
-fn inside(path: &Path, dirs: &[std::path::PathBuf]) -> bool {
-    let resolved = std::fs::canonicalize(path).or_else(|_| {
-        let name = path.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
-        let parent = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p,
-            _ => Path::new("."),
-        };
-        std::fs::canonicalize(parent).map(|dir| dir.join(name))
-    });
-    let Ok(resolved) = resolved else {
-        return false;
-    };
-    dirs.iter().any(|dir| {
-        let dir = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.clone());
-        resolved.starts_with(dir)
-    })
-}
-
 fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
     ConfigIssue {
         path: path.to_owned(),
@@ -700,7 +657,7 @@ fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
 }
 
 /// The CP memory layout the slave lines of `config` need; `None` without slave lines.
-fn slave_layout(config: &Config) -> Option<proto_core::cpmem::MemoryLayout> {
+pub(super) fn slave_layout(config: &Config) -> Option<proto_core::cpmem::MemoryLayout> {
     let slaves: Vec<_> = config
         .lines
         .values()
@@ -745,35 +702,4 @@ fn open_cp_memory(config: &Config) -> Result<Option<(SharedCpMemory, Persistence
     };
     let task = cpmem::spawn_persistence(memory.clone(), settings, token.clone());
     Ok(Some((memory, Some((token, task)))))
-}
-
-#[cfg(test)]
-mod path_tests {
-    use super::*;
-
-    #[test]
-    fn paths_are_resolved_before_they_are_compared() {
-        let dir = tempfile::tempdir().expect("temp dir");
-        let state = dir.path().join("state");
-        std::fs::create_dir(&state).expect("mkdir");
-        let dirs = [state.clone()];
-        assert!(
-            inside(&state.join("cp.bin"), &dirs),
-            "a new file in the directory"
-        );
-        assert!(!inside(&state.join("../cp.bin"), &dirs), "`..` out of it");
-        assert!(!inside(Path::new("/etc/passwd"), &dirs));
-        assert!(
-            !inside(&state.join("missing/cp.bin"), &dirs),
-            "no such directory"
-        );
-        // A link inside pointing outside is outside.
-        let link = state.join("escape");
-        std::os::unix::fs::symlink("/etc", &link).expect("symlink");
-        assert!(!inside(&link.join("passwd"), &dirs));
-        assert!(inside(
-            Path::new("/dev/null"),
-            &[std::path::PathBuf::from("/dev")]
-        ));
-    }
 }

@@ -1,15 +1,17 @@
 //! Modbus/TCP Security in the running gateway: the `[modbus_tcp.tls]` server next to the plain
-//! one, its certificates read again on SIGHUP, its files and roles replaced on a configuration
+//! one, its certificates read again on every reload notification (SIGHUP, `super::reload`), its files and roles replaced on a configuration
 //! change without dropping the clients that are connected.
 
 use std::net::SocketAddr;
 use std::sync::Arc;
 
+use tokio::sync::watch;
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
 use super::build::unit_write_ranges;
+use super::reload::Reload;
 use super::{server_options, AppError};
 use crate::config::{FunctionClassConfig, ModbusTcpConfig, ModbusTlsConfig};
 use crate::modbus_tcp::{
@@ -61,6 +63,7 @@ pub(crate) fn start(
     units: &SharedUnits,
     stats: &Arc<ServerStats>,
     root: &CancellationToken,
+    reload: &Reload,
 ) -> Result<Option<TlsRun>, AppError> {
     let Some(tls) = &cfg.tls else {
         return Ok(None);
@@ -88,7 +91,7 @@ pub(crate) fn start(
             warn!(error = %e, "Modbus/TCP Security server ended with an error");
         }
     });
-    spawn_reload_on_hangup(server.clone(), token.clone());
+    spawn_reloader(server.clone(), reload.subscribe(), token.clone());
     info!(%local, roles = tls.roles.len(), "Modbus/TCP Security listening");
     Ok(Some(TlsRun {
         server,
@@ -108,6 +111,7 @@ pub(crate) async fn apply(
     units: &SharedUnits,
     stats: &Arc<ServerStats>,
     root: &CancellationToken,
+    reload: &Reload,
 ) -> Result<(), String> {
     if let (Some(run), Some(tls)) = (running.as_ref(), &cfg.tls) {
         if run.listen == tls.listen && run.options == server_options(cfg) {
@@ -120,7 +124,7 @@ pub(crate) async fn apply(
     if let Some(old) = running.take() {
         old.stop().await;
     }
-    *running = start(cfg, units, stats, root).map_err(|e| e.to_string())?;
+    *running = start(cfg, units, stats, root, reload).map_err(|e| e.to_string())?;
     Ok(())
 }
 
@@ -139,30 +143,20 @@ impl TlsRun {
     }
 }
 
-/// Reads the certificate, key and CA again on every SIGHUP until `token` is cancelled.
-fn spawn_reload_on_hangup(server: TlsServer, token: CancellationToken) {
-    #[cfg(unix)]
+/// Reads the certificate, key and CA again on every reload notification (SIGHUP) until
+/// `token` is cancelled; files that cannot be read leave the old ones in use.
+fn spawn_reloader(server: TlsServer, mut reloads: watch::Receiver<u64>, token: CancellationToken) {
     tokio::spawn(async move {
-        use tokio::signal::unix::{signal, SignalKind};
-        let Ok(mut hangup) = signal(SignalKind::hangup()) else {
-            warn!("cannot install the SIGHUP handler: certificates are read at start only");
-            return;
-        };
         loop {
             tokio::select! {
                 () = token.cancelled() => return,
-                received = hangup.recv() => {
-                    if received.is_none() {
-                        return;
-                    }
-                }
+                changed = reloads.changed() => if changed.is_err() { return },
             }
+            reloads.borrow_and_update();
             match server.reload() {
                 Ok(()) => info!("SIGHUP: Modbus/TCP Security certificates read again"),
                 Err(e) => warn!(error = %e, "SIGHUP: certificates not reloaded, the old ones stay"),
             }
         }
     });
-    #[cfg(not(unix))]
-    drop((server, token));
 }

@@ -123,12 +123,18 @@ pub struct GatewaySection {
     pub port_dirs: Vec<PathBuf>,
     /// Directories a configuration change over the API may name a persistence file in.
     pub state_dirs: Vec<PathBuf>,
+    /// Directories a configuration change over the API may name a file the gateway reads its
+    /// settings or secrets from in: token files, the zenoh config file, TLS files.
+    pub config_dirs: Vec<PathBuf>,
 }
 
 /// Default of `[gateway] port_dirs`: the device directory.
 pub const DEFAULT_PORT_DIR: &str = "/dev";
 /// Default of `[gateway] state_dirs`: the gateway's state directory (systemd `StateDirectory`).
 pub const DEFAULT_STATE_DIR: &str = "/var/lib/gateway";
+/// Default of `[gateway] config_dirs`: the gateway's configuration directory (systemd
+/// `ConfigurationDirectory`, where deploy/ puts the token and TLS files).
+pub const DEFAULT_CONFIG_DIR: &str = "/etc/gateway";
 
 impl Default for GatewaySection {
     fn default() -> Self {
@@ -137,6 +143,7 @@ impl Default for GatewaySection {
             diag_buffer_depth: DEFAULT_DIAG_BUFFER_DEPTH,
             port_dirs: vec![PathBuf::from(DEFAULT_PORT_DIR)],
             state_dirs: vec![PathBuf::from(DEFAULT_STATE_DIR)],
+            config_dirs: vec![PathBuf::from(DEFAULT_CONFIG_DIR)],
         }
     }
 }
@@ -272,12 +279,14 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
             };
             let port_dirs = dirs(cx, "port_dirs", DEFAULT_PORT_DIR);
             let state_dirs = dirs(cx, "state_dirs", DEFAULT_STATE_DIR);
+            let config_dirs = dirs(cx, "config_dirs", DEFAULT_CONFIG_DIR);
             f.finish(cx);
             GatewaySection {
                 name,
                 diag_buffer_depth,
                 port_dirs,
                 state_dirs,
+                config_dirs,
             }
         }
     };

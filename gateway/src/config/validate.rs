@@ -5,7 +5,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::Duration;
 
-use super::device::{serde_name, DataType, DeviceConfig};
+use super::device::{serde_name, DataType, DeviceConfig, ModbusTable};
 use super::line::{LineConfig, ProtocolConfig};
 use super::modbus::{BitArea, ModbusSlaveRtuConfig};
 use super::reader::{show_duration, Cx};
@@ -448,6 +448,7 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
             cx.issue(format!("{p}.address"), "the value runs past address 65535");
         }
     }
+    check_overlaps(cx, path, dev);
     let mut groups = BTreeSet::new();
     for (i, group) in dev.poll.iter().enumerate() {
         let p = format!("{path}.poll[{i}]");
@@ -476,10 +477,419 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
     }
 }
 
+/// Two values of one device over the same registers (or bits): a write of one changes the
+/// other and each read shows part of the other's value. A tag with `bit` names one bit of a
+/// register and may share it (a status word and its bits); every other tag is checked against
+/// the device's other tags and its profile's, and the later config tag is named with both.
+fn check_overlaps(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
+    use proto_core::profiles::Table as T;
+    struct Span<'a> {
+        name: &'a str,
+        table: ModbusTable,
+        start: u32,
+        end: u32,
+        data_type: String,
+    }
+    let profile = dev.profile.device_profile();
+    let mut spans: Vec<Span<'_>> = profile
+        .iter()
+        .flat_map(|p| &p.tags)
+        .map(|t| Span {
+            name: &t.name,
+            table: match t.table {
+                T::Coils => ModbusTable::Coil,
+                T::DiscreteInputs => ModbusTable::Discrete,
+                T::InputRegisters => ModbusTable::Input,
+                T::HoldingRegisters => ModbusTable::Holding,
+            },
+            start: u32::from(t.address),
+            end: u32::from(t.address) + u32::from(t.words().max(1)),
+            data_type: format!("{:?}", t.data_type).to_ascii_lowercase(),
+        })
+        .collect();
+    let from_profile = spans.len();
+    for (i, tag) in dev.tags.iter().enumerate() {
+        if tag.bit.is_some() && tag.table.is_register() {
+            continue;
+        }
+        let span = Span {
+            name: &tag.name,
+            table: tag.table,
+            start: u32::from(tag.address),
+            end: u32::from(tag.address) + tag.width().max(1),
+            data_type: serde_name(tag.data_type),
+        };
+        let show = |s: &Span<'_>| {
+            let last = s.end - 1;
+            let at = if last == s.start {
+                format!("{}", s.start)
+            } else {
+                format!("{}..{last}", s.start)
+            };
+            format!(
+                "{:?} ({} at {} {at})",
+                s.name,
+                s.data_type,
+                serde_name(s.table)
+            )
+        };
+        for (j, other) in spans.iter().enumerate() {
+            // Two tags of the same name are reported as a duplicate name above.
+            let same_name = other.name.eq_ignore_ascii_case(span.name);
+            if other.table == span.table
+                && span.start < other.end
+                && other.start < span.end
+                && !same_name
+            {
+                let whose = if j < from_profile {
+                    format!("the {} profile's tag", serde_name(dev.profile))
+                } else {
+                    "tag".to_owned()
+                };
+                cx.issue(
+                    format!("{path}.tags[{i}].address"),
+                    format!(
+                        "tag {} overlaps {whose} {}: two values cannot share registers (a bit \
+                         of a register is a bool tag with `bit`)",
+                        show(&span),
+                        show(other)
+                    ),
+                );
+            }
+        }
+        spans.push(span);
+    }
+}
+
+/// A key that takes effect only with another key's value: `key` is ignored unless `needs` is
+/// one of `values` (`default` when `needs` is not given). A key given at `key_default`, its
+/// own default, says nothing the gateway does not do (deploy/gateway.example.toml lists every
+/// key so); `None`: any value is reported (`end_chars = [0x03]` with the char-delay criterion
+/// is the mistake of expecting ETX to end a telegram).
+struct Needs {
+    key: &'static str,
+    key_default: Option<&'static str>,
+    needs: &'static str,
+    values: &'static [&'static str],
+    default: &'static str,
+}
+
+const fn needs(
+    key: &'static str,
+    key_default: Option<&'static str>,
+    needs: &'static str,
+    values: &'static [&'static str],
+    default: &'static str,
+) -> Needs {
+    Needs {
+        key,
+        key_default,
+        needs,
+        values,
+        default,
+    }
+}
+
+/// An ASCII line's keys that only one end criterion or flow control reads (003 6.2.1; the V24
+/// times 000 6.2.1), with their defaults (config/telegram.rs).
+const ASCII_NEEDS: &[Needs] = &[
+    needs(
+        "end_chars",
+        None,
+        "end_criterion",
+        &["end-chars"],
+        "char-delay",
+    ),
+    needs(
+        "fixed_length",
+        Some("240"),
+        "end_criterion",
+        &["fixed-length"],
+        "char-delay",
+    ),
+    needs(
+        "xon_code",
+        Some("17"),
+        "flow_control",
+        &["xon-xoff"],
+        "none",
+    ),
+    needs(
+        "xoff_code",
+        Some("19"),
+        "flow_control",
+        &["xon-xoff"],
+        "none",
+    ),
+    needs(
+        "xon_wait",
+        Some("20s"),
+        "flow_control",
+        &["xon-xoff", "rts-cts"],
+        "none",
+    ),
+    needs(
+        "rts_hold_time",
+        Some("10ms"),
+        "flow_control",
+        &["auto-v24"],
+        "none",
+    ),
+    needs(
+        "data_output_wait",
+        Some("10ms"),
+        "flow_control",
+        &["auto-v24"],
+        "none",
+    ),
+];
+
+/// The communication scanner's settings, read only when it runs (config/device.rs defaults).
+const SCANNER_NEEDS: &[Needs] = &[
+    needs("inputs", Some("2"), "enabled", &["true"], "false"),
+    needs("outputs", Some("2"), "enabled", &["true"], "false"),
+    needs("period", Some("100ms"), "enabled", &["true"], "false"),
+];
+
+/// Whether a value the file gives is `default` (numbers and durations compared by value).
+fn is_default(value: &toml::Value, default: &str) -> bool {
+    match value {
+        toml::Value::Integer(n) => default.parse::<i64>() == Ok(*n),
+        toml::Value::Float(x) => default.parse::<f64>() == Ok(*x),
+        toml::Value::String(s) => {
+            s == default
+                || matches!(
+                    (humantime::parse_duration(s), humantime::parse_duration(default)),
+                    (Ok(a), Ok(b)) if a == b
+                )
+        }
+        _ => false,
+    }
+}
+
+/// Keys a file gives that take no effect because of another key's value (an ASCII line's
+/// `end_chars` with another end criterion, a value transformation on a bool or string tag, a
+/// save interval without a persistence file, ...), each a warning at its path: the file is
+/// valid, but says something the gateway does not do. Read from the file's own table, so that
+/// only keys the file gives are reported.
+pub fn ignored_keys(table: &toml::Table) -> Vec<ConfigIssue> {
+    use toml::Value;
+    let mut cx = Cx::default();
+    let text = |v: &Value| match v {
+        Value::String(s) => s.clone(),
+        other => other.to_string(),
+    };
+    let rules = |cx: &mut Cx, t: &toml::Table, path: &str, list: &[Needs]| {
+        for rule in list {
+            let Some(given) = t.get(rule.key) else {
+                continue;
+            };
+            if rule.key_default.is_some_and(|d| is_default(given, d)) {
+                continue;
+            }
+            let value = t
+                .get(rule.needs)
+                .map_or_else(|| rule.default.to_owned(), text);
+            if !rule.values.contains(&value.as_str()) {
+                let shown = |v: &str| match v {
+                    "true" | "false" => v.to_owned(),
+                    _ => format!("{v:?}"),
+                };
+                let wanted = rule
+                    .values
+                    .iter()
+                    .map(|v| shown(v))
+                    .collect::<Vec<_>>()
+                    .join(" or ");
+                cx.issue(
+                    format!("{path}.{}", rule.key),
+                    format!(
+                        "has no effect: {} is read only with {} = {wanted}, and {} is {}{}",
+                        rule.key,
+                        rule.needs,
+                        rule.needs,
+                        shown(&value),
+                        if t.contains_key(rule.needs) {
+                            ""
+                        } else {
+                            " (its default)"
+                        }
+                    ),
+                );
+            }
+        }
+    };
+    let table_at = |t: &toml::Table, key: &str| t.get(key).and_then(Value::as_table).cloned();
+    for (name, line) in table_at(table, "lines").unwrap_or_default() {
+        let Some(line) = line.as_table() else {
+            continue;
+        };
+        let path = format!("lines.{name}");
+        if line.get("protocol").and_then(Value::as_str) == Some("ascii") {
+            rules(&mut cx, line, &path, ASCII_NEEDS);
+        }
+        for (dev_name, dev) in table_at(line, "devices").unwrap_or_default() {
+            let Some(dev) = dev.as_table() else {
+                continue;
+            };
+            let dev_path = format!("{path}.devices.{dev_name}");
+            if let Some(scanner) = table_at(dev, "scanner") {
+                rules(
+                    &mut cx,
+                    &scanner,
+                    &format!("{dev_path}.scanner"),
+                    SCANNER_NEEDS,
+                );
+            }
+            let tags = dev.get("tags").and_then(Value::as_array);
+            for (i, tag) in tags.into_iter().flatten().enumerate() {
+                let Some(tag) = tag.as_table() else {
+                    continue;
+                };
+                let bit_table = matches!(
+                    tag.get("table").and_then(Value::as_str),
+                    Some("coil" | "discrete")
+                );
+                let kind = match tag.get("type").and_then(Value::as_str) {
+                    Some(t @ ("bool" | "string")) => t,
+                    None if bit_table || tag.contains_key("bit") => "bool",
+                    _ => continue,
+                };
+                for (key, default) in [("scale", "1"), ("offset", "0"), ("decimals", "0")] {
+                    if tag.get(key).is_some_and(|v| !is_default(v, default)) {
+                        cx.issue(
+                            format!("{dev_path}.tags[{i}].{key}"),
+                            format!(
+                                "has no effect: a {kind} tag is not a number (scale, offset and \
+                                 decimals apply to numbers)"
+                            ),
+                        );
+                    }
+                }
+            }
+        }
+    }
+    if let Some(cp) = table_at(table, "cp_memory") {
+        if cp.contains_key("save_interval") && !cp.contains_key("persist_file") {
+            cx.issue(
+                "cp_memory.save_interval",
+                "has no effect: the CP memory is saved only with persist_file",
+            );
+        }
+    }
+    if let Some(http) = table_at(table, "http") {
+        let tokens = http.contains_key("token_file")
+            || http.contains_key("token_env")
+            || http
+                .get("tokens")
+                .and_then(Value::as_table)
+                .is_some_and(|t| !t.is_empty());
+        if tokens
+            && http
+                .get("insecure_allow_unauthenticated_changes")
+                .and_then(Value::as_bool)
+                == Some(true)
+        {
+            cx.issue(
+                "http.insecure_allow_unauthenticated_changes",
+                "has no effect: a token is configured, so every change needs a token",
+            );
+        }
+    }
+    cx.issues
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::{ModbusTable, Profile};
+    use crate::config::Profile;
+
+    #[test]
+    fn the_ignored_keys_defaults_are_the_readers() {
+        use crate::config::{
+            DEFAULT_ASCII_FIXED_LENGTH, DEFAULT_DATA_OUTPUT_WAIT, DEFAULT_RTS_HOLD_TIME,
+            DEFAULT_SCANNER_PERIOD, DEFAULT_SCANNER_WORDS, DEFAULT_XOFF_CODE, DEFAULT_XON_CODE,
+            DEFAULT_XON_WAIT,
+        };
+        let default = |list: &[Needs], key: &str| {
+            let rule = list.iter().find(|r| r.key == key).expect("rule");
+            rule.key_default.expect("a default")
+        };
+        let duration = |s: &str| humantime::parse_duration(s).expect("duration");
+        let int = |s: &str| s.parse::<u16>().expect("integer");
+        assert_eq!(
+            int(default(ASCII_NEEDS, "fixed_length")),
+            DEFAULT_ASCII_FIXED_LENGTH
+        );
+        assert_eq!(
+            int(default(ASCII_NEEDS, "xon_code")),
+            u16::from(DEFAULT_XON_CODE)
+        );
+        assert_eq!(
+            int(default(ASCII_NEEDS, "xoff_code")),
+            u16::from(DEFAULT_XOFF_CODE)
+        );
+        assert_eq!(duration(default(ASCII_NEEDS, "xon_wait")), DEFAULT_XON_WAIT);
+        assert_eq!(
+            duration(default(ASCII_NEEDS, "rts_hold_time")),
+            DEFAULT_RTS_HOLD_TIME
+        );
+        assert_eq!(
+            duration(default(ASCII_NEEDS, "data_output_wait")),
+            DEFAULT_DATA_OUTPUT_WAIT
+        );
+        assert_eq!(int(default(SCANNER_NEEDS, "inputs")), DEFAULT_SCANNER_WORDS);
+        assert_eq!(
+            int(default(SCANNER_NEEDS, "outputs")),
+            DEFAULT_SCANNER_WORDS
+        );
+        assert_eq!(
+            duration(default(SCANNER_NEEDS, "period")),
+            DEFAULT_SCANNER_PERIOD
+        );
+    }
+
+    #[test]
+    fn keys_left_without_effect_are_found_with_their_paths() {
+        let table: toml::Table = "[cp_memory]\nsave_interval = \"5s\"\n\
+             [http]\ntoken_env = \"T\"\ninsecure_allow_unauthenticated_changes = true\n\
+             [lines.a]\nprotocol = \"ascii\"\nend_chars = [3]\nxon_code = 17\nxoff_code = 20\n\
+             end_criterion = \"char-delay\"\n\
+             [lines.b]\nprotocol = \"ascii\"\nend_criterion = \"end-chars\"\nend_chars = [3]\n\
+             flow_control = \"auto-v24\"\nrts_hold_time = \"20ms\"\nxon_wait = \"1s\"\n\
+             [lines.m]\nprotocol = \"modbus-master-rtu\"\n\
+             [lines.m.devices.d]\nprofile = \"altivar71\"\naddress = 1\n\
+             tags = [{ name = \"s\", table = \"holding\", address = 9, type = \"string\", registers = 2, scale = 2.0 },\
+                     { name = \"c\", table = \"coil\", address = 1, decimals = 0 }]\n\
+             [lines.m.devices.d.scanner]\nperiod = \"1s\"\ninputs = 2\n"
+            .parse()
+            .expect("TOML");
+        let found = ignored_keys(&table);
+        let paths: Vec<&str> = found.iter().map(|i| i.path.as_str()).collect();
+        assert_eq!(
+            paths,
+            [
+                "lines.a.end_chars",
+                "lines.a.xoff_code",
+                "lines.b.xon_wait",
+                "lines.m.devices.d.scanner.period",
+                "lines.m.devices.d.tags[0].scale",
+                "cp_memory.save_interval",
+                "http.insecure_allow_unauthenticated_changes",
+            ],
+            "{found:#?}"
+        );
+        assert_eq!(
+            found[0].message,
+            "has no effect: end_chars is read only with end_criterion = \"end-chars\", and \
+             end_criterion is \"char-delay\""
+        );
+        assert_eq!(
+            found[3].message,
+            "has no effect: period is read only with enabled = true, and enabled is false (its \
+             default)"
+        );
+    }
 
     #[test]
     fn serde_names() {

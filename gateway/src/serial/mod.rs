@@ -141,6 +141,14 @@ impl PortSettings {
 /// Why a port could not be opened with its settings.
 #[derive(Debug, thiserror::Error)]
 pub enum OpenError {
+    /// The device node does not exist (not plugged in, a wrong name).
+    #[error(
+        "port not found: {path} (no such device; the line opens it with back-off until it appears)"
+    )]
+    NotFound {
+        /// The device path.
+        path: String,
+    },
     /// The operating system could not open or set up the port.
     #[error("cannot open port {path}: {source}")]
     Open {
@@ -179,6 +187,7 @@ impl OpenError {
     pub fn path(&self) -> &str {
         match self {
             Self::Open { path, .. }
+            | Self::NotFound { path }
             | Self::Flags { path, .. }
             | Self::Rs485Refused { path, .. } => path,
         }
@@ -206,10 +215,7 @@ fn rs485_hint(path: &str, err: &io::Error) -> &'static str {
 pub fn open(settings: &PortSettings) -> Result<SerialStream, OpenError> {
     let port = builder(settings)
         .open_native_async()
-        .map_err(|source| OpenError::Open {
-            path: settings.path.clone(),
-            source,
-        })?;
+        .map_err(|source| open_error(settings, source))?;
     uart::mark_line_errors(&port).map_err(|source| OpenError::Flags {
         path: settings.path.clone(),
         source,
@@ -223,15 +229,33 @@ pub fn open(settings: &PortSettings) -> Result<SerialStream, OpenError> {
 pub fn probe(settings: &PortSettings) -> Result<(), OpenError> {
     let port = builder(settings)
         .open_native()
-        .map_err(|source| OpenError::Open {
-            path: settings.path.clone(),
-            source,
-        })?;
+        .map_err(|source| open_error(settings, source))?;
     uart::mark_line_errors(&port).map_err(|source| OpenError::Flags {
         path: settings.path.clone(),
         source,
     })?;
     set_interface(&port, settings)
+}
+
+/// Why the port did not open: a device node that does not exist is [`OpenError::NotFound`]
+/// (said as such, not as the generic "invalid parameterization" of event 02 0Fh).
+fn open_error(settings: &PortSettings, source: tokio_serial::Error) -> OpenError {
+    let missing = matches!(source.kind(), tokio_serial::ErrorKind::NoDevice)
+        || matches!(
+            source.kind(),
+            tokio_serial::ErrorKind::Io(io::ErrorKind::NotFound)
+        )
+        || !std::path::Path::new(&settings.path).exists();
+    if missing {
+        OpenError::NotFound {
+            path: settings.path.clone(),
+        }
+    } else {
+        OpenError::Open {
+            path: settings.path.clone(),
+            source,
+        }
+    }
 }
 
 /// The port's builder with the settings' frame and no flow control.
@@ -300,11 +324,11 @@ mod tests {
     #[tokio::test]
     async fn a_missing_port_is_a_typed_error_naming_the_path() {
         let err = open(&PortSettings::new("/dev/does-not-exist-gw", 9600)).unwrap_err();
-        assert!(matches!(err, OpenError::Open { .. }), "{err:?}");
+        assert!(matches!(err, OpenError::NotFound { .. }), "{err:?}");
         assert_eq!(err.path(), "/dev/does-not-exist-gw");
         assert!(
             err.to_string()
-                .starts_with("cannot open port /dev/does-not-exist-gw: "),
+                .starts_with("port not found: /dev/does-not-exist-gw (no such device"),
             "{err}"
         );
     }

@@ -82,6 +82,10 @@ pub struct EventView {
     pub description: String,
     /// What to do (7.2 "Remedy"); empty where the manual gives none.
     pub remedy: String,
+    /// What this occurrence was, where the line knows it (e.g. `port not found: /dev/ttyS1`
+    /// for 02 0Fh); left out otherwise.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub detail: Option<String>,
 }
 
 // === impl EventView ===
@@ -101,6 +105,7 @@ impl EventView {
                 |i| i.description.to_owned(),
             ),
             remedy: info.map_or_else(String::new, |i| i.remedy.to_owned()),
+            detail: None,
         }
     }
 

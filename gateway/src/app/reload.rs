@@ -1,0 +1,147 @@
+//! SIGHUP: the configuration file read again and applied, the TLS files read again.
+//!
+//! The process installs its signal handlers first thing (`handle_signals`, before the
+//! configuration is read or anything slow starts), so a SIGHUP during start never kills it: it
+//! is remembered and handled once the gateway runs. Then every SIGHUP:
+//!
+//! 1. re-reads `--config` and runs the checks `gateway check` runs on it (the file's rules and
+//!    [`super::check::start_issues`]) with those that need the running system (a new Modbus TCP
+//!    address can be bound, a persisted CP memory keeps its layout); a refused file is not
+//!    applied, the running configuration stays, and a warning says why, every problem with its
+//!    path;
+//! 2. applies an accepted file as a REST replace does ([`Supervisor::apply`]: only the lines and
+//!    servers that changed restart), one change at a time with the REST API's changes;
+//! 3. tells every holder of files to read them again through [`Reload`] (Modbus/TCP Security's
+//!    certificate, key and CA; any TLS listener subscribes the same way), whatever step 1 found:
+//!    a renewed certificate is taken even when an unrelated part of the file is refused.
+//!
+//! `gateway demo` has no file: a SIGHUP says so and only step 3 runs.
+
+use std::path::Path;
+use std::sync::Arc;
+
+use tokio::sync::watch;
+use tokio_util::sync::CancellationToken;
+use tracing::{info, warn};
+
+use super::supervisor::Supervisor;
+use crate::config::{ConfigErrors, ConfigIssue};
+
+/// "Read your files again", one notification for every part of the running gateway that holds
+/// files (TLS certificates and keys). A holder subscribes and reloads on every change of the
+/// counter it sees; a reload it missed while busy is seen once (the counter moved).
+#[derive(Clone, Debug)]
+pub(crate) struct Reload {
+    tx: Arc<watch::Sender<u64>>,
+}
+
+// === impl Reload ===
+
+impl Reload {
+    pub(crate) fn new() -> Self {
+        Self {
+            tx: Arc::new(watch::Sender::new(0)),
+        }
+    }
+
+    /// A receiver that sees every reload from now on (`changed().await`).
+    pub(crate) fn subscribe(&self) -> watch::Receiver<u64> {
+        self.tx.subscribe()
+    }
+
+    /// Tells every subscriber to read its files again.
+    pub(crate) fn notify(&self) {
+        self.tx.send_modify(|n| *n = n.wrapping_add(1));
+    }
+}
+
+impl Default for Reload {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Handles every SIGHUP counted by `hangups` (the counter [`super::handle_signals`] raises)
+/// until `shutdown`; a SIGHUP that arrived before this started is handled at once.
+pub(crate) async fn on_hangup(
+    sup: Arc<Supervisor>,
+    mut hangups: watch::Receiver<u64>,
+    shutdown: CancellationToken,
+) {
+    loop {
+        tokio::select! {
+            () = shutdown.cancelled() => return,
+            changed = hangups.changed() => if changed.is_err() { return },
+        }
+        hangups.borrow_and_update();
+        reload(&sup).await;
+    }
+}
+
+/// One SIGHUP: the file (if any) checked and applied, then the files' holders told.
+pub(crate) async fn reload(sup: &Arc<Supervisor>) {
+    match sup.overrides.config_file.clone() {
+        Some(path) => reload_file(sup, &path).await,
+        None => info!(
+            "SIGHUP: no configuration file to re-read (the demo's configuration is built in); \
+             the running configuration stays"
+        ),
+    }
+    sup.reload.notify();
+}
+
+/// Reads, checks and applies the configuration file at `path`.
+async fn reload_file(sup: &Arc<Supervisor>, path: &Path) {
+    let file = path.to_owned();
+    let checked = tokio::task::spawn_blocking(move || {
+        let config = super::load_config(&file)?;
+        let issues = super::check::run_issues(&config);
+        if issues.is_empty() {
+            Ok(config)
+        } else {
+            Err(ConfigErrors { issues })
+        }
+    })
+    .await;
+    let config = match checked {
+        Ok(Ok(config)) => config,
+        Ok(Err(errors)) => return refused(path, &errors.issues),
+        Err(e) => {
+            warn!(file = %path.display(), error = %e, "SIGHUP: the configuration file was not checked; the running configuration stays");
+            return;
+        }
+    };
+    // One change at a time, with the REST API's.
+    let _one_at_a_time = sup.change_lock.lock().await;
+    if let Err(issues) = sup.running_issues(&config) {
+        return refused(path, &issues);
+    }
+    if config == sup.snapshot().config {
+        info!(file = %path.display(), "SIGHUP: the configuration file is the configuration in force; nothing to apply");
+        return;
+    }
+    match sup.apply(config).await {
+        Ok(report) => info!(
+            file = %path.display(),
+            lines_started = ?report.lines_started,
+            lines_stopped = ?report.lines_stopped,
+            lines_restarted = ?report.lines_restarted,
+            servers_restarted = ?report.servers_restarted,
+            pending_restart = ?report.pending_restart,
+            "SIGHUP: configuration file applied (only what changed restarted)"
+        ),
+        Err(e) => {
+            warn!(file = %path.display(), error = %e, "SIGHUP: configuration file applied, but not every part started")
+        }
+    }
+}
+
+/// The warning for a refused file: every problem with its path, on one line.
+fn refused(path: &Path, issues: &[ConfigIssue]) {
+    let problems: Vec<String> = issues.iter().map(ToString::to_string).collect();
+    warn!(
+        file = %path.display(),
+        problems = %problems.join("; "),
+        "SIGHUP: configuration file refused by the checks of `gateway check`, not applied; the running configuration stays"
+    );
+}
