@@ -285,7 +285,23 @@ async fn serve_http(
                 issues: vec![check::token_issue(http, &e)],
             })
         })?
-        .with_routes(metrics_route(sup.exported.registry.clone()));
+        .with_routes(metrics_route(sup.exported.registry.clone()))
+        .with_metrics(sup.exported.metrics.clone());
+    let state = match &http.tls {
+        Some(cfg) => {
+            let tls = crate::api::HttpTls::new(cfg).map_err(|e| {
+                AppError::Config(config::ConfigErrors {
+                    issues: vec![check::http_tls_issue(&e)],
+                })
+            })?;
+            tls::spawn_reload_on_hangup("HTTPS", shutdown.clone(), {
+                let tls = tls.clone();
+                move || tls.reload()
+            });
+            state.with_tls(tls)
+        }
+        None => state,
+    };
     // Without a token, said at start-up already (log_rest_guard).
     if matches!(state.auth().mode(), crate::api::AuthMode::Token) {
         state.auth().log_mode();
@@ -298,8 +314,9 @@ async fn serve_http(
             source,
         })?;
     let local = listener.local_addr()?;
-    info!(%local, "HTTP listening: /api/v1, /healthz, /readyz, /metrics");
-    // A fixed line on stdout that scripts and tests wait for.
+    let scheme = if http.tls.is_some() { "https" } else { "http" };
+    info!(%local, scheme, "HTTP listening: /api/v1, /healthz, /readyz, /metrics");
+    // A fixed line on stdout that scripts and tests wait for (the same with HTTPS).
     println!("http listening on {local}");
     Ok(tokio::spawn(async move {
         if let Err(e) = crate::api::serve(listener, state, shutdown.cancelled_owned()).await {

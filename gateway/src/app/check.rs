@@ -65,7 +65,36 @@ pub fn run_issues(config: &Config) -> Vec<ConfigIssue> {
     issues.extend(zenoh_issues(config));
     issues.extend(cp_memory_issues(config));
     issues.extend(tls_issues(config));
+    issues.extend(http_tls_issues(config));
     issues
+}
+
+/// `[http.tls]`'s files read and made into TLS settings as `run` makes them at start: a missing,
+/// unreadable or unusable file is an issue at its key, with the path.
+fn http_tls_issues(config: &Config) -> Vec<ConfigIssue> {
+    let Some(tls) = config.http.tls.as_ref() else {
+        return Vec::new();
+    };
+    match crate::api::HttpTls::new(tls) {
+        Ok(_) => Vec::new(),
+        Err(e) => vec![http_tls_issue(&e)],
+    }
+}
+
+/// An `[http.tls]` error as an issue at the key of the file.
+pub(crate) fn http_tls_issue(e: &crate::modbus_tcp::TlsError) -> ConfigIssue {
+    let key = match e {
+        crate::modbus_tcp::TlsError::File { what, .. } => match *what {
+            "certificate" => "http.tls.cert",
+            "private key" => "http.tls.key",
+            _ => "http.tls.ca",
+        },
+        crate::modbus_tcp::TlsError::Settings(_) => "http.tls",
+    };
+    ConfigIssue {
+        path: key.to_owned(),
+        message: format!("HTTPS: {e}"),
+    }
 }
 
 /// Modbus/TCP Security's files read and made into TLS settings as `run` makes them at start
@@ -332,6 +361,17 @@ pub fn security_warnings(config: &Config) -> Vec<ConfigIssue> {
         ),
         );
     }
+    let has_token = http.token_source().is_some() || !http.tokens.is_empty();
+    if has_token && http.tls.is_none() && reachable(http.listen.ip()) {
+        warn(
+            "http",
+            format!(
+                "the REST API on {} takes bearer tokens over plain HTTP: they cross the network \
+                 in clear; serve [http.tls] or listen on loopback behind a TLS proxy",
+                http.listen
+            ),
+        );
+    }
     // zenoh is a write path only with `writes = true`.
     if let Some(zenoh) = config.zenoh.as_ref().filter(|z| z.enabled && z.writes) {
         let open: Vec<&str> = zenoh
@@ -417,6 +457,25 @@ mod tests {
         .expect("parses");
         let warnings = security_warnings(&open);
         assert_eq!(warnings.len(), 3, "{warnings:#?}");
+        // A token over plain HTTP off loopback; not with [http.tls], not on loopback.
+        let token = |listen: &str, tls: &str| {
+            config::parse(&format!(
+                "[http]\nlisten = \"{listen}\"\ntoken_env = \"T\"\n{tls}"
+            ))
+            .expect("parses")
+        };
+        let http = |c: &Config| -> Vec<ConfigIssue> {
+            security_warnings(c)
+                .into_iter()
+                .filter(|w| w.path == "http")
+                .collect()
+        };
+        let clear = http(&token("0.0.0.0:8080", ""));
+        assert_eq!(clear.len(), 1, "{clear:#?}");
+        assert!(clear[0].message.contains("in clear"), "{}", clear[0].message);
+        let tls = "[http.tls]\ncert = \"/c\"\nkey = \"/k\"\n";
+        assert_eq!(http(&token("0.0.0.0:8080", tls)), Vec::new());
+        assert_eq!(http(&token("127.0.0.1:8080", "")), Vec::new());
         let paths: Vec<&str> = warnings.iter().map(|w| w.path.as_str()).collect();
         assert_eq!(paths, ["modbus_tcp", "http", "zenoh"]);
         let closed = config::parse(

@@ -88,7 +88,10 @@ pub(crate) fn start(
             warn!(error = %e, "Modbus/TCP Security server ended with an error");
         }
     });
-    spawn_reload_on_hangup(server.clone(), token.clone());
+    spawn_reload_on_hangup("Modbus/TCP Security", token.clone(), {
+        let server = server.clone();
+        move || server.reload()
+    });
     info!(%local, roles = tls.roles.len(), "Modbus/TCP Security listening");
     Ok(Some(TlsRun {
         server,
@@ -139,13 +142,19 @@ impl TlsRun {
     }
 }
 
-/// Reads the certificate, key and CA again on every SIGHUP until `token` is cancelled.
-fn spawn_reload_on_hangup(server: TlsServer, token: CancellationToken) {
+/// Calls `reload` (which reads a server's certificate, key and CA again) on every SIGHUP until
+/// `token` is cancelled; `what` names the server in the log. Modbus/TCP Security and HTTPS each
+/// have one.
+pub(crate) fn spawn_reload_on_hangup<E: std::fmt::Display>(
+    what: &'static str,
+    token: CancellationToken,
+    reload: impl Fn() -> Result<(), E> + Send + 'static,
+) {
     #[cfg(unix)]
     tokio::spawn(async move {
         use tokio::signal::unix::{signal, SignalKind};
         let Ok(mut hangup) = signal(SignalKind::hangup()) else {
-            warn!("cannot install the SIGHUP handler: certificates are read at start only");
+            warn!("{what}: cannot install the SIGHUP handler: certificates are read at start only");
             return;
         };
         loop {
@@ -157,12 +166,14 @@ fn spawn_reload_on_hangup(server: TlsServer, token: CancellationToken) {
                     }
                 }
             }
-            match server.reload() {
-                Ok(()) => info!("SIGHUP: Modbus/TCP Security certificates read again"),
-                Err(e) => warn!(error = %e, "SIGHUP: certificates not reloaded, the old ones stay"),
+            match reload() {
+                Ok(()) => info!("SIGHUP: {what} certificates read again"),
+                Err(e) => {
+                    warn!(error = %e, "SIGHUP: {what} certificates not reloaded, the old ones stay");
+                }
             }
         }
     });
     #[cfg(not(unix))]
-    drop((server, token));
+    drop((what, token, reload));
 }
