@@ -120,7 +120,10 @@ impl std::fmt::Debug for ApiState {
             .field("body_limit", &self.body_limit)
             .field("request_timeout", &self.request_timeout)
             .field("max_connections", &self.max_connections)
-            .field("max_connections_per_client", &self.max_connections_per_client)
+            .field(
+                "max_connections_per_client",
+                &self.max_connections_per_client,
+            )
             .field("max_streams", &self.max_streams)
             .field("write_timeout", &self.write_timeout)
             .field("https", &self.tls.is_some())
@@ -236,7 +239,10 @@ impl ApiState {
     ) -> Result<StreamPlace, ApiError> {
         match Arc::clone(&self.streams).try_acquire_owned() {
             Ok(permit) => {
-                let gauge = self.metrics.as_ref().map(crate::metrics::Metrics::http_streams);
+                let gauge = self
+                    .metrics
+                    .as_ref()
+                    .map(crate::metrics::Metrics::http_streams);
                 if let Some(g) = &gauge {
                     g.inc();
                 }

@@ -369,7 +369,10 @@ mod tests {
         // Busy connections cannot be evicted.
         let _busy: Vec<RequestGuard> = held.iter().map(Place::request).collect();
         let third = p.admit(a).unwrap();
-        assert_eq!(third.place.pool, Pool::Health(HttpRejectReason::ClientLimit));
+        assert_eq!(
+            third.place.pool,
+            Pool::Health(HttpRejectReason::ClientLimit)
+        );
         held.push(third.place);
         held.push(p.admit(a).unwrap().place);
         // Two health places per address, none of them waiting long enough to give way.
@@ -391,7 +394,10 @@ mod tests {
         let mut health = Vec::new();
         for n in 0..HEALTH_PLACES {
             let a = p.admit(ip(&format!("127.0.2.{n}"))).unwrap();
-            assert_eq!(a.place.pool, Pool::Health(HttpRejectReason::ConnectionLimit));
+            assert_eq!(
+                a.place.pool,
+                Pool::Health(HttpRejectReason::ConnectionLimit)
+            );
             health.push(a.place);
         }
         assert_eq!(

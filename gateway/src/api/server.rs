@@ -34,7 +34,9 @@ use tokio::net::{TcpListener, TcpStream};
 
 use super::auth::PeerAddr;
 use super::io::WriteTimeout;
-use super::places::{is_health_path, Limits, Place, PlaceHandle, Places, Pool, HEALTH_HEAD_TIMEOUT};
+use super::places::{
+    is_health_path, Limits, Place, PlaceHandle, Places, Pool, HEALTH_HEAD_TIMEOUT,
+};
 use super::{router, ApiError, ApiState};
 use crate::metrics::HttpRejectReason;
 
@@ -154,23 +156,21 @@ async fn connection(
     let served = async {
         match state.tls.as_ref().map(super::tls::HttpTls::acceptor) {
             None => serve_io(io, peer, &place, &state, service, watcher, head_timeout).await,
-            Some(acceptor) => {
-                match tokio::time::timeout(head_timeout, acceptor.accept(io)).await {
-                    Ok(Ok(tls)) => {
-                        serve_io(tls, peer, &place, &state, service, watcher, head_timeout).await;
-                    }
-                    Ok(Err(e)) => state.refused(
-                        HttpRejectReason::TlsHandshake,
-                        Some(peer),
-                        &format!("TLS handshake failed: {e}"),
-                    ),
-                    Err(_) => state.refused(
-                        HttpRejectReason::TlsHandshake,
-                        Some(peer),
-                        "TLS handshake not complete within the header read timeout",
-                    ),
+            Some(acceptor) => match tokio::time::timeout(head_timeout, acceptor.accept(io)).await {
+                Ok(Ok(tls)) => {
+                    serve_io(tls, peer, &place, &state, service, watcher, head_timeout).await;
                 }
-            }
+                Ok(Err(e)) => state.refused(
+                    HttpRejectReason::TlsHandshake,
+                    Some(peer),
+                    &format!("TLS handshake failed: {e}"),
+                ),
+                Err(_) => state.refused(
+                    HttpRejectReason::TlsHandshake,
+                    Some(peer),
+                    "TLS handshake not complete within the header read timeout",
+                ),
+            },
         }
     };
     tokio::select! {
@@ -265,7 +265,12 @@ impl hyper::service::Service<hyper::Request<Incoming>> for ConnService {
         Box::pin(async move {
             let response = call.await?;
             // The connection stays busy until the answer's body is written (or given up).
-            Ok(response.map(|body| Body::new(Guarded { body, _guard: guard })))
+            Ok(response.map(|body| {
+                Body::new(Guarded {
+                    body,
+                    _guard: guard,
+                })
+            }))
         })
     }
 }

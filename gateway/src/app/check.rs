@@ -472,7 +472,11 @@ mod tests {
         };
         let clear = http(&token("0.0.0.0:8080", ""));
         assert_eq!(clear.len(), 1, "{clear:#?}");
-        assert!(clear[0].message.contains("in clear"), "{}", clear[0].message);
+        assert!(
+            clear[0].message.contains("in clear"),
+            "{}",
+            clear[0].message
+        );
         let tls = "[http.tls]\ncert = \"/c\"\nkey = \"/k\"\n";
         assert_eq!(http(&token("0.0.0.0:8080", tls)), Vec::new());
         assert_eq!(http(&token("127.0.0.1:8080", "")), Vec::new());

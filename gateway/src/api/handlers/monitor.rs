@@ -7,10 +7,10 @@ use std::time::Duration;
 
 use axum::body::{Body, Bytes};
 use axum::extract::State;
-use axum::Extension;
 use axum::http::{header, HeaderValue};
 use axum::response::sse::{Event, KeepAlive, Sse};
 use axum::response::{IntoResponse, Response};
+use axum::Extension;
 use axum::Json;
 use futures::stream::{self, Stream, StreamExt};
 use tokio::sync::broadcast::error::{RecvError, TryRecvError};
@@ -59,11 +59,16 @@ pub(crate) async fn get_frames(
     peer: Option<Extension<PeerAddr>>,
     ApiPath(line): ApiPath<String>,
     ApiQuery(q): ApiQuery<FramesQuery>,
-) -> Result<Response, ApiError> {
-    let monitor = state.backend().monitor(&line)?;
+) -> Result<Response, Response> {
+    let monitor = state
+        .backend()
+        .monitor(&line)
+        .map_err(IntoResponse::into_response)?;
     let since = q.since.unwrap_or(0);
     if q.follow.unwrap_or(false) {
-        let place = state.stream_place(peer.map(|Extension(p)| p.0))?;
+        let place = state
+            .stream_place(peer.map(|Extension(p)| p.0))
+            .map_err(closing)?;
         return Ok(follow(monitor, since, place).into_response());
     }
     let (frames, next_seq) = monitor.frames_since(since);
@@ -77,6 +82,16 @@ pub(crate) async fn get_frames(
         frames: frames.iter().map(|f| FrameView::new(&monitor, f)).collect(),
     })
     .into_response())
+}
+
+/// A stream refused for want of a place: the answer closes the connection too, so that a client
+/// that asks again (as a follower does) takes no connection place while it waits.
+fn closing(e: ApiError) -> Response {
+    let mut response = e.into_response();
+    response
+        .headers_mut()
+        .insert(header::CONNECTION, HeaderValue::from_static("close"));
+    response
 }
 
 /// The frames above `since` and every new one, as Server-Sent Events, until the client goes or
@@ -147,19 +162,25 @@ pub(crate) async fn get_capture(
     peer: Option<Extension<PeerAddr>>,
     ApiPath(line): ApiPath<String>,
     ApiQuery(q): ApiQuery<CaptureQuery>,
-) -> Result<Response, ApiError> {
-    let monitor = state.backend().monitor(&line)?;
+) -> Result<Response, Response> {
+    let monitor = state
+        .backend()
+        .monitor(&line)
+        .map_err(IntoResponse::into_response)?;
     let body = match q.seconds {
         None => Body::from(pcapng::capture(&monitor, &monitor.frames_since(0).0)),
         Some(seconds) if (1..=MAX_CAPTURE_SECONDS).contains(&seconds) => {
-            let place = state.stream_place(peer.map(|Extension(p)| p.0))?;
+            let place = state
+                .stream_place(peer.map(|Extension(p)| p.0))
+                .map_err(closing)?;
             let live = monitor.subscribe();
             Body::from_stream(record(monitor, live, Duration::from_secs(seconds), place))
         }
         Some(seconds) => {
             return Err(ApiError::bad_request(format!(
                 "seconds must be 1..={MAX_CAPTURE_SECONDS}, not {seconds}"
-            )))
+            ))
+            .into_response())
         }
     };
     let mut response = body.into_response();
