@@ -572,6 +572,59 @@ mod token_tests {
     }
 
     #[test]
+    fn https_files_are_loaded_as_run_loads_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let key = rcgen::KeyPair::generate().unwrap();
+        let cert = rcgen::CertificateParams::new(vec!["localhost".to_owned()])
+            .unwrap()
+            .self_signed(&key)
+            .unwrap();
+        let path = |name: &str| dir.path().join(name);
+        std::fs::write(path("server.crt"), cert.pem()).unwrap();
+        std::fs::write(path("server.key"), key.serialize_pem()).unwrap();
+        std::fs::write(
+            path("other.key"),
+            rcgen::KeyPair::generate().unwrap().serialize_pem(),
+        )
+        .unwrap();
+        let config = |cert: &str, key: &str, ca: Option<&str>| {
+            let ca = ca
+                .map(|ca| format!("ca = \"{}\"\n", path(ca).display()))
+                .unwrap_or_default();
+            config::parse(&format!(
+                "[http.tls]\ncert = \"{}\"\nkey = \"{}\"\n{ca}",
+                path(cert).display(),
+                path(key).display(),
+            ))
+            .expect("parses")
+        };
+        assert_eq!(
+            http_tls_issues(&config("server.crt", "server.key", None)),
+            Vec::<ConfigIssue>::new()
+        );
+        // The self-signed certificate as the clients' CA.
+        assert_eq!(
+            http_tls_issues(&config("server.crt", "server.key", Some("server.crt"))),
+            Vec::<ConfigIssue>::new()
+        );
+        for (c, k, ca, at) in [
+            ("absent.crt", "server.key", None, "http.tls.cert"),
+            ("server.crt", "absent.key", None, "http.tls.key"),
+            (
+                "server.crt",
+                "server.key",
+                Some("absent.crt"),
+                "http.tls.ca",
+            ),
+            ("server.crt", "other.key", None, "http.tls"),
+        ] {
+            let issues = run_issues(&config(c, k, ca));
+            assert_eq!(issues.len(), 1, "{issues:?}");
+            assert_eq!(issues[0].path, at, "{issues:?}");
+        }
+    }
+
+    #[test]
     fn a_named_token_that_cannot_be_read_is_an_issue_at_its_key() {
         let http = config::parse(
             "[http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"OPS\"\n\
