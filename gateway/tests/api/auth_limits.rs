@@ -585,8 +585,11 @@ async fn an_answer_the_client_does_not_read_is_closed_after_the_write_timeout() 
 
 #[tokio::test]
 async fn clients_outside_the_allowed_networks_are_closed_at_accept() {
+    let registry = prometheus::Registry::new();
+    let metrics = gateway::metrics::Metrics::register(&registry).expect("metrics");
     let outside = start_with(Setup {
         allowed_networks: vec!["192.0.2.0/24".parse().expect("net")],
+        metrics: Some(metrics),
         ..Setup::default()
     })
     .await;
@@ -603,6 +606,12 @@ async fn clients_outside_the_allowed_networks_are_closed_at_accept() {
         read.is_err() || answer.is_empty(),
         "answered: {}",
         String::from_utf8_lossy(&answer)
+    );
+    // Counted (and logged, rate-limited, with the client's address).
+    let text = gateway::metrics::encode_text(&registry);
+    assert!(
+        text.contains("gateway_http_rejected_total{reason=\"network\"} 1"),
+        "{text}"
     );
     let inside = start_with(Setup {
         allowed_networks: vec!["127.0.0.0/8".parse().expect("net")],

@@ -78,6 +78,8 @@ pub(crate) struct Setup {
     pub(crate) max_connections_per_client: u32,
     pub(crate) max_streams: u32,
     pub(crate) write_timeout: Duration,
+    /// Where the listener counts refusals and connections.
+    pub(crate) metrics: Option<gateway::metrics::Metrics>,
     pub(crate) config: Config,
     /// Client networks served; empty: every client.
     pub(crate) allowed_networks: Vec<ipnet::IpNet>,
@@ -98,6 +100,7 @@ impl Default for Setup {
             max_connections_per_client: config::DEFAULT_HTTP_MAX_CONNECTIONS_PER_CLIENT,
             max_streams: config::DEFAULT_HTTP_MAX_STREAMS,
             write_timeout: config::DEFAULT_HTTP_WRITE_TIMEOUT,
+            metrics: None,
             config: test_config(),
             allowed_networks: Vec::new(),
             file_text: None,
@@ -200,6 +203,9 @@ pub(crate) async fn start_with(setup: Setup) -> TestApi {
             setup.write_timeout,
         )
         .with_allowed_networks(setup.allowed_networks.clone());
+    if let Some(metrics) = setup.metrics.clone() {
+        state = state.with_metrics(metrics);
+    }
     let (dir, store_path) = if setup.store {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("gateway.toml");
