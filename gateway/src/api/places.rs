@@ -21,7 +21,7 @@
 //! connection is closed at accept.
 //!
 //! Long-lived answers (SSE follows, timed captures) need a stream place as well
-//! ([`super::ApiState::stream_place`], `max_streams`), so streams can never take every general
+//! (`ApiState::stream_place`, `max_streams`), so streams can never take every general
 //! place either.
 
 use std::collections::HashMap;
