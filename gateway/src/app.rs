@@ -336,9 +336,25 @@ async fn serve_http(
             })
         })?
         .with_routes(metrics_route(sup.exported.registry.clone()))
-        .with_change_lock(Arc::clone(&sup.change_lock));
+        .with_change_lock(Arc::clone(&sup.change_lock))
+        .with_metrics(sup.exported.metrics.clone());
     let state = match source {
         Some(text) => state.with_source_text(text),
+        None => state,
+    };
+    let state = match &http.tls {
+        Some(cfg) => {
+            let tls = crate::api::HttpTls::new(cfg).map_err(|e| {
+                AppError::Config(config::ConfigErrors {
+                    issues: vec![check::http_tls_issue(&e)],
+                })
+            })?;
+            tls::spawn_reloader("HTTPS", sup.reload.subscribe(), shutdown.clone(), {
+                let tls = tls.clone();
+                move || tls.reload()
+            });
+            state.with_tls(tls)
+        }
         None => state,
     };
     // Without a token, said at start-up already (log_rest_guard).
@@ -354,8 +370,9 @@ async fn serve_http(
         })?;
     let local = listener.local_addr()?;
     backend.set_http_local(local);
-    info!(%local, "HTTP listening: /api/v1, /healthz, /readyz, /metrics");
-    // A fixed line on stdout that scripts and tests wait for.
+    let scheme = if http.tls.is_some() { "https" } else { "http" };
+    info!(%local, scheme, "HTTP listening: /api/v1, /healthz, /readyz, /metrics");
+    // A fixed line on stdout that scripts and tests wait for (the same with HTTPS).
     println!("http listening on {local}");
     Ok(tokio::spawn(async move {
         if let Err(e) = crate::api::serve(listener, state, shutdown.cancelled_owned()).await {

@@ -16,10 +16,14 @@ use std::time::{Duration, Instant};
 /// How long a gateway may take to come up (ptys, simulators, first polls) on a loaded machine.
 pub const START_TIMEOUT: Duration = Duration::from_secs(60);
 
-/// The path of the `gateway` binary, built once if needed.
+/// The path of the `gateway` binary, built once if needed; `GATEWAY_TESTS_BIN` names another one
+/// (to measure an older build with the same test, e.g. the before figures of a change).
 pub fn gateway_bin() -> PathBuf {
     static BIN: OnceLock<PathBuf> = OnceLock::new();
     BIN.get_or_init(|| {
+        if let Some(bin) = std::env::var_os("GATEWAY_TESTS_BIN") {
+            return PathBuf::from(bin);
+        }
         let exe = std::env::current_exe().expect("test executable path");
         // target/<profile>/deps/<test> -> target/<profile>/gateway
         let profile_dir = exe

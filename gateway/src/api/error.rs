@@ -194,6 +194,15 @@ impl ApiError {
         }
     }
 
+    /// 503: no place for the request now (a connection or stream limit of the listener); try
+    /// again after `retry_after` seconds.
+    pub fn busy_for(message: impl Into<String>, retry_after: u32) -> Self {
+        Self {
+            retry_after: Some(retry_after),
+            ..Self::new(StatusCode::SERVICE_UNAVAILABLE, "busy", message)
+        }
+    }
+
     /// 503 from `/readyz`, each component that is not up as an issue.
     pub fn not_ready(issues: Vec<Issue>) -> Self {
         Self {

@@ -30,7 +30,10 @@
 //! PUT    /api/v1/lines/{line}/devices/{device}/tags/{tag}  write it through to the device
 //! ```
 //!
-//! [`serve`] runs the accept loop (connection limit, header read timeout, graceful stop).
+//! [`serve`] runs the accept loop: connection places per client address and in all, with places
+//! held back for `/metrics`, `/healthz` and `/readyz` ([`places`]), a header read timeout, a write
+//! timeout ([`io`]), HTTPS when configured ([`tls`]), a graceful stop. SSE follows and timed
+//! captures need a stream place as well (`max_streams`; 503 with Retry-After beyond).
 //! Layers, outermost first: a panic becomes a 500 in the error shape; any error answer some
 //! layer made without a JSON body gets one ([`error`]); the request timeout (504); the bearer
 //! token check for changes ([`auth`]); the body limit (413). The service implements
@@ -42,9 +45,12 @@ mod body;
 pub mod diff;
 pub mod error;
 mod handlers;
+mod io;
 pub mod model;
 mod openapi;
+pub mod places;
 mod server;
+pub mod tls;
 
 use std::sync::Arc;
 use std::time::Duration;
@@ -65,6 +71,7 @@ pub use body::{etag, TOML_MEDIA_TYPE};
 pub use diff::ConfigDiff;
 pub use error::{ApiError, ErrorBody, ErrorDetail, Issue};
 pub use server::{serve, DEFAULT_HEADER_READ_TIMEOUT, DEFAULT_MAX_CONNECTIONS};
+pub use tls::HttpTls;
 
 use crate::config::Config;
 use crate::persist::{ConfigStore, ConfigText};
@@ -84,6 +91,17 @@ pub struct ApiState {
     max_connections: usize,
     /// Longest wait for a request head.
     header_read_timeout: Duration,
+    /// Connections served at once from one client address.
+    max_connections_per_client: usize,
+    /// Streams (SSE follows, timed captures) served at once, and their places.
+    max_streams: usize,
+    streams: Arc<tokio::sync::Semaphore>,
+    /// An answer not read for this long is closed.
+    write_timeout: Duration,
+    /// HTTPS; `None`: plain HTTP.
+    tls: Option<HttpTls>,
+    /// Where refusals and connections are counted.
+    metrics: Option<crate::metrics::Metrics>,
     /// Client networks accepted; empty: every client.
     allowed_networks: Vec<ipnet::IpNet>,
     /// Configuration changes run one at a time.
@@ -108,6 +126,13 @@ impl std::fmt::Debug for ApiState {
             .field("body_limit", &self.body_limit)
             .field("request_timeout", &self.request_timeout)
             .field("max_connections", &self.max_connections)
+            .field(
+                "max_connections_per_client",
+                &self.max_connections_per_client,
+            )
+            .field("max_streams", &self.max_streams)
+            .field("write_timeout", &self.write_timeout)
+            .field("https", &self.tls.is_some())
             .finish_non_exhaustive()
     }
 }
@@ -125,6 +150,15 @@ impl ApiState {
             request_timeout: crate::config::DEFAULT_HTTP_REQUEST_TIMEOUT,
             max_connections: DEFAULT_MAX_CONNECTIONS as usize,
             header_read_timeout: DEFAULT_HEADER_READ_TIMEOUT,
+            max_connections_per_client: crate::config::DEFAULT_HTTP_MAX_CONNECTIONS_PER_CLIENT
+                as usize,
+            max_streams: crate::config::DEFAULT_HTTP_MAX_STREAMS as usize,
+            streams: Arc::new(tokio::sync::Semaphore::new(
+                crate::config::DEFAULT_HTTP_MAX_STREAMS as usize,
+            )),
+            write_timeout: crate::config::DEFAULT_HTTP_WRITE_TIMEOUT,
+            tls: None,
+            metrics: None,
             allowed_networks: Vec::new(),
             change_lock: Arc::default(),
             extra: None,
@@ -142,7 +176,12 @@ impl ApiState {
     ) -> Result<Self, TokenError> {
         let state = Self::new(backend, Auth::from_config(http)?)
             .with_limits(http.body_limit, http.request_timeout)
-            .with_connections(http.max_connections, DEFAULT_HEADER_READ_TIMEOUT)
+            .with_connections(http.max_connections, http.header_read_timeout)
+            .with_client_limits(
+                http.max_connections_per_client,
+                http.max_streams,
+                http.write_timeout,
+            )
             .with_allowed_networks(http.allowed_networks.clone());
         Ok(match store {
             Some(s) => state.with_store(s),
@@ -182,6 +221,95 @@ impl ApiState {
         self.max_connections = usize::try_from(max_connections.max(1)).unwrap_or(usize::MAX);
         self.header_read_timeout = header_read_timeout;
         self
+    }
+
+    /// The most connections from one client address (at least 1), the most streams at once (at
+    /// least 1) and the longest time an answer may stay unread.
+    pub fn with_client_limits(
+        mut self,
+        max_connections_per_client: u32,
+        max_streams: u32,
+        write_timeout: Duration,
+    ) -> Self {
+        self.max_connections_per_client =
+            usize::try_from(max_connections_per_client.max(1)).unwrap_or(usize::MAX);
+        self.max_streams = usize::try_from(max_streams.max(1))
+            .unwrap_or(usize::MAX)
+            .min(tokio::sync::Semaphore::MAX_PERMITS);
+        self.streams = Arc::new(tokio::sync::Semaphore::new(self.max_streams));
+        self.write_timeout = write_timeout;
+        self
+    }
+
+    /// Serves HTTPS with `tls` instead of HTTP.
+    pub fn with_tls(mut self, tls: HttpTls) -> Self {
+        self.tls = Some(tls);
+        self
+    }
+
+    /// Counts connections, streams and refusals in `metrics`.
+    pub fn with_metrics(mut self, metrics: crate::metrics::Metrics) -> Self {
+        self.metrics = Some(metrics);
+        self
+    }
+
+    /// A place for a stream (an SSE follow, a timed capture), held until the returned value is
+    /// dropped; 503 with Retry-After when all `max_streams` are taken.
+    pub(crate) fn stream_place(
+        &self,
+        peer: Option<std::net::SocketAddr>,
+    ) -> Result<StreamPlace, ApiError> {
+        match Arc::clone(&self.streams).try_acquire_owned() {
+            Ok(permit) => {
+                let gauge = self
+                    .metrics
+                    .as_ref()
+                    .map(crate::metrics::Metrics::http_streams);
+                if let Some(g) = &gauge {
+                    g.inc();
+                }
+                Ok(StreamPlace {
+                    _permit: permit,
+                    gauge,
+                })
+            }
+            Err(_) => {
+                let what = format!(
+                    "every stream place is taken ([http] max_streams = {})",
+                    self.max_streams
+                );
+                self.refused(crate::metrics::HttpRejectReason::StreamLimit, peer, &what);
+                Err(ApiError::busy_for(
+                    format!("{what}; try again later"),
+                    STREAM_RETRY_AFTER_SECONDS,
+                ))
+            }
+        }
+    }
+
+    /// Counts a refusal of `reason`.
+    pub(crate) fn count(&self, reason: crate::metrics::HttpRejectReason) {
+        if let Some(m) = &self.metrics {
+            m.http_rejected(reason);
+        }
+    }
+
+    /// Counts a refusal of `reason` and logs it (one line per reason and interval, with the
+    /// client's address and how many were left out).
+    pub(crate) fn refused(
+        &self,
+        reason: crate::metrics::HttpRejectReason,
+        peer: Option<std::net::SocketAddr>,
+        what: &str,
+    ) {
+        self.count(reason);
+        let client = peer.map(|p| p.to_string()).unwrap_or_default();
+        crate::warn_limited!(
+            format!("http.refused.{}", reason.as_str()),
+            reason = reason.as_str(),
+            %client,
+            "HTTP: {what}"
+        );
     }
 
     /// Only clients in `networks` are served (empty: every client); others are closed at
@@ -263,6 +391,24 @@ impl ApiState {
             .document
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(text);
+    }
+}
+
+/// `Retry-After` of a stream refused for want of a place: streams last long.
+const STREAM_RETRY_AFTER_SECONDS: u32 = 10;
+
+/// A stream's place (see [`ApiState::stream_place`]).
+#[derive(Debug)]
+pub(crate) struct StreamPlace {
+    _permit: tokio::sync::OwnedSemaphorePermit,
+    gauge: Option<prometheus::IntGauge>,
+}
+
+impl Drop for StreamPlace {
+    fn drop(&mut self) {
+        if let Some(g) = &self.gauge {
+            g.dec();
+        }
     }
 }
 

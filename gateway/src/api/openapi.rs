@@ -64,9 +64,23 @@ pub(crate) fn finish(doc: OpenApiDoc) -> OpenApiDoc {
 /// its role lacks the right); locked, every change answers 403; insecure, changes need nothing
 /// and neither 401 nor 403 is answered.
 pub(crate) fn finish_for(mut doc: OpenApiDoc, mode: AuthMode) -> OpenApiDoc {
-    for item in doc.paths.paths.values_mut() {
+    for (path, item) in doc.paths.paths.iter_mut() {
+        let health = super::places::is_health_path(path);
         for (changes, op) in operations(item) {
             common_answers(op, changes, mode);
+            if !health {
+                op.responses
+                    .responses
+                    .entry("503".to_owned())
+                    .or_insert_with(|| {
+                        error_response(
+                            "No connection place for the client now (every place of its address, \
+                             [http] max_connections_per_client, or of the listener, \
+                             max_connections, is taken; only /metrics, /healthz and /readyz are \
+                             served then); try again after Retry-After seconds",
+                        )
+                    });
+            }
         }
     }
     if mode == AuthMode::Insecure {

@@ -1,34 +1,53 @@
-//! The API's accept loop (the mini-redis shape): at most `max_connections` connections, each
-//! served by hyper's HTTP/1 with a header read timeout, and a graceful stop.
+//! The API's accept loop: connection places per client and in all ([`super::places`]), hyper's
+//! HTTP/1 with a header read timeout and a write timeout ([`super::io`]), HTTPS when configured
+//! ([`super::tls`]), and a graceful stop.
 //!
 //! `axum::serve` gives hyper no timer, so hyper's header read timeout never fires there: a client
 //! that trickles a request head, or keeps an idle connection open, would hold a connection for
 //! ever. Here the timer is set, so the time to receive a request head (including the wait for the
 //! next request on a kept-alive connection) is bounded by the header read timeout; the time to
-//! read the body and answer is bounded by `[http] request_timeout`.
+//! read the body and answer is bounded by `[http] request_timeout`, the time a client may leave
+//! the answer unread by `[http] write_timeout`.
+//!
+//! Every refusal is counted in `gateway_http_rejected_total{reason}` and logged, at most one line
+//! per reason and [`crate::log_limit::INTERVAL`] with the client's address and how many were left
+//! out.
 
+use std::convert::Infallible;
 use std::future::Future;
 use std::io;
-use std::sync::Arc;
+use std::net::SocketAddr;
+use std::pin::Pin;
+use std::sync::atomic::Ordering;
 use std::time::Duration;
 
+use axum::body::Body;
+use axum::http::{header, HeaderValue};
+use axum::response::{IntoResponse, Response};
+use hyper::body::Incoming;
 use hyper::server::conn::http1;
 use hyper_util::rt::{TokioIo, TokioTimer};
-use hyper_util::server::graceful::GracefulShutdown;
+use hyper_util::server::graceful::{GracefulShutdown, Watcher};
 use hyper_util::service::TowerToHyperService;
-use tokio::net::TcpListener;
-use tokio::sync::Semaphore;
+use tokio::io::{AsyncRead, AsyncWrite};
+use tokio::net::{TcpListener, TcpStream};
 
 use super::auth::PeerAddr;
-use super::{router, ApiState};
+use super::io::WriteTimeout;
+use super::places::{
+    is_health_path, Limits, Place, PlaceHandle, Places, Pool, HEALTH_HEAD_TIMEOUT,
+};
+use super::{router, ApiError, ApiState};
+use crate::metrics::HttpRejectReason;
 
-/// Connections served at once by default (`[http] max_connections`); more wait in the listen
-/// backlog.
+/// Connections served at once by default (`[http] max_connections`).
 pub const DEFAULT_MAX_CONNECTIONS: u32 = crate::config::DEFAULT_HTTP_MAX_CONNECTIONS;
 /// Longest wait for a request head, and for the next request on an idle connection.
-pub const DEFAULT_HEADER_READ_TIMEOUT: Duration = Duration::from_secs(10);
+pub const DEFAULT_HEADER_READ_TIMEOUT: Duration = crate::config::DEFAULT_HTTP_HEADER_READ_TIMEOUT;
 /// Pause after a failed accept (e.g. out of file descriptors) before trying again.
 const ACCEPT_BACKOFF: Duration = Duration::from_millis(100);
+/// `Retry-After` of a request refused for want of a place.
+const RETRY_AFTER_SECONDS: u32 = 5;
 
 /// Serves the API on `listener` until `shutdown` completes; then stops accepting, closes idle
 /// connections, lets requests in flight finish and returns when every connection has ended
@@ -40,51 +59,72 @@ pub async fn serve(
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> io::Result<()> {
     if let Ok(addr) = listener.local_addr() {
-        tracing::info!(%addr, max_connections = state.max_connections, "REST API listening");
+        tracing::info!(
+            %addr,
+            max_connections = state.max_connections,
+            max_connections_per_client = state.max_connections_per_client,
+            max_streams = state.max_streams,
+            https = state.tls.is_some(),
+            "REST API listening"
+        );
     }
-    let header_read_timeout = state.header_read_timeout;
+    let gauges = state
+        .metrics
+        .as_ref()
+        .map(|m| (m.http_connections("general"), m.http_connections("health")));
+    let places = Places::new(
+        Limits {
+            max_connections: state.max_connections,
+            per_client: state.max_connections_per_client,
+        },
+        gauges,
+    );
     let gate = state.clone();
-    let limit = Arc::new(Semaphore::new(state.max_connections));
     let service = TowerToHyperService::new(router(state));
     let graceful = GracefulShutdown::new();
     let mut shutdown = std::pin::pin!(shutdown);
     loop {
-        let permit = tokio::select! {
-            p = limit.clone().acquire_owned() => p.map_err(io::Error::other)?,
-            () = &mut shutdown => break,
-        };
         let (stream, peer) = tokio::select! {
             accepted = listener.accept() => match accepted {
-                Ok((_, peer)) if !gate.allows_peer(peer.ip()) => {
-                    tracing::debug!(%peer, "REST API client outside the allowed networks, closed");
-                    continue;
-                }
-                Ok((stream, peer)) => (stream, peer),
+                Ok(accepted) => accepted,
                 Err(e) => {
-                    tracing::warn!(error = %e, "REST API accept failed");
+                    gate.refused(HttpRejectReason::AcceptError, None, &e.to_string());
                     tokio::time::sleep(ACCEPT_BACKOFF).await;
                     continue;
                 }
             },
             () = &mut shutdown => break,
         };
-        let conn = http1::Builder::new()
-            .timer(TokioTimer::new())
-            .header_read_timeout(header_read_timeout)
-            .serve_connection(
-                TokioIo::new(stream),
-                WithPeer {
-                    inner: service.clone(),
-                    peer: PeerAddr(peer),
-                },
+        if !gate.allows_peer(peer.ip()) {
+            gate.refused(
+                HttpRejectReason::Network,
+                Some(peer),
+                "client outside [http] allowed_networks, closed",
             );
-        let conn = graceful.watch(conn);
-        tokio::spawn(async move {
-            if let Err(e) = conn.await {
-                tracing::debug!(error = %e, "REST API connection ended with an error");
+            continue;
+        }
+        let admitted = match places.admit(peer.ip()) {
+            Ok(admitted) => admitted,
+            Err(why) => {
+                gate.refused(
+                    why,
+                    Some(peer),
+                    "no connection place left (the health places are taken too), closed",
+                );
+                continue;
             }
-            drop(permit);
-        });
+        };
+        for _ in 0..admitted.evicted {
+            gate.count(HttpRejectReason::Evicted);
+        }
+        tokio::spawn(connection(
+            stream,
+            peer,
+            admitted.place,
+            gate.clone(),
+            service.clone(),
+            graceful.watcher(),
+        ));
     }
     drop(listener);
     tracing::info!(
@@ -95,23 +135,168 @@ pub async fn serve(
     Ok(())
 }
 
-/// A connection's service: every request gets the client's address (for the audit).
-#[derive(Clone)]
-struct WithPeer<S> {
-    inner: S,
-    peer: PeerAddr,
+type Service = TowerToHyperService<axum::Router>;
+
+/// Serves one connection in its place: the TLS handshake first when configured.
+async fn connection(
+    stream: TcpStream,
+    peer: SocketAddr,
+    place: Place,
+    state: ApiState,
+    service: Service,
+    watcher: Watcher,
+) {
+    let head_timeout = match place.pool {
+        Pool::General => state.header_read_timeout,
+        Pool::Health(_) => state.header_read_timeout.min(HEALTH_HEAD_TIMEOUT),
+    };
+    let io = WriteTimeout::new(stream, state.write_timeout);
+    let fired = io.fired();
+    let evicted = place.evicted.clone();
+    let served = async {
+        match state.tls.as_ref().map(super::tls::HttpTls::acceptor) {
+            None => serve_io(io, peer, &place, &state, service, watcher, head_timeout).await,
+            Some(acceptor) => match tokio::time::timeout(head_timeout, acceptor.accept(io)).await {
+                Ok(Ok(tls)) => {
+                    serve_io(tls, peer, &place, &state, service, watcher, head_timeout).await;
+                }
+                Ok(Err(e)) => state.refused(
+                    HttpRejectReason::TlsHandshake,
+                    Some(peer),
+                    &format!("TLS handshake failed: {e}"),
+                ),
+                Err(_) => state.refused(
+                    HttpRejectReason::TlsHandshake,
+                    Some(peer),
+                    "TLS handshake not complete within the header read timeout",
+                ),
+            },
+        }
+    };
+    tokio::select! {
+        () = served => {}
+        () = evicted.cancelled() => {
+            tracing::debug!(%peer, "HTTP connection waiting for a request head closed: its place went to a new one");
+        }
+    }
+    if fired.load(Ordering::Relaxed) {
+        state.refused(
+            HttpRejectReason::WriteTimeout,
+            Some(peer),
+            "answer not read within [http] write_timeout, connection closed",
+        );
+    }
+    drop(place);
 }
 
-impl<S, B> hyper::service::Service<hyper::Request<B>> for WithPeer<S>
-where
-    S: hyper::service::Service<hyper::Request<B>>,
+async fn serve_io<I>(
+    io: I,
+    peer: SocketAddr,
+    place: &Place,
+    state: &ApiState,
+    service: Service,
+    watcher: Watcher,
+    head_timeout: Duration,
+) where
+    I: AsyncRead + AsyncWrite + Unpin + Send + 'static,
 {
-    type Response = S::Response;
-    type Error = S::Error;
-    type Future = S::Future;
+    let conn = http1::Builder::new()
+        .timer(TokioTimer::new())
+        .header_read_timeout(head_timeout)
+        // A health place serves one request.
+        .keep_alive(place.pool == Pool::General)
+        .serve_connection(
+            TokioIo::new(io),
+            ConnService {
+                inner: service,
+                peer: PeerAddr(peer),
+                place: place.handle(),
+                state: state.clone(),
+            },
+        );
+    match watcher.watch(conn).await {
+        Ok(()) => {}
+        Err(e) if e.is_timeout() => state.refused(
+            HttpRejectReason::HeaderTimeout,
+            Some(peer),
+            "request head not complete within the header read timeout, connection closed",
+        ),
+        Err(e) => tracing::debug!(%peer, error = %e, "REST API connection ended with an error"),
+    }
+}
 
-    fn call(&self, mut req: hyper::Request<B>) -> Self::Future {
+/// A connection's service: every request gets the client's address (for the audit) and marks
+/// the connection busy until its answer is written; a health place answers only the health paths.
+#[derive(Clone)]
+struct ConnService {
+    inner: Service,
+    peer: PeerAddr,
+    place: PlaceHandle,
+    state: ApiState,
+}
+
+impl hyper::service::Service<hyper::Request<Incoming>> for ConnService {
+    type Response = Response;
+    type Error = Infallible;
+    type Future = Pin<Box<dyn Future<Output = Result<Response, Infallible>> + Send>>;
+
+    fn call(&self, mut req: hyper::Request<Incoming>) -> Self::Future {
+        if let Pool::Health(why) = self.place.pool {
+            if !is_health_path(req.uri().path()) {
+                let what = match why {
+                    HttpRejectReason::ClientLimit => {
+                        "every connection place of the client address is taken ([http] max_connections_per_client)"
+                    }
+                    _ => "every connection place is taken ([http] max_connections)",
+                };
+                self.state.refused(why, Some(self.peer.0), what);
+                let mut response =
+                    ApiError::busy_for(format!("{what}; try again later"), RETRY_AFTER_SECONDS)
+                        .into_response();
+                response
+                    .headers_mut()
+                    .insert(header::CONNECTION, HeaderValue::from_static("close"));
+                return Box::pin(async move { Ok(response) });
+            }
+        }
         req.extensions_mut().insert(self.peer);
-        self.inner.call(req)
+        let guard = self.place.request();
+        let call = hyper::service::Service::call(&self.inner, req);
+        Box::pin(async move {
+            let response = call.await?;
+            // The connection stays busy until the answer's body is written (or given up).
+            Ok(response.map(|body| {
+                Body::new(Guarded {
+                    body,
+                    _guard: guard,
+                })
+            }))
+        })
+    }
+}
+
+/// A response body that holds its connection's request guard until it is dropped.
+struct Guarded {
+    body: Body,
+    _guard: super::places::RequestGuard,
+}
+
+impl http_body::Body for Guarded {
+    type Data = axum::body::Bytes;
+    type Error = axum::Error;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Result<http_body::Frame<Self::Data>, Self::Error>>> {
+        Pin::new(&mut self.body).poll_frame(cx)
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.body.is_end_stream()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        self.body.size_hint()
     }
 }

@@ -114,8 +114,14 @@ pub fn start_issues(config: &Config, door: Door<'_>) -> Vec<ConfigIssue> {
     if !TLS_KEYS.iter().any(|k| refused(k)) {
         issues.extend(tls_issues(config));
     }
+    if !HTTP_TLS_KEYS.iter().any(|k| refused(k)) {
+        issues.extend(http_tls_issues(config));
+    }
     issues
 }
+
+/// The keys of `[http.tls]`'s files.
+const HTTP_TLS_KEYS: [&str; 3] = ["http.tls.cert", "http.tls.key", "http.tls.ca"];
 
 /// The keys of the Modbus/TCP Security files.
 const TLS_KEYS: [&str; 3] = [
@@ -234,6 +240,26 @@ pub fn api_path_issues(new: &Config, in_force: &Config) -> Vec<ConfigIssue> {
     for (key, file) in TLS_KEYS.iter().zip(files) {
         confined(key, tls.map(file), old_tls.map(file), conf);
     }
+    let https = new.http.tls.as_ref();
+    let old_https = in_force.http.tls.as_ref();
+    confined(
+        HTTP_TLS_KEYS[0],
+        https.map(|t| t.cert.as_path()),
+        old_https.map(|t| t.cert.as_path()),
+        conf,
+    );
+    confined(
+        HTTP_TLS_KEYS[1],
+        https.map(|t| t.key.as_path()),
+        old_https.map(|t| t.key.as_path()),
+        conf,
+    );
+    confined(
+        HTTP_TLS_KEYS[2],
+        https.and_then(|t| t.ca.as_deref()),
+        old_https.and_then(|t| t.ca.as_deref()),
+        conf,
+    );
     issues
 }
 
@@ -284,6 +310,34 @@ fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
     ConfigIssue {
         path: path.to_owned(),
         message: message.into(),
+    }
+}
+
+/// `[http.tls]`'s files read and made into TLS settings as `run` makes them at start: a missing,
+/// unreadable or unusable file is an issue at its key, with the path.
+fn http_tls_issues(config: &Config) -> Vec<ConfigIssue> {
+    let Some(tls) = config.http.tls.as_ref() else {
+        return Vec::new();
+    };
+    match crate::api::HttpTls::new(tls) {
+        Ok(_) => Vec::new(),
+        Err(e) => vec![http_tls_issue(&e)],
+    }
+}
+
+/// An `[http.tls]` error as an issue at the key of the file.
+pub(crate) fn http_tls_issue(e: &crate::modbus_tcp::TlsError) -> ConfigIssue {
+    let key = match e {
+        crate::modbus_tcp::TlsError::File { what, .. } => match *what {
+            "certificate" => "http.tls.cert",
+            "private key" => "http.tls.key",
+            _ => "http.tls.ca",
+        },
+        crate::modbus_tcp::TlsError::Settings(_) => "http.tls",
+    };
+    ConfigIssue {
+        path: key.to_owned(),
+        message: format!("HTTPS: {e}"),
     }
 }
 
@@ -654,6 +708,17 @@ pub fn security_warnings(config: &Config) -> Vec<ConfigIssue> {
         ),
         );
     }
+    let has_token = http.token_source().is_some() || !http.tokens.is_empty();
+    if has_token && http.tls.is_none() && reachable(http.listen.ip()) {
+        warn(
+            "http",
+            format!(
+                "the REST API on {} takes bearer tokens over plain HTTP: they cross the network \
+                 in clear; serve [http.tls] or listen on loopback behind a TLS proxy",
+                http.listen
+            ),
+        );
+    }
     // zenoh is a write path only with `writes = true`.
     if let Some(zenoh) = config.zenoh.as_ref().filter(|z| z.enabled && z.writes) {
         let open: Vec<&str> = zenoh
@@ -750,6 +815,29 @@ mod tests {
         .expect("parses");
         let warnings = security_warnings(&open);
         assert_eq!(warnings.len(), 3, "{warnings:#?}");
+        // A token over plain HTTP off loopback; not with [http.tls], not on loopback.
+        let token = |listen: &str, tls: &str| {
+            config::parse(&format!(
+                "[http]\nlisten = \"{listen}\"\ntoken_env = \"T\"\n{tls}"
+            ))
+            .expect("parses")
+        };
+        let http = |c: &Config| -> Vec<ConfigIssue> {
+            security_warnings(c)
+                .into_iter()
+                .filter(|w| w.path == "http")
+                .collect()
+        };
+        let clear = http(&token("0.0.0.0:8080", ""));
+        assert_eq!(clear.len(), 1, "{clear:#?}");
+        assert!(
+            clear[0].message.contains("in clear"),
+            "{}",
+            clear[0].message
+        );
+        let tls = "[http.tls]\ncert = \"/c\"\nkey = \"/k\"\n";
+        assert_eq!(http(&token("0.0.0.0:8080", tls)), Vec::new());
+        assert_eq!(http(&token("127.0.0.1:8080", "")), Vec::new());
         let paths: Vec<&str> = warnings.iter().map(|w| w.path.as_str()).collect();
         assert_eq!(paths, ["modbus_tcp", "http", "zenoh"]);
         let closed = config::parse(
@@ -839,6 +927,59 @@ mod token_tests {
             issues.iter().any(|i| i.path == "modbus_tcp.tls.key"),
             "{issues:?}"
         );
+    }
+
+    #[test]
+    fn https_files_are_loaded_as_run_loads_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let key = rcgen::KeyPair::generate().unwrap();
+        let cert = rcgen::CertificateParams::new(vec!["localhost".to_owned()])
+            .unwrap()
+            .self_signed(&key)
+            .unwrap();
+        let path = |name: &str| dir.path().join(name);
+        std::fs::write(path("server.crt"), cert.pem()).unwrap();
+        std::fs::write(path("server.key"), key.serialize_pem()).unwrap();
+        std::fs::write(
+            path("other.key"),
+            rcgen::KeyPair::generate().unwrap().serialize_pem(),
+        )
+        .unwrap();
+        let config = |cert: &str, key: &str, ca: Option<&str>| {
+            let ca = ca
+                .map(|ca| format!("ca = \"{}\"\n", path(ca).display()))
+                .unwrap_or_default();
+            config::parse(&format!(
+                "[http.tls]\ncert = \"{}\"\nkey = \"{}\"\n{ca}",
+                path(cert).display(),
+                path(key).display(),
+            ))
+            .expect("parses")
+        };
+        assert_eq!(
+            http_tls_issues(&config("server.crt", "server.key", None)),
+            Vec::<ConfigIssue>::new()
+        );
+        // The self-signed certificate as the clients' CA.
+        assert_eq!(
+            http_tls_issues(&config("server.crt", "server.key", Some("server.crt"))),
+            Vec::<ConfigIssue>::new()
+        );
+        for (c, k, ca, at) in [
+            ("absent.crt", "server.key", None, "http.tls.cert"),
+            ("server.crt", "absent.key", None, "http.tls.key"),
+            (
+                "server.crt",
+                "server.key",
+                Some("absent.crt"),
+                "http.tls.ca",
+            ),
+            ("server.crt", "other.key", None, "http.tls"),
+        ] {
+            let issues = run_issues(&config(c, k, ca));
+            assert_eq!(issues.len(), 1, "{issues:?}");
+            assert_eq!(issues[0].path, at, "{issues:?}");
+        }
     }
 
     #[test]

@@ -91,7 +91,10 @@ pub(crate) fn start(
             warn!(error = %e, "Modbus/TCP Security server ended with an error");
         }
     });
-    spawn_reloader(server.clone(), reload.subscribe(), token.clone());
+    spawn_reloader("Modbus/TCP Security", reload.subscribe(), token.clone(), {
+        let server = server.clone();
+        move || server.reload()
+    });
     info!(%local, roles = tls.roles.len(), "Modbus/TCP Security listening");
     Ok(Some(TlsRun {
         server,
@@ -143,9 +146,15 @@ impl TlsRun {
     }
 }
 
-/// Reads the certificate, key and CA again on every reload notification (SIGHUP) until
-/// `token` is cancelled; files that cannot be read leave the old ones in use.
-fn spawn_reloader(server: TlsServer, mut reloads: watch::Receiver<u64>, token: CancellationToken) {
+/// Calls `reload` (which reads a server's certificate, key and CA again) on every reload
+/// notification (SIGHUP) until `token` is cancelled; files that cannot be read leave the old ones
+/// in use. `what` names the server in the log. Modbus/TCP Security and HTTPS each have one.
+pub(crate) fn spawn_reloader<E: std::fmt::Display>(
+    what: &'static str,
+    mut reloads: watch::Receiver<u64>,
+    token: CancellationToken,
+    reload: impl Fn() -> Result<(), E> + Send + 'static,
+) {
     tokio::spawn(async move {
         loop {
             tokio::select! {
@@ -153,9 +162,11 @@ fn spawn_reloader(server: TlsServer, mut reloads: watch::Receiver<u64>, token: C
                 changed = reloads.changed() => if changed.is_err() { return },
             }
             reloads.borrow_and_update();
-            match server.reload() {
-                Ok(()) => info!("SIGHUP: Modbus/TCP Security certificates read again"),
-                Err(e) => warn!(error = %e, "SIGHUP: certificates not reloaded, the old ones stay"),
+            match reload() {
+                Ok(()) => info!("SIGHUP: {what} certificates read again"),
+                Err(e) => {
+                    warn!(error = %e, "SIGHUP: {what} certificates not reloaded, the old ones stay");
+                }
             }
         }
     });

@@ -8,6 +8,15 @@
 //! body_limit = 1048576                      # bytes
 //! request_timeout = "30s"
 //! max_connections = 64
+//! max_connections_per_client = 8            # one address never takes every place
+//! max_streams = 8                           # SSE follows and timed captures open at once
+//! write_timeout = "10s"                     # an answer the client does not read is closed
+//! header_read_timeout = "10s"               # a request head (or the next one) must arrive
+//!
+//! [http.tls]                                # HTTPS instead of HTTP on `listen`
+//! cert = "/etc/gateway/tls/http.crt"
+//! key = "/etc/gateway/tls/http.key"
+//! ca = "/etc/gateway/tls/http-clients-ca.crt" # optional: client certificates required
 //!
 //! [http.tokens.ops]                         # named tokens, each with a role
 //! role = "operator"
@@ -47,6 +56,20 @@ pub const HTTP_REQUEST_TIMEOUT_RANGE: (Duration, Duration) =
 pub const DEFAULT_HTTP_MAX_CONNECTIONS: u32 = 64;
 /// Accepted range of `max_connections`.
 pub const HTTP_MAX_CONNECTIONS_RANGE: (u32, u32) = (1, 4096);
+/// Connections from one client address by default (the Modbus TCP key of the same name keeps its
+/// own default): a host that opens more cannot take the other clients' places.
+pub const DEFAULT_HTTP_MAX_CONNECTIONS_PER_CLIENT: u32 = 8;
+/// Long-lived answers (SSE follows, timed captures) open at once by default.
+pub const DEFAULT_HTTP_MAX_STREAMS: u32 = 8;
+/// Accepted range of `max_streams`.
+pub const HTTP_MAX_STREAMS_RANGE: (u32, u32) = (1, 1024);
+/// An answer whose bytes the client does not take for this long is closed, by default.
+pub const DEFAULT_HTTP_WRITE_TIMEOUT: Duration = Duration::from_secs(10);
+/// Longest wait for a request head (and for the next one on a kept-alive connection) by default.
+pub const DEFAULT_HTTP_HEADER_READ_TIMEOUT: Duration = Duration::from_secs(10);
+/// Accepted range of `write_timeout` and `header_read_timeout`.
+pub const HTTP_IO_TIMEOUT_RANGE: (Duration, Duration) =
+    (Duration::from_millis(100), Duration::from_secs(600));
 /// Changes are refused without a token unless this is set.
 pub const DEFAULT_INSECURE: bool = false;
 
@@ -67,13 +90,39 @@ pub struct HttpConfig {
     /// A request that takes longer is answered 504.
     #[serde(with = "humantime_serde")]
     pub request_timeout: Duration,
-    /// Connections served at once; further clients wait in the listen backlog.
+    /// Connections served at once; beyond them a connection is served only for `/metrics`,
+    /// `/healthz` and `/readyz` (a few places held back for them), others are answered 503.
     pub max_connections: u32,
+    /// Connections at once from one client address (beyond: as beyond `max_connections`).
+    pub max_connections_per_client: u32,
+    /// SSE follows and timed captures open at once; more are answered 503 with Retry-After.
+    pub max_streams: u32,
+    /// An answer the client does not read for this long is closed.
+    #[serde(with = "humantime_serde")]
+    pub write_timeout: Duration,
+    /// Longest wait for a request head, and for the next one on a kept-alive connection.
+    #[serde(with = "humantime_serde")]
+    pub header_read_timeout: Duration,
     /// Client networks accepted (CIDR); empty: every client. Others are closed at accept.
     pub allowed_networks: Vec<IpNet>,
     /// Named tokens, each with a role (`[http.tokens.<name>]`).
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub tokens: BTreeMap<String, TokenConfig>,
+    /// HTTPS on `listen` (`[http.tls]`); `None`: plain HTTP.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tls: Option<HttpTlsConfig>,
+}
+
+/// The `[http.tls]` section: the listener speaks HTTPS (TLS 1.3 and 1.2) only.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize)]
+pub struct HttpTlsConfig {
+    /// The server's certificate chain (PEM), its own certificate first.
+    pub cert: PathBuf,
+    /// The server's private key (PEM).
+    pub key: PathBuf,
+    /// When set, clients must show a certificate that chains to these CA certificates (PEM).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ca: Option<PathBuf>,
 }
 
 /// What a REST token may change. Reading (GET) needs no token.
@@ -165,8 +214,13 @@ impl Default for HttpConfig {
             body_limit: DEFAULT_BODY_LIMIT,
             request_timeout: DEFAULT_HTTP_REQUEST_TIMEOUT,
             max_connections: DEFAULT_HTTP_MAX_CONNECTIONS,
+            max_connections_per_client: DEFAULT_HTTP_MAX_CONNECTIONS_PER_CLIENT,
+            max_streams: DEFAULT_HTTP_MAX_STREAMS,
+            write_timeout: DEFAULT_HTTP_WRITE_TIMEOUT,
+            header_read_timeout: DEFAULT_HTTP_HEADER_READ_TIMEOUT,
             allowed_networks: Vec::new(),
             tokens: BTreeMap::new(),
+            tls: None,
         }
     }
 }
@@ -216,6 +270,26 @@ impl HttpConfig {
             DEFAULT_HTTP_MAX_CONNECTIONS,
             "",
         );
+        let max_connections_per_client = f.int_or(
+            cx,
+            "max_connections_per_client",
+            lo..=hi,
+            DEFAULT_HTTP_MAX_CONNECTIONS_PER_CLIENT,
+            "",
+        );
+        let (lo, hi) = HTTP_MAX_STREAMS_RANGE;
+        let max_streams = f.int_or(cx, "max_streams", lo..=hi, DEFAULT_HTTP_MAX_STREAMS, "");
+        let (lo, hi) = HTTP_IO_TIMEOUT_RANGE;
+        let write_timeout =
+            f.duration_or(cx, "write_timeout", lo..=hi, DEFAULT_HTTP_WRITE_TIMEOUT, "");
+        let header_read_timeout = f.duration_or(
+            cx,
+            "header_read_timeout",
+            lo..=hi,
+            DEFAULT_HTTP_HEADER_READ_TIMEOUT,
+            "",
+        );
+        let tls = f.table(cx, "tls").map(|t| HttpTlsConfig::read(cx, t));
         let mut allowed_networks = Vec::new();
         for (path, v) in f.array(cx, "allowed_networks") {
             allowed_networks.extend(parsed_value::<IpNet>(
@@ -248,8 +322,13 @@ impl HttpConfig {
             body_limit,
             request_timeout,
             max_connections,
+            max_connections_per_client,
+            max_streams,
+            write_timeout,
+            header_read_timeout,
             allowed_networks,
             tokens,
+            tls,
         }
     }
 
@@ -260,6 +339,26 @@ impl HttpConfig {
             (None, Some(e)) => Some(TokenSource::Env(e.clone())),
             (None, None) => None,
         }
+    }
+}
+
+// === impl HttpTlsConfig ===
+
+impl HttpTlsConfig {
+    fn read(cx: &mut Cx, mut f: Fields<'_>) -> Self {
+        let mut file = |cx: &mut Cx, key| {
+            f.required_string(cx, key)
+                .map(PathBuf::from)
+                .unwrap_or_default()
+        };
+        let cert = file(cx, "cert");
+        let key = file(cx, "key");
+        let ca = f.string(cx, "ca").map(PathBuf::from);
+        if ca.as_ref().is_some_and(|p| p.as_os_str().is_empty()) {
+            cx.issue(f.at("ca"), "empty path");
+        }
+        f.finish(cx);
+        Self { cert, key, ca }
     }
 }
 
@@ -370,9 +469,20 @@ mod tests {
         let c = read(
             "listen = \"0.0.0.0:9000\"\ntoken_env = \"API_TOKEN\"\n\
              insecure_allow_unauthenticated_changes = true\nbody_limit = 4096\nrequest_timeout = \"2s\"\n\
-             max_connections = 8",
+             max_connections = 8\nmax_connections_per_client = 2\nmax_streams = 3\n\
+             write_timeout = \"1s\"\nheader_read_timeout = \"500ms\"\n\
+             [tls]\ncert = \"/etc/gateway/tls/http.crt\"\nkey = \"/etc/gateway/tls/http.key\"",
         )
         .unwrap();
+        assert_eq!(c.max_connections_per_client, 2);
+        assert_eq!(c.max_streams, 3);
+        assert_eq!(c.write_timeout, Duration::from_secs(1));
+        assert_eq!(c.header_read_timeout, Duration::from_millis(500));
+        let tls = c.tls.as_ref().expect("tls");
+        assert_eq!(tls.cert, PathBuf::from("/etc/gateway/tls/http.crt"));
+        assert_eq!(tls.ca, None);
+        let text = toml::to_string(&c).unwrap();
+        assert_eq!(read(&text).unwrap(), c);
         assert_eq!(c.listen.port(), 9000);
         assert_eq!(c.token_source(), Some(TokenSource::Env("API_TOKEN".into())));
         assert!(c.insecure_allow_unauthenticated_changes);
@@ -385,7 +495,8 @@ mod tests {
     fn every_problem_is_reported_at_once() {
         let issues = read(
             "listen = \"nowhere\"\ntoken_file = \"/a\"\ntoken_env = \"1X\"\nbody_limit = 10\n\
-             request_timeout = \"soon\"\ncolour = \"blue\"\nmax_connections = 0",
+             request_timeout = \"soon\"\ncolour = \"blue\"\nmax_connections = 0\n\
+             max_streams = 0\nwrite_timeout = \"1ms\"\n[tls]\nkey = \"/k\"\nca = \"\"",
         )
         .unwrap_err();
         let mut paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
@@ -397,9 +508,13 @@ mod tests {
                 "http.colour",
                 "http.listen",
                 "http.max_connections",
+                "http.max_streams",
                 "http.request_timeout",
+                "http.tls.ca",
+                "http.tls.cert",
                 "http.token_env",
                 "http.token_env",
+                "http.write_timeout",
             ],
             "{issues:?}"
         );

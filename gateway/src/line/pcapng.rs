@@ -57,8 +57,18 @@ pub fn link_type(kind: FrameKind) -> u16 {
 
 /// `frames` of `monitor`'s line as a pcapng file.
 pub fn capture(monitor: &FrameMonitor, frames: &[Frame]) -> Vec<u8> {
-    let mut out =
-        Vec::with_capacity(256 + frames.iter().map(|f| f.bytes.len() + 160).sum::<usize>());
+    let mut out = header(monitor);
+    out.reserve(frames.iter().map(|f| f.bytes.len() + 160).sum::<usize>());
+    for frame in frames {
+        packet(&mut out, monitor, frame);
+    }
+    out
+}
+
+/// The start of a pcapng file of `monitor`'s line: the section header and the two interfaces.
+/// A file is this followed by [`packet`]s (a capture written as it is recorded).
+pub fn header(monitor: &FrameMonitor) -> Vec<u8> {
+    let mut out = Vec::with_capacity(256);
     let mut opts = Vec::new();
     option(
         &mut opts,
@@ -75,8 +85,7 @@ pub fn capture(monitor: &FrameMonitor, frames: &[Frame]) -> Vec<u8> {
     block(&mut out, SHB, &body);
 
     let link = link_type(monitor.kind());
-    let directions = monitor.directions();
-    for direction in directions {
+    for direction in monitor.directions() {
         let mut opts = Vec::new();
         let name = format!("{} {}", monitor.line(), direction.as_str());
         option(&mut opts, IF_NAME, name.as_bytes());
@@ -100,39 +109,40 @@ pub fn capture(monitor: &FrameMonitor, frames: &[Frame]) -> Vec<u8> {
         body.extend_from_slice(&opts);
         block(&mut out, IDB, &body);
     }
-
-    for frame in frames {
-        // One interface per direction, in the monitor's order; a listener's two sides are both
-        // inbound to it.
-        let interface = u32::from(frame.direction == directions[1]);
-        let flags = match frame.direction {
-            Direction::Tx => OUTBOUND,
-            Direction::Rx | Direction::A | Direction::B => INBOUND,
-        };
-        let ts = micros(frame.first);
-        let len = u32::try_from(frame.bytes.len()).unwrap_or(u32::MAX);
-        let d = monitor.describe(frame);
-        let comment = format!(
-            "#{} {}: {}; last byte +{} us",
-            frame.seq,
-            d.verdict.as_str(),
-            d.summary,
-            frame.last_mono.saturating_sub(frame.first_mono).as_micros()
-        );
-        let mut body = Vec::with_capacity(28 + frame.bytes.len() + comment.len() + 16);
-        body.extend_from_slice(&interface.to_le_bytes());
-        body.extend_from_slice(&((ts >> 32) as u32).to_le_bytes());
-        body.extend_from_slice(&((ts & 0xFFFF_FFFF) as u32).to_le_bytes());
-        body.extend_from_slice(&len.to_le_bytes()); // captured
-        body.extend_from_slice(&len.to_le_bytes()); // original
-        body.extend_from_slice(&frame.bytes);
-        pad(&mut body);
-        option(&mut body, OPT_COMMENT, comment.as_bytes());
-        option(&mut body, EPB_FLAGS, &flags.to_le_bytes());
-        end_options(&mut body);
-        block(&mut out, EPB, &body);
-    }
     out
+}
+
+/// Appends `frame` to a file begun with [`header`] as an Enhanced Packet Block.
+pub fn packet(out: &mut Vec<u8>, monitor: &FrameMonitor, frame: &Frame) {
+    // One interface per direction, in the monitor's order; a listener's two sides are both
+    // inbound to it.
+    let interface = u32::from(frame.direction == monitor.directions()[1]);
+    let flags = match frame.direction {
+        Direction::Tx => OUTBOUND,
+        Direction::Rx | Direction::A | Direction::B => INBOUND,
+    };
+    let ts = micros(frame.first);
+    let len = u32::try_from(frame.bytes.len()).unwrap_or(u32::MAX);
+    let d = monitor.describe(frame);
+    let comment = format!(
+        "#{} {}: {}; last byte +{} us",
+        frame.seq,
+        d.verdict.as_str(),
+        d.summary,
+        frame.last_mono.saturating_sub(frame.first_mono).as_micros()
+    );
+    let mut body = Vec::with_capacity(28 + frame.bytes.len() + comment.len() + 16);
+    body.extend_from_slice(&interface.to_le_bytes());
+    body.extend_from_slice(&((ts >> 32) as u32).to_le_bytes());
+    body.extend_from_slice(&((ts & 0xFFFF_FFFF) as u32).to_le_bytes());
+    body.extend_from_slice(&len.to_le_bytes()); // captured
+    body.extend_from_slice(&len.to_le_bytes()); // original
+    body.extend_from_slice(&frame.bytes);
+    pad(&mut body);
+    option(&mut body, OPT_COMMENT, comment.as_bytes());
+    option(&mut body, EPB_FLAGS, &flags.to_le_bytes());
+    end_options(&mut body);
+    block(out, EPB, &body);
 }
 
 fn micros(t: SystemTime) -> u64 {

@@ -55,8 +55,8 @@ pub mod labels;
 
 pub use http::serve_metrics;
 pub use labels::{
-    function_label, Direction, DropReason, PublicationKind, RejectReason, RequestResult,
-    TcpCloseReason, WritePath, WriteReason, WriteResult,
+    function_label, Direction, DropReason, HttpRejectReason, PublicationKind, RejectReason,
+    RequestResult, TcpCloseReason, WritePath, WriteReason, WriteResult,
 };
 
 use image_age::ImageAge;
@@ -85,6 +85,9 @@ pub const METRIC_NAMES: &[&str] = &[
     DROPPED_UPDATES,
     FRAMES_DISCARDED,
     MONITOR_DROPPED,
+    HTTP_CONNECTIONS,
+    HTTP_STREAMS,
+    HTTP_REJECTED,
 ];
 
 const BUILD_INFO: &str = "gateway_build_info";
@@ -109,6 +112,9 @@ const ZENOH_PUBLICATIONS: &str = "gateway_zenoh_publications_total";
 const DROPPED_UPDATES: &str = "gateway_dropped_updates_total";
 const FRAMES_DISCARDED: &str = "gateway_frames_discarded_total";
 const MONITOR_DROPPED: &str = "gateway_monitor_dropped_total";
+const HTTP_CONNECTIONS: &str = "gateway_http_connections";
+const HTTP_STREAMS: &str = "gateway_http_streams";
+const HTTP_REJECTED: &str = "gateway_http_rejected_total";
 
 /// Buckets of `gateway_poll_duration_seconds`, 1 ms .. 5 s.
 ///
@@ -208,6 +214,13 @@ pub struct Metrics {
     frames_discarded: IntCounterVec,
     /// `gateway_monitor_dropped_total{line,reason}`: frames the line's frame monitor let go.
     monitor_dropped: IntCounterVec,
+    /// `gateway_http_connections{pool}`: HTTP connections open now, in the general pool and in
+    /// the places held back for `/metrics`, `/healthz` and `/readyz`.
+    http_connections: IntGaugeVec,
+    /// `gateway_http_streams`: SSE follows and timed captures being served now.
+    http_streams: IntGauge,
+    /// `gateway_http_rejected_total{reason}`: HTTP connections and requests refused or cut.
+    http_rejected: IntCounterVec,
 }
 
 // === impl Metrics ===
@@ -347,6 +360,25 @@ impl Metrics {
                 ),
                 &["line", "reason"],
             )?,
+            http_connections: IntGaugeVec::new(
+                Opts::new(
+                    HTTP_CONNECTIONS,
+                    "HTTP connections open now, by pool (general; health: the places held back \
+                     for /metrics, /healthz and /readyz).",
+                ),
+                &["pool"],
+            )?,
+            http_streams: IntGauge::new(
+                HTTP_STREAMS,
+                "HTTP streams (SSE follows, timed captures) being served now.",
+            )?,
+            http_rejected: IntCounterVec::new(
+                Opts::new(
+                    HTTP_REJECTED,
+                    "HTTP connections and requests refused or cut, by reason.",
+                ),
+                &["reason"],
+            )?,
         };
 
         registry.register(Box::new(build_info.clone()))?;
@@ -371,6 +403,9 @@ impl Metrics {
         registry.register(Box::new(metrics.dropped_updates.clone()))?;
         registry.register(Box::new(metrics.frames_discarded.clone()))?;
         registry.register(Box::new(metrics.monitor_dropped.clone()))?;
+        registry.register(Box::new(metrics.http_connections.clone()))?;
+        registry.register(Box::new(metrics.http_streams.clone()))?;
+        registry.register(Box::new(metrics.http_rejected.clone()))?;
 
         build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
@@ -400,6 +435,12 @@ impl Metrics {
             metrics
                 .dropped_updates
                 .with_label_values(&[reason.as_str()]);
+        }
+        for reason in HttpRejectReason::ALL {
+            metrics.http_rejected.with_label_values(&[reason.as_str()]);
+        }
+        for pool in ["general", "health"] {
+            metrics.http_connections.with_label_values(&[pool]);
         }
         Ok(metrics)
     }
@@ -640,6 +681,25 @@ impl Metrics {
     /// Counts one failed Modbus/TCP Security handshake.
     pub fn tcp_handshake_failed(&self) {
         self.tcp_handshakes_failed.inc();
+    }
+
+    // --- HTTP listener ---
+
+    /// The gauge of open HTTP connections of `pool` (`general` or `health`).
+    pub fn http_connections(&self, pool: &'static str) -> IntGauge {
+        self.http_connections.with_label_values(&[pool])
+    }
+
+    /// The gauge of HTTP streams being served.
+    pub fn http_streams(&self) -> IntGauge {
+        self.http_streams.clone()
+    }
+
+    /// Counts one HTTP connection or request refused or cut for `reason`.
+    pub fn http_rejected(&self, reason: HttpRejectReason) {
+        self.http_rejected
+            .with_label_values(&[reason.as_str()])
+            .inc();
     }
 
     // --- zenoh ---

@@ -164,7 +164,10 @@ fn file_error(what: &'static str, path: &Path, message: impl fmt::Display) -> Tl
     }
 }
 
-fn certificates(what: &'static str, path: &Path) -> Result<Vec<CertificateDer<'static>>, TlsError> {
+pub(crate) fn certificates(
+    what: &'static str,
+    path: &Path,
+) -> Result<Vec<CertificateDer<'static>>, TlsError> {
     let certs = CertificateDer::pem_file_iter(path)
         .map_err(|e| file_error(what, path, e))?
         .collect::<Result<Vec<_>, _>>()
@@ -178,26 +181,43 @@ fn certificates(what: &'static str, path: &Path) -> Result<Vec<CertificateDer<'s
 /// The acceptor for `files`: TLS 1.3 and 1.2 with the ring provider, client certificates required
 /// and verified against the CA.
 fn acceptor(files: &TlsFiles) -> Result<TlsAcceptor, TlsError> {
-    let chain = certificates("certificate", &files.cert)?;
-    let key = PrivateKeyDer::from_pem_file(&files.key)
-        .map_err(|e| file_error("private key", &files.key, e))?;
-    let mut roots = RootCertStore::empty();
-    for ca in certificates("CA certificate", &files.ca)? {
-        roots
-            .add(ca)
-            .map_err(|e| file_error("CA certificate", &files.ca, e))?;
-    }
-    let provider = Arc::new(rustls::crypto::ring::default_provider());
-    let verifier = WebPkiClientVerifier::builder_with_provider(Arc::new(roots), provider.clone())
-        .build()
-        .map_err(|e| TlsError::Settings(e.to_string()))?;
-    let config = ServerConfig::builder_with_provider(provider)
-        .with_protocol_versions(&[&rustls::version::TLS13, &rustls::version::TLS12])
-        .map_err(|e| TlsError::Settings(e.to_string()))?
-        .with_client_cert_verifier(verifier)
-        .with_single_cert(chain, key)
-        .map_err(|e| TlsError::Settings(e.to_string()))?;
+    let config = server_config(&files.cert, &files.key, Some(&files.ca))?;
     Ok(TlsAcceptor::from(Arc::new(config)))
+}
+
+/// TLS server settings from PEM files: TLS 1.3 and 1.2 with the ring provider, the certificate
+/// chain `cert` and its key; with `ca`, client certificates are required and verified against
+/// it (chain, validity, signature), without, none is asked for. Shared by Modbus/TCP Security
+/// and the HTTPS listener.
+pub(crate) fn server_config(
+    cert: &Path,
+    key: &Path,
+    ca: Option<&Path>,
+) -> Result<ServerConfig, TlsError> {
+    let chain = certificates("certificate", cert)?;
+    let key = PrivateKeyDer::from_pem_file(key).map_err(|e| file_error("private key", key, e))?;
+    let provider = Arc::new(rustls::crypto::ring::default_provider());
+    let builder = ServerConfig::builder_with_provider(provider.clone())
+        .with_protocol_versions(&[&rustls::version::TLS13, &rustls::version::TLS12])
+        .map_err(|e| TlsError::Settings(e.to_string()))?;
+    let builder = match ca {
+        Some(ca) => {
+            let mut roots = RootCertStore::empty();
+            for cert in certificates("CA certificate", ca)? {
+                roots
+                    .add(cert)
+                    .map_err(|e| file_error("CA certificate", ca, e))?;
+            }
+            let verifier = WebPkiClientVerifier::builder_with_provider(Arc::new(roots), provider)
+                .build()
+                .map_err(|e| TlsError::Settings(e.to_string()))?;
+            builder.with_client_cert_verifier(verifier)
+        }
+        None => builder.with_no_client_auth(),
+    };
+    builder
+        .with_single_cert(chain, key)
+        .map_err(|e| TlsError::Settings(e.to_string()))
 }
 
 /// The role of a client certificate (DER): the UTF8String of its role extension, if it has one.

@@ -417,43 +417,179 @@ async fn a_trickled_request_head_and_an_idle_connection_are_closed() {
     assert!(String::from_utf8_lossy(&answer).starts_with("HTTP/1.1 200"));
 }
 
+/// Sends `GET path` on a new connection and reads the answer until the server closes it (or
+/// `within` is over): the answer's head and body as text.
+async fn one_request(addr: &str, path: &str, close: bool, within: Duration) -> (TcpStream, String) {
+    let mut s = TcpStream::connect(addr).await.unwrap();
+    let connection = if close { "Connection: close\r\n" } else { "" };
+    s.write_all(format!("GET {path} HTTP/1.1\r\nHost: {addr}\r\n{connection}\r\n").as_bytes())
+        .await
+        .unwrap();
+    let mut buf = vec![0u8; 64 * 1024];
+    let mut got = Vec::new();
+    let deadline = Instant::now() + within;
+    // Read until the head and the whole body (Content-Length) are in.
+    loop {
+        let text = String::from_utf8_lossy(&got).into_owned();
+        if let Some((head, body)) = text.split_once("\r\n\r\n") {
+            let len = head
+                .lines()
+                .find_map(|l| {
+                    l.to_ascii_lowercase()
+                        .strip_prefix("content-length: ")
+                        .map(str::to_owned)
+                })
+                .and_then(|n| n.trim().parse::<usize>().ok());
+            if len.is_some_and(|n| body.len() >= n) {
+                return (s, text);
+            }
+        }
+        let left = deadline.saturating_duration_since(Instant::now());
+        match tokio::time::timeout(left, s.read(&mut buf)).await {
+            Ok(Ok(0)) | Ok(Err(_)) | Err(_) => {
+                return (s, String::from_utf8_lossy(&got).into_owned())
+            }
+            Ok(Ok(n)) => got.extend_from_slice(&buf[..n]),
+        }
+    }
+}
+
 #[tokio::test]
-async fn connections_beyond_the_limit_wait_for_a_free_one() {
+async fn beyond_the_limit_only_the_health_paths_are_served_until_a_place_frees() {
     let api = start_with(Setup {
         max_connections: 1,
         ..Setup::default()
     })
     .await;
     let addr = api.base.trim_start_matches("http://").to_owned();
-    let request = format!("GET /healthz HTTP/1.1\r\nHost: {addr}\r\n\r\n");
+    let within = Duration::from_secs(10);
 
-    let mut first = TcpStream::connect(&addr).await.unwrap();
-    first.write_all(request.as_bytes()).await.unwrap();
-    let mut buf = [0u8; 512];
-    let n = first.read(&mut buf).await.unwrap();
-    assert!(buf[..n].starts_with(b"HTTP/1.1 200"));
+    // The only general place, taken by a request in progress (its body comes slowly).
+    let busy = busy_request(&addr).await;
 
-    // The second connection is accepted by the kernel but not served while the first is open.
-    let mut second = TcpStream::connect(&addr).await.unwrap();
-    second.write_all(request.as_bytes()).await.unwrap();
-    let early = tokio::time::timeout(Duration::from_millis(500), second.read(&mut buf)).await;
-    assert!(early.is_err(), "served beyond the limit");
-    drop(first);
-    let n = tokio::time::timeout(Duration::from_secs(10), second.read(&mut buf))
-        .await
-        .unwrap()
-        .unwrap();
+    // Beyond it: the health paths answer, anything else is 503 with Retry-After, and closed.
+    for path in ["/healthz", "/readyz"] {
+        let (_, answer) = one_request(&addr, path, false, within).await;
+        assert!(
+            answer.starts_with("HTTP/1.1 200")
+                || path == "/readyz" && answer.starts_with("HTTP/1.1 503"),
+            "{path}: {answer}"
+        );
+    }
+    let (mut refused, answer) = one_request(&addr, "/api/v1/lines", false, within).await;
+    assert!(answer.starts_with("HTTP/1.1 503"), "{answer}");
     assert!(
-        buf[..n].starts_with(b"HTTP/1.1 200"),
-        "{}",
-        String::from_utf8_lossy(&buf[..n])
+        answer.to_ascii_lowercase().contains("retry-after: 5"),
+        "{answer}"
     );
+    assert!(answer.contains("\"busy\""), "{answer}");
+    assert!(
+        read_until_closed(&mut refused, within).await.is_some(),
+        "a refused connection stays open"
+    );
+
+    drop(busy);
+    // A connection that only waits (kept alive, idle after its answer) gives its place to a new
+    // one after a second.
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let (mut idle, answer) = one_request(&addr, "/api/v1/lines", false, within).await;
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    tokio::time::sleep(Duration::from_millis(1200)).await;
+    let (_, answer) = one_request(&addr, "/api/v1/lines", false, within).await;
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    assert!(
+        read_until_closed(&mut idle, Duration::from_secs(5))
+            .await
+            .is_some(),
+        "the idle one was kept"
+    );
+}
+
+/// A connection with a request in progress: a change whose body never comes in full.
+async fn busy_request(addr: &str) -> TcpStream {
+    let mut s = TcpStream::connect(addr).await.unwrap();
+    s.write_all(
+        format!(
+            "PUT /api/v1/config HTTP/1.1\r\nHost: {addr}\r\nAuthorization: Bearer {TOKEN}\r\n\
+             Content-Type: application/json\r\nContent-Length: 100\r\n\r\n{{"
+        )
+        .as_bytes(),
+    )
+    .await
+    .unwrap();
+    // Its head is read and the handler waits for the body.
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    s
+}
+
+#[tokio::test]
+async fn a_client_beyond_its_own_places_is_refused_while_another_is_served() {
+    let api = start_with(Setup {
+        max_connections_per_client: 2,
+        ..Setup::default()
+    })
+    .await;
+    let addr = api.base.trim_start_matches("http://").to_owned();
+    // 127.0.0.1 holds its two places with requests in progress.
+    let mut held = Vec::new();
+    for _ in 0..2 {
+        held.push(busy_request(&addr).await);
+    }
+    let (_, answer) = one_request(&addr, "/api/v1/lines", false, Duration::from_secs(10)).await;
+    assert!(answer.starts_with("HTTP/1.1 503"), "{answer}");
+    assert!(answer.contains("max_connections_per_client"), "{answer}");
+    let (_, answer) = one_request(&addr, "/healthz", false, Duration::from_secs(10)).await;
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    // Another address of the host (every 127/8 address reaches lo) has places of its own.
+    let other = tokio::net::TcpSocket::new_v4().unwrap();
+    other.bind("127.0.1.7:0".parse().unwrap()).unwrap();
+    let mut s = other.connect(addr.parse().unwrap()).await.unwrap();
+    s.write_all(
+        format!("GET /api/v1/lines HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n")
+            .as_bytes(),
+    )
+    .await
+    .unwrap();
+    let answer = read_until_closed(&mut s, Duration::from_secs(10))
+        .await
+        .unwrap();
+    assert!(String::from_utf8_lossy(&answer).starts_with("HTTP/1.1 200"));
+}
+
+#[tokio::test]
+async fn an_answer_the_client_does_not_read_is_closed_after_the_write_timeout() {
+    let api = start_with(Setup {
+        write_timeout: Duration::from_millis(500),
+        ..Setup::default()
+    })
+    .await;
+    let addr = api.base.trim_start_matches("http://").to_owned();
+    // A small receive window and a large answer (the OpenAPI document, asked for 400 times in a
+    // pipeline) that the client never reads.
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    let mut s = socket.connect(addr.parse().unwrap()).await.unwrap();
+    let one = format!("GET /api/v1/openapi.json HTTP/1.1\r\nHost: {addr}\r\n\r\n");
+    let started = Instant::now();
+    let _ = s.write_all(one.repeat(400).as_bytes()).await;
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    // Now read: what the server wrote before it gave up, then the end of the connection.
+    let closed = read_until_closed(&mut s, Duration::from_secs(20)).await;
+    assert!(closed.is_some(), "the unread answer was not closed");
+    assert!(started.elapsed() < Duration::from_secs(20));
+    let answered = String::from_utf8_lossy(closed.as_deref().unwrap_or_default())
+        .matches("HTTP/1.1 200")
+        .count();
+    assert!(answered < 400, "every answer was written: {answered}");
 }
 
 #[tokio::test]
 async fn clients_outside_the_allowed_networks_are_closed_at_accept() {
+    let registry = prometheus::Registry::new();
+    let metrics = gateway::metrics::Metrics::register(&registry).expect("metrics");
     let outside = start_with(Setup {
         allowed_networks: vec!["192.0.2.0/24".parse().expect("net")],
+        metrics: Some(metrics),
         ..Setup::default()
     })
     .await;
@@ -470,6 +606,12 @@ async fn clients_outside_the_allowed_networks_are_closed_at_accept() {
         read.is_err() || answer.is_empty(),
         "answered: {}",
         String::from_utf8_lossy(&answer)
+    );
+    // Counted (and logged, rate-limited, with the client's address).
+    let text = gateway::metrics::encode_text(&registry);
+    assert!(
+        text.contains("gateway_http_rejected_total{reason=\"network\"} 1"),
+        "{text}"
     );
     let inside = start_with(Setup {
         allowed_networks: vec!["127.0.0.0/8".parse().expect("net")],

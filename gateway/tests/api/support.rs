@@ -75,6 +75,11 @@ pub(crate) struct Setup {
     pub(crate) request_timeout: Duration,
     pub(crate) max_connections: u32,
     pub(crate) header_read_timeout: Duration,
+    pub(crate) max_connections_per_client: u32,
+    pub(crate) max_streams: u32,
+    pub(crate) write_timeout: Duration,
+    /// Where the listener counts refusals and connections.
+    pub(crate) metrics: Option<gateway::metrics::Metrics>,
     pub(crate) config: Config,
     /// Client networks served; empty: every client.
     pub(crate) allowed_networks: Vec<ipnet::IpNet>,
@@ -92,6 +97,10 @@ impl Default for Setup {
             request_timeout: Duration::from_secs(10),
             max_connections: api::DEFAULT_MAX_CONNECTIONS,
             header_read_timeout: api::DEFAULT_HEADER_READ_TIMEOUT,
+            max_connections_per_client: config::DEFAULT_HTTP_MAX_CONNECTIONS_PER_CLIENT,
+            max_streams: config::DEFAULT_HTTP_MAX_STREAMS,
+            write_timeout: config::DEFAULT_HTTP_WRITE_TIMEOUT,
+            metrics: None,
             config: test_config(),
             allowed_networks: Vec::new(),
             file_text: None,
@@ -188,7 +197,15 @@ pub(crate) async fn start_with(setup: Setup) -> TestApi {
     let mut state = ApiState::new(gw.clone(), setup.auth)
         .with_limits(setup.body_limit, setup.request_timeout)
         .with_connections(setup.max_connections, setup.header_read_timeout)
+        .with_client_limits(
+            setup.max_connections_per_client,
+            setup.max_streams,
+            setup.write_timeout,
+        )
         .with_allowed_networks(setup.allowed_networks.clone());
+    if let Some(metrics) = setup.metrics.clone() {
+        state = state.with_metrics(metrics);
+    }
     let (dir, store_path) = if setup.store {
         let dir = tempfile::tempdir().expect("temp dir");
         let path = dir.path().join("gateway.toml");

@@ -1,0 +1,94 @@
+//! HTTPS for the listener (`[http.tls]`): the REST API, the page, `/metrics` and the health
+//! paths over TLS 1.3 or 1.2, with the certificate handling of Modbus/TCP Security
+//! ([`crate::modbus_tcp::tls`]: the same PEM files and checks, the same rustls settings).
+//!
+//! The files are read at start (and by `gateway check`); [`HttpTls::reload`] reads them again
+//! (on SIGHUP): new connections get the new certificate, connections already open keep their
+//! session, nobody is dropped. A reload that fails (missing file, bad PEM, a key that does not
+//! match) keeps what is in force. With `ca`, clients must show a certificate that chains to it
+//! (the handshake fails otherwise); without, any client may connect and the bearer token guards
+//! the changes as over HTTP.
+
+use std::path::PathBuf;
+use std::sync::{Arc, PoisonError, RwLock};
+
+use tokio_rustls::TlsAcceptor;
+
+use crate::config::HttpTlsConfig;
+use crate::modbus_tcp::tls::server_config;
+use crate::modbus_tcp::TlsError;
+
+/// The HTTPS settings of a running listener, replaceable while it runs.
+#[derive(Clone, Debug)]
+pub struct HttpTls {
+    inner: Arc<RwLock<State>>,
+}
+
+struct State {
+    cert: PathBuf,
+    key: PathBuf,
+    ca: Option<PathBuf>,
+    acceptor: TlsAcceptor,
+}
+
+// === impl HttpTls ===
+
+impl HttpTls {
+    /// Reads the files of `cfg` and makes the settings.
+    pub fn new(cfg: &HttpTlsConfig) -> Result<Self, TlsError> {
+        let acceptor = acceptor(cfg)?;
+        Ok(Self {
+            inner: Arc::new(RwLock::new(State {
+                cert: cfg.cert.clone(),
+                key: cfg.key.clone(),
+                ca: cfg.ca.clone(),
+                acceptor,
+            })),
+        })
+    }
+
+    /// Reads the same files again (a renewed certificate, key or CA), for new connections. On
+    /// error what is in force stays.
+    pub fn reload(&self) -> Result<(), TlsError> {
+        let cfg = {
+            let state = self.inner.read().unwrap_or_else(PoisonError::into_inner);
+            HttpTlsConfig {
+                cert: state.cert.clone(),
+                key: state.key.clone(),
+                ca: state.ca.clone(),
+            }
+        };
+        let acceptor = acceptor(&cfg)?;
+        self.inner
+            .write()
+            .unwrap_or_else(PoisonError::into_inner)
+            .acceptor = acceptor;
+        Ok(())
+    }
+
+    /// The acceptor for a new connection.
+    pub(crate) fn acceptor(&self) -> TlsAcceptor {
+        self.inner
+            .read()
+            .unwrap_or_else(PoisonError::into_inner)
+            .acceptor
+            .clone()
+    }
+}
+
+impl std::fmt::Debug for State {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("HttpTls")
+            .field("cert", &self.cert)
+            .field("key", &self.key)
+            .field("ca", &self.ca)
+            .finish_non_exhaustive()
+    }
+}
+
+fn acceptor(cfg: &HttpTlsConfig) -> Result<TlsAcceptor, TlsError> {
+    let mut config = server_config(&cfg.cert, &cfg.key, cfg.ca.as_deref())?;
+    // The listener speaks HTTP/1.1 only.
+    config.alpn_protocols = vec![b"http/1.1".to_vec()];
+    Ok(TlsAcceptor::from(Arc::new(config)))
+}
