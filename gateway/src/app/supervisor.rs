@@ -347,6 +347,29 @@ impl Supervisor {
                 ));
             }
         }
+        // A journal is written like the persistence file: confined to the state directories.
+        for (name, line) in &new.lines {
+            let Some(journal) = line.journal() else {
+                continue;
+            };
+            let changed = old
+                .config
+                .lines
+                .get(name)
+                .and_then(|o| o.journal())
+                != Some(journal);
+            if changed && !inside(journal, &old.config.gateway.state_dirs) {
+                issues.push(issue(
+                    &format!("lines.{name}.journal"),
+                    format!(
+                        "{} is outside [gateway] state_dirs {:?}: a change over the API names a \
+                         journal there only",
+                        journal.display(),
+                        old.config.gateway.state_dirs
+                    ),
+                ));
+            }
+        }
         if self.overrides.modbus_tcp.is_none()
             && new.modbus_tcp.listen != old.config.modbus_tcp.listen
         {
