@@ -36,7 +36,7 @@ mod tls;
 mod zenoh;
 
 pub use check::{
-    check_command, check_report, config_issues, load_config, port_issues, run_issues,
+    ack_warnings, check_command, check_report, config_issues, load_config, port_issues, run_issues,
     security_warnings, unpolled_tags,
 };
 pub use demo::demo;
@@ -185,7 +185,10 @@ pub async fn run(
         None => MetricsRegistry::new()
             .map_err(|e| AppError::Setup(format!("cannot register the metrics: {e}")))?,
     };
-    for warning in security_warnings(&config) {
+    for warning in security_warnings(&config)
+        .into_iter()
+        .chain(ack_warnings(&config))
+    {
         warn!("{}: {}", warning.path, warning.message);
     }
     log_rest_guard(&config.http);

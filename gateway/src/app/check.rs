@@ -264,6 +264,46 @@ pub fn unpolled_tags(config: &Config) -> Vec<ConfigIssue> {
     warnings
 }
 
+/// The telegram lines whose received telegrams nothing in `config` acknowledges on its own: an
+/// explicit line without a Modbus TCP mailbox (`unit_id`, Modbus TCP on) and without zenoh
+/// writes (`<line>/ack`) is acknowledged over REST only; an on-publish line without zenoh by
+/// nothing at all. Either fills its mailbox and then refuses telegrams (08 0Ah).
+pub fn ack_warnings(config: &Config) -> Vec<ConfigIssue> {
+    let zenoh_on = config.zenoh.as_ref().is_some_and(|z| z.enabled);
+    let zenoh_writes = zenoh_on && config.zenoh.as_ref().is_some_and(|z| z.writes);
+    let modbus_on = config.modbus_tcp.enabled;
+    let mut warnings = Vec::new();
+    for (name, line) in &config.lines {
+        if !matches!(
+            line.protocol,
+            ProtocolConfig::Proc3964(_) | ProtocolConfig::Ascii(_)
+        ) {
+            continue;
+        }
+        let message = match config::ack_mode(config, line) {
+            config::AckConfig::Explicit if !(modbus_on && line.unit_id().is_some()) && !zenoh_writes => {
+                format!(
+                    "ack = \"explicit\" but no Modbus TCP unit_id and no zenoh writes ([zenoh] writes = \
+                     true) can acknowledge its telegrams: only REST can (POST \
+                     /api/v1/lines/{name}/telegrams/{{seq}}/ack); unacknowledged, the mailbox fills \
+                     and the line refuses telegrams (08 0Ah). Set ack = \"on-publish\" to acknowledge \
+                     on publication to zenoh"
+                )
+            }
+            config::AckConfig::OnPublish if !zenoh_on => format!(
+                "ack = \"on-publish\" but zenoh is off: nothing publishes, so nothing acknowledges \
+                 lines.{name}'s telegrams; the mailbox fills and the line refuses telegrams (08 0Ah)"
+            ),
+            _ => continue,
+        };
+        warnings.push(ConfigIssue {
+            path: format!("lines.{name}.ack"),
+            message,
+        });
+    }
+    warnings
+}
+
 /// The first names of a list, and how many more there are.
 fn listed(names: &[&str]) -> String {
     const SHOWN: usize = 12;
@@ -378,6 +418,7 @@ pub fn check_report(path: &Path) -> (String, i32) {
     let mut errors = run_issues(&config);
     let (port_errors, mut warnings) = port_issues(&config);
     warnings.extend(unpolled_tags(&config));
+    warnings.extend(ack_warnings(&config));
     errors.extend(port_errors);
     let code = i32::from(!errors.is_empty());
     let mut text = if errors.is_empty() {

@@ -352,12 +352,7 @@ impl Supervisor {
             let Some(journal) = line.journal() else {
                 continue;
             };
-            let changed = old
-                .config
-                .lines
-                .get(name)
-                .and_then(|o| o.journal())
-                != Some(journal);
+            let changed = old.config.lines.get(name).and_then(|o| o.journal()) != Some(journal);
             if changed && !inside(journal, &old.config.gateway.state_dirs) {
                 issues.push(issue(
                     &format!("lines.{name}.journal"),

@@ -8,6 +8,7 @@
 
 use crate::audit::{self, WritePath, WriteResult};
 use crate::line::telegram::TelegramSendError;
+use crate::mailbox::AckMode;
 use std::collections::BTreeSet;
 use std::sync::{Arc, PoisonError, Weak};
 use std::time::Duration;
@@ -298,6 +299,37 @@ impl BridgeBackend for ZenohBackend {
         })
     }
 
+    fn ack_telegram(&self, line: &str, seq: u16) -> BackendFuture<Result<Json, String>> {
+        let metrics = self.metrics();
+        let target = format!("{line}/telegrams/{seq} ack");
+        let audit = move |result, detail: &dyn std::fmt::Display| {
+            audit::record(
+                metrics.as_ref(),
+                WritePath::Zenoh,
+                &"zenoh",
+                &target,
+                result,
+                detail,
+            );
+        };
+        let answer = self.writes_allowed().and_then(|()| {
+            let mailbox = self
+                .sup
+                .upgrade()
+                .and_then(|s| s.snapshot().lines.get(line)?.handle.mailbox())
+                .ok_or_else(|| format!("line {line} does not receive telegrams"))?;
+            mailbox
+                .ack(seq)
+                .map(|()| json!({ "acknowledged": seq }))
+                .map_err(|e| e.to_string())
+        });
+        match &answer {
+            Ok(_) => audit(WriteResult::Accepted, &"acknowledged"),
+            Err(e) => audit(WriteResult::Refused, e),
+        }
+        Box::pin(async move { answer })
+    }
+
     fn write_tag(
         &self,
         line: &str,
@@ -572,6 +604,14 @@ fn spawn_line_feeds(
     let Some(mut rx) = line.handle.subscribe_rx() else {
         return;
     };
+    if let Some(mailbox) = line
+        .handle
+        .mailbox()
+        .filter(|m| m.settings().ack == AckMode::OnPublish)
+    {
+        spawn_on_publish_feed(bridge, mailbox, rx, token, &line.token);
+        return;
+    }
     let bridge = bridge.clone();
     let (token, line_token) = (token.clone(), line.token.clone());
     let name = name.to_owned();
@@ -603,6 +643,64 @@ fn spawn_line_feeds(
                     warn!(line = %name, missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
                 }
                 Err(RecvError::Closed) => return,
+            }
+        }
+    });
+}
+
+/// How long the feed of a line acknowledged on publication waits before it offers a telegram
+/// again that zenoh did not take (its queue full, a put that failed).
+const ON_PUBLISH_RETRY: Duration = Duration::from_millis(100);
+
+/// `<prefix>/<line>/rx` of a line with `ack = "on-publish"`: the mailbox's waiting telegrams,
+/// oldest first, each acknowledged once zenoh took its put (so a telegram the journal restored
+/// is published after a restart, and one zenoh did not take waits and is offered again). The
+/// broadcast of received telegrams only wakes the feed.
+fn spawn_on_publish_feed(
+    bridge: &BridgeHandle,
+    mailbox: Arc<crate::mailbox::Mailbox>,
+    mut arrivals: tokio::sync::broadcast::Receiver<crate::mailbox::TelegramRx>,
+    token: &CancellationToken,
+    line_token: &CancellationToken,
+) {
+    let bridge = bridge.clone();
+    let (token, line_token) = (token.clone(), line_token.clone());
+    tokio::spawn(async move {
+        loop {
+            while let Some(t) = mailbox.head() {
+                let pushed = bridge.publish_telegram_confirmed(
+                    &t.line,
+                    u64::from(t.seq),
+                    t.received,
+                    t.data.to_vec(),
+                );
+                let taken = match pushed {
+                    Ok(done) => tokio::select! {
+                        () = token.cancelled() => return,
+                        () = line_token.cancelled() => return,
+                        ok = done => ok.unwrap_or(false),
+                    },
+                    Err(DropReason::BridgeClosed) => return,
+                    Err(_) => false,
+                };
+                if taken {
+                    // A client may have acknowledged it meanwhile: either way it is done.
+                    let _ = mailbox.ack(t.seq);
+                } else {
+                    tokio::select! {
+                        () = token.cancelled() => return,
+                        () = line_token.cancelled() => return,
+                        () = tokio::time::sleep(ON_PUBLISH_RETRY) => {}
+                    }
+                }
+            }
+            let arrived = tokio::select! {
+                () = token.cancelled() => return,
+                () = line_token.cancelled() => return,
+                t = arrivals.recv() => t,
+            };
+            if let Err(RecvError::Closed) = arrived {
+                return;
             }
         }
     });

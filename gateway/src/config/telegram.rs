@@ -317,7 +317,10 @@ impl Link3964 {
 fn journal_path(cx: &mut Cx, f: &mut Fields<'_>) -> Option<PathBuf> {
     let path = f.string(cx, "journal")?;
     if path.trim().is_empty() {
-        cx.issue(f.at("journal"), "give a file path (or leave the key out: no journal)");
+        cx.issue(
+            f.at("journal"),
+            "give a file path (or leave the key out: no journal)",
+        );
         return None;
     }
     Some(PathBuf::from(path))
@@ -327,11 +330,12 @@ fn journal_path(cx: &mut Cx, f: &mut Fields<'_>) -> Option<PathBuf> {
 /// line has no Modbus TCP `unit_id` and zenoh is on (nobody else could), else "explicit".
 pub fn ack_mode(config: &super::Config, line: &super::LineConfig) -> AckConfig {
     let zenoh_on = config.zenoh.as_ref().is_some_and(|z| z.enabled);
-    line.ack().unwrap_or(if line.unit_id().is_none() && zenoh_on {
-        AckConfig::OnPublish
-    } else {
-        AckConfig::Explicit
-    })
+    line.ack()
+        .unwrap_or(if line.unit_id().is_none() && zenoh_on {
+            AckConfig::OnPublish
+        } else {
+            AckConfig::Explicit
+        })
 }
 
 /// The Modbus TCP unit id of a telegram mailbox (`unit_id`).

@@ -171,7 +171,9 @@ impl Record {
                 KIND_STATE
             }
         };
-        let len = u32::try_from(payload.len()).unwrap_or(u32::MAX).to_le_bytes();
+        let len = u32::try_from(payload.len())
+            .unwrap_or(u32::MAX)
+            .to_le_bytes();
         let mut crc = crc32fast::Hasher::new();
         crc.update(&len);
         crc.update(&[kind]);
@@ -201,7 +203,11 @@ impl Record {
         if crc.finalize().to_le_bytes() != stored {
             return Err("checksum mismatch");
         }
-        let u16_at = |i: usize| payload.get(i..i + 2).map(|b| u16::from_le_bytes([b[0], b[1]]));
+        let u16_at = |i: usize| {
+            payload
+                .get(i..i + 2)
+                .map(|b| u16::from_le_bytes([b[0], b[1]]))
+        };
         let record = match kind {
             KIND_TELEGRAM => {
                 let seq = u16_at(0).ok_or("bad length")?;
@@ -415,7 +421,12 @@ impl Journal {
     /// # Errors
     ///
     /// Writing failed.
-    pub fn append_removed(&mut self, seq: u16, acked: bool, data_len: usize) -> Result<(), JournalError> {
+    pub fn append_removed(
+        &mut self,
+        seq: u16,
+        acked: bool,
+        data_len: usize,
+    ) -> Result<(), JournalError> {
         self.append(&Record::Removed { seq, acked }, false)?;
         self.live = self
             .live
@@ -441,10 +452,13 @@ impl Journal {
     fn append(&mut self, record: &Record, sync: bool) -> Result<(), JournalError> {
         self.buf.clear();
         record.encode(&mut self.buf);
-        let written = self
-            .file
-            .write_all(&self.buf)
-            .and_then(|()| if sync { self.file.sync_data() } else { Ok(()) });
+        let written = self.file.write_all(&self.buf).and_then(|()| {
+            if sync {
+                self.file.sync_data()
+            } else {
+                Ok(())
+            }
+        });
         if let Err(source) = written {
             // Cut a partial record off, so that the next one is not appended behind garbage.
             let _ = self.file.set_len(self.size);
@@ -559,8 +573,14 @@ mod tests {
             Record::Telegram(telegram(1, b"3964R 000001")),
             Record::Telegram(telegram(65535, b"")),
             Record::Telegram(telegram(7, &[0x10; 1024])),
-            Record::Removed { seq: 9, acked: true },
-            Record::Removed { seq: 9, acked: false },
+            Record::Removed {
+                seq: 9,
+                acked: true,
+            },
+            Record::Removed {
+                seq: 9,
+                acked: false,
+            },
             Record::State {
                 last_seq: 300,
                 last_acked: 299,
@@ -659,7 +679,11 @@ mod tests {
                 let loss = r.loss.expect("a loss");
                 assert_eq!(
                     (loss.offset, loss.bytes, loss.reason),
-                    (before.len() as u64, (cut - before.len()) as u64, "cut short"),
+                    (
+                        before.len() as u64,
+                        (cut - before.len()) as u64,
+                        "cut short"
+                    ),
                     "cut at {cut}"
                 );
             }
@@ -673,7 +697,10 @@ mod tests {
             assert_eq!(r, Replayed::default(), "cut at {cut}");
         }
         let r = Replayed::from_bytes(b"[gateway]\nname = \"x\"\n");
-        assert_eq!(r.loss.map(|l| (l.offset, l.reason)), Some((0, "not a journal")));
+        assert_eq!(
+            r.loss.map(|l| (l.offset, l.reason)),
+            Some((0, "not a journal"))
+        );
     }
 
     #[test]
@@ -720,7 +747,10 @@ mod tests {
         drop(j);
         let (_, r) = Journal::open(&path).expect("reopen");
         assert_eq!(r.loss, None);
-        assert_eq!(r.telegrams.iter().map(|t| t.seq).collect::<Vec<_>>(), [2, 3]);
+        assert_eq!(
+            r.telegrams.iter().map(|t| t.seq).collect::<Vec<_>>(),
+            [2, 3]
+        );
     }
 
     #[test]
@@ -752,7 +782,8 @@ mod tests {
             waiting.push_back(t);
             if waiting.len() as u64 > depth - 1 {
                 let old = waiting.pop_front().expect("one");
-                j.append_removed(old.seq, true, old.data.len()).expect("append");
+                j.append_removed(old.seq, true, old.data.len())
+                    .expect("append");
                 acked = old.seq;
             }
             if j.wants_compaction() {

@@ -343,7 +343,11 @@ impl Mailbox {
     /// Compacts the journal when it has outgrown its bound; a failure is logged and the journal
     /// keeps growing until the next attempt.
     fn compact_if_due(state: &mut State) {
-        if state.journal.as_ref().is_some_and(Journal::wants_compaction) {
+        if state
+            .journal
+            .as_ref()
+            .is_some_and(Journal::wants_compaction)
+        {
             Self::compact(state);
         }
     }

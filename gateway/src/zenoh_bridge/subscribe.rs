@@ -45,6 +45,8 @@ pub(crate) enum Op {
         tag: String,
         value: Value,
     },
+    /// Acknowledge the received telegram with this sequence number.
+    Ack(u16),
 }
 
 /// One command, from a put or a query.
@@ -61,6 +63,7 @@ impl Command {
         match self.op {
             Op::Tx(_) => CommandKind::Tx,
             Op::Set { .. } => CommandKind::Set,
+            Op::Ack(_) => CommandKind::Ack,
         }
     }
 }
@@ -97,6 +100,28 @@ fn parse(
             op: Op::Tx(bytes),
             ..cmd
         });
+    }
+    if let Some(line) = keys.parse_ack(key) {
+        // The sequence number as text ("17"), as the Modbus register and the REST path take it.
+        let seq = payload
+            .as_deref()
+            .and_then(|p| std::str::from_utf8(p).ok())
+            .and_then(|t| t.trim().parse::<u16>().ok())
+            .filter(|&seq| seq != 0);
+        let cmd = Command {
+            line,
+            op: Op::Ack(seq.unwrap_or(0)),
+            attachment,
+            query,
+        };
+        return match seq {
+            Some(_) => Parsed::Command(cmd),
+            None => Parsed::Rejected(
+                cmd,
+                "payload is not a sequence number 1..65535 (send it as text, e.g. \"17\")"
+                    .to_owned(),
+            ),
+        };
     }
     if let Some((line, device, tag)) = keys.parse_set(key) {
         let parsed = payload
@@ -220,6 +245,7 @@ impl Commands {
         let kind = match op {
             Op::Tx(_) => CommandKind::Tx,
             Op::Set { .. } => CommandKind::Set,
+            Op::Ack(_) => CommandKind::Ack,
         };
         self.stats.command(kind, result);
         let mut body = match &op {
@@ -227,6 +253,7 @@ impl Commands {
             Op::Set { device, tag, value } => {
                 json!({"line": line, "device": device, "tag": tag, "value": value})
             }
+            Op::Ack(seq) => json!({"line": line, "seq": seq}),
         };
         match outcome {
             Ok(v) => {
@@ -239,12 +266,26 @@ impl Commands {
             }
         }
         let payload = body.to_string().into_bytes();
-        let (key, pkind) = match &op {
-            Op::Tx(_) => (self.keys.tx_result(&line), PublicationKind::TxResult),
-            Op::Set { device, tag, .. } => (
+        let target = match &op {
+            Op::Tx(_) => Some((self.keys.tx_result(&line), PublicationKind::TxResult)),
+            Op::Set { device, tag, .. } => Some((
                 self.keys.set_result(&line, device, tag),
                 PublicationKind::SetResult,
-            ),
+            )),
+            // No result key (`<line>/ack/result` could be a tag's key): a query gets the
+            // result as its reply, a refused put is logged.
+            Op::Ack(seq) => {
+                if body["ok"] == Value::Bool(false) {
+                    crate::warn_limited!(
+                        format!("zenoh ack {line}"),
+                        %line,
+                        seq,
+                        error = %body["error"],
+                        "zenoh acknowledgement refused"
+                    );
+                }
+                None
+            }
         };
         if let Some(query) = query {
             let payload = payload.clone();
@@ -262,12 +303,16 @@ impl Commands {
                 }
             });
         }
+        let Some((key, pkind)) = target else {
+            return;
+        };
         let _ = self.outbox.push(Message {
             kind: pkind,
             key,
             payload,
             json: true,
             attachment,
+            done: None,
         });
     }
 }
@@ -335,6 +380,7 @@ async fn line_worker(
             Op::Set { device, tag, value } => {
                 backend.write_tag(&cmd.line, device, tag, value.clone())
             }
+            Op::Ack(seq) => backend.ack_telegram(&cmd.line, *seq),
         };
         let outcome = tokio::select! {
             r = fut => r,
@@ -396,6 +442,29 @@ mod tests {
                     None,
                     None
                 ),
+                Parsed::Rejected(..)
+            ));
+        }
+    }
+
+    #[test]
+    fn ack_needs_a_sequence_number() {
+        match parse(
+            &keys(),
+            "gw/demo/r3964/ack",
+            Some(b" 17\n".to_vec()),
+            None,
+            None,
+        ) {
+            Parsed::Command(c) => {
+                assert_eq!(c.line, "r3964");
+                assert!(matches!(c.op, Op::Ack(17)));
+            }
+            other => panic!("{other:?}"),
+        }
+        for bad in [&b"0"[..], b"", b"65536", b"x", b"\xff"] {
+            assert!(matches!(
+                parse(&keys(), "gw/demo/r3964/ack", Some(bad.to_vec()), None, None),
                 Parsed::Rejected(..)
             ));
         }

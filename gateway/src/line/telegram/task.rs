@@ -94,8 +94,7 @@ impl<F: EngineFactory> LineEngine for TelegramLine<F> {
             if journaled {
                 // With a journal the driver holds no telegram beyond the mailbox: an STX that
                 // finds it full is refused at once (3964(R): NAK).
-                self.engine
-                    .set_receive_ready(self.shared.mailbox.accepts());
+                self.engine.set_receive_ready(self.shared.mailbox.accepts());
             }
             self.engine.handle_rx(at, &[byte]);
             if self.events() {
@@ -339,8 +338,10 @@ impl<F: EngineFactory> TelegramLine<F> {
                         "telegram refused (NAK): the journal did not take it; the partner repeats"
                     );
                     drop(data);
-                    self.shared
-                        .raise(ids::CPU_TRANSFER_ERROR, Some(format!("{error}: refused with NAK")));
+                    self.shared.raise(
+                        ids::CPU_TRANSFER_ERROR,
+                        Some(format!("{error}: refused with NAK")),
+                    );
                     self.confirm(Err(ids::CPU_TRANSFER_ERROR));
                     continue;
                 }
@@ -368,7 +369,9 @@ impl<F: EngineFactory> TelegramLine<F> {
             let depth = self.shared.mailbox.settings().queue_depth;
             self.shared.raise(
                 ids::NO_FREE_RECEIVE_BUFFER,
-                Some(format!("mailbox full ({depth} telegrams): telegram refused with NAK")),
+                Some(format!(
+                    "mailbox full ({depth} telegrams): telegram refused with NAK"
+                )),
             );
             self.confirm(Err(ids::NO_FREE_RECEIVE_BUFFER));
             any = true;
