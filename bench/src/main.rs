@@ -14,7 +14,9 @@
 //!   polled device while a third client reads its cached values: cached reads answered, the
 //!   oldest cached value and the achieved poll cycle against the group's bound (`closed`);
 //! - zenoh: serial frame end to subscriber p99, sustained samples/s (`process`, real binary);
-//! - resident memory with 4 lines, 32 devices, 10 000 points (`process`, real binary).
+//! - resident memory with 4 lines, 32 devices, 10 000 points (`process`, real binary);
+//! - the mailbox journal: 3964R telegrams per second at 9600 Bd with and without `journal`, and
+//!   the journal's largest size against its bound (`telegram`).
 //!
 //! Run `cargo build --release` first (the zenoh and memory rows start `target/release/gateway`),
 //! then `target/release/gateway-bench` (about 7 minutes) or `--quick` (about a minute). Progress
@@ -31,6 +33,7 @@ mod report;
 mod stats;
 mod tap;
 mod tcp;
+mod telegram;
 mod tls;
 
 use std::path::PathBuf;
@@ -88,6 +91,8 @@ enum Group {
     Zenoh,
     /// Resident memory.
     Memory,
+    /// The mailbox journal's cost and size.
+    Journal,
 }
 
 /// How long each measurement runs.
@@ -117,6 +122,10 @@ pub(crate) struct Plan {
     pub(crate) zenoh_window: Duration,
     /// How long the memory row samples.
     pub(crate) memory_window: Duration,
+    /// Rounds of the journal rows (each with and without a journal).
+    pub(crate) journal_rounds: usize,
+    /// How long one journal run counts telegrams.
+    pub(crate) journal_window: Duration,
 }
 
 impl Plan {
@@ -138,6 +147,10 @@ impl Plan {
             telegrams: 1000,
             zenoh_window: Duration::from_secs(5),
             memory_window: Duration::from_secs(3),
+            // Two rounds of 45 s: about 1,700 telegrams each, so the journal is compacted
+            // while the line runs.
+            journal_rounds: 2,
+            journal_window: Duration::from_secs(45),
         }
     }
 
@@ -155,6 +168,8 @@ impl Plan {
             telegrams: 100,
             zenoh_window: Duration::from_secs(2),
             memory_window: Duration::from_secs(1),
+            journal_rounds: 1,
+            journal_window: Duration::from_secs(4),
         }
     }
 }
@@ -281,6 +296,13 @@ async fn run(args: &Args) -> Vec<Row> {
             .await
             .unwrap_or_else(|e| failed("RSS, 4 lines / 32 devices / 10 000 points", e));
         push(&mut rows, row);
+    }
+    if wanted(Group::Journal) {
+        eprintln!("mailbox journal: 3964R telegrams/s with and without");
+        match telegram::journal_cost(&plan).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(&mut rows, failed("3964R telegrams/s, journal / none", e)),
+        }
     }
     rows
 }

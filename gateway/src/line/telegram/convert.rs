@@ -236,7 +236,8 @@ mod tests {
             r3964.mailbox,
             MailboxSettings {
                 queue_depth: 250,
-                overflow: Overflow::Refuse
+                overflow: Overflow::Refuse,
+                ack: AckMode::Explicit,
             }
         );
 
