@@ -280,14 +280,16 @@ pub fn ack_warnings(config: &Config) -> Vec<ConfigIssue> {
         ) {
             continue;
         }
+        // A client other than REST that can acknowledge: a Modbus TCP mailbox or zenoh writes.
+        let client = (modbus_on && line.unit_id().is_some()) || zenoh_writes;
         let message = match config::ack_mode(config, line) {
-            config::AckConfig::Explicit if !(modbus_on && line.unit_id().is_some()) && !zenoh_writes => {
+            config::AckConfig::Explicit if !client => {
                 format!(
-                    "ack = \"explicit\" but no Modbus TCP unit_id and no zenoh writes ([zenoh] writes = \
-                     true) can acknowledge its telegrams: only REST can (POST \
-                     /api/v1/lines/{name}/telegrams/{{seq}}/ack); unacknowledged, the mailbox fills \
-                     and the line refuses telegrams (08 0Ah). Set ack = \"on-publish\" to acknowledge \
-                     on publication to zenoh"
+                    "ack = \"explicit\" but no Modbus TCP unit_id and no zenoh writes \
+                     ([zenoh] writes = true) can acknowledge its telegrams: only REST can \
+                     (POST /api/v1/lines/{name}/telegrams/{{seq}}/ack); unacknowledged, the \
+                     mailbox fills and the line refuses telegrams (08 0Ah). Set ack = \
+                     \"on-publish\" to acknowledge on publication to zenoh"
                 )
             }
             config::AckConfig::OnPublish if !zenoh_on => format!(
@@ -447,6 +449,45 @@ mod tests {
         assert!(endpoint_is_loopback("tcp/localhost:7447"));
         assert!(!endpoint_is_loopback("tcp/0.0.0.0:7447"));
         assert!(!endpoint_is_loopback("tls/10.0.0.5:7447"));
+    }
+
+    #[test]
+    fn a_telegram_line_nothing_but_rest_can_acknowledge_is_warned_about() {
+        let line = |keys: &str| {
+            format!("[lines.r]\nport = \"/dev/ttyS1\"\nprotocol = \"3964r\"\n{keys}\n")
+        };
+        let zenoh = "[zenoh]\nlisten = [\"tcp/127.0.0.1:7447\"]\n";
+        let warned = |text: String| {
+            let config = config::parse(&text).expect("parses");
+            ack_warnings(&config)
+                .into_iter()
+                .map(|w| (w.path, w.message))
+                .collect::<Vec<_>>()
+        };
+        // No unit_id, no zenoh: explicit by default, and only REST can acknowledge.
+        let w = warned(line(""));
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert_eq!(w[0].0, "lines.r.ack");
+        assert!(w[0].1.contains("only REST can"), "{}", w[0].1);
+        // No unit_id, zenoh on: on-publish by default, nothing to warn about.
+        assert_eq!(warned(format!("{}{zenoh}", line(""))), []);
+        // Explicit on purpose with zenoh writes off: warned; with writes on: not.
+        assert_eq!(
+            warned(format!("{}{zenoh}", line("ack = \"explicit\""))).len(),
+            1
+        );
+        assert_eq!(
+            warned(format!(
+                "{}{zenoh}writes = true\n",
+                line("ack = \"explicit\"")
+            )),
+            []
+        );
+        // A Modbus TCP mailbox acknowledges.
+        assert_eq!(warned(line("unit_id = 100")), []);
+        // On-publish without zenoh: nothing publishes.
+        let w = warned(line("ack = \"on-publish\""));
+        assert!(w[0].1.contains("zenoh is off"), "{w:?}");
     }
 
     #[test]
