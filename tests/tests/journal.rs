@@ -323,3 +323,66 @@ receive_buffer = 5
     .await;
     assert_eq!(status["dropped"], 0, "{status}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_zenoh_put_on_ack_acknowledges_the_oldest_telegram() {
+    let dir = temp_dir("zenoh-ack");
+    let link = SocatLink::new(&dir, "r3964");
+    let config = dir.join("gateway.toml");
+    let port = link.a.clone();
+    let gw = Gateway::run_on_free_zenoh_port(&config, |zenoh_port| {
+        format!(
+            r#"
+[gateway]
+name = "zack"
+
+[modbus_tcp]
+listen = "127.0.0.1:0"
+
+[zenoh]
+mode = "peer"
+listen = ["tcp/127.0.0.1:{zenoh_port}"]
+connect = []
+multicast_scouting = false
+writes = true
+
+[lines.r3964]
+port = "{port}"
+protocol = "3964r"
+baud = 9600
+parity = "even"
+priority = "high"
+receive_buffer = 5
+ack = "explicit"
+"#,
+            port = port.display()
+        )
+    });
+    let _partner = partner(&link.b, "30ms");
+    let full = until_waiting(&gw, 5).await;
+    assert_eq!(full.first().map(|t| t.0), Some(1));
+    let session = zenoh_client(gw.zenoh_port.expect("zenoh port")).await;
+    // A wrong number is refused (the query form answers why); nothing is released.
+    let replies = session
+        .get("gw/zack/r3964/ack")
+        .payload("3")
+        .await
+        .expect("get");
+    let reply = replies.recv_async().await.expect("a reply");
+    let answer: Value =
+        serde_json::from_slice(&reply.result().expect("an answer").payload().to_bytes())
+            .expect("JSON");
+    assert_eq!(answer["ok"], false, "{answer}");
+    assert_eq!(waiting(&gw).await.first().map(|t| t.0), Some(1));
+    // The oldest's number, put as text: released, the next one shows.
+    session.put("gw/zack/r3964/ack", "1").await.expect("put");
+    let deadline = Instant::now() + Duration::from_secs(10);
+    loop {
+        let w = waiting(&gw).await;
+        if w.first().map(|t| t.0) == Some(2) {
+            break;
+        }
+        assert!(Instant::now() < deadline, "not acknowledged: {w:?}");
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+}
