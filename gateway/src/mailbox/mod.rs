@@ -14,6 +14,12 @@
 //! were lost. Observers (zenoh, REST) get every telegram with its number
 //! ([`Mailbox::subscribe`]), independent of the acknowledgements.
 //!
+//! With a [`journal`] ([`Mailbox::with_journal`]) every telegram that waits is on disk: written
+//! and synced before it counts as received ([`Mailbox::try_deliver`]), its acknowledgement or
+//! drop recorded, so that a restart finds the same telegrams under the same numbers and the
+//! numbering goes on. Who acknowledges is the line's [`AckMode`]: a client (Modbus TCP, REST,
+//! zenoh `<line>/ack`) or the zenoh feed once it published the telegram.
+//!
 //! The telegram line's `MailboxUnit` (in [`crate::line::telegram`]) serves the mailbox under the
 //! line's unit id; [`layout`] documents the registers.
 
