@@ -17,6 +17,8 @@
 //! - resident memory with 4 lines, 32 devices, 10 000 points (`process`, real binary);
 //! - zenoh bounds: log lines and counted refusals of a flood of refused puts, resident memory
 //!   growth for an 8 MiB and a 256 MiB put (`zenoh_bounds`, real binary).
+//! - the mailbox journal: 3964R telegrams per second at 9600 Bd with and without `journal`, and
+//!   the journal's largest size against its bound (`telegram`).
 //!
 //! Run `cargo build --release` first (the zenoh and memory rows start `target/release/gateway`),
 //! then `target/release/gateway-bench` (about 7 minutes) or `--quick` (about a minute). Progress
@@ -33,6 +35,7 @@ mod report;
 mod stats;
 mod tap;
 mod tcp;
+mod telegram;
 mod tls;
 mod zenoh_bounds;
 
@@ -93,6 +96,8 @@ enum Group {
     Memory,
     /// What a zenoh peer can cost: a flood of refused puts, 8 MiB and 256 MiB puts.
     Bounds,
+    /// The mailbox journal's cost and size.
+    Journal,
 }
 
 /// How long each measurement runs.
@@ -122,6 +127,10 @@ pub(crate) struct Plan {
     pub(crate) zenoh_window: Duration,
     /// How long the memory row samples.
     pub(crate) memory_window: Duration,
+    /// Rounds of the journal rows (each with and without a journal).
+    pub(crate) journal_rounds: usize,
+    /// How long one journal run counts telegrams.
+    pub(crate) journal_window: Duration,
 }
 
 impl Plan {
@@ -143,6 +152,10 @@ impl Plan {
             telegrams: 1000,
             zenoh_window: Duration::from_secs(5),
             memory_window: Duration::from_secs(3),
+            // Two rounds of 45 s: about 1,700 telegrams each, so the journal is compacted
+            // while the line runs.
+            journal_rounds: 2,
+            journal_window: Duration::from_secs(45),
         }
     }
 
@@ -160,6 +173,8 @@ impl Plan {
             telegrams: 100,
             zenoh_window: Duration::from_secs(2),
             memory_window: Duration::from_secs(1),
+            journal_rounds: 1,
+            journal_window: Duration::from_secs(4),
         }
     }
 }
@@ -299,6 +314,13 @@ async fn run(args: &Args) -> Vec<Row> {
                 .await
                 .unwrap_or_else(|e| failed(&format!("zenoh {mib} MiB put"), e));
             push(&mut rows, row);
+        }
+    }
+    if wanted(Group::Journal) {
+        eprintln!("mailbox journal: 3964R telegrams/s with and without");
+        match telegram::journal_cost(&plan).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(&mut rows, failed("3964R telegrams/s, journal / none", e)),
         }
     }
     rows

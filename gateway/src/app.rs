@@ -37,8 +37,9 @@ mod tls;
 mod zenoh;
 
 pub use check::{
-    api_path_issues, check_command, check_report, config_issues, confine, ignored_keys_of, inside,
-    load_config, port_issues, run_issues, security_warnings, start_issues, unpolled_tags, Door,
+    ack_warnings, api_path_issues, check_command, check_report, config_issues, confine,
+    ignored_keys_of, inside, load_config, port_issues, run_issues, security_warnings,
+    start_issues, unpolled_tags, Door,
 };
 pub use demo::demo;
 
@@ -227,7 +228,10 @@ pub(crate) async fn run_from(
         None => MetricsRegistry::new()
             .map_err(|e| AppError::Setup(format!("cannot register the metrics: {e}")))?,
     };
-    for warning in security_warnings(&config) {
+    for warning in security_warnings(&config)
+        .into_iter()
+        .chain(ack_warnings(&config))
+    {
         warn!("{}: {}", warning.path, warning.message);
     }
     log_rest_guard(&config.http);

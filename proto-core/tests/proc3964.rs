@@ -104,6 +104,71 @@ fn passive_side_accepts_the_manual_frames() {
 }
 
 #[test]
+fn a_held_acknowledgement_goes_out_only_when_confirmed() {
+    // hold_ack: the final DLE (003 6.3.1) waits until the runtime stored the telegram.
+    let (_, data, frame) = VECTORS[0];
+    let mut p = station(|s| s.hold_ack = true);
+    p.handle_rx(at(0), &[STX]);
+    assert_eq!(out(&mut p, at(1)), [DLE]);
+    p.handle_rx(at(3), frame);
+    assert_eq!(out(&mut p, at(4)), [], "no DLE before the confirmation");
+    assert!(p.awaiting_confirm());
+    assert_eq!(p.poll_timeout(), None);
+    assert_eq!(
+        events(&mut p),
+        [Event3964::Received {
+            data: data.to_vec()
+        }]
+    );
+    assert_eq!(p.take_received().as_deref(), Some(data));
+    assert!(!p.is_idle());
+    p.confirm_received(at(5), Ok(()));
+    assert_eq!(out(&mut p, at(6)), [DLE]);
+    assert!(p.is_idle());
+    // Confirming again does nothing.
+    p.confirm_received(at(7), Ok(()));
+    assert_eq!(out(&mut p, at(8)), []);
+}
+
+#[test]
+fn a_refused_confirmation_is_a_nak_and_the_partner_repeats() {
+    let (_, data, frame) = VECTORS[0];
+    let mut p = station(|s| s.hold_ack = true);
+    p.handle_rx(at(0), &[STX]);
+    assert_eq!(out(&mut p, at(1)), [DLE]);
+    p.handle_rx(at(3), frame);
+    assert_eq!(p.take_received().as_deref(), Some(data));
+    p.confirm_received(at(5), Err(ids::CPU_TRANSFER_ERROR));
+    assert_eq!(out(&mut p, at(6)), [NAK]);
+    assert_eq!(
+        raised(&events(&mut p)),
+        [ids::CPU_TRANSFER_ERROR, ids::RECEIVE_REPETITION]
+    );
+    // The repetition (6.3.1) is received and, confirmed, acknowledged.
+    p.handle_rx(at(20), &[STX]);
+    assert_eq!(out(&mut p, at(21)), [DLE]);
+    p.handle_rx(at(23), frame);
+    assert_eq!(p.take_received().as_deref(), Some(data));
+    p.confirm_received(at(25), Ok(()));
+    assert_eq!(out(&mut p, at(26)), [DLE]);
+    assert!(p.is_idle());
+}
+
+#[test]
+fn a_station_not_ready_answers_stx_with_nak() {
+    // 003 6.3.1 "When the driver is not ready yet at reception of the STX, it sends a NAK";
+    // 7.2 08 0Ah.
+    let mut p = station(|_| {});
+    p.set_receive_ready(false);
+    p.handle_rx(at(0), &[STX]);
+    assert_eq!(out(&mut p, at(1)), [NAK]);
+    assert_eq!(raised(&events(&mut p)), [ids::NO_FREE_RECEIVE_BUFFER]);
+    p.set_receive_ready(true);
+    p.handle_rx(at(10), &[STX]);
+    assert_eq!(out(&mut p, at(11)), [DLE]);
+}
+
+#[test]
 fn bad_bcc_is_answered_with_nak() {
     // vectors: "receiver rejects a bad BCC: ... 41 42 43 10 03 54 -> 15 (NAK) instead of DLE".
     let mut p = station(|_| {});

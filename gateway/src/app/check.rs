@@ -212,6 +212,15 @@ pub fn api_path_issues(new: &Config, in_force: &Config) -> Vec<ConfigIssue> {
         in_force.cp_memory.persist_file.as_deref(),
         state,
     );
+    // A journal is written like the persistence file: confined to the state directories.
+    for (name, line) in &new.lines {
+        confined(
+            &format!("lines.{name}.journal"),
+            line.journal(),
+            in_force.lines.get(name).and_then(|o| o.journal()),
+            state,
+        );
+    }
     confined(
         "http.token_file",
         new.http.token_file.as_deref(),
@@ -640,6 +649,48 @@ pub fn unpolled_tags(config: &Config) -> Vec<ConfigIssue> {
     warnings
 }
 
+/// The telegram lines whose received telegrams nothing in `config` acknowledges on its own: an
+/// explicit line without a Modbus TCP mailbox (`unit_id`, Modbus TCP on) and without zenoh
+/// writes (`<line>/ack`) is acknowledged over REST only; an on-publish line without zenoh by
+/// nothing at all. Either fills its mailbox and then refuses telegrams (08 0Ah).
+pub fn ack_warnings(config: &Config) -> Vec<ConfigIssue> {
+    let zenoh_on = config.zenoh.as_ref().is_some_and(|z| z.enabled);
+    let zenoh_writes = zenoh_on && config.zenoh.as_ref().is_some_and(|z| z.writes);
+    let modbus_on = config.modbus_tcp.enabled;
+    let mut warnings = Vec::new();
+    for (name, line) in &config.lines {
+        if !matches!(
+            line.protocol,
+            ProtocolConfig::Proc3964(_) | ProtocolConfig::Ascii(_)
+        ) {
+            continue;
+        }
+        // A client other than REST that can acknowledge: a Modbus TCP mailbox or zenoh writes.
+        let client = (modbus_on && line.unit_id().is_some()) || zenoh_writes;
+        let message = match config::ack_mode(config, line) {
+            config::AckConfig::Explicit if !client => {
+                format!(
+                    "ack = \"explicit\" but no Modbus TCP unit_id and no zenoh writes \
+                     ([zenoh] writes = true) can acknowledge its telegrams: only REST can \
+                     (POST /api/v1/lines/{name}/telegrams/{{seq}}/ack); unacknowledged, the \
+                     mailbox fills and the line refuses telegrams (08 0Ah). Set ack = \
+                     \"on-publish\" to acknowledge on publication to zenoh"
+                )
+            }
+            config::AckConfig::OnPublish if !zenoh_on => format!(
+                "ack = \"on-publish\" but zenoh is off: nothing publishes, so nothing acknowledges \
+                 lines.{name}'s telegrams; the mailbox fills and the line refuses telegrams (08 0Ah)"
+            ),
+            _ => continue,
+        };
+        warnings.push(ConfigIssue {
+            path: format!("lines.{name}.ack"),
+            message,
+        });
+    }
+    warnings
+}
+
 /// The first names of a list, and how many more there are.
 fn listed(names: &[&str]) -> String {
     const SHOWN: usize = 12;
@@ -776,6 +827,7 @@ pub fn check_report(path: &Path) -> (String, i32) {
     let (port_errors, mut warnings) = port_issues(&config);
     warnings.extend(ignored_keys_of(path));
     warnings.extend(unpolled_tags(&config));
+    warnings.extend(ack_warnings(&config));
     errors.extend(port_errors);
     let code = i32::from(!errors.is_empty());
     let mut text = if errors.is_empty() {
@@ -804,6 +856,45 @@ mod tests {
         assert!(endpoint_is_loopback("tcp/localhost:7447"));
         assert!(!endpoint_is_loopback("tcp/0.0.0.0:7447"));
         assert!(!endpoint_is_loopback("tls/10.0.0.5:7447"));
+    }
+
+    #[test]
+    fn a_telegram_line_nothing_but_rest_can_acknowledge_is_warned_about() {
+        let line = |keys: &str| {
+            format!("[lines.r]\nport = \"/dev/ttyS1\"\nprotocol = \"3964r\"\n{keys}\n")
+        };
+        let zenoh = "[zenoh]\nlisten = [\"tcp/127.0.0.1:7447\"]\n";
+        let warned = |text: String| {
+            let config = config::parse(&text).expect("parses");
+            ack_warnings(&config)
+                .into_iter()
+                .map(|w| (w.path, w.message))
+                .collect::<Vec<_>>()
+        };
+        // No unit_id, no zenoh: explicit by default, and only REST can acknowledge.
+        let w = warned(line(""));
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert_eq!(w[0].0, "lines.r.ack");
+        assert!(w[0].1.contains("only REST can"), "{}", w[0].1);
+        // No unit_id, zenoh on: on-publish by default, nothing to warn about.
+        assert_eq!(warned(format!("{}{zenoh}", line(""))), []);
+        // Explicit on purpose with zenoh writes off: warned; with writes on: not.
+        assert_eq!(
+            warned(format!("{}{zenoh}", line("ack = \"explicit\""))).len(),
+            1
+        );
+        assert_eq!(
+            warned(format!(
+                "{}{zenoh}writes = true\n",
+                line("ack = \"explicit\"")
+            )),
+            []
+        );
+        // A Modbus TCP mailbox acknowledges.
+        assert_eq!(warned(line("unit_id = 100")), []);
+        // On-publish without zenoh: nothing publishes.
+        let w = warned(line("ack = \"on-publish\""));
+        assert!(w[0].1.contains("zenoh is off"), "{w:?}");
     }
 
     #[test]

@@ -246,6 +246,7 @@ mod tests {
             MailboxSettings {
                 queue_depth: 8,
                 overflow: Overflow::Refuse,
+                ..MailboxSettings::default()
             },
             250,
         );

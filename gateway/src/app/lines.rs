@@ -116,7 +116,10 @@ pub(crate) fn start_line(
                 .map_err(|e| AppError::Setup(format!("line {name}: {e}")))?;
             settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
             settings.metrics = Some(deps.metrics.clone());
-            line::telegram::spawn_telegram_line(settings, token.clone())
+            settings.mailbox.ack =
+                line::telegram::mailbox_ack(crate::config::ack_mode(config, line));
+            line::telegram::try_spawn_telegram_line(settings, token.clone())
+                .map_err(|e| AppError::Setup(format!("line {name}: {e}")))?
         }
     };
     // The CP memory a slave line serves is mirrored into the image under its unit id, once.
@@ -173,6 +176,21 @@ pub(crate) fn start_issues(
                         path: format!("lines.{name}"),
                         message: e.to_string(),
                     });
+                }
+                if let Some(journal) = line.journal() {
+                    let dir = match journal.parent() {
+                        Some(p) if !p.as_os_str().is_empty() => p,
+                        _ => std::path::Path::new("."),
+                    };
+                    if !dir.is_dir() {
+                        issues.push(crate::config::ConfigIssue {
+                            path: format!("lines.{name}.journal"),
+                            message: format!(
+                                "the directory {} of the journal does not exist",
+                                dir.display()
+                            ),
+                        });
+                    }
                 }
             }
         }

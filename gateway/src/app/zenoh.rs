@@ -7,6 +7,7 @@
 //! A write from zenoh takes the same path and checks as a Modbus TCP write ([`super::tag_io`]).
 
 use crate::line::telegram::TelegramSendError;
+use crate::mailbox::AckMode;
 use std::collections::BTreeSet;
 use std::sync::{Arc, PoisonError, Weak};
 use std::time::Duration;
@@ -306,6 +307,36 @@ impl BridgeBackend for ZenohBackend {
         })
     }
 
+    fn ack_telegram(&self, line: &str, seq: u16) -> BackendFuture<Result<Json, String>> {
+        let metrics = self.metrics();
+        let target = format!("{line}/telegrams/{seq} ack");
+        if let Err(e) = self.writes_allowed() {
+            accounting::refused(metrics.as_ref(), &target, WriteReason::WritesOff, &e);
+            return Box::pin(async move { Err(e) });
+        }
+        let mailbox = self
+            .sup
+            .upgrade()
+            .and_then(|s| s.snapshot().lines.get(line)?.handle.mailbox());
+        let Some(mailbox) = mailbox else {
+            let answer = format!("line {line} does not receive telegrams");
+            accounting::refused(metrics.as_ref(), &target, WriteReason::UnknownTarget, &answer);
+            return Box::pin(async move { Err(answer) });
+        };
+        let answer = match mailbox.ack(seq) {
+            Ok(()) => {
+                accounting::finished(metrics.as_ref(), &target, true, &"acknowledged");
+                Ok(json!({ "acknowledged": seq }))
+            }
+            Err(e) => {
+                let e = e.to_string();
+                accounting::refused(metrics.as_ref(), &target, WriteReason::Policy, &e);
+                Err(e)
+            }
+        };
+        Box::pin(async move { answer })
+    }
+
     fn write_tag(
         &self,
         line: &str,
@@ -570,6 +601,14 @@ fn spawn_line_feeds(
     let Some(mut rx) = line.handle.subscribe_rx() else {
         return;
     };
+    if let Some(mailbox) = line
+        .handle
+        .mailbox()
+        .filter(|m| m.settings().ack == AckMode::OnPublish)
+    {
+        spawn_on_publish_feed(bridge, mailbox, rx, token, &line.token);
+        return;
+    }
     let bridge = bridge.clone();
     let (token, line_token) = (token.clone(), line.token.clone());
     let name = name.to_owned();
@@ -601,6 +640,64 @@ fn spawn_line_feeds(
                     crate::warn_limited!(format!("zenoh telegram feed lagged {name}"), line = %name, missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
                 }
                 Err(RecvError::Closed) => return,
+            }
+        }
+    });
+}
+
+/// How long the feed of a line acknowledged on publication waits before it offers a telegram
+/// again that zenoh did not take (its queue full, a put that failed).
+const ON_PUBLISH_RETRY: Duration = Duration::from_millis(100);
+
+/// `<prefix>/<line>/rx` of a line with `ack = "on-publish"`: the mailbox's waiting telegrams,
+/// oldest first, each acknowledged once zenoh took its put (so a telegram the journal restored
+/// is published after a restart, and one zenoh did not take waits and is offered again). The
+/// broadcast of received telegrams only wakes the feed.
+fn spawn_on_publish_feed(
+    bridge: &BridgeHandle,
+    mailbox: Arc<crate::mailbox::Mailbox>,
+    mut arrivals: tokio::sync::broadcast::Receiver<crate::mailbox::TelegramRx>,
+    token: &CancellationToken,
+    line_token: &CancellationToken,
+) {
+    let bridge = bridge.clone();
+    let (token, line_token) = (token.clone(), line_token.clone());
+    tokio::spawn(async move {
+        loop {
+            while let Some(t) = mailbox.head() {
+                let pushed = bridge.publish_telegram_confirmed(
+                    &t.line,
+                    u64::from(t.seq),
+                    t.received,
+                    t.data.to_vec(),
+                );
+                let taken = match pushed {
+                    Ok(done) => tokio::select! {
+                        () = token.cancelled() => return,
+                        () = line_token.cancelled() => return,
+                        ok = done => ok.unwrap_or(false),
+                    },
+                    Err(DropReason::BridgeClosed) => return,
+                    Err(_) => false,
+                };
+                if taken {
+                    // A client may have acknowledged it meanwhile: either way it is done.
+                    let _ = mailbox.ack(t.seq);
+                } else {
+                    tokio::select! {
+                        () = token.cancelled() => return,
+                        () = line_token.cancelled() => return,
+                        () = tokio::time::sleep(ON_PUBLISH_RETRY) => {}
+                    }
+                }
+            }
+            let arrived = tokio::select! {
+                () = token.cancelled() => return,
+                () = line_token.cancelled() => return,
+                t = arrivals.recv() => t,
+            };
+            if let Err(RecvError::Closed) = arrived {
+                return;
             }
         }
     });

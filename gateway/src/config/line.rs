@@ -153,6 +153,24 @@ impl LineConfig {
         }
     }
 
+    /// The `ack` of a telegram line, if set.
+    pub fn ack(&self) -> Option<super::telegram::AckConfig> {
+        match &self.protocol {
+            ProtocolConfig::Proc3964(p) => p.ack,
+            ProtocolConfig::Ascii(a) => a.ack,
+            _ => None,
+        }
+    }
+
+    /// The `journal` of a telegram line, if set.
+    pub fn journal(&self) -> Option<&std::path::Path> {
+        match &self.protocol {
+            ProtocolConfig::Proc3964(p) => p.journal.as_deref(),
+            ProtocolConfig::Ascii(a) => a.journal.as_deref(),
+            _ => None,
+        }
+    }
+
     /// Reads `[lines.<name>]` at `path`.
     pub(crate) fn read(cx: &mut Cx, name: &str, path: &str, value: &toml::Value) -> Option<Self> {
         check_name(cx, path, name);

@@ -1,6 +1,7 @@
 //! Protocol parameters of the telegram lines: 3964(R) (003 6.3.3) and ASCII (003 6.2.1, with the
 //! RS232 flow-control parameters of 000 6.2.1), and their Modbus TCP mailboxes.
 
+use std::path::PathBuf;
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
@@ -99,6 +100,16 @@ pub enum Overflow3964 {
     DropOldest,
 }
 
+/// Who acknowledges the received telegrams of a line (`ack`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum AckConfig {
+    /// A client acknowledges each telegram (Modbus TCP register 600, REST, zenoh `<line>/ack`).
+    Explicit,
+    /// The gateway acknowledges a telegram once zenoh took its publication on `<line>/rx`.
+    OnPublish,
+}
+
 /// ASCII end-of-telegram criterion (003 6.2.1 "End code of a message").
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -149,6 +160,13 @@ pub struct Proc3964Config {
     /// Telegram sends allowed (REST, zenoh `tx`, the mailbox's send block): the line's write
     /// policy for sends.
     pub sends: bool,
+    /// Who acknowledges received telegrams; unset: "on-publish" when the line has no `unit_id`
+    /// and zenoh is on, else "explicit" ([`ack_mode`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ack: Option<AckConfig>,
+    /// The file that keeps the waiting telegrams over a restart (`journal`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub journal: Option<PathBuf>,
 }
 
 /// ASCII telegrams (003 6.2.1) with their mailbox.
@@ -186,6 +204,13 @@ pub struct AsciiConfig {
     /// Telegram sends allowed (REST, zenoh `tx`, the mailbox's send block): the line's write
     /// policy for sends.
     pub sends: bool,
+    /// Who acknowledges received telegrams; unset: "on-publish" when the line has no `unit_id`
+    /// and zenoh is on, else "explicit" ([`ack_mode`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ack: Option<AckConfig>,
+    /// The file that keeps the waiting telegrams over a restart (`journal`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub journal: Option<PathBuf>,
 }
 
 /// Telegram sends are allowed unless a line says `sends = false`: a telegram line exists to
@@ -288,6 +313,31 @@ impl Link3964 {
     }
 }
 
+/// `journal`: a file path, not empty.
+fn journal_path(cx: &mut Cx, f: &mut Fields<'_>) -> Option<PathBuf> {
+    let path = f.string(cx, "journal")?;
+    if path.trim().is_empty() {
+        cx.issue(
+            f.at("journal"),
+            "give a file path (or leave the key out: no journal)",
+        );
+        return None;
+    }
+    Some(PathBuf::from(path))
+}
+
+/// Who acknowledges the telegrams of `line` in `config`: its `ack`, else "on-publish" when the
+/// line has no Modbus TCP `unit_id` and zenoh is on (nobody else could), else "explicit".
+pub fn ack_mode(config: &super::Config, line: &super::LineConfig) -> AckConfig {
+    let zenoh_on = config.zenoh.as_ref().is_some_and(|z| z.enabled);
+    line.ack()
+        .unwrap_or(if line.unit_id().is_none() && zenoh_on {
+            AckConfig::OnPublish
+        } else {
+            AckConfig::Explicit
+        })
+}
+
 /// The Modbus TCP unit id of a telegram mailbox (`unit_id`).
 pub(crate) fn mailbox_unit_id(cx: &mut Cx, f: &mut Fields<'_>) -> Option<u8> {
     mailbox_unit(cx, f)
@@ -328,6 +378,8 @@ impl Proc3964Config {
             ),
             unit_id: mailbox_unit(cx, f),
             sends: f.bool_or(cx, "sends", DEFAULT_SENDS),
+            ack: f.choice(cx, "ack"),
+            journal: journal_path(cx, f),
         }
     }
 }
@@ -417,6 +469,8 @@ impl AsciiConfig {
             ),
             unit_id: mailbox_unit(cx, f),
             sends: f.bool_or(cx, "sends", DEFAULT_SENDS),
+            ack: f.choice(cx, "ack"),
+            journal: journal_path(cx, f),
         }
     }
 }

@@ -14,9 +14,16 @@
 //! were lost. Observers (zenoh, REST) get every telegram with its number
 //! ([`Mailbox::subscribe`]), independent of the acknowledgements.
 //!
+//! With a [`journal`] ([`Mailbox::with_journal`]) every telegram that waits is on disk: written
+//! and synced before it counts as received ([`Mailbox::try_deliver`]), its acknowledgement or
+//! drop recorded, so that a restart finds the same telegrams under the same numbers and the
+//! numbering goes on. Who acknowledges is the line's [`AckMode`]: a client (Modbus TCP, REST,
+//! zenoh `<line>/ack`) or the zenoh feed once it published the telegram.
+//!
 //! The telegram line's `MailboxUnit` (in [`crate::line::telegram`]) serves the mailbox under the
 //! line's unit id; [`layout`] documents the registers.
 
+pub mod journal;
 pub mod layout;
 mod send_block;
 
@@ -26,6 +33,7 @@ use std::time::SystemTime;
 
 use tokio::sync::{broadcast, Notify};
 
+use journal::{Journal, JournalError, JournaledTelegram, Loss};
 use send_block::SendBlock;
 
 /// Telegrams a mailbox holds by default: the CP's default receive buffer (003 6.2.1 "Buffered
@@ -81,6 +89,30 @@ impl Overflow {
     }
 }
 
+/// Who acknowledges the telegrams of a line (`ack` of a telegram line).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum AckMode {
+    /// A client acknowledges each telegram: Modbus TCP (register 600), REST or a zenoh put on
+    /// `<prefix>/<line>/ack`.
+    #[default]
+    Explicit,
+    /// The gateway acknowledges a telegram itself once zenoh took its publication on
+    /// `<prefix>/<line>/rx`.
+    OnPublish,
+}
+
+// === impl AckMode ===
+
+impl AckMode {
+    /// The config's name ("explicit", "on-publish").
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::Explicit => "explicit",
+            Self::OnPublish => "on-publish",
+        }
+    }
+}
+
 /// The mailbox of one telegram line.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct MailboxSettings {
@@ -88,6 +120,8 @@ pub struct MailboxSettings {
     pub queue_depth: usize,
     /// What a full queue does.
     pub overflow: Overflow,
+    /// Who acknowledges.
+    pub ack: AckMode,
 }
 
 impl Default for MailboxSettings {
@@ -95,8 +129,20 @@ impl Default for MailboxSettings {
         Self {
             queue_depth: DEFAULT_QUEUE_DEPTH,
             overflow: Overflow::Refuse,
+            ack: AckMode::Explicit,
         }
     }
+}
+
+/// What a mailbox found in its journal when it opened.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Restored {
+    /// Telegrams waiting again.
+    pub telegrams: usize,
+    /// The last sequence number given before (the next one follows it).
+    pub last_seq: u16,
+    /// The unreadable tail that was cut off, if any.
+    pub loss: Option<Loss>,
 }
 
 /// A received telegram with its sequence number and receive time.
@@ -193,6 +239,8 @@ struct State {
     counters: TelegramCounters,
     /// The Modbus send block (FB 8 P_SND_RK).
     send: SendBlock,
+    /// Where the waiting telegrams are kept on disk, if the line has a journal.
+    journal: Option<Journal>,
 }
 
 /// The receive queue, counters and send block of one telegram line, shared by the line task,
@@ -240,10 +288,96 @@ impl Mailbox {
                 port_open: false,
                 counters: TelegramCounters::default(),
                 send: SendBlock::default(),
+                journal: None,
             }),
             room: Notify::new(),
             rx,
         })
+    }
+
+    /// [`Mailbox::new`] keeping its waiting telegrams in the journal at `path`: what the
+    /// journal holds waits again, under the same sequence numbers, and the numbering goes on.
+    ///
+    /// # Errors
+    ///
+    /// The journal cannot be read, created or written.
+    pub fn with_journal(
+        line: &str,
+        settings: MailboxSettings,
+        max_send_len: usize,
+        path: &std::path::Path,
+    ) -> Result<(Arc<Self>, Restored), JournalError> {
+        let (journal, replayed) = Journal::open(path)?;
+        let mailbox = Self::new(line, settings, max_send_len);
+        let restored = Restored {
+            telegrams: replayed.telegrams.len(),
+            last_seq: replayed.last_seq,
+            loss: replayed.loss,
+        };
+        {
+            let mut state = mailbox.lock();
+            state.last_seq = replayed.last_seq;
+            state.last_acked = replayed.last_acked;
+            state.queue = replayed
+                .telegrams
+                .into_iter()
+                .map(|t| TelegramRx {
+                    line: Arc::clone(&mailbox.line),
+                    seq: t.seq,
+                    received: t.received,
+                    data: Arc::from(t.data),
+                    side: None,
+                })
+                .collect();
+            state.journal = Some(journal);
+            // Start from a compact file: the damaged tail is gone and the size bound holds.
+            Self::compact(&mut state);
+        }
+        Ok((mailbox, restored))
+    }
+
+    /// Whether the mailbox keeps its telegrams in a journal.
+    pub fn journaled(&self) -> bool {
+        self.lock().journal.is_some()
+    }
+
+    /// The journal's size in bytes now (`None` without a journal).
+    pub fn journal_size(&self) -> Option<u64> {
+        self.lock().journal.as_ref().map(Journal::size)
+    }
+
+    /// Compacts the journal when it has outgrown its bound; a failure is logged and the journal
+    /// keeps growing until the next attempt.
+    fn compact_if_due(state: &mut State) {
+        if state
+            .journal
+            .as_ref()
+            .is_some_and(Journal::wants_compaction)
+        {
+            Self::compact(state);
+        }
+    }
+
+    fn compact(state: &mut State) {
+        let Some(journal) = state.journal.as_mut() else {
+            return;
+        };
+        let waiting: Vec<JournaledTelegram> = state
+            .queue
+            .iter()
+            .map(|t| JournaledTelegram {
+                seq: t.seq,
+                received: t.received,
+                data: t.data.to_vec(),
+            })
+            .collect();
+        if let Err(e) = journal.compact(state.last_seq, state.last_acked, waiting.iter()) {
+            crate::warn_limited!(
+                format!("journal compaction {}", journal.path().display()),
+                error = %e,
+                "mailbox journal not compacted; it grows until the next attempt"
+            );
+        }
     }
 
     fn lock(&self) -> MutexGuard<'_, State> {
@@ -290,15 +424,87 @@ impl Mailbox {
         self.deliver_from(data, received, None)
     }
 
-    /// [`Self::deliver`] for a telegram `side` sent (a 3964(R) tap line's mailbox).
+    /// [`Self::deliver`] for a telegram `side` sent (a 3964(R) tap line's mailbox). Nothing is
+    /// written to the journal.
     pub fn deliver_from(
         &self,
         data: Vec<u8>,
         received: SystemTime,
         side: Option<proto_core::proc3964::tap::Side>,
     ) -> Delivery {
-        let mut state = self.lock();
+        let guard = self.lock();
+        let seq = next_seq(guard.last_seq);
+        self.enqueue(guard, seq, data, received, side)
+    }
+
+    /// [`Self::deliver`] that writes the telegram to the journal first (synced) when the
+    /// mailbox has one. When the write fails nothing changes (no sequence number is used) and
+    /// the telegram is handed back with the error: a 3964(R) line then refuses it with NAK (the
+    /// partner repeats it), an ASCII line keeps it without the journal
+    /// ([`Self::deliver_unjournaled`]).
+    ///
+    /// # Errors
+    ///
+    /// The journal write failed.
+    pub fn try_deliver(
+        &self,
+        data: Vec<u8>,
+        received: SystemTime,
+    ) -> Result<Delivery, (JournalError, Vec<u8>)> {
+        let mut guard = self.lock();
+        let state = &mut *guard;
         let seq = next_seq(state.last_seq);
+        let full = state.queue.len() >= self.settings.queue_depth;
+        let keeps = !full
+            || matches!(
+                self.settings.overflow,
+                Overflow::DropOldest | Overflow::Overwrite
+            );
+        let data = match state.journal.as_mut() {
+            Some(journal) if keeps => {
+                let record = JournaledTelegram {
+                    seq,
+                    received,
+                    data,
+                };
+                if let Err(e) = journal.append_telegram(&record) {
+                    return Err((e, record.data));
+                }
+                record.data
+            }
+            Some(journal) => {
+                // Not kept: only the number is used up, so that it is not given twice.
+                if let Err(e) = journal.append_state(seq, state.last_acked) {
+                    crate::warn_limited!(
+                        format!("journal write {}", journal.path().display()),
+                        error = %e,
+                        "mailbox journal: sequence number not recorded"
+                    );
+                }
+                data
+            }
+            None => data,
+        };
+        Ok(self.enqueue(guard, seq, data, received, None))
+    }
+
+    /// [`Self::deliver`] without writing the journal (after a failed write): the telegram waits
+    /// in memory only and is lost at a restart.
+    pub fn deliver_unjournaled(&self, data: Vec<u8>, received: SystemTime) -> Delivery {
+        self.deliver_from(data, received, None)
+    }
+
+    /// Gives `seq` to the telegram, counts it, queues it under the overflow policy (recording
+    /// what it drops in the journal) and sends it to subscribers.
+    fn enqueue(
+        &self,
+        mut guard: MutexGuard<'_, State>,
+        seq: u16,
+        data: Vec<u8>,
+        received: SystemTime,
+        side: Option<proto_core::proc3964::tap::Side>,
+    ) -> Delivery {
+        let state = &mut *guard;
         state.last_seq = seq;
         state.counters.received += 1;
         state.counters.received_bytes += data.len() as u64;
@@ -309,21 +515,36 @@ impl Mailbox {
             data: Arc::from(data),
             side,
         };
+        let mut removed = None;
         let delivery = if state.queue.len() < self.settings.queue_depth {
             state.queue.push_back(telegram.clone());
             Delivery::Kept { seq }
         } else if self.settings.overflow == Overflow::DropOldest {
-            let dropped = state.queue.pop_front().map_or(0, |t| t.seq);
+            let old = state.queue.pop_front();
+            let dropped = old.as_ref().map_or(0, |t| t.seq);
+            removed = old;
             state.queue.push_back(telegram.clone());
             Delivery::DroppedOldest { seq, dropped }
         } else if self.settings.overflow == Overflow::Overwrite {
-            let replaced = state.queue.pop_front().map_or(0, |t| t.seq);
+            let old = state.queue.pop_front();
+            let replaced = old.as_ref().map_or(0, |t| t.seq);
+            removed = old;
             state.queue.push_back(telegram.clone());
             Delivery::Overwritten { seq, replaced }
         } else {
             Delivery::DroppedNew { seq }
         };
-        drop(state);
+        if let (Some(old), Some(journal)) = (removed, state.journal.as_mut()) {
+            if let Err(e) = journal.append_removed(old.seq, false, old.data.len()) {
+                crate::warn_limited!(
+                    format!("journal write {}", journal.path().display()),
+                    error = %e,
+                    "mailbox journal: a dropped telegram was not recorded; it may wait again after a restart"
+                );
+            }
+        }
+        Self::compact_if_due(state);
+        drop(guard);
         // No subscriber: nobody to lose it.
         let _ = self.rx.send(telegram);
         delivery
@@ -367,13 +588,24 @@ impl Mailbox {
     ///
     /// [`AckError::WrongSeq`] for any other number (0 included).
     pub fn ack(&self, seq: u16) -> Result<(), AckError> {
-        let mut state = self.lock();
+        let mut guard = self.lock();
+        let state = &mut *guard;
         let head = state.queue.front().map(|t| t.seq);
         if seq != 0 && head == Some(seq) {
-            state.queue.pop_front();
+            let len = state.queue.pop_front().map_or(0, |t| t.data.len());
             state.last_acked = seq;
             state.counters.acknowledged += 1;
-            drop(state);
+            if let Some(journal) = state.journal.as_mut() {
+                if let Err(e) = journal.append_removed(seq, true, len) {
+                    crate::warn_limited!(
+                        format!("journal write {}", journal.path().display()),
+                        error = %e,
+                        "mailbox journal: an acknowledgement was not recorded; the telegram may wait again after a restart"
+                    );
+                }
+            }
+            Self::compact_if_due(state);
+            drop(guard);
             self.room.notify_one();
             Ok(())
         } else if seq != 0 && seq == state.last_acked {

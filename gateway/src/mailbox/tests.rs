@@ -14,9 +14,85 @@ fn mailbox(depth: usize, overflow: Overflow) -> Arc<Mailbox> {
         MailboxSettings {
             queue_depth: depth,
             overflow,
+            ack: AckMode::Explicit,
         },
         250,
     )
+}
+
+fn journaled(path: &std::path::Path, depth: usize, overflow: Overflow) -> (Arc<Mailbox>, Restored) {
+    Mailbox::with_journal(
+        "test",
+        MailboxSettings {
+            queue_depth: depth,
+            overflow,
+            ack: AckMode::Explicit,
+        },
+        250,
+        path,
+    )
+    .expect("journal")
+}
+
+fn waiting_of(mailbox: &Mailbox) -> Vec<(u16, Vec<u8>)> {
+    mailbox
+        .waiting()
+        .iter()
+        .map(|t| (t.seq, t.data.to_vec()))
+        .collect()
+}
+
+#[test]
+fn a_journaled_mailbox_comes_back_with_its_telegrams_and_numbers() {
+    let dir = tempfile::tempdir().expect("dir");
+    let path = dir.path().join("mb.journal");
+    let before = {
+        let (mb, restored) = journaled(&path, 3, Overflow::DropOldest);
+        assert_eq!(restored, Restored::default());
+        for text in ["a", "b", "c", "d", "e"] {
+            mb.try_deliver(text.as_bytes().to_vec(), SystemTime::now())
+                .expect("journaled");
+        }
+        mb.ack(3).expect("ack the oldest");
+        waiting_of(&mb)
+    };
+    assert_eq!(before, [(4, b"d".to_vec()), (5, b"e".to_vec())]);
+    let (mb, restored) = journaled(&path, 3, Overflow::DropOldest);
+    assert_eq!((restored.telegrams, restored.last_seq), (2, 5));
+    assert_eq!(waiting_of(&mb), before);
+    assert_eq!(mb.last_acknowledged(), 3);
+    // The numbering goes on; a repeated acknowledgement is still accepted.
+    mb.ack(3).expect("repeated ack");
+    assert_eq!(
+        mb.try_deliver(b"f".to_vec(), SystemTime::now())
+            .expect("journaled"),
+        Delivery::Kept { seq: 6 }
+    );
+}
+
+#[test]
+fn a_number_given_to_a_dropped_telegram_is_not_given_again_after_a_restart() {
+    let dir = tempfile::tempdir().expect("dir");
+    let path = dir.path().join("mb.journal");
+    {
+        let (mb, _) = journaled(&path, 1, Overflow::DropNew);
+        mb.try_deliver(b"kept".to_vec(), SystemTime::now())
+            .expect("journaled");
+        assert_eq!(
+            mb.try_deliver(b"dropped".to_vec(), SystemTime::now())
+                .expect("journaled"),
+            Delivery::DroppedNew { seq: 2 }
+        );
+    }
+    let (mb, restored) = journaled(&path, 1, Overflow::DropNew);
+    assert_eq!(restored.last_seq, 2);
+    assert_eq!(waiting_of(&mb), [(1, b"kept".to_vec())]);
+    mb.ack(1).expect("ack");
+    assert_eq!(
+        mb.try_deliver(b"next".to_vec(), SystemTime::now())
+            .expect("journaled"),
+        Delivery::Kept { seq: 3 }
+    );
 }
 
 fn deliver(mailbox: &Mailbox, text: &str) -> Delivery {

@@ -6,6 +6,9 @@
 //! <prefix>/<line>/rx                       received telegrams (publication)
 //! <prefix>/<line>/tx                       telegrams to send (subscription; queryable form)
 //! <prefix>/<line>/tx/result                result of a send (publication)
+//! <prefix>/<line>/ack                      acknowledge a received telegram, payload its
+//!                                          sequence number (subscription; queryable form,
+//!                                          whose reply is the result)
 //! <prefix>/<line>/events                   diagnostic events (publication)
 //! <prefix>/<line>/frames                   the line's frame monitor, one JSON sample per frame
 //!                                          (publication)
@@ -31,6 +34,7 @@ pub const RESERVED_DEVICE_NAMES: [&str; 1] = [TX];
 
 const RX: &str = "rx";
 const TX: &str = "tx";
+const ACK: &str = "ack";
 const RESULT: &str = "result";
 const EVENTS: &str = "events";
 const FRAMES: &str = "frames";
@@ -192,6 +196,20 @@ impl Keys {
     /// `<prefix>/*/tx`: the send subscription and queryable.
     pub fn tx_pattern(&self) -> String {
         format!("{}/*/{TX}", self.prefix)
+    }
+
+    /// `<prefix>/*/ack`: the acknowledge subscription and queryable.
+    pub fn ack_pattern(&self) -> String {
+        format!("{}/*/{ACK}", self.prefix)
+    }
+
+    /// The line of a concrete `<prefix>/<line>/ack` key; `None` for any other key and for keys
+    /// with wildcards.
+    pub fn parse_ack(&self, key: &str) -> Option<String> {
+        match self.rest(key)?.as_slice() {
+            [line, ACK] if check_chunk("line", line).is_ok() => Some((*line).to_owned()),
+            _ => None,
+        }
     }
 
     /// `<prefix>/<line>/frames`.
@@ -426,6 +444,11 @@ mod tests {
         assert_eq!(k.parse_tx("gw/other/r3964/tx"), None);
         assert_eq!(k.parse_tx("gw/demox/r3964/tx"), None);
         assert_eq!(k.parse_tx("gw/*/r3964/tx"), None);
+        assert_eq!(k.parse_ack("gw/demo/r3964/ack").as_deref(), Some("r3964"));
+        assert_eq!(k.parse_ack("gw/demo/*/ack"), None);
+        assert_eq!(k.parse_ack("gw/demo/r3964/tx"), None);
+        assert!(intersects(&k.ack_pattern(), "gw/demo/r3964/ack"));
+        assert!(!intersects(&k.ack_pattern(), &k.tag("r3964", "ack", "x")));
         assert_eq!(
             k.parse_set("gw/demo/drive/atv/cmd/set"),
             Some(("drive".into(), "atv".into(), "cmd".into()))

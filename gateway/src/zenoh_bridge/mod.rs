@@ -166,6 +166,13 @@ pub trait BridgeBackend: Send + Sync + 'static {
     /// Sends one telegram on `line`; the result (or the error text) becomes `<line>/tx/result`.
     fn send_telegram(&self, line: &str, bytes: Vec<u8>) -> BackendFuture<Result<Value, String>>;
 
+    /// Acknowledges the received telegram `seq` of `line` (a put on `<line>/ack`), as the
+    /// mailbox's acknowledge register does; the result answers a query on the key.
+    fn ack_telegram(&self, line: &str, seq: u16) -> BackendFuture<Result<Value, String>> {
+        let answer = format!("line {line}: acknowledgements are not served here (seq {seq})");
+        Box::pin(async move { Err(answer) })
+    }
+
     /// Whether commands (`tx`, `set`) over zenoh are taken at all; `Err` with the text of the
     /// refusal when they are switched off. Asked in the zenoh callback before a command is
     /// queued (so it must be quick); the command methods check again when they run.
@@ -248,6 +255,36 @@ impl BridgeHandle {
         side: Option<&str>,
         bytes: Vec<u8>,
     ) -> Result<(), DropReason> {
+        self.push_telegram(line, seq, received, side, bytes, None)
+    }
+
+    /// [`Self::publish_telegram`] that tells, once the put was made, whether zenoh took it
+    /// (`true`): a line that acknowledges on publication waits for it.
+    ///
+    /// # Errors
+    ///
+    /// As [`Self::publish_telegram`].
+    pub fn publish_telegram_confirmed(
+        &self,
+        line: &str,
+        seq: u64,
+        received: SystemTime,
+        bytes: Vec<u8>,
+    ) -> Result<tokio::sync::oneshot::Receiver<bool>, DropReason> {
+        let (done, taken) = tokio::sync::oneshot::channel();
+        self.push_telegram(line, seq, received, None, bytes, Some(done))?;
+        Ok(taken)
+    }
+
+    fn push_telegram(
+        &self,
+        line: &str,
+        seq: u64,
+        received: SystemTime,
+        side: Option<&str>,
+        bytes: Vec<u8>,
+        done: Option<tokio::sync::oneshot::Sender<bool>>,
+    ) -> Result<(), DropReason> {
         self.check(&[line])?;
         let mut attachment = json!({"seq": seq, "time": publish::rfc3339(received)});
         if let Some(side) = side {
@@ -259,6 +296,7 @@ impl BridgeHandle {
             payload: bytes,
             json: false,
             attachment: Some(attachment.to_string().into_bytes()),
+            done,
         });
         if let Err(reason) = pushed {
             crate::warn_limited!(format!("zenoh telegram dropped {line}"), %line, seq, reason = reason.as_str(), "telegram not published on zenoh");
@@ -301,6 +339,7 @@ impl BridgeHandle {
             payload: json,
             json: true,
             attachment: None,
+            done: None,
         })
     }
 
@@ -328,6 +367,7 @@ impl BridgeHandle {
             payload: body.to_string().into_bytes(),
             json: true,
             attachment: None,
+            done: None,
         });
         if let Err(reason) = pushed {
             crate::warn_limited!(format!("zenoh event dropped {line}"), %line, class, number, reason = reason.as_str(), "event not published on zenoh");
@@ -653,7 +693,7 @@ async fn declare(
     tokio::spawn(queryable::serve(answerer, query_rx, shutdown.clone()));
 
     let mut subscribers = Vec::new();
-    for key in [keys.tx_pattern(), keys.set_pattern()] {
+    for key in [keys.tx_pattern(), keys.set_pattern(), keys.ack_pattern()] {
         let commands = commands.clone();
         let sub = session
             .declare_subscriber(key)
@@ -662,7 +702,7 @@ async fn declare(
         subscribers.push(sub);
     }
     let mut queryables = Vec::new();
-    for key in [keys.tx_pattern(), keys.set_pattern()] {
+    for key in [keys.tx_pattern(), keys.set_pattern(), keys.ack_pattern()] {
         let commands = commands.clone();
         let q = session
             .declare_queryable(key)

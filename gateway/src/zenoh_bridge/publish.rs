@@ -51,6 +51,9 @@ pub(crate) struct Message {
     /// JSON (`application/json`) or raw bytes (`application/octet-stream`).
     pub(crate) json: bool,
     pub(crate) attachment: Option<Vec<u8>>,
+    /// Told whether the put succeeded, once it was made (a telegram acknowledged on
+    /// publication waits for it); dropped unanswered when the item is.
+    pub(crate) done: Option<tokio::sync::oneshot::Sender<bool>>,
 }
 
 /// Queue limits, from the config.
@@ -344,6 +347,7 @@ impl PublisherThread {
             payload,
             json,
             attachment,
+            done,
         } = msg;
         let encoding = if json {
             Encoding::APPLICATION_JSON
@@ -379,7 +383,11 @@ impl PublisherThread {
                 .attachment(attachment)
                 .wait()
         };
+        let ok = result.is_ok();
         self.count(kind, &key, result);
+        if let Some(done) = done {
+            let _ = done.send(ok);
+        }
     }
 
     fn count(&self, kind: PublicationKind, key: &str, result: zenoh::Result<()>) {
@@ -445,6 +453,7 @@ mod tests {
             payload: vec![n],
             json: false,
             attachment: None,
+            done: None,
         }
     }
 

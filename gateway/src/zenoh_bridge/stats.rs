@@ -167,16 +167,19 @@ pub enum CommandKind {
     Tx,
     /// A tag write (`<line>/<device>/<tag>/set`).
     Set,
+    /// An acknowledgement of a received telegram (`<line>/ack`).
+    Ack,
 }
 
 impl CommandKind {
-    const ALL: [Self; 2] = [Self::Tx, Self::Set];
+    const ALL: [Self; 3] = [Self::Tx, Self::Set, Self::Ack];
 
     /// The metric label.
     pub fn as_str(self) -> &'static str {
         match self {
             Self::Tx => "tx",
             Self::Set => "set",
+            Self::Ack => "ack",
         }
     }
 }

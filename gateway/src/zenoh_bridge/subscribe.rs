@@ -51,6 +51,8 @@ pub(crate) enum Op {
         tag: String,
         value: Value,
     },
+    /// Acknowledge the received telegram with this sequence number.
+    Ack(u16),
 }
 
 /// One command, from a put or a query.
@@ -67,6 +69,7 @@ impl Command {
         match self.op {
             Op::Tx(_) => CommandKind::Tx,
             Op::Set { .. } => CommandKind::Set,
+            Op::Ack(_) => CommandKind::Ack,
         }
     }
 
@@ -79,6 +82,8 @@ impl Command {
                 format!("{}/{device}/{tag}", self.line)
             }
             Op::Set { device, tag, value } => format!("{}/{device}/{tag} = {value}", self.line),
+            Op::Ack(0) => format!("{}/ack", self.line),
+            Op::Ack(seq) => format!("{}/telegrams/{seq} ack", self.line),
         }
     }
 }
@@ -88,6 +93,9 @@ impl Command {
 fn parse_key(keys: &Keys, key: &str) -> Option<(String, Op)> {
     if let Some(line) = keys.parse_tx(key) {
         return Some((line, Op::Tx(Vec::new())));
+    }
+    if let Some(line) = keys.parse_ack(key) {
+        return Some((line, Op::Ack(0)));
     }
     let (line, device, tag) = keys.parse_set(key)?;
     Some((
@@ -116,6 +124,19 @@ fn parse_payload(op: &mut Op, payload: Option<&ZBytes>) -> Result<(), String> {
             let payload = payload.ok_or_else(|| "no value".to_owned())?;
             *value = serde_json::from_slice::<Value>(&payload.to_bytes())
                 .map_err(|e| format!("payload is not a JSON value: {e}"))?;
+        }
+        Op::Ack(seq) => {
+            // The sequence number as text ("17"), as the Modbus register and the REST path
+            // take it.
+            *seq = payload
+                .map(ZBytes::to_bytes)
+                .and_then(|p| std::str::from_utf8(&p).ok().map(str::to_owned))
+                .and_then(|t| t.trim().parse::<u16>().ok())
+                .filter(|&seq| seq != 0)
+                .ok_or_else(|| {
+                    "payload is not a sequence number 1..65535 (send it as text, e.g. \"17\")"
+                        .to_owned()
+                })?;
         }
     }
     Ok(())
@@ -271,6 +292,7 @@ impl Commands {
         let kind = match op {
             Op::Tx(_) => CommandKind::Tx,
             Op::Set { .. } => CommandKind::Set,
+            Op::Ack(_) => CommandKind::Ack,
         };
         self.stats.command(kind, result);
         let mut body = match &op {
@@ -278,6 +300,7 @@ impl Commands {
             Op::Set { device, tag, value } => {
                 json!({"line": line, "device": device, "tag": tag, "value": value})
             }
+            Op::Ack(seq) => json!({"line": line, "seq": seq}),
         };
         match outcome {
             Ok(v) => {
@@ -290,12 +313,26 @@ impl Commands {
             }
         }
         let payload = body.to_string().into_bytes();
-        let (key, pkind) = match &op {
-            Op::Tx(_) => (self.keys.tx_result(&line), PublicationKind::TxResult),
-            Op::Set { device, tag, .. } => (
+        let target = match &op {
+            Op::Tx(_) => Some((self.keys.tx_result(&line), PublicationKind::TxResult)),
+            Op::Set { device, tag, .. } => Some((
                 self.keys.set_result(&line, device, tag),
                 PublicationKind::SetResult,
-            ),
+            )),
+            // No result key (`<line>/ack/result` could be a tag's key): a query gets the
+            // result as its reply, a refused put is logged.
+            Op::Ack(seq) => {
+                if body["ok"] == Value::Bool(false) {
+                    crate::warn_limited!(
+                        format!("zenoh ack {line}"),
+                        %line,
+                        seq,
+                        error = %body["error"],
+                        "zenoh acknowledgement refused"
+                    );
+                }
+                None
+            }
         };
         if let Some(query) = query {
             let payload = payload.clone();
@@ -313,12 +350,16 @@ impl Commands {
                 }
             });
         }
+        let Some((key, pkind)) = target else {
+            return;
+        };
         let _ = self.outbox.push(Message {
             kind: pkind,
             key,
             payload,
             json: true,
             attachment,
+            done: None,
         });
     }
 }
@@ -386,6 +427,7 @@ async fn line_worker(
             Op::Set { device, tag, value } => {
                 backend.write_tag(&cmd.line, device, tag, value.clone())
             }
+            Op::Ack(seq) => backend.ack_telegram(&cmd.line, *seq),
         };
         let outcome = tokio::select! {
             r = fut => r,
@@ -457,6 +499,17 @@ mod tests {
             query: None,
         };
         assert_eq!(cmd.target(), "drive/atv/cmd", "no value yet");
+    }
+
+    #[test]
+    fn ack_needs_a_sequence_number() {
+        let (line, op) = command("gw/demo/r3964/ack", b" 17\n").unwrap();
+        assert_eq!(line, "r3964");
+        assert!(matches!(op, Op::Ack(17)));
+        for bad in [&b"0"[..], b"", b"65536", b"x", b"\xff"] {
+            let error = command("gw/demo/r3964/ack", bad).unwrap_err();
+            assert!(error.starts_with("payload is not a sequence number"), "{error}");
+        }
     }
 
     #[test]

@@ -74,6 +74,7 @@ pub(crate) fn mailbox(queue_depth: usize, overflow: Overflow) -> MailboxSettings
     MailboxSettings {
         queue_depth,
         overflow,
+        ..MailboxSettings::default()
     }
 }
 

@@ -58,6 +58,9 @@ pub struct Proc3964 {
     last_id: u64,
     /// The receiving side's account of failed receptions, for 08 01h and 08 15h.
     repeats: Repeats,
+    /// Whether the runtime can take a telegram now ([`Proc3964::set_receive_ready`]); when not,
+    /// STX is answered with NAK as with a full receive buffer.
+    ready: bool,
 }
 
 /// One telegram to send, with its attempt counters.
@@ -90,6 +93,9 @@ enum State {
     AwaitAck { job: Job, deadline: Instant },
     /// We answered the partner's STX with DLE and collect its telegram.
     Receiving(Reception),
+    /// A telegram was received complete and correct; its final DLE waits for
+    /// [`Proc3964::confirm_received`] (`Settings3964::hold_ack`).
+    AwaitConfirm,
 }
 
 /// A telegram being received.
@@ -131,7 +137,46 @@ impl Proc3964 {
             events: VecDeque::new(),
             last_id: 0,
             repeats: Repeats::default(),
+            ready: true,
         }
+    }
+
+    /// Whether the runtime can take a telegram now. While not, the partner's STX is answered
+    /// with NAK and 08 0Ah is raised, as with a full receive buffer (003 6.3.1 "When the driver
+    /// is not ready yet at reception of the STX, it sends a NAK"). Ready from the start.
+    pub fn set_receive_ready(&mut self, ready: bool) {
+        self.ready = ready;
+    }
+
+    /// Whether a received telegram waits for [`confirm_received`](Self::confirm_received)
+    /// (only with `hold_ack`).
+    pub fn awaiting_confirm(&self) -> bool {
+        matches!(self.state, State::AwaitConfirm)
+    }
+
+    /// Ends the reception that waits for confirmation (`hold_ack`): `Ok` sends the final DLE
+    /// (the partner's send is done), `Err(cause)` answers NAK and raises `cause`, and the
+    /// partner repeats the telegram (003 6.3.1, "In the event of an error, the NAK code is
+    /// sent"). The caller takes the telegram from the receive buffer before it refuses it.
+    /// Does nothing when no telegram waits.
+    pub fn confirm_received(&mut self, now: Instant, result: Result<(), EventId>) {
+        if !self.awaiting_confirm() {
+            return;
+        }
+        self.state = match result {
+            Ok(()) => {
+                self.tx.push(vec![DLE]);
+                self.repeats = Repeats::default();
+                State::Idle
+            }
+            Err(cause) => self.fail_reception(now, cause),
+        };
+        self.kick();
+    }
+
+    /// Whether the partner's STX can be answered with DLE now.
+    fn can_receive(&self) -> bool {
+        self.ready && !self.buffer.is_full()
     }
 
     /// The parameters in use.
@@ -197,6 +242,12 @@ impl Proc3964 {
                 // attempt to establish the connection and the telegram are repeated"; 7.2, 07 06h.
                 State::AwaitAck { job, .. } => self.fail_transmission(job, ids::SEND_END_REJECTED),
                 State::Receiving(reception) => self.receiving_byte(now, reception, byte),
+                // The partner must wait for our DLE or NAK: a character now is its fault
+                // (7.2, 08 02h "partner sent more codes without waiting for response DLE").
+                State::AwaitConfirm => {
+                    self.raise(ids::RECEIVE_SETUP_ERROR);
+                    State::AwaitConfirm
+                }
             };
             self.kick();
         }
@@ -224,6 +275,10 @@ impl Proc3964 {
                 reception.fault.get_or_insert(cause);
                 reception.deadline = Some(now + self.settings().zvz);
                 State::Receiving(reception)
+            }
+            State::AwaitConfirm => {
+                self.raise(cause);
+                State::AwaitConfirm
             }
         };
         self.kick();
@@ -301,7 +356,7 @@ impl Proc3964 {
             State::Connecting { deadline, .. } => *deadline,
             State::AwaitAck { deadline, .. } => Some(*deadline),
             State::Receiving(reception) => reception.deadline,
-            State::Idle | State::Sending { .. } => None,
+            State::Idle | State::Sending { .. } | State::AwaitConfirm => None,
         }
     }
 
@@ -350,7 +405,7 @@ impl Proc3964 {
     }
 
     fn accept_stx(&mut self, now: Instant) -> State {
-        if self.buffer.is_full() {
+        if !self.can_receive() {
             // 6.3.1: "When the driver is not ready yet at reception of the STX, it sends a NAK";
             // 7.2, 08 0Ah "There is no free input buffer available."
             self.tx.push(vec![NAK]);
@@ -414,6 +469,10 @@ impl Proc3964 {
             // 6.3.3 "with block check": "If the BCC is correct and no other receive errors have
             // occurred, the CP sends the code DLE".
             (None, Ok(data)) => match self.buffer.store(data.clone()) {
+                Stored::Kept | Stored::Replaced if self.settings().hold_ack => {
+                    self.events.push_back(TelegramEvent::Received { data });
+                    State::AwaitConfirm
+                }
                 Stored::Kept | Stored::Replaced => {
                     self.tx.push(vec![DLE]);
                     self.events.push_back(TelegramEvent::Received { data });
@@ -475,7 +534,7 @@ impl Proc3964 {
             }
             // 003 6.3.1 "Initialization conflict": "the station with the lower priority will
             // transmit the DLE and change to receive mode"; its send request waits (6.3.3).
-            (STX, Priority::Low) if self.buffer.is_full() => {
+            (STX, Priority::Low) if !self.can_receive() => {
                 self.tx.push(vec![NAK]);
                 self.raise(ids::NO_FREE_RECEIVE_BUFFER);
                 State::Connecting { job, deadline }

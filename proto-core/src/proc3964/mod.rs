@@ -112,6 +112,12 @@ pub struct Settings3964 {
     pub receive_buffers: u16,
     /// Telegrams `send` queues behind the one in progress (1..=1024).
     pub send_queue: u16,
+    /// Whether the final DLE of a received telegram waits for
+    /// [`Proc3964::confirm_received`] (default off: it is sent at once). The runtime sets it
+    /// when it must store a telegram durably before the partner is told it arrived (003 6.3.1:
+    /// the partner takes the DLE after the BCC as "received"); a refusal is answered with NAK,
+    /// which the partner answers by repeating (6.3.1).
+    pub hold_ack: bool,
 }
 
 // === impl Settings3964 ===
@@ -134,6 +140,7 @@ impl Settings3964 {
             max_len: DEFAULT_MAX_LEN,
             receive_buffers: DEFAULT_RECEIVE_BUFFERS,
             send_queue: DEFAULT_SEND_QUEUE,
+            hold_ack: false,
         }
     }
 }

@@ -18,7 +18,7 @@ use super::{TelegramLineSettings, TelegramProtocol};
 use crate::config::{
     self as cfg, AsciiConfig, LineConfig, Proc3964Config, ProtocolConfig, SerialConfig,
 };
-use crate::mailbox::{MailboxSettings, Overflow};
+use crate::mailbox::{AckMode, MailboxSettings, Overflow};
 use crate::serial::PortSettings;
 
 /// Why a line's configuration does not make a telegram line.
@@ -71,6 +71,7 @@ pub fn params_3964(serial: &SerialConfig, c: &Proc3964Config) -> Result<Params39
         max_len: c.max_telegram_len,
         receive_buffers: c.receive_buffer,
         send_queue: c.send_queue,
+        hold_ack: false,
     })
 }
 
@@ -151,6 +152,7 @@ impl TelegramLineSettings {
                     MailboxSettings {
                         queue_depth: usize::from(c.receive_buffer),
                         overflow,
+                        ack: c.ack.map_or(AckMode::Explicit, mailbox_ack),
                     },
                     c.max_telegram_len,
                     c.send_queue,
@@ -173,6 +175,7 @@ impl TelegramLineSettings {
                     MailboxSettings {
                         queue_depth: usize::from(c.receive_buffer),
                         overflow,
+                        ack: c.ack.map_or(AckMode::Explicit, mailbox_ack),
                     },
                     c.max_telegram_len,
                     c.send_queue,
@@ -186,7 +189,18 @@ impl TelegramLineSettings {
         settings.send_queue = usize::from(send_queue);
         settings.unit_id = line.unit_id();
         settings.sends = line.sends();
+        settings.journal = line.journal().map(ToOwned::to_owned);
         Ok(settings)
+    }
+}
+
+/// The mailbox's [`AckMode`] for a line's `ack`. `from_config` takes an unset `ack` as
+/// explicit; the gateway's start resolves the default with [`cfg::ack_mode`], which needs the
+/// whole configuration.
+pub fn mailbox_ack(ack: cfg::AckConfig) -> AckMode {
+    match ack {
+        cfg::AckConfig::OnPublish => AckMode::OnPublish,
+        cfg::AckConfig::Explicit => AckMode::Explicit,
     }
 }
 
@@ -222,7 +236,8 @@ mod tests {
             r3964.mailbox,
             MailboxSettings {
                 queue_depth: 250,
-                overflow: Overflow::Refuse
+                overflow: Overflow::Refuse,
+                ack: AckMode::Explicit,
             }
         );
 

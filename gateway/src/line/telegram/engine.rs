@@ -10,6 +10,7 @@
 //! bytes' own arrival, the 3964(R) procedure is half duplex and takes no byte as received before
 //! its own transmission has left the line.
 
+use proto_core::event::EventId;
 use proto_core::proc3964::{Params3964, Proc3964};
 use proto_core::serial_marks::LineError;
 use proto_core::telegram::{
@@ -50,6 +51,15 @@ pub(crate) trait TelegramEngine: Send + 'static {
     fn poll_timeout(&self) -> Option<Instant>;
     /// Removes the oldest received telegram from the engine's receive buffer.
     fn take_received(&mut self) -> Option<Vec<u8>>;
+    /// Whether a received telegram waits for [`Self::confirm_received`] before the partner
+    /// gets its acknowledgement (3964(R) with `hold_ack`; never for ASCII, which acknowledges
+    /// nothing).
+    fn awaiting_confirm(&self) -> bool;
+    /// Acknowledges (`Ok`) or refuses (`Err(cause)`, 3964(R): NAK) the telegram that waits.
+    fn confirm_received(&mut self, now: Instant, result: Result<(), EventId>);
+    /// Whether the runtime can take a telegram now (3964(R): STX is answered with NAK while
+    /// not).
+    fn set_receive_ready(&mut self, ready: bool);
     /// Whether nothing is being sent, received or queued.
     fn is_idle(&self) -> bool;
     /// Whether the engine reacts to CTS and DSR (they must be watched).
@@ -105,6 +115,15 @@ impl TelegramEngine for Proc3964 {
     fn take_received(&mut self) -> Option<Vec<u8>> {
         Self::take_received(self)
     }
+    fn awaiting_confirm(&self) -> bool {
+        Self::awaiting_confirm(self)
+    }
+    fn confirm_received(&mut self, now: Instant, result: Result<(), EventId>) {
+        Self::confirm_received(self, now, result);
+    }
+    fn set_receive_ready(&mut self, ready: bool) {
+        Self::set_receive_ready(self, ready);
+    }
     fn is_idle(&self) -> bool {
         Self::is_idle(self)
     }
@@ -158,6 +177,13 @@ impl TelegramEngine for AsciiDriver {
     fn take_received(&mut self) -> Option<Vec<u8>> {
         Self::take_received(self)
     }
+    /// A received ASCII telegram counts as received once it is in the mailbox: there is no
+    /// acknowledgement to hold back (003 6.2).
+    fn awaiting_confirm(&self) -> bool {
+        false
+    }
+    fn confirm_received(&mut self, _now: Instant, _result: Result<(), EventId>) {}
+    fn set_receive_ready(&mut self, _ready: bool) {}
     fn is_idle(&self) -> bool {
         Self::is_idle(self)
     }

@@ -40,7 +40,7 @@ use tokio_util::sync::CancellationToken;
 pub use crate::mailbox::TelegramRx;
 pub(crate) use client::Command;
 pub use client::{PendingSend, SendResult, SignalsClient, TelegramClient, TelegramSendError};
-pub use convert::{params_3964, params_ascii, TelegramConfigError};
+pub use convert::{mailbox_ack, params_3964, params_ascii, TelegramConfigError};
 pub use mailbox_unit::MailboxUnit;
 pub use tap::{spawn_3964_tap_line, Tap3964LineSettings, DEFAULT_TAP_MAILBOX, TAP_3964_PROTOCOL};
 
@@ -48,7 +48,8 @@ use super::line_metrics::{LineMetrics, LineTraffic};
 use super::runtime::{self, LineBase, LineCapabilities, LineHandle, PortOpener, SerialOpener};
 use super::status::{self, LineStatus};
 use super::{DEFAULT_DIAG_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
-use crate::mailbox::{Mailbox, MailboxSettings, Overflow, TelegramCounters};
+use crate::mailbox::journal::JournalError;
+use crate::mailbox::{Mailbox, MailboxSettings, Overflow, Restored, TelegramCounters};
 use crate::serial::PortSettings;
 use crate::unit::UnitService;
 
@@ -126,6 +127,10 @@ pub struct TelegramLineSettings {
     /// Sends allowed; when not, every client's send is refused at once
     /// ([`TelegramSendError::NotAllowed`]).
     pub sends: bool,
+    /// The journal that keeps the waiting telegrams over a restart (`None`: they are lost
+    /// with the process). With a journal, a 3964(R) telegram is acknowledged (final DLE) only
+    /// once it is written and synced, and the driver holds no telegram beyond the mailbox.
+    pub journal: Option<std::path::PathBuf>,
 }
 
 // === impl TelegramLineSettings ===
@@ -148,6 +153,7 @@ impl TelegramLineSettings {
             metrics: None,
             unit_id: None,
             sends: true,
+            journal: None,
         }
     }
 
@@ -160,6 +166,7 @@ impl TelegramLineSettings {
             TelegramProtocol::P3964(p) => {
                 let settings = Settings3964 {
                     receive_buffers: if refuse { 1 } else { ENGINE_BUFFER_MAX },
+                    hold_ack: self.journal.is_some(),
                     ..p.settings().clone()
                 };
                 TelegramProtocol::P3964(Params3964::try_new(settings).unwrap_or_else(|_| p.clone()))
@@ -330,12 +337,59 @@ impl LineShared {
 
 /// Starts a telegram line: opens its port (reopening with back-off), receives into its mailbox
 /// and sends for its clients until `shutdown` is cancelled. Must be called within a tokio
-/// runtime.
+/// runtime. A journal that cannot be opened is logged and raised (04 07h), and the line runs
+/// without it; [`try_spawn_telegram_line`] refuses to start instead.
 pub fn spawn_telegram_line(
     settings: TelegramLineSettings,
     shutdown: CancellationToken,
 ) -> LineHandle {
-    spawn_on(settings, shutdown, SerialOpener)
+    match open_mailbox(&settings) {
+        Ok(opened) => spawn_on(settings, shutdown, SerialOpener, opened),
+        Err(e) => {
+            tracing::error!(line = %settings.name, error = %e, "mailbox journal not opened; the line runs without it");
+            let mailbox = Mailbox::new(&settings.name, settings.mailbox, settings.max_len);
+            let settings = TelegramLineSettings {
+                journal: None,
+                ..settings
+            };
+            let line = spawn_on(settings, shutdown, SerialOpener, (mailbox, None));
+            if let Some(shared) = line.capability::<LineShared>() {
+                shared.raise(ids::CPU_TRANSFER_ERROR, Some(e.to_string()));
+            }
+            line
+        }
+    }
+}
+
+/// [`spawn_telegram_line`] that fails when the line's journal cannot be opened.
+///
+/// # Errors
+///
+/// The journal cannot be read, created or written.
+pub fn try_spawn_telegram_line(
+    settings: TelegramLineSettings,
+    shutdown: CancellationToken,
+) -> Result<LineHandle, JournalError> {
+    let opened = open_mailbox(&settings)?;
+    Ok(spawn_on(settings, shutdown, SerialOpener, opened))
+}
+
+/// The mailbox of a line, with what its journal held.
+type OpenedMailbox = (Arc<Mailbox>, Option<Restored>);
+
+/// The line's mailbox: from its journal when it has one.
+fn open_mailbox(settings: &TelegramLineSettings) -> Result<OpenedMailbox, JournalError> {
+    match &settings.journal {
+        Some(path) => {
+            let (mailbox, restored) =
+                Mailbox::with_journal(&settings.name, settings.mailbox, settings.max_len, path)?;
+            Ok((mailbox, Some(restored)))
+        }
+        None => Ok((
+            Mailbox::new(&settings.name, settings.mailbox, settings.max_len),
+            None,
+        )),
+    }
 }
 
 /// [`spawn_telegram_line`] on the ports `opener` opens.
@@ -343,6 +397,7 @@ fn spawn_on<O: PortOpener>(
     settings: TelegramLineSettings,
     shutdown: CancellationToken,
     opener: O,
+    (mailbox, restored): OpenedMailbox,
 ) -> LineHandle {
     let settings = TelegramLineSettings {
         max_len: settings.max_len.min(settings.protocol.max_len()),
@@ -367,13 +422,14 @@ fn spawn_on<O: PortOpener>(
     let shared = Arc::new(LineShared {
         metrics: core.shared.metrics().clone(),
         status: Arc::clone(&core.shared),
-        mailbox: Mailbox::new(&settings.name, settings.mailbox, settings.max_len),
+        mailbox,
         protocol: settings.protocol.name(),
         signals_error: Mutex::new(None),
         client: TelegramClient::new(Arc::clone(&name), tx, settings.send_queue)
             .with_sends(settings.sends),
         unit_id: settings.unit_id,
     });
+    report_restored(&shared, &settings, restored.as_ref());
     match settings.engine_protocol() {
         TelegramProtocol::P3964(params) => {
             start(core, settings, params, shared, rx, shutdown, opener)
@@ -381,6 +437,42 @@ fn spawn_on<O: PortOpener>(
         TelegramProtocol::Ascii(params) => {
             start(core, settings, params, shared, rx, shutdown, opener)
         }
+    }
+}
+
+/// Logs what the journal gave back at start, and raises its loss: 05 01h "Current request
+/// aborted by a CP restart" names the telegrams a restart took (the damaged tail of the
+/// journal). Without a journal the start says that a stop will lose what waits.
+fn report_restored(
+    shared: &LineShared,
+    settings: &TelegramLineSettings,
+    restored: Option<&Restored>,
+) {
+    let line = settings.name.as_str();
+    let Some(restored) = restored else {
+        tracing::info!(line, "no journal: telegrams waiting at a stop or crash are lost (set `journal` to keep them)");
+        return;
+    };
+    let path = settings
+        .journal
+        .as_deref()
+        .map(|p| p.display().to_string())
+        .unwrap_or_default();
+    tracing::info!(
+        line,
+        journal = %path,
+        waiting = restored.telegrams,
+        last_seq = restored.last_seq,
+        "mailbox restored from its journal"
+    );
+    if let Some(loss) = &restored.loss {
+        let detail = format!(
+            "journal {path}: {} bytes from offset {} unreadable ({}) and cut off; telegrams \
+             recorded there are lost, numbering goes on after {}",
+            loss.bytes, loss.offset, loss.reason, restored.last_seq
+        );
+        tracing::error!(line, "{detail}");
+        shared.raise(ids::REQUEST_ABORTED_BY_RESTART, Some(detail));
     }
 }
 
@@ -426,7 +518,13 @@ mod tests {
             TelegramProtocol::P3964(params),
         );
         let shutdown = CancellationToken::new();
-        let line = spawn_on(settings, shutdown.clone(), OnePort(Mutex::new(Some(port))));
+        let mailbox = open_mailbox(&settings).expect("mailbox");
+        let line = spawn_on(
+            settings,
+            shutdown.clone(),
+            OnePort(Mutex::new(Some(port))),
+            mailbox,
+        );
         eventually("the port open", || line.status().port_open).await;
 
         // 003 7.2 08 0Ch: a faulty character in idle is reported immediately; like any character

@@ -135,6 +135,7 @@ pub(crate) fn spawn_on<O: PortOpener>(
     let core = base.core(Vec::new());
     core.shared.metrics().init_frames_discarded(&Fault::REASONS);
     let mailbox = MailboxSettings {
+        ack: crate::mailbox::AckMode::Explicit,
         queue_depth: settings.mailbox_depth,
         overflow: Overflow::DropOldest,
     };

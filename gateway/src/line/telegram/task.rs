@@ -89,7 +89,13 @@ impl<F: EngineFactory> LineEngine for TelegramLine<F> {
     /// for 3964(R)).
     fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
         let at = self.engine.rx_time(now, self.tx_end);
+        let journaled = self.settings.journal.is_some();
         for &byte in bytes {
+            if journaled {
+                // With a journal the driver holds no telegram beyond the mailbox: an STX that
+                // finds it full is refused at once (3964(R): NAK).
+                self.engine.set_receive_ready(self.shared.mailbox.accepts());
+            }
             self.engine.handle_rx(at, &[byte]);
             if self.events() {
                 self.move_received(false);
@@ -193,6 +199,14 @@ impl<F: EngineFactory> LineEngine for TelegramLine<F> {
     /// the engine; the sends waiting for their result fail.
     fn closed(&mut self, shutting_down: bool) {
         self.move_received(true);
+        let waiting = self.shared.mailbox.len();
+        if shutting_down && waiting > 0 && !self.shared.mailbox.journaled() {
+            tracing::warn!(
+                line = %self.name(),
+                waiting,
+                "{waiting} telegrams waiting were not journaled: they are lost with this stop (set `journal` to keep them)"
+            );
+        }
         for (_, waiting) in self.waiting.drain() {
             let error = if shutting_down {
                 TelegramSendError::ShuttingDown
@@ -296,39 +310,109 @@ impl<F: EngineFactory> TelegramLine<F> {
 
     /// Moves received telegrams from the engine to the mailbox while it accepts them (`all`:
     /// every one, the port is closing). Returns whether any moved.
+    ///
+    /// With a journal each telegram is written (and synced) first; a 3964(R) telegram waiting
+    /// for its acknowledgement is then confirmed (final DLE), or refused with NAK when the write
+    /// failed (04 07h: the partner repeats it) or the mailbox has no room (08 0Ah). An ASCII
+    /// telegram whose write failed is kept in memory (04 07h says it is not journaled): the
+    /// ASCII driver has no way to make the partner repeat it.
     fn move_received(&mut self, all: bool) -> bool {
-        let mailbox = &self.shared.mailbox;
         let mut any = false;
-        while all || mailbox.accepts() {
+        while all || self.shared.mailbox.accepts() {
             let Some(data) = self.engine.take_received() else {
                 break;
             };
             any = true;
             let at = self.received_at.pop_front().unwrap_or_else(SystemTime::now);
-            let depth = mailbox.settings().queue_depth;
-            match mailbox.deliver(data, at) {
-                Delivery::Kept { seq } => {
-                    tracing::debug!(line = %self.name(), seq, "telegram received");
+            let delivered = self.shared.mailbox.try_deliver(data, at);
+            let delivery = match delivered {
+                Ok(delivery) => {
+                    self.confirm(Ok(()));
+                    delivery
                 }
-                Delivery::DroppedNew { seq } => self.shared.raise(
-                    ids::NO_FREE_RECEIVE_BUFFER,
-                    Some(format!(
-                        "mailbox full ({depth} telegrams): telegram {seq} dropped"
-                    )),
-                ),
-                // Overwriting allowed (003 6.2.1): the configured behaviour, not an overflow.
-                Delivery::Overwritten { seq, replaced } => {
-                    tracing::debug!(line = %self.name(), seq, replaced, "telegram overwrote the held one");
+                Err((error, data)) if self.engine.awaiting_confirm() => {
+                    crate::warn_limited!(
+                        format!("journal {}", self.name()),
+                        line = %self.name(),
+                        %error,
+                        "telegram refused (NAK): the journal did not take it; the partner repeats"
+                    );
+                    drop(data);
+                    self.shared.raise(
+                        ids::CPU_TRANSFER_ERROR,
+                        Some(format!("{error}: refused with NAK")),
+                    );
+                    self.confirm(Err(ids::CPU_TRANSFER_ERROR));
+                    continue;
                 }
-                Delivery::DroppedOldest { seq, dropped } => self.shared.raise(
-                    ids::NO_FREE_RECEIVE_BUFFER,
-                    Some(format!(
-                        "mailbox full ({depth} telegrams): oldest telegram {dropped} dropped for {seq}"
-                    )),
-                ),
+                Err((error, data)) => {
+                    crate::warn_limited!(
+                        format!("journal {}", self.name()),
+                        line = %self.name(),
+                        %error,
+                        "telegram kept without the journal: lost at a restart"
+                    );
+                    self.shared.raise(
+                        ids::CPU_TRANSFER_ERROR,
+                        Some(format!("{error}: telegram kept in memory only")),
+                    );
+                    self.shared.mailbox.deliver_unjournaled(data, at)
+                }
+            };
+            self.report(delivery);
+        }
+        if self.engine.awaiting_confirm() {
+            // No room (the STX came before the mailbox filled): refused, the partner repeats.
+            if self.engine.take_received().is_some() {
+                self.received_at.pop_front();
             }
+            let depth = self.shared.mailbox.settings().queue_depth;
+            self.shared.raise(
+                ids::NO_FREE_RECEIVE_BUFFER,
+                Some(format!(
+                    "mailbox full ({depth} telegrams): telegram refused with NAK"
+                )),
+            );
+            self.confirm(Err(ids::NO_FREE_RECEIVE_BUFFER));
+            any = true;
         }
         any
+    }
+
+    /// Ends a reception that waits for its acknowledgement (3964(R) with a journal).
+    fn confirm(&mut self, result: Result<(), EventId>) {
+        if self.engine.awaiting_confirm() {
+            let (_, now) = self.clock.now();
+            self.engine.confirm_received(now, result);
+            // The refusal's events (the cause, 08 01h) go out with the next drain.
+            self.events();
+        }
+    }
+
+    /// Logs and raises what became of a telegram handed to the mailbox.
+    fn report(&self, delivery: Delivery) {
+        let depth = self.shared.mailbox.settings().queue_depth;
+        match delivery {
+            Delivery::Kept { seq } => {
+                tracing::debug!(line = %self.name(), seq, "telegram received");
+            }
+            Delivery::DroppedNew { seq } => self.shared.raise(
+                ids::NO_FREE_RECEIVE_BUFFER,
+                Some(format!(
+                    "mailbox full ({depth} telegrams): telegram {seq} dropped"
+                )),
+            ),
+            // Overwriting allowed (003 6.2.1): the configured behaviour, not an overflow.
+            Delivery::Overwritten { seq, replaced } => {
+                tracing::debug!(line = %self.name(), seq, replaced, "telegram overwrote the held one");
+            }
+            Delivery::DroppedOldest { seq, dropped } => self.shared.raise(
+                ids::NO_FREE_RECEIVE_BUFFER,
+                Some(format!(
+                    "mailbox full ({depth} telegrams): oldest telegram {dropped} dropped for {seq}"
+                )),
+            ),
+        }
     }
 
     /// Reads CTS and DSR and hands a change to the engine.
