@@ -20,8 +20,9 @@
 //! # Framing (003 6.4.3)
 //!
 //! A frame ends when no character arrives for 3.5 character times ([`rtu::SilenceFramer`], the
-//! framer of every RTU station of the crate; 003 6.4.3 "CRC-CHECK": the message end is "when no transmission takes place during the time period for the transmission
-//! of 3.5 times character delay time"; `CharTiming::with_multiplier` scales it as the CP's
+//! framer the master and the slave use too; 003 6.4.3 "CRC-CHECK": the message end is "when no
+//! transmission takes place during the time period for the transmission of 3.5 times character
+//! delay time"; `CharTiming::with_multiplier` scales it as the CP's
 //! "multiplier character delay time" does). A silence of more than 1.5 character times and less
 //! than 3.5 inside a frame makes the frame bad (Modbus over Serial Line V1.02, 2.5.1.1: the frame
 //! "must be transmitted as a continuous stream of characters"; a gap above t1.5 declares it

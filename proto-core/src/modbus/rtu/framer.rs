@@ -1,5 +1,6 @@
-//! The end of an RTU frame by silence, written once for the RTU receivers that frame a byte
-//! stream on their own (the slave and the tap).
+//! The end of an RTU frame by silence, written once for every RTU receiver: the master's reply
+//! ([`crate::modbus::master`]), the slave's requests ([`crate::modbus::slave`]) and the tap's
+//! traffic ([`crate::modbus::tap`]).
 //!
 //! A frame ends when no character arrives for 3.5 character times (003 6.4.3 "CRC-CHECK": the
 //! message end is "when no transmission takes place during the time period for the transmission
