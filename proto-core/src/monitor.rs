@@ -18,7 +18,8 @@ use std::fmt::Write as _;
 use std::time::Duration;
 
 use crate::checksum::{bcc, crc16_modbus, lrc};
-use crate::proc3964::{DLE, ETX, NAK, STX};
+use crate::proc3964::frame::{Deframer, Progress};
+use crate::proc3964::{Variant, DLE, ETX, NAK, STX};
 use crate::telegram::EndCriterion;
 
 /// Which way a frame went, seen from the gateway.
@@ -113,12 +114,8 @@ pub struct FrameCutter {
     /// Bytes of the current frame so far.
     len: usize,
     /// 3964(R): the frame is a telegram (data after the partner's STX was acknowledged, or
-    /// bytes that are not a control character).
-    telegram: bool,
-    /// 3964(R): the previous byte of the telegram was an undoubled DLE.
-    dle: bool,
-    /// 3964R: DLE ETX seen, the BCC comes next.
-    bcc_next: bool,
+    /// bytes that are not a control character), whose end the protocol's own deframer finds.
+    telegram: Option<Deframer>,
     /// 3964(R): the gateway acknowledged the partner's STX, so the next received bytes are a
     /// telegram even if they begin with a DLE.
     expect_telegram: bool,
@@ -134,9 +131,7 @@ impl FrameCutter {
         Self {
             kind,
             len: 0,
-            telegram: false,
-            dle: false,
-            bcc_next: false,
+            telegram: None,
             expect_telegram: false,
             first_end_seen: false,
         }
@@ -146,9 +141,7 @@ impl FrameCutter {
     /// begins a new one.
     pub fn reset(&mut self) {
         self.len = 0;
-        self.telegram = false;
-        self.dle = false;
-        self.bcc_next = false;
+        self.telegram = None;
         self.first_end_seen = false;
     }
 
@@ -193,29 +186,22 @@ impl FrameCutter {
 
     /// 003 6.3: STX (connection request), DLE (positive acknowledgement) and NAK (negative) are
     /// frames of one byte; a telegram's data has DLE doubled and ends with DLE ETX, followed by
-    /// the BCC in 3964R.
+    /// the BCC in 3964R: where it ends is the [`Deframer`]'s answer, the one the 3964(R) engine
+    /// receives with (it keeps no user data here: only the end is wanted).
     fn push_3964(&mut self, byte: u8, with_bcc: bool) -> bool {
         if self.len == 1 && !self.expect_telegram && matches!(byte, STX | DLE | NAK) {
             return true;
         }
         self.expect_telegram = false;
-        self.telegram = true;
-        if self.bcc_next {
-            return true;
-        }
-        if self.dle {
-            self.dle = false;
-            if byte == ETX {
-                if with_bcc {
-                    self.bcc_next = true;
-                    return false;
-                }
-                return true;
-            }
-            return false; // DLE DLE: one data DLE
-        }
-        self.dle = byte == DLE;
-        false
+        let variant = if with_bcc {
+            Variant::P3964R
+        } else {
+            Variant::P3964
+        };
+        let telegram = self
+            .telegram
+            .get_or_insert_with(|| Deframer::new(variant, 0));
+        telegram.push(byte) == Progress::Complete
     }
 }
 

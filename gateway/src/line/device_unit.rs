@@ -134,19 +134,7 @@ impl DeviceUnit {
     /// The table and range of a read of polled addresses; `None` for anything else (it goes to
     /// the device).
     fn polled_read(&self, request: &Request) -> Option<(Table, u16, u16)> {
-        let (table, address, quantity) = match *request {
-            Request::ReadCoils { address, quantity } => (Table::Coils, address, quantity),
-            Request::ReadDiscreteInputs { address, quantity } => {
-                (Table::DiscreteInputs, address, quantity)
-            }
-            Request::ReadHoldingRegisters { address, quantity } => {
-                (Table::HoldingRegisters, address, quantity)
-            }
-            Request::ReadInputRegisters { address, quantity } => {
-                (Table::InputRegisters, address, quantity)
-            }
-            _ => return None,
-        };
+        let (table, address, quantity) = request.read_range()?;
         (quantity > 0 && self.polled.covers(table, AddrRange::new(address, quantity)))
             .then_some((table, address, quantity))
     }

@@ -377,7 +377,7 @@ impl MasterLine {
     /// answer it.
     fn read_key(&self, command: &Command) -> Option<ReadKey> {
         let device = self.sched.device_index(command.slave)?;
-        let (table, address, quantity) = read_range(&command.request)?;
+        let (table, address, quantity) = command.request.read_range()?;
         (quantity > 0).then_some(ReadKey {
             device,
             table,
@@ -943,23 +943,6 @@ impl MasterLine {
     }
 }
 
-/// The table, first address and quantity of a read of one table (FC 01..04).
-fn read_range(request: &Request) -> Option<(Table, u16, u16)> {
-    match *request {
-        Request::ReadCoils { address, quantity } => Some((Table::Coils, address, quantity)),
-        Request::ReadDiscreteInputs { address, quantity } => {
-            Some((Table::DiscreteInputs, address, quantity))
-        }
-        Request::ReadHoldingRegisters { address, quantity } => {
-            Some((Table::HoldingRegisters, address, quantity))
-        }
-        Request::ReadInputRegisters { address, quantity } => {
-            Some((Table::InputRegisters, address, quantity))
-        }
-        _ => None,
-    }
-}
-
 /// The answer to an on-demand read that rode on `poll`: its part of the poll's answer, the
 /// poll's exception, or the poll's failure.
 fn rider_answer(poll: &PollJob, request: &Request, slave: u8, outcome: &Outcome) -> CommandResult {
@@ -976,7 +959,7 @@ fn rider_answer(poll: &PollJob, request: &Request, slave: u8, outcome: &Outcome)
             return Err(CommandError::Refused("broadcast of a read".into()));
         }
     };
-    let part = read_range(request).and_then(|(_, address, quantity)| {
+    let part = request.read_range().and_then(|(_, address, quantity)| {
         let from = usize::from(address.checked_sub(poll.read.range.start)?);
         let to = from.checked_add(usize::from(quantity))?;
         Some(match response {

@@ -419,7 +419,7 @@ impl TapLine {
                 self.heard(index, |d| d.polls_ok += 1);
             }
             Outcome::Exception(code) => {
-                if let Some((table, start, count)) = read_range(&request) {
+                if let Some((table, start, count)) = request.read_range() {
                     tracing::debug!(line = %self.settings.name, device = %device.name, ?code, start, count, "read answered with an exception");
                     self.image
                         .set_quality(unit, table, start, count, Quality::Rejected);
@@ -481,23 +481,6 @@ impl TapLine {
                 f(d);
             }
         });
-    }
-}
-
-/// The table, first address and quantity of a read (FC 01..04).
-fn read_range(request: &Request) -> Option<(Table, u16, u16)> {
-    match *request {
-        Request::ReadCoils { address, quantity } => Some((Table::Coils, address, quantity)),
-        Request::ReadDiscreteInputs { address, quantity } => {
-            Some((Table::DiscreteInputs, address, quantity))
-        }
-        Request::ReadHoldingRegisters { address, quantity } => {
-            Some((Table::HoldingRegisters, address, quantity))
-        }
-        Request::ReadInputRegisters { address, quantity } => {
-            Some((Table::InputRegisters, address, quantity))
-        }
-        _ => None,
     }
 }
 

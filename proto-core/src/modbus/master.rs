@@ -209,7 +209,7 @@ impl Master {
             State::Sending(Sending { tx, error, .. }) => {
                 // The reply started before the runtime reported the end of transmission.
                 self.reply_delay = Some(core::time::Duration::ZERO);
-                let mut receiving = Receiving::new(tx, now);
+                let mut receiving = Receiving::new(&self.config, tx, now);
                 if let Some(error) = error {
                     receiving.fail(error, now + self.config.reply_timeout);
                 }
@@ -217,7 +217,7 @@ impl Master {
             }
             State::AwaitReply(AwaitReply { tx, sent_end, .. }) => {
                 self.reply_delay = Some(now.saturating_duration_since(sent_end));
-                self.receive(now, Receiving::new(tx, now), bytes)
+                self.receive(now, Receiving::new(&self.config, tx, now), bytes)
             }
             State::Receiving(receiving) => self.receive(now, receiving, bytes),
         }
@@ -234,7 +234,7 @@ impl Master {
             }) => {
                 self.last_activity = Some(now);
                 if let Some(error) = error {
-                    let mut receiving = Receiving::new(tx, now);
+                    let mut receiving = Receiving::new(&self.config, tx, now);
                     receiving.fail(error, now + self.config.reply_timeout);
                     self.state = State::Receiving(receiving);
                 } else if tx.slave == 0 {
@@ -293,7 +293,7 @@ impl Master {
             State::AwaitReply(AwaitReply { tx, .. }) => {
                 // A disturbed character is the start of a reply: it ends when the line is silent.
                 self.raise(event, tx.slave);
-                let mut receiving = Receiving::new(tx, now);
+                let mut receiving = Receiving::new(&self.config, tx, now);
                 receiving.fail(event, now + self.config.reply_timeout);
                 self.state = State::Receiving(receiving);
             }
@@ -536,7 +536,7 @@ impl Master {
             }
             State::Receiving(receiving) if receiving.deadline(&self.config) <= now => {
                 let slave = receiving.tx().slave;
-                let (tx, frame_end, raised) = receiving.timed_out(&self.config);
+                let (tx, frame_end, raised) = receiving.timed_out(&self.config, now);
                 for id in raised {
                     self.raise(id, slave);
                 }

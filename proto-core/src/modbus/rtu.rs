@@ -12,6 +12,10 @@ use super::FrameError;
 use crate::checksum::crc16_modbus;
 use crate::codec::Writer;
 
+pub mod framer;
+
+pub use framer::SilenceFramer;
+
 /// The largest RTU ADU of the specification: 256 bytes (Modbus over Serial Line V1.02, 2.5.1.1:
 /// address 1 + PDU 253 + CRC 2).
 pub const MAX_ADU_LEN: usize = 256;

@@ -19,9 +19,10 @@
 //!
 //! # Framing (003 6.4.3)
 //!
-//! A frame ends when no character arrives for 3.5 character times (003 6.4.3 "CRC-CHECK": the
-//! message end is "when no transmission takes place during the time period for the transmission
-//! of 3.5 times character delay time"; `CharTiming::with_multiplier` scales it as the CP's
+//! A frame ends when no character arrives for 3.5 character times ([`rtu::SilenceFramer`], the
+//! framer the master and the slave use too; 003 6.4.3 "CRC-CHECK": the message end is "when no
+//! transmission takes place during the time period for the transmission of 3.5 times character
+//! delay time"; `CharTiming::with_multiplier` scales it as the CP's
 //! "multiplier character delay time" does). A silence of more than 1.5 character times and less
 //! than 3.5 inside a frame makes the frame bad (Modbus over Serial Line V1.02, 2.5.1.1: the frame
 //! "must be transmitted as a continuous stream of characters"; a gap above t1.5 declares it
@@ -48,8 +49,9 @@ use std::collections::VecDeque;
 use std::time::Duration;
 
 use crate::modbus::pdu::{ExceptionCode, Limits, PduError, Request, Response};
+use crate::modbus::rtu::framer::{Fault, Outcome as Framed, SilenceFramer};
 use crate::modbus::rtu::{self, CharTiming};
-use crate::modbus::{FrameError, Table};
+use crate::modbus::Table;
 use crate::serial_marks::LineError;
 use crate::time::Instant;
 
@@ -119,6 +121,19 @@ impl DiscardReason {
         Self::TooLong,
         Self::Unpaired,
     ];
+
+    /// The reason of a frame the RTU framer discarded.
+    const fn from_fault(fault: Fault) -> Self {
+        match fault {
+            Fault::BadCrc => Self::BadCrc,
+            Fault::GapInsideFrame => Self::GapInsideFrame,
+            Fault::LineError => Self::LineError,
+            Fault::TooShort => Self::TooShort,
+            // The tap does not check the announced length, so trailing data is never a fault
+            // here.
+            Fault::TooLong | Fault::TrailingData => Self::TooLong,
+        }
+    }
 
     /// A short stable name (metrics label).
     pub const fn as_str(self) -> &'static str {
@@ -206,16 +221,6 @@ pub struct TapCounters {
     pub discarded: u64,
 }
 
-/// A frame being received.
-#[derive(Debug)]
-struct Receiving {
-    bytes: Vec<u8>,
-    /// The arrival of the last byte (or line error).
-    last: Instant,
-    /// Why the frame is already bad.
-    bad: Option<DiscardReason>,
-}
-
 /// A request waiting for its answer.
 #[derive(Debug)]
 struct Pending {
@@ -230,7 +235,8 @@ struct Pending {
 #[derive(Debug)]
 pub struct Tap {
     config: TapConfig,
-    frame: Option<Receiving>,
+    /// Ends the frames by t3.5 of silence, checks t1.5 if configured, and the CRC.
+    framer: SilenceFramer,
     pending: Option<Pending>,
     events: VecDeque<TapEvent>,
     counters: TapCounters,
@@ -243,7 +249,7 @@ impl Tap {
     pub fn new(config: TapConfig) -> Self {
         Self {
             config,
-            frame: None,
+            framer: SilenceFramer::new(config.timing).check_t15(config.check_inter_character),
             pending: None,
             events: VecDeque::new(),
             counters: TapCounters::default(),
@@ -261,43 +267,14 @@ impl Tap {
             return;
         }
         self.advance(now);
-        let timing = self.config.timing;
-        let check = self.config.check_inter_character;
-        let frame = self.frame.get_or_insert_with(|| Receiving {
-            bytes: Vec::new(),
-            last: now,
-            bad: None,
-        });
-        if check && !frame.bytes.is_empty() {
-            // The silence before the chunk's first byte: the time since the last chunk less the
-            // chunk's own transmission time.
-            let since = now.saturating_duration_since(frame.last);
-            let gap = since.saturating_sub(timing.transmit_time(bytes.len()));
-            if gap > timing.t1_5() && frame.bad.is_none() {
-                frame.bad = Some(DiscardReason::GapInsideFrame);
-            }
-        }
-        frame.last = now;
-        let room = rtu::MAX_FRAME_LEN.saturating_sub(frame.bytes.len());
-        if bytes.len() > room {
-            frame.bad.get_or_insert(DiscardReason::TooLong);
-        }
-        frame
-            .bytes
-            .extend_from_slice(bytes.get(..room.min(bytes.len())).unwrap_or_default());
+        self.framer.push(now, bytes);
     }
 
     /// A character received with a parity or framing error, a BREAK or an overrun at `now`: the
     /// frame it belongs to is bad.
     pub fn handle_line_error(&mut self, now: Instant, _error: LineError) {
         self.advance(now);
-        let frame = self.frame.get_or_insert_with(|| Receiving {
-            bytes: Vec::new(),
-            last: now,
-            bad: None,
-        });
-        frame.last = now;
-        frame.bad = Some(DiscardReason::LineError);
+        self.framer.fail(now, Fault::LineError);
     }
 
     /// The deadline of [`Tap::poll_timeout`] passed (or any later time).
@@ -308,11 +285,9 @@ impl Tap {
     /// When [`Tap::handle_timeout`] has work next: t3.5 after the last byte of the frame being
     /// received, or the answer timeout of the request waiting.
     pub fn poll_timeout(&self) -> Option<Instant> {
-        match (&self.frame, &self.pending) {
-            (Some(frame), _) => Some(frame.last + self.config.timing.t3_5()),
-            (None, Some(pending)) => Some(pending.deadline),
-            (None, None) => None,
-        }
+        self.framer
+            .deadline()
+            .or_else(|| self.pending.as_ref().map(|p| p.deadline))
     }
 
     /// The next event.
@@ -323,14 +298,10 @@ impl Tap {
     /// Ends the frame whose silence passed by `now`, then reports a request whose answer timeout
     /// passed while no frame is being received (an answer already begun may still complete it).
     fn advance(&mut self, now: Instant) {
-        let t35 = self.config.timing.t3_5();
-        if self.frame.as_ref().is_some_and(|f| now >= f.last + t35) {
-            if let Some(frame) = self.frame.take() {
-                let end = frame.last + t35;
-                self.end_of_frame(frame, end);
-            }
+        if let Some(cut) = self.framer.poll(now) {
+            self.end_of_frame(cut.outcome, cut.end);
         }
-        if self.frame.is_none() && self.pending.as_ref().is_some_and(|p| now >= p.deadline) {
+        if !self.framer.is_open() && self.pending.as_ref().is_some_and(|p| now >= p.deadline) {
             self.missing();
         }
     }
@@ -356,25 +327,25 @@ impl Tap {
     }
 
     /// A frame ended by silence at `end`.
-    fn end_of_frame(&mut self, frame: Receiving, end: Instant) {
-        let len = frame.bytes.len();
+    fn end_of_frame(&mut self, framed: Framed, end: Instant) {
+        // The length of a frame is the bytes kept of it (at most the largest frame).
+        let len = match &framed {
+            Framed::Frame(bytes) => bytes.len(),
+            Framed::Discard { kept, .. } => *kept,
+        };
         self.counters.frames += 1;
         self.events.push_back(TapEvent::Frame { len });
-        if let Some(reason) = frame.bad {
-            self.discard(reason, len);
-            return;
-        }
-        let decoded = match rtu::decode_frame(&frame.bytes) {
-            Ok(decoded) => decoded,
-            Err(err) => {
-                let reason = match err {
-                    FrameError::BadCrc { .. } => DiscardReason::BadCrc,
-                    FrameError::TooLong { .. } => DiscardReason::TooLong,
-                    _ => DiscardReason::TooShort,
-                };
-                self.discard(reason, len);
+        let bytes = match framed {
+            Framed::Frame(bytes) => bytes,
+            Framed::Discard { fault, .. } => {
+                self.discard(DiscardReason::from_fault(fault), len);
                 return;
             }
+        };
+        let Ok(decoded) = rtu::decode_frame(&bytes) else {
+            // The framer checked the frame already.
+            self.discard(DiscardReason::TooShort, len);
+            return;
         };
         let function = decoded.pdu.first().copied().unwrap_or_default();
         let answers = self.pending.as_ref().is_some_and(|p| {

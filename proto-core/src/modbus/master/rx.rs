@@ -1,9 +1,10 @@
 //! Reception of a reply, byte by byte, for RTU and ASCII framing, and the framing of requests.
 //!
 //! A reply ends
-//! - RTU: after 3.5 character times of silence (003 6.4.3 "CRC-CHECK": "The driver for Modbus
-//!   Master recognizes message end, when no transmission takes place during the time period for
-//!   the transmission of 3.5 times character delay time"), never on length alone: the frame is
+//! - RTU: after 3.5 character times of silence ([`SilenceFramer`]; 003 6.4.3 "CRC-CHECK": "The
+//!   driver for Modbus Master recognizes message end, when no transmission takes place during the
+//!   time period for the transmission of 3.5 times character delay time"), never on length
+//!   alone: the frame is
 //!   everything that arrived before the silence. A frame longer than its function code and byte
 //!   count announce fails with 0E 53h (7.2 "byte overflow"), whatever its CRC, and none of its
 //!   values are taken;
@@ -14,9 +15,10 @@
 //! Once the attempt has an error, the rest of the frame is only waited for (the line must fall
 //! silent before the next request), at most one reply monitoring time long.
 
-use super::{MasterConfig, OperatingMode, Transaction};
+use super::{Framing, MasterConfig, OperatingMode, Transaction};
 use crate::event::{ids, EventId};
 use crate::modbus::ascii::{AsciiEvent, AsciiFrameAssembler};
+use crate::modbus::rtu::framer::{Fault, Outcome, SilenceFramer};
 use crate::modbus::{ascii, rtu, FrameError};
 use crate::time::Instant;
 
@@ -45,8 +47,9 @@ pub(super) enum FrameEnd {
 pub(super) struct Receiving {
     /// The transaction the reply belongs to.
     tx: Transaction,
-    /// RTU: the frame so far, from the address.
-    buf: Vec<u8>,
+    /// RTU: ends the frame after t3.5 of silence and checks it against the length its function
+    /// code and byte count announce, and its CRC.
+    framer: Option<SilenceFramer>,
     /// When the last byte (or line error) arrived.
     last_rx: Instant,
     /// The first error of the attempt; the rest of the frame is then only waited for.
@@ -61,10 +64,16 @@ pub(super) struct Receiving {
 
 impl Receiving {
     /// A reception that starts at `now`.
-    pub(super) fn new(tx: Transaction, now: Instant) -> Self {
+    pub(super) fn new(config: &MasterConfig, tx: Transaction, now: Instant) -> Self {
+        let framer = match config.framing {
+            Framing::Rtu { timing } => {
+                Some(SilenceFramer::new(timing).check_length(rtu::expected_response_len))
+            }
+            Framing::Ascii { .. } => None,
+        };
         Self {
             tx,
-            buf: Vec::new(),
+            framer,
             last_rx: now,
             error: None,
             give_up_at: None,
@@ -80,6 +89,9 @@ impl Receiving {
     /// The line was busy at `now`.
     pub(super) fn touch(&mut self, now: Instant) {
         self.last_rx = now;
+        if let Some(framer) = self.framer.as_mut() {
+            framer.fail(now, Fault::LineError);
+        }
     }
 
     /// Records the attempt's first error; waiting for the frame's end stops at `give_up_at`.
@@ -92,23 +104,31 @@ impl Receiving {
 
     /// When the frame ends unless more bytes come.
     pub(super) fn deadline(&self, config: &MasterConfig) -> Instant {
-        let end = self.last_rx + config.burst_gap();
+        let end = self
+            .framer
+            .as_ref()
+            .and_then(SilenceFramer::deadline)
+            .unwrap_or_else(|| self.last_rx + config.burst_gap());
         self.give_up_at.map_or(end, |at| end.min(at))
     }
 
     /// The frame ended by silence (or the wait for a failed frame was given up).
-    pub(super) fn timed_out(self, config: &MasterConfig) -> (Transaction, FrameEnd, Vec<EventId>) {
+    pub(super) fn timed_out(
+        mut self,
+        config: &MasterConfig,
+        now: Instant,
+    ) -> (Transaction, FrameEnd, Vec<EventId>) {
+        let framed = self.framer.as_mut().and_then(|framer| framer.poll(now));
         match (self.error, config.is_ascii()) {
             (Some(error), _) => (self.tx, FrameEnd::Failed(error), Vec::new()),
             // 003 6.4.3: the end of an RTU frame is 3.5 character times of silence.
-            (None, false) => match rtu::expected_response_len(&self.buf) {
-                // 003 7.2 0E 53h: "Byte overflow: Amount of characters received is more than
-                // should have resulted according to byte counter or function code".
-                rtu::FrameLen::Complete(len) if len < self.buf.len() => {
-                    let error = ids::MODBUS_BYTE_OVERFLOW;
+            (None, false) => match framed.map(|cut| cut.outcome) {
+                Some(Outcome::Discard { fault, .. }) => {
+                    let error = fault_event(fault);
                     (self.tx, FrameEnd::Failed(error), vec![error])
                 }
-                _ => (self.tx, FrameEnd::Frame(self.buf), Vec::new()),
+                Some(Outcome::Frame(frame)) => (self.tx, FrameEnd::Frame(frame), Vec::new()),
+                None => (self.tx, FrameEnd::Frame(Vec::new()), Vec::new()),
             },
             // 003 6.4.2.2: a gap longer than the character delay time voids the ASCII frame
             // (7.2 08 06h "character delay time exceeded").
@@ -134,7 +154,7 @@ impl Receiving {
             let end = if config.is_ascii() {
                 self.push_ascii(byte, give_up_at, &mut raised)
             } else {
-                self.push_rtu(config, byte, give_up_at, &mut raised)
+                self.push_rtu(config, now, byte, give_up_at, &mut raised)
             };
             if let Some(frame_end) = end {
                 return Feed::Complete {
@@ -150,14 +170,19 @@ impl Receiving {
     fn push_rtu(
         &mut self,
         config: &MasterConfig,
+        now: Instant,
         byte: u8,
         give_up_at: Instant,
         raised: &mut Vec<EventId>,
     ) -> Option<FrameEnd> {
+        let framer = self.framer.as_mut()?;
+        let first = !framer.is_open();
+        // Every byte moves the end of the frame, also those of a failed one.
+        let fault = framer.push(now, &[byte]);
         if self.error.is_some() {
             return None;
         }
-        if self.buf.is_empty() && config.mode == OperatingMode::Normal && byte != self.tx.slave {
+        if first && config.mode == OperatingMode::Normal && byte != self.tx.slave {
             // 003 7.2 08 31h: "The first character in the reply message from the slave is
             // different from the slave address sent in the request message (for operating mode
             // 'normal')".
@@ -165,14 +190,13 @@ impl Receiving {
             self.fail(ids::MODBUS_WRONG_SLAVE_CHAR, give_up_at);
             return None;
         }
-        if self.buf.len() >= rtu::MAX_FRAME_LEN {
+        if fault == Some(Fault::TooLong) {
             // 003 7.2 08 32h: "Overflow of receive buffer in CP during reception of the reply".
             raised.push(ids::MODBUS_RECEIVE_OVERFLOW);
             self.fail(ids::MODBUS_RECEIVE_OVERFLOW, give_up_at);
             return None;
         }
         // The frame ends by silence only (see the module doc), never here.
-        self.buf.push(byte);
         None
     }
 
@@ -235,6 +259,23 @@ pub(super) fn decode_adu(config: &MasterConfig, frame: &[u8]) -> Result<(u8, Vec
         rtu::decode_frame(frame)
             .map(|f| (f.address, f.pdu.to_vec()))
             .map_err(|e| frame_event(&e))
+    }
+}
+
+/// The CP's event for an RTU frame the framer discarded (003 7.2).
+fn fault_event(fault: Fault) -> EventId {
+    match fault {
+        // 0E 53h: "Byte overflow: Amount of characters received is more than should have
+        // resulted according to byte counter or function code".
+        Fault::TrailingData => ids::MODBUS_BYTE_OVERFLOW,
+        // "Byte underflow: Amount of characters received is less than ... expected".
+        Fault::TooShort => ids::MODBUS_BYTE_UNDERFLOW,
+        // The receive buffer holds at most the longest frame (264 bytes).
+        Fault::TooLong => ids::MODBUS_RECEIVE_OVERFLOW,
+        Fault::BadCrc => ids::MODBUS_CHECKSUM_ERROR,
+        // Never the outcome of a frame that has not failed yet: a line error fails the attempt
+        // when it comes (`touch` goes with `fail`), and the master does not check t1.5.
+        Fault::LineError | Fault::GapInsideFrame => ids::RECEIVE_LOGICAL_ERROR,
     }
 }
 

@@ -2,6 +2,7 @@
 
 use super::{diag, FunctionCode, PduError, Request, MEI_READ_DEVICE_ID};
 use crate::codec::{bit_byte_count, u16s_be, unpack_bits, Reader, Writer};
+use crate::modbus::Table;
 
 /// The FC 05 value that switches a coil on (003 6.4.4.5 "FF00h -> Bit = 1").
 pub(crate) const COIL_ON: u16 = 0xFF00;
@@ -134,6 +135,24 @@ impl Request {
             Self::ReportServerId => FunctionCode::REPORT_SERVER_ID,
             Self::ReadWriteMultipleRegisters { .. } => FunctionCode::READ_WRITE_MULTIPLE_REGISTERS,
             Self::ReadDeviceIdentification { .. } => FunctionCode::ENCAPSULATED_INTERFACE,
+        }
+    }
+
+    /// The table, first address and quantity of a read of one table (FC 01..04); `None` for
+    /// every other request.
+    pub const fn read_range(&self) -> Option<(Table, u16, u16)> {
+        match *self {
+            Self::ReadCoils { address, quantity } => Some((Table::Coils, address, quantity)),
+            Self::ReadDiscreteInputs { address, quantity } => {
+                Some((Table::DiscreteInputs, address, quantity))
+            }
+            Self::ReadHoldingRegisters { address, quantity } => {
+                Some((Table::HoldingRegisters, address, quantity))
+            }
+            Self::ReadInputRegisters { address, quantity } => {
+                Some((Table::InputRegisters, address, quantity))
+            }
+            _ => None,
         }
     }
 

@@ -24,9 +24,10 @@
 //!
 //! # Framing and timing
 //!
-//! A request ends when no byte arrives for t3.5 (003 6.4.6 "CRC-CHECK": "message end, when no
-//! transmission takes place during the time period for the transmission of 3.5 times character
-//! delay time"; 6.4.5.1 "Multiplier character delay time" scales it by 1..10), and only then: the
+//! A request ends when no byte arrives for t3.5 ([`rtu::SilenceFramer`]; 003 6.4.6 "CRC-CHECK":
+//! "message end, when no transmission takes place during the time period for the transmission of
+//! 3.5 times character delay time"; 6.4.5.1 "Multiplier character delay time" scales it by
+//! 1..10), and only then: the
 //! frame is everything that arrived before the silence. A frame longer than the length its
 //! function code announces ([`rtu::expected_request_len`]) carries trailing bytes and is
 //! discarded and counted ([`DiscardReason::TrailingData`]), not answered. A good request is
@@ -50,8 +51,8 @@ use std::collections::VecDeque;
 use crate::cpmem::{CpMemory, MemoryAccess, OperatingMode, SlaveParams, Written};
 use crate::event::{ids, EventId};
 use crate::modbus::pdu::{ExceptionCode, ExceptionResponse, FunctionCode, Limits, Request};
-use crate::modbus::rtu::{self, CharTiming, FrameLen};
-use crate::modbus::FrameError;
+use crate::modbus::rtu::framer::{Fault, Outcome as Framed, SilenceFramer};
+use crate::modbus::rtu::{self, CharTiming};
 use crate::time::Instant;
 
 /// The quantity limits of the CP 341 slave (003 6.4.8: 1..2040 bits for FC 01/02/15, 1..127
@@ -115,6 +116,18 @@ impl DiscardReason {
         Self::LineFault,
         Self::TrailingData,
     ];
+
+    /// The reason of a frame the RTU framer discarded.
+    const fn from_fault(fault: Fault) -> Self {
+        match fault {
+            Fault::BadCrc => Self::BadCrc,
+            Fault::TooShort => Self::TooShort,
+            Fault::TooLong => Self::TooLong,
+            // The slave does not check t1.5 (see the module doc), so a gap is never a fault here.
+            Fault::LineError | Fault::GapInsideFrame => Self::LineFault,
+            Fault::TrailingData => Self::TrailingData,
+        }
+    }
 
     /// A stable name, usable as a metric label.
     pub const fn as_str(self) -> &'static str {
@@ -188,17 +201,12 @@ struct Ready {
 pub struct Slave<M: MemoryAccess = CpMemory> {
     /// Own address, operating mode, address conversion.
     params: SlaveParams,
-    /// Character timing with the multiplier applied to t3.5.
-    timing: CharTiming,
     /// The memory served.
     memory: M,
-    /// The bytes of the frame being received.
-    rx: Vec<u8>,
-    /// When the last byte of `rx` (or of the bytes being dropped) arrived.
-    last_rx: Option<Instant>,
-    /// Dropping bytes until the next silence (after an overlong frame or a line fault): why, and
-    /// how many bytes so far; reported in one [`SlaveEvent::Discarded`] when the silence comes.
-    dropping: Option<(DiscardReason, usize)>,
+    /// Ends the requests by t3.5 of silence (multiplier applied), checks their announced length
+    /// and CRC. After an overlong frame or a line fault the bytes up to the next silence are
+    /// reported in one [`SlaveEvent::Discarded`] when the silence comes.
+    framer: SilenceFramer,
     /// Frames complete by length, in order, waiting for their answer time.
     ready: VecDeque<Ready>,
     /// Answers to send.
@@ -217,11 +225,8 @@ impl<M: MemoryAccess> Slave<M> {
         let timing = timing.with_multiplier(params.delay_multiplier());
         Self {
             params,
-            timing,
             memory,
-            rx: Vec::new(),
-            last_rx: None,
-            dropping: None,
+            framer: SilenceFramer::new(timing).check_length(rtu::expected_request_len),
             ready: VecDeque::new(),
             transmit: VecDeque::new(),
             events: VecDeque::new(),
@@ -235,7 +240,7 @@ impl<M: MemoryAccess> Slave<M> {
 
     /// The timing in use (multiplier applied).
     pub fn timing(&self) -> CharTiming {
-        self.timing
+        self.framer.timing()
     }
 
     /// The memory handle.
@@ -259,18 +264,10 @@ impl<M: MemoryAccess> Slave<M> {
     /// they belong to ends t3.5 after the last of them (see [`Slave::poll_timeout`]).
     pub fn handle_rx(&mut self, now: Instant, bytes: &[u8]) {
         self.advance(now);
-        for &byte in bytes {
-            if let Some((_, dropped)) = self.dropping.as_mut() {
-                *dropped += 1;
-                continue;
-            }
-            self.rx.push(byte);
-            if self.rx.len() > rtu::MAX_FRAME_LEN {
-                self.drop_frame(DiscardReason::TooLong, Some(ids::FRAME_TOO_LONG));
-            }
-        }
-        if !bytes.is_empty() {
-            self.last_rx = Some(now);
+        if self.framer.push(now, bytes) == Some(Fault::TooLong) {
+            // More bytes than the largest request: the event now, the bytes at the silence.
+            self.events
+                .push_back(SlaveEvent::Diagnostic(ids::FRAME_TOO_LONG));
         }
     }
 
@@ -285,15 +282,21 @@ impl<M: MemoryAccess> Slave<M> {
     /// no frame is being received is ignored. A fault inside a frame drops the frame.
     pub fn handle_line_error(&mut self, now: Instant, error: LineError) {
         self.advance(now);
-        let idle = self.rx.is_empty() && self.dropping.is_none();
+        let idle = !self.framer.is_open();
         if idle && self.params.mode() == OperatingMode::InterferenceSuppression {
             return;
         }
         self.events.push_back(SlaveEvent::Diagnostic(error.event()));
         if !idle {
-            self.drop_frame(DiscardReason::LineFault, None);
+            // A second cause while dropping: the bytes so far go with the first.
+            if let Some((earlier, len)) = self.framer.take_fault() {
+                self.events.push_back(SlaveEvent::Discarded {
+                    reason: DiscardReason::from_fault(earlier),
+                    len,
+                });
+            }
+            self.framer.fail(now, Fault::LineError);
         }
-        self.last_rx = Some(now);
     }
 
     /// The next frame to send: a complete RTU answer (address, PDU, CRC low byte first).
@@ -308,12 +311,7 @@ impl<M: MemoryAccess> Slave<M> {
     ///
     /// Changes after [`Slave::handle_rx`], [`Slave::handle_timeout`] and [`Slave::handle_line_error`].
     pub fn poll_timeout(&self) -> Option<Instant> {
-        let frame_end = match self.last_rx {
-            Some(last) if !self.rx.is_empty() || self.dropping.is_some() => {
-                Some(last + self.timing.t35)
-            }
-            _ => None,
-        };
+        let frame_end = self.framer.deadline();
         let answer = self.ready.front().map(|r| r.due);
         match (frame_end, answer) {
             (Some(a), Some(b)) => Some(a.min(b)),
@@ -329,16 +327,19 @@ impl<M: MemoryAccess> Slave<M> {
     /// Ends the frame being received if its silence passed by `now`, then serves every complete
     /// request whose answer time came.
     fn advance(&mut self, now: Instant) {
-        if let Some(last) = self.last_rx {
-            let end = last + self.timing.t35;
-            if now >= end {
-                // The silence ends the frame being received, or the bytes being dropped.
-                if let Some((reason, len)) = self.dropping.take() {
-                    self.events.push_back(SlaveEvent::Discarded { reason, len });
-                }
-                if !self.rx.is_empty() {
-                    let frame = core::mem::take(&mut self.rx);
-                    self.end_of_frame(frame, end);
+        if let Some(cut) = self.framer.poll(now) {
+            match cut.outcome {
+                // A good frame ended by silence: served in order at its end.
+                Framed::Frame(frame) => self.ready.push_back(Ready {
+                    frame,
+                    due: cut.end,
+                }),
+                Framed::Discard {
+                    fault, received, ..
+                } => {
+                    // An overlong frame and a line fault raised their events when they came.
+                    let event = (fault == Fault::BadCrc).then_some(ids::MODBUS_CHECKSUM_ERROR);
+                    self.discard(DiscardReason::from_fault(fault), received, event);
                 }
             }
         }
@@ -347,50 +348,6 @@ impl<M: MemoryAccess> Slave<M> {
                 self.serve_frame(&ready.frame);
             }
         }
-    }
-
-    /// A frame ended by silence at `due`: checked now, served in order at `due`.
-    fn end_of_frame(&mut self, frame: Vec<u8>, due: Instant) {
-        if let FrameLen::Complete(len) = rtu::expected_request_len(&frame) {
-            if len < frame.len() {
-                // 003 6.4.6 "CRC-CHECK": the frame is what came before the silence; a request
-                // followed by more bytes is not a valid request.
-                self.discard(DiscardReason::TrailingData, frame.len(), None);
-                return;
-            }
-        }
-        match rtu::decode_frame(&frame) {
-            Ok(_) => self.ready.push_back(Ready { frame, due }),
-            Err(error) => {
-                let (reason, event) = match error {
-                    FrameError::BadCrc { .. } => {
-                        (DiscardReason::BadCrc, Some(ids::MODBUS_CHECKSUM_ERROR))
-                    }
-                    FrameError::TooLong { .. } => {
-                        (DiscardReason::TooLong, Some(ids::FRAME_TOO_LONG))
-                    }
-                    _ => (DiscardReason::TooShort, None),
-                };
-                self.discard(reason, frame.len(), event);
-            }
-        }
-    }
-
-    /// Drops the frame being received and every byte until the next silence; the event (if any)
-    /// is raised now, the bytes are reported as discarded when the silence comes.
-    fn drop_frame(&mut self, reason: DiscardReason, event: Option<EventId>) {
-        if let Some((earlier, len)) = self.dropping.take() {
-            // A second cause while dropping (a line fault): the bytes so far go with the first.
-            self.events.push_back(SlaveEvent::Discarded {
-                reason: earlier,
-                len,
-            });
-        }
-        if let Some(id) = event {
-            self.events.push_back(SlaveEvent::Diagnostic(id));
-        }
-        self.dropping = Some((reason, self.rx.len()));
-        self.rx.clear();
     }
 
     fn discard(&mut self, reason: DiscardReason, len: usize, event: Option<EventId>) {

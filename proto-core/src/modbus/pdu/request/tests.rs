@@ -334,3 +334,18 @@ fn encode_cuts_what_a_byte_count_cannot_describe() {
     .is_broadcastable());
     assert!(!Request::ReadExceptionStatus.is_broadcastable());
 }
+
+#[test]
+fn read_range_of_the_four_reads_only() {
+    let read = |fc: u8| decode_hex(&format!("{fc:02X} 00 0A 00 03")).unwrap();
+    assert_eq!(read(1).read_range(), Some((Table::Coils, 10, 3)));
+    assert_eq!(read(2).read_range(), Some((Table::DiscreteInputs, 10, 3)));
+    assert_eq!(read(3).read_range(), Some((Table::HoldingRegisters, 10, 3)));
+    assert_eq!(read(4).read_range(), Some((Table::InputRegisters, 10, 3)));
+    let write = Request::WriteSingleRegister {
+        address: 10,
+        value: 3,
+    };
+    assert_eq!(write.read_range(), None);
+    assert_eq!(Request::ReadExceptionStatus.read_range(), None);
+}
