@@ -38,8 +38,8 @@ mod zenoh;
 
 pub use check::{
     ack_warnings, api_path_issues, check_command, check_report, config_issues, confine,
-    ignored_keys_of, inside, load_config, port_issues, run_issues, security_warnings,
-    start_issues, unpolled_tags, Door,
+    ignored_keys_of, inside, load_config, port_issues, run_issues, security_warnings, start_issues,
+    unpolled_tags, Door,
 };
 pub use demo::demo;
 

@@ -320,7 +320,12 @@ impl BridgeBackend for ZenohBackend {
             .and_then(|s| s.snapshot().lines.get(line)?.handle.mailbox());
         let Some(mailbox) = mailbox else {
             let answer = format!("line {line} does not receive telegrams");
-            accounting::refused(metrics.as_ref(), &target, WriteReason::UnknownTarget, &answer);
+            accounting::refused(
+                metrics.as_ref(),
+                &target,
+                WriteReason::UnknownTarget,
+                &answer,
+            );
             return Box::pin(async move { Err(answer) });
         };
         let answer = match mailbox.ack(seq) {

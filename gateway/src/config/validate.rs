@@ -479,7 +479,9 @@ fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
 
 /// Two values of one device over the same registers (or bits): a write of one changes the
 /// other and each read shows part of the other's value. A tag with `bit` names one bit of a
-/// register and may share it (a status word and its bits); every other tag is checked against
+/// register and may share it (a status word and its bits), and so may a tag of the same type
+/// over exactly the same registers (an alias: the value with another scale or decimals); every
+/// other tag is checked against
 /// the device's other tags and its profile's, and the later config tag is named with both.
 fn check_overlaps(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
     use proto_core::profiles::Table as T;
@@ -536,10 +538,17 @@ fn check_overlaps(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
         for (j, other) in spans.iter().enumerate() {
             // Two tags of the same name are reported as a duplicate name above.
             let same_name = other.name.eq_ignore_ascii_case(span.name);
+            // The same registers read as the same type under another name (another scale,
+            // offset or decimals): one value shown twice, not two values in one place.
+            let alias = other.table == span.table
+                && other.start == span.start
+                && other.end == span.end
+                && other.data_type == span.data_type;
             if other.table == span.table
                 && span.start < other.end
                 && other.start < span.end
                 && !same_name
+                && !alias
             {
                 let whose = if j < from_profile {
                     format!("the {} profile's tag", serde_name(dev.profile))

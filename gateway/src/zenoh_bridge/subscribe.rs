@@ -508,7 +508,10 @@ mod tests {
         assert!(matches!(op, Op::Ack(17)));
         for bad in [&b"0"[..], b"", b"65536", b"x", b"\xff"] {
             let error = command("gw/demo/r3964/ack", bad).unwrap_err();
-            assert!(error.starts_with("payload is not a sequence number"), "{error}");
+            assert!(
+                error.starts_with("payload is not a sequence number"),
+                "{error}"
+            );
         }
     }
 
