@@ -107,9 +107,6 @@ ctx="$TMP/root"
 mkdir -p "$ctx/etc/gateway" "$ctx/var/lib/gateway"
 install -m 0755 "$BIN" "$ctx/gateway"
 install -m 0644 "$DEPLOY/gateway.example.toml" "$ctx/etc/gateway/gateway.toml"
-# The example's token file, as an installation has it (check and run refuse a missing token).
-head -c 24 /dev/urandom | od -An -tx1 | tr -d ' \n' >"$ctx/etc/gateway/api-token"
-chmod 0644 "$ctx/etc/gateway/api-token"
 step "buildah bud -f deploy/Containerfile.scratch -t $IMAGE"
 t0=$SECONDS
 buildah bud -q -f "$DEPLOY/Containerfile.scratch" -t "$IMAGE" "$ctx" >/dev/null \

@@ -4,6 +4,11 @@
 //! The binary is looked up next to the test executable (`target/<profile>/gateway`); when it is
 //! missing it is built with `cargo build -p gateway` first, so `cargo test -p gateway-tests` works on
 //! its own too.
+//!
+//! The outside tools the tests drive (mbpoll, socat, tshark, curl, prometheus, the Python clients
+//! in `.venv`) are not mocked: `.ci/test`, the README's test command, installs the missing ones
+//! before it runs the tests. A test that finds one missing fails at once with the command that
+//! installs it ([`tool`], [`venv_python`]), never skips.
 
 use std::io::{BufRead, BufReader};
 use std::net::SocketAddr;
@@ -139,7 +144,8 @@ impl Gateway {
         Self::start(&Self::run_args(config))
     }
 
-    fn run_args(config: &Path) -> [&str; 5] {
+    /// The arguments of `gateway run --config FILE --http 127.0.0.1:0`.
+    pub fn run_args(config: &Path) -> [&str; 5] {
         [
             "run",
             "--config",
@@ -160,12 +166,22 @@ impl Gateway {
     /// [`Self::start`], or the process's output when it did not announce its Modbus TCP address
     /// in time (it exited, or it hangs: then it is killed).
     pub fn try_start(args: &[&str]) -> Result<Self, String> {
+        let log = std::env::var("RUST_LOG").unwrap_or_else(|_| "info".into());
+        Self::try_start_logging(args, &log)
+    }
+
+    /// [`Self::start`] with `RUST_LOG=filter` (e.g. `info,gateway::line=debug`).
+    pub fn start_logging(args: &[&str], filter: &str) -> Self {
+        Self::try_start_logging(args, filter).unwrap_or_else(|output| {
+            panic!("no line containing \"modbus-tcp listening on \" within {START_TIMEOUT:?}; output:\n{output}")
+        })
+    }
+
+    /// [`Self::try_start`] with `RUST_LOG=filter`.
+    pub fn try_start_logging(args: &[&str], filter: &str) -> Result<Self, String> {
         let mut child = Command::new(gateway_bin())
             .args(args)
-            .env(
-                "RUST_LOG",
-                std::env::var("RUST_LOG").unwrap_or_else(|_| "info".into()),
-            )
+            .env("RUST_LOG", filter)
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())
@@ -325,18 +341,49 @@ pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
+/// `name`, an outside command the tests drive, after checking that it runs (`--version`, or
+/// `-V` for mbpoll); panics with what installs it when it does not.
+pub fn tool(name: &'static str) -> &'static str {
+    let version = if name == "mbpoll" { "-V" } else { "--version" };
+    let runs = Command::new(name)
+        .arg(version)
+        .stdin(Stdio::null())
+        .output()
+        .is_ok_and(|o| o.status.success());
+    let package = if name == "promtool" {
+        "prometheus"
+    } else {
+        name
+    };
+    assert!(
+        runs,
+        "{name} is missing: run the tests with `.ci/test`, which installs what is missing, or \
+         `apt-get install -y {package}` yourself"
+    );
+    name
+}
+
 /// The `tshark` command, after checking that it runs (a clear message when it is missing).
 pub fn tshark() -> &'static str {
-    let ok = Command::new("tshark")
-        .arg("--version")
+    tool("tshark")
+}
+
+/// The Python of the repository's `.venv` after checking that it imports `module` (`zenoh`,
+/// `pymodbus`); panics with what installs it when it does not.
+pub fn venv_python(module: &str) -> PathBuf {
+    let python = repo_root().join(".venv/bin/python");
+    let imports = Command::new(&python)
+        .args(["-c", &format!("import {module}")])
+        .stdin(Stdio::null())
         .output()
         .is_ok_and(|o| o.status.success());
     assert!(
-        ok,
-        "tshark is missing: install it with `DEBIAN_FRONTEND=noninteractive apt-get install -y \
-         tshark` (.ci/run does)"
+        imports,
+        "{} cannot import {module}: run the tests with `.ci/test`, which makes .venv and installs \
+         the pinned eclipse-zenoh and pymodbus into it",
+        python.display()
     );
-    "tshark"
+    python
 }
 
 /// tshark's `-X` argument that loads the project's 3964(R) dissector.
@@ -401,7 +448,7 @@ impl SocatLink {
             .stderr(Stdio::null())
             .spawn()
             .unwrap_or_else(|e| {
-                panic!("socat is needed (apt install socat; .ci/run installs it): {e}")
+                panic!("socat is needed (`.ci/test` installs it, or apt-get install -y socat): {e}")
             });
         let guard = ChildGuard(child);
         let deadline = Instant::now() + Duration::from_secs(10);

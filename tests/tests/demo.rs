@@ -249,18 +249,29 @@ async fn the_demo_hmi_polls_the_slave_line_and_tcp_shares_its_memory() {
 
 #[test]
 fn gateway_check_accepts_the_example_and_lists_every_mistake() {
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("..");
-    // The example as installed: its token file exists and holds a token of 16 characters or
-    // more (run refuses to start without it, and so does check).
+    let root = gateway_tests::repo_root();
+    // The example as shipped, from the repository root as an operator types it.
+    let out = Command::new(gateway_tests::gateway_bin())
+        .args(["check", "--config", "deploy/gateway.example.toml"])
+        .current_dir(&root)
+        .output()
+        .expect("gateway check");
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(out.status.code(), Some(0), "{text}");
+    assert!(text.starts_with("ok: "), "{text}");
+    // The example as installed with its REST token: the token file exists and holds 16
+    // characters or more (run refuses to start without it, and so does check), and its line is
+    // uncommented.
     let dir = gateway_tests::temp_dir("check");
     let token = dir.join("api-token");
     std::fs::write(&token, "0123456789abcdef\n").expect("write token");
-    let text = std::fs::read_to_string(root.join("deploy/gateway.example.toml"))
-        .expect("example")
-        .replace(
-            "token_file = \"/etc/gateway/api-token\"",
-            &format!("token_file = \"{}\"", token.display()),
-        );
+    let shipped =
+        std::fs::read_to_string(root.join("deploy/gateway.example.toml")).expect("example");
+    let text = shipped.replace(
+        "# token_file = \"/etc/gateway/api-token\"",
+        &format!("token_file = \"{}\"", token.display()),
+    );
+    assert_ne!(text, shipped, "the example's commented token_file line");
     let example = dir.join("gateway.example.toml");
     std::fs::write(&example, text).expect("write example");
     let out = Command::new(gateway_tests::gateway_bin())

@@ -64,7 +64,7 @@ unit_id = 2
     let (passed, report) = check_config(&cfg);
     assert!(passed, "{report}");
 
-    let gw = Gateway::run_on_free_zenoh_port(&cfg, config);
+    let mut gw = Gateway::run_on_free_zenoh_port(&cfg, config);
     let zenoh_port = gw.zenoh_port.expect("zenoh port");
     let mut bus = tokio_serial::SerialStream::open(&tokio_serial::new(
         link.b.to_str().expect("utf-8 path"),
@@ -101,6 +101,16 @@ unit_id = 2
             gw.output()
         );
     }
+
+    // The drive's first answer the tap heard is logged at INFO, once.
+    let first = gw.wait_for(
+        "device answers line=bus device=atv71",
+        Duration::from_secs(10),
+    );
+    assert!(
+        first.contains(" INFO ") && first.contains("unit_id=2"),
+        "{first}"
+    );
 
     // Modbus TCP: exception 01 for a write to the tapped drive.
     let write = scada

@@ -144,7 +144,8 @@ pub enum Who {
 pub struct PeerAddr(pub SocketAddr);
 
 /// The source of a request for the audit: the client address (when the server knows it) and
-/// who it is; shown as e.g. `127.0.0.1:50312 token ops` or `127.0.0.1:50312 anonymous demo`.
+/// who it is; shown as e.g. `127.0.0.1:50312 token ops`, or `127.0.0.1:50312 no token
+/// (insecure_allow_unauthenticated_changes)` where changes are open to anyone.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Caller {
     pub addr: Option<SocketAddr>,
@@ -160,7 +161,7 @@ impl fmt::Display for Caller {
         match &self.who {
             Who::Reader => f.write_str("reader"),
             Who::Token { name, .. } => write!(f, "token {name}"),
-            Who::Anonymous => f.write_str("anonymous demo"),
+            Who::Anonymous => f.write_str("no token (insecure_allow_unauthenticated_changes)"),
             Who::Unauthenticated => f.write_str("no valid token"),
         }
     }
@@ -620,11 +621,16 @@ mod tests {
             },
         };
         assert_eq!(caller.to_string(), "10.0.0.5:4711 token ops");
-        let demo = Caller {
-            addr: None,
+        // Changes open to anyone (the demo, or any config that sets the insecure key): the
+        // client address and that no token was asked for, never a name that is not true.
+        let open = Caller {
+            addr: Some("192.0.2.7:50312".parse().unwrap()),
             who: Who::Anonymous,
         };
-        assert_eq!(demo.to_string(), "(address unknown) anonymous demo");
+        assert_eq!(
+            open.to_string(),
+            "192.0.2.7:50312 no token (insecure_allow_unauthenticated_changes)"
+        );
     }
 
     #[test]

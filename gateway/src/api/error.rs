@@ -300,7 +300,8 @@ impl std::error::Error for ApiError {}
 
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
-        if self.status.is_server_error() {
+        // `/readyz` logs its own answers (INFO on a change): a 503 there is a state, not a fault.
+        if self.status.is_server_error() && self.code != "not_ready" {
             tracing::warn!(status = self.status.as_u16(), code = self.code, message = %self.message, "api error");
         }
         let mut response = (self.status, axum::Json(self.body())).into_response();

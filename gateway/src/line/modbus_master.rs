@@ -182,6 +182,10 @@ struct MasterLine {
     /// When the first frame of the request in flight was written (the poll duration's start).
     sent_at: Option<Instant>,
     stopping: bool,
+    /// Per device: whether it has answered since the line started (its first answer is logged).
+    heard: Vec<bool>,
+    /// Per device: since when it is offline (logged with its return).
+    offline_since: Vec<Option<Instant>>,
 }
 
 impl LineEngine for MasterLine {
@@ -356,6 +360,7 @@ impl MasterLine {
             .with_commands_in_row(settings.commands_in_row);
         let scanners = Scanners::new(devices.iter().map(|d| &**d), clock.base());
         let master = Master::new(settings.master);
+        let n = devices.len();
         let line = Self {
             settings,
             devices,
@@ -368,6 +373,8 @@ impl MasterLine {
             inflight: None,
             sent_at: None,
             stopping: false,
+            heard: vec![false; n],
+            offline_since: vec![None; n],
         };
         line.publish_cycles();
         line
@@ -482,6 +489,16 @@ impl MasterLine {
         }
     }
 
+    /// A job was handed to the master: in flight from now, its request logged (DEBUG).
+    fn submitted(&mut self, id: RequestId, job: InFlight, span: Span) {
+        tracing::debug!(
+            line = %self.settings.name, slave = span.slave, function = span.function,
+            address = span.address, count = span.count, job = %span.job, "request"
+        );
+        self.sent_at = None;
+        self.inflight = Some((id, job));
+    }
+
     /// The port closed with a request in flight: counted as an error, a command answered.
     fn abandon_inflight(&mut self) {
         self.sent_at = None;
@@ -550,6 +567,7 @@ impl MasterLine {
                         _ => None,
                     }
                     .unwrap_or_else(|| command.request.clone());
+                    let span = Span::of(command.slave, &request, "command");
                     let attempts = Attempts::default();
                     match registers32::submit(
                         &mut self.master,
@@ -560,8 +578,7 @@ impl MasterLine {
                         attempts,
                     ) {
                         Ok(id) => {
-                            self.sent_at = None;
-                            self.inflight = Some((id, InFlight::Command { device, command }));
+                            self.submitted(id, InFlight::Command { device, command }, span);
                             return;
                         }
                         Err(err) => command.answer(Err(CommandError::Refused(err.to_string()))),
@@ -574,6 +591,7 @@ impl MasterLine {
                     // A probe of an offline device is one attempt with its own wait (`probe`).
                     let attempts = self.sched.poll_attempts(poll.device, &self.settings.master);
                     let request = poll.read.request();
+                    let span = Span::of(device.slave, &request, "poll");
                     let registers32 = registers32::enabled(&self.settings.master);
                     match registers32::submit(
                         &mut self.master,
@@ -584,9 +602,8 @@ impl MasterLine {
                         attempts,
                     ) {
                         Ok(id) => {
-                            self.sent_at = None;
                             let riders = self.sched.riders(&poll);
-                            self.inflight = Some((id, InFlight::Poll(poll, riders)));
+                            self.submitted(id, InFlight::Poll(poll, riders), span);
                             return;
                         }
                         Err(err) => {
@@ -629,6 +646,7 @@ impl MasterLine {
         };
         let attempts = self.sched.poll_attempts(job.device, &self.settings.master);
         let engine_now = self.clock.to_engine(now);
+        let span = Span::of(device.slave, &request, "scan");
         // The scanner words are 16-bit registers: never sent as a 32-bit register job.
         match registers32::submit(
             &mut self.master,
@@ -639,8 +657,7 @@ impl MasterLine {
             attempts,
         ) {
             Ok(id) => {
-                self.sent_at = None;
-                self.inflight = Some((id, InFlight::Scan(job)));
+                self.submitted(id, InFlight::Scan(job), span);
                 self.scanners.started(true);
                 true
             }
@@ -688,6 +705,18 @@ impl MasterLine {
         self.shared
             .metrics()
             .request(self.device_label(index, Some(slave)), function, result);
+        let span = Span::of(slave, request, "");
+        tracing::debug!(
+            line = %self.settings.name,
+            device = %self.device_label(index, Some(slave)),
+            slave,
+            function,
+            address = span.address,
+            count = span.count,
+            result = %outcome_text(&outcome),
+            time_ms = duration.map(|d| (d.as_secs_f64() * 10_000.0).round() / 10.0),
+            "answer"
+        );
         match job {
             InFlight::Scan(scan) => {
                 let answered = matches!(outcome, Outcome::Response(_) | Outcome::Exception(_));
@@ -729,7 +758,7 @@ impl MasterLine {
                     }
                 }
                 let transition = self.sched.observe(scan.device, answered, now);
-                self.apply(scan.device, transition);
+                self.apply(scan.device, answered, transition);
             }
             InFlight::Poll(poll, riders) => {
                 for rider in riders {
@@ -776,7 +805,7 @@ impl MasterLine {
                 }
                 let transition = self.sched.poll_done(poll, answered, now);
                 self.publish_cycle(&poll);
-                self.apply(poll.device, transition);
+                self.apply(poll.device, answered, transition);
             }
             InFlight::Command {
                 device,
@@ -800,8 +829,8 @@ impl MasterLine {
                             Attempts::default(),
                         ) {
                             Ok(id) => {
-                                self.sent_at = None;
-                                self.inflight = Some((id, InFlight::Command { device, command }));
+                                let span = Span::of(command.slave, &command.request, "command");
+                                self.submitted(id, InFlight::Command { device, command }, span);
                             }
                             Err(err) => {
                                 command.answer(Err(CommandError::Refused(err.to_string())));
@@ -853,7 +882,7 @@ impl MasterLine {
                     // Only the device's own polls put it offline; a command without an answer
                     // fails for its client alone.
                     let transition = self.sched.command_done(d, answered, now);
-                    self.apply(d, transition);
+                    self.apply(d, answered, transition);
                 }
                 command.answer(result);
             }
@@ -914,19 +943,31 @@ impl MasterLine {
         }
     }
 
-    /// Applies a device's state change to the image and the status.
-    fn apply(&mut self, index: usize, transition: Transition) {
+    /// Applies a device's state change to the image and the status, and logs it: the device's
+    /// first answer and its return after being offline at INFO, its going offline at WARN.
+    fn apply(&mut self, index: usize, answered: bool, transition: Transition) {
         if !matches!(transition, Transition::Unchanged) {
             self.scanners.unprime(index);
         }
         let Some(device) = self.devices.get(index) else {
             return;
         };
+        let first = answered
+            && self
+                .heard
+                .get_mut(index)
+                .is_some_and(|h| !std::mem::replace(h, true));
         let line = &self.settings.name;
         match transition {
+            Transition::Unchanged if first => {
+                tracing::info!(line = %line, device = %device.name, slave = device.slave, unit_id = device.unit_id, "device answers");
+            }
             Transition::Unchanged => {}
             Transition::WentOffline { retry_in } => {
                 tracing::warn!(line = %line, device = %device.name, slave = device.slave, ?retry_in, "device offline");
+                if let Some(since) = self.offline_since.get_mut(index) {
+                    *since = Some(Instant::now());
+                }
                 self.image
                     .set_unit_quality(device.unit_id, Quality::CommFailure);
                 self.device_stat(index, |d| d.online = false);
@@ -936,10 +977,76 @@ impl MasterLine {
                 tracing::debug!(line = %line, device = %device.name, ?retry_in, "device still offline");
             }
             Transition::CameBack => {
-                tracing::info!(line = %line, device = %device.name, slave = device.slave, "device answers again");
+                let offline_for = self
+                    .offline_since
+                    .get_mut(index)
+                    .and_then(Option::take)
+                    .map(|since| format!("{:.1}s", since.elapsed().as_secs_f64()));
+                let message = if first {
+                    "device answers"
+                } else {
+                    "device answers again"
+                };
+                tracing::info!(line = %line, device = %device.name, slave = device.slave, unit_id = device.unit_id, offline_for, "{message}");
                 self.device_stat(index, |d| d.online = true);
             }
         }
+    }
+}
+
+/// A request as its DEBUG line shows it: slave, function, first address and count (none for a
+/// function without them), and the kind of job (poll, command, scan).
+#[derive(Debug, Clone, Copy)]
+struct Span {
+    slave: u8,
+    function: u8,
+    address: Option<u16>,
+    count: Option<u16>,
+    job: &'static str,
+}
+
+impl Span {
+    fn of(slave: u8, request: &Request, job: &'static str) -> Self {
+        let len = |n: usize| Some(u16::try_from(n).unwrap_or(u16::MAX));
+        let (address, count) = match request {
+            Request::ReadCoils { address, quantity }
+            | Request::ReadDiscreteInputs { address, quantity }
+            | Request::ReadHoldingRegisters { address, quantity }
+            | Request::ReadInputRegisters { address, quantity } => {
+                (Some(*address), Some(*quantity))
+            }
+            Request::WriteSingleCoil { address, .. }
+            | Request::WriteSingleRegister { address, .. } => (Some(*address), Some(1)),
+            Request::WriteMultipleCoils { address, values } => (Some(*address), len(values.len())),
+            Request::WriteMultipleRegisters { address, values } => {
+                (Some(*address), len(values.len()))
+            }
+            Request::ReadWriteMultipleRegisters {
+                read_address,
+                read_quantity,
+                ..
+            } => (Some(*read_address), Some(*read_quantity)),
+            _ => (None, None),
+        };
+        Self {
+            slave,
+            function: request.function().0,
+            address,
+            count,
+            job,
+        }
+    }
+}
+
+/// The result of a master transaction for its DEBUG line: `ok`, the exception, or the event of
+/// the failure (003 7.2: 08 30h no reply, 0E 5xh a reply that could not be used).
+fn outcome_text(outcome: &Outcome) -> String {
+    match outcome {
+        Outcome::Response(_) => "ok".to_owned(),
+        Outcome::Broadcast => "broadcast sent".to_owned(),
+        Outcome::Exception(code) => format!("exception {code}"),
+        Outcome::Failed(id) if *id == ids::MODBUS_NO_REPLY => format!("no reply ({id})"),
+        Outcome::Failed(id) => format!("failed ({id})"),
     }
 }
 

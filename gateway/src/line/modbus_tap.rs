@@ -132,6 +132,7 @@ pub(crate) fn spawn_on<O: PortOpener>(
     let engine = TapLine {
         tap: Tap::new(settings.tap),
         missing_in_row: vec![0; devices.len()],
+        heard: vec![false; devices.len()],
         settings,
         devices,
         image,
@@ -265,6 +266,8 @@ struct TapLine {
     devices: Vec<Arc<DeviceSettings>>,
     /// Requests in a row without an answer, by device.
     missing_in_row: Vec<u32>,
+    /// Whether each device has answered since the line started (its first answer is logged).
+    heard: Vec<bool>,
     image: ProcessImage,
     shared: Arc<Shared>,
     tap: Tap,
@@ -450,8 +453,14 @@ impl TapLine {
         });
         if let Some(device) = self.devices.get(index) {
             self.shared.metrics().device_up(&device.name, true);
-            if !was_online {
-                tracing::info!(line = %self.settings.name, device = %device.name, "device answers again");
+            let first = self
+                .heard
+                .get_mut(index)
+                .is_some_and(|h| !std::mem::replace(h, true));
+            if first {
+                tracing::info!(line = %self.settings.name, device = %device.name, slave = device.slave, unit_id = device.unit_id, "device answers");
+            } else if !was_online {
+                tracing::info!(line = %self.settings.name, device = %device.name, slave = device.slave, unit_id = device.unit_id, "device answers again");
             }
         }
     }

@@ -281,20 +281,23 @@ impl Shared {
             s.last_event = Some(event.clone());
             event
         });
-        let class = event::class_name(id.class).unwrap_or("unknown class");
+        // The manual's description and remedy, as the REST API gives them (003 7.2).
+        let info = event::lookup(id);
+        let description = info.map_or("Event not in the catalog (003 7.2).", |i| i.description);
+        let remedy = info.map(|i| i.remedy).filter(|r| !r.is_empty());
         // A disturbed line raises the same event for every frame: once per interval in the log
         // (with the count left out), every one in the counters and the diagnostic buffer.
         let key = || format!("line/{}/{id}", event.line);
         match &event.detail {
             Some(detail) => {
-                crate::warn_limited!(key(), line = %event.line, event = %id, class, slave, detail, "line event");
+                crate::warn_limited!(key(), line = %event.line, event = %id, slave, detail, remedy, "{description}");
             }
             // Class 00h "CP start-up" reports normal operation.
             None if id.class == 0 => {
-                tracing::info!(line = %event.line, event = %id, class, "line event")
+                tracing::info!(line = %event.line, event = %id, "{description}")
             }
             None => {
-                crate::warn_limited!(key(), line = %event.line, event = %id, class, slave, "line event");
+                crate::warn_limited!(key(), line = %event.line, event = %id, slave, remedy, "{description}");
             }
         }
         // No subscriber: nobody to lose it.

@@ -150,17 +150,21 @@ fn admit(
     shutdown: &CancellationToken,
 ) {
     if !shared.options.allows_peer(peer.ip()) {
-        debug!(%peer, "client outside the allowed networks, closed");
+        refused(shared, peer, "the client is outside allowed_networks");
         shared.stats.count_rejected(RejectReason::Network);
         return;
     }
     let Some(client) = ClientPlace::take(shared, peer.ip()) else {
-        debug!(%peer, "connection limit of the client address reached, closed");
+        refused(
+            shared,
+            peer,
+            "the client address has max_connections_per_client open",
+        );
         shared.stats.count_rejected(RejectReason::Limit);
         return;
     };
     let Ok(permit) = Arc::clone(limit).try_acquire_owned() else {
-        debug!(%peer, "connection limit reached, closed");
+        refused(shared, peer, "the server has max_connections open");
         shared.stats.count_rejected(RejectReason::Limit);
         return;
     };
@@ -225,6 +229,23 @@ fn admit(
         };
         connection::run(stream, peer, shared, shutdown, places, authority).await;
     });
+}
+
+/// Log lines about refused connections (network filter, connection caps): the first few of a
+/// window with the client's address, then one with the number left out; a scan or a reconnecting
+/// flood writes a few lines, `gateway_modbus_tcp_connections_rejected_total` counts every one.
+static REFUSED_LOG: LogLimit = LogLimit::new(Duration::from_secs(10), 5);
+
+/// Logs a connection closed at accept, within [`REFUSED_LOG`]'s limit.
+fn refused(shared: &Shared, peer: SocketAddr, reason: &str) {
+    if let Verdict::Log { suppressed } = REFUSED_LOG.check() {
+        let what = if shared.tls.is_some() {
+            "Modbus/TCP Security"
+        } else {
+            "Modbus TCP"
+        };
+        warn!(%peer, reason, suppressed, "{what} connection refused");
+    }
 }
 
 /// The longest a TLS handshake may take (bounded by `idle_timeout` as well): a client that

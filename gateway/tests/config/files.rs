@@ -336,7 +336,7 @@ fn check_reports_counts_or_issues() {
     // The example's token file, here with a token of 16 characters (run reads it at start).
     let token = temp_file("config-check-ok-token", "0123456789abcdef\n");
     let example = EXAMPLE.replace(
-        "token_file = \"/etc/gateway/api-token\"",
+        "# token_file = \"/etc/gateway/api-token\"",
         &format!("token_file = \"{}\"", token.display()),
     );
     assert_ne!(example, EXAMPLE);

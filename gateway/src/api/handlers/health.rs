@@ -1,5 +1,6 @@
 //! `/healthz`, `/readyz`, `/api/v1/status` and `/api/v1/openapi.json`.
 
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::Arc;
 
 use axum::extract::State;
@@ -7,7 +8,7 @@ use axum::http::header;
 use axum::response::{IntoResponse, Response};
 use axum::{Extension, Json};
 
-use crate::api::error::{ApiError, ErrorBody};
+use crate::api::error::{ApiError, ErrorBody, Issue};
 use crate::api::model::{GatewayStatus, Health};
 use crate::api::ApiState;
 
@@ -42,12 +43,38 @@ pub(crate) async fn healthz() -> Json<Health> {
 pub(crate) async fn readyz(State(state): State<ApiState>) -> Result<Json<Health>, ApiError> {
     let readiness = state.backend().readiness();
     let issues = readiness.issues();
+    log_readiness(&issues);
     if issues.is_empty() {
         Ok(Json(Health {
             status: "ready".into(),
         }))
     } else {
         Err(ApiError::not_ready(issues))
+    }
+}
+
+/// The answer `/readyz` gave last: 0 none yet, 1 ready, 2 not ready.
+static LAST_READINESS: AtomicU8 = AtomicU8::new(0);
+
+/// Logs what `/readyz` answered: at INFO when the answer changed since the last probe (with what
+/// is missing), at DEBUG otherwise. A probe every few seconds from an orchestrator while a line's
+/// port is missing is normal operation, not a warning: the line's own events say what is wrong.
+/// The last answer is kept per process (one REST API).
+fn log_readiness(issues: &[Issue]) {
+    let now = if issues.is_empty() { 1 } else { 2 };
+    let changed = LAST_READINESS.swap(now, Ordering::Relaxed) != now;
+    let missing = || {
+        issues
+            .iter()
+            .map(|i| format!("{}: {}", i.path, i.message))
+            .collect::<Vec<_>>()
+            .join("; ")
+    };
+    match (changed, issues.is_empty()) {
+        (true, true) => tracing::info!("readyz: ready"),
+        (true, false) => tracing::info!(missing = %missing(), "readyz: not ready"),
+        (false, true) => tracing::debug!("readyz: ready"),
+        (false, false) => tracing::debug!(missing = %missing(), "readyz: not ready"),
     }
 }
 
