@@ -70,6 +70,27 @@ impl PartialSchema for ConfigDocument {
 }
 impl ToSchema for ConfigDocument {}
 
+/// The configuration as a request body: [`ConfigDocument`] without `overrides`, which only
+/// answers carry (a body that has it, as GET gave it, has it left out).
+pub(crate) struct ConfigBody;
+
+impl PartialSchema for ConfigBody {
+    fn schema() -> RefOr<Schema> {
+        ObjectBuilder::new()
+            .schema_type(Type::Object)
+            .description(Some(
+                "The gateway configuration: the TOML file's tables ([gateway], [modbus_tcp], \
+                 [lines.<name>] ...) as a JSON object. Keys left out take their defaults. A PUT \
+                 changes only what it changes in meaning: a value the file already had keeps the \
+                 file's spelling (0x0D stays 0x0D), new keys are written as sent, in the order \
+                 sent, and a PUT of what GET answered leaves the file byte for byte (the \
+                 `overrides` a GET answered are left out).",
+            ))
+            .into()
+    }
+}
+impl ToSchema for ConfigBody {}
+
 /// One line's table `[lines.<name>]` as JSON (`port`, `protocol`, serial settings, the
 /// protocol's parameters, `devices`).
 pub(crate) struct LineDocument;
@@ -179,7 +200,7 @@ fn overrides_comment(overrides: &[ConfigOverride]) -> String {
     path = "/config",
     tag = "config",
     request_body(content(
-        (ConfigDocument = "application/json"),
+        (ConfigBody = "application/json"),
         (String = "application/toml")
     )),
     params(("If-Match" = Option<String>, Header, description = "Apply only if the configuration in force has this ETag")),
@@ -223,7 +244,7 @@ pub(crate) async fn put_config(
     path = "/config/validate",
     tag = "config",
     request_body(content(
-        (ConfigDocument = "application/json"),
+        (ConfigBody = "application/json"),
         (String = "application/toml")
     )),
     responses(
