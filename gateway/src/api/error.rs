@@ -301,8 +301,16 @@ impl std::error::Error for ApiError {}
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         // `/readyz` logs its own answers (INFO on a change): a 503 there is a state, not a fault.
+        // Any client can ask for a 5xx (a read of a device that does not answer): rate-limited
+        // per status and code, the number left out said with the next line.
         if self.status.is_server_error() && self.code != "not_ready" {
-            tracing::warn!(status = self.status.as_u16(), code = self.code, message = %self.message, "api error");
+            crate::warn_limited!(
+                format!("api error {} {}", self.status.as_u16(), self.code),
+                status = self.status.as_u16(),
+                code = self.code,
+                message = %self.message,
+                "api error"
+            );
         }
         let mut response = (self.status, axum::Json(self.body())).into_response();
         let headers = response.headers_mut();
