@@ -1131,6 +1131,54 @@ mod api_path_tests {
     use super::*;
 
     #[test]
+    fn https_files_and_journals_a_rest_change_names_are_confined() {
+        let dir = tempfile::tempdir().expect("temp dir");
+        let text = |tls_dir: &str, journal: &str| {
+            format!(
+                "[gateway]\nconfig_dirs = [\"{d}/conf\"]\nstate_dirs = [\"{d}/state\"]\n\
+                 [http.tls]\ncert = \"{tls_dir}/s.crt\"\nkey = \"{tls_dir}/s.key\"\n\
+                 ca = \"{tls_dir}/ca.crt\"\n\
+                 [lines.r]\nport = \"/dev/null\"\nprotocol = \"3964r\"\njournal = \"{journal}\"\n",
+                d = dir.path().display()
+            )
+        };
+        let in_force = config::parse(&text("/opt/tls", "/opt/r.journal")).expect("parses");
+        // The paths in force were set by the host: not checked again, even outside.
+        assert_eq!(api_path_issues(&in_force, &in_force), Vec::new());
+        let changed = config::parse(&text("/etc/ssl", "/etc/r.journal")).expect("parses");
+        let issues = api_path_issues(&changed, &in_force);
+        let paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
+        assert_eq!(
+            paths,
+            [
+                "lines.r.journal",
+                "http.tls.cert",
+                "http.tls.key",
+                "http.tls.ca"
+            ],
+            "{issues:#?}"
+        );
+        assert!(
+            issues[0].message.contains("outside [gateway] state_dirs"),
+            "{}",
+            issues[0].message
+        );
+        assert!(
+            issues[1].message.contains("outside [gateway] config_dirs"),
+            "{}",
+            issues[1].message
+        );
+        // Inside their directories: not refused by the confinement.
+        let conf = dir.path().join("conf").display().to_string();
+        let state = dir.path().join("state");
+        std::fs::create_dir_all(&state).expect("mkdir");
+        std::fs::create_dir_all(&conf).expect("mkdir");
+        let journal = state.join("r.journal").display().to_string();
+        let inside_dirs = config::parse(&text(&conf, &journal)).expect("parses");
+        assert_eq!(api_path_issues(&inside_dirs, &in_force), Vec::new());
+    }
+
+    #[test]
     fn files_a_rest_change_names_are_confined_to_config_dirs_and_not_read() {
         let dir = tempfile::tempdir().expect("temp dir");
         let conf = dir.path().join("conf");
