@@ -29,6 +29,7 @@ mod check;
 mod demo;
 mod lines;
 mod reload;
+mod reload_notice;
 mod rest;
 mod status;
 mod supervisor;

@@ -103,7 +103,7 @@ pub fn start_issues(config: &Config, door: Door<'_>) -> Vec<ConfigIssue> {
         |name| std::env::var(name).ok(),
         &refused,
     ));
-    let layout = super::supervisor::slave_layout(config);
+    let layout = super::lines::slave_layout(config);
     issues.extend(super::lines::start_issues(config, layout.as_ref()));
     if !refused("zenoh.config_file") {
         issues.extend(zenoh_issues(config));

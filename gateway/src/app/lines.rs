@@ -197,3 +197,28 @@ pub(crate) fn start_issues(
     }
     issues
 }
+
+/// The CP memory layout the slave lines of `config` need; `None` without slave lines.
+pub(super) fn slave_layout(config: &Config) -> Option<proto_core::cpmem::MemoryLayout> {
+    let slaves: Vec<_> = config
+        .lines
+        .values()
+        .filter_map(|l| match &l.protocol {
+            ProtocolConfig::ModbusSlaveRtu(cfg) => Some(cfg),
+            _ => None,
+        })
+        .collect();
+    if slaves.is_empty() {
+        return None;
+    }
+    let blocks: Vec<(u16, u16)> = config
+        .cp_memory
+        .data_blocks
+        .iter()
+        .map(|b| (b.db, b.words))
+        .collect();
+    Some(cpmem::config::memory_layout(
+        slaves,
+        (!blocks.is_empty()).then_some(blocks.as_slice()),
+    ))
+}

@@ -25,7 +25,7 @@ use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
-use super::lines::{self, LineDeps, RunningLine};
+use super::lines::{self, slave_layout, LineDeps, RunningLine};
 use super::{server_options, AppError, MetricsRegistry, Overrides, GRACE_PERIOD};
 use crate::api::model::ApplyReport;
 use crate::api::{ApiError, BoxFuture, ConfigDiff};
@@ -114,7 +114,7 @@ pub(crate) struct Supervisor {
     /// What status and readiness show of zenoh; `None` when it is not configured.
     pub(crate) zenoh_state: Mutex<Option<ZenohState>>,
     /// "Read your files again" (SIGHUP): the TLS servers subscribe.
-    pub(crate) reload: super::reload::Reload,
+    pub(crate) reload: super::reload_notice::Reload,
     /// Configuration changes run one at a time: the REST API's and the SIGHUP re-reads.
     pub(crate) change_lock: Arc<tokio::sync::Mutex<()>>,
     /// Lines (name, port) whose port was opened by an earlier task of the line, before a
@@ -186,7 +186,7 @@ impl Supervisor {
             lines,
         };
         let tcp_stats = Arc::new(ServerStats::with_metrics(exported.metrics.clone()));
-        let reload = super::reload::Reload::new();
+        let reload = super::reload_notice::Reload::new();
         let tls = super::tls::start(
             &snapshot.config.modbus_tcp,
             &units,
@@ -654,31 +654,6 @@ fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
         path: path.to_owned(),
         message: message.into(),
     }
-}
-
-/// The CP memory layout the slave lines of `config` need; `None` without slave lines.
-pub(super) fn slave_layout(config: &Config) -> Option<proto_core::cpmem::MemoryLayout> {
-    let slaves: Vec<_> = config
-        .lines
-        .values()
-        .filter_map(|l| match &l.protocol {
-            ProtocolConfig::ModbusSlaveRtu(cfg) => Some(cfg),
-            _ => None,
-        })
-        .collect();
-    if slaves.is_empty() {
-        return None;
-    }
-    let blocks: Vec<(u16, u16)> = config
-        .cp_memory
-        .data_blocks
-        .iter()
-        .map(|b| (b.db, b.words))
-        .collect();
-    Some(cpmem::config::memory_layout(
-        slaves,
-        (!blocks.is_empty()).then_some(blocks.as_slice()),
-    ))
 }
 
 type Persistence = Option<(CancellationToken, JoinHandle<()>)>;

@@ -11,7 +11,7 @@ use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
 use super::build::unit_write_ranges;
-use super::reload::Reload;
+use super::reload_notice::Reload;
 use super::{server_options, AppError};
 use crate::config::{FunctionClassConfig, ModbusTcpConfig, ModbusTlsConfig};
 use crate::modbus_tcp::{
