@@ -524,7 +524,8 @@ fn panic_response(panic: Box<dyn std::any::Any + Send + 'static>) -> Response {
         .map(|s| (*s).to_owned())
         .or_else(|| panic.downcast_ref::<String>().cloned())
         .unwrap_or_default();
-    tracing::error!(panic = %what, "a request handler panicked");
+    // A request that makes a handler panic can be sent again and again: rate-limited.
+    crate::error_limited!("api handler panicked", panic = %what, "a request handler panicked");
     let mut r = ApiError::internal("internal error").into_response();
     r.headers_mut()
         .insert(header::CACHE_CONTROL, HeaderValue::from_static("no-store"));
