@@ -64,6 +64,9 @@ pub struct LineStatusView {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub port_b: Option<String>,
     pub state: LineState,
+    /// Whether the serial port is open (`state` is `running` then, unless the line is
+    /// restarting).
+    pub port_open: bool,
     /// When the line's task started: a configuration change that restarts the line moves it,
     /// one that leaves the line alone does not.
     pub started: Timestamp,
@@ -182,6 +185,7 @@ impl LineStatusView {
             port: place.port.to_owned(),
             port_b: place.port_b.map(str::to_owned),
             state,
+            port_open: status.port_open,
             started: Timestamp(status.started),
             port_error: status.port_error.clone(),
             port_opens: status.port_opens,
