@@ -12,11 +12,10 @@ use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 use proto_core::modbus::Table;
 
 use super::supervisor::Snapshot;
-use crate::modbus_tcp::SharedUnits;
 use proto_core::profiles::Value;
 
 use crate::tags::{TagDirectory, TagEntry, TagReading, TagWriteError, TagWriteOp};
-use crate::unit::{UnitFuture, UnitService};
+use crate::unit::{SharedUnits, UnitFuture, UnitService};
 
 /// Why a tag write was not sent to the device.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

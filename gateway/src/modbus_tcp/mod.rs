@@ -29,7 +29,7 @@ mod shared;
 pub use access::{Authority, FunctionClass, Refusal, RoleRights, Roles};
 pub use diagnostic::DiagnosticUnit;
 pub use server::{
-    bind, serve, serve_tls, ServerOptions, SharedUnits, WriteRange, WriteTable, DEFAULT_BACKLOG,
+    bind, serve, serve_tls, ServerOptions, WriteRange, WriteTable, DEFAULT_BACKLOG,
     DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS, DEFAULT_REQUEST_TIMEOUT,
 };
 pub use stats::{
