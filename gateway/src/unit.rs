@@ -11,6 +11,8 @@ use std::future::Future;
 use std::pin::Pin;
 use std::sync::{Arc, RwLock};
 
+pub mod write_policy;
+
 use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 use proto_core::profiles::BitUpdate;
 

@@ -14,9 +14,9 @@ use std::process::Command;
 use std::sync::{Arc, RwLock};
 
 use gateway::modbus_tcp::{
-    bind, serve_tls, RoleRights, Roles, ServerOptions, ServerStats, TlsFiles, TlsServer,
-    WriteRange, WriteTable, ROLE_OID,
+    bind, serve_tls, RoleRights, Roles, ServerOptions, ServerStats, TlsFiles, TlsServer, ROLE_OID,
 };
+use gateway::unit::write_policy::{WriteRange, WriteTable};
 use gateway::unit::{SharedUnits, UnitMap};
 use rcgen::{
     BasicConstraints, CertificateParams, CustomExtension, DnType, IsCa, Issuer, KeyPair,

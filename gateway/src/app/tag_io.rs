@@ -85,13 +85,11 @@ pub(crate) fn prepare_write(
         .find(line, device, tag)
         .ok_or_else(|| TagWriteError::UnknownTag(format!("{line}/{device}/{tag}")))?;
     let op = TagDirectory::write_op(entry, value)?;
-    if snapshot.server.read_only {
+    let policy = &snapshot.server.writes;
+    if policy.read_only {
         return Err(WriteRefused::ReadOnlyGateway);
     }
-    if let Some(code) = snapshot
-        .server
-        .check_write(entry.unit_id, &op.policy_request())
-    {
+    if let Some(code) = policy.check_write(entry.unit_id, &op.policy_request()) {
         return Err(WriteRefused::OutsideRanges {
             tag: format!("{line}/{device}/{}", entry.tag.name),
             code,

@@ -1,7 +1,7 @@
 //! Authorization by role (MODBUS/TCP Security): what a client holding a role may ask.
 //!
 //! A plain Modbus TCP connection has no identity: its requests pass to the server-wide write
-//! policy only ([`super::ServerOptions::check_write`]). A Modbus/TCP Security connection carries
+//! policy only ([`WritePolicy`](crate::unit::write_policy::WritePolicy)). A Modbus/TCP Security connection carries
 //! the role of its client certificate, and every request is checked against that role's rights
 //! before anything else of the server sees it.
 //!
@@ -16,7 +16,7 @@ use std::sync::Arc;
 
 use proto_core::modbus::pdu::Request;
 
-use super::options::{covered, WriteRange, WriteTable};
+use crate::unit::write_policy::{covered, WriteRange, WriteTable};
 
 /// Classes of function codes a role is granted.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

@@ -22,8 +22,7 @@ use crate::log_limit::{LogLimit, Verdict};
 use crate::unit::SharedUnits;
 
 pub use super::options::{
-    ServerOptions, WriteRange, WriteTable, DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS,
-    DEFAULT_REQUEST_TIMEOUT,
+    ServerOptions, DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS, DEFAULT_REQUEST_TIMEOUT,
 };
 
 /// Listen backlog of [`bind`]: room for a burst of clients connecting at once (SCADA stations
