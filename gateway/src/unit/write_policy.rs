@@ -133,6 +133,18 @@ impl Access {
     }
 }
 
+/// The table, first address and count a request writes, if it writes a table.
+pub(crate) fn written(request: &Request) -> Option<(WriteTable, u16, usize)> {
+    match Access::of(request) {
+        Access::Table {
+            table,
+            address,
+            count,
+        } => Some((table, address, count)),
+        Access::Read | Access::Control => None,
+    }
+}
+
 /// Whether every address `address..address + count` of `unit`/`table` lies in some range (ranges
 /// may touch or overlap; a write may span several).
 pub(crate) fn covered(
