@@ -24,7 +24,7 @@ use super::status::line_view;
 use super::supervisor::{Follower, Snapshot, Supervisor, ZenohState};
 use super::tag_io::{self, WriteRefused};
 use super::AppError;
-use crate::api::model::LineStatusView;
+use crate::api::model::{LineStatusView, ScalarValue};
 use crate::api::BoxFuture;
 use crate::image::ProcessImage;
 use crate::line::LineEvent;
@@ -442,13 +442,7 @@ fn json_value(value: &Json) -> Option<Value> {
 /// A tag's value as the bridge publishes it.
 fn tag_value(tags: &TagDirectory, image: &ProcessImage, entry: &TagEntry) -> Option<TagValue> {
     let reading = tags.read(image, entry)?;
-    let value = match reading.value {
-        Value::Int(v) => json!(v),
-        Value::UInt(v) => json!(v),
-        Value::Float(v) => json!(v),
-        Value::Bool(v) => json!(v),
-        Value::Text(v) => json!(v),
-    };
+    let value = json!(ScalarValue::from(reading.value));
     let unit = (!reading.unit.is_empty()).then_some(reading.unit);
     Some(TagValue {
         value,
