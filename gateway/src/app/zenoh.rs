@@ -423,20 +423,13 @@ impl ZenohBackend {
 /// The value of a tag write sent as JSON: a number (whole numbers exact up to 64 bits), a bool,
 /// a string, or an object with one of them under `value`.
 fn json_value(value: &Json) -> Option<Value> {
-    match value {
-        Json::Number(n) => n
-            .as_i64()
-            .map(Value::Int)
-            .or_else(|| n.as_u64().map(Value::UInt))
-            .or_else(|| n.as_f64().map(Value::Float)),
-        Json::Bool(b) => Some(Value::Bool(*b)),
-        Json::String(s) => Some(Value::Text(s.clone())),
-        Json::Object(o) => o
-            .get("value")
-            .filter(|v| !v.is_object())
-            .and_then(json_value),
-        Json::Null | Json::Array(_) => None,
-    }
+    let scalar = match value {
+        Json::Object(o) => o.get("value").filter(|v| !v.is_object())?,
+        other => other,
+    };
+    // As a REST tag write reads its `value`.
+    let scalar: ScalarValue = serde_json::from_value(scalar.clone()).ok()?;
+    Some(scalar.into())
 }
 
 /// A tag's value as the bridge publishes it.
