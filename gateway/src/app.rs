@@ -23,6 +23,7 @@ use crate::config::{self, Config};
 use crate::metrics::Metrics;
 use crate::modbus_tcp::ServerOptions;
 use crate::persist::ConfigStore;
+use crate::unit::write_policy::WritePolicy;
 
 mod build;
 mod check;
@@ -415,8 +416,10 @@ fn server_options(cfg: &config::ModbusTcpConfig) -> ServerOptions {
         ),
         idle_timeout: cfg.idle_timeout,
         allowed_networks: cfg.allowed_networks.clone(),
-        read_only: cfg.read_only,
-        write_ranges: build::write_ranges(cfg),
+        writes: WritePolicy {
+            read_only: cfg.read_only,
+            write_ranges: build::write_ranges(cfg),
+        },
         request_timeout: cfg.request_timeout,
     }
 }

@@ -9,7 +9,9 @@
 use std::collections::HashMap;
 use std::future::Future;
 use std::pin::Pin;
-use std::sync::Arc;
+use std::sync::{Arc, RwLock};
+
+pub mod write_policy;
 
 use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 use proto_core::profiles::BitUpdate;
@@ -65,6 +67,11 @@ pub trait UnitService: Send + Sync + 'static {
         None
     }
 }
+
+/// The unit map the Modbus TCP server answers from and REST and zenoh write through, replaceable
+/// at run time: take the write lock and swap the map. Each request clones its unit's service out
+/// and drops the lock before it waits.
+pub type SharedUnits = Arc<RwLock<UnitMap>>;
 
 /// The unit ids the server knows, each with its service.
 #[derive(Clone, Default)]

@@ -7,9 +7,8 @@ mod support;
 use std::sync::Arc;
 use std::time::Duration;
 
-use gateway::modbus_tcp::{
-    CloseReason, FrameReject, RejectReason, RequestResult, ServerOptions, WriteRange, WriteTable,
-};
+use gateway::modbus_tcp::{CloseReason, FrameReject, RejectReason, RequestResult, ServerOptions};
+use gateway::unit::write_policy::{WritePolicy, WriteRange, WriteTable};
 use gateway::unit::UnitMap;
 use proto_core::modbus::pdu::{ExceptionCode, Response};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -174,7 +173,10 @@ async fn responses_that_do_not_fit_the_request_answer_04() {
 #[tokio::test]
 async fn read_only_mode_answers_01_to_writes() {
     let server = start(ServerOptions {
-        read_only: true,
+        writes: WritePolicy {
+            read_only: true,
+            write_ranges: None,
+        },
         ..ServerOptions::default()
     })
     .await;
@@ -226,7 +228,10 @@ async fn writes_outside_the_write_ranges_answer_02() {
         },
     ];
     let server = start(ServerOptions {
-        write_ranges: Some(ranges),
+        writes: WritePolicy {
+            read_only: false,
+            write_ranges: Some(ranges),
+        },
         ..ServerOptions::default()
     })
     .await;

@@ -14,10 +14,10 @@ use std::process::Command;
 use std::sync::{Arc, RwLock};
 
 use gateway::modbus_tcp::{
-    bind, serve_tls, RoleRights, Roles, ServerOptions, ServerStats, SharedUnits, TlsFiles,
-    TlsServer, WriteRange, WriteTable, ROLE_OID,
+    bind, serve_tls, RoleRights, Roles, ServerOptions, ServerStats, TlsFiles, TlsServer, ROLE_OID,
 };
-use gateway::unit::UnitMap;
+use gateway::unit::write_policy::{WriteRange, WriteTable};
+use gateway::unit::{SharedUnits, UnitMap};
 use rcgen::{
     BasicConstraints, CertificateParams, CustomExtension, DnType, IsCa, Issuer, KeyPair,
     KeyUsagePurpose,

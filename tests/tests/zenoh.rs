@@ -328,6 +328,99 @@ async fn the_gateway_outlives_its_zenoh_peer_and_publishes_again() {
     s.close().await.expect("close");
 }
 
+/// The keys of a JSON object, sorted.
+fn keys(v: &Value) -> Vec<String> {
+    v.as_object()
+        .map(|o| o.keys().cloned().collect())
+        .unwrap_or_default()
+}
+
+/// The single reply to a zenoh query of `key`, as JSON.
+async fn get_one(s: &zenoh::Session, key: &str) -> Value {
+    let replies = s.get(key).await.expect("get");
+    let reply = tokio::time::timeout(Duration::from_secs(10), replies.recv_async())
+        .await
+        .expect("a reply within 10 s")
+        .expect("reply");
+    json(reply.result().expect("a status"))
+}
+
+/// `<line>/status` over zenoh is the JSON REST answers for the line (`GET /api/v1/lines/<line>`):
+/// the same fields with the same names and formats, the STATUS word a number.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_line_status_is_the_same_view_over_zenoh_and_rest() {
+    let (gw, port) = demo_with_zenoh(&[]);
+    let http = reqwest::Client::new();
+    let url = format!(
+        "http://{}/api/v1/lines/drive",
+        gw.http.expect("the demo serves HTTP")
+    );
+    // Both drives answer: the view has everything a polled line shows.
+    let deadline = std::time::Instant::now() + Duration::from_secs(30);
+    let rest = loop {
+        let rest: Value = http
+            .get(&url)
+            .send()
+            .await
+            .expect("GET")
+            .json()
+            .await
+            .expect("JSON");
+        if rest["state"] == "running" && rest["devices_online"] == 2 {
+            break rest;
+        }
+        assert!(std::time::Instant::now() < deadline, "{rest:#}");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    };
+    let s = gateway_tests::zenoh_client(port).await;
+    let zenoh = get_one(&s, "gw/demo/drive/status").await;
+    assert_eq!(keys(&zenoh), keys(&rest), "zenoh {zenoh:#}\nREST {rest:#}");
+    for field in [
+        "name",
+        "protocol",
+        "port",
+        "state",
+        "port_open",
+        "started",
+        "port_opens",
+        "devices_total",
+    ] {
+        assert_eq!(zenoh[field], rest[field], "{field}: {zenoh:#}");
+    }
+    assert!(zenoh["status_word"].is_u64(), "{zenoh:#}");
+    assert_eq!(keys(&zenoh["counters"]), keys(&rest["counters"]));
+    let devices = |v: &Value| -> Vec<(Value, Value, Value, Vec<String>)> {
+        v["devices"]
+            .as_array()
+            .expect("devices")
+            .iter()
+            .map(|d| {
+                let key = |k: &str| d[k].clone();
+                (key("name"), key("address"), key("unit_id"), keys(d))
+            })
+            .collect()
+    };
+    assert_eq!(devices(&zenoh), devices(&rest), "{zenoh:#}");
+    let codes: Vec<&Value> = zenoh["event_counts"]
+        .as_array()
+        .expect("event counts")
+        .iter()
+        .map(|c| &c["event"]["code"])
+        .collect();
+    assert!(codes.contains(&&Value::from("0003")), "{codes:?}");
+
+    // The gateway's status carries every line in the same view.
+    let gateway = get_one(&s, "gw/demo/status").await;
+    let drive = gateway["lines"]
+        .as_array()
+        .expect("lines")
+        .iter()
+        .find(|l| l["name"] == "drive")
+        .expect("the drive line");
+    assert_eq!(keys(drive), keys(&rest), "{drive:#}");
+    s.close().await.expect("close");
+}
+
 /// `<workspace>/.venv/bin/python` with eclipse-zenoh of the crate's version.
 fn python() -> PathBuf {
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("..");

@@ -15,8 +15,8 @@ use crate::line::{
     AddrRange, DeviceLimits, DeviceSettings, LineSettings, PollGroup, ProbeSettings,
     ScannerSettings, TapLineSettings,
 };
-use crate::modbus_tcp::{WriteRange, WriteTable};
 use crate::serial::{self, PortSettings};
+use crate::unit::write_policy::{WriteRange, WriteTable};
 
 /// The runtime's port settings of a line.
 pub(crate) fn port_settings(serial: &config::SerialConfig) -> PortSettings {

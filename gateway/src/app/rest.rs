@@ -69,10 +69,6 @@ impl RestBackend {
         })
     }
 
-    fn view(name: &str, line: &RunningLine) -> LineStatusView {
-        line_view(name, line, &line.handle.status(), line.handle.traffic())
-    }
-
     /// A tag's value from the image; `None` while its registers are not in the image.
     fn image_value(&self, snapshot: &Snapshot, entry: &TagEntry) -> Option<TagValue> {
         let reading = snapshot.tags.read(&self.sup.image, entry)?;
@@ -213,7 +209,7 @@ impl ApiBackend for RestBackend {
         let lines = snapshot
             .lines
             .iter()
-            .map(|(name, line)| Self::view(name, line))
+            .map(|(name, line)| line_view(name, line))
             .collect();
         let (listen, up) = self.sup.tcp_listen();
         let stats = &self.sup.tcp_stats;
@@ -257,7 +253,7 @@ impl ApiBackend for RestBackend {
     fn line_status(&self, line: &str) -> Result<LineStatusView, ApiError> {
         let snapshot = self.sup.snapshot();
         let running = Self::line(&snapshot, line)?;
-        Ok(Self::view(line, running))
+        Ok(line_view(line, running))
     }
 
     fn monitor(&self, line: &str) -> Result<Arc<crate::line::FrameMonitor>, ApiError> {

@@ -32,9 +32,9 @@ use crate::api::{ApiError, BoxFuture, ConfigDiff};
 use crate::config::{Config, ConfigIssue, ProtocolConfig};
 use crate::cpmem::{self, SharedCpMemory};
 use crate::image::{ImageConfig, ProcessImage};
-use crate::modbus_tcp::{self, ServerOptions, ServerStats, SharedUnits};
+use crate::modbus_tcp::{self, ServerOptions, ServerStats};
 use crate::tags::TagDirectory;
-use crate::unit::UnitMap;
+use crate::unit::{SharedUnits, UnitMap};
 use crate::zenoh_bridge::BridgeStats;
 use proto_core::cpmem::AddressMap;
 

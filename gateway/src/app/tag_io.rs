@@ -12,11 +12,10 @@ use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 use proto_core::modbus::Table;
 
 use super::supervisor::Snapshot;
-use crate::modbus_tcp::SharedUnits;
 use proto_core::profiles::Value;
 
 use crate::tags::{TagDirectory, TagEntry, TagReading, TagWriteError, TagWriteOp};
-use crate::unit::{UnitFuture, UnitService};
+use crate::unit::{SharedUnits, UnitFuture, UnitService};
 
 /// Why a tag write was not sent to the device.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -86,13 +85,11 @@ pub(crate) fn prepare_write(
         .find(line, device, tag)
         .ok_or_else(|| TagWriteError::UnknownTag(format!("{line}/{device}/{tag}")))?;
     let op = TagDirectory::write_op(entry, value)?;
-    if snapshot.server.read_only {
+    let policy = &snapshot.server.writes;
+    if policy.read_only {
         return Err(WriteRefused::ReadOnlyGateway);
     }
-    if let Some(code) = snapshot
-        .server
-        .check_write(entry.unit_id, &op.policy_request())
-    {
+    if let Some(code) = policy.check_write(entry.unit_id, &op.policy_request()) {
         return Err(WriteRefused::OutsideRanges {
             tag: format!("{line}/{device}/{}", entry.tag.name),
             code,

@@ -14,9 +14,8 @@ use super::build::unit_write_ranges;
 use super::reload_notice::Reload;
 use super::{server_options, AppError};
 use crate::config::{FunctionClassConfig, ModbusTcpConfig, ModbusTlsConfig};
-use crate::modbus_tcp::{
-    self, RoleRights, Roles, ServerOptions, ServerStats, SharedUnits, TlsFiles, TlsServer,
-};
+use crate::modbus_tcp::{self, RoleRights, Roles, ServerOptions, ServerStats, TlsFiles, TlsServer};
+use crate::unit::SharedUnits;
 
 /// The running Modbus/TCP Security server.
 pub(crate) struct TlsRun {

@@ -20,12 +20,14 @@ use tokio_util::sync::CancellationToken;
 use tracing::{debug, info};
 
 use super::lines::RunningLine;
+use super::status::line_view;
 use super::supervisor::{Follower, Snapshot, Supervisor, ZenohState};
 use super::tag_io::{self, WriteRefused};
 use super::AppError;
+use crate::api::model::{LineStatusView, ScalarValue};
 use crate::api::BoxFuture;
 use crate::image::ProcessImage;
-use crate::line::{LineEvent, LineStatus};
+use crate::line::LineEvent;
 use crate::tags::{TagDirectory, TagEntry, TagWriteError};
 use crate::zenoh_bridge::accounting::{self, WriteReason};
 use crate::zenoh_bridge::{
@@ -228,11 +230,12 @@ impl BridgeBackend for ZenohBackend {
             .collect()
     }
 
+    /// The line's view, as REST's `GET /api/v1/lines/{line}` answers it.
     fn line_status(&self, line: &str) -> Option<Json> {
         let sup = self.sup.upgrade()?;
         let snapshot = sup.snapshot();
         let running = snapshot.lines.get(line)?;
-        Some(status_json(&running.handle.status(), running.protocol))
+        serde_json::to_value(line_view(line, running)).ok()
     }
 
     fn gateway_status(&self) -> Json {
@@ -240,10 +243,10 @@ impl BridgeBackend for ZenohBackend {
             return json!({});
         };
         let snapshot = sup.snapshot();
-        let lines: Vec<Json> = snapshot
+        let lines: Vec<LineStatusView> = snapshot
             .lines
-            .values()
-            .map(|l| status_json(&l.handle.status(), l.protocol))
+            .iter()
+            .map(|(name, line)| line_view(name, line))
             .collect();
         json!({
             "name": snapshot.config.gateway.name,
@@ -420,72 +423,25 @@ impl ZenohBackend {
 /// The value of a tag write sent as JSON: a number (whole numbers exact up to 64 bits), a bool,
 /// a string, or an object with one of them under `value`.
 fn json_value(value: &Json) -> Option<Value> {
-    match value {
-        Json::Number(n) => n
-            .as_i64()
-            .map(Value::Int)
-            .or_else(|| n.as_u64().map(Value::UInt))
-            .or_else(|| n.as_f64().map(Value::Float)),
-        Json::Bool(b) => Some(Value::Bool(*b)),
-        Json::String(s) => Some(Value::Text(s.clone())),
-        Json::Object(o) => o
-            .get("value")
-            .filter(|v| !v.is_object())
-            .and_then(json_value),
-        Json::Null | Json::Array(_) => None,
-    }
+    let scalar = match value {
+        Json::Object(o) => o.get("value").filter(|v| !v.is_object())?,
+        other => other,
+    };
+    // As a REST tag write reads its `value`.
+    let scalar: ScalarValue = serde_json::from_value(scalar.clone()).ok()?;
+    Some(scalar.into())
 }
 
 /// A tag's value as the bridge publishes it.
 fn tag_value(tags: &TagDirectory, image: &ProcessImage, entry: &TagEntry) -> Option<TagValue> {
     let reading = tags.read(image, entry)?;
-    let value = match reading.value {
-        Value::Int(v) => json!(v),
-        Value::UInt(v) => json!(v),
-        Value::Float(v) => json!(v),
-        Value::Bool(v) => json!(v),
-        Value::Text(v) => json!(v),
-    };
+    let value = json!(ScalarValue::from(reading.value));
     let unit = (!reading.unit.is_empty()).then_some(reading.unit);
     Some(TagValue {
         value,
         unit,
         quality: reading.quality,
         timestamp: reading.timestamp,
-    })
-}
-
-/// A line's status as JSON.
-pub(crate) fn status_json(status: &LineStatus, protocol: &str) -> Json {
-    let last = status.last_event.as_ref().map(|e| event_json(e.id));
-    json!({
-        "name": status.name,
-        "protocol": protocol,
-        "port_open": status.port_open,
-        "port_error": status.port_error,
-        "port_opens": status.port_opens,
-        "status_word": format!("{:04X}", status.status_word),
-        "last_event": last,
-        "commands_answered": status.commands_answered,
-        "commands_failed": status.commands_failed,
-        "events": status.event_counts.iter().map(|(id, n)| json!({
-            "event": format!("{:02X}{:02X}", id.class, id.number), "count": n })).collect::<Vec<_>>(),
-        "devices": status.devices.iter().map(|d| json!({
-            "name": d.name, "slave": d.slave, "unit_id": d.unit_id, "online": d.online,
-            "polls_ok": d.polls_ok, "polls_exception": d.polls_exception, "polls_failed": d.polls_failed,
-            "commands_failed": d.commands_failed,
-        })).collect::<Vec<_>>(),
-    })
-}
-
-fn event_json(id: event::EventId) -> Json {
-    let info = event::lookup(id);
-    json!({
-        "class": format!("{:02X}", id.class),
-        "number": format!("{:02X}", id.number),
-        "class_name": event::class_name(id.class),
-        "description": info.map(|i| i.description),
-        "remedy": info.map(|i| i.remedy),
     })
 }
 

@@ -1,7 +1,7 @@
 //! Authorization by role (MODBUS/TCP Security): what a client holding a role may ask.
 //!
 //! A plain Modbus TCP connection has no identity: its requests pass to the server-wide write
-//! policy only ([`super::ServerOptions::check_write`]). A Modbus/TCP Security connection carries
+//! policy only ([`WritePolicy`](crate::unit::write_policy::WritePolicy)). A Modbus/TCP Security connection carries
 //! the role of its client certificate, and every request is checked against that role's rights
 //! before anything else of the server sees it.
 //!
@@ -16,7 +16,7 @@ use std::sync::Arc;
 
 use proto_core::modbus::pdu::Request;
 
-use super::options::{covered, WriteRange, WriteTable};
+use crate::unit::write_policy::{covered, written, WriteRange};
 
 /// Classes of function codes a role is granted.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -124,25 +124,6 @@ fn classes(request: &Request) -> (Option<FunctionClass>, Option<FunctionClass>) 
     }
 }
 
-/// The table, first address and count a request writes, if it writes a table.
-fn written(request: &Request) -> Option<(WriteTable, u16, usize)> {
-    use WriteTable::{Coils, HoldingRegisters};
-    match request {
-        Request::WriteSingleCoil { address, .. } => Some((Coils, *address, 1)),
-        Request::WriteSingleRegister { address, .. } => Some((HoldingRegisters, *address, 1)),
-        Request::WriteMultipleCoils { address, values } => Some((Coils, *address, values.len())),
-        Request::WriteMultipleRegisters { address, values } => {
-            Some((HoldingRegisters, *address, values.len()))
-        }
-        Request::ReadWriteMultipleRegisters {
-            write_address,
-            values,
-            ..
-        } => Some((HoldingRegisters, *write_address, values.len())),
-        _ => None,
-    }
-}
-
 /// The configured roles by name.
 pub type Roles = BTreeMap<String, RoleRights>;
 
@@ -201,6 +182,7 @@ impl Authority {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::unit::write_policy::WriteTable;
 
     fn viewer() -> RoleRights {
         RoleRights {

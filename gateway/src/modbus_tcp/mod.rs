@@ -29,8 +29,8 @@ mod shared;
 pub use access::{Authority, FunctionClass, Refusal, RoleRights, Roles};
 pub use diagnostic::DiagnosticUnit;
 pub use server::{
-    bind, serve, serve_tls, ServerOptions, SharedUnits, WriteRange, WriteTable, DEFAULT_BACKLOG,
-    DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS, DEFAULT_REQUEST_TIMEOUT,
+    bind, serve, serve_tls, ServerOptions, DEFAULT_BACKLOG, DEFAULT_IDLE_TIMEOUT,
+    DEFAULT_MAX_CONNECTIONS, DEFAULT_REQUEST_TIMEOUT,
 };
 pub use stats::{
     AcceptError, CloseReason, FrameReject, RejectReason, RequestCount, RequestResult, ServerStats,

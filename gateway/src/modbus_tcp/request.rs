@@ -193,6 +193,7 @@ fn admit(
     };
     if let Some(code) = shared
         .options
+        .writes
         .check_write(unit, &request)
         .or_else(|| service.refuses(&request))
     {

@@ -19,13 +19,11 @@ use super::shared::{ClientPlace, Shared};
 use super::stats::{AcceptError, CloseReason, RejectReason, ServerStats};
 use super::tls::{role_of, TlsServer};
 use crate::log_limit::{LogLimit, Verdict};
+use crate::unit::SharedUnits;
 
 pub use super::options::{
-    ServerOptions, WriteRange, WriteTable, DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS,
-    DEFAULT_REQUEST_TIMEOUT,
+    ServerOptions, DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS, DEFAULT_REQUEST_TIMEOUT,
 };
-
-pub use super::shared::SharedUnits;
 
 /// Listen backlog of [`bind`]: room for a burst of clients connecting at once (SCADA stations
 /// reconnecting after a network outage). `TcpListener::bind` uses 128, and connections past a full

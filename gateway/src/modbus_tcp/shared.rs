@@ -3,16 +3,12 @@
 
 use std::collections::HashMap;
 use std::net::IpAddr;
-use std::sync::{Arc, Mutex, PoisonError, RwLock};
+use std::sync::{Arc, Mutex, PoisonError};
 
 use super::options::ServerOptions;
 use super::stats::ServerStats;
 use super::tls::TlsServer;
-use crate::unit::UnitMap;
-
-/// The unit map the server answers from, replaceable at run time: take the write lock and swap
-/// the map. Each request clones its unit's service out and drops the lock before it waits.
-pub type SharedUnits = Arc<RwLock<UnitMap>>;
+use crate::unit::SharedUnits;
 
 /// What every connection of one server shares.
 pub(crate) struct Shared {

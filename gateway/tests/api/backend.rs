@@ -250,6 +250,7 @@ impl MemGateway {
             } else {
                 LineState::Starting
             },
+            port_open: rt.port_opened,
             started: Timestamp(rt.started),
             port_error: None,
             port_opens: rt.port_opens,

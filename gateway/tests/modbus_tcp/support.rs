@@ -6,8 +6,8 @@ use std::net::SocketAddr;
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 use std::time::Duration;
 
-use gateway::modbus_tcp::{bind, serve, ServerOptions, ServerStats, SharedUnits};
-use gateway::unit::{UnitFuture, UnitMap, UnitService};
+use gateway::modbus_tcp::{bind, serve, ServerOptions, ServerStats};
+use gateway::unit::{SharedUnits, UnitFuture, UnitMap, UnitService};
 use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 use tokio::io::AsyncReadExt;
 use tokio::net::TcpStream;

@@ -1,9 +1,16 @@
 //! Gateway and line status.
+//!
+//! A line's view is built here from the line's status model and nowhere else: REST, zenoh and
+//! the status page serve the same JSON for a line.
+
+use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 use super::{EventView, Timestamp};
+use crate::image::Table;
+use crate::line::{DeviceStatus, LineStatus, LineTraffic};
 
 /// The whole gateway (`GET /api/v1/status`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
@@ -57,6 +64,9 @@ pub struct LineStatusView {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub port_b: Option<String>,
     pub state: LineState,
+    /// Whether the serial port is open (`state` is `running` then, unless the line is
+    /// restarting).
+    pub port_open: bool,
     /// When the line's task started: a configuration change that restarts the line moves it,
     /// one that leaves the line alone does not.
     pub started: Timestamp,
@@ -127,6 +137,130 @@ pub struct DeviceStatusView {
     /// of one table and period).
     #[serde(default)]
     pub cycles: Vec<PollCycleView>,
+}
+
+/// What a line's status does not say about the line: its configuration and its task.
+#[derive(Debug, Clone, Copy)]
+pub struct LinePlace<'a> {
+    /// The line's name.
+    pub name: &'a str,
+    /// The line's `protocol`.
+    pub protocol: &'a str,
+    /// The serial port's path.
+    pub port: &'a str,
+    /// The second receive port of a `3964r-tap` line.
+    pub port_b: Option<&'a str>,
+    /// Whether the line's task is being replaced after a configuration change.
+    pub restarting: bool,
+}
+
+// === impl LineStatusView ===
+
+impl LineStatusView {
+    /// The view of the line at `place` from its status and its traffic since it started.
+    pub fn new(place: LinePlace<'_>, status: &LineStatus, traffic: LineTraffic) -> Self {
+        let state = if place.restarting {
+            LineState::Restarting
+        } else if status.port_open {
+            LineState::Running
+        } else if status.port_opens == 0 && status.port_error.is_none() {
+            LineState::Starting
+        } else {
+            LineState::PortClosed
+        };
+        let counters = LineCounters {
+            frames_sent: traffic.frames_sent,
+            frames_received: traffic.frames_received,
+            bytes_sent: traffic.bytes_sent,
+            bytes_received: traffic.bytes_received,
+            events: status.event_counts.values().sum(),
+            commands_answered: traffic.commands_answered,
+            commands_failed: traffic.commands_failed,
+        };
+        let devices: Vec<DeviceStatusView> =
+            status.devices.iter().map(DeviceStatusView::new).collect();
+        Self {
+            name: place.name.to_owned(),
+            protocol: place.protocol.to_owned(),
+            port: place.port.to_owned(),
+            port_b: place.port_b.map(str::to_owned),
+            state,
+            port_open: status.port_open,
+            started: Timestamp(status.started),
+            port_error: status.port_error.clone(),
+            port_opens: status.port_opens,
+            status_word: status.status_word,
+            last_event: EventView::from_status_word(status.status_word).map(|mut view| {
+                // The newest event's own words (the catalog's are generic: 02 0Fh says "invalid
+                // parameterization" where the port was not found).
+                view.detail = status
+                    .last_event
+                    .as_ref()
+                    .filter(|e| e.id.status_word() == status.status_word)
+                    .and_then(|e| e.detail.clone());
+                view
+            }),
+            counters,
+            event_counts: status
+                .event_counts
+                .iter()
+                .map(|(id, n)| EventCount {
+                    event: EventView::new(*id),
+                    count: *n,
+                })
+                .collect(),
+            devices_online: devices.iter().filter(|d| d.online).count(),
+            devices_total: devices.len(),
+            devices,
+        }
+    }
+}
+
+// === impl DeviceStatusView ===
+
+impl DeviceStatusView {
+    /// The view of one polled device.
+    pub fn new(d: &DeviceStatus) -> Self {
+        Self {
+            name: d.name.clone(),
+            address: d.slave,
+            unit_id: d.unit_id,
+            online: d.online,
+            polls_ok: d.polls_ok,
+            polls_exception: d.polls_exception,
+            polls_failed: d.polls_failed,
+            last_answer: d.last_answer.map(Timestamp),
+            commands_failed: d.commands_failed,
+            cycles: d
+                .cycles
+                .iter()
+                .map(|c| PollCycleView {
+                    table: table_name(c.table).to_owned(),
+                    start: c.start,
+                    count: c.count,
+                    planned_ms: millis(c.planned),
+                    bound_ms: millis(c.bound),
+                    achieved_ms: c.achieved.map(millis),
+                    achieved_max_ms: c.achieved_max.map(millis),
+                })
+                .collect(),
+        }
+    }
+}
+
+/// The config's name of a table.
+fn table_name(table: Table) -> &'static str {
+    match table {
+        Table::HoldingRegisters => "holding",
+        Table::InputRegisters => "input",
+        Table::Coils => "coil",
+        Table::DiscreteInputs => "discrete",
+    }
+}
+
+/// A duration in whole milliseconds.
+fn millis(d: Duration) -> u64 {
+    u64::try_from(d.as_millis()).unwrap_or(u64::MAX)
 }
 
 /// The planned and achieved cycle of one poll block, in milliseconds.
