@@ -10,7 +10,7 @@ use super::modbus::{ModbusMasterAsciiConfig, ModbusMasterRtuConfig, ModbusSlaveR
 use super::reader::{check_name, Cx, Fields};
 use super::serial::{SerialConfig, DEFAULT_BAUD};
 use super::tap::{ModbusRtuTapConfig, Proc3964TapConfig};
-use super::telegram::{AsciiConfig, Proc3964Config};
+use super::telegram::{AckConfig, AsciiConfig, Proc3964Config, TelegramKeys};
 
 /// A line: where and how to talk, and what protocol to speak.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -92,9 +92,76 @@ impl ProtocolKind {
     }
 }
 
+/// What a protocol's config section tells the rest of the configuration about its line. Each
+/// section implements it in its own file (`config/modbus.rs`, `config/tap.rs`,
+/// `config/telegram.rs`); [`ProtocolConfig::section`] is the one place that lists them. Every
+/// answer has the default of a line without that part.
+pub(crate) trait ProtocolSection {
+    /// The section's checks that span keys or need the serial settings (timing minimums by baud
+    /// rate, the protocol against the interface), each issue under `path` (`lines.<name>`).
+    fn check(&self, _cx: &mut Cx, _path: &str, _serial: &SerialConfig) {}
+
+    /// The devices the line polls or listens to.
+    fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
+        None
+    }
+
+    /// The devices, to change them.
+    fn devices_mut(&mut self) -> Option<&mut BTreeMap<String, DeviceConfig>> {
+        None
+    }
+
+    /// The second receive port (`port_b`).
+    fn second_port(&self) -> Option<&str> {
+        None
+    }
+
+    /// The Modbus TCP unit id of the line itself (slave memory or telegram mailbox).
+    fn unit_id(&self) -> Option<u8> {
+        None
+    }
+
+    /// The mailbox keys of a line that exchanges telegrams with a partner.
+    fn telegrams(&self) -> Option<TelegramKeys<'_>> {
+        None
+    }
+
+    /// The section of a line that serves the CP memory (the memory's layout spans every such
+    /// line).
+    fn cp_memory_slave(&self) -> Option<&ModbusSlaveRtuConfig> {
+        None
+    }
+}
+
 // === impl ProtocolConfig ===
 
 impl ProtocolConfig {
+    /// The protocol's own section: the one match over the protocols in the configuration.
+    pub(crate) fn section(&self) -> &dyn ProtocolSection {
+        match self {
+            Self::ModbusMasterRtu(c) => c,
+            Self::ModbusMasterAscii(c) => c,
+            Self::ModbusSlaveRtu(c) => c,
+            Self::ModbusRtuTap(c) => c,
+            Self::Proc3964(c) => c,
+            Self::Proc3964Tap(c) => c,
+            Self::Ascii(c) => c,
+        }
+    }
+
+    /// The protocol's own section, to change it.
+    pub(crate) fn section_mut(&mut self) -> &mut dyn ProtocolSection {
+        match self {
+            Self::ModbusMasterRtu(c) => c,
+            Self::ModbusMasterAscii(c) => c,
+            Self::ModbusSlaveRtu(c) => c,
+            Self::ModbusRtuTap(c) => c,
+            Self::Proc3964(c) => c,
+            Self::Proc3964Tap(c) => c,
+            Self::Ascii(c) => c,
+        }
+    }
+
     pub fn kind(&self) -> ProtocolKind {
         match self {
             Self::ModbusMasterRtu(_) => ProtocolKind::ModbusMasterRtu,
@@ -114,61 +181,33 @@ impl LineConfig {
     /// The devices this line polls or listens to (empty unless it is a Modbus master or tap).
     pub fn devices(&self) -> impl Iterator<Item = (&String, &DeviceConfig)> {
         static NONE: BTreeMap<String, DeviceConfig> = BTreeMap::new();
-        match &self.protocol {
-            ProtocolConfig::ModbusMasterRtu(m) => m.devices.iter(),
-            ProtocolConfig::ModbusMasterAscii(m) => m.devices.iter(),
-            ProtocolConfig::ModbusRtuTap(t) => t.devices.iter(),
-            _ => NONE.iter(),
-        }
+        self.protocol.section().devices().unwrap_or(&NONE).iter()
     }
 
     /// The second receive port of a line that has one (`port_b` of a 3964(R) tap).
     pub fn second_port(&self) -> Option<&str> {
-        match &self.protocol {
-            ProtocolConfig::Proc3964Tap(t) => Some(&t.port_b),
-            _ => None,
-        }
+        self.protocol.section().second_port()
     }
 
     /// The Modbus TCP unit id of the line itself (slave memory or telegram mailbox), if any.
     pub fn unit_id(&self) -> Option<u8> {
-        match &self.protocol {
-            ProtocolConfig::ModbusSlaveRtu(s) => s.unit_id,
-            ProtocolConfig::Proc3964(p) => p.unit_id,
-            ProtocolConfig::Proc3964Tap(t) => t.unit_id,
-            ProtocolConfig::Ascii(a) => a.unit_id,
-            ProtocolConfig::ModbusMasterRtu(_)
-            | ProtocolConfig::ModbusMasterAscii(_)
-            | ProtocolConfig::ModbusRtuTap(_) => None,
-        }
+        self.protocol.section().unit_id()
     }
 
     /// Whether telegrams may be sent on this line (`sends`); `false` for a line without
     /// telegrams.
     pub fn sends(&self) -> bool {
-        match &self.protocol {
-            ProtocolConfig::Proc3964(p) => p.sends,
-            ProtocolConfig::Ascii(a) => a.sends,
-            _ => false,
-        }
+        self.protocol.section().telegrams().is_some_and(|t| t.sends)
     }
 
     /// The `ack` of a telegram line, if set.
-    pub fn ack(&self) -> Option<super::telegram::AckConfig> {
-        match &self.protocol {
-            ProtocolConfig::Proc3964(p) => p.ack,
-            ProtocolConfig::Ascii(a) => a.ack,
-            _ => None,
-        }
+    pub fn ack(&self) -> Option<AckConfig> {
+        self.protocol.section().telegrams().and_then(|t| t.ack)
     }
 
     /// The `journal` of a telegram line, if set.
     pub fn journal(&self) -> Option<&std::path::Path> {
-        match &self.protocol {
-            ProtocolConfig::Proc3964(p) => p.journal.as_deref(),
-            ProtocolConfig::Ascii(a) => a.journal.as_deref(),
-            _ => None,
-        }
+        self.protocol.section().telegrams().and_then(|t| t.journal)
     }
 
     /// Reads `[lines.<name>]` at `path`.
