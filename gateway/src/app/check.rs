@@ -557,7 +557,7 @@ pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
             continue;
         }
         let path = format!("lines.{name}.port");
-        match serial::probe(&super::build::port_settings(&line.serial)) {
+        match serial::probe(&crate::line::start::port_settings(&line.serial)) {
             Ok(()) => {}
             Err(e @ OpenError::Rs485Refused { .. }) => {
                 errors.push(ConfigIssue {
@@ -593,7 +593,7 @@ pub fn unpolled_tags(config: &Config) -> Vec<ConfigIssue> {
     let directory = crate::tags::TagDirectory::from_config(config);
     let mut warnings = Vec::new();
     for (line_name, line) in &config.lines {
-        if line.protocol.kind() == config::ProtocolKind::ModbusRtuTap {
+        if !line.protocol.kind().is_master() {
             // A tap line polls nothing: its values come from another master's traffic.
             continue;
         }
