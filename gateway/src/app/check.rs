@@ -42,7 +42,7 @@ use crate::serial::{self, OpenError};
 pub fn config_issues(config: &Config, found: &[ConfigIssue]) -> Vec<ConfigIssue> {
     let mut issues: Vec<ConfigIssue> = Vec::new();
     for (name, line) in &config.lines {
-        let Some(slave) = line.protocol.section().cp_memory_slave() else {
+        let Some(slave) = line.protocol.cp_memory_slave() else {
             continue;
         };
         for issue in cpmem::config::check(slave) {
@@ -401,7 +401,7 @@ fn cp_memory_issues(config: &Config) -> Vec<ConfigIssue> {
     let serves_memory = config
         .lines
         .values()
-        .any(|l| l.protocol.section().cp_memory_slave().is_some());
+        .any(|l| l.protocol.cp_memory_slave().is_some());
     let Some(path) = config
         .cp_memory
         .persist_file

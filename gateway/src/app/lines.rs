@@ -138,7 +138,7 @@ pub(super) fn slave_layout(config: &Config) -> Option<proto_core::cpmem::MemoryL
     let slaves: Vec<_> = config
         .lines
         .values()
-        .filter_map(|l| l.protocol.section().cp_memory_slave())
+        .filter_map(|l| l.protocol.cp_memory_slave())
         .collect();
     if slaves.is_empty() {
         return None;

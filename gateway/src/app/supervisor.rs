@@ -527,7 +527,7 @@ impl Supervisor {
         cp.memory = Some(memory.clone());
         lock(&self.mirrored).clear();
         for (name, line) in &new.lines {
-            if line.protocol.section().cp_memory_slave().is_some() && old.lines.contains_key(name) {
+            if line.protocol.cp_memory_slave().is_some() && old.lines.contains_key(name) {
                 restart.insert(name.clone());
             }
         }

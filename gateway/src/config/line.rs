@@ -8,9 +8,10 @@ use serde::{Deserialize, Serialize};
 use super::device::DeviceConfig;
 use super::modbus::{ModbusMasterAsciiConfig, ModbusMasterRtuConfig, ModbusSlaveRtuConfig};
 use super::reader::{check_name, Cx, Fields};
+use super::section::{AckConfig, ProtocolSection};
 use super::serial::{SerialConfig, DEFAULT_BAUD};
 use super::tap::{ModbusRtuTapConfig, Proc3964TapConfig};
-use super::telegram::{AckConfig, AsciiConfig, Proc3964Config, TelegramKeys};
+use super::telegram::{AsciiConfig, Proc3964Config};
 
 /// A line: where and how to talk, and what protocol to speak.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -92,47 +93,6 @@ impl ProtocolKind {
     }
 }
 
-/// What a protocol's config section tells the rest of the configuration about its line. Each
-/// section implements it in its own file (`config/modbus.rs`, `config/tap.rs`,
-/// `config/telegram.rs`); [`ProtocolConfig::section`] is the one place that lists them. Every
-/// answer has the default of a line without that part.
-pub(crate) trait ProtocolSection {
-    /// The section's checks that span keys or need the serial settings (timing minimums by baud
-    /// rate, the protocol against the interface), each issue under `path` (`lines.<name>`).
-    fn check(&self, _cx: &mut Cx, _path: &str, _serial: &SerialConfig) {}
-
-    /// The devices the line polls or listens to.
-    fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
-        None
-    }
-
-    /// The devices, to change them.
-    fn devices_mut(&mut self) -> Option<&mut BTreeMap<String, DeviceConfig>> {
-        None
-    }
-
-    /// The second receive port (`port_b`).
-    fn second_port(&self) -> Option<&str> {
-        None
-    }
-
-    /// The Modbus TCP unit id of the line itself (slave memory or telegram mailbox).
-    fn unit_id(&self) -> Option<u8> {
-        None
-    }
-
-    /// The mailbox keys of a line that exchanges telegrams with a partner.
-    fn telegrams(&self) -> Option<TelegramKeys<'_>> {
-        None
-    }
-
-    /// The section of a line that serves the CP memory (the memory's layout spans every such
-    /// line).
-    fn cp_memory_slave(&self) -> Option<&ModbusSlaveRtuConfig> {
-        None
-    }
-}
-
 // === impl ProtocolConfig ===
 
 impl ProtocolConfig {
@@ -146,6 +106,15 @@ impl ProtocolConfig {
             Self::Proc3964(c) => c,
             Self::Proc3964Tap(c) => c,
             Self::Ascii(c) => c,
+        }
+    }
+
+    /// The section of a line that serves the CP memory (the memory's layout spans every such
+    /// line).
+    pub fn cp_memory_slave(&self) -> Option<&ModbusSlaveRtuConfig> {
+        match self {
+            Self::ModbusSlaveRtu(c) => Some(c),
+            _ => None,
         }
     }
 
@@ -260,4 +229,16 @@ impl LineConfig {
             protocol,
         })
     }
+}
+
+/// Who acknowledges the telegrams of `line` in `config`: its `ack`, else "on-publish" when the
+/// line has no Modbus TCP `unit_id` and zenoh is on (nobody else could), else "explicit".
+pub fn ack_mode(config: &super::Config, line: &LineConfig) -> AckConfig {
+    let zenoh_on = config.zenoh.as_ref().is_some_and(|z| z.enabled);
+    line.ack()
+        .unwrap_or(if line.unit_id().is_none() && zenoh_on {
+            AckConfig::OnPublish
+        } else {
+            AckConfig::Explicit
+        })
 }

@@ -7,8 +7,8 @@ use std::time::Duration;
 use serde::{Deserialize, Serialize};
 
 use super::device::{self, AddressRange, DeviceConfig, ModbusTable};
-use super::line::ProtocolSection;
 use super::reader::{check_name, Cx, Fields};
+use super::section::ProtocolSection;
 use super::serial::{DataBits, SerialConfig};
 
 /// 003 6.4.2.1/6.4.2.2 "Reply monitoring time ... Range: 5 ... 65500ms".
@@ -424,10 +424,6 @@ impl ProtocolSection for ModbusSlaveRtuConfig {
 
     fn unit_id(&self) -> Option<u8> {
         self.unit_id
-    }
-
-    fn cp_memory_slave(&self) -> Option<&ModbusSlaveRtuConfig> {
-        Some(self)
     }
 }
 

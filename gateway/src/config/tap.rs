@@ -11,11 +11,11 @@ use std::time::Duration;
 use serde::Serialize;
 
 use super::device::DeviceConfig;
-use super::line::ProtocolSection;
 use super::modbus::{
     check_rtu_data_bits, read_devices, DEFAULT_DELAY_MULTIPLIER, MAX_DELAY_MULTIPLIER,
 };
 use super::reader::{Cx, Fields};
+use super::section::ProtocolSection;
 use super::serial::SerialConfig;
 use super::telegram::{check_3964_link, mailbox_unit_id, Link3964};
 

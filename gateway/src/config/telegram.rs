@@ -1,13 +1,13 @@
 //! Protocol parameters of the telegram lines: 3964(R) (003 6.3.3) and ASCII (003 6.2.1, with the
 //! RS232 flow-control parameters of 000 6.2.1), and their Modbus TCP mailboxes.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
-use super::line::ProtocolSection;
 use super::reader::{int_value, show_duration, Cx, Fields};
+use super::section::{AckConfig, ProtocolSection, TelegramKeys};
 use super::serial::{Baud, Interface, SerialConfig};
 
 /// 003 6.3.3 "with block check ... Default value activated" (3964R).
@@ -99,16 +99,6 @@ pub enum Overflow3964 {
     Refuse,
     /// Accept it and drop the oldest unacknowledged telegram (counted).
     DropOldest,
-}
-
-/// Who acknowledges the received telegrams of a line (`ack`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum AckConfig {
-    /// A client acknowledges each telegram (Modbus TCP register 600, REST, zenoh `<line>/ack`).
-    Explicit,
-    /// The gateway acknowledges a telegram once zenoh took its publication on `<line>/rx`.
-    OnPublish,
 }
 
 /// ASCII end-of-telegram criterion (003 6.2.1 "End code of a message").
@@ -327,18 +317,6 @@ fn journal_path(cx: &mut Cx, f: &mut Fields<'_>) -> Option<PathBuf> {
     Some(PathBuf::from(path))
 }
 
-/// Who acknowledges the telegrams of `line` in `config`: its `ack`, else "on-publish" when the
-/// line has no Modbus TCP `unit_id` and zenoh is on (nobody else could), else "explicit".
-pub fn ack_mode(config: &super::Config, line: &super::LineConfig) -> AckConfig {
-    let zenoh_on = config.zenoh.as_ref().is_some_and(|z| z.enabled);
-    line.ack()
-        .unwrap_or(if line.unit_id().is_none() && zenoh_on {
-            AckConfig::OnPublish
-        } else {
-            AckConfig::Explicit
-        })
-}
-
 /// The Modbus TCP unit id of a telegram mailbox (`unit_id`).
 pub(crate) fn mailbox_unit_id(cx: &mut Cx, f: &mut Fields<'_>) -> Option<u8> {
     mailbox_unit(cx, f)
@@ -474,17 +452,6 @@ impl AsciiConfig {
             journal: journal_path(cx, f),
         }
     }
-}
-
-/// The mailbox keys of a telegram line, as [`ProtocolSection::telegrams`] answers them.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct TelegramKeys<'a> {
-    /// `sends`.
-    pub sends: bool,
-    /// `ack`, if set.
-    pub ack: Option<AckConfig>,
-    /// `journal`, if set.
-    pub journal: Option<&'a Path>,
 }
 
 // === impl ProtocolSection for the telegram lines ===
