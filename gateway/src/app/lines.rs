@@ -154,3 +154,91 @@ pub(super) fn slave_layout(config: &Config) -> Option<proto_core::cpmem::MemoryL
         (!blocks.is_empty()).then_some(blocks.as_slice()),
     ))
 }
+
+#[cfg(test)]
+mod tests {
+    use std::path::{Path, PathBuf};
+
+    /// At most this many files outside the protocols' own folders (`src/line/<folder>/`) name
+    /// the protocols one by one.
+    const MAX_LISTING_FILES: usize = 3;
+
+    /// The variants of `ProtocolConfig`, read from its declaration.
+    fn variants(src: &Path) -> Vec<String> {
+        let text = std::fs::read_to_string(src.join("config/line.rs")).expect("config/line.rs");
+        let body = text
+            .split("pub enum ProtocolConfig {")
+            .nth(1)
+            .and_then(|rest| rest.split("\n}").next())
+            .expect("the declaration of ProtocolConfig in config/line.rs");
+        body.lines()
+            .map(str::trim)
+            .filter_map(|l| l.split_once('(').map(|(name, _)| name))
+            .filter(|name| !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric()))
+            .map(str::to_owned)
+            .collect()
+    }
+
+    fn rust_files(dir: &Path, found: &mut Vec<PathBuf>) {
+        for entry in std::fs::read_dir(dir).expect("source directory") {
+            let path = entry.expect("directory entry").path();
+            if path.is_dir() {
+                rust_files(&path, found);
+            } else if path.extension().is_some_and(|e| e == "rs") {
+                found.push(path);
+            }
+        }
+    }
+
+    /// A file in a protocol's own folder: `line/<folder>/...` (`line/master/`,
+    /// `line/telegram/`, ...), where its adapter and its start live.
+    fn in_protocol_folder(relative: &str) -> bool {
+        relative
+            .strip_prefix("line/")
+            .is_some_and(|rest| rest.contains('/'))
+    }
+
+    #[test]
+    fn the_protocols_are_listed_in_at_most_three_files_which_the_architecture_names() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let src = root.join("src");
+        let variants = variants(&src);
+        assert!(
+            variants.len() >= 7,
+            "ProtocolConfig's variants not found in config/line.rs: {variants:?}"
+        );
+        let mut files = Vec::new();
+        rust_files(&src, &mut files);
+        let mut listing: Vec<String> = files
+            .iter()
+            .filter_map(|path| {
+                let relative = path.strip_prefix(&src).ok()?.to_string_lossy().into_owned();
+                let text = std::fs::read_to_string(path).ok()?;
+                let names_one = variants
+                    .iter()
+                    .any(|v| text.contains(&format!("ProtocolConfig::{v}")));
+                (names_one && !in_protocol_folder(&relative)).then_some(relative)
+            })
+            .collect();
+        listing.sort();
+        assert!(
+            listing.len() <= MAX_LISTING_FILES,
+            "the ProtocolConfig variants are matched in {} files outside the protocols' own \
+             folders, at most {MAX_LISTING_FILES} are allowed: {listing:?}. A protocol answers \
+             for its line through config::ProtocolSection and line::start::StartLine; see \
+             \"Adding a line protocol\" in docs/architecture.md",
+            listing.len()
+        );
+        let architecture = std::fs::read_to_string(root.join("../docs/architecture.md"))
+            .expect("docs/architecture.md");
+        let unnamed: Vec<&String> = listing
+            .iter()
+            .filter(|f| !architecture.contains(&format!("`{f}`")))
+            .collect();
+        assert!(
+            unnamed.is_empty(),
+            "docs/architecture.md (\"Adding a line protocol\") does not name {unnamed:?}, which \
+             match the ProtocolConfig variants: list them among the files a new protocol touches"
+        );
+    }
+}
