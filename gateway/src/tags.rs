@@ -123,7 +123,7 @@ impl TagDirectory {
     pub fn from_config(config: &Config) -> Self {
         let mut entries = Vec::new();
         for (line_name, line) in &config.lines {
-            if let config::ProtocolConfig::ModbusSlaveRtu(slave) = &line.protocol {
+            if let Some(slave) = line.protocol.cp_memory_slave() {
                 entries.extend(cp_memory_tags(config, line_name, slave));
             }
             for (device_name, device) in line.devices() {

@@ -12,7 +12,7 @@
 use std::collections::BTreeMap;
 
 use super::model::ApplyReport;
-use crate::config::{Config, DeviceConfig, LineConfig, ProtocolConfig};
+use crate::config::{Config, DeviceConfig, LineConfig};
 
 /// The changes from one configuration to the next.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -121,22 +121,14 @@ fn other_sections_changed(old: &Config, new: &Config) -> Vec<String> {
 
 fn devices(line: &LineConfig) -> &BTreeMap<String, DeviceConfig> {
     static NONE: BTreeMap<String, DeviceConfig> = BTreeMap::new();
-    match &line.protocol {
-        ProtocolConfig::ModbusMasterRtu(m) => &m.devices,
-        ProtocolConfig::ModbusMasterAscii(m) => &m.devices,
-        ProtocolConfig::ModbusRtuTap(t) => &t.devices,
-        _ => &NONE,
-    }
+    line.protocol.section().devices().unwrap_or(&NONE)
 }
 
 /// The line with an empty device table: what a device change leaves alone.
 fn without_devices(line: &LineConfig) -> LineConfig {
     let mut line = line.clone();
-    match &mut line.protocol {
-        ProtocolConfig::ModbusMasterRtu(m) => m.devices.clear(),
-        ProtocolConfig::ModbusMasterAscii(m) => m.devices.clear(),
-        ProtocolConfig::ModbusRtuTap(t) => t.devices.clear(),
-        _ => {}
+    if let Some(devices) = line.protocol.section_mut().devices_mut() {
+        devices.clear();
     }
     line
 }
@@ -184,10 +176,9 @@ mod tests {
         let old = demo();
         let mut new = old.clone();
         let line = new.lines.get_mut("ksvario").unwrap();
-        let ProtocolConfig::ModbusMasterRtu(m) = &mut line.protocol else {
-            panic!("the demo's ksvario line is a Modbus master");
-        };
-        m.devices.get_mut("ksvario").unwrap().unit_id = 18;
+        let devices = line.protocol.section_mut().devices_mut();
+        let devices = devices.expect("the demo's ksvario line is a Modbus master");
+        devices.get_mut("ksvario").unwrap().unit_id = 18;
         new.lines.remove("ascii");
         new.modbus_tcp.max_connections += 1;
         let d = ConfigDiff::between(&old, &new);

@@ -32,7 +32,7 @@
 use std::path::Path;
 
 use crate::api::{Auth, TokenError};
-use crate::config::{self, Config, ConfigErrors, ConfigIssue, Interface, ProtocolConfig};
+use crate::config::{self, Config, ConfigErrors, ConfigIssue, Interface};
 use crate::config::{HttpConfig, TokenSource};
 use crate::cpmem;
 use crate::serial::{self, OpenError};
@@ -42,7 +42,7 @@ use crate::serial::{self, OpenError};
 pub fn config_issues(config: &Config, found: &[ConfigIssue]) -> Vec<ConfigIssue> {
     let mut issues: Vec<ConfigIssue> = Vec::new();
     for (name, line) in &config.lines {
-        let ProtocolConfig::ModbusSlaveRtu(slave) = &line.protocol else {
+        let Some(slave) = line.protocol.cp_memory_slave() else {
             continue;
         };
         for issue in cpmem::config::check(slave) {
@@ -401,7 +401,7 @@ fn cp_memory_issues(config: &Config) -> Vec<ConfigIssue> {
     let serves_memory = config
         .lines
         .values()
-        .any(|l| matches!(l.protocol, ProtocolConfig::ModbusSlaveRtu(_)));
+        .any(|l| l.protocol.cp_memory_slave().is_some());
     let Some(path) = config
         .cp_memory
         .persist_file
@@ -557,7 +557,7 @@ pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
             continue;
         }
         let path = format!("lines.{name}.port");
-        match serial::probe(&super::build::port_settings(&line.serial)) {
+        match serial::probe(&crate::line::start::port_settings(&line.serial)) {
             Ok(()) => {}
             Err(e @ OpenError::Rs485Refused { .. }) => {
                 errors.push(ConfigIssue {
@@ -593,7 +593,7 @@ pub fn unpolled_tags(config: &Config) -> Vec<ConfigIssue> {
     let directory = crate::tags::TagDirectory::from_config(config);
     let mut warnings = Vec::new();
     for (line_name, line) in &config.lines {
-        if line.protocol.kind() == config::ProtocolKind::ModbusRtuTap {
+        if !line.protocol.kind().is_master() {
             // A tap line polls nothing: its values come from another master's traffic.
             continue;
         }
@@ -659,10 +659,7 @@ pub fn ack_warnings(config: &Config) -> Vec<ConfigIssue> {
     let modbus_on = config.modbus_tcp.enabled;
     let mut warnings = Vec::new();
     for (name, line) in &config.lines {
-        if !matches!(
-            line.protocol,
-            ProtocolConfig::Proc3964(_) | ProtocolConfig::Ascii(_)
-        ) {
+        if line.protocol.section().telegrams().is_none() {
             continue;
         }
         // A client other than REST that can acknowledge: a Modbus TCP mailbox or zenoh writes.

@@ -222,10 +222,9 @@ fn start_simulator(
             });
             Ok(())
         }
-        ProtocolConfig::ModbusMasterAscii(_)
-        | ProtocolConfig::ModbusRtuTap(_)
-        | ProtocolConfig::Proc3964Tap(_) => {
-            // The demo has no Modbus ASCII or tap line; a config that adds one gets no simulator.
+        _ => {
+            // The demo has no Modbus ASCII or tap line; a config that adds one (or a line of a
+            // protocol without a simulated partner) gets no simulator.
             drop(stream);
             Ok(())
         }

@@ -9,12 +9,12 @@ use std::sync::{Arc, Mutex, PoisonError};
 
 use tokio_util::sync::CancellationToken;
 
-use super::{build, AppError};
+use super::AppError;
 use crate::config::{Config, LineConfig, ProtocolConfig};
 use crate::cpmem::{self, SharedCpMemory};
 use crate::image::ProcessImage;
-use crate::line::telegram::TelegramLineSettings;
-use crate::line::{self, LineHandle, SlaveLineSettings};
+use crate::line::start::{StartDeps, StartLine};
+use crate::line::LineHandle;
 use crate::metrics::Metrics;
 use crate::unit::UnitService;
 
@@ -66,6 +66,21 @@ pub(crate) struct LineDeps<'a> {
     pub(crate) mirrored: &'a Mutex<Vec<(u8, AddressMap)>>,
 }
 
+/// The one table of protocols: each line's config section, as the part of its protocol that
+/// starts the line (each implements [`StartLine`] next to its adapter). Adding a protocol adds
+/// one arm here.
+fn protocol(config: &ProtocolConfig) -> &dyn StartLine {
+    match config {
+        ProtocolConfig::ModbusMasterRtu(c) => c,
+        ProtocolConfig::ModbusMasterAscii(c) => c,
+        ProtocolConfig::ModbusSlaveRtu(c) => c,
+        ProtocolConfig::ModbusRtuTap(c) => c,
+        ProtocolConfig::Proc3964(c) => c,
+        ProtocolConfig::Proc3964Tap(c) => c,
+        ProtocolConfig::Ascii(c) => c,
+    }
+}
+
 /// Starts line `name` of `deps.config` under its own token.
 pub(crate) fn start_line(
     name: &str,
@@ -73,55 +88,16 @@ pub(crate) fn start_line(
     deps: &LineDeps<'_>,
 ) -> Result<RunningLine, AppError> {
     let token = deps.parent.child_token();
-    let config = deps.config;
-    let protocol = line.protocol.kind().as_str();
-    let handle = match &line.protocol {
-        ProtocolConfig::ModbusMasterRtu(_) | ProtocolConfig::ModbusMasterAscii(_) => {
-            let (mut settings, devices) = build::master_line(name, line, config)
-                .ok_or_else(|| AppError::Setup(format!("line {name}: not a Modbus master")))?;
-            settings.metrics = Some(deps.metrics.clone());
-            line::spawn_modbus_master_line(settings, devices, deps.image.clone(), token.clone())
-        }
-        ProtocolConfig::ModbusRtuTap(_) => {
-            let (mut settings, devices) = build::tap_line(name, line, config)
-                .ok_or_else(|| AppError::Setup(format!("line {name}: not a tap line")))?;
-            settings.metrics = Some(deps.metrics.clone());
-            line::spawn_modbus_tap_line(settings, devices, deps.image.clone(), token.clone())
-        }
-        ProtocolConfig::Proc3964Tap(_) => {
-            let mut settings = build::tap_3964_line(name, line, config)
-                .ok_or_else(|| AppError::Setup(format!("line {name}: not a 3964(R) tap line")))?;
-            settings.metrics = Some(deps.metrics.clone());
-            line::telegram::spawn_3964_tap_line(settings, token.clone())
-        }
-        ProtocolConfig::ModbusSlaveRtu(cfg) => {
-            let memory = deps
-                .cp_memory
-                .ok_or_else(|| AppError::Setup(format!("line {name}: no CP memory was set up")))?;
-            let params = cpmem::config::slave_params(cfg, memory.layout()).map_err(|issues| {
-                let text: Vec<String> =
-                    issues.iter().map(|i| format!("lines.{name}.{i}")).collect();
-                AppError::Setup(text.join("\n"))
-            })?;
-            let mut settings =
-                SlaveLineSettings::new(name.to_owned(), build::port_settings(&line.serial), params);
-            settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
-            settings.metrics = Some(deps.metrics.clone());
-            settings.unit_id = cfg.unit_id;
-            line::spawn_modbus_slave_line(settings, memory.clone(), token.clone())
-        }
-        ProtocolConfig::Proc3964(_) | ProtocolConfig::Ascii(_) => {
-            let port = build::port_settings(&line.serial);
-            let mut settings = TelegramLineSettings::from_config(name, line, port)
-                .map_err(|e| AppError::Setup(format!("line {name}: {e}")))?;
-            settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
-            settings.metrics = Some(deps.metrics.clone());
-            settings.mailbox.ack =
-                line::telegram::mailbox_ack(crate::config::ack_mode(config, line));
-            line::telegram::try_spawn_telegram_line(settings, token.clone())
-                .map_err(|e| AppError::Setup(format!("line {name}: {e}")))?
-        }
+    let start = StartDeps {
+        config: deps.config,
+        image: deps.image,
+        metrics: deps.metrics,
+        cp_memory: deps.cp_memory,
+        token: token.clone(),
     };
+    let handle = protocol(&line.protocol)
+        .start(name, line, &start)
+        .map_err(|e| AppError::Setup(e.to_string()))?;
     // The CP memory a slave line serves is mirrored into the image under its unit id, once.
     let mirror = handle.cp_memory().and_then(|view| {
         let key = (view.unit_id?, view.map.clone());
@@ -137,7 +113,7 @@ pub(crate) fn start_line(
         units: handle.units(),
         handle,
         token,
-        protocol,
+        protocol: line.protocol.kind().as_str(),
         port: line.serial.port.clone(),
         port_b: line.second_port().map(str::to_owned),
         mirror,
@@ -150,52 +126,11 @@ pub(crate) fn start_issues(
     config: &Config,
     layout: Option<&proto_core::cpmem::MemoryLayout>,
 ) -> Vec<crate::config::ConfigIssue> {
-    let mut issues = Vec::new();
-    for (name, line) in &config.lines {
-        match &line.protocol {
-            ProtocolConfig::ModbusMasterRtu(_)
-            | ProtocolConfig::ModbusMasterAscii(_)
-            | ProtocolConfig::ModbusRtuTap(_)
-            | ProtocolConfig::Proc3964Tap(_) => {}
-            ProtocolConfig::ModbusSlaveRtu(cfg) => {
-                if let Some(layout) = layout {
-                    if let Err(found) = cpmem::config::slave_params(cfg, layout) {
-                        for i in found {
-                            issues.push(crate::config::ConfigIssue {
-                                path: format!("lines.{name}"),
-                                message: i.to_string(),
-                            });
-                        }
-                    }
-                }
-            }
-            ProtocolConfig::Proc3964(_) | ProtocolConfig::Ascii(_) => {
-                let port = build::port_settings(&line.serial);
-                if let Err(e) = TelegramLineSettings::from_config(name, line, port) {
-                    issues.push(crate::config::ConfigIssue {
-                        path: format!("lines.{name}"),
-                        message: e.to_string(),
-                    });
-                }
-                if let Some(journal) = line.journal() {
-                    let dir = match journal.parent() {
-                        Some(p) if !p.as_os_str().is_empty() => p,
-                        _ => std::path::Path::new("."),
-                    };
-                    if !dir.is_dir() {
-                        issues.push(crate::config::ConfigIssue {
-                            path: format!("lines.{name}.journal"),
-                            message: format!(
-                                "the directory {} of the journal does not exist",
-                                dir.display()
-                            ),
-                        });
-                    }
-                }
-            }
-        }
-    }
-    issues
+    config
+        .lines
+        .iter()
+        .flat_map(|(name, line)| protocol(&line.protocol).start_issues(name, line, layout))
+        .collect()
 }
 
 /// The CP memory layout the slave lines of `config` need; `None` without slave lines.
@@ -203,10 +138,7 @@ pub(super) fn slave_layout(config: &Config) -> Option<proto_core::cpmem::MemoryL
     let slaves: Vec<_> = config
         .lines
         .values()
-        .filter_map(|l| match &l.protocol {
-            ProtocolConfig::ModbusSlaveRtu(cfg) => Some(cfg),
-            _ => None,
-        })
+        .filter_map(|l| l.protocol.cp_memory_slave())
         .collect();
     if slaves.is_empty() {
         return None;
@@ -221,4 +153,92 @@ pub(super) fn slave_layout(config: &Config) -> Option<proto_core::cpmem::MemoryL
         slaves,
         (!blocks.is_empty()).then_some(blocks.as_slice()),
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::{Path, PathBuf};
+
+    /// At most this many files outside the protocols' own folders (`src/line/<folder>/`) name
+    /// the protocols one by one.
+    const MAX_LISTING_FILES: usize = 3;
+
+    /// The variants of `ProtocolConfig`, read from its declaration.
+    fn variants(src: &Path) -> Vec<String> {
+        let text = std::fs::read_to_string(src.join("config/line.rs")).expect("config/line.rs");
+        let body = text
+            .split("pub enum ProtocolConfig {")
+            .nth(1)
+            .and_then(|rest| rest.split("\n}").next())
+            .expect("the declaration of ProtocolConfig in config/line.rs");
+        body.lines()
+            .map(str::trim)
+            .filter_map(|l| l.split_once('(').map(|(name, _)| name))
+            .filter(|name| !name.is_empty() && name.chars().all(|c| c.is_ascii_alphanumeric()))
+            .map(str::to_owned)
+            .collect()
+    }
+
+    fn rust_files(dir: &Path, found: &mut Vec<PathBuf>) {
+        for entry in std::fs::read_dir(dir).expect("source directory") {
+            let path = entry.expect("directory entry").path();
+            if path.is_dir() {
+                rust_files(&path, found);
+            } else if path.extension().is_some_and(|e| e == "rs") {
+                found.push(path);
+            }
+        }
+    }
+
+    /// A file in a protocol's own folder: `line/<folder>/...` (`line/master/`,
+    /// `line/telegram/`, ...), where its adapter and its start live.
+    fn in_protocol_folder(relative: &str) -> bool {
+        relative
+            .strip_prefix("line/")
+            .is_some_and(|rest| rest.contains('/'))
+    }
+
+    #[test]
+    fn the_protocols_are_listed_in_at_most_three_files_which_the_architecture_names() {
+        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
+        let src = root.join("src");
+        let variants = variants(&src);
+        assert!(
+            variants.len() >= 7,
+            "ProtocolConfig's variants not found in config/line.rs: {variants:?}"
+        );
+        let mut files = Vec::new();
+        rust_files(&src, &mut files);
+        let mut listing: Vec<String> = files
+            .iter()
+            .filter_map(|path| {
+                let relative = path.strip_prefix(&src).ok()?.to_string_lossy().into_owned();
+                let text = std::fs::read_to_string(path).ok()?;
+                let names_one = variants
+                    .iter()
+                    .any(|v| text.contains(&format!("ProtocolConfig::{v}")));
+                (names_one && !in_protocol_folder(&relative)).then_some(relative)
+            })
+            .collect();
+        listing.sort();
+        assert!(
+            listing.len() <= MAX_LISTING_FILES,
+            "the ProtocolConfig variants are matched in {} files outside the protocols' own \
+             folders, at most {MAX_LISTING_FILES} are allowed: {listing:?}. A protocol answers \
+             for its line through config::ProtocolSection and line::start::StartLine; see \
+             \"Adding a line protocol\" in docs/architecture.md",
+            listing.len()
+        );
+        let architecture = std::fs::read_to_string(root.join("../docs/architecture.md"))
+            .expect("docs/architecture.md");
+        let unnamed: Vec<&String> = listing
+            .iter()
+            .filter(|f| !architecture.contains(&format!("`{f}`")))
+            .collect();
+        assert!(
+            unnamed.is_empty(),
+            "docs/architecture.md (\"Adding a line protocol\") does not name {unnamed:?}, which \
+             match the ProtocolConfig variants: list them among the files a new protocol touches"
+        );
+    }
 }

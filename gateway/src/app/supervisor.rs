@@ -29,7 +29,7 @@ use super::lines::{self, slave_layout, LineDeps, RunningLine};
 use super::{server_options, AppError, MetricsRegistry, Overrides, GRACE_PERIOD};
 use crate::api::model::ApplyReport;
 use crate::api::{ApiError, BoxFuture, ConfigDiff};
-use crate::config::{Config, ConfigIssue, ProtocolConfig};
+use crate::config::{Config, ConfigIssue};
 use crate::cpmem::{self, SharedCpMemory};
 use crate::image::{ImageConfig, ProcessImage};
 use crate::modbus_tcp::{self, ServerOptions, ServerStats};
@@ -527,9 +527,7 @@ impl Supervisor {
         cp.memory = Some(memory.clone());
         lock(&self.mirrored).clear();
         for (name, line) in &new.lines {
-            if matches!(line.protocol, ProtocolConfig::ModbusSlaveRtu(_))
-                && old.lines.contains_key(name)
-            {
+            if line.protocol.cp_memory_slave().is_some() && old.lines.contains_key(name) {
                 restart.insert(name.clone());
             }
         }

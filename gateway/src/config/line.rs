@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 use super::device::DeviceConfig;
 use super::modbus::{ModbusMasterAsciiConfig, ModbusMasterRtuConfig, ModbusSlaveRtuConfig};
 use super::reader::{check_name, Cx, Fields};
+use super::section::{AckConfig, ProtocolSection};
 use super::serial::{SerialConfig, DEFAULT_BAUD};
 use super::tap::{ModbusRtuTapConfig, Proc3964TapConfig};
 use super::telegram::{AsciiConfig, Proc3964Config};
@@ -95,6 +96,41 @@ impl ProtocolKind {
 // === impl ProtocolConfig ===
 
 impl ProtocolConfig {
+    /// The protocol's own section: the one match over the protocols in the configuration.
+    pub(crate) fn section(&self) -> &dyn ProtocolSection {
+        match self {
+            Self::ModbusMasterRtu(c) => c,
+            Self::ModbusMasterAscii(c) => c,
+            Self::ModbusSlaveRtu(c) => c,
+            Self::ModbusRtuTap(c) => c,
+            Self::Proc3964(c) => c,
+            Self::Proc3964Tap(c) => c,
+            Self::Ascii(c) => c,
+        }
+    }
+
+    /// The section of a line that serves the CP memory (the memory's layout spans every such
+    /// line).
+    pub fn cp_memory_slave(&self) -> Option<&ModbusSlaveRtuConfig> {
+        match self {
+            Self::ModbusSlaveRtu(c) => Some(c),
+            _ => None,
+        }
+    }
+
+    /// The protocol's own section, to change it.
+    pub(crate) fn section_mut(&mut self) -> &mut dyn ProtocolSection {
+        match self {
+            Self::ModbusMasterRtu(c) => c,
+            Self::ModbusMasterAscii(c) => c,
+            Self::ModbusSlaveRtu(c) => c,
+            Self::ModbusRtuTap(c) => c,
+            Self::Proc3964(c) => c,
+            Self::Proc3964Tap(c) => c,
+            Self::Ascii(c) => c,
+        }
+    }
+
     pub fn kind(&self) -> ProtocolKind {
         match self {
             Self::ModbusMasterRtu(_) => ProtocolKind::ModbusMasterRtu,
@@ -114,61 +150,33 @@ impl LineConfig {
     /// The devices this line polls or listens to (empty unless it is a Modbus master or tap).
     pub fn devices(&self) -> impl Iterator<Item = (&String, &DeviceConfig)> {
         static NONE: BTreeMap<String, DeviceConfig> = BTreeMap::new();
-        match &self.protocol {
-            ProtocolConfig::ModbusMasterRtu(m) => m.devices.iter(),
-            ProtocolConfig::ModbusMasterAscii(m) => m.devices.iter(),
-            ProtocolConfig::ModbusRtuTap(t) => t.devices.iter(),
-            _ => NONE.iter(),
-        }
+        self.protocol.section().devices().unwrap_or(&NONE).iter()
     }
 
     /// The second receive port of a line that has one (`port_b` of a 3964(R) tap).
     pub fn second_port(&self) -> Option<&str> {
-        match &self.protocol {
-            ProtocolConfig::Proc3964Tap(t) => Some(&t.port_b),
-            _ => None,
-        }
+        self.protocol.section().second_port()
     }
 
     /// The Modbus TCP unit id of the line itself (slave memory or telegram mailbox), if any.
     pub fn unit_id(&self) -> Option<u8> {
-        match &self.protocol {
-            ProtocolConfig::ModbusSlaveRtu(s) => s.unit_id,
-            ProtocolConfig::Proc3964(p) => p.unit_id,
-            ProtocolConfig::Proc3964Tap(t) => t.unit_id,
-            ProtocolConfig::Ascii(a) => a.unit_id,
-            ProtocolConfig::ModbusMasterRtu(_)
-            | ProtocolConfig::ModbusMasterAscii(_)
-            | ProtocolConfig::ModbusRtuTap(_) => None,
-        }
+        self.protocol.section().unit_id()
     }
 
     /// Whether telegrams may be sent on this line (`sends`); `false` for a line without
     /// telegrams.
     pub fn sends(&self) -> bool {
-        match &self.protocol {
-            ProtocolConfig::Proc3964(p) => p.sends,
-            ProtocolConfig::Ascii(a) => a.sends,
-            _ => false,
-        }
+        self.protocol.section().telegrams().is_some_and(|t| t.sends)
     }
 
     /// The `ack` of a telegram line, if set.
-    pub fn ack(&self) -> Option<super::telegram::AckConfig> {
-        match &self.protocol {
-            ProtocolConfig::Proc3964(p) => p.ack,
-            ProtocolConfig::Ascii(a) => a.ack,
-            _ => None,
-        }
+    pub fn ack(&self) -> Option<AckConfig> {
+        self.protocol.section().telegrams().and_then(|t| t.ack)
     }
 
     /// The `journal` of a telegram line, if set.
     pub fn journal(&self) -> Option<&std::path::Path> {
-        match &self.protocol {
-            ProtocolConfig::Proc3964(p) => p.journal.as_deref(),
-            ProtocolConfig::Ascii(a) => a.journal.as_deref(),
-            _ => None,
-        }
+        self.protocol.section().telegrams().and_then(|t| t.journal)
     }
 
     /// Reads `[lines.<name>]` at `path`.
@@ -221,4 +229,16 @@ impl LineConfig {
             protocol,
         })
     }
+}
+
+/// Who acknowledges the telegrams of `line` in `config`: its `ack`, else "on-publish" when the
+/// line has no Modbus TCP `unit_id` and zenoh is on (nobody else could), else "explicit".
+pub fn ack_mode(config: &super::Config, line: &LineConfig) -> AckConfig {
+    let zenoh_on = config.zenoh.as_ref().is_some_and(|z| z.enabled);
+    line.ack()
+        .unwrap_or(if line.unit_id().is_none() && zenoh_on {
+            AckConfig::OnPublish
+        } else {
+            AckConfig::Explicit
+        })
 }

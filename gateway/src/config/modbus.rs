@@ -8,6 +8,8 @@ use serde::{Deserialize, Serialize};
 
 use super::device::{self, AddressRange, DeviceConfig, ModbusTable};
 use super::reader::{check_name, Cx, Fields};
+use super::section::ProtocolSection;
+use super::serial::{DataBits, SerialConfig};
 
 /// 003 6.4.2.1/6.4.2.2 "Reply monitoring time ... Range: 5 ... 65500ms".
 pub const REPLY_TIMEOUT_RANGE: (Duration, Duration) =
@@ -385,5 +387,118 @@ impl ModbusTable {
     /// Whether Modbus can write this table (coils with FC 05/15, holding registers with FC 06/16).
     pub fn is_writable(self) -> bool {
         matches!(self, Self::Coil | Self::Holding)
+    }
+}
+
+// === impl ProtocolSection for the Modbus lines ===
+
+impl ProtocolSection for ModbusMasterRtuConfig {
+    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
+        check_rtu_data_bits(cx, path, serial);
+    }
+
+    fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
+        Some(&self.devices)
+    }
+
+    fn devices_mut(&mut self) -> Option<&mut BTreeMap<String, DeviceConfig>> {
+        Some(&mut self.devices)
+    }
+}
+
+impl ProtocolSection for ModbusMasterAsciiConfig {
+    fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
+        Some(&self.devices)
+    }
+
+    fn devices_mut(&mut self) -> Option<&mut BTreeMap<String, DeviceConfig>> {
+        Some(&mut self.devices)
+    }
+}
+
+impl ProtocolSection for ModbusSlaveRtuConfig {
+    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
+        check_rtu_data_bits(cx, path, serial);
+        check_slave(cx, path, self);
+    }
+
+    fn unit_id(&self) -> Option<u8> {
+        self.unit_id
+    }
+}
+
+/// Modbus RTU frames have 8 data bits (003 6.4.2.1), on a master, a slave and a tap line alike.
+pub(crate) fn check_rtu_data_bits(cx: &mut Cx, path: &str, serial: &SerialConfig) {
+    if serial.data_bits != DataBits::Eight {
+        cx.issue(
+            format!("{path}.data_bits"),
+            "Modbus RTU uses 8 data bits (003 6.4.2.1: \"8 (fix)\")",
+        );
+    }
+}
+
+fn check_slave(cx: &mut Cx, path: &str, s: &ModbusSlaveRtuConfig) {
+    let c = &s.coils;
+    let coil_areas = [
+        ("memory", c.memory, false),
+        ("outputs", c.outputs, false),
+        ("timers", c.timers, true),
+        ("counters", c.counters, true),
+    ];
+    check_areas(cx, &format!("{path}.coils"), &coil_areas);
+    let i = &s.discrete_inputs;
+    check_areas(
+        cx,
+        &format!("{path}.discrete_inputs"),
+        &[("memory", i.memory, false), ("inputs", i.inputs, false)],
+    );
+}
+
+/// Areas of one function-code group: inside the address space, timer/counter areas in whole
+/// 16-bit words (003 6.4.8.1), the PLC addresses inside 0..=65535, and no two areas overlapping.
+fn check_areas(cx: &mut Cx, path: &str, areas: &[(&str, BitArea, bool)]) {
+    for (i, (name, a, words)) in areas.iter().enumerate() {
+        if a.count == 0 {
+            continue;
+        }
+        let p = format!("{path}.{name}");
+        let end = u32::from(a.start) + a.count;
+        if end > 65_536 {
+            cx.issue(
+                format!("{p}.count"),
+                format!(
+                    "area {}+{} runs past Modbus address 65535",
+                    a.start, a.count
+                ),
+            );
+        }
+        let plc_units = if *words {
+            if a.count % 16 != 0 {
+                cx.issue(
+                    format!("{p}.count"),
+                    "timers and counters are read in 16-bit steps: count must be a multiple of 16 (003 6.4.8.1)",
+                );
+            }
+            a.count.div_ceil(16)
+        } else {
+            a.count.div_ceil(8)
+        };
+        if u32::from(a.plc) + plc_units > 65_536 {
+            cx.issue(
+                format!("{p}.plc"),
+                format!(
+                    "the area runs past PLC address 65535 ({} + {plc_units})",
+                    a.plc
+                ),
+            );
+        }
+        for (other, b, _) in &areas[..i] {
+            if b.count > 0
+                && u32::from(a.start) < u32::from(b.start) + b.count
+                && u32::from(b.start) < end
+            {
+                cx.issue(format!("{p}.start"), format!("overlaps the {other} area"));
+            }
+        }
     }
 }

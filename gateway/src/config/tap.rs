@@ -11,9 +11,13 @@ use std::time::Duration;
 use serde::Serialize;
 
 use super::device::DeviceConfig;
-use super::modbus::{read_devices, DEFAULT_DELAY_MULTIPLIER, MAX_DELAY_MULTIPLIER};
+use super::modbus::{
+    check_rtu_data_bits, read_devices, DEFAULT_DELAY_MULTIPLIER, MAX_DELAY_MULTIPLIER,
+};
 use super::reader::{Cx, Fields};
-use super::telegram::{mailbox_unit_id, Link3964};
+use super::section::ProtocolSection;
+use super::serial::SerialConfig;
+use super::telegram::{check_3964_link, mailbox_unit_id, Link3964};
 
 /// How long a request waits for its answer by default (see `proto_core::modbus::tap`).
 pub const DEFAULT_ANSWER_TIMEOUT: Duration = proto_core::modbus::tap::DEFAULT_ANSWER_TIMEOUT;
@@ -120,5 +124,56 @@ impl Proc3964TapConfig {
             receive_buffer: link.receive_buffer,
             unit_id: mailbox_unit_id(cx, f),
         }
+    }
+}
+
+// === impl ProtocolSection for the tap lines ===
+
+impl ProtocolSection for ModbusRtuTapConfig {
+    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
+        check_rtu_data_bits(cx, path, serial);
+        check_tap(cx, path, self);
+    }
+
+    fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
+        Some(&self.devices)
+    }
+
+    fn devices_mut(&mut self) -> Option<&mut BTreeMap<String, DeviceConfig>> {
+        Some(&mut self.devices)
+    }
+}
+
+/// A tap line never transmits: its devices have no poll groups and no communication scanner.
+fn check_tap(cx: &mut Cx, path: &str, tap: &ModbusRtuTapConfig) {
+    for (name, device) in &tap.devices {
+        let dev_path = format!("{path}.devices.{name}");
+        if !device.poll.is_empty() {
+            cx.issue(
+                format!("{dev_path}.poll"),
+                "a modbus-rtu-tap line only listens: its devices have no poll groups (it stores \
+                 what another master reads and writes)",
+            );
+        }
+        if device.scanner.is_some_and(|s| s.enabled) {
+            cx.issue(
+                format!("{dev_path}.scanner"),
+                "a modbus-rtu-tap line only listens: it cannot run a communication scanner",
+            );
+        }
+    }
+}
+
+impl ProtocolSection for Proc3964TapConfig {
+    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
+        check_3964_link(cx, path, serial, (self.character_delay, self.ack_delay));
+    }
+
+    fn second_port(&self) -> Option<&str> {
+        Some(&self.port_b)
+    }
+
+    fn unit_id(&self) -> Option<u8> {
+        self.unit_id
     }
 }

@@ -6,8 +6,9 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
-use super::reader::{int_value, Cx, Fields};
-use super::serial::Baud;
+use super::reader::{int_value, show_duration, Cx, Fields};
+use super::section::{AckConfig, ProtocolSection, TelegramKeys};
+use super::serial::{Baud, Interface, SerialConfig};
 
 /// 003 6.3.3 "with block check ... Default value activated" (3964R).
 pub const DEFAULT_3964_BLOCK_CHECK: bool = true;
@@ -98,16 +99,6 @@ pub enum Overflow3964 {
     Refuse,
     /// Accept it and drop the oldest unacknowledged telegram (counted).
     DropOldest,
-}
-
-/// Who acknowledges the received telegrams of a line (`ack`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum AckConfig {
-    /// A client acknowledges each telegram (Modbus TCP register 600, REST, zenoh `<line>/ack`).
-    Explicit,
-    /// The gateway acknowledges a telegram once zenoh took its publication on `<line>/rx`.
-    OnPublish,
 }
 
 /// ASCII end-of-telegram criterion (003 6.2.1 "End code of a message").
@@ -326,18 +317,6 @@ fn journal_path(cx: &mut Cx, f: &mut Fields<'_>) -> Option<PathBuf> {
     Some(PathBuf::from(path))
 }
 
-/// Who acknowledges the telegrams of `line` in `config`: its `ack`, else "on-publish" when the
-/// line has no Modbus TCP `unit_id` and zenoh is on (nobody else could), else "explicit".
-pub fn ack_mode(config: &super::Config, line: &super::LineConfig) -> AckConfig {
-    let zenoh_on = config.zenoh.as_ref().is_some_and(|z| z.enabled);
-    line.ack()
-        .unwrap_or(if line.unit_id().is_none() && zenoh_on {
-            AckConfig::OnPublish
-        } else {
-            AckConfig::Explicit
-        })
-}
-
 /// The Modbus TCP unit id of a telegram mailbox (`unit_id`).
 pub(crate) fn mailbox_unit_id(cx: &mut Cx, f: &mut Fields<'_>) -> Option<u8> {
     mailbox_unit(cx, f)
@@ -472,6 +451,146 @@ impl AsciiConfig {
             ack: f.choice(cx, "ack"),
             journal: journal_path(cx, f),
         }
+    }
+}
+
+// === impl ProtocolSection for the telegram lines ===
+
+impl ProtocolSection for Proc3964Config {
+    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
+        check_3964_link(cx, path, serial, (self.character_delay, self.ack_delay));
+    }
+
+    fn unit_id(&self) -> Option<u8> {
+        self.unit_id
+    }
+
+    fn telegrams(&self) -> Option<TelegramKeys<'_>> {
+        Some(TelegramKeys {
+            sends: self.sends,
+            ack: self.ack,
+            journal: self.journal.as_deref(),
+        })
+    }
+}
+
+impl ProtocolSection for AsciiConfig {
+    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
+        check_ascii(cx, path, serial, self);
+    }
+
+    fn unit_id(&self) -> Option<u8> {
+        self.unit_id
+    }
+
+    fn telegrams(&self) -> Option<TelegramKeys<'_>> {
+        Some(TelegramKeys {
+            sends: self.sends,
+            ack: self.ack,
+            journal: self.journal.as_deref(),
+        })
+    }
+}
+
+/// The checks a 3964(R) line and a 3964(R) tap share: a full-duplex link, and the character
+/// and acknowledgement delay times (`times`) at least the baud rate's minimum.
+pub(crate) fn check_3964_link(
+    cx: &mut Cx,
+    path: &str,
+    serial: &SerialConfig,
+    times: (Duration, Duration),
+) {
+    if serial.interface == Interface::Rs485 {
+        cx.issue(
+            format!("{path}.interface"),
+            "3964(R) needs a full-duplex line (rs232 or rs422): the procedure is not possible in two-wire \
+             (RS485 half-duplex) mode (003 6.3.3: \"Half-duplex (RS485) - This setting is not available with 3964(R)\")",
+        );
+    }
+    let min = min_3964_time(serial.baud);
+    for (key, d) in [("character_delay", times.0), ("ack_delay", times.1)] {
+        if d < min {
+            cx.issue(
+                format!("{path}.{key}"),
+                format!(
+                    "at {} baud must be at least {} (003 6.3.3), found {}",
+                    serial.baud,
+                    show_duration(min),
+                    show_duration(d)
+                ),
+            );
+        }
+    }
+}
+
+fn check_ascii(cx: &mut Cx, path: &str, serial: &SerialConfig, a: &AsciiConfig) {
+    let min = min_ascii_character_delay(serial.baud);
+    if a.character_delay < min {
+        cx.issue(
+            format!("{path}.character_delay"),
+            format!(
+                "at {} baud must be at least {} (003 6.2.1), found {}",
+                serial.baud,
+                show_duration(min),
+                show_duration(a.character_delay)
+            ),
+        );
+    }
+    match a.flow_control {
+        FlowControl::None => {}
+        _ if serial.interface == Interface::Rs485 => cx.issue(
+            format!("{path}.flow_control"),
+            "no data flow control on a half-duplex RS485 line (003 6.2.1: \"At half-duplex parameterization with \
+             RS485 data flow control is not possible\")",
+        ),
+        FlowControl::RtsCts | FlowControl::AutoV24 if serial.interface != Interface::Rs232 => cx.issue(
+            format!("{path}.flow_control"),
+            "RTS/CTS and automatic V24 handling use the RS232 modem signals: set interface = \"rs232\" (000 5.4)",
+        ),
+        FlowControl::XonXoff if a.xon_code == a.xoff_code => {
+            cx.issue(format!("{path}.xoff_code"), "XON and XOFF must be different characters");
+        }
+        _ => {}
+    }
+    let max = serial.data_bits.max_code();
+    let mut codes: Vec<(String, u8)> = vec![
+        (format!("{path}.xon_code"), a.xon_code),
+        (format!("{path}.xoff_code"), a.xoff_code),
+    ];
+    codes.extend(
+        a.end_chars
+            .iter()
+            .enumerate()
+            .map(|(i, c)| (format!("{path}.end_chars[{i}]"), *c)),
+    );
+    for (p, code) in codes {
+        if code > max {
+            cx.issue(
+                p,
+                format!(
+                    "0x{code:02X} does not fit in {} data bits: at most 0x{max:02X} (003 6.2.1)",
+                    serial.data_bits.get()
+                ),
+            );
+        }
+    }
+    if !a.prevent_overwrite && a.receive_buffer != 1 {
+        cx.issue(
+            format!("{path}.prevent_overwrite"),
+            format!(
+                "may be switched off only with receive_buffer = 1 (003 6.2.1 \"Prevent overwriting\"), found receive_buffer = {}",
+                a.receive_buffer
+            ),
+        );
+    }
+    if a.end_criterion == EndCriterion::FixedLength && a.fixed_length > a.max_telegram_len {
+        cx.issue(
+            format!("{path}.fixed_length"),
+            format!(
+                "{} is longer than max_telegram_len = {}",
+                a.fixed_length, a.max_telegram_len
+            ),
+        );
     }
 }
 

@@ -35,6 +35,7 @@ mod command;
 mod device_unit;
 mod driver;
 mod line_metrics;
+mod master;
 mod modbus_master;
 mod modbus_slave;
 mod modbus_tap;
@@ -46,6 +47,7 @@ mod registers32;
 pub mod runtime;
 mod scanner;
 mod scheduler;
+pub(crate) mod start;
 mod status;
 pub mod telegram;
 #[cfg(test)]

@@ -8,6 +8,8 @@
 //! (image mirrors, persistence). On shutdown the port is no longer read, the request already
 //! received is answered, and the line stops.
 
+mod build;
+
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, SystemTime};

@@ -493,5 +493,6 @@ impl TapLine {
     }
 }
 
+mod build;
 #[cfg(test)]
 mod tests;

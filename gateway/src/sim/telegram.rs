@@ -21,10 +21,10 @@ use tokio::sync::mpsc;
 use tokio::time::{Instant, MissedTickBehavior};
 use tokio_util::sync::CancellationToken;
 
-use crate::config::{LineConfig, ProtocolConfig};
+use crate::config::LineConfig;
 use crate::line::telegram::engine::{EngineFactory, TelegramEngine};
 use crate::line::telegram::pump::{sleep_until_opt, Pump};
-use crate::line::telegram::{params_3964, params_ascii, TelegramProtocol};
+use crate::line::telegram::{engine_protocol, TelegramProtocol};
 use crate::serial::{self, DataBits, OpenError, PortSettings};
 
 /// How often a simulator sends a telegram of its own by default (`--every`; 0 = never).
@@ -131,8 +131,8 @@ impl TelegramSim {
     ///
     /// The parameters the engine refuses (the config check catches them first).
     pub fn for_line(line: &LineConfig) -> Option<Result<Self, ConfigError>> {
-        let protocol = match &line.protocol {
-            ProtocolConfig::Proc3964(c) => params_3964(&line.serial, c).and_then(|p| {
+        let protocol = engine_protocol(line)?.and_then(|protocol| match protocol {
+            TelegramProtocol::P3964(p) => {
                 let priority = match p.settings().priority {
                     Priority::High => Priority::Low,
                     Priority::Low => Priority::High,
@@ -142,8 +142,8 @@ impl TelegramSim {
                     ..p.settings().clone()
                 })
                 .map(TelegramProtocol::P3964)
-            }),
-            ProtocolConfig::Ascii(c) => params_ascii(&line.serial, c).and_then(|p| {
+            }
+            TelegramProtocol::Ascii(p) => {
                 let flow = match p.settings().flow {
                     FlowControl::RtsCts | FlowControl::AutoV24 { .. } => FlowControl::None,
                     other => other,
@@ -153,9 +153,8 @@ impl TelegramSim {
                     ..p.settings().clone()
                 })
                 .map(TelegramProtocol::Ascii)
-            }),
-            _ => return None,
-        };
+            }
+        });
         Some(protocol.map(Self::new))
     }
 

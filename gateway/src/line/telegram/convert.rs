@@ -6,18 +6,27 @@
 //! the new telegram, or under XON/XOFF or RTS/CTS holds the partner back, 003 6.2.1; off: the
 //! newest telegram replaces the held one, without an event).
 //!
-//! The port settings come from the caller (the app's conversion of the serial section), so that
-//! every line opens its port the same way.
+//! The port settings come from the serial section's one conversion (`line::start`), so that every
+//! line opens its port the same way. The 3964(R), ASCII and 3964(R) tap sections start their lines
+//! here ([`StartLine`]).
 
 use proto_core::proc3964::{Params3964, Priority, Settings3964, Variant};
 use proto_core::telegram::{
     AsciiParams, AsciiSettings, ConfigError, EndCriterion, FlowControl, Interface, DEFAULT_TX_CHUNK,
 };
 
-use super::{TelegramLineSettings, TelegramProtocol};
-use crate::config::{
-    self as cfg, AsciiConfig, LineConfig, Proc3964Config, ProtocolConfig, SerialConfig,
+use proto_core::cpmem::MemoryLayout;
+
+use super::{
+    spawn_3964_tap_line, try_spawn_telegram_line, Tap3964LineSettings, TelegramLineSettings,
+    TelegramProtocol,
 };
+use crate::config::{
+    self as cfg, AsciiConfig, ConfigIssue, LineConfig, Proc3964Config, Proc3964TapConfig,
+    ProtocolConfig, SerialConfig,
+};
+use crate::line::start::{port_settings, StartDeps, StartError, StartLine};
+use crate::line::LineHandle;
 use crate::mailbox::{AckMode, MailboxSettings, Overflow};
 use crate::serial::PortSettings;
 
@@ -121,6 +130,24 @@ pub fn params_ascii(serial: &SerialConfig, c: &AsciiConfig) -> Result<AsciiParam
     })
 }
 
+/// The engine parameters of a telegram line (3964(R) or ASCII); `None` for a line of another
+/// protocol.
+///
+/// # Errors
+///
+/// The parameter the engine refuses.
+pub fn engine_protocol(line: &LineConfig) -> Option<Result<TelegramProtocol, ConfigError>> {
+    match &line.protocol {
+        ProtocolConfig::Proc3964(c) => {
+            Some(params_3964(&line.serial, c).map(TelegramProtocol::P3964))
+        }
+        ProtocolConfig::Ascii(c) => {
+            Some(params_ascii(&line.serial, c).map(TelegramProtocol::Ascii))
+        }
+        _ => None,
+    }
+}
+
 // === impl TelegramLineSettings (from the configuration) ===
 
 impl TelegramLineSettings {
@@ -136,61 +163,206 @@ impl TelegramLineSettings {
         line: &LineConfig,
         port: PortSettings,
     ) -> Result<Self, TelegramConfigError> {
-        let invalid = |source| TelegramConfigError::Invalid {
-            line: name.to_owned(),
-            source,
+        match &line.protocol {
+            ProtocolConfig::Proc3964(c) => Self::from_3964(name, line, c, port),
+            ProtocolConfig::Ascii(c) => Self::from_ascii(name, line, c, port),
+            _ => Err(TelegramConfigError::NotATelegramLine(name.to_owned())),
+        }
+    }
+
+    /// The settings of the 3964(R) line `name`, section `c`, on `port`.
+    fn from_3964(
+        name: &str,
+        line: &LineConfig,
+        c: &Proc3964Config,
+        port: PortSettings,
+    ) -> Result<Self, TelegramConfigError> {
+        let params = params_3964(&line.serial, c).map_err(|e| invalid(name, e))?;
+        let overflow = match c.overflow {
+            cfg::Overflow3964::Refuse => Overflow::Refuse,
+            cfg::Overflow3964::DropOldest => Overflow::DropOldest,
         };
-        let (protocol, mailbox, max_len, send_queue) = match &line.protocol {
-            ProtocolConfig::Proc3964(c) => {
-                let params = params_3964(&line.serial, c).map_err(invalid)?;
-                let overflow = match c.overflow {
-                    cfg::Overflow3964::Refuse => Overflow::Refuse,
-                    cfg::Overflow3964::DropOldest => Overflow::DropOldest,
-                };
-                (
-                    TelegramProtocol::P3964(params),
-                    MailboxSettings {
-                        queue_depth: usize::from(c.receive_buffer),
-                        overflow,
-                        ack: c.ack.map_or(AckMode::Explicit, mailbox_ack),
-                    },
-                    c.max_telegram_len,
-                    c.send_queue,
-                )
-            }
-            ProtocolConfig::Ascii(c) => {
-                let params = params_ascii(&line.serial, c).map_err(invalid)?;
-                // Only XON/XOFF and RTS/CTS can hold the partner back (003 6.2.1); under the
-                // automatic V24 handling "Bei Überlauf des Empfangspuffers erfolgt keine Reaktion
-                // des CP" (000 5.4).
-                let overflow = match (c.prevent_overwrite, c.flow_control) {
-                    (false, _) => Overflow::Overwrite,
-                    (true, cfg::FlowControl::XonXoff | cfg::FlowControl::RtsCts) => {
-                        Overflow::Refuse
-                    }
-                    (true, cfg::FlowControl::None | cfg::FlowControl::AutoV24) => Overflow::DropNew,
-                };
-                (
-                    TelegramProtocol::Ascii(params),
-                    MailboxSettings {
-                        queue_depth: usize::from(c.receive_buffer),
-                        overflow,
-                        ack: c.ack.map_or(AckMode::Explicit, mailbox_ack),
-                    },
-                    c.max_telegram_len,
-                    c.send_queue,
-                )
-            }
-            _ => return Err(TelegramConfigError::NotATelegramLine(name.to_owned())),
+        let mailbox = MailboxSettings {
+            queue_depth: usize::from(c.receive_buffer),
+            overflow,
+            ack: c.ack.map_or(AckMode::Explicit, mailbox_ack),
         };
-        let mut settings = Self::new(name, port, protocol);
-        settings.mailbox = mailbox;
-        settings.max_len = usize::from(max_len);
-        settings.send_queue = usize::from(send_queue);
-        settings.unit_id = line.unit_id();
-        settings.sends = line.sends();
-        settings.journal = line.journal().map(ToOwned::to_owned);
-        Ok(settings)
+        let protocol = TelegramProtocol::P3964(params);
+        let settings = Self::new(name, port, protocol);
+        Ok(settings.with_mailbox(line, mailbox, c.max_telegram_len, c.send_queue))
+    }
+
+    /// The settings of the ASCII line `name`, section `c`, on `port`.
+    fn from_ascii(
+        name: &str,
+        line: &LineConfig,
+        c: &AsciiConfig,
+        port: PortSettings,
+    ) -> Result<Self, TelegramConfigError> {
+        let params = params_ascii(&line.serial, c).map_err(|e| invalid(name, e))?;
+        // Only XON/XOFF and RTS/CTS can hold the partner back (003 6.2.1); under the automatic
+        // V24 handling "Bei Überlauf des Empfangspuffers erfolgt keine Reaktion des CP"
+        // (000 5.4).
+        let overflow = match (c.prevent_overwrite, c.flow_control) {
+            (false, _) => Overflow::Overwrite,
+            (true, cfg::FlowControl::XonXoff | cfg::FlowControl::RtsCts) => Overflow::Refuse,
+            (true, cfg::FlowControl::None | cfg::FlowControl::AutoV24) => Overflow::DropNew,
+        };
+        let mailbox = MailboxSettings {
+            queue_depth: usize::from(c.receive_buffer),
+            overflow,
+            ack: c.ack.map_or(AckMode::Explicit, mailbox_ack),
+        };
+        let protocol = TelegramProtocol::Ascii(params);
+        let settings = Self::new(name, port, protocol);
+        Ok(settings.with_mailbox(line, mailbox, c.max_telegram_len, c.send_queue))
+    }
+
+    /// The mailbox and the sending keys both telegram protocols share.
+    fn with_mailbox(
+        mut self,
+        line: &LineConfig,
+        mailbox: MailboxSettings,
+        max_len: u16,
+        send_queue: u16,
+    ) -> Self {
+        self.mailbox = mailbox;
+        self.max_len = usize::from(max_len);
+        self.send_queue = usize::from(send_queue);
+        self.unit_id = line.unit_id();
+        self.sends = line.sends();
+        self.journal = line.journal().map(ToOwned::to_owned);
+        self
+    }
+}
+
+fn invalid(name: &str, source: ConfigError) -> TelegramConfigError {
+    TelegramConfigError::Invalid {
+        line: name.to_owned(),
+        source,
+    }
+}
+
+// === impl StartLine for the telegram sections ===
+
+impl StartLine for Proc3964Config {
+    fn start(
+        &self,
+        name: &str,
+        line: &LineConfig,
+        deps: &StartDeps<'_>,
+    ) -> Result<LineHandle, StartError> {
+        let settings =
+            TelegramLineSettings::from_3964(name, line, self, port_settings(&line.serial));
+        start_telegram_line(name, line, settings, deps)
+    }
+
+    fn start_issues(
+        &self,
+        name: &str,
+        line: &LineConfig,
+        _layout: Option<&MemoryLayout>,
+    ) -> Vec<ConfigIssue> {
+        let settings =
+            TelegramLineSettings::from_3964(name, line, self, port_settings(&line.serial));
+        telegram_issues(name, line, settings.err())
+    }
+}
+
+impl StartLine for AsciiConfig {
+    fn start(
+        &self,
+        name: &str,
+        line: &LineConfig,
+        deps: &StartDeps<'_>,
+    ) -> Result<LineHandle, StartError> {
+        let settings =
+            TelegramLineSettings::from_ascii(name, line, self, port_settings(&line.serial));
+        start_telegram_line(name, line, settings, deps)
+    }
+
+    fn start_issues(
+        &self,
+        name: &str,
+        line: &LineConfig,
+        _layout: Option<&MemoryLayout>,
+    ) -> Vec<ConfigIssue> {
+        let settings =
+            TelegramLineSettings::from_ascii(name, line, self, port_settings(&line.serial));
+        telegram_issues(name, line, settings.err())
+    }
+}
+
+/// Starts a telegram line with the gateway-wide settings: the diagnostic depth and the
+/// acknowledgement default, which needs the whole configuration.
+fn start_telegram_line(
+    name: &str,
+    line: &LineConfig,
+    settings: Result<TelegramLineSettings, TelegramConfigError>,
+    deps: &StartDeps<'_>,
+) -> Result<LineHandle, StartError> {
+    let mut settings = settings.map_err(|e| StartError(format!("line {name}: {e}")))?;
+    settings.diag_depth = usize::from(deps.config.gateway.diag_buffer_depth);
+    settings.metrics = Some(deps.metrics.clone());
+    settings.mailbox.ack = mailbox_ack(cfg::ack_mode(deps.config, line));
+    try_spawn_telegram_line(settings, deps.token.clone())
+        .map_err(|e| StartError(format!("line {name}: {e}")))
+}
+
+/// What would keep a telegram line from starting: the parameter its engine refuses
+/// (`refused`), a journal in a directory that does not exist.
+fn telegram_issues(
+    name: &str,
+    line: &LineConfig,
+    refused: Option<TelegramConfigError>,
+) -> Vec<ConfigIssue> {
+    let mut issues = Vec::new();
+    if let Some(e) = refused {
+        issues.push(ConfigIssue {
+            path: format!("lines.{name}"),
+            message: e.to_string(),
+        });
+    }
+    if let Some(journal) = line.journal() {
+        let dir = match journal.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => std::path::Path::new("."),
+        };
+        if !dir.is_dir() {
+            issues.push(ConfigIssue {
+                path: format!("lines.{name}.journal"),
+                message: format!(
+                    "the directory {} of the journal does not exist",
+                    dir.display()
+                ),
+            });
+        }
+    }
+    issues
+}
+
+impl StartLine for Proc3964TapConfig {
+    fn start(
+        &self,
+        name: &str,
+        line: &LineConfig,
+        deps: &StartDeps<'_>,
+    ) -> Result<LineHandle, StartError> {
+        let variant = if self.block_check {
+            Variant::P3964R
+        } else {
+            Variant::P3964
+        };
+        let mut settings =
+            Tap3964LineSettings::new(name, port_settings(&line.serial), &self.port_b, variant);
+        settings.tap.zvz = self.character_delay;
+        settings.tap.qvz = self.ack_delay;
+        settings.tap.max_len = self.max_telegram_len;
+        settings.mailbox_depth = usize::from(self.receive_buffer);
+        settings.unit_id = self.unit_id;
+        settings.diag_depth = usize::from(deps.config.gateway.diag_buffer_depth);
+        settings.metrics = Some(deps.metrics.clone());
+        Ok(spawn_3964_tap_line(settings, deps.token.clone()))
     }
 }
 

@@ -40,7 +40,7 @@ use tokio_util::sync::CancellationToken;
 pub use crate::mailbox::TelegramRx;
 pub(crate) use client::Command;
 pub use client::{PendingSend, SendResult, SignalsClient, TelegramClient, TelegramSendError};
-pub use convert::{mailbox_ack, params_3964, params_ascii, TelegramConfigError};
+pub use convert::{engine_protocol, mailbox_ack, params_3964, params_ascii, TelegramConfigError};
 pub use mailbox_unit::MailboxUnit;
 pub use tap::{spawn_3964_tap_line, Tap3964LineSettings, DEFAULT_TAP_MAILBOX, TAP_3964_PROTOCOL};
 

@@ -1,0 +1,69 @@
+//! What every protocol's config section answers for its line, whatever the protocol: the seam
+//! between the configuration's common checks and views (ports, unit ids, devices, telegrams) and
+//! the sections of `config/modbus.rs`, `config/tap.rs` and `config/telegram.rs`, which implement
+//! it. A leaf: it knows none of the sections.
+
+use std::collections::BTreeMap;
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::device::DeviceConfig;
+use super::reader::Cx;
+use super::serial::SerialConfig;
+
+/// What a protocol's config section tells the rest of the configuration about its line. Each
+/// section implements it in its own file (`config/modbus.rs`, `config/tap.rs`,
+/// `config/telegram.rs`); [`ProtocolConfig::section`](super::ProtocolConfig::section) is the one
+/// place that lists them. Every answer has the default of a line without that part.
+pub(crate) trait ProtocolSection {
+    /// The section's checks that span keys or need the serial settings (timing minimums by baud
+    /// rate, the protocol against the interface), each issue under `path` (`lines.<name>`).
+    fn check(&self, _cx: &mut Cx, _path: &str, _serial: &SerialConfig) {}
+
+    /// The devices the line polls or listens to.
+    fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
+        None
+    }
+
+    /// The devices, to change them.
+    fn devices_mut(&mut self) -> Option<&mut BTreeMap<String, DeviceConfig>> {
+        None
+    }
+
+    /// The second receive port (`port_b`).
+    fn second_port(&self) -> Option<&str> {
+        None
+    }
+
+    /// The Modbus TCP unit id of the line itself (slave memory or telegram mailbox).
+    fn unit_id(&self) -> Option<u8> {
+        None
+    }
+
+    /// The mailbox keys of a line that exchanges telegrams with a partner.
+    fn telegrams(&self) -> Option<TelegramKeys<'_>> {
+        None
+    }
+}
+
+/// The mailbox keys of a telegram line, as [`ProtocolSection::telegrams`] answers them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TelegramKeys<'a> {
+    /// `sends`.
+    pub sends: bool,
+    /// `ack`, if set.
+    pub ack: Option<AckConfig>,
+    /// `journal`, if set.
+    pub journal: Option<&'a Path>,
+}
+
+/// Who acknowledges the received telegrams of a line (`ack`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum AckConfig {
+    /// A client acknowledges each telegram (Modbus TCP register 600, REST, zenoh `<line>/ack`).
+    Explicit,
+    /// The gateway acknowledges a telegram once zenoh took its publication on `<line>/rx`.
+    OnPublish,
+}
