@@ -59,6 +59,9 @@ impl ZenohConfig {
         if let Some(connect) = &self.connect {
             set("connect/endpoints", json_list(connect))?;
         }
+        if let Some(lease) = self.lease {
+            set("transport/link/tx/lease", lease.as_millis().to_string())?;
+        }
         match self.multicast_scouting {
             Some(on) => set("scouting/multicast/enabled", on.to_string())?,
             None if safe_defaults => set("scouting/multicast/enabled", "false".to_owned())?,
@@ -77,6 +80,7 @@ impl ZenohConfig {
         }
         let mode = match z.get_json("mode").ok().as_deref() {
             Some("\"client\"") => Mode::Client,
+            Some("\"router\"") => Mode::Router,
             _ => Mode::Peer,
         };
         Ok((z, mode))
@@ -155,6 +159,7 @@ mod tests {
             command_queue = 14
             query_queue = 15
             max_payload = 1000
+            lease = "3s"
             "#,
         )
         .unwrap();
@@ -173,19 +178,23 @@ mod tests {
             (1000 + PAYLOAD_HEADROOM).to_string()
         );
         assert_eq!(z.get_json("scouting/multicast/enabled").unwrap(), "false");
+        assert_eq!(z.get_json("transport/link/tx/lease").unwrap(), "3000");
+        let router = parse("mode = \"router\"").unwrap();
+        assert_eq!(router.to_zenoh().unwrap().1, Mode::Router);
     }
 
     #[test]
     fn bad_values_are_refused_when_read() {
         for text in [
             "bogus = 1",
-            "mode = \"router\"",
+            "mode = \"broker\"",
             "listen = [\"nonsense\"]",
             "connect = [\"tcp\"]",
             "prefix = \"gw/*\"",
             "prefix = \"gw//x\"",
             "telegram_queue = 0",
             "max_payload = 0",
+            "lease = \"1ms\"",
             "max_payload = 16777217",
             "max_payload = \"64k\"",
         ] {
