@@ -292,6 +292,39 @@ async fn three_gateways_through_one_router() {
         }
     }
 
+    // What passes through the router with three gateways (every sample under gw/**, 3 s), and
+    // the router's resident memory: printed for the fleet's arithmetic (docs/fleet.md).
+    let (count, bytes) = (
+        std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0)),
+        std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0)),
+    );
+    let sub = {
+        let (count, bytes) = (count.clone(), bytes.clone());
+        s.declare_subscriber("gw/**")
+            .callback(move |sample| {
+                count.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                let len = sample.payload().len() + sample.key_expr().as_str().len();
+                bytes.fetch_add(len as u64, std::sync::atomic::Ordering::Relaxed);
+            })
+            .await
+            .expect("subscribe")
+    };
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    drop(sub);
+    let rss = std::fs::read_to_string(format!("/proc/{}/status", router.0 .0.id()))
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("VmRSS:"))
+                .map(|v| v.trim().to_owned())
+        })
+        .unwrap_or_default();
+    println!(
+        "through the router, three gateways: {:.0} samples/s, {:.0} bytes/s (payload + key); router VmRSS {rss} (Python binding, interpreter included)",
+        count.load(std::sync::atomic::Ordering::Relaxed) as f64 / 3.0,
+        bytes.load(std::sync::atomic::Ordering::Relaxed) as f64 / 3.0,
+    );
+
     // `gateway fleet status` prints all three with their lines and devices.
     let out = fleet_status(router_port);
     let text = String::from_utf8_lossy(&out.stdout);
@@ -346,8 +379,58 @@ async fn three_gateways_through_one_router() {
             "{r}"
         );
     }
+    // `gateway fleet watch` prints the new value as it comes, one line with the time.
+    let mut watch = Command::new(gateway_tests::gateway_bin())
+        .args([
+            "fleet",
+            "watch",
+            "gw/*/drive/atv71/HSP",
+            "--connect",
+            &format!("tcp/127.0.0.1:{router_port}"),
+        ])
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("gateway fleet watch");
+    let watched = {
+        let out = watch.stdout.take().expect("stdout");
+        let (tx, rx) = std::sync::mpsc::channel::<String>();
+        std::thread::spawn(move || {
+            for line in std::io::BufRead::lines(std::io::BufReader::new(out)).map_while(Result::ok)
+            {
+                if tx.send(line).is_err() {
+                    return;
+                }
+            }
+        });
+        rx
+    };
+    let mut watch_err = watch.stderr.take().expect("stderr");
+    let mut watch = ChildGuard(watch);
+    // It says when it watches (its subscriber declared).
+    let mut first = [0u8; 1];
+    std::io::Read::read_exact(&mut watch_err, &mut first).expect("fleet watch started");
+    tokio::time::sleep(Duration::from_millis(500)).await;
     let r = set_hsp(&s, "g1", "42.5").await;
     assert_eq!(r["ok"], Value::Bool(true), "{r}");
+    let line = watched
+        .recv_timeout(Duration::from_secs(10))
+        .expect("fleet watch printed the new value");
+    assert!(
+        line.starts_with("20")
+            && line.contains(" gw/g1/drive/atv71/HSP {")
+            && line.contains("42.5"),
+        "{line}"
+    );
+    assert!(
+        watched
+            .try_recv()
+            .map_or(true, |l| !l.contains("gw/g2") && !l.contains("gw/g3")),
+        "only g1's drive changed"
+    );
+    watch.kill();
+    println!("fleet watch: {line}");
     let deadline = Instant::now() + Duration::from_secs(10);
     while hsp(&s, "g1").await != Some(42.5) {
         assert!(Instant::now() < deadline, "HSP of g1 never read 42.5");
