@@ -31,8 +31,8 @@
 //! Precedence: `config_file` is read first (as zenoh documents it, json5), then every key set in
 //! this section overrides the file. Keys left unset keep the file's value, or zenoh's default
 //! when there is no file. That is how TLS endpoints (`tls/host:port`), certificates and access
-//! control are configured: in the zenoh file, exactly as zenoh documents them (TLS needs the
-//! gateway built with the `zenoh-tls` cargo feature).
+//! control are configured: in the zenoh file, exactly as zenoh documents them (TLS comes with the
+//! default cargo feature `zenoh-tls`).
 //!
 //! Overflow policy (every drop is counted by the reason named here in the bridge's counters,
 //! and in `gateway_dropped_updates_total{reason}` as `queue_full`, `lagged` or `closed`):

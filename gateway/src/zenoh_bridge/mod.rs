@@ -66,9 +66,10 @@
 //!
 //! Runtime: call `start` inside a multi-threaded tokio runtime.
 //!
-//! Cargo features: zenoh is built with `transport_tcp` only. Build the gateway with the
-//! `zenoh-tls` feature for `tls/` endpoints (TLS certificates and mutual authentication are set
-//! in the zenoh config file); access control (`access_control` in the file) needs no feature.
+//! Cargo features: zenoh is built with `transport_tcp`, and with `transport_tls` through the
+//! default feature `zenoh-tls` (`tls/` endpoints; certificates and mutual authentication are
+//! set in the zenoh config file); access control (`access_control` in the file) needs no
+//! feature.
 
 pub mod accounting;
 pub mod config;
