@@ -125,7 +125,7 @@ base = os.path.dirname(path)
 doc = yaml.safe_load(open(path))
 problems = []
 services = doc.get("services", {})
-for name in ("gateway", "prometheus", "grafana", "zenoh"):
+for name in ("gateway", "prometheus", "grafana", "zenoh", "cab1", "cab2"):
     if name not in services:
         problems.append(f"service {name} missing")
 if not str(services.get("zenoh", {}).get("image", "")).startswith("eclipse/zenoh"):
@@ -163,6 +163,31 @@ zenoh_cmd = [str(a) for a in services.get("zenoh", {}).get("command", [])]
 connects = [zenoh_cmd[i + 1] for i, a in enumerate(zenoh_cmd[:-1]) if a in ("--connect", "-e")]
 if not any(c.startswith("tcp/gateway:") for c in connects):
     problems.append(f"zenoh router does not connect to the gateway (connect: {connects})")
+# The fleet: two demo gateways under distinct names, the router connected to each, Prometheus
+# scraping each, and no service waiting for one of an optional profile.
+names = []
+for demo in ("cab1", "cab2"):
+    cmd = [str(a) for a in services.get(demo, {}).get("command", [])]
+    if not cmd or cmd[0] != "demo" or "--name" not in cmd:
+        problems.append(f"{demo}: not a named demo gateway ({cmd})")
+        continue
+    names.append(cmd[cmd.index("--name") + 1])
+    if not any(c.startswith(f"tcp/{demo}:") for c in connects):
+        problems.append(f"zenoh router does not connect to {demo} (connect: {connects})")
+    g = str(services.get(demo, {}).get("stop_grace_period", ""))
+    m = re.fullmatch(r"(\d+)s", g)
+    if not m or int(m.group(1)) <= 10:
+        problems.append(f"{demo} stop_grace_period {g!r} not above the 10 s grace period")
+if len(set(names)) != len(names):
+    problems.append(f"the demo gateways share a name: {names} (the second would be refused)")
+prom = open(os.path.join(base, "prometheus.yml")).read()
+for demo in ("cab1", "cab2"):
+    if f"{demo}:8080" not in prom:
+        problems.append(f"prometheus.yml does not scrape {demo}:8080")
+for sname, svc in services.items():
+    for dep in svc.get("depends_on", []):
+        if services.get(dep, {}).get("profiles") and not svc.get("profiles"):
+            problems.append(f"{sname} depends on {dep}, which runs only with a profile")
 # Grafana's admin password comes from a secret, never admin/admin.
 grafana = services.get("grafana", {})
 env = grafana.get("environment", {})

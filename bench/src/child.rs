@@ -112,6 +112,11 @@ impl Gateway {
         }
     }
 
+    /// The process id.
+    pub(crate) fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
     /// Resident memory (VmRSS), its anonymous part (RssAnon) and its peak (VmHWM), in KiB.
     pub(crate) fn memory_kib(&self) -> Option<MemoryKib> {
         let status = std::fs::read_to_string(format!("/proc/{}/status", self.child.id())).ok()?;

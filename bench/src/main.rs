@@ -24,6 +24,7 @@
 //! then `target/release/gateway-bench` (about 7 minutes) or `--quick` (about a minute). Progress
 //! goes to stderr, the table to stdout.
 
+mod ceiling;
 mod child;
 mod closed;
 mod dead;
@@ -94,6 +95,8 @@ enum Group {
     Zenoh,
     /// Resident memory.
     Memory,
+    /// One gateway's ceiling: 32 lines, 100 000 tags on zenoh (RSS, CPU, samples/s).
+    Ceiling,
     /// What a zenoh peer can cost: a flood of refused puts, 8 MiB and 256 MiB puts.
     Bounds,
     /// The mailbox journal's cost and size.
@@ -301,6 +304,21 @@ async fn run(args: &Args) -> Vec<Row> {
             .await
             .unwrap_or_else(|e| failed("RSS, 4 lines / 32 devices / 10 000 points", e));
         push(&mut rows, row);
+    }
+    if wanted(Group::Ceiling) {
+        eprintln!(
+            "ceiling, 32 lines / 100 000 points (gateway binary {})",
+            bin.display()
+        );
+        match ceiling::ceiling(&bin, &plan).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => ceiling::ROWS.iter().for_each(|name| {
+                push(
+                    &mut rows,
+                    failed(name, std::io::Error::other(e.to_string())),
+                )
+            }),
+        }
     }
     if wanted(Group::Bounds) {
         eprintln!("zenoh bounds (gateway binary {})", bin.display());

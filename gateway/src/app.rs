@@ -28,6 +28,7 @@ use crate::unit::write_policy::WritePolicy;
 mod build;
 mod check;
 mod demo;
+mod fleet;
 mod lines;
 mod reload;
 mod reload_notice;
@@ -43,7 +44,7 @@ pub use check::{
     ignored_keys_of, inside, load_config, port_issues, run_issues, security_warnings, start_issues,
     unpolled_tags, Door,
 };
-pub use demo::demo;
+pub use demo::{demo, demo_named};
 
 /// How long a stopping gateway waits for lines to finish their transaction in flight and for
 /// Modbus TCP connections to finish their request (systemd's TimeoutStopSec must be longer).
@@ -118,6 +119,10 @@ pub enum AppError {
     /// A simulated device or a virtual line could not be set up.
     #[error("{0}")]
     Setup(String),
+    /// The start was refused (a gateway of the same name is already live on the zenoh
+    /// fabric): exits as a refused configuration does, since a restart cannot fix it.
+    #[error("{0}")]
+    Refused(String),
     /// Anything else from the operating system.
     #[error(transparent)]
     Io(#[from] std::io::Error),
@@ -129,7 +134,7 @@ impl AppError {
     /// The process exit code (sysexits.h): 64 for configuration errors, 70 otherwise.
     pub fn exit_code(&self) -> u8 {
         match self {
-            Self::Config(_) => 64,
+            Self::Config(_) | Self::Refused(_) => 64,
             _ => 70,
         }
     }
@@ -377,6 +382,7 @@ async fn serve_http(
     let local = listener.local_addr()?;
     backend.set_http_local(local);
     let scheme = if http.tls.is_some() { "https" } else { "http" };
+    fleet::set_http_url(sup, scheme, local);
     info!(%local, scheme, "HTTP listening: /api/v1, /healthz, /readyz, /metrics");
     // A fixed line on stdout that scripts and tests wait for (the same with HTTPS).
     println!("http listening on {local}");

@@ -1,4 +1,4 @@
-//! `gateway`: run, demo, sim, check.
+//! `gateway`: run, demo, sim, check, fleet.
 //!
 //! A thin main (linkerd2-proxy order): parse the command line, set up logging, load and validate
 //! the config (exit 64 before any port is opened when it is wrong), create the Prometheus registry
@@ -72,6 +72,10 @@ enum Command {
         /// config's 127.0.0.1:8080.
         #[arg(long, value_name = "ADDR")]
         http: Option<SocketAddr>,
+        /// The gateway's name (zenoh prefix gw/<name>) instead of `demo`, so that several demos
+        /// can share one zenoh fabric.
+        #[arg(long, value_name = "NAME")]
+        name: Option<String>,
     },
     /// Run one simulated device on a serial port (a pty end, or a real port).
     Sim(gateway::sim::SimArgs),
@@ -81,6 +85,9 @@ enum Command {
         #[arg(long, short)]
         config: PathBuf,
     },
+    /// The gateways on the zenoh fabric: `status` (one table), `watch KEYEXPR` (samples).
+    #[command(subcommand)]
+    Fleet(gateway::zenoh_bridge::fleet_cli::FleetCommand),
 }
 
 fn main() -> ExitCode {
@@ -165,6 +172,7 @@ async fn async_main(command: Command) -> ExitCode {
             telegram_every,
             paced,
             no_mailbox_consumer,
+            name,
         } => {
             let metrics = match metrics_registry() {
                 Ok(metrics) => metrics,
@@ -181,7 +189,7 @@ async fn async_main(command: Command) -> ExitCode {
                 acknowledge_mailboxes: !no_mailbox_consumer,
                 hangups: Some(hangups),
             };
-            gateway::app::demo(overrides, shutdown).await
+            gateway::app::demo_named(name, overrides, shutdown).await
         }
         Command::Sim(args) => {
             // A simulator has nothing to re-read: a SIGHUP is logged as such and ignored.
@@ -189,6 +197,10 @@ async fn async_main(command: Command) -> ExitCode {
             gateway::sim::run(args, shutdown)
                 .await
                 .map_err(gateway::app::AppError::from)
+        }
+        Command::Fleet(command) => {
+            drop(hangups);
+            return ExitCode::from(gateway::zenoh_bridge::fleet_cli::run(command, shutdown).await);
         }
         Command::Check { config } => {
             return match gateway::app::check_command(&config) {

@@ -114,6 +114,11 @@ pub trait ApiBackend: Send + Sync + 'static {
     /// What `/readyz` checks.
     fn readiness(&self) -> Readiness;
 
+    /// The other gateways seen on the zenoh fabric (`GET /fleet`); none without zenoh.
+    fn fleet(&self) -> Vec<super::model::FleetEntry> {
+        Vec::new()
+    }
+
     /// Records one change made through the API (a tag write, a telegram send, a signal
     /// change, a configuration change, or a refused one) in the audit trail; the service
     /// counts it in its metrics too.

@@ -418,6 +418,7 @@ fn routes() -> OpenApiRouter<ApiState> {
     let v1 = OpenApiRouter::new()
         .routes(routes!(h::openapi_json))
         .routes(routes!(h::gateway_status))
+        .routes(routes!(handlers::fleet::get_fleet))
         .routes(routes!(c::get_config, c::put_config))
         .routes(routes!(c::validate_config))
         .routes(routes!(

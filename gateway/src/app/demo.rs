@@ -23,7 +23,22 @@ const PACED_DELAY_MULTIPLIER: u8 = 10;
 
 /// Runs the demo until `shutdown` is cancelled.
 pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(), AppError> {
+    demo_named(None, overrides, shutdown).await
+}
+
+/// [`demo`] under another gateway name than `demo` (its zenoh prefix `gw/<name>`), so that
+/// several demos can share one zenoh fabric (deploy/compose.yaml runs two).
+pub async fn demo_named(
+    name: Option<String>,
+    overrides: Overrides,
+    shutdown: CancellationToken,
+) -> Result<(), AppError> {
     let mut config = config::demo();
+    if let Some(name) = name {
+        crate::zenoh_bridge::keys::check_chunk("gateway", &name)
+            .map_err(|e| AppError::Setup(format!("--name: {e}")))?;
+        config.gateway.name = name;
+    }
     // The gateway's ends of the pty pairs: kept open for the whole run so that the paths stay
     // valid while the gateway reopens them.
     let mut keep = Vec::new();

@@ -204,6 +204,21 @@ impl ApiBackend for RestBackend {
         Box::pin(self.sup.apply(config))
     }
 
+    fn fleet(&self) -> Vec<crate::api::model::FleetEntry> {
+        super::fleet::members(&self.sup)
+            .into_iter()
+            .map(|m| crate::api::model::FleetEntry {
+                link: m.http.map(|u| format!("{u}/")),
+                key: m.key,
+                name: m.name,
+                zid: m.zid,
+                host: m.host,
+                online: m.online,
+                since: Timestamp(m.since),
+            })
+            .collect()
+    }
+
     fn gateway_status(&self) -> GatewayStatus {
         let snapshot = self.sup.snapshot();
         let lines = snapshot

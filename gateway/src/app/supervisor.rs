@@ -53,8 +53,10 @@ pub(crate) struct Snapshot {
 pub(crate) struct ZenohState {
     /// The running bridge's counters; `None` while it is down.
     pub(crate) stats: Option<Arc<BridgeStats>>,
-    /// `peer` or `client`.
+    /// `peer`, `client` or `router`.
     pub(crate) mode: &'static str,
+    /// The other gateways seen on the fabric (`GET /api/v1/fleet`); `None` while it is down.
+    pub(crate) fleet: Option<Arc<crate::zenoh_bridge::fleet::FleetView>>,
 }
 
 /// A server that follows the running lines (the zenoh bridge): told when lines start after a
@@ -113,6 +115,8 @@ pub(crate) struct Supervisor {
     follower: std::sync::OnceLock<Arc<dyn Follower>>,
     /// What status and readiness show of zenoh; `None` when it is not configured.
     pub(crate) zenoh_state: Mutex<Option<ZenohState>>,
+    /// The URL of the HTTP listener once bound (`http://host:port`), for the fleet's links.
+    pub(crate) http_url: std::sync::OnceLock<String>,
     /// "Read your files again" (SIGHUP): the TLS servers subscribe.
     pub(crate) reload: super::reload_notice::Reload,
     /// Configuration changes run one at a time: the REST API's and the SIGHUP re-reads.
@@ -214,6 +218,7 @@ impl Supervisor {
             tcp_state: Mutex::new((addr, Arc::new(AtomicBool::new(false)))),
             follower: std::sync::OnceLock::new(),
             zenoh_state: Mutex::new(None),
+            http_url: std::sync::OnceLock::new(),
             opened_before: Mutex::new(BTreeSet::new()),
             reload,
             change_lock: Arc::default(),

@@ -24,15 +24,15 @@ use super::status::line_view;
 use super::supervisor::{Follower, Snapshot, Supervisor, ZenohState};
 use super::tag_io::{self, WriteRefused};
 use super::AppError;
-use crate::api::model::{LineStatusView, ScalarValue};
+use crate::api::model::ScalarValue;
 use crate::api::BoxFuture;
 use crate::image::ProcessImage;
 use crate::line::LineEvent;
 use crate::tags::{TagDirectory, TagEntry, TagWriteError};
 use crate::zenoh_bridge::accounting::{self, WriteReason};
 use crate::zenoh_bridge::{
-    BackendFuture, Bridge, BridgeBackend, BridgeHandle, BridgeStats, DropReason, TagValue,
-    ZenohConfig,
+    BackendFuture, Bridge, BridgeBackend, BridgeError, BridgeHandle, BridgeStats, DropReason,
+    TagValue, ZenohConfig,
 };
 
 /// How often device presence is compared with the last published state.
@@ -111,7 +111,11 @@ async fn open(follower: &ZenohFollower, sup: &Arc<Supervisor>) -> Result<(), App
     let mode = cfg.mode.map_or("peer", |m| m.as_str());
     *sup.zenoh_state
         .lock()
-        .unwrap_or_else(PoisonError::into_inner) = Some(ZenohState { stats: None, mode });
+        .unwrap_or_else(PoisonError::into_inner) = Some(ZenohState {
+        stats: None,
+        mode,
+        fleet: None,
+    });
     let listen = cfg.listen.clone().unwrap_or_default();
     let token = sup.root.child_token();
     let backend = ZenohBackend {
@@ -125,7 +129,10 @@ async fn open(follower: &ZenohFollower, sup: &Arc<Supervisor>) -> Result<(), App
         BridgeStats::with_metrics(sup.exported.metrics.clone()),
     )
     .await
-    .map_err(|e| AppError::Setup(format!("zenoh: {e}")))?;
+    .map_err(|e| match e {
+        BridgeError::Duplicate { .. } => AppError::Refused(format!("zenoh: {e}")),
+        e => AppError::Setup(format!("zenoh: {e}")),
+    })?;
     spawn_feeds(sup, &handle, &token);
     for (name, line) in &snapshot.lines {
         spawn_line_feeds(&handle, name, line, &token);
@@ -141,6 +148,7 @@ async fn open(follower: &ZenohFollower, sup: &Arc<Supervisor>) -> Result<(), App
         .unwrap_or_else(PoisonError::into_inner) = Some(ZenohState {
         stats: Some(Arc::clone(bridge.stats())),
         mode,
+        fleet: Some(Arc::clone(bridge.fleet())),
     });
     *follower.run.lock().await = Some(ZenohRun {
         bridge,
@@ -164,6 +172,7 @@ async fn stop(follower: &ZenohFollower, sup: &Supervisor) {
         .as_mut()
     {
         state.stats = None;
+        state.fleet = None;
     }
 }
 
@@ -239,20 +248,9 @@ impl BridgeBackend for ZenohBackend {
     }
 
     fn gateway_status(&self) -> Json {
-        let Some(sup) = self.sup.upgrade() else {
-            return json!({});
-        };
-        let snapshot = sup.snapshot();
-        let lines: Vec<LineStatusView> = snapshot
-            .lines
-            .iter()
-            .map(|(name, line)| line_view(name, line))
-            .collect();
-        json!({
-            "name": snapshot.config.gateway.name,
-            "version": env!("CARGO_PKG_VERSION"),
-            "lines": lines,
-        })
+        self.sup
+            .upgrade()
+            .map_or_else(|| json!({}), |sup| super::fleet::gateway_status(&sup))
     }
 
     fn writes_allowed(&self) -> Result<(), String> {
@@ -491,12 +489,14 @@ fn spawn_feeds(sup: &Arc<Supervisor>, bridge: &BridgeHandle, token: &Cancellatio
             }
         });
     }
-    // Device presence: a liveliness token per online device of the lines in force.
+    // Presence: a liveliness token per line whose port is open and per online device, of the
+    // lines in force.
     let bridge = bridge.clone();
     let weak = Arc::downgrade(sup);
     let token = token.clone();
     tokio::spawn(async move {
         let mut online: BTreeSet<(String, String)> = BTreeSet::new();
+        let mut open: BTreeSet<String> = BTreeSet::new();
         let mut ticker = tokio::time::interval(PRESENCE_PERIOD);
         loop {
             tokio::select! {
@@ -505,8 +505,12 @@ fn spawn_feeds(sup: &Arc<Supervisor>, bridge: &BridgeHandle, token: &Cancellatio
             }
             let Some(sup) = weak.upgrade() else { return };
             let mut now: BTreeSet<(String, String)> = BTreeSet::new();
+            let mut open_now: BTreeSet<String> = BTreeSet::new();
             for line in sup.snapshot().lines.values() {
                 let status = line.handle.status();
+                if status.port_open {
+                    open_now.insert(status.name.clone());
+                }
                 for d in status.devices.iter().filter(|d| d.online) {
                     now.insert((status.name.clone(), d.name.clone()));
                 }
@@ -514,6 +518,13 @@ fn spawn_feeds(sup: &Arc<Supervisor>, bridge: &BridgeHandle, token: &Cancellatio
             for key in online.difference(&now) {
                 bridge.device_online(&key.0, &key.1, false);
             }
+            for line in open.difference(&open_now) {
+                bridge.line_online(line, false);
+            }
+            for line in open_now.difference(&open) {
+                bridge.line_online(line, true);
+            }
+            open = open_now;
             for key in now.difference(&online) {
                 bridge.device_online(&key.0, &key.1, true);
             }

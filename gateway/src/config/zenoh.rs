@@ -3,10 +3,11 @@
 //! ```toml
 //! [zenoh]
 //! enabled = true                      # default true
-//! mode = "peer"                       # "peer" (default) or "client"
+//! mode = "peer"                       # "peer" (default), "client" or "router"
 //! listen = ["tcp/0.0.0.0:7447"]       # zenoh endpoints; unset: the file's, else tcp/127.0.0.1:7447
 //! connect = ["tcp/192.168.1.10:7447"] # unset: the file's or zenoh's default (none)
 //! multicast_scouting = true           # unset: the file's, else off
+//! lease = "10s"                       # how soon the fabric forgets a silent gateway; unset: the file's, else zenoh's 10 s
 //! prefix = "plant/hall2/gw1"          # default "gw/<gateway name>"
 //! writes = true                       # accept `tx` and tag `set` puts; default false
 //! config_file = "/etc/gateway/zenoh.json5"  # a zenoh config file (TLS, access control, ...)
@@ -30,8 +31,8 @@
 //! Precedence: `config_file` is read first (as zenoh documents it, json5), then every key set in
 //! this section overrides the file. Keys left unset keep the file's value, or zenoh's default
 //! when there is no file. That is how TLS endpoints (`tls/host:port`), certificates and access
-//! control are configured: in the zenoh file, exactly as zenoh documents them (TLS needs the
-//! gateway built with the `zenoh-tls` cargo feature).
+//! control are configured: in the zenoh file, exactly as zenoh documents them (TLS comes with the
+//! default cargo feature `zenoh-tls`).
 //!
 //! Overflow policy (every drop is counted by the reason named here in the bridge's counters,
 //! and in `gateway_dropped_updates_total{reason}` as `queue_full`, `lagged` or `closed`):
@@ -207,6 +208,10 @@ pub const MAX_MAX_PAYLOAD: usize = 16 * 1024 * 1024;
 /// expression, the attachment (a command's correlation data) and zenoh's framing. zenoh's
 /// `transport/link/rx/max_message_size` is `max_payload` plus this (131 072 bytes by default).
 pub const PAYLOAD_HEADROOM: usize = 65_536;
+/// The shortest `[zenoh] lease`.
+pub const MIN_LEASE: Duration = Duration::from_millis(500);
+/// The longest `[zenoh] lease`.
+pub const MAX_LEASE: Duration = Duration::from_secs(3600);
 /// The shortest heartbeat other than 0 (off).
 pub const MIN_HEARTBEAT: Duration = Duration::from_millis(100);
 /// The longest heartbeat.
@@ -227,6 +232,9 @@ pub enum Mode {
     /// Talks only through one router (or peer) it connects to. The bridge keeps retrying the
     /// first connection, and zenoh reconnects after a loss.
     Client,
+    /// Routes for others: clients and peers (local applications, other gateways) connect to
+    /// it, and it forwards between them and the routers it connects to.
+    Router,
 }
 
 impl Mode {
@@ -235,6 +243,7 @@ impl Mode {
         match self {
             Self::Peer => "peer",
             Self::Client => "client",
+            Self::Router => "router",
         }
     }
 }
@@ -312,7 +321,7 @@ pub fn check_prefix(prefix: &str) -> Result<OwnedKeyExpr, String> {
 pub struct ZenohConfig {
     /// Whether the gateway starts the bridge at all (the bridge itself does not look at it).
     pub enabled: bool,
-    /// Peer or client; unset: the file's, else peer.
+    /// Peer, client or router; unset: the file's, else peer.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub mode: Option<Mode>,
     /// Endpoints to listen on; unset: the file's, else loopback only (`tcp/127.0.0.1:7447`).
@@ -328,6 +337,13 @@ pub struct ZenohConfig {
     /// Key prefix; unset: `gw/<gateway name>`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub prefix: Option<Prefix>,
+    /// zenoh's lease: a router or peer that hears nothing of this gateway for this long closes
+    /// its session, and its liveliness tokens go; unset: the file's, else zenoh's (10 s).
+    #[serde(
+        skip_serializing_if = "Option::is_none",
+        with = "humantime_serde::option"
+    )]
+    pub lease: Option<Duration>,
     /// Accept telegram sends (`<line>/tx`) and tag writes (`.../set`); off by default.
     pub writes: bool,
     /// A zenoh configuration file (json5) read first; the keys above override it.
@@ -365,6 +381,7 @@ impl Default for ZenohConfig {
             connect: None,
             multicast_scouting: None,
             prefix: None,
+            lease: None,
             writes: DEFAULT_ZENOH_WRITES,
             config_file: None,
             telegram_queue: nonzero(DEFAULT_TELEGRAM_QUEUE),
@@ -405,6 +422,7 @@ impl ZenohConfig {
                 .map_err(|e| cx.issue(f.at("prefix"), e))
                 .ok()
         });
+        let lease = f.duration(cx, "lease", MIN_LEASE..=MAX_LEASE, "");
         let writes = f.bool_or(cx, "writes", DEFAULT_ZENOH_WRITES);
         let config_file = f.string(cx, "config_file").map(PathBuf::from);
         let mut queue = |key, default| {
@@ -439,6 +457,7 @@ impl ZenohConfig {
             connect,
             multicast_scouting,
             prefix,
+            lease,
             writes,
             config_file,
             telegram_queue,

@@ -59,6 +59,9 @@ impl ZenohConfig {
         if let Some(connect) = &self.connect {
             set("connect/endpoints", json_list(connect))?;
         }
+        if let Some(lease) = self.lease {
+            set("transport/link/tx/lease", lease.as_millis().to_string())?;
+        }
         match self.multicast_scouting {
             Some(on) => set("scouting/multicast/enabled", on.to_string())?,
             None if safe_defaults => set("scouting/multicast/enabled", "false".to_owned())?,
@@ -77,6 +80,7 @@ impl ZenohConfig {
         }
         let mode = match z.get_json("mode").ok().as_deref() {
             Some("\"client\"") => Mode::Client,
+            Some("\"router\"") => Mode::Router,
             _ => Mode::Peer,
         };
         Ok((z, mode))
@@ -155,6 +159,7 @@ mod tests {
             command_queue = 14
             query_queue = 15
             max_payload = 1000
+            lease = "3s"
             "#,
         )
         .unwrap();
@@ -173,19 +178,23 @@ mod tests {
             (1000 + PAYLOAD_HEADROOM).to_string()
         );
         assert_eq!(z.get_json("scouting/multicast/enabled").unwrap(), "false");
+        assert_eq!(z.get_json("transport/link/tx/lease").unwrap(), "3000");
+        let router = parse("mode = \"router\"").unwrap();
+        assert_eq!(router.to_zenoh().unwrap().1, Mode::Router);
     }
 
     #[test]
     fn bad_values_are_refused_when_read() {
         for text in [
             "bogus = 1",
-            "mode = \"router\"",
+            "mode = \"broker\"",
             "listen = [\"nonsense\"]",
             "connect = [\"tcp\"]",
             "prefix = \"gw/*\"",
             "prefix = \"gw//x\"",
             "telegram_queue = 0",
             "max_payload = 0",
+            "lease = \"1ms\"",
             "max_payload = 16777217",
             "max_payload = \"64k\"",
         ] {
@@ -242,5 +251,112 @@ mod tests {
         c.config_file = Some(dir.join("missing.json5"));
         assert!(matches!(c.to_zenoh(), Err(BridgeError::ConfigFile { .. })));
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A gateway listening on a TLS endpoint with mutual authentication: a client with a
+    /// certificate of the CA gets the gateway's answers, a client without one is refused.
+    #[cfg(feature = "zenoh-tls")]
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn tls_endpoints_with_mutual_authentication() {
+        use std::time::Duration;
+        let _ = tracing_subscriber::fmt().with_test_writer().try_init();
+        let dir = tempfile::tempdir().unwrap();
+        let ca_key = rcgen::KeyPair::generate().unwrap();
+        let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
+        ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
+        let ca = ca_params.self_signed(&ca_key).unwrap();
+        let issuer = rcgen::Issuer::from_params(&ca_params, &ca_key);
+        let path = |name: &str| dir.path().join(name).display().to_string();
+        std::fs::write(path("ca.pem"), ca.pem()).unwrap();
+        for name in ["gw", "app"] {
+            let key = rcgen::KeyPair::generate().unwrap();
+            let cert = rcgen::CertificateParams::new(vec!["127.0.0.1".to_owned()])
+                .unwrap()
+                .signed_by(&key, &issuer)
+                .unwrap();
+            std::fs::write(path(&format!("{name}.pem")), cert.pem()).unwrap();
+            std::fs::write(path(&format!("{name}.key")), key.serialize_pem()).unwrap();
+        }
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let file = path("zenoh.json5");
+        std::fs::write(
+            &file,
+            format!(
+                r#"{{ transport: {{ link: {{ tls: {{
+                    root_ca_certificate: "{ca}", listen_certificate: "{cert}",
+                    listen_private_key: "{key}", enable_mtls: true }} }} }} }}"#,
+                ca = path("ca.pem"),
+                cert = path("gw.pem"),
+                key = path("gw.key"),
+            ),
+        )
+        .unwrap();
+        let gw = ZenohConfig {
+            mode: Some(Mode::Peer),
+            listen: Some(vec![
+                Endpoint::try_from(format!("tls/127.0.0.1:{port}")).unwrap()
+            ]),
+            connect: Some(Vec::new()),
+            multicast_scouting: Some(false),
+            config_file: Some(file.into()),
+            ..ZenohConfig::default()
+        };
+        let (zcfg, _) = gw.to_zenoh().unwrap();
+        let server = zenoh::open(zcfg).await.expect("a TLS listener");
+        let _q = server
+            .declare_queryable("gw/tls/status")
+            .callback(|q| {
+                let _ = zenoh::Wait::wait(q.reply("gw/tls/status", "{\"ok\":true}"));
+            })
+            .await
+            .unwrap();
+        let client = |with_cert: bool| {
+            let mut c = zenoh::Config::default();
+            c.insert_json5("mode", r#""client""#).unwrap();
+            c.insert_json5("connect/endpoints", &format!(r#"["tls/127.0.0.1:{port}"]"#))
+                .unwrap();
+            c.insert_json5("scouting/multicast/enabled", "false")
+                .unwrap();
+            c.insert_json5(
+                "transport/link/tls/root_ca_certificate",
+                &format!("{:?}", path("ca.pem")),
+            )
+            .unwrap();
+            if with_cert {
+                c.insert_json5("transport/link/tls/enable_mtls", "true")
+                    .unwrap();
+                c.insert_json5(
+                    "transport/link/tls/connect_certificate",
+                    &format!("{:?}", path("app.pem")),
+                )
+                .unwrap();
+                c.insert_json5(
+                    "transport/link/tls/connect_private_key",
+                    &format!("{:?}", path("app.key")),
+                )
+                .unwrap();
+            }
+            c
+        };
+        let app = zenoh::open(client(true))
+            .await
+            .expect("a client with a certificate");
+        let replies = app
+            .get("gw/tls/status")
+            .timeout(Duration::from_secs(5))
+            .await
+            .unwrap();
+        let reply = replies.recv_async().await.expect("an answer over TLS");
+        assert!(reply.result().is_ok());
+        assert!(
+            zenoh::open(client(false)).await.is_err(),
+            "a client without a certificate is refused"
+        );
+        app.close().await.unwrap();
+        server.close().await.unwrap();
     }
 }

@@ -15,8 +15,11 @@
 //! <prefix>/<line>/<device>/<tag>           tag values (publication on change; queryable)
 //! <prefix>/<line>/<device>/<tag>/set       writes (subscription; queryable form)
 //! <prefix>/<line>/<device>/<tag>/set/result  result of a write (publication)
-//! liveliness: <prefix>                     the gateway
+//! liveliness: <prefix>                     the gateway, while its bridge runs
+//! liveliness: <prefix>/<line>              one line while its port is open
 //! liveliness: <prefix>/<line>/<device>     one device while it is online
+//! <parent of prefix>/*                     the fleet: the gateway tokens of the gateways
+//!                                          beside this one (`gw/*` for the default prefix)
 //! ```
 //!
 //! Each of line, device and tag names is exactly one key chunk. The only structural clash is a
@@ -261,6 +264,20 @@ impl Keys {
         format!("{}/*/*/*/{SET}", self.prefix)
     }
 
+    /// `<prefix>/<line>`: a line's liveliness token.
+    pub fn line_token(&self, line: &str) -> String {
+        format!("{}/{line}", self.prefix)
+    }
+
+    /// The gateway tokens of the fleet this gateway belongs to: its prefix with the last chunk
+    /// a wildcard (`gw/*` for `gw/<name>`); `*` for a prefix of one chunk.
+    pub fn fleet_pattern(&self) -> String {
+        match self.prefix.rsplit_once('/') {
+            Some((parent, _)) => format!("{parent}/*"),
+            None => "*".to_owned(),
+        }
+    }
+
     /// `<prefix>/<line>/<device>`: a device's liveliness token.
     pub fn device_token(&self, line: &str, device: &str) -> String {
         format!("{}/{line}/{device}", self.prefix)
@@ -351,6 +368,13 @@ mod tests {
             "gw/demo/drive/atv/cmd/set/result"
         );
         assert_eq!(k.device_token("drive", "atv"), "gw/demo/drive/atv");
+        assert_eq!(k.line_token("drive"), "gw/demo/drive");
+        assert_eq!(k.fleet_pattern(), "gw/*");
+        assert_eq!(
+            Keys::new("plant/hall2/gw1").unwrap().fleet_pattern(),
+            "plant/hall2/*"
+        );
+        assert_eq!(Keys::new("solo").unwrap().fleet_pattern(), "*");
         for pattern in [
             k.tx_pattern(),
             k.set_pattern(),

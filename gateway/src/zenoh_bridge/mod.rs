@@ -66,12 +66,15 @@
 //!
 //! Runtime: call `start` inside a multi-threaded tokio runtime.
 //!
-//! Cargo features: zenoh is built with `transport_tcp` only. Build the gateway with the
-//! `zenoh-tls` feature for `tls/` endpoints (TLS certificates and mutual authentication are set
-//! in the zenoh config file); access control (`access_control` in the file) needs no feature.
+//! Cargo features: zenoh is built with `transport_tcp`, and with `transport_tls` through the
+//! default feature `zenoh-tls` (`tls/` endpoints; certificates and mutual authentication are
+//! set in the zenoh config file); access control (`access_control` in the file) needs no
+//! feature.
 
 pub mod accounting;
 pub mod config;
+pub mod fleet;
+pub mod fleet_cli;
 pub mod keys;
 pub mod stats;
 
@@ -211,6 +214,16 @@ pub enum BridgeError {
     /// The session did not open (peer mode).
     #[error("zenoh session: {0}")]
     Open(String),
+    /// A gateway under the same key prefix is already live on the fabric (see [`fleet`]).
+    #[error("gateway name {name:?} is already live on the zenoh fabric (liveliness token {key}), held by {other}: a second gateway of that name is refused; give this one another [gateway] name or [zenoh] prefix, or stop the other")]
+    Duplicate {
+        /// This gateway's name.
+        name: String,
+        /// The token (the key prefix).
+        key: String,
+        /// Who holds it and where it runs.
+        other: String,
+    },
     /// The publisher thread could not be started.
     #[error("zenoh publisher thread: {0}")]
     Thread(std::io::Error),
@@ -375,6 +388,14 @@ impl BridgeHandle {
         pushed
     }
 
+    /// Declares (online) or undeclares (offline) the liveliness token of a line.
+    pub fn line_online(&self, line: &str, online: bool) {
+        if self.check(&[line]).is_ok() {
+            self.outbox
+                .push_presence(self.keys.line_token(line), online);
+        }
+    }
+
     /// Declares (online) or undeclares (offline) the liveliness token of a device.
     pub fn device_online(&self, line: &str, device: &str, online: bool) {
         if self.check(&[line, device]).is_ok() {
@@ -419,6 +440,7 @@ impl std::fmt::Debug for BridgeHandle {
 pub struct Bridge {
     driver: JoinHandle<()>,
     stats: Arc<BridgeStats>,
+    fleet: Arc<fleet::FleetView>,
 }
 
 // === impl Bridge ===
@@ -457,7 +479,15 @@ impl Bridge {
         let outbox = Arc::new(Outbox::new(limits, stats.clone()));
 
         let session = match zenoh::open(zcfg.clone()).await {
-            Ok(s) => Some(s),
+            Ok(s) => {
+                if let Err(e) = fleet::refuse_duplicate(&s, &keys, gateway_name).await {
+                    if let Err(close) = s.close().await {
+                        tracing::debug!(error = %close, "zenoh session close failed");
+                    }
+                    return Err(e);
+                }
+                Some(s)
+            }
             Err(e) if mode == Mode::Client => {
                 crate::warn_limited!("zenoh client not connected", error = %e, "zenoh client not connected yet, retrying in the background");
                 None
@@ -486,7 +516,15 @@ impl Bridge {
             command_queue: cfg.command_queue.get(),
             query_queue: cfg.query_queue.get(),
             max_payload: cfg.max_payload.get(),
+            listen: zcfg
+                .get_json("listen/endpoints")
+                .ok()
+                .and_then(|l| serde_json::from_str(&l).ok())
+                .unwrap_or(Value::Null),
+            gateway_name: gateway_name.to_owned(),
+            fleet: Arc::new(fleet::FleetView::default()),
         };
+        let fleet_view = parts.fleet.clone();
         let publishing = Arc::new(Publishing::new(cfg.publish.clone()));
         let handle = BridgeHandle {
             keys,
@@ -503,12 +541,24 @@ impl Bridge {
             ));
         }
         let driver = tokio::spawn(drive(parts, session, zcfg, thread, shutdown));
-        Ok((Self { driver, stats }, handle))
+        Ok((
+            Self {
+                driver,
+                stats,
+                fleet: fleet_view,
+            },
+            handle,
+        ))
     }
 
     /// The bridge's counters.
     pub fn stats(&self) -> &Arc<BridgeStats> {
         &self.stats
+    }
+
+    /// The other gateways of the fleet seen so far.
+    pub fn fleet(&self) -> &Arc<fleet::FleetView> {
+        &self.fleet
     }
 
     /// Waits until the bridge has stopped: shutdown cancelled, pending publications sent,
@@ -582,6 +632,10 @@ struct Parts {
     command_queue: usize,
     query_queue: usize,
     max_payload: usize,
+    /// The listen endpoints in force (JSON list), for the gateway status.
+    listen: Value,
+    gateway_name: String,
+    fleet: Arc<fleet::FleetView>,
 }
 
 /// The subscribers and queryables; dropping them undeclares them.
@@ -599,7 +653,21 @@ async fn drive(
 ) {
     let session = match session {
         Some(s) => Some(s),
-        None => open_with_retry(zcfg, &shutdown).await,
+        None => match open_with_retry(zcfg, &shutdown).await {
+            // A client that connected late checks the fleet then; refused, it stays off the
+            // fabric (the process runs on: its lines, Modbus TCP and REST are not zenoh's).
+            Some(s) => match fleet::refuse_duplicate(&s, &parts.keys, &parts.gateway_name).await {
+                Ok(()) => Some(s),
+                Err(e) => {
+                    crate::error_limited!("zenoh duplicate gateway", error = %e, "zenoh: this gateway stays off the fabric");
+                    if let Err(close) = s.close().await {
+                        tracing::debug!(error = %close, "zenoh session close failed");
+                    }
+                    None
+                }
+            },
+            None => None,
+        },
     };
     let mut declared = None;
     if let Some(session) = &session {
@@ -610,6 +678,12 @@ async fn drive(
             }
         }
         parts.outbox.push_presence(parts.keys.gateway_token(), true);
+        tokio::spawn(fleet::follow(
+            session.clone(),
+            parts.keys.clone(),
+            parts.fleet.clone(),
+            shutdown.clone(),
+        ));
         parts.outbox.set_session(session.clone());
         parts.stats.set_session_open(true);
         tracing::info!(zid = %session.zid(), prefix = parts.keys.prefix(), mode = parts.mode.as_str(), "zenoh session open");
@@ -688,6 +762,7 @@ async fn declare(
             "zid": session.zid().to_string(),
             "prefix": keys.prefix(),
             "mode": parts.mode.as_str(),
+            "listen": parts.listen,
         }),
     });
     tokio::spawn(queryable::serve(answerer, query_rx, shutdown.clone()));

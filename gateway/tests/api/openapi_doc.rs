@@ -14,6 +14,7 @@ const ROUTES: &[(&str, &str)] = &[
     ("get", "/readyz"),
     ("get", "/api/v1/openapi.json"),
     ("get", "/api/v1/status"),
+    ("get", "/api/v1/fleet"),
     ("get", "/api/v1/config"),
     ("put", "/api/v1/config"),
     ("post", "/api/v1/config/validate"),
@@ -210,5 +211,20 @@ async fn the_document_matches_what_the_server_answers() {
                 "{method} {path} {status}"
             );
         }
+    }
+}
+
+/// `GET /fleet` of a gateway that sees no other (here: no zenoh at all) answers an empty list,
+/// so that the status page shows no fleet section; the document describes its entries.
+#[tokio::test]
+async fn the_fleet_of_a_lone_gateway_is_empty() {
+    let api = start().await;
+    let r = api.get("/api/v1/fleet").await;
+    assert_eq!(r.status, 200, "{}", r.text);
+    assert_eq!(r.json, serde_json::json!({"gateways": []}));
+    let doc = api.get("/api/v1/openapi.json").await.json;
+    let entry = &doc["components"]["schemas"]["FleetEntry"]["properties"];
+    for field in ["key", "name", "zid", "host", "online", "since", "link"] {
+        assert!(entry.get(field).is_some(), "FleetEntry.{field}: {entry}");
     }
 }

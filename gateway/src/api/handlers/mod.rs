@@ -2,6 +2,7 @@
 //! into [`ApiError`]s.
 
 pub(crate) mod config;
+pub(crate) mod fleet;
 pub(crate) mod health;
 pub(crate) mod lines;
 pub(crate) mod monitor;

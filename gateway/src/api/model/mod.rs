@@ -5,6 +5,7 @@
 //! catalog (proto-core, 003 7.2).
 
 mod diag;
+mod fleet;
 mod frame;
 mod status;
 mod tag;
@@ -20,6 +21,7 @@ use utoipa::openapi::RefOr;
 use utoipa::{PartialSchema, ToSchema};
 
 pub use diag::*;
+pub use fleet::*;
 pub use frame::*;
 pub use status::*;
 pub use tag::*;
