@@ -5,8 +5,10 @@
 use std::time::Duration;
 
 use proto_core::modbus::Table;
-use proto_core::profiles::registry::{self, Registered};
-use proto_core::profiles::{DeviceProfile, ReadWriteLimits, RequestLimits};
+use proto_core::profiles::registry;
+use proto_core::profiles::{
+    DeviceProfile, ReadWriteLimits, Registered, RequestLimits, ScannerSpec,
+};
 use serde::{Deserialize, Serialize};
 
 use super::reader::{check_name, int_value, string_value, Cx, Fields};
@@ -74,17 +76,18 @@ pub fn default_offline_backoff_max() -> Duration {
     DEFAULT_OFFLINE_BACKOFF_MAX
 }
 
-/// The device types the gateway knows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Profile {
-    /// Schneider Altivar 61/71 (002).
-    Altivar71,
-    /// PMA KS vario (001).
-    Ksvario,
-    /// Any Modbus device described by the config's tag list.
-    Generic,
+/// A device's type: a profile of proto-core's registry
+/// ([`registry::PROFILES`]: `altivar71`, `ksvario`, ...) or `generic` (any Modbus device
+/// described by the config's tag list). Not a closed list: a profile added to the registry is
+/// known here by its name, with its capabilities ([`Registered::scanner`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Profile {
+    /// The registry's name, or [`GENERIC_PROFILE`].
+    name: &'static str,
 }
+
+/// The name of the profile of a device known only by its tags.
+pub const GENERIC_PROFILE: &str = "generic";
 
 /// How much one request may carry: the profile's [`RequestLimits`], which the config may only
 /// lower (0 means the device does not support the function). Written back under the config's
@@ -115,18 +118,48 @@ fn rw_write(l: &RequestLimits) -> u16 {
 // === impl Profile ===
 
 impl Profile {
+    /// A device described by the config's tags only.
+    pub const GENERIC: Self = Self {
+        name: GENERIC_PROFILE,
+    };
+
+    /// The profile named `name` (ASCII case ignored): the registry's, or `generic`.
+    pub fn named(name: &str) -> Option<Self> {
+        if name.eq_ignore_ascii_case(GENERIC_PROFILE) {
+            return Some(Self::GENERIC);
+        }
+        registry::lookup(name).map(|r| Self { name: r.name })
+    }
+
+    /// Every name a config may give: the registry's, then `generic`.
+    pub fn names() -> Vec<&'static str> {
+        registry::names()
+            .chain(std::iter::once(GENERIC_PROFILE))
+            .collect()
+    }
+
+    /// The names as a message lists them: `altivar71, ksvario or generic`.
+    pub fn names_listed() -> String {
+        let names = Self::names();
+        match names.split_last() {
+            Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+            _ => names.join(""),
+        }
+    }
+
     /// The profile's entry in proto-core's registry, `None` for `generic`.
     pub fn registered(self) -> Option<&'static Registered> {
-        registry::lookup(self.name())
+        registry::lookup(self.name)
     }
 
     /// The configuration's name of the profile (`altivar71`, `ksvario`, `generic`).
     pub const fn name(self) -> &'static str {
-        match self {
-            Self::Altivar71 => "altivar71",
-            Self::Ksvario => "ksvario",
-            Self::Generic => "generic",
-        }
+        self.name
+    }
+
+    /// The device's communication scanner, if its profile has one.
+    pub fn scanner(self) -> Option<ScannerSpec> {
+        self.registered().and_then(|r| r.scanner)
     }
 
     /// The register map of the device, `None` for `generic` (built from the config's tags).
@@ -172,6 +205,25 @@ impl Profile {
     pub fn tag_names(self) -> Vec<String> {
         self.device_profile().map_or_else(Vec::new, |p| {
             p.tags.iter().map(|t| t.name.to_ascii_lowercase()).collect()
+        })
+    }
+}
+
+impl Serialize for Profile {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.name)
+    }
+}
+
+impl<'de> Deserialize<'de> for Profile {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        Self::named(&name).ok_or_else(|| {
+            let expected: Vec<String> = Self::names().iter().map(|n| format!("`{n}`")).collect();
+            serde::de::Error::custom(format!(
+                "unknown variant `{name}`, expected one of {}",
+                expected.join(", ")
+            ))
         })
     }
 }
@@ -409,8 +461,11 @@ pub const DEFAULT_SCANNER_PERIOD: Duration = Duration::from_millis(100);
 /// NCA2 = LFRD; NMA1 = ETA, NMA2 = RFRD).
 pub const DEFAULT_SCANNER_WORDS: u16 = 2;
 
-/// Where the scanner's words and their number come from.
+/// Where the scanner's words and their number come from, for a profile without a scanner (whose
+/// `scanner` table is refused anyway).
 const SCANNER_CITE: &str = "002 Kommunikationsscanner: NM1..NM8, NC1..NC8";
+/// Scanner words in each direction at most, for a profile without a scanner.
+const MAX_SCANNER_WORDS: u16 = 8;
 
 /// The device's `scanner` table, if present: only an Altivar has one, and its words must fit
 /// one FC 23 within the device's limits.
@@ -421,16 +476,30 @@ fn read_scanner(
     limits: &RequestLimits,
 ) -> Option<ScannerConfig> {
     let mut t = f.table(cx, "scanner")?;
-    let other = profile.is_some_and(|p| p != Profile::Altivar71);
+    let spec = profile.map(Profile::scanner);
+    let other = matches!(spec, Some(None));
     if other {
+        let with: Vec<String> = registry::PROFILES
+            .iter()
+            .filter(|r| r.scanner.is_some())
+            .map(|r| format!("profile = {:?}", r.name))
+            .collect();
         cx.issue(
             t.path().to_owned(),
-            "the communication scanner is the Altivar's (002); only with profile = \"altivar71\"",
+            format!(
+                "the communication scanner is the Altivar's (002); only with {}",
+                with.join(" or ")
+            ),
         );
     }
+    let (max, cite) = spec
+        .flatten()
+        .map_or((MAX_SCANNER_WORDS, SCANNER_CITE), |s| {
+            (s.max_words, s.source)
+        });
     let enabled = t.bool_or(cx, "enabled", false);
-    let inputs = t.int_or(cx, "inputs", 1..=8, DEFAULT_SCANNER_WORDS, SCANNER_CITE);
-    let outputs = t.int_or(cx, "outputs", 1..=8, DEFAULT_SCANNER_WORDS, SCANNER_CITE);
+    let inputs = t.int_or(cx, "inputs", 1..=max, DEFAULT_SCANNER_WORDS, cite);
+    let outputs = t.int_or(cx, "outputs", 1..=max, DEFAULT_SCANNER_WORDS, cite);
     let (lo, hi) = POLL_PERIOD_RANGE;
     let period = t.duration_or(cx, "period", lo..=hi, DEFAULT_SCANNER_PERIOD, "");
     if enabled && !other && (inputs > rw_read(limits) || outputs > rw_write(limits)) {
@@ -670,7 +739,7 @@ impl DeviceConfig {
         if !f.has("profile") {
             cx.issue(
                 f.at("profile"),
-                "missing required key (altivar71, ksvario or generic)",
+                format!("missing required key ({})", Profile::names_listed()),
             );
         }
         let address = match f.raw("address") {
@@ -694,7 +763,7 @@ impl DeviceConfig {
             ),
         };
         let unit_id = f.int(cx, "unit_id", 1..=u8::MAX, "");
-        let limits = read_limits(cx, &mut f, profile.unwrap_or(Profile::Generic));
+        let limits = read_limits(cx, &mut f, profile.unwrap_or(Profile::GENERIC));
         let (lo, hi) = BACKOFF_RANGE;
         let offline_backoff_min = f.duration_or(
             cx,
@@ -737,7 +806,7 @@ impl DeviceConfig {
         let bridge_gap = f.int_or(cx, "bridge_gap", 0..=u16::MAX, DEFAULT_BRIDGE_GAP, "");
         let scanner = read_scanner(cx, &mut f, profile, &limits);
         let raw_tags = f.array(cx, "tags");
-        if profile == Some(Profile::Generic) && raw_tags.is_empty() {
+        if profile == Some(Profile::GENERIC) && raw_tags.is_empty() {
             cx.issue(f.at("tags"), "a generic device needs a tag list");
         }
         let mut tags = Vec::new();
@@ -752,7 +821,7 @@ impl DeviceConfig {
         let address = address?;
         Some(Self {
             // A bad profile is reported above; generic stands in (it accepts every table).
-            profile: profile.unwrap_or(Profile::Generic),
+            profile: profile.unwrap_or(Profile::GENERIC),
             address,
             unit_id: unit_id.unwrap_or(address),
             limits,
@@ -784,7 +853,9 @@ mod tests {
     #[test]
     fn profile_limits_follow_the_manuals() {
         // 002 "Modbus-Funktionen": FC03 63, FC16 61, FC23 20/20.
-        let a = Profile::Altivar71.max_limits();
+        let a = Profile::named("altivar71")
+            .expect("registered")
+            .max_limits();
         assert_eq!(
             (
                 a.read_registers,
@@ -795,9 +866,15 @@ mod tests {
             (63, 61, 20, 20)
         );
         // 001 3.1: 120 integer values a message.
-        assert_eq!(Profile::Ksvario.max_limits().read_registers, 120);
+        assert_eq!(
+            Profile::named("ksvario")
+                .expect("registered")
+                .max_limits()
+                .read_registers,
+            120
+        );
         // Modbus Application Protocol: 125 / 123.
-        let g = Profile::Generic.max_limits();
+        let g = Profile::GENERIC.max_limits();
         assert_eq!(
             (g.read_registers, g.write_registers, g.read_bits),
             (125, 123, 2000)

@@ -42,11 +42,11 @@ fn demo_follows_the_spec() {
     assert_eq!(drive.len(), 2);
     assert_eq!(
         (drive[0].1.profile, drive[0].1.address, drive[0].1.unit_id),
-        (Profile::Altivar71, 2, 2)
+        (Profile::named("altivar71").expect("registered"), 2, 2)
     );
     assert_eq!(
         (drive[1].1.profile, drive[1].1.address, drive[1].1.unit_id),
-        (Profile::Altivar71, 3, 3)
+        (Profile::named("altivar71").expect("registered"), 3, 3)
     );
     assert!(matches!(
         c.lines["drive"].protocol,
@@ -55,7 +55,7 @@ fn demo_follows_the_spec() {
     let kv: Vec<_> = c.lines["ksvario"].devices().collect();
     assert_eq!(
         (kv[0].1.profile, kv[0].1.address, kv[0].1.unit_id),
-        (Profile::Ksvario, 17, 17)
+        (Profile::named("ksvario").expect("registered"), 17, 17)
     );
     let ProtocolConfig::Proc3964(p) = &c.lines["r3964"].protocol else {
         panic!("r3964 is 3964R")
@@ -77,7 +77,7 @@ fn demo_follows_the_spec() {
             ks[1].1.address,
             ks[1].1.unit_id
         ),
-        ("meter", Profile::Generic, 30, 30)
+        ("meter", Profile::GENERIC, 30, 30)
     );
 }
 
@@ -145,10 +145,10 @@ fn example_contains_every_key() {
     let profiles: BTreeSet<_> = c
         .lines
         .values()
-        .flat_map(|l| l.devices().map(|(_, d)| format!("{:?}", d.profile)))
+        .flat_map(|l| l.devices().map(|(_, d)| d.profile.name()))
         .collect();
     assert!(
-        profiles.contains("Altivar71") && profiles.contains("Generic"),
+        profiles.contains("altivar71") && profiles.contains("generic"),
         "{profiles:?}"
     );
 }
