@@ -481,6 +481,9 @@ fn tag_of(t: &config::TagConfig) -> Tag {
         .offset(t.offset)
         .unit(t.unit.clone());
     tag.decimals = t.decimals;
+    if let Some(description) = &t.description {
+        tag = tag.describe(description.clone());
+    }
     if t.writable {
         tag = tag.writable();
     }

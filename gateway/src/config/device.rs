@@ -374,6 +374,9 @@ pub struct TagConfig {
     pub unit: String,
     /// Writes from Modbus TCP, zenoh or REST are accepted (holding registers and coils only).
     pub writable: bool,
+    /// What the value is, free text for people (REST, zenoh, the status page); absent: none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub description: Option<String>,
 }
 
 impl TagConfig {
@@ -408,8 +411,19 @@ pub struct PollGroup {
 }
 
 /// One device on a Modbus master line.
+///
+/// Written out (`Serialize`) with every key, except a device read from a template: its
+/// `template` and only the keys whose values differ from the template's, as an operator writes
+/// it (reading that back gives the same device).
 #[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(remote = "Self")]
 pub struct DeviceConfig {
+    /// The template the device was read from (`template = "NAME"`), if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub template: Option<String>,
+    /// The template read alone and written out: what the device is written back against.
+    #[serde(skip)]
+    pub template_base: Option<std::sync::Arc<toml::Table>>,
     pub profile: Profile,
     /// Slave address on the serial line, 1..=247.
     pub address: u8,
@@ -646,6 +660,7 @@ fn read_tag(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<TagConfig> {
         decimals: f.int::<u8>(cx, "decimals", 0..=MAX_DECIMALS, ""),
         unit: f.string_or(cx, "unit", ""),
         writable: f.bool_or(cx, "writable", false),
+        description: f.string(cx, "description"),
         name: name.clone().unwrap_or_default(),
     };
     f.finish(cx);
@@ -820,6 +835,8 @@ impl DeviceConfig {
         f.finish(cx);
         let address = address?;
         Some(Self {
+            template: None,
+            template_base: None,
             // A bad profile is reported above; generic stands in (it accepts every table).
             profile: profile.unwrap_or(Profile::GENERIC),
             address,
@@ -836,6 +853,74 @@ impl DeviceConfig {
             scanner,
         })
     }
+}
+
+/// The device with every key, as the derived serialization writes it.
+struct Whole<'a>(&'a DeviceConfig);
+
+impl Serialize for Whole<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        DeviceConfig::serialize(self.0, s)
+    }
+}
+
+impl Serialize for DeviceConfig {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let Some(base) = self.template_base.as_deref() else {
+            return Self::serialize(self, s);
+        };
+        let whole = self.written_whole().map_err(serde::ser::Error::custom)?;
+        written_against(whole, base).serialize(s)
+    }
+}
+
+impl DeviceConfig {
+    /// Every key of the device (the template's merged in), as a table.
+    pub(crate) fn written_whole(&self) -> Result<toml::Table, toml::ser::Error> {
+        toml::Table::try_from(Whole(self))
+    }
+}
+
+/// The keys of `whole` that differ from the template's `base`: `address`, `unit_id` and
+/// `template` always, a tag or poll group when the template has none of its name or another,
+/// a key of `limits` or `scanner` when it differs.
+fn written_against(whole: toml::Table, base: &toml::Table) -> toml::Table {
+    let named = |v: &toml::Value| {
+        v.get("name")
+            .and_then(toml::Value::as_str)
+            .map(str::to_ascii_lowercase)
+    };
+    let mut out = toml::Table::new();
+    for (key, value) in whole {
+        let theirs = base.get(&key);
+        let kept = match (key.as_str(), value, theirs) {
+            ("address" | "unit_id" | "template", v, _) => Some(v),
+            ("tags" | "poll", toml::Value::Array(mine), Some(toml::Value::Array(theirs))) => {
+                let own: Vec<toml::Value> = mine
+                    .into_iter()
+                    .filter(|v| {
+                        !theirs
+                            .iter()
+                            .any(|t| named(t).is_some() && named(t) == named(v) && t == v)
+                    })
+                    .collect();
+                (!own.is_empty()).then_some(toml::Value::Array(own))
+            }
+            ("limits" | "scanner", toml::Value::Table(mine), Some(toml::Value::Table(theirs))) => {
+                let own: toml::Table = mine
+                    .into_iter()
+                    .filter(|(k, v)| theirs.get(k) != Some(v))
+                    .collect();
+                (!own.is_empty()).then_some(toml::Value::Table(own))
+            }
+            (_, v, Some(t)) if *t == v => None,
+            (_, v, _) => Some(v),
+        };
+        if let Some(v) = kept {
+            out.insert(key, v);
+        }
+    }
+    out
 }
 
 /// The TOML spelling of a unit-like enum value.
