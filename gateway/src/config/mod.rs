@@ -409,6 +409,19 @@ pub fn parse_with(text: &str, check: Check<'_>) -> Result<Config, ConfigErrors> 
     Config::from_table_with(&table, check)
 }
 
+/// Parses and validates a configuration's text as if it were read from a file in `dir` (relative
+/// `template_dirs` are taken from there), with `check`'s issues in the same answer: a file's new
+/// text checked before it is written.
+pub fn parse_in(text: &str, check: Check<'_>, dir: &Path) -> Result<Config, ConfigErrors> {
+    let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
+        issues: vec![ConfigIssue {
+            path: String::new(),
+            message: syntax_message(text, &e),
+        }],
+    })?;
+    Config::from_table_in(&table, check, Some(dir.to_path_buf()))
+}
+
 /// Reads, parses and validates the configuration file at `path`.
 pub fn load(path: &Path) -> Result<Config, ConfigErrors> {
     load_with(path, &no_check)
