@@ -121,6 +121,12 @@ tags = [
     let own = tag("m31", "temperature").await;
     assert_eq!(own["value"].to_string(), "293.1", "{own}");
     assert_eq!(own["unit"], "K");
+    assert_eq!(own["description"], "raw kelvin", "{own}");
+    assert_eq!(
+        tag("m30", "energy").await["description"],
+        "energy imported",
+        "the template's description"
+    );
     assert_eq!(
         tag("m30", "serial").await["value"],
         tag("m31", "serial").await["value"]
@@ -161,6 +167,10 @@ tags = [
     assert_eq!(
         got["gw/tpl/meters/m31/temperature"]["value"].to_string(),
         "293.1",
+        "{got:?}"
+    );
+    assert_eq!(
+        got["gw/tpl/meters/m31/temperature"]["description"], "raw kelvin",
         "{got:?}"
     );
 
