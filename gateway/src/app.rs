@@ -35,6 +35,7 @@ mod reload_notice;
 mod rest;
 mod status;
 mod supervisor;
+pub mod tag_csv;
 mod tag_io;
 mod tls;
 mod zenoh;

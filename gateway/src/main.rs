@@ -88,6 +88,106 @@ enum Command {
     /// The gateways on the zenoh fabric: `status` (one table), `watch KEYEXPR` (samples).
     #[command(subcommand)]
     Fleet(gateway::zenoh_bridge::fleet_cli::FleetCommand),
+    /// A device's (or a template's) tag list as CSV: export it, or import one into the file.
+    #[command(subcommand)]
+    Tags(TagsCommand),
+}
+
+/// `gateway tags export | import`.
+#[derive(Debug, Subcommand)]
+enum TagsCommand {
+    /// Print the tag list as CSV (header name,table,address,type,byte_order,bit,registers,scale,
+    /// offset,decimals,unit,writable,description).
+    Export {
+        #[command(flatten)]
+        owner: TagsOwnerArgs,
+    },
+    /// Replace the tag list in the config file with the tags of a CSV file (checked first as
+    /// `gateway check` does; nothing is written on any problem; the file is replaced atomically,
+    /// its comments kept, the previous version as FILE.prev).
+    Import {
+        #[command(flatten)]
+        owner: TagsOwnerArgs,
+        /// The CSV file (`-` for standard input).
+        csv: PathBuf,
+    },
+}
+
+/// Whose tag list: `--line L --device D`, or `--template NAME` (a `[templates.NAME]`).
+#[derive(Debug, clap::Args)]
+struct TagsOwnerArgs {
+    /// The config file.
+    #[arg(long, short)]
+    config: PathBuf,
+    /// The line of the device.
+    #[arg(long, requires = "device", conflicts_with = "template")]
+    line: Option<String>,
+    /// The device.
+    #[arg(long, requires = "line", conflicts_with = "template")]
+    device: Option<String>,
+    /// A template of the config's [templates] instead of a device.
+    #[arg(long, required_unless_present = "line")]
+    template: Option<String>,
+}
+
+// === impl TagsOwnerArgs ===
+
+impl TagsOwnerArgs {
+    fn owner(&self) -> gateway::app::tag_csv::TagOwner {
+        use gateway::app::tag_csv::TagOwner;
+        match (&self.line, &self.device, &self.template) {
+            (Some(line), Some(device), _) => TagOwner::Device {
+                line: line.clone(),
+                device: device.clone(),
+            },
+            (_, _, template) => TagOwner::Template(template.clone().unwrap_or_default()),
+        }
+    }
+}
+
+/// Runs `gateway tags`: 0 done, 1 problems (printed on stderr), 2 no such file or owner.
+fn tags_command(command: &TagsCommand) -> ExitCode {
+    use gateway::app::tag_csv::{self, TagCsvError};
+    let result = match command {
+        TagsCommand::Export { owner } => {
+            tag_csv::export(&owner.config, &owner.owner()).map(|csv| print!("{csv}"))
+        }
+        TagsCommand::Import { owner, csv } => {
+            let text = if csv.as_os_str() == "-" {
+                let mut text = String::new();
+                std::io::Read::read_to_string(&mut std::io::stdin(), &mut text).map(|_| text)
+            } else {
+                std::fs::read_to_string(csv)
+            };
+            match text {
+                Err(e) => Err(TagCsvError::File(format!(
+                    "cannot read {}: {e}",
+                    csv.display()
+                ))),
+                Ok(text) => tag_csv::import(&owner.config, &owner.owner(), &text).map(|n| {
+                    println!(
+                        "ok: {n} tags written to {} ({})",
+                        owner.config.display(),
+                        owner.owner().path()
+                    );
+                }),
+            }
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e @ TagCsvError::Problems(_)) => {
+            eprintln!(
+                "{e}
+nothing written"
+            );
+            ExitCode::from(1)
+        }
+        Err(e) => {
+            eprintln!("gateway tags: {e}");
+            ExitCode::from(2)
+        }
+    }
 }
 
 fn main() -> ExitCode {
@@ -202,6 +302,7 @@ async fn async_main(command: Command) -> ExitCode {
             drop(hangups);
             return ExitCode::from(gateway::zenoh_bridge::fleet_cli::run(command, shutdown).await);
         }
+        Command::Tags(command) => return tags_command(&command),
         Command::Check { config } => {
             return match gateway::app::check_command(&config) {
                 0 => ExitCode::SUCCESS,

@@ -280,9 +280,7 @@ impl TagDirectory {
 /// whose whole numbers are written without a detour through floats.
 fn exact_bounds(entry: &TagEntry) -> Option<(i128, i128)> {
     let tag = &entry.tag;
-    let plain = tag.is_plain()
-        && tag.raw_range.is_none()
-        && entry.profile.special_values == profiles::SpecialValues::None;
+    let plain = tag.is_plain() && tag.raw_range.is_none() && entry.profile.special_values.is_none();
     plain.then(|| tag.data_type.int_bounds()).flatten()
 }
 
@@ -483,6 +481,9 @@ fn tag_of(t: &config::TagConfig) -> Tag {
         .offset(t.offset)
         .unit(t.unit.clone());
     tag.decimals = t.decimals;
+    if let Some(description) = &t.description {
+        tag = tag.describe(description.clone());
+    }
     if t.writable {
         tag = tag.writable();
     }

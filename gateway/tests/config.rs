@@ -24,7 +24,17 @@ mod rules;
 #[path = "config/security.rs"]
 mod security;
 
-const EXAMPLE: &str = include_str!("../../deploy/gateway.example.toml");
+/// The example as shipped, its relative `template_dirs` made absolute (the tests read it from
+/// text or copy it elsewhere; `gateway check` takes it from the file's directory).
+static EXAMPLE: std::sync::LazyLock<String> = std::sync::LazyLock::new(|| {
+    include_str!("../../deploy/gateway.example.toml").replace(
+        "template_dirs = [\"templates\"]",
+        &format!(
+            "template_dirs = [{:?}]",
+            concat!(env!("CARGO_MANIFEST_DIR"), "/../deploy/templates")
+        ),
+    )
+});
 
 fn ms(n: u64) -> Duration {
     Duration::from_millis(n)

@@ -9,8 +9,7 @@ use proto_core::modbus::pdu::FunctionCode;
 use proto_core::profiles::altivar::{self, DriveState};
 use proto_core::profiles::ksvario::{self, Address, AddressError, Area, Format};
 use proto_core::profiles::{
-    ByteOrder, DataType, DeviceProfile, EncodeError, ProfileKind, Quality, SpecialValues, Table,
-    Tag, Value,
+    ByteOrder, DataType, DeviceProfile, EncodeError, Quality, SpecialValues, Table, Tag, Value,
 };
 
 fn f32_words(value: f32) -> [u16; 2] {
@@ -117,7 +116,7 @@ proptest! {
 fn altivar_limits_and_functions() {
     // 002 "Modbus-Funktionen": FC03 63 words, FC16 61, FC23 20 / 20.
     let profile = DeviceProfile::altivar71();
-    assert_eq!(profile.kind, ProfileKind::Altivar71);
+    assert_eq!(profile.name, "altivar71");
     assert_eq!(profile.default_address, 2);
     assert_eq!(profile.limits.read_registers, 63);
     assert_eq!(profile.limits.write_registers, 61);
@@ -387,7 +386,7 @@ fn generic_profile_word_orders() {
         Tag::new("coil", Table::Coils, 0, DataType::Bool),
     ];
     let profile = DeviceProfile::generic("meter", 5, tags);
-    assert_eq!(profile.special_values, SpecialValues::None);
+    assert_eq!(profile.special_values, SpecialValues::NONE);
     let tag = |name: &str| profile.tag(name).unwrap();
     assert_eq!(
         profile.decode(tag("u32_hf"), &[0x0001, 0x0002]),

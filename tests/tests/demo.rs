@@ -267,10 +267,19 @@ fn gateway_check_accepts_the_example_and_lists_every_mistake() {
     std::fs::write(&token, "0123456789abcdef\n").expect("write token");
     let shipped =
         std::fs::read_to_string(root.join("deploy/gateway.example.toml")).expect("example");
-    let text = shipped.replace(
-        "# token_file = \"/etc/gateway/api-token\"",
-        &format!("token_file = \"{}\"", token.display()),
-    );
+    let text = shipped
+        .replace(
+            "# token_file = \"/etc/gateway/api-token\"",
+            &format!("token_file = \"{}\"", token.display()),
+        )
+        // The templates stay where they are shipped.
+        .replace(
+            "template_dirs = [\"templates\"]",
+            &format!(
+                "template_dirs = [{:?}]",
+                root.join("deploy/templates").display().to_string()
+            ),
+        );
     assert_ne!(text, shipped, "the example's commented token_file line");
     let example = dir.join("gateway.example.toml");
     std::fs::write(&example, text).expect("write example");

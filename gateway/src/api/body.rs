@@ -145,12 +145,61 @@ pub(crate) fn config_document(
     format: Format,
     body: &[u8],
     check: Check<'_>,
+    in_force: &Config,
 ) -> Result<(Config, BodyDocument), ApiError> {
     let mut document = document(format, body, CONFIG_EXPECTED)?;
     document.doc.remove(OVERRIDES_KEY);
     document.table.remove(OVERRIDES_KEY);
+    template_dirs_confined(&document.table, in_force)?;
     let config = Config::from_table_with(&document.table, check).map_err(validation)?;
     Ok((config, document))
+}
+
+/// A body's `[gateway] template_dirs` are confined before the body is read (reading it opens the
+/// templates its devices name there): a directory the configuration in force does not list must
+/// lie inside its `config_dirs`, where the files the gateway reads its settings from are; a
+/// directory outside is refused (422) and nothing in it is opened.
+fn template_dirs_confined(table: &toml::Table, in_force: &Config) -> Result<(), ApiError> {
+    let Some(dirs) = table
+        .get("gateway")
+        .and_then(|g| g.get("template_dirs"))
+        .and_then(toml::Value::as_array)
+    else {
+        return Ok(());
+    };
+    let canonical = |p: &std::path::Path| std::fs::canonicalize(p).unwrap_or_else(|_| p.into());
+    let allowed: Vec<std::path::PathBuf> = in_force
+        .gateway
+        .config_dirs
+        .iter()
+        .map(|d| canonical(d))
+        .collect();
+    let mut issues = Vec::new();
+    for (i, dir) in dirs.iter().enumerate() {
+        let Some(dir) = dir.as_str().map(std::path::Path::new) else {
+            continue;
+        };
+        if in_force.gateway.template_dirs.iter().any(|d| d == dir) {
+            continue;
+        }
+        let resolved = canonical(&crate::config::template_dir_resolved(dir));
+        if !allowed.iter().any(|a| resolved.starts_with(a)) {
+            issues.push(Issue {
+                path: format!("gateway.template_dirs[{i}]"),
+                message: format!(
+                    "{} is outside [gateway] config_dirs {:?}: a change over the API names \
+                     template directories there only",
+                    dir.display(),
+                    in_force.gateway.config_dirs
+                ),
+            });
+        }
+    }
+    if issues.is_empty() {
+        Ok(())
+    } else {
+        Err(ApiError::validation(issues))
+    }
 }
 
 /// `text` without the comment [`OVERRIDES_BANNER`] begins.
@@ -190,8 +239,13 @@ fn not_json(body: &[u8], e: &serde_json::Error, expected: &str) -> String {
 }
 
 /// A whole configuration from a body, checked by the parser and by `check`.
-pub(crate) fn config(format: Format, body: &[u8], check: Check<'_>) -> Result<Config, ApiError> {
-    config_document(format, body, check).map(|(config, _)| config)
+pub(crate) fn config(
+    format: Format,
+    body: &[u8],
+    check: Check<'_>,
+    in_force: &Config,
+) -> Result<Config, ApiError> {
+    config_document(format, body, check, in_force).map(|(config, _)| config)
 }
 
 /// The configuration an edited document reads as, checked by the parser and by `backend`.
@@ -603,15 +657,24 @@ mod tests {
     fn json_and_toml_give_the_same_config() {
         let demo = crate::config::demo();
         let json = serde_json::to_vec(&demo).unwrap();
-        assert_eq!(config(Format::Json, &json, &no_check).unwrap(), demo);
+        assert_eq!(
+            config(Format::Json, &json, &no_check, &Config::default()).unwrap(),
+            demo
+        );
         let toml_text = toml::to_string(&demo).unwrap();
         assert_eq!(
-            config(Format::Toml, toml_text.as_bytes(), &no_check).unwrap(),
+            config(
+                Format::Toml,
+                toml_text.as_bytes(),
+                &no_check,
+                &Config::default()
+            )
+            .unwrap(),
             demo
         );
         assert_eq!(
             etag(&demo),
-            etag(&config(Format::Json, &json, &no_check).unwrap())
+            etag(&config(Format::Json, &json, &no_check, &Config::default()).unwrap())
         );
     }
 
@@ -714,7 +777,7 @@ mod tests {
             );
         }
         // A configuration body that is not an object says what a configuration looks like.
-        let e = config(Format::Json, b"30.5", &no_check).unwrap_err();
+        let e = config(Format::Json, b"30.5", &no_check, &Config::default()).unwrap_err();
         assert!(
             e.issues()[0]
                 .message
@@ -733,12 +796,16 @@ mod tests {
         let mut json = serde_json::to_value(&demo).unwrap();
         json["overrides"] = serde_json::json!([{"key": "http.listen", "in_force": "127.0.0.1:1"}]);
         let body = serde_json::to_vec(&json).unwrap();
-        assert_eq!(config(Format::Json, &body, &no_check).unwrap(), demo);
+        assert_eq!(
+            config(Format::Json, &body, &no_check, &Config::default()).unwrap(),
+            demo
+        );
         let text = format!(
             "{OVERRIDES_BANNER}\n#   http.listen = \"127.0.0.1:1\"   (--http 127.0.0.1:0)\n\n{}",
             toml::to_string(&demo).unwrap()
         );
-        let (read, doc) = config_document(Format::Toml, text.as_bytes(), &no_check).unwrap();
+        let (read, doc) =
+            config_document(Format::Toml, text.as_bytes(), &no_check, &Config::default()).unwrap();
         assert_eq!(read, demo);
         assert!(!doc.doc.to_string().contains("--http"), "{}", doc.doc);
     }

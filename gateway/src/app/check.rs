@@ -221,6 +221,17 @@ pub fn api_path_issues(new: &Config, in_force: &Config) -> Vec<ConfigIssue> {
             state,
         );
     }
+    // Templates are read like the files of settings: from the configuration directories.
+    for (i, dir) in new.gateway.template_dirs.iter().enumerate() {
+        if !dirs.template_dirs.contains(dir) {
+            confined(
+                &format!("gateway.template_dirs[{i}]"),
+                Some(&config::template_dir_resolved(dir)),
+                None,
+                conf,
+            );
+        }
+    }
     confined(
         "http.token_file",
         new.http.token_file.as_deref(),

@@ -15,8 +15,8 @@ use tokio_util::sync::CancellationToken;
 use tracing::info;
 
 use super::{run_from, AppError, Overrides};
-use crate::config::{self, LineConfig, Profile, ProtocolConfig, ASCII_CHARACTER_DELAY_RANGE};
-use crate::sim::{self, altivar::AltivarSim, ksvario::KsVarioSim, meter::MeterSim, ModbusDevice};
+use crate::config::{self, LineConfig, ProtocolConfig, ASCII_CHARACTER_DELAY_RANGE};
+use crate::sim::{self, ModbusDevice};
 
 /// The delay-time multiplier of the Modbus lines of `gateway demo --paced` (003 6.4.2.1: 1..10).
 const PACED_DELAY_MULTIPLIER: u8 = 10;
@@ -179,13 +179,16 @@ fn start_simulator(
             // Every device of the line on one simulated bus (multi-drop): each answers its own
             // slave address.
             let mut devices: Vec<Box<dyn ModbusDevice>> = Vec::new();
+            // The demo's generic device is the meter of every tag type; a profile without a
+            // simulator has no device on the bus (the line reports it offline).
             for device in m.devices.values() {
-                devices.push(match device.profile {
-                    Profile::Altivar71 => Box::new(AltivarSim::new(device.address)),
-                    Profile::Ksvario => Box::new(KsVarioSim::new(device.address)),
-                    // The demo's generic device is the meter of every tag type.
-                    Profile::Generic => Box::new(MeterSim::new(device.address)),
-                });
+                match sim::model_for_profile(device.profile.name()) {
+                    Some(model) => devices.push((model.build)(device.address, Default::default())),
+                    None => tracing::warn!(
+                        profile = device.profile.name(),
+                        "no simulator plays this profile; the demo line has no such device"
+                    ),
+                }
             }
             if devices.is_empty() {
                 return Ok(());

@@ -72,13 +72,16 @@ impl RestBackend {
     /// A tag's value from the image; `None` while its registers are not in the image.
     fn image_value(&self, snapshot: &Snapshot, entry: &TagEntry) -> Option<TagValue> {
         let reading = snapshot.tags.read(&self.sup.image, entry)?;
-        Some(TagValue::from_reading(
-            &entry.line,
-            &entry.device,
-            &entry.tag.name,
-            entry.tag.writable,
-            reading,
-        ))
+        Some(TagValue {
+            description: entry.tag.description.clone(),
+            ..TagValue::from_reading(
+                &entry.line,
+                &entry.device,
+                &entry.tag.name,
+                entry.tag.writable,
+                reading,
+            )
+        })
     }
 
     /// The value of a tag, read from the device when the image does not have it.
@@ -105,13 +108,10 @@ impl RestBackend {
                 "the device answered the read of {tag} with another function"
             ))
         })?;
-        Ok(TagValue::from_reading(
-            line,
-            device,
-            &entry.tag.name,
-            entry.tag.writable,
-            reading,
-        ))
+        Ok(TagValue {
+            description: entry.tag.description.clone(),
+            ..TagValue::from_reading(line, device, &entry.tag.name, entry.tag.writable, reading)
+        })
     }
 }
 
@@ -386,6 +386,7 @@ impl ApiBackend for RestBackend {
                     quality: TagQuality::Unknown,
                     timestamp: None,
                     writable: e.tag.writable,
+                    description: e.tag.description.clone(),
                 })
             })
             .collect())

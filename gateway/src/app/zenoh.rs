@@ -440,6 +440,7 @@ fn tag_value(tags: &TagDirectory, image: &ProcessImage, entry: &TagEntry) -> Opt
         unit,
         quality: reading.quality,
         timestamp: reading.timestamp,
+        description: (!entry.tag.description.is_empty()).then(|| entry.tag.description.clone()),
     })
 }
 

@@ -5,8 +5,10 @@
 use std::time::Duration;
 
 use proto_core::modbus::Table;
-use proto_core::profiles::registry::{self, Registered};
-use proto_core::profiles::{DeviceProfile, ReadWriteLimits, RequestLimits};
+use proto_core::profiles::registry;
+use proto_core::profiles::{
+    DeviceProfile, ReadWriteLimits, Registered, RequestLimits, ScannerSpec,
+};
 use serde::{Deserialize, Serialize};
 
 use super::reader::{check_name, int_value, string_value, Cx, Fields};
@@ -74,17 +76,18 @@ pub fn default_offline_backoff_max() -> Duration {
     DEFAULT_OFFLINE_BACKOFF_MAX
 }
 
-/// The device types the gateway knows.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Profile {
-    /// Schneider Altivar 61/71 (002).
-    Altivar71,
-    /// PMA KS vario (001).
-    Ksvario,
-    /// Any Modbus device described by the config's tag list.
-    Generic,
+/// A device's type: a profile of proto-core's registry
+/// ([`registry::PROFILES`]: `altivar71`, `ksvario`, ...) or `generic` (any Modbus device
+/// described by the config's tag list). Not a closed list: a profile added to the registry is
+/// known here by its name, with its capabilities ([`Registered::scanner`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct Profile {
+    /// The registry's name, or [`GENERIC_PROFILE`].
+    name: &'static str,
 }
+
+/// The name of the profile of a device known only by its tags.
+pub const GENERIC_PROFILE: &str = "generic";
 
 /// How much one request may carry: the profile's [`RequestLimits`], which the config may only
 /// lower (0 means the device does not support the function). Written back under the config's
@@ -115,18 +118,48 @@ fn rw_write(l: &RequestLimits) -> u16 {
 // === impl Profile ===
 
 impl Profile {
+    /// A device described by the config's tags only.
+    pub const GENERIC: Self = Self {
+        name: GENERIC_PROFILE,
+    };
+
+    /// The profile named `name` (ASCII case ignored): the registry's, or `generic`.
+    pub fn named(name: &str) -> Option<Self> {
+        if name.eq_ignore_ascii_case(GENERIC_PROFILE) {
+            return Some(Self::GENERIC);
+        }
+        registry::lookup(name).map(|r| Self { name: r.name })
+    }
+
+    /// Every name a config may give: the registry's, then `generic`.
+    pub fn names() -> Vec<&'static str> {
+        registry::names()
+            .chain(std::iter::once(GENERIC_PROFILE))
+            .collect()
+    }
+
+    /// The names as a message lists them: `altivar71, ksvario or generic`.
+    pub fn names_listed() -> String {
+        let names = Self::names();
+        match names.split_last() {
+            Some((last, rest)) if !rest.is_empty() => format!("{} or {last}", rest.join(", ")),
+            _ => names.join(""),
+        }
+    }
+
     /// The profile's entry in proto-core's registry, `None` for `generic`.
     pub fn registered(self) -> Option<&'static Registered> {
-        registry::lookup(self.name())
+        registry::lookup(self.name)
     }
 
     /// The configuration's name of the profile (`altivar71`, `ksvario`, `generic`).
     pub const fn name(self) -> &'static str {
-        match self {
-            Self::Altivar71 => "altivar71",
-            Self::Ksvario => "ksvario",
-            Self::Generic => "generic",
-        }
+        self.name
+    }
+
+    /// The device's communication scanner, if its profile has one.
+    pub fn scanner(self) -> Option<ScannerSpec> {
+        self.registered().and_then(|r| r.scanner)
     }
 
     /// The register map of the device, `None` for `generic` (built from the config's tags).
@@ -172,6 +205,25 @@ impl Profile {
     pub fn tag_names(self) -> Vec<String> {
         self.device_profile().map_or_else(Vec::new, |p| {
             p.tags.iter().map(|t| t.name.to_ascii_lowercase()).collect()
+        })
+    }
+}
+
+impl Serialize for Profile {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.serialize_str(self.name)
+    }
+}
+
+impl<'de> Deserialize<'de> for Profile {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let name = String::deserialize(d)?;
+        Self::named(&name).ok_or_else(|| {
+            let expected: Vec<String> = Self::names().iter().map(|n| format!("`{n}`")).collect();
+            serde::de::Error::custom(format!(
+                "unknown variant `{name}`, expected one of {}",
+                expected.join(", ")
+            ))
         })
     }
 }
@@ -322,6 +374,9 @@ pub struct TagConfig {
     pub unit: String,
     /// Writes from Modbus TCP, zenoh or REST are accepted (holding registers and coils only).
     pub writable: bool,
+    /// What the value is, free text for people (REST, zenoh, the status page); absent: none.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub description: Option<String>,
 }
 
 impl TagConfig {
@@ -356,8 +411,19 @@ pub struct PollGroup {
 }
 
 /// One device on a Modbus master line.
+///
+/// Written out (`Serialize`) with every key, except a device read from a template: its
+/// `template` and only the keys whose values differ from the template's, as an operator writes
+/// it (reading that back gives the same device).
 #[derive(Debug, Clone, PartialEq, Serialize)]
+#[serde(remote = "Self")]
 pub struct DeviceConfig {
+    /// The template the device was read from (`template = "NAME"`), if any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub template: Option<String>,
+    /// The template read alone and written out: what the device is written back against.
+    #[serde(skip)]
+    pub template_base: Option<std::sync::Arc<toml::Table>>,
     pub profile: Profile,
     /// Slave address on the serial line, 1..=247.
     pub address: u8,
@@ -409,8 +475,11 @@ pub const DEFAULT_SCANNER_PERIOD: Duration = Duration::from_millis(100);
 /// NCA2 = LFRD; NMA1 = ETA, NMA2 = RFRD).
 pub const DEFAULT_SCANNER_WORDS: u16 = 2;
 
-/// Where the scanner's words and their number come from.
+/// Where the scanner's words and their number come from, for a profile without a scanner (whose
+/// `scanner` table is refused anyway).
 const SCANNER_CITE: &str = "002 Kommunikationsscanner: NM1..NM8, NC1..NC8";
+/// Scanner words in each direction at most, for a profile without a scanner.
+const MAX_SCANNER_WORDS: u16 = 8;
 
 /// The device's `scanner` table, if present: only an Altivar has one, and its words must fit
 /// one FC 23 within the device's limits.
@@ -421,16 +490,30 @@ fn read_scanner(
     limits: &RequestLimits,
 ) -> Option<ScannerConfig> {
     let mut t = f.table(cx, "scanner")?;
-    let other = profile.is_some_and(|p| p != Profile::Altivar71);
+    let spec = profile.map(Profile::scanner);
+    let other = matches!(spec, Some(None));
     if other {
+        let with: Vec<String> = registry::PROFILES
+            .iter()
+            .filter(|r| r.scanner.is_some())
+            .map(|r| format!("profile = {:?}", r.name))
+            .collect();
         cx.issue(
             t.path().to_owned(),
-            "the communication scanner is the Altivar's (002); only with profile = \"altivar71\"",
+            format!(
+                "the communication scanner is the Altivar's (002); only with {}",
+                with.join(" or ")
+            ),
         );
     }
+    let (max, cite) = spec
+        .flatten()
+        .map_or((MAX_SCANNER_WORDS, SCANNER_CITE), |s| {
+            (s.max_words, s.source)
+        });
     let enabled = t.bool_or(cx, "enabled", false);
-    let inputs = t.int_or(cx, "inputs", 1..=8, DEFAULT_SCANNER_WORDS, SCANNER_CITE);
-    let outputs = t.int_or(cx, "outputs", 1..=8, DEFAULT_SCANNER_WORDS, SCANNER_CITE);
+    let inputs = t.int_or(cx, "inputs", 1..=max, DEFAULT_SCANNER_WORDS, cite);
+    let outputs = t.int_or(cx, "outputs", 1..=max, DEFAULT_SCANNER_WORDS, cite);
     let (lo, hi) = POLL_PERIOD_RANGE;
     let period = t.duration_or(cx, "period", lo..=hi, DEFAULT_SCANNER_PERIOD, "");
     if enabled && !other && (inputs > rw_read(limits) || outputs > rw_write(limits)) {
@@ -577,6 +660,7 @@ fn read_tag(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<TagConfig> {
         decimals: f.int::<u8>(cx, "decimals", 0..=MAX_DECIMALS, ""),
         unit: f.string_or(cx, "unit", ""),
         writable: f.bool_or(cx, "writable", false),
+        description: f.string(cx, "description"),
         name: name.clone().unwrap_or_default(),
     };
     f.finish(cx);
@@ -670,7 +754,7 @@ impl DeviceConfig {
         if !f.has("profile") {
             cx.issue(
                 f.at("profile"),
-                "missing required key (altivar71, ksvario or generic)",
+                format!("missing required key ({})", Profile::names_listed()),
             );
         }
         let address = match f.raw("address") {
@@ -694,7 +778,7 @@ impl DeviceConfig {
             ),
         };
         let unit_id = f.int(cx, "unit_id", 1..=u8::MAX, "");
-        let limits = read_limits(cx, &mut f, profile.unwrap_or(Profile::Generic));
+        let limits = read_limits(cx, &mut f, profile.unwrap_or(Profile::GENERIC));
         let (lo, hi) = BACKOFF_RANGE;
         let offline_backoff_min = f.duration_or(
             cx,
@@ -737,7 +821,7 @@ impl DeviceConfig {
         let bridge_gap = f.int_or(cx, "bridge_gap", 0..=u16::MAX, DEFAULT_BRIDGE_GAP, "");
         let scanner = read_scanner(cx, &mut f, profile, &limits);
         let raw_tags = f.array(cx, "tags");
-        if profile == Some(Profile::Generic) && raw_tags.is_empty() {
+        if profile == Some(Profile::GENERIC) && raw_tags.is_empty() {
             cx.issue(f.at("tags"), "a generic device needs a tag list");
         }
         let mut tags = Vec::new();
@@ -751,8 +835,10 @@ impl DeviceConfig {
         f.finish(cx);
         let address = address?;
         Some(Self {
+            template: None,
+            template_base: None,
             // A bad profile is reported above; generic stands in (it accepts every table).
-            profile: profile.unwrap_or(Profile::Generic),
+            profile: profile.unwrap_or(Profile::GENERIC),
             address,
             unit_id: unit_id.unwrap_or(address),
             limits,
@@ -767,6 +853,74 @@ impl DeviceConfig {
             scanner,
         })
     }
+}
+
+/// The device with every key, as the derived serialization writes it.
+struct Whole<'a>(&'a DeviceConfig);
+
+impl Serialize for Whole<'_> {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        DeviceConfig::serialize(self.0, s)
+    }
+}
+
+impl Serialize for DeviceConfig {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        let Some(base) = self.template_base.as_deref() else {
+            return Self::serialize(self, s);
+        };
+        let whole = self.written_whole().map_err(serde::ser::Error::custom)?;
+        written_against(whole, base).serialize(s)
+    }
+}
+
+impl DeviceConfig {
+    /// Every key of the device (the template's merged in), as a table.
+    pub(crate) fn written_whole(&self) -> Result<toml::Table, toml::ser::Error> {
+        toml::Table::try_from(Whole(self))
+    }
+}
+
+/// The keys of `whole` that differ from the template's `base`: `address`, `unit_id` and
+/// `template` always, a tag or poll group when the template has none of its name or another,
+/// a key of `limits` or `scanner` when it differs.
+fn written_against(whole: toml::Table, base: &toml::Table) -> toml::Table {
+    let named = |v: &toml::Value| {
+        v.get("name")
+            .and_then(toml::Value::as_str)
+            .map(str::to_ascii_lowercase)
+    };
+    let mut out = toml::Table::new();
+    for (key, value) in whole {
+        let theirs = base.get(&key);
+        let kept = match (key.as_str(), value, theirs) {
+            ("address" | "unit_id" | "template", v, _) => Some(v),
+            ("tags" | "poll", toml::Value::Array(mine), Some(toml::Value::Array(theirs))) => {
+                let own: Vec<toml::Value> = mine
+                    .into_iter()
+                    .filter(|v| {
+                        !theirs
+                            .iter()
+                            .any(|t| named(t).is_some() && named(t) == named(v) && t == v)
+                    })
+                    .collect();
+                (!own.is_empty()).then_some(toml::Value::Array(own))
+            }
+            ("limits" | "scanner", toml::Value::Table(mine), Some(toml::Value::Table(theirs))) => {
+                let own: toml::Table = mine
+                    .into_iter()
+                    .filter(|(k, v)| theirs.get(k) != Some(v))
+                    .collect();
+                (!own.is_empty()).then_some(toml::Value::Table(own))
+            }
+            (_, v, Some(t)) if *t == v => None,
+            (_, v, _) => Some(v),
+        };
+        if let Some(v) = kept {
+            out.insert(key, v);
+        }
+    }
+    out
 }
 
 /// The TOML spelling of a unit-like enum value.
@@ -784,7 +938,9 @@ mod tests {
     #[test]
     fn profile_limits_follow_the_manuals() {
         // 002 "Modbus-Funktionen": FC03 63, FC16 61, FC23 20/20.
-        let a = Profile::Altivar71.max_limits();
+        let a = Profile::named("altivar71")
+            .expect("registered")
+            .max_limits();
         assert_eq!(
             (
                 a.read_registers,
@@ -795,9 +951,15 @@ mod tests {
             (63, 61, 20, 20)
         );
         // 001 3.1: 120 integer values a message.
-        assert_eq!(Profile::Ksvario.max_limits().read_registers, 120);
+        assert_eq!(
+            Profile::named("ksvario")
+                .expect("registered")
+                .max_limits()
+                .read_registers,
+            120
+        );
         // Modbus Application Protocol: 125 / 123.
-        let g = Profile::Generic.max_limits();
+        let g = Profile::GENERIC.max_limits();
         assert_eq!(
             (g.read_registers, g.write_registers, g.read_bits),
             (125, 123, 2000)

@@ -57,6 +57,7 @@ mod serial;
 mod server;
 mod tap;
 mod telegram;
+mod template;
 pub mod validate;
 mod zenoh;
 
@@ -76,6 +77,7 @@ pub use serial::*;
 pub use server::*;
 pub use tap::*;
 pub use telegram::*;
+pub use template::DEVICE_ONLY_KEYS as TEMPLATE_DEVICE_ONLY_KEYS;
 // `self::`: the module, not the zenoh crate.
 pub use self::zenoh::*;
 
@@ -112,6 +114,10 @@ pub struct Config {
     pub http: HttpConfig,
     /// Lines by name.
     pub lines: BTreeMap<String, LineConfig>,
+    /// Device templates by name (`[templates.NAME]`), as written: a device naming one is read
+    /// with the template's keys merged in (see the `template` module).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub templates: BTreeMap<String, toml::Table>,
 }
 
 /// The `[gateway]` section.
@@ -128,6 +134,9 @@ pub struct GatewaySection {
     /// Directories a configuration change over the API may name a file the gateway reads its
     /// settings or secrets from in: token files, the zenoh config file, TLS files.
     pub config_dirs: Vec<PathBuf>,
+    /// Directories device templates are read from (`NAME.toml`), in order; a relative one is
+    /// taken from the configuration file's directory.
+    pub template_dirs: Vec<PathBuf>,
 }
 
 /// Default of `[gateway] port_dirs`: the device directory.
@@ -146,6 +155,7 @@ impl Default for GatewaySection {
             port_dirs: vec![PathBuf::from(DEFAULT_PORT_DIR)],
             state_dirs: vec![PathBuf::from(DEFAULT_STATE_DIR)],
             config_dirs: vec![PathBuf::from(DEFAULT_CONFIG_DIR)],
+            template_dirs: Vec::new(),
         }
     }
 }
@@ -201,6 +211,7 @@ impl Default for Config {
             zenoh: None,
             http: HttpConfig::default(),
             lines: BTreeMap::new(),
+            templates: BTreeMap::new(),
         }
     }
 }
@@ -232,11 +243,24 @@ impl Config {
 
     /// A parsed `toml::Table` as a config, with `check`'s issues in the same answer.
     pub fn from_table_with(table: &toml::Table, check: Check<'_>) -> Result<Self, ConfigErrors> {
-        let mut cx = Cx::default();
+        Self::from_table_in(table, check, BASE_DIR.get().cloned())
+    }
+
+    /// [`Self::from_table_with`], relative template directories taken from `base_dir`.
+    fn from_table_in(
+        table: &toml::Table,
+        check: Check<'_>,
+        base_dir: Option<PathBuf>,
+    ) -> Result<Self, ConfigErrors> {
+        let mut cx = Cx {
+            base_dir,
+            ..Cx::default()
+        };
         let config = read_root(&mut cx, table);
         validate::check(&mut cx, &config);
         let more = check(&config, &cx.issues);
         cx.issues.extend(more);
+        cx.relocate();
         if cx.issues.is_empty() {
             Ok(config)
         } else {
@@ -282,6 +306,12 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
             let port_dirs = dirs(cx, "port_dirs", DEFAULT_PORT_DIR);
             let state_dirs = dirs(cx, "state_dirs", DEFAULT_STATE_DIR);
             let config_dirs = dirs(cx, "config_dirs", DEFAULT_CONFIG_DIR);
+            let template_dirs = f
+                .array(cx, "template_dirs")
+                .into_iter()
+                .filter_map(|(path, v)| reader::string_value(cx, v, &path))
+                .map(PathBuf::from)
+                .collect();
             f.finish(cx);
             GatewaySection {
                 name,
@@ -289,6 +319,7 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
                 port_dirs,
                 state_dirs,
                 config_dirs,
+                template_dirs,
             }
         }
     };
@@ -305,6 +336,7 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         None => HttpConfig::default(),
         Some(f) => HttpConfig::read(cx, f),
     };
+    let templates = template::read_templates(cx, root.raw("templates"), &gateway.template_dirs);
     let mut lines = BTreeMap::new();
     if table.get("lines").is_some_and(toml::Value::is_array) {
         let _ = root.raw("lines");
@@ -327,6 +359,7 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         zenoh,
         http,
         lines,
+        templates,
     }
 }
 
@@ -378,13 +411,28 @@ pub fn parse_with(text: &str, check: Check<'_>) -> Result<Config, ConfigErrors> 
     Config::from_table_with(&table, check)
 }
 
+/// Parses and validates a configuration's text as if it were read from a file in `dir` (relative
+/// `template_dirs` are taken from there), with `check`'s issues in the same answer: a file's new
+/// text checked before it is written.
+pub fn parse_in(text: &str, check: Check<'_>, dir: &Path) -> Result<Config, ConfigErrors> {
+    let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
+        issues: vec![ConfigIssue {
+            path: String::new(),
+            message: syntax_message(text, &e),
+        }],
+    })?;
+    Config::from_table_in(&table, check, Some(dir.to_path_buf()))
+}
+
 /// Reads, parses and validates the configuration file at `path`.
 pub fn load(path: &Path) -> Result<Config, ConfigErrors> {
     load_with(path, &no_check)
 }
 
 /// Reads, parses and validates the configuration file at `path`, with `check`'s issues in the
-/// same answer.
+/// same answer. Relative `template_dirs` are taken from the file's directory; the first file a
+/// process loads also gives that directory to the configurations it later reads from text (a
+/// change over the REST API, the text `GET /config` shows).
 pub fn load_with(path: &Path, check: Check<'_>) -> Result<Config, ConfigErrors> {
     let text = std::fs::read_to_string(path).map_err(|e| ConfigErrors {
         issues: vec![ConfigIssue {
@@ -392,8 +440,32 @@ pub fn load_with(path: &Path, check: Check<'_>) -> Result<Config, ConfigErrors> 
             message: format!("cannot read {}: {e}", path.display()),
         }],
     })?;
-    parse_with(&text, check)
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let _ = BASE_DIR.set(dir.clone());
+    let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
+        issues: vec![ConfigIssue {
+            path: String::new(),
+            message: syntax_message(&text, &e),
+        }],
+    })?;
+    Config::from_table_in(&table, check, Some(dir))
 }
+
+/// `dir` of `[gateway] template_dirs` as a configuration read from text takes it: a relative
+/// directory from the directory of the first configuration file the process loaded.
+pub fn template_dir_resolved(dir: &Path) -> PathBuf {
+    match BASE_DIR.get() {
+        Some(base) if dir.is_relative() => base.join(dir),
+        _ => dir.to_path_buf(),
+    }
+}
+
+/// The directory relative template directories are taken from when a configuration is read from
+/// text: the directory of the first configuration file the process loaded.
+static BASE_DIR: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
 
 /// The embedded demo configuration: lines `drive`, `ksvario`, `r3964`, `ascii` on `pty:` ports.
 pub fn demo() -> Config {

@@ -222,7 +222,7 @@ pub(super) fn read_devices(cx: &mut Cx, f: &mut Fields<'_>) -> BTreeMap<String, 
     let mut devices = BTreeMap::new();
     for (name, path, value) in f.named_tables(cx, "devices") {
         check_name(cx, &path, &name);
-        if let Some(d) = DeviceConfig::read(cx, &path, value) {
+        if let Some(d) = super::template::read_device(cx, &path, value) {
             devices.insert(name, d);
         }
     }

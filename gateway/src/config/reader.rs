@@ -23,11 +23,61 @@ pub(crate) const MAX_NAME_LEN: usize = 64;
 #[derive(Debug, Default)]
 pub(crate) struct Cx {
     pub(crate) issues: Vec<ConfigIssue>,
+    /// Where a device's values came from when a template gave them: an issue found at a
+    /// device's path is reported at the template's ([`Cx::relocate`]).
+    pub(crate) relocations: Vec<Relocation>,
+    /// The `[templates]` of the config being read, as written.
+    pub(crate) templates: std::collections::BTreeMap<String, toml::Table>,
+    /// The directories `NAME.toml` templates are looked for in, resolved.
+    pub(crate) template_dirs: Vec<std::path::PathBuf>,
+    /// Template files read in this parse (`None`: not found or not readable, reported once).
+    pub(crate) template_files:
+        std::collections::BTreeMap<String, Option<(toml::Table, std::path::PathBuf)>>,
+    /// The directory relative `template_dirs` are resolved against.
+    pub(crate) base_dir: Option<std::path::PathBuf>,
+}
+
+/// An issue at `from` (or below it) belongs at `to`, with `note` appended to its message.
+#[derive(Debug, Clone)]
+pub(crate) struct Relocation {
+    pub(crate) from: String,
+    pub(crate) to: String,
+    pub(crate) note: String,
 }
 
 // === impl Cx ===
 
 impl Cx {
+    /// Moves every issue found at a device's value that a template gave to the template's path
+    /// (naming the template and its file); issues then alike are reported once.
+    pub(crate) fn relocate(&mut self) {
+        if self.relocations.is_empty() {
+            return;
+        }
+        let mut out: Vec<ConfigIssue> = Vec::with_capacity(self.issues.len());
+        for mut issue in std::mem::take(&mut self.issues) {
+            let best = self
+                .relocations
+                .iter()
+                .filter(|r| {
+                    issue.path.strip_prefix(&r.from).is_some_and(|rest| {
+                        rest.is_empty()
+                            || rest.starts_with('.')
+                            || rest.starts_with('[') && !r.from.ends_with(']')
+                    })
+                })
+                .max_by_key(|r| r.from.len());
+            if let Some(r) = best {
+                issue.path = format!("{}{}", r.to, &issue.path[r.from.len()..]);
+                issue.message.push_str(&r.note);
+            }
+            if !out.contains(&issue) {
+                out.push(issue);
+            }
+        }
+        self.issues = out;
+    }
+
     pub(crate) fn issue(&mut self, path: impl Into<String>, message: impl Into<String>) {
         self.issues.push(ConfigIssue {
             path: path.into(),

@@ -684,6 +684,9 @@ mod tests {
     #[test]
     fn serde_names() {
         assert_eq!(serde_name(ModbusTable::Discrete), "discrete");
-        assert_eq!(serde_name(Profile::Altivar71), "altivar71");
+        assert_eq!(
+            serde_name(Profile::named("altivar71").expect("registered")),
+            "altivar71"
+        );
     }
 }

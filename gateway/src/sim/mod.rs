@@ -36,6 +36,72 @@ use proto_core::modbus::rtu;
 
 pub use runner::{run, serve_modbus, DeviceKind, Parity, SimArgs, SimError};
 
+/// A simulated Modbus device model: what `gateway sim --device NAME` and the demo start for a
+/// device of a profile. A new model is one line of [`MODBUS_MODELS`].
+#[derive(Debug)]
+pub struct SimModel {
+    /// The `--device` name.
+    pub name: &'static str,
+    /// The config's profile the model plays (a registry name, or `generic`).
+    pub profile: &'static str,
+    /// The slave address without `--address`.
+    pub default_address: u8,
+    /// What it simulates, for `gateway sim --help`.
+    pub help: &'static str,
+    /// The model at a slave address, with faults injected.
+    pub build: fn(u8, Faults) -> Box<dyn ModbusDevice>,
+}
+
+/// Every Modbus device model, by `--device` name.
+pub const MODBUS_MODELS: &[SimModel] = &[
+    SimModel {
+        name: "altivar71",
+        profile: "altivar71",
+        default_address: proto_core::profiles::altivar::DEFAULT_ADDRESS,
+        help: "Schneider Altivar 71 (Modbus RTU, default slave 2)",
+        build: |address, faults| {
+            let mut device = altivar::AltivarSim::new(address);
+            device.set_faults(faults);
+            Box::new(device)
+        },
+    },
+    SimModel {
+        name: "ksvario",
+        profile: "ksvario",
+        default_address: proto_core::profiles::ksvario::DEFAULT_ADDRESS,
+        help: "PMA KS vario (Modbus RTU, default slave 17)",
+        build: |address, faults| {
+            let mut device = ksvario::KsVarioSim::new(address);
+            device.set_faults(faults);
+            Box::new(device)
+        },
+    },
+    SimModel {
+        name: "meter",
+        profile: "generic",
+        default_address: 30,
+        help: "the demo's energy meter, one tag of every data type and byte order (Modbus RTU, \
+               default slave 30; docs/tags.md)",
+        build: |address, faults| {
+            let mut device = meter::MeterSim::new(address);
+            device.set_faults(faults);
+            Box::new(device)
+        },
+    },
+];
+
+/// The model named `name` (`--device`).
+pub fn model(name: &str) -> Option<&'static SimModel> {
+    MODBUS_MODELS.iter().find(|m| m.name == name)
+}
+
+/// The model that plays a device of config profile `profile` (the meter for `generic`).
+pub fn model_for_profile(profile: &str) -> Option<&'static SimModel> {
+    MODBUS_MODELS
+        .iter()
+        .find(|m| m.profile.eq_ignore_ascii_case(profile))
+}
+
 /// The broadcast address (003 6.4.3 "ADDR"; 001 3.1; 002 "Adressen").
 pub const BROADCAST: u8 = 0;
 

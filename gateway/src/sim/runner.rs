@@ -15,11 +15,8 @@ use tokio::time::Instant;
 use tokio_serial::SerialPortBuilderExt;
 use tokio_util::sync::CancellationToken;
 
-use super::altivar::AltivarSim;
 use super::bus::Bus;
-use super::ksvario::KsVarioSim;
-use super::meter::MeterSim;
-use super::{Faults, ModbusDevice};
+use super::{Faults, ModbusDevice, SimModel};
 use crate::timer::LineTimer;
 
 /// How often the device's own clock advances (the drive's ramps, the time-out).
@@ -31,36 +28,76 @@ const MAX_PENDING: usize = 1024;
 /// 002 "Adressen" say the same).
 const SLAVE_ADDRESSES: core::ops::RangeInclusive<u8> = 1..=247;
 
-/// Which device to simulate.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, clap::ValueEnum)]
+/// Which device to simulate: a Modbus model of [`super::MODBUS_MODELS`] or a telegram partner.
+#[derive(Clone, Copy, Debug)]
 pub enum DeviceKind {
-    /// Schneider Altivar 71 (Modbus RTU, default slave 2).
-    #[value(name = "altivar71")]
-    Altivar71,
-    /// PMA KS vario (Modbus RTU, default slave 17).
-    #[value(name = "ksvario")]
-    KsVario,
-    /// The demo's energy meter, one tag of every data type and byte order (Modbus RTU, default
-    /// slave 30; docs/tags.md).
-    #[value(name = "meter")]
-    Meter,
+    /// A simulated Modbus RTU slave.
+    Modbus(&'static SimModel),
     /// A 3964(R) partner that echoes telegrams.
-    #[value(name = "3964r")]
     Proc3964r,
     /// An ASCII partner that echoes telegrams.
-    #[value(name = "ascii")]
     Ascii,
+}
+
+/// Every `--device`, as clap lists them: the Modbus models, then the telegram partners.
+static DEVICE_KINDS: std::sync::LazyLock<Vec<DeviceKind>> = std::sync::LazyLock::new(|| {
+    super::MODBUS_MODELS
+        .iter()
+        .map(DeviceKind::Modbus)
+        .chain([DeviceKind::Proc3964r, DeviceKind::Ascii])
+        .collect()
+});
+
+// === impl DeviceKind ===
+
+impl DeviceKind {
+    /// The device named `name` on the command line.
+    pub fn named(name: &str) -> Option<Self> {
+        DEVICE_KINDS.iter().copied().find(|k| k.name() == name)
+    }
+
+    /// The `--device` name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Modbus(model) => model.name,
+            Self::Proc3964r => "3964r",
+            Self::Ascii => "ascii",
+        }
+    }
+}
+
+impl PartialEq for DeviceKind {
+    fn eq(&self, other: &Self) -> bool {
+        self.name() == other.name()
+    }
+}
+
+impl Eq for DeviceKind {}
+
+impl std::hash::Hash for DeviceKind {
+    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
+        self.name().hash(state);
+    }
+}
+
+impl clap::ValueEnum for DeviceKind {
+    fn value_variants<'a>() -> &'a [Self] {
+        &DEVICE_KINDS
+    }
+
+    fn to_possible_value(&self) -> Option<clap::builder::PossibleValue> {
+        let help = match self {
+            Self::Modbus(model) => model.help,
+            Self::Proc3964r => "a 3964(R) partner that echoes telegrams",
+            Self::Ascii => "an ASCII partner that echoes telegrams",
+        };
+        Some(clap::builder::PossibleValue::new(self.name()).help(help))
+    }
 }
 
 impl core::fmt::Display for DeviceKind {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
-            Self::Altivar71 => "altivar71",
-            Self::KsVario => "ksvario",
-            Self::Meter => "meter",
-            Self::Proc3964r => "3964r",
-            Self::Ascii => "ascii",
-        })
+        f.write_str(self.name())
     }
 }
 
@@ -179,12 +216,10 @@ impl SimArgs {
     /// The device the arguments describe: one, or a [`Bus`] of devices of the same kind when
     /// `--also-address` names more addresses.
     pub fn device(&self) -> Result<Box<dyn ModbusDevice>, SimError> {
-        let default = match self.device {
-            DeviceKind::Altivar71 => 2,
-            DeviceKind::KsVario => 17,
-            DeviceKind::Meter => 30,
-            other => return Err(SimError::NotYetAvailable(other)),
+        let DeviceKind::Modbus(model) = self.device else {
+            return Err(SimError::NotYetAvailable(self.device));
         };
+        let default = model.default_address;
         let first = self.address.unwrap_or(default);
         let mut devices = Vec::new();
         for address in std::iter::once(first).chain(self.also_address.iter().copied()) {
@@ -210,25 +245,10 @@ impl SimArgs {
         if !SLAVE_ADDRESSES.contains(&address) {
             return Err(SimError::InvalidAddress(address));
         }
-        let faults = self.faults();
-        Ok(match self.device {
-            DeviceKind::Altivar71 => {
-                let mut device = AltivarSim::new(address);
-                device.set_faults(faults);
-                Box::new(device)
-            }
-            DeviceKind::KsVario => {
-                let mut device = KsVarioSim::new(address);
-                device.set_faults(faults);
-                Box::new(device)
-            }
-            DeviceKind::Meter => {
-                let mut device = MeterSim::new(address);
-                device.set_faults(faults);
-                Box::new(device)
-            }
-            other => return Err(SimError::NotYetAvailable(other)),
-        })
+        let DeviceKind::Modbus(model) = self.device else {
+            return Err(SimError::NotYetAvailable(self.device));
+        };
+        Ok((model.build)(address, self.faults()))
     }
 
     /// The faults `--fault` injects into the device's answers (noise is added by [`Noisy`]).
@@ -250,7 +270,7 @@ pub async fn run(args: SimArgs, shutdown: CancellationToken) -> Result<(), SimEr
     let telegram = match args.device {
         DeviceKind::Proc3964r => Some(super::telegram::TelegramDevice::P3964r),
         DeviceKind::Ascii => Some(super::telegram::TelegramDevice::Ascii),
-        DeviceKind::Altivar71 | DeviceKind::KsVario | DeviceKind::Meter => None,
+        DeviceKind::Modbus(_) => None,
     };
     if let Some(device) = telegram {
         let mut port = crate::serial::PortSettings::new(args.port.clone(), args.baud);
@@ -523,7 +543,7 @@ mod tests {
 
     fn args(fault: Option<SimFault>) -> SimArgs {
         SimArgs {
-            device: DeviceKind::KsVario,
+            device: DeviceKind::named("ksvario").expect("a model"),
             port: String::new(),
             address: None,
             also_address: Vec::new(),
@@ -557,7 +577,7 @@ mod tests {
     #[test]
     fn the_meter_answers_at_30_by_default_and_takes_its_faults() {
         let mut a = args(None);
-        a.device = DeviceKind::Meter;
+        a.device = DeviceKind::named("meter").expect("a model");
         let mut meter = a.device().expect("a meter");
         let mut read = Vec::new();
         let address = crate::sim::meter::map::TEMPERATURE;
@@ -572,7 +592,10 @@ mod tests {
         a.fault = Some(SimFault::Silent);
         let mut silent = a.device().expect("a meter");
         assert_eq!(silent.handle_frame(&read), None);
-        assert_eq!(DeviceKind::Meter.to_string(), "meter");
+        assert_eq!(
+            DeviceKind::named("meter").expect("a model").to_string(),
+            "meter"
+        );
     }
 
     /// FC 04 at 1004, three registers, of slave 17 (001's example).

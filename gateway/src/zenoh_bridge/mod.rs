@@ -130,18 +130,25 @@ pub struct TagValue {
     pub quality: &'static str,
     /// When the value was read from the device.
     pub timestamp: SystemTime,
+    /// The tag's description, if it has one (published as `"description"`, as REST shows it).
+    pub description: Option<String>,
 }
 
 impl TagValue {
-    /// The JSON published and replied: `{"value", "unit", "quality", "timestamp"}`; a tag
-    /// without a unit has `"unit": ""`, as in the REST API.
+    /// The JSON published and replied: `{"value", "unit", "quality", "timestamp"}`, and
+    /// `"description"` when the tag has one; a tag without a unit has `"unit": ""`, as in the
+    /// REST API.
     pub fn to_json(&self) -> Value {
-        json!({
+        let mut v = json!({
             "value": self.value,
             "unit": self.unit.as_deref().unwrap_or(""),
             "quality": self.quality,
             "timestamp": publish::rfc3339(self.timestamp),
-        })
+        });
+        if let (Some(d), Some(o)) = (&self.description, v.as_object_mut()) {
+            o.insert("description".to_owned(), json!(d));
+        }
+        v
     }
 }
 
@@ -853,6 +860,7 @@ mod tests {
             unit: None,
             quality: "good",
             timestamp: std::time::SystemTime::UNIX_EPOCH,
+            description: None,
         };
         assert_eq!(value.to_json()["unit"], "");
         value.unit = Some("rpm".to_owned());

@@ -184,6 +184,7 @@ mod tests {
             unit: None,
             quality,
             timestamp: SystemTime::UNIX_EPOCH,
+            description: None,
         }
     }
 

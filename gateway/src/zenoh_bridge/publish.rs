@@ -467,6 +467,7 @@ mod tests {
             unit: None,
             quality: "good",
             timestamp: SystemTime::UNIX_EPOCH,
+            description: None,
         }
     }
 

@@ -312,6 +312,7 @@ impl MemGateway {
             },
             timestamp: at.map(Timestamp),
             writable: spec.writable,
+            description: String::new(),
         })
     }
 }

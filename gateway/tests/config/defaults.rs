@@ -211,7 +211,7 @@ fn device_defaults_come_from_the_profile() {
     let (_, kv) = devices[1];
     // 001 3.1: at most 120 integer values a message.
     assert_eq!(kv.limits.read_registers, 120);
-    assert_eq!(kv.profile, Profile::Ksvario);
+    assert_eq!(kv.profile, Profile::named("ksvario").expect("registered"));
 }
 
 #[test]

@@ -307,7 +307,7 @@ fn write_ranges_must_name_a_served_unit() {
         "modbus_tcp.write_ranges[0].table",
         "only \"holding\" and \"coil\"",
     );
-    let c = parse(EXAMPLE);
+    let c = parse(&EXAMPLE);
     assert!(c.modbus_tcp.allows_write(2, ModbusTable::Holding, 8501, 1));
     assert!(!c.modbus_tcp.allows_write(2, ModbusTable::Holding, 8502, 1));
     assert!(!c.modbus_tcp.allows_write(2, ModbusTable::Holding, 9001, 3));

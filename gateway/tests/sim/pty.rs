@@ -190,7 +190,7 @@ async fn run_opens_a_port_by_path() {
     let (mut port, slave) = SerialStream::pair().expect("pty pair");
     let path = slave.name().expect("pty name");
     let args = SimArgs {
-        device: DeviceKind::KsVario,
+        device: DeviceKind::named("ksvario").expect("a model"),
         port: path,
         address: None,
         also_address: Vec::new(),

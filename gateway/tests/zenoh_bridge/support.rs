@@ -48,6 +48,7 @@ pub(crate) fn value(v: Value, unit: Option<&str>) -> TagValue {
         unit: unit.map(str::to_owned),
         quality: "good",
         timestamp: SystemTime::now(),
+        description: None,
     }
 }
 

@@ -8,8 +8,8 @@
 use core::time::Duration;
 
 use super::{
-    BitField, DataType, DeviceProfile, KeepAlive, ProfileKind, ReadWriteLimits, RequestLimits,
-    SpecialValues, Tag,
+    BitField, DataType, DeviceProfile, KeepAlive, Quality, ReadWriteLimits, Registered,
+    RequestLimits, ScannerSpec, SpecialValues, Tag,
 };
 use crate::modbus::pdu::FunctionCode;
 
@@ -389,24 +389,40 @@ pub const LIMITS: RequestLimits = RequestLimits {
     max_adu_len: MAX_ADU_LEN,
 };
 
+/// The words the drive sends for what it cannot deliver: 16#8000 for a parameter that does not
+/// exist or is protected (002 "Lesen nicht vorhandener oder geschützter Parameter").
+pub const SPECIAL_VALUES: SpecialValues = SpecialValues {
+    words: &[(NOT_AVAILABLE, Quality::NotDefined)],
+    ..SpecialValues::NONE
+};
+
+/// The communication scanner: NM1..NM8 read and NC1..NC8 written with one FC 23
+/// (002 "Kommunikationsscanner").
+pub const SCANNER: ScannerSpec = ScannerSpec {
+    inputs_at: NM[0],
+    outputs_at: NC[0],
+    max_words: NM.len() as u16,
+    source: "002 Kommunikationsscanner: NM1..NM8, NC1..NC8",
+};
+
 /// The profile's entry in [`super::registry::PROFILES`].
-pub const REGISTERED: super::registry::Registered = super::registry::Registered {
+pub const REGISTERED: Registered = Registered {
     name: "altivar71",
     source: "002 Modbus-Funktionen",
     build: profile,
     limits: LIMITS,
+    scanner: Some(SCANNER),
 };
 
 /// The Altivar 61/71 profile.
 pub fn profile() -> DeviceProfile {
     DeviceProfile {
-        kind: ProfileKind::Altivar71,
         name: "altivar71".to_owned(),
         default_address: DEFAULT_ADDRESS,
         tags: tags(),
         limits: LIMITS,
         functions: FUNCTIONS.to_vec(),
-        special_values: SpecialValues::Altivar,
+        special_values: SPECIAL_VALUES,
         keep_alive: Some(KeepAlive {
             tag: "CMD".to_owned(),
             timeout: COMMUNICATION_TIMEOUT,

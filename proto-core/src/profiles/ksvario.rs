@@ -13,7 +13,8 @@
 //! is not among the seeds; the tags here are the data 001's examples name.
 
 use super::{
-    ByteOrder, DataType, DeviceProfile, ProfileKind, RequestLimits, SpecialValues, Table, Tag,
+    ByteOrder, DataType, DeviceProfile, Quality, Registered, RequestLimits, SpecialValues, Table,
+    Tag,
 };
 use crate::modbus::pdu::FunctionCode;
 
@@ -328,24 +329,38 @@ pub const LIMITS: RequestLimits = RequestLimits {
     max_adu_len: MESSAGE_BUFFER,
 };
 
+/// 001 4.1: 31000 not defined, 32000 switched off, 0x8000 out of the integer range in the
+/// integer and fix point formats, 1.5E37 not defined in the float format; writes within
+/// -30000..+32000 and -1.0E37..+1.0E37 ("Übertragbare Werte").
+pub const SPECIAL_VALUES: SpecialValues = SpecialValues {
+    words: &[
+        (NOT_DEFINED, Quality::NotDefined),
+        (OFF, Quality::Off),
+        (OUT_OF_RANGE, Quality::OutOfRange),
+    ],
+    float_not_defined: Some(FLOAT_NOT_DEFINED),
+    i16_write_range: Some((INT_MIN, INT_MAX)),
+    f32_write_limit: Some(FLOAT_LIMIT),
+};
+
 /// The profile's entry in [`super::registry::PROFILES`].
-pub const REGISTERED: super::registry::Registered = super::registry::Registered {
+pub const REGISTERED: Registered = Registered {
     name: "ksvario",
     source: "001 3.1",
     build: profile,
     limits: LIMITS,
+    scanner: None,
 };
 
 /// The KS vario profile.
 pub fn profile() -> DeviceProfile {
     DeviceProfile {
-        kind: ProfileKind::KsVario,
         name: "ksvario".to_owned(),
         default_address: DEFAULT_ADDRESS,
         tags: tags(),
         limits: LIMITS,
         functions: FUNCTIONS.to_vec(),
-        special_values: SpecialValues::KsVario,
+        special_values: SPECIAL_VALUES,
         keep_alive: None,
     }
 }

@@ -87,46 +87,49 @@ impl core::fmt::Display for Value {
     }
 }
 
-/// How a device marks a datum it cannot deliver.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
-pub enum SpecialValues {
-    /// No special values: every word is a value.
-    #[default]
-    None,
-    /// Altivar 61/71: 16#8000 in place of a parameter that does not exist or is protected
-    /// (002 "Lesen nicht vorhandener oder geschützter Parameter").
-    Altivar,
-    /// KS vario: 31000 not defined, 32000 switched off, 0x8000 out of the integer range in the
-    /// integer and fix point formats, 1.5E37 not defined in the float format (001 4.1).
-    KsVario,
+/// How a device marks a datum it cannot deliver, and the ranges it accepts in writes: data each
+/// profile gives ([`altivar::SPECIAL_VALUES`], [`ksvario::SPECIAL_VALUES`]), so that a new
+/// profile adds no variant here.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SpecialValues {
+    /// 16-bit words that stand for a quality instead of a value.
+    pub words: &'static [(u16, Quality)],
+    /// A float (within a relative 1e-6) that means "not defined".
+    pub float_not_defined: Option<f32>,
+    /// The range a 16-bit signed integer may be written in, when narrower than the type's.
+    pub i16_write_range: Option<(i32, i32)>,
+    /// The magnitude an f32 may be written with, when smaller than the type's.
+    pub f32_write_limit: Option<f64>,
 }
 
 // === impl SpecialValues ===
 
 impl SpecialValues {
+    /// No special values: every word is a value, every value of the type may be written.
+    pub const NONE: Self = Self {
+        words: &[],
+        float_not_defined: None,
+        i16_write_range: None,
+        f32_write_limit: None,
+    };
+
+    /// Whether the device has no special values at all.
+    pub fn is_none(&self) -> bool {
+        *self == Self::NONE
+    }
+
     /// The quality a raw word means for a 16-bit tag, `None` when it is a value.
-    pub const fn classify_word(self, raw: u16) -> Option<Quality> {
-        match self {
-            Self::None => None,
-            Self::Altivar => match raw {
-                altivar::NOT_AVAILABLE => Some(Quality::NotDefined),
-                _ => None,
-            },
-            Self::KsVario => match raw {
-                ksvario::NOT_DEFINED => Some(Quality::NotDefined),
-                ksvario::OFF => Some(Quality::Off),
-                ksvario::OUT_OF_RANGE => Some(Quality::OutOfRange),
-                _ => None,
-            },
-        }
+    pub fn classify_word(self, raw: u16) -> Option<Quality> {
+        self.words
+            .iter()
+            .find(|(word, _)| *word == raw)
+            .map(|(_, quality)| *quality)
     }
 
     /// The quality a float means, `None` when it is a value.
     pub fn classify_float(self, value: f32) -> Option<Quality> {
-        match self {
-            Self::KsVario if ksvario::is_float_not_defined(value) => Some(Quality::NotDefined),
-            _ => None,
-        }
+        let target = f64::from(self.float_not_defined?);
+        ((f64::from(value) - target).abs() <= target.abs() * 1e-6).then_some(Quality::NotDefined)
     }
 }
 
@@ -205,22 +208,41 @@ pub struct KeepAlive {
     pub period: Duration,
 }
 
-/// What kind of device a profile describes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum ProfileKind {
-    /// Schneider Altivar 61/71 ([`altivar`]).
-    Altivar71,
-    /// PMA KS vario ([`ksvario`]).
-    KsVario,
-    /// A device described by a tag list only.
-    Generic,
+/// One known device type: what the configuration names (`profile = "altivar71"`) and what the
+/// gateway may do with it beyond polling tags. Each profile module defines its own
+/// (`altivar::REGISTERED`); [`registry::PROFILES`] lists them. A template read from a file
+/// builds on one of these and reaches the line the same way: as a [`DeviceProfile`].
+#[derive(Clone, Copy, Debug)]
+pub struct Registered {
+    /// The name a configuration uses (`profile = "altivar71"`).
+    pub name: &'static str,
+    /// The manual the profile follows, for messages (e.g. on request limits).
+    pub source: &'static str,
+    /// Builds the profile.
+    pub build: fn() -> DeviceProfile,
+    /// The device's request limits (the same as `build().limits`, without building the tags).
+    pub limits: RequestLimits,
+    /// The device's cyclic scanner exchanged with one FC 23, if it has one.
+    pub scanner: Option<ScannerSpec>,
+}
+
+/// A device's communication scanner: input words read and output words written with one FC 23
+/// (the Altivar's, 002 "Kommunikationsscanner").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ScannerSpec {
+    /// The first input word (NM1 on the Altivar).
+    pub inputs_at: u16,
+    /// The first output word (NC1 on the Altivar).
+    pub outputs_at: u16,
+    /// Most words in each direction.
+    pub max_words: u16,
+    /// The manual section, for messages.
+    pub source: &'static str,
 }
 
 /// The register map of one device type.
 #[derive(Clone, Debug, PartialEq)]
 pub struct DeviceProfile {
-    /// Which device.
-    pub kind: ProfileKind,
     /// A short name (`altivar71`, `ksvario`, or the generic device's name).
     pub name: String,
     /// The slave address the device has in the demo and the simulator.
@@ -310,7 +332,6 @@ impl DeviceProfile {
     /// no special values.
     pub fn generic(name: impl Into<String>, default_address: u8, tags: Vec<Tag>) -> Self {
         Self {
-            kind: ProfileKind::Generic,
             name: name.into(),
             default_address,
             tags,
@@ -318,7 +339,7 @@ impl DeviceProfile {
             functions: [0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x0F, 0x10]
                 .map(FunctionCode)
                 .to_vec(),
-            special_values: SpecialValues::None,
+            special_values: SpecialValues::NONE,
             keep_alive: None,
         }
     }
@@ -368,7 +389,7 @@ impl DeviceProfile {
                 (Some(bounds), Some(raw))
                     if tag.is_plain()
                         && tag.raw_range.is_none()
-                        && self.special_values == SpecialValues::None =>
+                        && self.special_values.is_none() =>
                 {
                     encode_int(tag, raw, bounds)
                 }
@@ -568,8 +589,9 @@ fn encode_with(special: SpecialValues, tag: &Tag, value: f64) -> Result<Vec<u16>
         DataType::F32(order) => {
             let (min, max) = match (tag.raw_range, special) {
                 (Some((min, max)), _) => (f64::from(min), f64::from(max)),
-                (None, SpecialValues::KsVario) => (-ksvario::FLOAT_LIMIT, ksvario::FLOAT_LIMIT),
-                (None, _) => (f64::from(f32::MIN), f64::from(f32::MAX)),
+                (None, _) => special
+                    .f32_write_limit
+                    .map_or((f64::from(f32::MIN), f64::from(f32::MAX)), |l| (-l, l)),
             };
             check_range(tag, raw, min, max)?;
             return Ok(split((raw as f32).to_bits(), order));
@@ -596,11 +618,9 @@ fn encode_with(special: SpecialValues, tag: &Tag, value: f64) -> Result<Vec<u16>
         .to_raw_rounded(value)
         .ok_or_else(|| EncodeError::NotFinite(tag.name.clone()))?;
     let (type_min, type_max) = tag.data_type.raw_bounds();
-    let (min, max) = match (tag.raw_range, special, tag.data_type) {
+    let (min, max) = match (tag.raw_range, special.i16_write_range, tag.data_type) {
         (Some((min, max)), _, _) => (f64::from(min), f64::from(max)),
-        (None, SpecialValues::KsVario, DataType::I16) => {
-            (f64::from(ksvario::INT_MIN), f64::from(ksvario::INT_MAX))
-        }
+        (None, Some((min, max)), DataType::I16) => (f64::from(min), f64::from(max)),
         (None, _, _) => (type_min, type_max),
     };
     check_range(tag, raw, min.max(type_min), max.min(type_max))?;

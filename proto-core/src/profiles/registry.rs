@@ -1,19 +1,8 @@
-//! The device profiles by name: the one list a new profile is added to.
+//! The device profiles by name: the one list a new profile is added to. [`Registered`] itself
+//! lives with [`DeviceProfile`] (the profiles import it, this list imports the profiles: no
+//! circle).
 
-use super::{altivar, ksvario, DeviceProfile, RequestLimits};
-
-/// One known device type.
-#[derive(Clone, Copy, Debug)]
-pub struct Registered {
-    /// The name a configuration uses (`profile = "altivar71"`).
-    pub name: &'static str,
-    /// The manual the profile follows, for messages (e.g. on request limits).
-    pub source: &'static str,
-    /// Builds the profile.
-    pub build: fn() -> DeviceProfile,
-    /// The device's request limits (the same as `build().limits`, without building the tags).
-    pub limits: RequestLimits,
-}
+use super::{altivar, ksvario, DeviceProfile, Registered};
 
 /// Every device profile. A new profile is one module of [`crate::profiles`] and one line here.
 pub const PROFILES: &[Registered] = &[altivar::REGISTERED, ksvario::REGISTERED];
@@ -28,6 +17,11 @@ pub fn by_name(name: &str) -> Option<DeviceProfile> {
     lookup(name).map(|p| (p.build)())
 }
 
+/// The registered names, in the registry's order.
+pub fn names() -> impl Iterator<Item = &'static str> {
+    PROFILES.iter().map(|p| p.name)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -38,7 +32,7 @@ mod tests {
             let profile = (entry.build)();
             assert_eq!(profile.name, entry.name);
             assert_eq!(profile.limits, entry.limits);
-            assert_eq!(by_name(entry.name).map(|p| p.kind), Some(profile.kind));
+            assert_eq!(by_name(entry.name), Some(profile));
         }
         assert_eq!(
             lookup("Altivar71").map(|p| p.name),
@@ -49,5 +43,17 @@ mod tests {
             lookup("generic").is_none(),
             "generic is built from a tag list"
         );
+    }
+
+    #[test]
+    fn capabilities_are_data() {
+        let altivar = lookup("altivar71").expect("registered");
+        let scanner = altivar.scanner.expect("the Altivar has a scanner");
+        assert_eq!(
+            (scanner.inputs_at, scanner.outputs_at, scanner.max_words),
+            (12741, 12761, 8)
+        );
+        assert!(lookup("ksvario").and_then(|p| p.scanner).is_none());
+        assert_eq!(names().collect::<Vec<_>>(), ["altivar71", "ksvario"]);
     }
 }

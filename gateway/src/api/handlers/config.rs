@@ -220,7 +220,12 @@ pub(crate) async fn put_config(
     let audit = Audit::new(caller, "config: replace".to_owned());
     let backend = state.backend();
     let new = body::content_format(&headers).and_then(|format| {
-        body::config_document(format, &bytes, &|c, found| backend.config_issues(c, found))
+        body::config_document(
+            format,
+            &bytes,
+            &|c, found| backend.config_issues(c, found),
+            &backend.config(),
+        )
     });
     let (new, sent) = audit.early(&state, new)?;
     change(state, &headers, audit, move |current, backend| {
@@ -258,9 +263,12 @@ pub(crate) async fn validate_config(
     ApiBytes(bytes): ApiBytes,
 ) -> Result<Json<ValidationResult>, ApiError> {
     let backend = state.backend();
-    let config = body::config(body::content_format(&headers)?, &bytes, &|c, found| {
-        backend.config_issues(c, found)
-    })?;
+    let config = body::config(
+        body::content_format(&headers)?,
+        &bytes,
+        &|c, found| backend.config_issues(c, found),
+        &backend.config(),
+    )?;
     state.backend().validate(&config).map_err(backend_issues)?;
     Ok(Json(ValidationResult {
         valid: true,

@@ -145,6 +145,7 @@ impl TagValue {
             quality: TagQuality::from_name(reading.quality),
             timestamp: Some(Timestamp(reading.timestamp)),
             writable,
+            description: String::new(),
         }
     }
 }
@@ -166,6 +167,9 @@ pub struct TagValue {
     pub timestamp: Option<Timestamp>,
     /// Whether `PUT` may write it.
     pub writable: bool,
+    /// What the value is (the tag's `description`), absent when it has none.
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub description: String,
 }
 
 /// The body of a tag write.
