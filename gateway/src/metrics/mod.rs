@@ -52,12 +52,14 @@ use proto_core::event::{self, EventId};
 mod http;
 mod image_age;
 pub mod labels;
+mod tag_values;
 
 pub use http::serve_metrics;
 pub use labels::{
     function_label, Direction, DropReason, HttpRejectReason, PublicationKind, RejectReason,
     RequestResult, TcpCloseReason, WritePath, WriteReason, WriteResult,
 };
+pub use tag_values::{TagValues, QUALITY_UNKNOWN, TAG_QUALITY, TAG_VALUE};
 
 use image_age::ImageAge;
 
