@@ -24,7 +24,7 @@ use crate::stats::{ms, percentile};
 use crate::Plan;
 
 /// The baud rate of every generated line (the pty ignores it; the engines time by it).
-const BAUD: u32 = 115_200;
+pub(crate) const BAUD: u32 = 115_200;
 /// The unit id of the telegram line's mailbox.
 const MAILBOX_UNIT: u8 = 100;
 /// The mailbox's acknowledge register (gateway::mailbox::layout::ACK).
@@ -67,7 +67,12 @@ pub(crate) fn head(name: &str) -> String {
 
 /// A Modbus master line with generic devices, each with `tags[i]` u16 tags on holding registers
 /// from 0, all in one poll group of `period`.
-fn master_line(name: &str, path: &str, devices: &[(u8, u8, usize)], period: &str) -> String {
+pub(crate) fn master_line(
+    name: &str,
+    path: &str,
+    devices: &[(u8, u8, usize)],
+    period: &str,
+) -> String {
     let mut s = format!(
         "[lines.{name}]\nport = \"{path}\"\nprotocol = \"modbus-master-rtu\"\nbaud = {BAUD}\n\
          parity = \"even\"\nreply_timeout = \"200ms\"\nmonitor_frames = {}\n\n",
