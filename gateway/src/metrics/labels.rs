@@ -69,17 +69,41 @@ impl RequestResult {
     /// The `result` label value: `ok`, `exception_NN` (two upper-case hex digits),
     /// `exception_other`, `timeout` or `error`.
     pub fn as_str(self) -> &'static str {
+        Self::label_at(self.index())
+    }
+
+    /// How many `result` labels there are: [`Self::index`] is below it.
+    pub const COUNT: usize = EXCEPTION_LABELS.len() + 4;
+
+    /// The position of the result's label among the [`Self::COUNT`] labels (for counters kept
+    /// in an array, one per label).
+    pub fn index(self) -> usize {
+        let other = EXCEPTION_LABELS.len() + 1;
         match self {
-            Self::Ok => "ok",
+            Self::Ok => 0,
             Self::Exception(code) => {
                 let code = u8::from(code);
                 EXCEPTION_LABELS
                     .iter()
-                    .find(|(known, _)| *known == code)
-                    .map_or(EXCEPTION_OTHER, |(_, label)| label)
+                    .position(|(known, _)| *known == code)
+                    .map_or(other, |at| at + 1)
             }
-            Self::Timeout => "timeout",
-            Self::Error => "error",
+            Self::Timeout => other + 1,
+            Self::Error => other + 2,
+        }
+    }
+
+    /// The label at `index` (see [`Self::index`]).
+    pub fn label_at(index: usize) -> &'static str {
+        let exceptions = EXCEPTION_LABELS.len();
+        match index {
+            0 => "ok",
+            i if i <= exceptions => EXCEPTION_LABELS
+                .get(i - 1)
+                .map_or(EXCEPTION_OTHER, |(_, label)| label),
+            i if i == exceptions + 1 => EXCEPTION_OTHER,
+            i if i == exceptions + 2 => "timeout",
+            _ => "error",
         }
     }
 }
@@ -112,6 +136,24 @@ const FUNCTION_LABELS: [(u8, &str); 18] = [
 /// The `function` label of a code outside [`FUNCTION_LABELS`].
 const FUNCTION_OTHER: &str = "other";
 
+/// How many `function` labels there are: [`function_index`] is below it.
+pub const FUNCTION_COUNT: usize = FUNCTION_LABELS.len() + 1;
+
+/// The position of the function's label among the [`FUNCTION_COUNT`] labels (`other` last).
+pub fn function_index(function: u8) -> usize {
+    FUNCTION_LABELS
+        .iter()
+        .position(|(known, _)| *known == function)
+        .unwrap_or(FUNCTION_LABELS.len())
+}
+
+/// The `function` label at `index` (see [`function_index`]).
+pub fn function_label_at(index: usize) -> &'static str {
+    FUNCTION_LABELS
+        .get(index)
+        .map_or(FUNCTION_OTHER, |(_, label)| label)
+}
+
 /// The `function` label value of a request's function code: two upper-case hex digits (`"03"`,
 /// `"2B"`) for the known functions, `"other"` for the rest (a code with bit 7 set included: that is
 /// no request). Pass the request's code, also when the answer was an exception.
@@ -120,85 +162,6 @@ pub fn function_label(function: u8) -> &'static str {
         .iter()
         .find(|(known, _)| *known == function)
         .map_or(FUNCTION_OTHER, |(_, label)| label)
-}
-
-/// Why the Modbus TCP server's connection ended: while served, or refused at accept, or at the
-/// TLS handshake. Every connection that reached `accept()` ends with one of these.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum TcpCloseReason {
-    /// The client closed it.
-    Client,
-    /// No complete request within `idle_timeout`, or an answer not taken within it.
-    Idle,
-    /// A frame the server cannot answer (bad MBAP header: protocol id, length; no function code).
-    BadFrame,
-    /// A socket error.
-    IoError,
-    /// The gateway shut down.
-    Shutdown,
-    /// Refused at accept: the server's or the client address's connection cap was reached.
-    Limit,
-    /// Refused at accept: the client is outside `allowed_networks`.
-    Network,
-    /// Modbus/TCP Security: the TLS handshake failed or timed out.
-    TlsHandshake,
-}
-
-// === impl TcpCloseReason ===
-
-impl TcpCloseReason {
-    /// Every reason, for pre-creating series.
-    pub const ALL: [Self; 8] = [
-        Self::Client,
-        Self::Idle,
-        Self::BadFrame,
-        Self::IoError,
-        Self::Shutdown,
-        Self::Limit,
-        Self::Network,
-        Self::TlsHandshake,
-    ];
-
-    /// The `reason` label value.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::Client => "client",
-            Self::Idle => "idle",
-            Self::BadFrame => "bad_frame",
-            Self::IoError => "io_error",
-            Self::Shutdown => "shutdown",
-            Self::Limit => "limit",
-            Self::Network => "network",
-            Self::TlsHandshake => "tls_handshake",
-        }
-    }
-}
-
-/// Why the Modbus TCP server closed a connection at accept, or failed to accept one.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum RejectReason {
-    /// The connection limit was reached.
-    Limit,
-    /// The client is outside the allowed networks.
-    Network,
-    /// `accept()` failed (out of file descriptors, connection aborted, ...).
-    AcceptError,
-}
-
-// === impl RejectReason ===
-
-impl RejectReason {
-    /// Every reason, for pre-creating series.
-    pub const ALL: [Self; 3] = [Self::Limit, Self::Network, Self::AcceptError];
-
-    /// The `reason` label value.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::Limit => "limit",
-            Self::Network => "network",
-            Self::AcceptError => "accept_error",
-        }
-    }
 }
 
 /// Why the HTTP listener refused or cut a connection or a request

@@ -56,9 +56,11 @@ mod tag_values;
 
 pub use http::serve_metrics;
 pub use labels::{
-    function_label, Direction, DropReason, HttpRejectReason, PublicationKind, RejectReason,
-    RequestResult, TcpCloseReason, WritePath, WriteReason, WriteResult,
+    function_label, Direction, DropReason, HttpRejectReason, PublicationKind, RequestResult,
+    WritePath, WriteReason, WriteResult,
 };
+
+pub use crate::modbus_tcp::stats::{ServerMetrics, TcpConnectionGuard};
 pub use tag_values::{TagValues, QUALITY_UNKNOWN, TAG_QUALITY, TAG_VALUE};
 
 use image_age::ImageAge;
@@ -75,13 +77,13 @@ pub const METRIC_NAMES: &[&str] = &[
     DEVICE_UP,
     DEVICE_IMAGE_AGE,
     POLL_CYCLE,
-    TCP_CONNECTIONS,
-    TCP_CONNECTIONS_ACCEPTED,
-    TCP_CONNECTIONS_REJECTED,
-    TCP_CONNECTIONS_CLOSED,
-    TCP_REQUESTS,
-    TCP_REFUSED,
-    TCP_HANDSHAKES_FAILED,
+    ServerMetrics::NAMES[0],
+    ServerMetrics::NAMES[1],
+    ServerMetrics::NAMES[2],
+    ServerMetrics::NAMES[3],
+    ServerMetrics::NAMES[4],
+    ServerMetrics::NAMES[5],
+    ServerMetrics::NAMES[6],
     WRITES,
     ZENOH_PUBLICATIONS,
     DROPPED_UPDATES,
@@ -102,13 +104,6 @@ const POLL_DURATION: &str = "gateway_poll_duration_seconds";
 const DEVICE_UP: &str = "gateway_device_up";
 const DEVICE_IMAGE_AGE: &str = "gateway_device_image_age_seconds";
 const POLL_CYCLE: &str = "gateway_poll_cycle_seconds";
-const TCP_CONNECTIONS: &str = "gateway_modbus_tcp_connections";
-const TCP_CONNECTIONS_ACCEPTED: &str = "gateway_modbus_tcp_connections_accepted_total";
-const TCP_CONNECTIONS_REJECTED: &str = "gateway_modbus_tcp_connections_rejected_total";
-const TCP_CONNECTIONS_CLOSED: &str = "gateway_modbus_tcp_connections_closed_total";
-const TCP_REQUESTS: &str = "gateway_modbus_tcp_requests_total";
-const TCP_REFUSED: &str = "gateway_modbus_tcp_refused_total";
-const TCP_HANDSHAKES_FAILED: &str = "gateway_modbus_tcp_tls_handshakes_failed_total";
 const WRITES: &str = "gateway_writes_total";
 const ZENOH_PUBLICATIONS: &str = "gateway_zenoh_publications_total";
 const DROPPED_UPDATES: &str = "gateway_dropped_updates_total";
@@ -191,20 +186,8 @@ pub struct Metrics {
     poll_cycle: GaugeVec,
     /// The `period` labels of `poll_cycle` by line and device, to remove them with the device.
     poll_cycle_periods: Arc<Mutex<PollCyclePeriods>>,
-    /// `gateway_modbus_tcp_connections`: connections being served now.
-    tcp_connections: IntGauge,
-    /// `gateway_modbus_tcp_connections_accepted_total`.
-    tcp_accepted: IntCounter,
-    /// `gateway_modbus_tcp_connections_rejected_total{reason}`.
-    tcp_rejected: IntCounterVec,
-    /// `gateway_modbus_tcp_connections_closed_total{reason}`: every connection's end by reason.
-    tcp_closed: IntCounterVec,
-    /// `gateway_modbus_tcp_requests_total{function,result}`.
-    tcp_requests: IntCounterVec,
-    /// `gateway_modbus_tcp_refused_total{role}`: Modbus/TCP Security requests refused by role.
-    tcp_refused: IntCounterVec,
-    /// `gateway_modbus_tcp_tls_handshakes_failed_total`: TLS handshakes that failed or timed out.
-    tcp_handshakes_failed: IntCounter,
+    /// The Modbus TCP server's families.
+    modbus_tcp: ServerMetrics,
     /// `gateway_writes_total{path,result,reason}`: audited writes from outside.
     writes: IntCounterVec,
     /// `gateway_zenoh_publications_total{kind}`.
@@ -290,39 +273,7 @@ impl Metrics {
                 &["line", "device", "period", "kind"],
             )?,
             poll_cycle_periods: Arc::default(),
-            tcp_connections: IntGauge::new(
-                TCP_CONNECTIONS,
-                "Modbus TCP connections being served now.",
-            )?,
-            tcp_accepted: IntCounter::new(
-                TCP_CONNECTIONS_ACCEPTED,
-                "Modbus TCP connections accepted and served.",
-            )?,
-            tcp_rejected: IntCounterVec::new(
-                Opts::new(
-                    TCP_CONNECTIONS_REJECTED,
-                    "Modbus TCP connections refused at accept, and failed accepts, by reason.",
-                ),
-                &["reason"],
-            )?,
-            tcp_closed: IntCounterVec::new(
-                Opts::new(
-                    TCP_CONNECTIONS_CLOSED,
-                    "Modbus TCP connections closed, by reason (served ones and those refused at accept or at the TLS handshake).",
-                ),
-                &["reason"],
-            )?,
-            tcp_requests: IntCounterVec::new(
-                Opts::new(TCP_REQUESTS, "Modbus TCP requests by function code and result."),
-                &["function", "result"],
-            )?,
-            tcp_refused: IntCounterVec::new(
-                Opts::new(
-                    TCP_REFUSED,
-                    "Modbus/TCP Security requests refused by the client certificate's role.",
-                ),
-                &["role"],
-            )?,
+            modbus_tcp: ServerMetrics::register(registry)?,
             writes: IntCounterVec::new(
                 Opts::new(
                     WRITES,
@@ -330,11 +281,6 @@ impl Metrics {
                      result and the reason of a refusal.",
                 ),
                 &["path", "result", "reason"],
-            )?,
-            tcp_handshakes_failed: IntCounter::new(
-                TCP_HANDSHAKES_FAILED,
-                "Modbus/TCP Security TLS handshakes that failed or timed out (bad or missing \
-                 client certificate included).",
             )?,
             zenoh_publications: IntCounterVec::new(
                 Opts::new(ZENOH_PUBLICATIONS, "zenoh publications and replies, by kind."),
@@ -393,13 +339,6 @@ impl Metrics {
         registry.register(Box::new(metrics.device_up.clone()))?;
         registry.register(Box::new(metrics.image_age.clone()))?;
         registry.register(Box::new(metrics.poll_cycle.clone()))?;
-        registry.register(Box::new(metrics.tcp_connections.clone()))?;
-        registry.register(Box::new(metrics.tcp_accepted.clone()))?;
-        registry.register(Box::new(metrics.tcp_rejected.clone()))?;
-        registry.register(Box::new(metrics.tcp_closed.clone()))?;
-        registry.register(Box::new(metrics.tcp_requests.clone()))?;
-        registry.register(Box::new(metrics.tcp_refused.clone()))?;
-        registry.register(Box::new(metrics.tcp_handshakes_failed.clone()))?;
         registry.register(Box::new(metrics.writes.clone()))?;
         registry.register(Box::new(metrics.zenoh_publications.clone()))?;
         registry.register(Box::new(metrics.dropped_updates.clone()))?;
@@ -412,8 +351,6 @@ impl Metrics {
         build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
             .set(1);
-        // A certificate without a role: the one role label every Modbus/TCP Security server has.
-        metrics.tcp_refused.with_label_values(&["none"]);
         for path in WritePath::ALL {
             for result in WriteResult::ALL {
                 metrics.write_series(path, result, WriteReason::of(result));
@@ -421,12 +358,6 @@ impl Metrics {
         }
         for reason in WriteReason::ZENOH_REFUSALS {
             metrics.write_series(WritePath::Zenoh, WriteResult::Refused, reason);
-        }
-        for reason in RejectReason::ALL {
-            metrics.tcp_rejected.with_label_values(&[reason.as_str()]);
-        }
-        for reason in TcpCloseReason::ALL {
-            metrics.tcp_closed.with_label_values(&[reason.as_str()]);
         }
         for kind in PublicationKind::ALL {
             metrics
@@ -626,43 +557,9 @@ impl Metrics {
 
     // --- Modbus TCP server ---
 
-    /// A connection was accepted: counts it and keeps `gateway_modbus_tcp_connections` up until
-    /// the returned guard is dropped (move it into the connection task).
-    pub fn tcp_connection_accepted(&self) -> TcpConnectionGuard {
-        self.tcp_accepted.inc();
-        self.tcp_connections.inc();
-        TcpConnectionGuard {
-            open: self.tcp_connections.clone(),
-        }
-    }
-
-    /// A connection was refused at accept, or `accept()` failed.
-    pub fn tcp_connection_rejected(&self, reason: RejectReason) {
-        self.tcp_rejected
-            .with_label_values(&[reason.as_str()])
-            .inc();
-    }
-
-    /// A connection ended (or was refused at accept or at the TLS handshake) for `reason`.
-    pub fn tcp_connection_closed(&self, reason: TcpCloseReason) {
-        self.tcp_closed.with_label_values(&[reason.as_str()]).inc();
-    }
-
-    /// Counts one Modbus TCP request with function code `function` and its answer.
-    pub fn tcp_request(&self, function: u8, result: RequestResult) {
-        self.tcp_request_series(function, result).inc();
-    }
-
-    /// The series [`Self::tcp_request`] counts into, to keep and count into without looking it
-    /// up (by its labels, under the family's lock) for every request.
-    pub fn tcp_request_series(&self, function: u8, result: RequestResult) -> IntCounter {
-        self.tcp_requests
-            .with_label_values(&[function_label(function), result.as_str()])
-    }
-
-    /// Counts one Modbus/TCP Security request refused for the role labelled `role`.
-    pub fn tcp_refused(&self, role: &str) {
-        self.tcp_refused.with_label_values(&[role]).inc();
+    /// The Modbus TCP server's families (registered by [`ServerMetrics::register`]).
+    pub fn modbus_tcp(&self) -> &ServerMetrics {
+        &self.modbus_tcp
     }
 
     /// Counts one audited write (see [`crate::audit`]).
@@ -678,11 +575,6 @@ impl Metrics {
     ) -> IntCounter {
         self.writes
             .with_label_values(&[path.as_str(), result.as_str(), reason.as_str()])
-    }
-
-    /// Counts one failed Modbus/TCP Security handshake.
-    pub fn tcp_handshake_failed(&self) {
-        self.tcp_handshakes_failed.inc();
     }
 
     // --- HTTP listener ---
@@ -723,19 +615,6 @@ impl Metrics {
         self.dropped_updates
             .with_label_values(&[reason.as_str()])
             .inc_by(count);
-    }
-}
-
-/// Keeps one Modbus TCP connection counted in `gateway_modbus_tcp_connections` while it lives.
-#[derive(Debug)]
-#[must_use = "the connection counts as open only while the guard lives"]
-pub struct TcpConnectionGuard {
-    open: IntGauge,
-}
-
-impl Drop for TcpConnectionGuard {
-    fn drop(&mut self) {
-        self.open.dec();
     }
 }
 
@@ -784,7 +663,7 @@ mod tests {
             PollCycleKind::Planned,
             Duration::from_millis(200),
         );
-        metrics.tcp_request(0x03, RequestResult::Ok);
+        metrics.modbus_tcp().request(0x03, RequestResult::Ok);
         metrics.frame_discarded("hmi", "trailing_data");
         let _ = metrics.monitor_dropped("drive", "overwritten");
         let mut names: Vec<_> = registry
@@ -836,19 +715,5 @@ mod tests {
             "{text}"
         );
         assert!(text.contains(r#"gateway_line_up{line="r3964",protocol="3964r"} 1"#));
-    }
-
-    #[test]
-    fn connection_guard_counts_open_connections() {
-        let registry = Registry::new();
-        let metrics = Metrics::register(&registry).expect("register");
-        let first = metrics.tcp_connection_accepted();
-        let second = metrics.tcp_connection_accepted();
-        assert_eq!(metrics.tcp_connections.get(), 2);
-        drop(first);
-        assert_eq!(metrics.tcp_connections.get(), 1);
-        drop(second);
-        assert_eq!(metrics.tcp_connections.get(), 0);
-        assert_eq!(metrics.tcp_accepted.get(), 2);
     }
 }
