@@ -12,10 +12,10 @@ use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use gateway::metrics::{
-    encode_text, serve_metrics, Direction, DropReason, Metrics, PublicationKind, RequestResult,
-    TcpConnectionGuard, METRIC_NAMES,
+    encode_text, serve_metrics, Direction, Metrics, RequestResult, TcpConnectionGuard, METRIC_NAMES,
 };
 use gateway::modbus_tcp::RejectReason;
+use gateway::zenoh_bridge::{DropReason, PublicationKind};
 use prometheus::proto::MetricType;
 use prometheus::Registry;
 use proto_core::event::{self, EventId};
@@ -74,8 +74,8 @@ fn record_samples(metrics: &Metrics) -> TcpConnectionGuard {
         .modbus_tcp()
         .connection_rejected(RejectReason::Limit);
     drop(connection);
-    metrics.zenoh_published(PublicationKind::Tag);
-    metrics.dropped_update(DropReason::QueueFull);
+    metrics.zenoh().published(PublicationKind::Tag);
+    metrics.zenoh().dropped(DropReason::TagQueueFull, 1);
     metrics.modbus_tcp().connection_accepted()
 }
 
@@ -355,7 +355,7 @@ async fn prometheus_scrapes_the_endpoint_and_evaluates_every_dashboard_query() {
                 metrics.poll_duration("drive", "atv71", Duration::from_millis(18));
                 metrics.device_image_updated("drive", "atv71", Instant::now());
                 metrics.modbus_tcp().request(0x03, RequestResult::Ok);
-                metrics.zenoh_published(PublicationKind::Tag);
+                metrics.zenoh().published(PublicationKind::Tag);
             }
         })
     };

@@ -56,11 +56,11 @@ mod tag_values;
 
 pub use http::serve_metrics;
 pub use labels::{
-    function_label, Direction, DropReason, HttpRejectReason, PublicationKind, RequestResult,
-    WritePath, WriteReason, WriteResult,
+    function_label, Direction, HttpRejectReason, RequestResult, WritePath, WriteReason, WriteResult,
 };
 
 pub use crate::modbus_tcp::stats::{ServerMetrics, TcpConnectionGuard};
+pub use crate::zenoh_bridge::stats::BridgeMetrics;
 pub use tag_values::{TagValues, QUALITY_UNKNOWN, TAG_QUALITY, TAG_VALUE};
 
 use image_age::ImageAge;
@@ -85,8 +85,8 @@ pub const METRIC_NAMES: &[&str] = &[
     ServerMetrics::NAMES[5],
     ServerMetrics::NAMES[6],
     WRITES,
-    ZENOH_PUBLICATIONS,
-    DROPPED_UPDATES,
+    BridgeMetrics::NAMES[0],
+    BridgeMetrics::NAMES[1],
     FRAMES_DISCARDED,
     MONITOR_DROPPED,
     HTTP_CONNECTIONS,
@@ -105,8 +105,6 @@ const DEVICE_UP: &str = "gateway_device_up";
 const DEVICE_IMAGE_AGE: &str = "gateway_device_image_age_seconds";
 const POLL_CYCLE: &str = "gateway_poll_cycle_seconds";
 const WRITES: &str = "gateway_writes_total";
-const ZENOH_PUBLICATIONS: &str = "gateway_zenoh_publications_total";
-const DROPPED_UPDATES: &str = "gateway_dropped_updates_total";
 const FRAMES_DISCARDED: &str = "gateway_frames_discarded_total";
 const MONITOR_DROPPED: &str = "gateway_monitor_dropped_total";
 const HTTP_CONNECTIONS: &str = "gateway_http_connections";
@@ -190,10 +188,8 @@ pub struct Metrics {
     modbus_tcp: ServerMetrics,
     /// `gateway_writes_total{path,result,reason}`: audited writes from outside.
     writes: IntCounterVec,
-    /// `gateway_zenoh_publications_total{kind}`.
-    zenoh_publications: IntCounterVec,
-    /// `gateway_dropped_updates_total{reason}`.
-    dropped_updates: IntCounterVec,
+    /// The zenoh bridge's families.
+    zenoh: BridgeMetrics,
     /// `gateway_frames_discarded_total{line,reason}`: received frames a slave line did not serve
     /// or a tap line did not use.
     frames_discarded: IntCounterVec,
@@ -282,17 +278,7 @@ impl Metrics {
                 ),
                 &["path", "result", "reason"],
             )?,
-            zenoh_publications: IntCounterVec::new(
-                Opts::new(ZENOH_PUBLICATIONS, "zenoh publications and replies, by kind."),
-                &["kind"],
-            )?,
-            dropped_updates: IntCounterVec::new(
-                Opts::new(
-                    DROPPED_UPDATES,
-                    "Updates dropped instead of delivered (full bounded channel, lag, closed).",
-                ),
-                &["reason"],
-            )?,
+            zenoh: BridgeMetrics::register(registry)?,
             frames_discarded: IntCounterVec::new(
                 Opts::new(
                     FRAMES_DISCARDED,
@@ -340,8 +326,6 @@ impl Metrics {
         registry.register(Box::new(metrics.image_age.clone()))?;
         registry.register(Box::new(metrics.poll_cycle.clone()))?;
         registry.register(Box::new(metrics.writes.clone()))?;
-        registry.register(Box::new(metrics.zenoh_publications.clone()))?;
-        registry.register(Box::new(metrics.dropped_updates.clone()))?;
         registry.register(Box::new(metrics.frames_discarded.clone()))?;
         registry.register(Box::new(metrics.monitor_dropped.clone()))?;
         registry.register(Box::new(metrics.http_connections.clone()))?;
@@ -358,16 +342,6 @@ impl Metrics {
         }
         for reason in WriteReason::ZENOH_REFUSALS {
             metrics.write_series(WritePath::Zenoh, WriteResult::Refused, reason);
-        }
-        for kind in PublicationKind::ALL {
-            metrics
-                .zenoh_publications
-                .with_label_values(&[kind.as_str()]);
-        }
-        for reason in DropReason::ALL {
-            metrics
-                .dropped_updates
-                .with_label_values(&[reason.as_str()]);
         }
         for reason in HttpRejectReason::ALL {
             metrics.http_rejected.with_label_values(&[reason.as_str()]);
@@ -598,23 +572,9 @@ impl Metrics {
 
     // --- zenoh ---
 
-    /// Counts one zenoh publication or reply.
-    pub fn zenoh_published(&self, kind: PublicationKind) {
-        self.zenoh_publications
-            .with_label_values(&[kind.as_str()])
-            .inc();
-    }
-
-    /// Counts one update dropped instead of delivered.
-    pub fn dropped_update(&self, reason: DropReason) {
-        self.dropped_updates(reason, 1);
-    }
-
-    /// Counts `count` updates dropped instead of delivered (a receiver that lagged lost several).
-    pub fn dropped_updates(&self, reason: DropReason, count: u64) {
-        self.dropped_updates
-            .with_label_values(&[reason.as_str()])
-            .inc_by(count);
+    /// The zenoh bridge's families (registered by [`BridgeMetrics::register`]).
+    pub fn zenoh(&self) -> &BridgeMetrics {
+        &self.zenoh
     }
 }
 
