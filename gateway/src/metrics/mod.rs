@@ -55,10 +55,9 @@ pub mod labels;
 mod tag_values;
 
 pub use http::serve_metrics;
-pub use labels::{
-    function_label, Direction, HttpRejectReason, RequestResult, WritePath, WriteReason, WriteResult,
-};
+pub use labels::{function_label, Direction, HttpRejectReason, RequestResult};
 
+pub use crate::audit::AuditMetrics;
 pub use crate::modbus_tcp::stats::{ServerMetrics, TcpConnectionGuard};
 pub use crate::zenoh_bridge::stats::BridgeMetrics;
 pub use tag_values::{TagValues, QUALITY_UNKNOWN, TAG_QUALITY, TAG_VALUE};
@@ -84,7 +83,7 @@ pub const METRIC_NAMES: &[&str] = &[
     ServerMetrics::NAMES[4],
     ServerMetrics::NAMES[5],
     ServerMetrics::NAMES[6],
-    WRITES,
+    AuditMetrics::NAME,
     BridgeMetrics::NAMES[0],
     BridgeMetrics::NAMES[1],
     FRAMES_DISCARDED,
@@ -104,7 +103,6 @@ const POLL_DURATION: &str = "gateway_poll_duration_seconds";
 const DEVICE_UP: &str = "gateway_device_up";
 const DEVICE_IMAGE_AGE: &str = "gateway_device_image_age_seconds";
 const POLL_CYCLE: &str = "gateway_poll_cycle_seconds";
-const WRITES: &str = "gateway_writes_total";
 const FRAMES_DISCARDED: &str = "gateway_frames_discarded_total";
 const MONITOR_DROPPED: &str = "gateway_monitor_dropped_total";
 const HTTP_CONNECTIONS: &str = "gateway_http_connections";
@@ -186,8 +184,8 @@ pub struct Metrics {
     poll_cycle_periods: Arc<Mutex<PollCyclePeriods>>,
     /// The Modbus TCP server's families.
     modbus_tcp: ServerMetrics,
-    /// `gateway_writes_total{path,result,reason}`: audited writes from outside.
-    writes: IntCounterVec,
+    /// The audit's family of writes from outside.
+    audit: AuditMetrics,
     /// The zenoh bridge's families.
     zenoh: BridgeMetrics,
     /// `gateway_frames_discarded_total{line,reason}`: received frames a slave line did not serve
@@ -270,14 +268,7 @@ impl Metrics {
             )?,
             poll_cycle_periods: Arc::default(),
             modbus_tcp: ServerMetrics::register(registry)?,
-            writes: IntCounterVec::new(
-                Opts::new(
-                    WRITES,
-                    "Writes from outside (Modbus TCP, Modbus/TCP Security, REST, zenoh) by path, \
-                     result and the reason of a refusal.",
-                ),
-                &["path", "result", "reason"],
-            )?,
+            audit: AuditMetrics::register(registry)?,
             zenoh: BridgeMetrics::register(registry)?,
             frames_discarded: IntCounterVec::new(
                 Opts::new(
@@ -325,7 +316,6 @@ impl Metrics {
         registry.register(Box::new(metrics.device_up.clone()))?;
         registry.register(Box::new(metrics.image_age.clone()))?;
         registry.register(Box::new(metrics.poll_cycle.clone()))?;
-        registry.register(Box::new(metrics.writes.clone()))?;
         registry.register(Box::new(metrics.frames_discarded.clone()))?;
         registry.register(Box::new(metrics.monitor_dropped.clone()))?;
         registry.register(Box::new(metrics.http_connections.clone()))?;
@@ -335,14 +325,6 @@ impl Metrics {
         build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
             .set(1);
-        for path in WritePath::ALL {
-            for result in WriteResult::ALL {
-                metrics.write_series(path, result, WriteReason::of(result));
-            }
-        }
-        for reason in WriteReason::ZENOH_REFUSALS {
-            metrics.write_series(WritePath::Zenoh, WriteResult::Refused, reason);
-        }
         for reason in HttpRejectReason::ALL {
             metrics.http_rejected.with_label_values(&[reason.as_str()]);
         }
@@ -536,19 +518,9 @@ impl Metrics {
         &self.modbus_tcp
     }
 
-    /// Counts one audited write (see [`crate::audit`]).
-    pub fn write_audited(&self, path: WritePath, result: WriteResult, reason: WriteReason) {
-        self.write_series(path, result, reason).inc();
-    }
-
-    fn write_series(
-        &self,
-        path: WritePath,
-        result: WriteResult,
-        reason: WriteReason,
-    ) -> IntCounter {
-        self.writes
-            .with_label_values(&[path.as_str(), result.as_str(), reason.as_str()])
+    /// The audit's family of writes from outside (registered by [`AuditMetrics::register`]).
+    pub fn audit(&self) -> &AuditMetrics {
+        &self.audit
     }
 
     // --- HTTP listener ---
