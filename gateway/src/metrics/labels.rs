@@ -164,65 +164,6 @@ pub fn function_label(function: u8) -> &'static str {
         .map_or(FUNCTION_OTHER, |(_, label)| label)
 }
 
-/// Why the HTTP listener refused or cut a connection or a request
-/// (`gateway_http_rejected_total{reason}`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum HttpRejectReason {
-    /// The client is outside `[http] allowed_networks`: closed at accept.
-    Network,
-    /// The client address had `max_connections_per_client` connections: a request other than
-    /// `/metrics`, `/healthz`, `/readyz` answered 503, or the connection closed at accept when
-    /// the places held back for those were taken too.
-    ClientLimit,
-    /// Every one of `max_connections` was taken: as `client_limit`.
-    ConnectionLimit,
-    /// Every one of `max_streams` was taken: an SSE follow or a timed capture answered 503.
-    StreamLimit,
-    /// A response the client did not read within `write_timeout`: the connection was closed.
-    WriteTimeout,
-    /// A request head (or the next one on a kept-alive connection) that did not arrive within
-    /// the header read timeout: the connection was closed.
-    HeaderTimeout,
-    /// A connection waiting for a request head, closed to give its place to a new one.
-    Evicted,
-    /// A TLS handshake that failed or did not complete in time.
-    TlsHandshake,
-    /// `accept()` failed (out of file descriptors, connection aborted, ...).
-    AcceptError,
-}
-
-// === impl HttpRejectReason ===
-
-impl HttpRejectReason {
-    /// Every reason, for pre-creating series.
-    pub const ALL: [Self; 9] = [
-        Self::Network,
-        Self::ClientLimit,
-        Self::ConnectionLimit,
-        Self::StreamLimit,
-        Self::WriteTimeout,
-        Self::HeaderTimeout,
-        Self::Evicted,
-        Self::TlsHandshake,
-        Self::AcceptError,
-    ];
-
-    /// The `reason` label value.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::Network => "network",
-            Self::ClientLimit => "client_limit",
-            Self::ConnectionLimit => "connection_limit",
-            Self::StreamLimit => "stream_limit",
-            Self::WriteTimeout => "write_timeout",
-            Self::HeaderTimeout => "header_timeout",
-            Self::Evicted => "evicted",
-            Self::TlsHandshake => "tls_handshake",
-            Self::AcceptError => "accept_error",
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use std::collections::BTreeSet;

@@ -44,8 +44,8 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::{Duration, Instant};
 
 use prometheus::{
-    GaugeVec, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGauge,
-    IntGaugeVec, Opts, Registry, TextEncoder,
+    GaugeVec, Histogram, HistogramOpts, HistogramVec, IntCounter, IntCounterVec, IntGaugeVec, Opts,
+    Registry, TextEncoder,
 };
 use proto_core::event::{self, EventId};
 
@@ -55,8 +55,9 @@ pub mod labels;
 mod tag_values;
 
 pub use http::serve_metrics;
-pub use labels::{function_label, Direction, HttpRejectReason, RequestResult};
+pub use labels::{function_label, Direction, RequestResult};
 
+pub use crate::api::metrics::{ConnectionPool, HttpMetrics, HttpRejectReason};
 pub use crate::audit::AuditMetrics;
 pub use crate::modbus_tcp::stats::{ServerMetrics, TcpConnectionGuard};
 pub use crate::zenoh_bridge::stats::BridgeMetrics;
@@ -88,9 +89,9 @@ pub const METRIC_NAMES: &[&str] = &[
     BridgeMetrics::NAMES[1],
     FRAMES_DISCARDED,
     MONITOR_DROPPED,
-    HTTP_CONNECTIONS,
-    HTTP_STREAMS,
-    HTTP_REJECTED,
+    HttpMetrics::NAMES[0],
+    HttpMetrics::NAMES[1],
+    HttpMetrics::NAMES[2],
 ];
 
 const BUILD_INFO: &str = "gateway_build_info";
@@ -105,9 +106,6 @@ const DEVICE_IMAGE_AGE: &str = "gateway_device_image_age_seconds";
 const POLL_CYCLE: &str = "gateway_poll_cycle_seconds";
 const FRAMES_DISCARDED: &str = "gateway_frames_discarded_total";
 const MONITOR_DROPPED: &str = "gateway_monitor_dropped_total";
-const HTTP_CONNECTIONS: &str = "gateway_http_connections";
-const HTTP_STREAMS: &str = "gateway_http_streams";
-const HTTP_REJECTED: &str = "gateway_http_rejected_total";
 
 /// Buckets of `gateway_poll_duration_seconds`, 1 ms .. 5 s.
 ///
@@ -193,13 +191,8 @@ pub struct Metrics {
     frames_discarded: IntCounterVec,
     /// `gateway_monitor_dropped_total{line,reason}`: frames the line's frame monitor let go.
     monitor_dropped: IntCounterVec,
-    /// `gateway_http_connections{pool}`: HTTP connections open now, in the general pool and in
-    /// the places held back for `/metrics`, `/healthz` and `/readyz`.
-    http_connections: IntGaugeVec,
-    /// `gateway_http_streams`: SSE follows and timed captures being served now.
-    http_streams: IntGauge,
-    /// `gateway_http_rejected_total{reason}`: HTTP connections and requests refused or cut.
-    http_rejected: IntCounterVec,
+    /// The HTTP listener's families.
+    http: HttpMetrics,
 }
 
 // === impl Metrics ===
@@ -285,25 +278,7 @@ impl Metrics {
                 ),
                 &["line", "reason"],
             )?,
-            http_connections: IntGaugeVec::new(
-                Opts::new(
-                    HTTP_CONNECTIONS,
-                    "HTTP connections open now, by pool (general; health: the places held back \
-                     for /metrics, /healthz and /readyz).",
-                ),
-                &["pool"],
-            )?,
-            http_streams: IntGauge::new(
-                HTTP_STREAMS,
-                "HTTP streams (SSE follows, timed captures) being served now.",
-            )?,
-            http_rejected: IntCounterVec::new(
-                Opts::new(
-                    HTTP_REJECTED,
-                    "HTTP connections and requests refused or cut, by reason.",
-                ),
-                &["reason"],
-            )?,
+            http: HttpMetrics::register(registry)?,
         };
 
         registry.register(Box::new(build_info.clone()))?;
@@ -318,19 +293,10 @@ impl Metrics {
         registry.register(Box::new(metrics.poll_cycle.clone()))?;
         registry.register(Box::new(metrics.frames_discarded.clone()))?;
         registry.register(Box::new(metrics.monitor_dropped.clone()))?;
-        registry.register(Box::new(metrics.http_connections.clone()))?;
-        registry.register(Box::new(metrics.http_streams.clone()))?;
-        registry.register(Box::new(metrics.http_rejected.clone()))?;
 
         build_info
             .with_label_values(&[env!("CARGO_PKG_VERSION")])
             .set(1);
-        for reason in HttpRejectReason::ALL {
-            metrics.http_rejected.with_label_values(&[reason.as_str()]);
-        }
-        for pool in ["general", "health"] {
-            metrics.http_connections.with_label_values(&[pool]);
-        }
         Ok(metrics)
     }
 
@@ -525,21 +491,9 @@ impl Metrics {
 
     // --- HTTP listener ---
 
-    /// The gauge of open HTTP connections of `pool` (`general` or `health`).
-    pub fn http_connections(&self, pool: &'static str) -> IntGauge {
-        self.http_connections.with_label_values(&[pool])
-    }
-
-    /// The gauge of HTTP streams being served.
-    pub fn http_streams(&self) -> IntGauge {
-        self.http_streams.clone()
-    }
-
-    /// Counts one HTTP connection or request refused or cut for `reason`.
-    pub fn http_rejected(&self, reason: HttpRejectReason) {
-        self.http_rejected
-            .with_label_values(&[reason.as_str()])
-            .inc();
+    /// The HTTP listener's families (registered by [`HttpMetrics::register`]).
+    pub fn http(&self) -> &HttpMetrics {
+        &self.http
     }
 
     // --- zenoh ---
