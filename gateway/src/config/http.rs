@@ -600,6 +600,26 @@ mod tests {
     }
 
     #[test]
+    fn tag_metrics_read_with_their_filter_and_a_bad_expression_is_refused() {
+        assert!(!HttpConfig::default().tag_metrics);
+        let c =
+            read("tag_metrics = true\ntag_metrics_filter = [\"drive/**\", \"*/ks/PV\"]").unwrap();
+        assert!(c.tag_metrics);
+        assert_eq!(c.tag_metrics_filter, ["drive/**", "*/ks/PV"]);
+        let text = toml::to_string(&c).unwrap();
+        assert_eq!(read(&text).unwrap(), c);
+
+        let issues = read("tag_metrics_filter = [\"drive/**/**\", 3]").unwrap_err();
+        assert_eq!(issues.len(), 2, "{issues:?}");
+        assert!(
+            issues
+                .iter()
+                .all(|i| i.path.starts_with("http.tag_metrics_filter")),
+            "{issues:?}"
+        );
+    }
+
+    #[test]
     fn roles_grant_their_rights() {
         use RestRight::{Config, Diagnostics, Send, Write};
         for right in [Write, Send, Diagnostics, Config] {
