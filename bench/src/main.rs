@@ -17,6 +17,8 @@
 //! - resident memory with 4 lines, 32 devices, 10 000 points (`process`, real binary);
 //! - zenoh bounds: log lines and counted refusals of a flood of refused puts, resident memory
 //!   growth for an 8 MiB and a 256 MiB put (`zenoh_bounds`, real binary).
+//! - `/metrics` with `[http] tag_metrics = true` at 10 000 tags: scrape time and size
+//!   (`tag_metrics`, real binary);
 //! - the mailbox journal: 3964R telegrams per second at 9600 Bd with and without `journal`, and
 //!   the journal's largest size against its bound (`telegram`).
 //!
@@ -34,6 +36,7 @@ mod poll;
 mod process;
 mod report;
 mod stats;
+mod tag_metrics;
 mod tap;
 mod tcp;
 mod telegram;
@@ -101,6 +104,8 @@ enum Group {
     Bounds,
     /// The mailbox journal's cost and size.
     Journal,
+    /// `/metrics` with the process values of 10 000 tags.
+    TagMetrics,
 }
 
 /// How long each measurement runs.
@@ -333,6 +338,16 @@ async fn run(args: &Args) -> Vec<Row> {
                 .unwrap_or_else(|e| failed(&format!("zenoh {mib} MiB put"), e));
             push(&mut rows, row);
         }
+    }
+    if wanted(Group::TagMetrics) {
+        eprintln!(
+            "/metrics with tag_metrics (gateway binary {})",
+            bin.display()
+        );
+        let row = tag_metrics::scrape(&bin, &plan)
+            .await
+            .unwrap_or_else(|e| failed("/metrics with tag_metrics, 10000 tags", e));
+        push(&mut rows, row);
     }
     if wanted(Group::Journal) {
         eprintln!("mailbox journal: 3964R telegrams/s with and without");

@@ -347,7 +347,7 @@ async fn serve_http(
                 issues: vec![check::token_issue(http, &e)],
             })
         })?
-        .with_routes(metrics_route(sup.exported.registry.clone()))
+        .with_routes(metrics_route(Arc::clone(sup)))
         .with_change_lock(Arc::clone(&sup.change_lock))
         .with_metrics(sup.exported.metrics.clone());
     let state = match source {
@@ -394,16 +394,20 @@ async fn serve_http(
     }))
 }
 
-/// `GET /metrics`: the registry in the Prometheus text format.
-fn metrics_route(registry: Registry) -> axum::Router {
+/// `GET /metrics`: the registry in the Prometheus text format, and the process values when
+/// `[http] tag_metrics` is on (read from the configuration in force at each scrape).
+fn metrics_route(sup: Arc<supervisor::Supervisor>) -> axum::Router {
     use axum::http::header;
     use axum::response::IntoResponse;
+    let tag_values = Arc::new(crate::metrics::TagValues::new());
     axum::Router::new().route(
         "/metrics",
         axum::routing::get(move || {
-            let registry = registry.clone();
+            let (sup, tag_values) = (Arc::clone(&sup), Arc::clone(&tag_values));
             async move {
-                let text = crate::metrics::encode_text(&registry);
+                let mut text = crate::metrics::encode_text(&sup.exported.registry);
+                let snapshot = sup.snapshot();
+                tag_values.render(&mut text, &snapshot.config.http, &snapshot.tags, &sup.image);
                 (
                     [(header::CONTENT_TYPE, crate::metrics::TEXT_CONTENT_TYPE)],
                     text,

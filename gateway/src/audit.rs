@@ -13,11 +13,11 @@
 use std::fmt::Display;
 use std::time::Duration;
 
+use prometheus::{IntCounter, IntCounterVec, Opts, Registry};
 use tracing::info;
 
 use crate::log_limit::Limiter;
 use crate::metrics::Metrics;
-pub use crate::metrics::{WritePath, WriteReason, WriteResult};
 
 /// At most one audit line per source, path and result in this interval.
 pub const AUDIT_INTERVAL: Duration = Duration::from_secs(10);
@@ -57,7 +57,7 @@ pub fn record_reason(
     detail: &dyn Display,
 ) {
     if let Some(m) = metrics {
-        m.write_audited(path, result, reason);
+        m.audit().write(path, result, reason);
     }
     let key = format!(
         "{}/{}/{}/{source}",
@@ -90,5 +90,174 @@ pub fn record_reason(
             "write ({more} more of this source, path, result and reason not logged in the last {}s)",
             since.as_secs()
         ),
+    }
+}
+
+/// The interface a write came through.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum WritePath {
+    /// Plain Modbus TCP.
+    ModbusTcp,
+    /// Modbus/TCP Security.
+    ModbusTls,
+    /// The REST API.
+    Rest,
+    /// zenoh (`tx`, tag `set`).
+    Zenoh,
+}
+
+impl WritePath {
+    /// Every path, for the zero series.
+    pub const ALL: [Self; 4] = [Self::ModbusTcp, Self::ModbusTls, Self::Rest, Self::Zenoh];
+
+    /// The label value.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::ModbusTcp => "modbus_tcp",
+            Self::ModbusTls => "modbus_tcp_tls",
+            Self::Rest => "rest",
+            Self::Zenoh => "zenoh",
+        }
+    }
+}
+
+/// How a write ended.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum WriteResult {
+    /// Passed the policy and the device took it.
+    Accepted,
+    /// Refused by the write policy or the role: never sent to the device.
+    Refused,
+    /// Passed the policy; the device or the line did not take it.
+    Failed,
+}
+
+impl WriteResult {
+    /// Every result, for the zero series.
+    pub const ALL: [Self; 3] = [Self::Accepted, Self::Refused, Self::Failed];
+
+    /// The label value.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Accepted => "accepted",
+            Self::Refused => "refused",
+            Self::Failed => "failed",
+        }
+    }
+}
+
+/// Why a write ended as it did: the `reason` label of `gateway_writes_total`. Accepted and failed
+/// writes say `none` (the result says it all); a refusal says which check refused it. Modbus TCP
+/// and REST refusals are `policy`; the zenoh side names each of its checks, so that a flood of
+/// one kind is told apart from the others.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum WriteReason {
+    /// Not refused: accepted, or failed at the device or line.
+    None,
+    /// The write or send policy, the role, the token, or a check of the request itself (a
+    /// read-only tag, a value that does not fit, a line that does not send).
+    Policy,
+    /// `[zenoh] writes = false`.
+    WritesOff,
+    /// The payload is larger than `[zenoh] max_payload`.
+    TooLarge,
+    /// The payload is not what the key takes: not a JSON value, an empty telegram.
+    BadPayload,
+    /// No such line, device or tag.
+    UnknownTarget,
+    /// A command queue was full: the command was answered `busy`.
+    QueueFull,
+}
+
+impl WriteReason {
+    /// Every reason.
+    pub const ALL: [Self; 7] = [
+        Self::None,
+        Self::Policy,
+        Self::WritesOff,
+        Self::TooLarge,
+        Self::BadPayload,
+        Self::UnknownTarget,
+        Self::QueueFull,
+    ];
+
+    /// The reasons a refusal over zenoh can have, for the zero series.
+    pub const ZENOH_REFUSALS: [Self; 6] = [
+        Self::Policy,
+        Self::WritesOff,
+        Self::TooLarge,
+        Self::BadPayload,
+        Self::UnknownTarget,
+        Self::QueueFull,
+    ];
+
+    /// The reason of a write of `result` on a path that does not say more: `none` for accepted
+    /// and failed writes, `policy` for a refusal.
+    pub const fn of(result: WriteResult) -> Self {
+        match result {
+            WriteResult::Accepted | WriteResult::Failed => Self::None,
+            WriteResult::Refused => Self::Policy,
+        }
+    }
+
+    /// The label value (`queue_full` as in `gateway_dropped_updates_total`).
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::None => "none",
+            Self::Policy => "policy",
+            Self::WritesOff => "writes_off",
+            Self::TooLarge => "too_large",
+            Self::BadPayload => "bad_payload",
+            Self::UnknownTarget => "unknown_target",
+            Self::QueueFull => "queue_full",
+        }
+    }
+}
+
+/// The audit's Prometheus family, `gateway_writes_total{path,result,reason}`. Clones share the
+/// same series.
+#[derive(Clone, Debug)]
+pub struct AuditMetrics {
+    writes: IntCounterVec,
+}
+
+// === impl AuditMetrics ===
+
+impl AuditMetrics {
+    /// The name of the family.
+    pub const NAME: &'static str = "gateway_writes_total";
+
+    /// Registers the family in `registry`, with the series every path can count at 0.
+    pub fn register(registry: &Registry) -> Result<Self, prometheus::Error> {
+        let metrics = Self {
+            writes: IntCounterVec::new(
+                Opts::new(
+                    Self::NAME,
+                    "Writes from outside (Modbus TCP, Modbus/TCP Security, REST, zenoh) by path, \
+                     result and the reason of a refusal.",
+                ),
+                &["path", "result", "reason"],
+            )?,
+        };
+        registry.register(Box::new(metrics.writes.clone()))?;
+        for path in WritePath::ALL {
+            for result in WriteResult::ALL {
+                metrics.series(path, result, WriteReason::of(result));
+            }
+        }
+        for reason in WriteReason::ZENOH_REFUSALS {
+            metrics.series(WritePath::Zenoh, WriteResult::Refused, reason);
+        }
+        Ok(metrics)
+    }
+
+    /// Counts one audited write.
+    pub fn write(&self, path: WritePath, result: WriteResult, reason: WriteReason) {
+        self.series(path, result, reason).inc();
+    }
+
+    fn series(&self, path: WritePath, result: WriteResult, reason: WriteReason) -> IntCounter {
+        self.writes
+            .with_label_values(&[path.as_str(), result.as_str(), reason.as_str()])
     }
 }

@@ -12,9 +12,10 @@ use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use gateway::metrics::{
-    encode_text, serve_metrics, Direction, DropReason, Metrics, PublicationKind, RejectReason,
-    RequestResult, TcpConnectionGuard, METRIC_NAMES,
+    encode_text, serve_metrics, Direction, Metrics, RequestResult, TcpConnectionGuard, METRIC_NAMES,
 };
+use gateway::modbus_tcp::RejectReason;
+use gateway::zenoh_bridge::{DropReason, PublicationKind};
 use prometheus::proto::MetricType;
 use prometheus::Registry;
 use proto_core::event::{self, EventId};
@@ -59,21 +60,23 @@ fn record_samples(metrics: &Metrics) -> TcpConnectionGuard {
     metrics.poll_duration("drive", "atv71", Duration::from_millis(18));
     metrics.poll_duration("drive", "atv71", Duration::from_secs(2));
     metrics.device_image_updated("drive", "atv71", Instant::now());
-    let connection = metrics.tcp_connection_accepted();
-    metrics.tcp_request(0x03, RequestResult::Ok);
-    metrics.tcp_request(
+    let connection = metrics.modbus_tcp().connection_accepted();
+    metrics.modbus_tcp().request(0x03, RequestResult::Ok);
+    metrics.modbus_tcp().request(
         0x03,
         RequestResult::Exception(ExceptionCode::GatewayTargetFailedToRespond),
     );
-    metrics.tcp_request(
+    metrics.modbus_tcp().request(
         0x42,
         RequestResult::Exception(ExceptionCode::IllegalFunction),
     );
-    metrics.tcp_connection_rejected(RejectReason::Limit);
+    metrics
+        .modbus_tcp()
+        .connection_rejected(RejectReason::Limit);
     drop(connection);
-    metrics.zenoh_published(PublicationKind::Tag);
-    metrics.dropped_update(DropReason::QueueFull);
-    metrics.tcp_connection_accepted()
+    metrics.zenoh().published(PublicationKind::Tag);
+    metrics.zenoh().dropped(DropReason::TagQueueFull, 1);
+    metrics.modbus_tcp().connection_accepted()
 }
 
 fn fresh() -> (Registry, Metrics) {
@@ -351,8 +354,8 @@ async fn prometheus_scrapes_the_endpoint_and_evaluates_every_dashboard_query() {
                 metrics.modbus_request("drive", "atv71", 0x03, RequestResult::Ok);
                 metrics.poll_duration("drive", "atv71", Duration::from_millis(18));
                 metrics.device_image_updated("drive", "atv71", Instant::now());
-                metrics.tcp_request(0x03, RequestResult::Ok);
-                metrics.zenoh_published(PublicationKind::Tag);
+                metrics.modbus_tcp().request(0x03, RequestResult::Ok);
+                metrics.zenoh().published(PublicationKind::Tag);
             }
         })
     };

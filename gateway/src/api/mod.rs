@@ -46,6 +46,7 @@ pub mod diff;
 pub mod error;
 mod handlers;
 mod io;
+pub mod metrics;
 pub mod model;
 mod openapi;
 pub mod places;
@@ -261,10 +262,7 @@ impl ApiState {
     ) -> Result<StreamPlace, ApiError> {
         match Arc::clone(&self.streams).try_acquire_owned() {
             Ok(permit) => {
-                let gauge = self
-                    .metrics
-                    .as_ref()
-                    .map(crate::metrics::Metrics::http_streams);
+                let gauge = self.metrics.as_ref().map(|m| m.http().streams());
                 if let Some(g) = &gauge {
                     g.inc();
                 }
@@ -290,7 +288,7 @@ impl ApiState {
     /// Counts a refusal of `reason`.
     pub(crate) fn count(&self, reason: crate::metrics::HttpRejectReason) {
         if let Some(m) = &self.metrics {
-            m.http_rejected(reason);
+            m.http().rejected(reason);
         }
     }
 

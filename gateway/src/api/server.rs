@@ -38,7 +38,7 @@ use super::places::{
     is_health_path, Limits, Place, PlaceHandle, Places, Pool, HEALTH_HEAD_TIMEOUT,
 };
 use super::{router, ApiError, ApiState};
-use crate::metrics::HttpRejectReason;
+use crate::metrics::{ConnectionPool, HttpRejectReason};
 
 /// Connections served at once by default (`[http] max_connections`).
 pub const DEFAULT_MAX_CONNECTIONS: u32 = crate::config::DEFAULT_HTTP_MAX_CONNECTIONS;
@@ -68,10 +68,13 @@ pub async fn serve(
             "REST API listening"
         );
     }
-    let gauges = state
-        .metrics
-        .as_ref()
-        .map(|m| (m.http_connections("general"), m.http_connections("health")));
+    let gauges = state.metrics.as_ref().map(|m| {
+        let http = m.http();
+        (
+            http.connections(ConnectionPool::General),
+            http.connections(ConnectionPool::Health),
+        )
+    });
     let places = Places::new(
         Limits {
             max_connections: state.max_connections,

@@ -12,6 +12,8 @@
 //! max_streams = 8                           # SSE follows and timed captures open at once
 //! write_timeout = "10s"                     # an answer the client does not read is closed
 //! header_read_timeout = "10s"               # a request head (or the next one) must arrive
+//! tag_metrics = true                        # process values on /metrics (default false)
+//! tag_metrics_filter = ["drive/**"]         # only these <line>/<device>/<tag> (default: all)
 //!
 //! [http.tls]                                # HTTPS instead of HTTP on `listen`
 //! cert = "/etc/gateway/tls/http.crt"
@@ -38,7 +40,7 @@ use std::time::Duration;
 use ipnet::IpNet;
 use serde::{Deserialize, Deserializer, Serialize};
 
-use super::reader::{check_name, parsed_value, Cx, Fields};
+use super::reader::{check_name, parsed_value, string_value, Cx, Fields};
 
 /// Local only by default: exposing the API is a decision (the demo serves 127.0.0.1:8080).
 pub const DEFAULT_HTTP_LISTEN: SocketAddr = SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), 8080);
@@ -72,6 +74,8 @@ pub const HTTP_IO_TIMEOUT_RANGE: (Duration, Duration) =
     (Duration::from_millis(100), Duration::from_secs(600));
 /// Changes are refused without a token unless this is set.
 pub const DEFAULT_INSECURE: bool = false;
+/// Process values are not on `/metrics` unless asked for: 10 000 tags are about 1.3 MB a scrape.
+pub const DEFAULT_TAG_METRICS: bool = false;
 
 /// The `[http]` section.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize)]
@@ -105,6 +109,14 @@ pub struct HttpConfig {
     pub header_read_timeout: Duration,
     /// Client networks accepted (CIDR); empty: every client. Others are closed at accept.
     pub allowed_networks: Vec<IpNet>,
+    /// Export the good numeric and bool tags as `gateway_tag_value` on `/metrics`, and every
+    /// tag's quality as `gateway_tag_quality` (docs/metrics.md).
+    #[serde(skip_serializing_if = "is_false")]
+    pub tag_metrics: bool,
+    /// Key expressions over `<line>/<device>/<tag>` (as `[[zenoh.publish.tags]] key`): only the
+    /// tags one of them includes are exported; empty: every tag.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub tag_metrics_filter: Vec<String>,
     /// Named tokens, each with a role (`[http.tokens.<name>]`).
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub tokens: BTreeMap<String, TokenConfig>,
@@ -219,10 +231,16 @@ impl Default for HttpConfig {
             write_timeout: DEFAULT_HTTP_WRITE_TIMEOUT,
             header_read_timeout: DEFAULT_HTTP_HEADER_READ_TIMEOUT,
             allowed_networks: Vec::new(),
+            tag_metrics: DEFAULT_TAG_METRICS,
+            tag_metrics_filter: Vec::new(),
             tokens: BTreeMap::new(),
             tls: None,
         }
     }
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 /// Where the token comes from.
@@ -299,6 +317,21 @@ impl HttpConfig {
                 "network (e.g. \"10.0.0.0/8\")",
             ));
         }
+        let tag_metrics = f.bool_or(cx, "tag_metrics", DEFAULT_TAG_METRICS);
+        let mut tag_metrics_filter = Vec::new();
+        for (path, v) in f.array(cx, "tag_metrics_filter") {
+            let Some(key) = string_value(cx, v, &path) else {
+                continue;
+            };
+            if let Err(e) = zenoh::key_expr::OwnedKeyExpr::new(key.as_str()) {
+                cx.issue(
+                    path,
+                    format!("not a canonical key expression (<line>/<device>/<tag>, wildcards allowed): {e}"),
+                );
+                continue;
+            }
+            tag_metrics_filter.push(key);
+        }
         if f.has("token_file") && f.has("token_env") {
             cx.issue(f.at("token_env"), "set token_file or token_env, not both");
         }
@@ -327,6 +360,8 @@ impl HttpConfig {
             write_timeout,
             header_read_timeout,
             allowed_networks,
+            tag_metrics,
+            tag_metrics_filter,
             tokens,
             tls,
         }
@@ -560,6 +595,26 @@ mod tests {
                 "http.tokens.e.token",
                 "http.tokens.e.token_env",
             ],
+            "{issues:?}"
+        );
+    }
+
+    #[test]
+    fn tag_metrics_read_with_their_filter_and_a_bad_expression_is_refused() {
+        assert!(!HttpConfig::default().tag_metrics);
+        let c =
+            read("tag_metrics = true\ntag_metrics_filter = [\"drive/**\", \"*/ks/PV\"]").unwrap();
+        assert!(c.tag_metrics);
+        assert_eq!(c.tag_metrics_filter, ["drive/**", "*/ks/PV"]);
+        let text = toml::to_string(&c).unwrap();
+        assert_eq!(read(&text).unwrap(), c);
+
+        let issues = read("tag_metrics_filter = [\"drive/**/**\", 3]").unwrap_err();
+        assert_eq!(issues.len(), 2, "{issues:?}");
+        assert!(
+            issues
+                .iter()
+                .all(|i| i.path.starts_with("http.tag_metrics_filter")),
             "{issues:?}"
         );
     }

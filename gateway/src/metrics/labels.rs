@@ -69,17 +69,41 @@ impl RequestResult {
     /// The `result` label value: `ok`, `exception_NN` (two upper-case hex digits),
     /// `exception_other`, `timeout` or `error`.
     pub fn as_str(self) -> &'static str {
+        Self::label_at(self.index())
+    }
+
+    /// How many `result` labels there are: [`Self::index`] is below it.
+    pub const COUNT: usize = EXCEPTION_LABELS.len() + 4;
+
+    /// The position of the result's label among the [`Self::COUNT`] labels (for counters kept
+    /// in an array, one per label).
+    pub fn index(self) -> usize {
+        let other = EXCEPTION_LABELS.len() + 1;
         match self {
-            Self::Ok => "ok",
+            Self::Ok => 0,
             Self::Exception(code) => {
                 let code = u8::from(code);
                 EXCEPTION_LABELS
                     .iter()
-                    .find(|(known, _)| *known == code)
-                    .map_or(EXCEPTION_OTHER, |(_, label)| label)
+                    .position(|(known, _)| *known == code)
+                    .map_or(other, |at| at + 1)
             }
-            Self::Timeout => "timeout",
-            Self::Error => "error",
+            Self::Timeout => other + 1,
+            Self::Error => other + 2,
+        }
+    }
+
+    /// The label at `index` (see [`Self::index`]).
+    pub fn label_at(index: usize) -> &'static str {
+        let exceptions = EXCEPTION_LABELS.len();
+        match index {
+            0 => "ok",
+            i if i <= exceptions => EXCEPTION_LABELS
+                .get(i - 1)
+                .map_or(EXCEPTION_OTHER, |(_, label)| label),
+            i if i == exceptions + 1 => EXCEPTION_OTHER,
+            i if i == exceptions + 2 => "timeout",
+            _ => "error",
         }
     }
 }
@@ -112,6 +136,24 @@ const FUNCTION_LABELS: [(u8, &str); 18] = [
 /// The `function` label of a code outside [`FUNCTION_LABELS`].
 const FUNCTION_OTHER: &str = "other";
 
+/// How many `function` labels there are: [`function_index`] is below it.
+pub const FUNCTION_COUNT: usize = FUNCTION_LABELS.len() + 1;
+
+/// The position of the function's label among the [`FUNCTION_COUNT`] labels (`other` last).
+pub fn function_index(function: u8) -> usize {
+    FUNCTION_LABELS
+        .iter()
+        .position(|(known, _)| *known == function)
+        .unwrap_or(FUNCTION_LABELS.len())
+}
+
+/// The `function` label at `index` (see [`function_index`]).
+pub fn function_label_at(index: usize) -> &'static str {
+    FUNCTION_LABELS
+        .get(index)
+        .map_or(FUNCTION_OTHER, |(_, label)| label)
+}
+
 /// The `function` label value of a request's function code: two upper-case hex digits (`"03"`,
 /// `"2B"`) for the known functions, `"other"` for the rest (a code with bit 7 set included: that is
 /// no request). Pass the request's code, also when the answer was an exception.
@@ -120,217 +162,6 @@ pub fn function_label(function: u8) -> &'static str {
         .iter()
         .find(|(known, _)| *known == function)
         .map_or(FUNCTION_OTHER, |(_, label)| label)
-}
-
-/// Why the Modbus TCP server's connection ended: while served, or refused at accept, or at the
-/// TLS handshake. Every connection that reached `accept()` ends with one of these.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum TcpCloseReason {
-    /// The client closed it.
-    Client,
-    /// No complete request within `idle_timeout`, or an answer not taken within it.
-    Idle,
-    /// A frame the server cannot answer (bad MBAP header: protocol id, length; no function code).
-    BadFrame,
-    /// A socket error.
-    IoError,
-    /// The gateway shut down.
-    Shutdown,
-    /// Refused at accept: the server's or the client address's connection cap was reached.
-    Limit,
-    /// Refused at accept: the client is outside `allowed_networks`.
-    Network,
-    /// Modbus/TCP Security: the TLS handshake failed or timed out.
-    TlsHandshake,
-}
-
-// === impl TcpCloseReason ===
-
-impl TcpCloseReason {
-    /// Every reason, for pre-creating series.
-    pub const ALL: [Self; 8] = [
-        Self::Client,
-        Self::Idle,
-        Self::BadFrame,
-        Self::IoError,
-        Self::Shutdown,
-        Self::Limit,
-        Self::Network,
-        Self::TlsHandshake,
-    ];
-
-    /// The `reason` label value.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::Client => "client",
-            Self::Idle => "idle",
-            Self::BadFrame => "bad_frame",
-            Self::IoError => "io_error",
-            Self::Shutdown => "shutdown",
-            Self::Limit => "limit",
-            Self::Network => "network",
-            Self::TlsHandshake => "tls_handshake",
-        }
-    }
-}
-
-/// Why the Modbus TCP server closed a connection at accept, or failed to accept one.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum RejectReason {
-    /// The connection limit was reached.
-    Limit,
-    /// The client is outside the allowed networks.
-    Network,
-    /// `accept()` failed (out of file descriptors, connection aborted, ...).
-    AcceptError,
-}
-
-// === impl RejectReason ===
-
-impl RejectReason {
-    /// Every reason, for pre-creating series.
-    pub const ALL: [Self; 3] = [Self::Limit, Self::Network, Self::AcceptError];
-
-    /// The `reason` label value.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::Limit => "limit",
-            Self::Network => "network",
-            Self::AcceptError => "accept_error",
-        }
-    }
-}
-
-/// Why the HTTP listener refused or cut a connection or a request
-/// (`gateway_http_rejected_total{reason}`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum HttpRejectReason {
-    /// The client is outside `[http] allowed_networks`: closed at accept.
-    Network,
-    /// The client address had `max_connections_per_client` connections: a request other than
-    /// `/metrics`, `/healthz`, `/readyz` answered 503, or the connection closed at accept when
-    /// the places held back for those were taken too.
-    ClientLimit,
-    /// Every one of `max_connections` was taken: as `client_limit`.
-    ConnectionLimit,
-    /// Every one of `max_streams` was taken: an SSE follow or a timed capture answered 503.
-    StreamLimit,
-    /// A response the client did not read within `write_timeout`: the connection was closed.
-    WriteTimeout,
-    /// A request head (or the next one on a kept-alive connection) that did not arrive within
-    /// the header read timeout: the connection was closed.
-    HeaderTimeout,
-    /// A connection waiting for a request head, closed to give its place to a new one.
-    Evicted,
-    /// A TLS handshake that failed or did not complete in time.
-    TlsHandshake,
-    /// `accept()` failed (out of file descriptors, connection aborted, ...).
-    AcceptError,
-}
-
-// === impl HttpRejectReason ===
-
-impl HttpRejectReason {
-    /// Every reason, for pre-creating series.
-    pub const ALL: [Self; 9] = [
-        Self::Network,
-        Self::ClientLimit,
-        Self::ConnectionLimit,
-        Self::StreamLimit,
-        Self::WriteTimeout,
-        Self::HeaderTimeout,
-        Self::Evicted,
-        Self::TlsHandshake,
-        Self::AcceptError,
-    ];
-
-    /// The `reason` label value.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::Network => "network",
-            Self::ClientLimit => "client_limit",
-            Self::ConnectionLimit => "connection_limit",
-            Self::StreamLimit => "stream_limit",
-            Self::WriteTimeout => "write_timeout",
-            Self::HeaderTimeout => "header_timeout",
-            Self::Evicted => "evicted",
-            Self::TlsHandshake => "tls_handshake",
-            Self::AcceptError => "accept_error",
-        }
-    }
-}
-
-/// What a zenoh publication carried.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum PublicationKind {
-    /// A received telegram on `<prefix>/<line>/rx`.
-    Telegram,
-    /// The result of a telegram sent on request of `<prefix>/<line>/tx`.
-    SendResult,
-    /// A tag value that changed, on `<prefix>/<line>/<device>/<tag>`.
-    Tag,
-    /// A diagnostic event on `<prefix>/<line>/events`.
-    Event,
-    /// A reply of a queryable (tag value, gateway status).
-    Reply,
-    /// A frame of a line's frame monitor on `<prefix>/<line>/frames`.
-    Frame,
-}
-
-// === impl PublicationKind ===
-
-impl PublicationKind {
-    /// Every kind, for pre-creating series.
-    pub const ALL: [Self; 6] = [
-        Self::Telegram,
-        Self::SendResult,
-        Self::Tag,
-        Self::Event,
-        Self::Reply,
-        Self::Frame,
-    ];
-
-    /// The `kind` label value.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::Telegram => "telegram",
-            Self::SendResult => "send_result",
-            Self::Tag => "tag",
-            Self::Event => "event",
-            Self::Reply => "reply",
-            Self::Frame => "frame",
-        }
-    }
-}
-
-/// Why an update (tag change, telegram, event) was dropped instead of delivered.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum DropReason {
-    /// A bounded channel was full (`try_send` refused it).
-    QueueFull,
-    /// A broadcast receiver fell behind and lost the oldest updates.
-    Lagged,
-    /// The receiving side had gone (shutdown or restart of a task).
-    Closed,
-    /// A request (a zenoh query) was larger than the gateway takes (`[zenoh] max_payload`).
-    TooLarge,
-}
-
-// === impl DropReason ===
-
-impl DropReason {
-    /// Every reason, for pre-creating series.
-    pub const ALL: [Self; 4] = [Self::QueueFull, Self::Lagged, Self::Closed, Self::TooLarge];
-
-    /// The `reason` label value.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::QueueFull => "queue_full",
-            Self::Lagged => "lagged",
-            Self::Closed => "closed",
-            Self::TooLarge => "too_large",
-        }
-    }
 }
 
 #[cfg(test)]
@@ -372,127 +203,6 @@ mod tests {
         assert_eq!(RequestResult::Error.as_str(), "error");
         for (code, label) in EXCEPTION_LABELS {
             assert_eq!(label, format!("exception_{code:02X}"));
-        }
-    }
-}
-
-/// The interface a write came through.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum WritePath {
-    /// Plain Modbus TCP.
-    ModbusTcp,
-    /// Modbus/TCP Security.
-    ModbusTls,
-    /// The REST API.
-    Rest,
-    /// zenoh (`tx`, tag `set`).
-    Zenoh,
-}
-
-impl WritePath {
-    /// Every path, for the zero series.
-    pub const ALL: [Self; 4] = [Self::ModbusTcp, Self::ModbusTls, Self::Rest, Self::Zenoh];
-
-    /// The label value.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::ModbusTcp => "modbus_tcp",
-            Self::ModbusTls => "modbus_tcp_tls",
-            Self::Rest => "rest",
-            Self::Zenoh => "zenoh",
-        }
-    }
-}
-
-/// How a write ended.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum WriteResult {
-    /// Passed the policy and the device took it.
-    Accepted,
-    /// Refused by the write policy or the role: never sent to the device.
-    Refused,
-    /// Passed the policy; the device or the line did not take it.
-    Failed,
-}
-
-impl WriteResult {
-    /// Every result, for the zero series.
-    pub const ALL: [Self; 3] = [Self::Accepted, Self::Refused, Self::Failed];
-
-    /// The label value.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Accepted => "accepted",
-            Self::Refused => "refused",
-            Self::Failed => "failed",
-        }
-    }
-}
-
-/// Why a write ended as it did: the `reason` label of `gateway_writes_total`. Accepted and failed
-/// writes say `none` (the result says it all); a refusal says which check refused it. Modbus TCP
-/// and REST refusals are `policy`; the zenoh side names each of its checks, so that a flood of
-/// one kind is told apart from the others.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum WriteReason {
-    /// Not refused: accepted, or failed at the device or line.
-    None,
-    /// The write or send policy, the role, the token, or a check of the request itself (a
-    /// read-only tag, a value that does not fit, a line that does not send).
-    Policy,
-    /// `[zenoh] writes = false`.
-    WritesOff,
-    /// The payload is larger than `[zenoh] max_payload`.
-    TooLarge,
-    /// The payload is not what the key takes: not a JSON value, an empty telegram.
-    BadPayload,
-    /// No such line, device or tag.
-    UnknownTarget,
-    /// A command queue was full: the command was answered `busy`.
-    QueueFull,
-}
-
-impl WriteReason {
-    /// Every reason.
-    pub const ALL: [Self; 7] = [
-        Self::None,
-        Self::Policy,
-        Self::WritesOff,
-        Self::TooLarge,
-        Self::BadPayload,
-        Self::UnknownTarget,
-        Self::QueueFull,
-    ];
-
-    /// The reasons a refusal over zenoh can have, for the zero series.
-    pub const ZENOH_REFUSALS: [Self; 6] = [
-        Self::Policy,
-        Self::WritesOff,
-        Self::TooLarge,
-        Self::BadPayload,
-        Self::UnknownTarget,
-        Self::QueueFull,
-    ];
-
-    /// The reason of a write of `result` on a path that does not say more: `none` for accepted
-    /// and failed writes, `policy` for a refusal.
-    pub const fn of(result: WriteResult) -> Self {
-        match result {
-            WriteResult::Accepted | WriteResult::Failed => Self::None,
-            WriteResult::Refused => Self::Policy,
-        }
-    }
-
-    /// The label value (`queue_full` as in `gateway_dropped_updates_total`).
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::None => "none",
-            Self::Policy => "policy",
-            Self::WritesOff => "writes_off",
-            Self::TooLarge => "too_large",
-            Self::BadPayload => "bad_payload",
-            Self::UnknownTarget => "unknown_target",
-            Self::QueueFull => "queue_full",
         }
     }
 }

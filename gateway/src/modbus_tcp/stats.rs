@@ -1,17 +1,21 @@
-//! Counters of the Modbus TCP server.
+//! Counters of the Modbus TCP server and its Prometheus families.
 //!
-//! Every label set is bounded and carries no client address, no register address. With
-//! [`ServerStats::with_metrics`] every count is mirrored into the Prometheus families of
-//! [`Metrics`]: open and accepted connections, rejected ones by reason (failed accepts as
-//! `accept_error`), closed ones by reason, requests by function and result.
+//! Every label set is bounded and carries no client address, no register address. The reasons a
+//! connection ends are this module's enums, each with its label written once ([`CloseReason`],
+//! [`RejectReason`], [`AcceptError::LABEL`]); requests are counted by the Modbus vocabulary the
+//! master lines share (`crate::metrics::labels`: `function` and `result`). [`ServerMetrics`]
+//! registers the families; with [`ServerStats::with_metrics`] every count is made there as well:
+//! open and accepted connections, rejected ones by reason (failed accepts as `accept_error`),
+//! closed ones by reason, requests by function and result.
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
-use prometheus::IntCounter;
+use prometheus::{IntCounter, IntCounterVec, IntGauge, Opts, Registry};
 
-use crate::metrics::{self, Metrics, TcpConnectionGuard};
+use crate::metrics::labels::{function_index, function_label, function_label_at, FUNCTION_COUNT};
+use crate::metrics::Metrics;
 
 /// Why a connection was closed at accept.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -20,6 +24,22 @@ pub enum RejectReason {
     Limit,
     /// The client is outside `allowed_networks`.
     Network,
+}
+
+// === impl RejectReason ===
+
+impl RejectReason {
+    /// Every reason, for pre-creating series.
+    pub const ALL: [Self; 2] = [Self::Limit, Self::Network];
+
+    /// The `reason` label of `gateway_modbus_tcp_connections_rejected_total` and
+    /// `gateway_modbus_tcp_connections_closed_total`.
+    pub const fn as_label(self) -> &'static str {
+        match self {
+            Self::Limit => "limit",
+            Self::Network => "network",
+        }
+    }
 }
 
 /// An `accept()` that failed and was retried.
@@ -33,6 +53,13 @@ pub enum AcceptError {
     ConnectionAborted,
     /// ENOBUFS, ENOMEM and the network errors `accept()` passes on.
     Other,
+}
+
+// === impl AcceptError ===
+
+impl AcceptError {
+    /// The `reason` label of `gateway_modbus_tcp_connections_rejected_total` for every kind.
+    pub const LABEL: &'static str = "accept_error";
 }
 
 /// Why a connection ended.
@@ -50,6 +77,34 @@ pub enum CloseReason {
     Shutdown,
 }
 
+// === impl CloseReason ===
+
+impl CloseReason {
+    /// Every reason, for pre-creating series.
+    pub const ALL: [Self; 5] = [
+        Self::Peer,
+        Self::Idle,
+        Self::BadFrame,
+        Self::Io,
+        Self::Shutdown,
+    ];
+
+    /// The `reason` label of `gateway_modbus_tcp_connections_closed_total`.
+    pub const fn as_label(self) -> &'static str {
+        match self {
+            Self::Peer => "client",
+            Self::Idle => "idle",
+            Self::BadFrame => "bad_frame",
+            Self::Io => "io_error",
+            Self::Shutdown => "shutdown",
+        }
+    }
+}
+
+/// The `reason` of `gateway_modbus_tcp_connections_closed_total` of a connection refused at the
+/// TLS handshake (Modbus/TCP Security).
+const TLS_HANDSHAKE: &str = "tls_handshake";
+
 /// Why a frame was refused (and its connection closed).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum FrameReject {
@@ -61,34 +116,174 @@ pub enum FrameReject {
     EmptyPdu,
 }
 
-/// Function codes counted by name; the others share `"other"`.
-const FUNCTIONS: [u8; 15] = [
-    0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x08, 0x0B, 0x0C, 0x0F, 0x10, 0x11, 0x17, 0x2B,
-];
-const FUNCTION_LABELS: [&str; 16] = [
-    "01", "02", "03", "04", "05", "06", "07", "08", "0B", "0C", "0F", "10", "11", "17", "2B",
-    "other",
-];
-/// Exception codes counted by name; the others share `"other"`. Index 0 is `"ok"`.
-const EXCEPTIONS: [u8; 10] = [0x01, 0x02, 0x03, 0x04, 0x05, 0x06, 0x07, 0x08, 0x0A, 0x0B];
-const RESULT_LABELS: [&str; 12] = [
-    "ok", "01", "02", "03", "04", "05", "06", "07", "08", "0A", "0B", "other",
-];
-
 /// The answer a request got: [`RequestResult::Ok`] or [`RequestResult::Exception`] (the server
-/// answers a device that did not reply with exception 0Bh, so it never counts `Timeout` or `Error`;
-/// should it, they count with the unknown exception codes).
+/// answers a device that did not reply with exception 0Bh, so it never counts `Timeout` or
+/// `Error`).
 pub use crate::metrics::RequestResult;
 
 /// One line of [`ServerStats::requests`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RequestCount {
-    /// Function code as two upper-case hex digits (`"03"`), or `"other"`.
+    /// The `function` label: two upper-case hex digits (`"03"`), or `"other"`.
     pub function: &'static str,
-    /// `"ok"`, the exception code as two upper-case hex digits (`"0B"`), or `"other"`.
+    /// The `result` label: `"ok"`, `"exception_0B"`, `"exception_other"`, ...
     pub result: &'static str,
     /// Requests so far.
     pub count: u64,
+}
+
+/// The Prometheus families of the Modbus TCP server. Clones share the same series.
+#[derive(Clone, Debug)]
+pub struct ServerMetrics {
+    /// `gateway_modbus_tcp_connections`: connections being served now.
+    connections: IntGauge,
+    /// `gateway_modbus_tcp_connections_accepted_total`.
+    accepted: IntCounter,
+    /// `gateway_modbus_tcp_connections_rejected_total{reason}`.
+    rejected: IntCounterVec,
+    /// `gateway_modbus_tcp_connections_closed_total{reason}`: every connection's end by reason.
+    closed: IntCounterVec,
+    /// `gateway_modbus_tcp_requests_total{function,result}`.
+    requests: IntCounterVec,
+    /// `gateway_modbus_tcp_refused_total{role}`: Modbus/TCP Security requests refused by role.
+    refused: IntCounterVec,
+    /// `gateway_modbus_tcp_tls_handshakes_failed_total`.
+    handshakes_failed: IntCounter,
+}
+
+// === impl ServerMetrics ===
+
+impl ServerMetrics {
+    /// The names of the families.
+    pub const NAMES: [&'static str; 7] = [
+        "gateway_modbus_tcp_connections",
+        "gateway_modbus_tcp_connections_accepted_total",
+        "gateway_modbus_tcp_connections_rejected_total",
+        "gateway_modbus_tcp_connections_closed_total",
+        "gateway_modbus_tcp_requests_total",
+        "gateway_modbus_tcp_refused_total",
+        "gateway_modbus_tcp_tls_handshakes_failed_total",
+    ];
+
+    /// Registers the families in `registry`, with the series of the fixed reasons at 0.
+    pub fn register(registry: &Registry) -> Result<Self, prometheus::Error> {
+        let [connections, accepted, rejected, closed, requests, refused, handshakes] = Self::NAMES;
+        let metrics = Self {
+            connections: IntGauge::new(connections, "Modbus TCP connections being served now.")?,
+            accepted: IntCounter::new(accepted, "Modbus TCP connections accepted and served.")?,
+            rejected: IntCounterVec::new(
+                Opts::new(
+                    rejected,
+                    "Modbus TCP connections refused at accept, and failed accepts, by reason.",
+                ),
+                &["reason"],
+            )?,
+            closed: IntCounterVec::new(
+                Opts::new(
+                    closed,
+                    "Modbus TCP connections closed, by reason (served ones and those refused at accept or at the TLS handshake).",
+                ),
+                &["reason"],
+            )?,
+            requests: IntCounterVec::new(
+                Opts::new(requests, "Modbus TCP requests by function code and result."),
+                &["function", "result"],
+            )?,
+            refused: IntCounterVec::new(
+                Opts::new(
+                    refused,
+                    "Modbus/TCP Security requests refused by the client certificate's role.",
+                ),
+                &["role"],
+            )?,
+            handshakes_failed: IntCounter::new(
+                handshakes,
+                "Modbus/TCP Security TLS handshakes that failed or timed out (bad or missing \
+                 client certificate included).",
+            )?,
+        };
+        registry.register(Box::new(metrics.connections.clone()))?;
+        registry.register(Box::new(metrics.accepted.clone()))?;
+        registry.register(Box::new(metrics.rejected.clone()))?;
+        registry.register(Box::new(metrics.closed.clone()))?;
+        registry.register(Box::new(metrics.requests.clone()))?;
+        registry.register(Box::new(metrics.refused.clone()))?;
+        registry.register(Box::new(metrics.handshakes_failed.clone()))?;
+        // A certificate without a role: the one role label every Modbus/TCP Security server has.
+        metrics.refused.with_label_values(&["none"]);
+        for reason in RejectReason::ALL {
+            metrics.rejected.with_label_values(&[reason.as_label()]);
+            metrics.closed.with_label_values(&[reason.as_label()]);
+        }
+        metrics.rejected.with_label_values(&[AcceptError::LABEL]);
+        for reason in CloseReason::ALL {
+            metrics.closed.with_label_values(&[reason.as_label()]);
+        }
+        metrics.closed.with_label_values(&[TLS_HANDSHAKE]);
+        Ok(metrics)
+    }
+
+    /// A connection was accepted: counts it and keeps `gateway_modbus_tcp_connections` up until
+    /// the returned guard is dropped (move it into the connection task).
+    pub fn connection_accepted(&self) -> TcpConnectionGuard {
+        self.accepted.inc();
+        self.connections.inc();
+        TcpConnectionGuard {
+            open: self.connections.clone(),
+        }
+    }
+
+    /// A connection was refused at accept for `reason` (rejected and closed).
+    pub fn connection_rejected(&self, reason: RejectReason) {
+        self.rejected.with_label_values(&[reason.as_label()]).inc();
+        self.closed.with_label_values(&[reason.as_label()]).inc();
+    }
+
+    /// `accept()` failed.
+    pub fn accept_failed(&self) {
+        self.rejected.with_label_values(&[AcceptError::LABEL]).inc();
+    }
+
+    /// A served connection ended for `reason`.
+    pub fn connection_closed(&self, reason: CloseReason) {
+        self.closed.with_label_values(&[reason.as_label()]).inc();
+    }
+
+    /// A Modbus/TCP Security handshake failed: counted, and the connection as closed.
+    pub fn handshake_failed(&self) {
+        self.handshakes_failed.inc();
+        self.closed.with_label_values(&[TLS_HANDSHAKE]).inc();
+    }
+
+    /// Counts one Modbus TCP request with function code `function` and its answer.
+    pub fn request(&self, function: u8, result: RequestResult) {
+        self.request_series(function, result).inc();
+    }
+
+    /// The series [`Self::request`] counts into, to keep and count into without looking it up
+    /// (by its labels, under the family's lock) for every request.
+    pub fn request_series(&self, function: u8, result: RequestResult) -> IntCounter {
+        self.requests
+            .with_label_values(&[function_label(function), result.as_str()])
+    }
+
+    /// Counts one Modbus/TCP Security request refused for the role labelled `role`.
+    pub fn refused(&self, role: &str) {
+        self.refused.with_label_values(&[role]).inc();
+    }
+}
+
+/// Keeps one Modbus TCP connection counted in `gateway_modbus_tcp_connections` while it lives.
+#[derive(Debug)]
+#[must_use = "the connection counts as open only while the guard lives"]
+pub struct TcpConnectionGuard {
+    open: IntGauge,
+}
+
+impl Drop for TcpConnectionGuard {
+    fn drop(&mut self) {
+        self.open.dec();
+    }
 }
 
 /// Counters of one server. Shared by `serve` and whoever exports them.
@@ -96,21 +291,19 @@ pub struct RequestCount {
 pub struct ServerStats {
     connections_open: AtomicU64,
     connections_accepted: AtomicU64,
-    rejected_limit: AtomicU64,
-    rejected_network: AtomicU64,
+    rejected: [AtomicU64; RejectReason::ALL.len()],
     accept_errors: [AtomicU64; 4],
-    closed: [AtomicU64; 5],
+    closed: [AtomicU64; CloseReason::ALL.len()],
     frames_rejected: [AtomicU64; 3],
-    requests: [[AtomicU64; RESULT_LABELS.len()]; FUNCTION_LABELS.len()],
+    requests: [[AtomicU64; RequestResult::COUNT]; FUNCTION_COUNT],
     /// Requests refused by role, by the role's label (bounded by the configured roles).
     refused: Mutex<BTreeMap<String, u64>>,
     handshakes_failed: AtomicU64,
-    /// The Prometheus families the counts are mirrored into, if any.
+    /// The Prometheus families the counts are mirrored into, if any (the server's own, and
+    /// the audit's through [`Self::metrics`]).
     metrics: Option<Metrics>,
-    /// The request series of `metrics` for the functions counted by name, each looked up once
-    /// (the series of a function counted as `"other"` here may have a label of its own there, so
-    /// those are looked up every time).
-    request_series: [[OnceLock<IntCounter>; RESULT_LABELS.len()]; FUNCTIONS.len()],
+    /// The request series of `metrics`, each looked up once.
+    request_series: [[OnceLock<IntCounter>; RequestResult::COUNT]; FUNCTION_COUNT],
 }
 
 // === impl ServerStats ===
@@ -141,11 +334,7 @@ impl ServerStats {
 
     /// Connections closed at accept for `reason`.
     pub fn connections_rejected(&self, reason: RejectReason) -> u64 {
-        match reason {
-            RejectReason::Limit => &self.rejected_limit,
-            RejectReason::Network => &self.rejected_network,
-        }
-        .load(Ordering::Relaxed)
+        self.rejected[reason as usize].load(Ordering::Relaxed)
     }
 
     /// Failed `accept()` calls of `kind`.
@@ -163,21 +352,22 @@ impl ServerStats {
         self.frames_rejected[reason as usize].load(Ordering::Relaxed)
     }
 
-    /// Requests with function code `function` that got `result` (unknown codes count together).
+    /// Requests with function code `function` that got `result` (codes without a label of
+    /// their own count together, as in the metric).
     pub fn request_count(&self, function: u8, result: RequestResult) -> u64 {
-        self.requests[function_index(function)][result_index(result)].load(Ordering::Relaxed)
+        self.requests[function_index(function)][result.index()].load(Ordering::Relaxed)
     }
 
     /// Every non-zero request counter.
     pub fn requests(&self) -> Vec<RequestCount> {
         let mut counts = Vec::new();
-        for (function, row) in FUNCTION_LABELS.iter().zip(&self.requests) {
-            for (result, counter) in RESULT_LABELS.iter().zip(row) {
+        for (f, row) in self.requests.iter().enumerate() {
+            for (r, counter) in row.iter().enumerate() {
                 let count = counter.load(Ordering::Relaxed);
                 if count > 0 {
                     counts.push(RequestCount {
-                        function,
-                        result,
+                        function: function_label_at(f),
+                        result: RequestResult::label_at(r),
                         count,
                     });
                 }
@@ -207,6 +397,10 @@ impl ServerStats {
         self.metrics.as_ref()
     }
 
+    fn families(&self) -> Option<&ServerMetrics> {
+        self.metrics.as_ref().map(Metrics::modbus_tcp)
+    }
+
     pub(crate) fn count_refused(&self, role: &str) {
         *self
             .refused
@@ -214,16 +408,15 @@ impl ServerStats {
             .unwrap_or_else(PoisonError::into_inner)
             .entry(role.to_owned())
             .or_default() += 1;
-        if let Some(m) = &self.metrics {
-            m.tcp_refused(role);
+        if let Some(m) = self.families() {
+            m.refused(role);
         }
     }
 
     pub(crate) fn count_handshake_failed(&self) {
         self.handshakes_failed.fetch_add(1, Ordering::Relaxed);
-        if let Some(m) = &self.metrics {
-            m.tcp_handshake_failed();
-            m.tcp_connection_closed(metrics::TcpCloseReason::TlsHandshake);
+        if let Some(m) = self.families() {
+            m.handshake_failed();
         }
     }
 
@@ -232,48 +425,28 @@ impl ServerStats {
         self.connections_open.fetch_add(1, Ordering::Relaxed);
         OpenConnection {
             stats: Arc::clone(self),
-            _metrics: self.metrics.as_ref().map(Metrics::tcp_connection_accepted),
+            _metrics: self.families().map(ServerMetrics::connection_accepted),
         }
     }
 
     pub(crate) fn count_rejected(&self, reason: RejectReason) {
-        match reason {
-            RejectReason::Limit => &self.rejected_limit,
-            RejectReason::Network => &self.rejected_network,
-        }
-        .fetch_add(1, Ordering::Relaxed);
-        if let Some(m) = &self.metrics {
-            let (rejected, closed) = match reason {
-                RejectReason::Limit => {
-                    (metrics::RejectReason::Limit, metrics::TcpCloseReason::Limit)
-                }
-                RejectReason::Network => (
-                    metrics::RejectReason::Network,
-                    metrics::TcpCloseReason::Network,
-                ),
-            };
-            m.tcp_connection_rejected(rejected);
-            m.tcp_connection_closed(closed);
+        self.rejected[reason as usize].fetch_add(1, Ordering::Relaxed);
+        if let Some(m) = self.families() {
+            m.connection_rejected(reason);
         }
     }
 
     pub(crate) fn count_accept_error(&self, kind: AcceptError) {
         self.accept_errors[kind as usize].fetch_add(1, Ordering::Relaxed);
-        if let Some(m) = &self.metrics {
-            m.tcp_connection_rejected(metrics::RejectReason::AcceptError);
+        if let Some(m) = self.families() {
+            m.accept_failed();
         }
     }
 
     pub(crate) fn count_closed(&self, reason: CloseReason) {
         self.closed[reason as usize].fetch_add(1, Ordering::Relaxed);
-        if let Some(m) = &self.metrics {
-            m.tcp_connection_closed(match reason {
-                CloseReason::Peer => metrics::TcpCloseReason::Client,
-                CloseReason::Idle => metrics::TcpCloseReason::Idle,
-                CloseReason::BadFrame => metrics::TcpCloseReason::BadFrame,
-                CloseReason::Io => metrics::TcpCloseReason::IoError,
-                CloseReason::Shutdown => metrics::TcpCloseReason::Shutdown,
-            });
+        if let Some(m) = self.families() {
+            m.connection_closed(reason);
         }
     }
 
@@ -282,18 +455,18 @@ impl ServerStats {
     }
 
     pub(crate) fn count_request(&self, function: u8, result: RequestResult) {
-        let (row, column) = (function_index(function), result_index(result));
+        let (row, column) = (function_index(function), result.index());
         self.requests[row][column].fetch_add(1, Ordering::Relaxed);
-        let Some(m) = &self.metrics else {
+        let Some(m) = self.families() else {
             return;
         };
-        let labelled = result;
-        // Every exception code counted as "other" here is "exception_other" there as well.
+        // Every function or exception code without a label of its own shares one series, as it
+        // shares one counter here.
         match self.request_series.get(row).and_then(|r| r.get(column)) {
             Some(series) => series
-                .get_or_init(|| m.tcp_request_series(function, labelled))
+                .get_or_init(|| m.request_series(function, result))
                 .inc(),
-            None => m.tcp_request(function, labelled),
+            None => m.request(function, result),
         }
     }
 }
@@ -310,26 +483,6 @@ impl Drop for OpenConnection {
     fn drop(&mut self) {
         self.stats.connections_open.fetch_sub(1, Ordering::Relaxed);
     }
-}
-
-fn function_index(function: u8) -> usize {
-    FUNCTIONS
-        .iter()
-        .position(|&known| known == function)
-        .unwrap_or(FUNCTIONS.len())
-}
-
-fn result_index(result: RequestResult) -> usize {
-    let code = match result {
-        RequestResult::Ok => return 0,
-        RequestResult::Exception(code) => code,
-        RequestResult::Timeout | RequestResult::Error => return RESULT_LABELS.len() - 1,
-    };
-    let byte = u8::from(code);
-    EXCEPTIONS
-        .iter()
-        .position(|&known| known == byte)
-        .map_or(RESULT_LABELS.len() - 1, |at| at + 1)
 }
 
 #[cfg(test)]
@@ -349,12 +502,12 @@ mod tests {
             stats.count_request(function, RequestResult::Ok);
         }
         let counts = stats.requests();
-        assert!(counts.len() <= FUNCTION_LABELS.len() * RESULT_LABELS.len());
+        assert!(counts.len() <= FUNCTION_COUNT * RequestResult::COUNT);
         let other = counts
             .iter()
             .find(|c| c.function == "other" && c.result == "ok")
             .expect("other");
-        assert_eq!(other.count, 256 - FUNCTIONS.len() as u64);
+        assert_eq!(other.count, 256 - (FUNCTION_COUNT as u64 - 1));
         assert_eq!(stats.request_count(0x03, RequestResult::Ok), 1);
         assert_eq!(stats.request_count(0x42, RequestResult::Ok), other.count);
         let code_03 = RequestResult::Exception(ExceptionCode::IllegalDataValue);
@@ -364,7 +517,7 @@ mod tests {
 
     #[test]
     fn counts_are_mirrored_into_the_prometheus_families() {
-        let registry = prometheus::Registry::new();
+        let registry = Registry::new();
         let stats = Arc::new(ServerStats::with_metrics(
             Metrics::register(&registry).expect("register"),
         ));
@@ -376,7 +529,7 @@ mod tests {
             0x10,
             RequestResult::Exception(ExceptionCode::GatewayTargetFailedToRespond),
         );
-        let text = metrics::encode_text(&registry);
+        let text = crate::metrics::encode_text(&registry);
         for expected in [
             "gateway_modbus_tcp_connections 1",
             "gateway_modbus_tcp_connections_accepted_total 1",
@@ -395,7 +548,7 @@ mod tests {
         stats.count_request(0x42, RequestResult::Ok);
         stats.count_request(0x03, RequestResult::Exception(ExceptionCode::Other(0x42)));
         stats.count_request(0x03, RequestResult::Exception(ExceptionCode::Other(0x43)));
-        let text = metrics::encode_text(&registry);
+        let text = crate::metrics::encode_text(&registry);
         for expected in [
             r#"gateway_modbus_tcp_requests_total{function="03",result="ok"} 2"#,
             r#"gateway_modbus_tcp_requests_total{function="43",result="ok"} 1"#,
@@ -405,13 +558,13 @@ mod tests {
             assert!(text.contains(expected), "{expected} missing in\n{text}");
         }
         drop(open);
-        let text = metrics::encode_text(&registry);
+        let text = crate::metrics::encode_text(&registry);
         assert!(text.contains("gateway_modbus_tcp_connections 0"), "{text}");
     }
 
     #[test]
     fn every_connection_end_is_counted_by_reason() {
-        let registry = prometheus::Registry::new();
+        let registry = Registry::new();
         let stats = ServerStats::with_metrics(Metrics::register(&registry).expect("register"));
         stats.count_closed(CloseReason::Peer);
         stats.count_closed(CloseReason::Peer);
@@ -422,7 +575,7 @@ mod tests {
         stats.count_rejected(RejectReason::Network);
         stats.count_handshake_failed();
         assert_eq!(stats.connections_closed(CloseReason::Peer), 2);
-        let text = metrics::encode_text(&registry);
+        let text = crate::metrics::encode_text(&registry);
         for expected in [
             r#"gateway_modbus_tcp_connections_closed_total{reason="client"} 2"#,
             r#"gateway_modbus_tcp_connections_closed_total{reason="idle"} 1"#,
@@ -435,6 +588,19 @@ mod tests {
         ] {
             assert!(text.contains(expected), "{expected} missing in\n{text}");
         }
+    }
+
+    #[test]
+    fn connection_guard_counts_open_connections() {
+        let metrics = ServerMetrics::register(&Registry::new()).expect("register");
+        let first = metrics.connection_accepted();
+        let second = metrics.connection_accepted();
+        assert_eq!(metrics.connections.get(), 2);
+        drop(first);
+        assert_eq!(metrics.connections.get(), 1);
+        drop(second);
+        assert_eq!(metrics.connections.get(), 0);
+        assert_eq!(metrics.accepted.get(), 2);
     }
 
     #[test]

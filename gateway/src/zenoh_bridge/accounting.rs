@@ -12,9 +12,9 @@
 
 use std::fmt::Display;
 
+pub use crate::audit::WriteReason;
 use crate::audit::{self, WritePath, WriteResult};
 use crate::metrics::Metrics;
-pub use crate::metrics::WriteReason;
 
 /// The audit source of every write over zenoh (zenoh carries no client identity the gateway
 /// could trust).

@@ -1,14 +1,17 @@
-//! Counters of the bridge, with bounded label sets.
+//! Counters of the bridge, with bounded label sets, and its Prometheus families.
 //!
 //! The bridge counts by its own, finer kinds and reasons (shown by the gateway status queryable).
-//! With [`BridgeStats::with_metrics`] every count is also made in the Prometheus families
-//! `gateway_zenoh_publications_total{kind}` and `gateway_dropped_updates_total{reason}`, whose
-//! label sets are coarser: [`PublicationKind::metric`] and [`DropReason::metric`] map one onto
-//! the other.
+//! [`BridgeMetrics`] registers `gateway_zenoh_publications_total{kind}` and
+//! `gateway_dropped_updates_total{reason}`, whose label sets are coarser: the same enums give
+//! both labels ([`PublicationKind::as_str`] and [`PublicationKind::metric_label`],
+//! [`DropReason::as_str`] and [`DropReason::metric_label`]). With [`BridgeStats::with_metrics`]
+//! every count is also made there.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
-use crate::metrics::{self, Metrics};
+use prometheus::{IntCounterVec, Opts, Registry};
+
+use crate::metrics::Metrics;
 
 /// What was published.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -56,17 +59,29 @@ impl PublicationKind {
         }
     }
 
-    /// The `kind` of `gateway_zenoh_publications_total`: both result kinds are `send_result`.
-    pub const fn metric(self) -> metrics::PublicationKind {
+    /// The `kind` of `gateway_zenoh_publications_total`: both result kinds are `send_result`,
+    /// the others their own label.
+    pub fn metric_label(self) -> &'static str {
         match self {
-            Self::Telegram => metrics::PublicationKind::Telegram,
-            Self::Tag => metrics::PublicationKind::Tag,
-            Self::Event => metrics::PublicationKind::Event,
-            Self::TxResult | Self::SetResult => metrics::PublicationKind::SendResult,
-            Self::Frame => metrics::PublicationKind::Frame,
+            Self::TxResult | Self::SetResult => SEND_RESULT,
+            other => other.as_str(),
         }
     }
 }
+
+/// The `kind` of `gateway_zenoh_publications_total` of a send or write result.
+const SEND_RESULT: &str = "send_result";
+/// The `kind` of `gateway_zenoh_publications_total` of a queryable's reply (tag value, status).
+const REPLY: &str = "reply";
+
+/// The `reason` of `gateway_dropped_updates_total` of an update a full bounded queue refused.
+const QUEUE_FULL: &str = "queue_full";
+/// The `reason` of an update replaced by a newer one, or lost by a feed that fell behind.
+const LAGGED: &str = "lagged";
+/// The `reason` of an update the closed bridge or session did not take.
+const CLOSED: &str = "closed";
+/// The `reason` of a query larger than `max_payload`.
+const TOO_LARGE: &str = "too_large";
 
 /// Why an update was not published, or a command or query not served.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -143,7 +158,7 @@ impl DropReason {
     /// A full queue of any kind is `queue_full`; an update replaced by a newer one before it was
     /// published, or lost by a feed that fell behind, is `lagged`; a bridge or session that had
     /// closed is `closed`; a query refused for its size is `too_large`.
-    pub const fn metric(self) -> Option<metrics::DropReason> {
+    pub const fn metric_label(self) -> Option<&'static str> {
         match self {
             Self::TelegramQueueFull
             | Self::EventQueueFull
@@ -151,10 +166,10 @@ impl DropReason {
             | Self::ResultQueueFull
             | Self::FrameQueueFull
             | Self::CommandQueueFull
-            | Self::QueryQueueFull => Some(metrics::DropReason::QueueFull),
-            Self::TagSuperseded | Self::FeedLagged => Some(metrics::DropReason::Lagged),
-            Self::PublishError | Self::BridgeClosed => Some(metrics::DropReason::Closed),
-            Self::QueryTooLarge => Some(metrics::DropReason::TooLarge),
+            | Self::QueryQueueFull => Some(QUEUE_FULL),
+            Self::TagSuperseded | Self::FeedLagged => Some(LAGGED),
+            Self::PublishError | Self::BridgeClosed => Some(CLOSED),
+            Self::QueryTooLarge => Some(TOO_LARGE),
             Self::BadKey => None,
         }
     }
@@ -211,6 +226,74 @@ impl CommandOutcome {
     }
 }
 
+/// The Prometheus families of the zenoh bridge. Clones share the same series.
+#[derive(Clone, Debug)]
+pub struct BridgeMetrics {
+    /// `gateway_zenoh_publications_total{kind}`.
+    publications: IntCounterVec,
+    /// `gateway_dropped_updates_total{reason}`.
+    dropped: IntCounterVec,
+}
+
+// === impl BridgeMetrics ===
+
+impl BridgeMetrics {
+    /// The names of the families.
+    pub const NAMES: [&'static str; 2] = [
+        "gateway_zenoh_publications_total",
+        "gateway_dropped_updates_total",
+    ];
+
+    /// Registers the families in `registry`, with every kind's and reason's series at 0.
+    pub fn register(registry: &Registry) -> Result<Self, prometheus::Error> {
+        let [publications, dropped] = Self::NAMES;
+        let metrics = Self {
+            publications: IntCounterVec::new(
+                Opts::new(publications, "zenoh publications and replies, by kind."),
+                &["kind"],
+            )?,
+            dropped: IntCounterVec::new(
+                Opts::new(
+                    dropped,
+                    "Updates dropped instead of delivered (full bounded channel, lag, closed).",
+                ),
+                &["reason"],
+            )?,
+        };
+        registry.register(Box::new(metrics.publications.clone()))?;
+        registry.register(Box::new(metrics.dropped.clone()))?;
+        for kind in PublicationKind::ALL {
+            metrics
+                .publications
+                .with_label_values(&[kind.metric_label()]);
+        }
+        metrics.publications.with_label_values(&[REPLY]);
+        for reason in DropReason::ALL.iter().filter_map(|r| r.metric_label()) {
+            metrics.dropped.with_label_values(&[reason]);
+        }
+        Ok(metrics)
+    }
+
+    /// Counts one publication of `kind`.
+    pub fn published(&self, kind: PublicationKind) {
+        self.publications
+            .with_label_values(&[kind.metric_label()])
+            .inc();
+    }
+
+    /// Counts one reply of a queryable.
+    pub fn replied(&self) {
+        self.publications.with_label_values(&[REPLY]).inc();
+    }
+
+    /// Counts `count` updates dropped for `reason` (nothing for a reason the metric leaves out).
+    pub fn dropped(&self, reason: DropReason, count: u64) {
+        if let Some(label) = reason.metric_label() {
+            self.dropped.with_label_values(&[label]).inc_by(count);
+        }
+    }
+}
+
 /// The bridge's counters. Shared by the bridge and whoever exports them.
 #[derive(Debug, Default)]
 pub struct BridgeStats {
@@ -256,7 +339,7 @@ impl BridgeStats {
     pub(crate) fn published(&self, kind: PublicationKind) {
         self.publications[kind as usize].fetch_add(1, Ordering::Relaxed);
         if let Some(m) = &self.metrics {
-            m.zenoh_published(kind.metric());
+            m.zenoh().published(kind);
         }
     }
 
@@ -272,8 +355,8 @@ impl BridgeStats {
     /// Counts `count` updates dropped for one reason.
     pub fn dropped_many(&self, reason: DropReason, count: u64) {
         self.drops[reason as usize].fetch_add(count, Ordering::Relaxed);
-        if let (Some(m), Some(reason)) = (&self.metrics, reason.metric()) {
-            m.dropped_updates(reason, count);
+        if let Some(m) = &self.metrics {
+            m.zenoh().dropped(reason, count);
         }
     }
 
@@ -284,7 +367,7 @@ impl BridgeStats {
     pub(crate) fn query_served(&self) {
         self.queries.fetch_add(1, Ordering::Relaxed);
         if let Some(m) = &self.metrics {
-            m.zenoh_published(metrics::PublicationKind::Reply);
+            m.zenoh().replied();
         }
     }
 
@@ -409,7 +492,7 @@ mod tests {
 
     #[test]
     fn counts_feed_the_prometheus_families() {
-        let registry = prometheus::Registry::new();
+        let registry = Registry::new();
         let s = BridgeStats::with_metrics(Metrics::register(&registry).expect("register"));
         s.published(PublicationKind::Tag);
         s.published(PublicationKind::SetResult);
@@ -417,7 +500,7 @@ mod tests {
         s.dropped(DropReason::TelegramQueueFull);
         s.dropped_many(DropReason::FeedLagged, 3);
         s.dropped(DropReason::BadKey);
-        let text = metrics::encode_text(&registry);
+        let text = crate::metrics::encode_text(&registry);
         for line in [
             r#"gateway_zenoh_publications_total{kind="tag"} 1"#,
             r#"gateway_zenoh_publications_total{kind="send_result"} 1"#,
