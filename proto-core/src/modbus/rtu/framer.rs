@@ -58,6 +58,71 @@ impl From<&FrameError> for Fault {
     }
 }
 
+/// Why received RTU bytes were not used, for every RTU receiver that reports it (the slave and
+/// the tap): one vocabulary, one mapping from a [`Fault`] (and so from a [`FrameError`]), and one
+/// metric label per reason ([`Self::as_str`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum DiscardReason {
+    /// A good frame for another slave address (the slave ignores it, 003 6.4.6).
+    OtherAddress(u8),
+    /// The CRC does not match (003 7.2 0E 57h).
+    BadCrc,
+    /// A silence above t1.5 inside the frame (only where t1.5 is checked: the tap).
+    GapInsideFrame,
+    /// A character with a parity or framing error, a BREAK or an overrun inside the frame
+    /// (003 7.2 08 0Ch, 08 0Dh).
+    LineError,
+    /// Fewer bytes than address, function code and CRC.
+    TooShort,
+    /// More bytes than the largest frame (slave: event 08 16h); the rest until the silence is
+    /// dropped.
+    TooLong,
+    /// More bytes before the silence than the function code and byte count announce (003 6.4.6:
+    /// the frame ends by silence only; only where the length is checked: the slave).
+    TrailingData,
+    /// Neither a request nor the answer awaited (the tap).
+    Unpaired,
+}
+
+// === impl DiscardReason ===
+
+impl DiscardReason {
+    /// A stable name, the metric label (`gateway_frames_discarded_total{reason}`).
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::OtherAddress(_) => "other_address",
+            Self::BadCrc => "bad_crc",
+            Self::GapInsideFrame => "gap_inside_frame",
+            Self::LineError => "line_error",
+            Self::TooShort => "too_short",
+            Self::TooLong => "too_long",
+            Self::TrailingData => "trailing_data",
+            Self::Unpaired => "unpaired",
+        }
+    }
+}
+
+impl From<Fault> for DiscardReason {
+    /// The one mapping of a frame the framer discarded to its reason.
+    fn from(fault: Fault) -> Self {
+        match fault {
+            Fault::BadCrc => Self::BadCrc,
+            Fault::TooShort => Self::TooShort,
+            Fault::TooLong => Self::TooLong,
+            Fault::GapInsideFrame => Self::GapInsideFrame,
+            Fault::LineError => Self::LineError,
+            Fault::TrailingData => Self::TrailingData,
+        }
+    }
+}
+
+impl From<&FrameError> for DiscardReason {
+    /// A failed RTU frame check, through its [`Fault`].
+    fn from(error: &FrameError) -> Self {
+        Fault::from(error).into()
+    }
+}
+
 /// What a frame ended by silence is.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Outcome {
