@@ -1,6 +1,7 @@
 //! The end of an RTU frame by silence, written once for every RTU receiver: the master's reply
-//! ([`crate::modbus::master`]), the slave's requests ([`crate::modbus::slave`]) and the tap's
-//! traffic ([`crate::modbus::tap`]).
+//! ([`crate::modbus::master`]), the slave's requests ([`crate::modbus::slave`]), the tap's
+//! traffic ([`crate::modbus::tap`]) and the frame monitor's cutter ([`crate::monitor`], which
+//! ends any line's received frames by the same silence, the line's gap in place of t3.5).
 //!
 //! A frame ends when no character arrives for 3.5 character times (003 6.4.3 "CRC-CHECK": the
 //! message end is "when no transmission takes place during the time period for the transmission
@@ -282,6 +283,12 @@ impl SilenceFramer {
         let received = core::mem::take(&mut open.received);
         open.bytes.clear();
         Some((fault, received))
+    }
+
+    /// The frame being received ended without its silence (a receiver that knows other ends,
+    /// such as the monitor's end marks or a transmission): it is dropped unchecked.
+    pub fn clear(&mut self) {
+        self.open = None;
     }
 
     /// Ends the frame being received if its silence has passed by `now`.
