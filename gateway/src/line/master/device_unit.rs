@@ -14,9 +14,9 @@ use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 use proto_core::profiles::BitUpdate;
 
 use super::command::LineClient;
-use super::status::Shared;
 use super::{AddrRange, DeviceSettings};
 use crate::image::{ImageError, ProcessImage, Quality, Table};
+use crate::line::status::Shared;
 use crate::unit::{UnitFuture, UnitService};
 
 /// One polled device served under its unit id; cheap to clone.

@@ -21,18 +21,18 @@ use tokio_util::sync::CancellationToken;
 
 use super::command::{Command, CommandError, CommandResult, LineClient};
 use super::device_unit::DeviceUnit;
-use super::driver::{sleep_until_opt, Clock};
-use super::line_metrics::{master_result, BROADCAST_DEVICE, UNKNOWN_DEVICE};
 use super::registers32;
-use super::runtime::{
-    self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
-};
 use super::scanner::{ScanJob, Scanners};
 use super::scheduler::{cycle_bound, Job, PollJob, ReadKey, Scheduler, Transition};
-use super::status::{DeviceStatus, PollCycle, Shared};
 use super::writeback::{broadcast_echo, refresh_image};
 use super::{AddrRange, DeviceSettings, LineSettings};
 use crate::image::{ProcessImage, Quality, Table};
+use crate::line::driver::{sleep_until_opt, Clock};
+use crate::line::line_metrics::{master_result, BROADCAST_DEVICE, UNKNOWN_DEVICE};
+use crate::line::runtime::{
+    self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
+};
+use crate::line::status::{DeviceStatus, PollCycle, Shared};
 use crate::metrics::{PollCycleKind, RequestResult};
 use crate::unit::UnitService;
 
