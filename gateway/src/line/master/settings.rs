@@ -10,8 +10,7 @@ use super::probe::ProbeSettings;
 use super::scanner::ScannerSettings;
 use crate::config::{
     DEFAULT_COMMANDS_IN_ROW, DEFAULT_OFFLINE_AFTER, DEFAULT_OFFLINE_BACKOFF_MAX,
-    DEFAULT_OFFLINE_BACKOFF_MIN, FULL_PROBE_EVERY_RANGE, OFFLINE_AFTER_RANGE,
-    PROBE_TIMEOUT_MIN_RANGE,
+    DEFAULT_OFFLINE_BACKOFF_MIN,
 };
 use crate::image::Table;
 use crate::line::status::DEFAULT_DIAG_DEPTH;
@@ -179,89 +178,6 @@ impl DeviceSettings {
             );
         }
         blocks
-    }
-
-    /// Every problem of the settings, all at once (empty: valid): slave address 1..247 (003 6.4.3
-    /// "ADDR": 0 is broadcast, which is never polled), limits within the CP's (1..127 registers,
-    /// 1..2040 bits, 003 6.4.4), periods above zero, ranges inside the address space and the
-    /// back-off bounds ordered, probes with a wait of at least 5 ms (the shortest reply monitoring
-    /// time, 003 6.4.2.1) and a full probe at least every 1000.
-    pub fn validate(&self) -> Vec<String> {
-        let mut issues = Vec::new();
-        let name = &self.name;
-        if !(1..=247).contains(&self.slave) {
-            issues.push(format!(
-                "device {name}: slave address {} is outside 1..247",
-                self.slave
-            ));
-        }
-        let cp = DeviceLimits::CP341;
-        for (what, value, max) in [
-            ("max_read_regs", self.limits.max_read_regs, cp.max_read_regs),
-            (
-                "max_write_regs",
-                self.limits.max_write_regs,
-                cp.max_write_regs,
-            ),
-            ("max_read_bits", self.limits.max_read_bits, cp.max_read_bits),
-            (
-                "max_write_bits",
-                self.limits.max_write_bits,
-                cp.max_write_bits,
-            ),
-        ] {
-            if !(1..=max).contains(&value) {
-                issues.push(format!(
-                    "device {name}: {what} {value} is outside 1..{max} (the CP master's limit)"
-                ));
-            }
-        }
-        for (i, group) in self.groups.iter().enumerate() {
-            if group.period.is_zero() {
-                issues.push(format!(
-                    "device {name}: poll group {i} has a period of zero"
-                ));
-            }
-            if group.ranges.is_empty() {
-                issues.push(format!("device {name}: poll group {i} has no ranges"));
-            }
-            for range in &group.ranges {
-                if range.count == 0 || range.end() > 0x1_0000 {
-                    issues.push(format!(
-                        "device {name}: poll group {i} range {}+{} is empty or runs past 65535",
-                        range.start, range.count
-                    ));
-                }
-            }
-        }
-        if let Some(scanner) = &self.scanner {
-            issues.extend(scanner.validate(name));
-        }
-        if let Err(err) = crate::serial::Backoff::try_new(self.backoff_min, self.backoff_max) {
-            issues.push(format!("device {name}: back-off: {err}"));
-        }
-        let (lo, hi) = PROBE_TIMEOUT_MIN_RANGE;
-        if !(lo..=hi).contains(&self.probe.timeout_min) {
-            issues.push(format!(
-                "device {name}: probe_timeout_min {:?} is outside 5..65500 ms",
-                self.probe.timeout_min
-            ));
-        }
-        let (lo, hi) = OFFLINE_AFTER_RANGE;
-        if !(lo..=hi).contains(&self.offline_after) {
-            issues.push(format!(
-                "device {name}: offline_after {} is outside {lo}..{hi}",
-                self.offline_after
-            ));
-        }
-        let (lo, hi) = FULL_PROBE_EVERY_RANGE;
-        if !(lo..=hi).contains(&self.probe.full_every) {
-            issues.push(format!(
-                "device {name}: full_probe_every {} is outside {lo}..{hi}",
-                self.probe.full_every
-            ));
-        }
-        issues
     }
 
     /// The poll period of the fastest group that polls `address` of `table`, if any.
