@@ -2,7 +2,7 @@
 //!
 //! A line is a serial port, a protocol engine and the line's status. The runtime owns the first
 //! and the last; the engine sits behind [`LineEngine`], a small adapter per protocol
-//! (`modbus_master`, `modbus_slave`, `telegram::task`) over a sans-IO proto-core machine:
+//! (`master`, `modbus_slave`, `telegram::task`) over a sans-IO proto-core machine:
 //!
 //! ```text
 //!   commands (queue) ──┐                    ┌──> status, events, metrics, image, mailbox
