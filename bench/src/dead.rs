@@ -19,7 +19,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use gateway::config::{
-    DEFAULT_FULL_PROBE_EVERY, DEFAULT_OFFLINE_BACKOFF_MIN, DEFAULT_PROBE_TIMEOUT_MIN,
+    DEFAULT_FULL_PROBE_EVERY, DEFAULT_OFFLINE_AFTER, DEFAULT_OFFLINE_BACKOFF_MIN,
+    DEFAULT_PROBE_TIMEOUT_MIN,
 };
 use gateway::line::PROBE_TIMEOUT_FACTOR;
 
@@ -55,6 +56,14 @@ const BACKOFF_RAMP: Duration = Duration::from_secs(8);
 /// The dead device's index in the line's status.
 const DEAD: usize = DEVICES as usize - 1;
 
+/// How long the line may take to declare the dead device offline: `offline_after` polls in a row
+/// (the default, 6) without an answer, each waiting the whole reply monitoring time, one more for
+/// a poll in flight, and 5 s for the polls of the others between them (12 s at 2 s: the window
+/// of 2 x the reply monitoring time + 5 s used before ended first, and the row read NaN).
+fn detection_limit(reply_timeout: Duration) -> Duration {
+    reply_timeout.saturating_mul(DEFAULT_OFFLINE_AFTER + 1) + Duration::from_secs(5)
+}
+
 /// The rows of one reply monitoring time: the rate row, and the recovery row with `recover`.
 pub(crate) async fn dead_device(
     plan: &Plan,
@@ -75,7 +84,7 @@ pub(crate) async fn dead_device(
 
     // The tenth silent from the start: the window opens when the line declares it offline.
     let (rig, silent) = line(reply_timeout, true).await?;
-    let limit = reply_timeout * 2 + Duration::from_secs(5);
+    let limit = detection_limit(reply_timeout);
     let Some(offline_after) = wait_for(&rig, false, limit).await else {
         return Ok(vec![crate::poll::failed(
             name,
@@ -240,7 +249,7 @@ async fn recovery(plan: &Plan, reply_timeout: Duration, rig: &Rig, silent: &Atom
             }
         }
         silent.store(true, Ordering::Relaxed);
-        if wait_for(rig, false, reply_timeout * 2 + Duration::from_secs(5))
+        if wait_for(rig, false, detection_limit(reply_timeout))
             .await
             .is_none()
         {

@@ -2,9 +2,10 @@
 //!
 //! The runtime records every byte a line sends and receives with its time; it asks this module
 //! where a received frame ends ([`FrameCutter`]: a silence of the line's gap ends every frame,
-//! the protocol's own end marks end it at once) and, only when someone reads the monitor, what a
-//! frame is ([`describe`]: a verdict and a one-line summary). Both are pure: bytes in, answers
-//! out.
+//! found by the RTU receivers' own [`SilenceFramer`], and the protocol's own end marks end it at
+//! once) and, only when someone reads the monitor, what a frame is ([`describe`]: a verdict and a
+//! one-line summary). Both are pure: bytes and times in, answers out; the cutter's
+//! [`FrameCutter::deadline`] is one more deadline for the line's one timer.
 //!
 //! ```text
 //!   Modbus RTU     a frame ends after t3.5 of silence (003 6.4.3)
@@ -18,9 +19,16 @@ use std::fmt::Write as _;
 use std::time::Duration;
 
 use crate::checksum::{bcc, crc16_modbus, lrc};
+use crate::modbus::rtu::framer::Fault;
+use crate::modbus::rtu::{CharTiming, SilenceFramer};
 use crate::proc3964::frame::{Deframer, Progress};
 use crate::proc3964::{Variant, DLE, ETX, NAK, STX};
 use crate::telegram::EndCriterion;
+use crate::time::Instant;
+
+/// The shortest silence that ends a received frame: below it a port that delivers in bursts (a
+/// pty, a USB adapter) would cut frames apart.
+const MIN_GAP: Duration = Duration::from_micros(100);
 
 /// Which way a frame went, seen from the gateway.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -98,6 +106,14 @@ impl Framing {
         kind: FrameKind::Raw,
         gap: None,
     };
+
+    /// The silence that ends a received frame on a port whose characters take `char_time`:
+    /// [`Self::gap`], else 3.5 character times (003 6.4.3), at least 100 µs.
+    pub fn silence(&self, char_time: Duration) -> Duration {
+        self.gap
+            .unwrap_or_else(|| char_time.saturating_mul(7) / 2)
+            .max(MIN_GAP)
+    }
 }
 
 impl Default for Framing {
@@ -106,11 +122,15 @@ impl Default for Framing {
     }
 }
 
-/// Where a received frame ends, byte by byte: the protocol's end marks. Silence is the caller's
-/// (it owns the clock): it ends the frame after [`Framing::gap`] and calls [`Self::reset`].
-#[derive(Clone, Debug)]
+/// Where a received frame ends, byte by byte: the protocol's end marks at once, and a silence of
+/// the line's gap ([`Framing::silence`]) after the last byte, found by the RTU receivers'
+/// [`SilenceFramer`] (its t3.5 is the gap here). The caller owns the clock: it gives each byte
+/// its time, waits until [`Self::deadline`] and calls [`Self::expire`].
+#[derive(Debug)]
 pub struct FrameCutter {
     kind: FrameKind,
+    /// The silence after the last byte (or line error) that ends the frame.
+    silence: SilenceFramer,
     /// Bytes of the current frame so far.
     len: usize,
     /// 3964(R): the frame is a telegram (data after the partner's STX was acknowledged, or
@@ -126,10 +146,18 @@ pub struct FrameCutter {
 // === impl FrameCutter ===
 
 impl FrameCutter {
-    /// A cutter for `kind`, before any byte.
-    pub const fn new(kind: FrameKind) -> Self {
+    /// A cutter for `kind` whose frames end after `gap` of silence, before any byte.
+    pub const fn new(kind: FrameKind, gap: Duration) -> Self {
+        // Only the silence is asked of the framer: t1.5 and the announced length are not checked
+        // (the monitor keeps every frame; [`describe`] judges it when someone reads).
+        let timing = CharTiming {
+            char_time: gap,
+            t15: gap,
+            t35: gap,
+        };
         Self {
             kind,
+            silence: SilenceFramer::new(timing),
             len: 0,
             telegram: None,
             expect_telegram: false,
@@ -140,6 +168,7 @@ impl FrameCutter {
     /// The frame ended (by silence, by a transmission, or by [`Self::push`]): the next byte
     /// begins a new one.
     pub fn reset(&mut self) {
+        self.silence.clear();
         self.len = 0;
         self.telegram = None;
         self.first_end_seen = false;
@@ -153,8 +182,29 @@ impl FrameCutter {
         }
     }
 
-    /// One more received byte; true when the frame ends with it.
-    pub fn push(&mut self, byte: u8) -> bool {
+    /// When the frame being received ends by silence unless more bytes come.
+    pub fn deadline(&self) -> Option<Instant> {
+        self.silence.deadline()
+    }
+
+    /// Ends the frame being received if its silence has passed by `now`; true when it did.
+    pub fn expire(&mut self, now: Instant) -> bool {
+        let ended = self.silence.poll(now).is_some();
+        if ended {
+            self.reset();
+        }
+        ended
+    }
+
+    /// A line error at `at`: it belongs to the frame being received (or begins one), which ends
+    /// a gap after it unless more bytes come.
+    pub fn line_error(&mut self, at: Instant) {
+        self.silence.fail(at, Fault::LineError);
+    }
+
+    /// One more received byte, arrived at `at`; true when the frame ends with it.
+    pub fn push(&mut self, at: Instant, byte: u8) -> bool {
+        self.silence.push(at, &[byte]);
         self.len += 1;
         let ends = match self.kind {
             FrameKind::Raw | FrameKind::ModbusRtu(_) => false,
@@ -758,17 +808,23 @@ mod tests {
         );
     }
 
+    /// A byte every 100 µs, well inside the cutters' gap.
     fn cut(cutter: &mut FrameCutter, bytes: &[u8]) -> Vec<usize> {
         bytes
             .iter()
             .enumerate()
-            .filter_map(|(i, &b)| cutter.push(b).then_some(i))
+            .filter_map(|(i, &b)| {
+                let at = Instant::from_micros(100 * i as u64);
+                cutter.push(at, b).then_some(i)
+            })
             .collect()
     }
 
+    const GAP: Duration = Duration::from_millis(2);
+
     #[test]
     fn the_3964r_cutter_ends_control_characters_and_telegrams() {
-        let mut c = FrameCutter::new(FrameKind::Proc3964 { bcc: true });
+        let mut c = FrameCutter::new(FrameKind::Proc3964 { bcc: true }, GAP);
         // The partner's STX is a frame; after our DLE its telegram (starting with a doubled
         // DLE) ends after DLE ETX BCC.
         assert_eq!(cut(&mut c, &[STX]), [0]);
@@ -783,29 +839,65 @@ mod tests {
 
     #[test]
     fn the_3964_cutter_without_bcc_ends_at_dle_etx() {
-        let mut c = FrameCutter::new(FrameKind::Proc3964 { bcc: false });
+        let mut c = FrameCutter::new(FrameKind::Proc3964 { bcc: false }, GAP);
         assert_eq!(cut(&mut c, b"ab\x10\x03cd\x10\x03"), [3, 7]);
     }
 
     #[test]
     fn modbus_ascii_and_end_character_cutters() {
-        let mut c = FrameCutter::new(FrameKind::ModbusAscii(Role::Master));
+        let mut c = FrameCutter::new(FrameKind::ModbusAscii(Role::Master), GAP);
         assert_eq!(cut(&mut c, b":0103\r\n:01\r\n"), [6, 11]);
         let end = EndCriterion::EndChars {
             first: b'\r',
             second: None,
         };
-        let mut c = FrameCutter::new(FrameKind::Telegram(end));
+        let mut c = FrameCutter::new(FrameKind::Telegram(end), GAP);
         assert_eq!(cut(&mut c, b"ab\rcd\r"), [2, 5]);
-        let mut c = FrameCutter::new(FrameKind::Telegram(EndCriterion::FixedLength(3)));
+        let mut c = FrameCutter::new(FrameKind::Telegram(EndCriterion::FixedLength(3)), GAP);
         assert_eq!(cut(&mut c, b"abcdefg"), [2, 5]);
     }
 
     #[test]
+    fn a_frame_ends_a_gap_after_its_last_byte_or_line_error() {
+        let at = Instant::from_micros;
+        let mut c = FrameCutter::new(FrameKind::ModbusRtu(Role::Master), GAP);
+        assert_eq!(c.deadline(), None);
+        assert!(!c.push(at(1000), 1));
+        assert!(!c.push(at(1500), 3));
+        assert_eq!(c.deadline(), Some(at(1500) + GAP));
+        assert!(!c.expire(at(1499) + GAP));
+        assert!(c.expire(at(1500) + GAP));
+        assert_eq!(c.deadline(), None);
+        // A line error begins a frame of its own, ended by the same silence.
+        c.line_error(at(10_000));
+        assert_eq!(c.deadline(), Some(at(10_000) + GAP));
+        // An end mark ends the frame at once: no silence is waited for.
+        let mut c = FrameCutter::new(FrameKind::ModbusAscii(Role::Master), GAP);
+        assert!(!c.push(at(0), b'\r'));
+        assert!(c.push(at(100), b'\n'));
+        assert_eq!(c.deadline(), None);
+    }
+
+    #[test]
+    fn the_gap_is_the_framings_or_three_and_a_half_characters() {
+        let char_time = Duration::from_micros(1146); // 9600 Bd, 11 bits
+        assert_eq!(Framing::RAW.silence(char_time), Duration::from_micros(4011));
+        let framing = Framing {
+            kind: FrameKind::Raw,
+            gap: Some(Duration::from_millis(50)),
+        };
+        assert_eq!(framing.silence(char_time), Duration::from_millis(50));
+        assert_eq!(
+            Framing::RAW.silence(Duration::from_micros(10)),
+            Duration::from_micros(100)
+        );
+    }
+
+    #[test]
     fn rtu_and_raw_frames_end_only_by_silence() {
-        let mut c = FrameCutter::new(FrameKind::ModbusRtu(Role::Master));
+        let mut c = FrameCutter::new(FrameKind::ModbusRtu(Role::Master), GAP);
         assert!(cut(&mut c, &[1, 3, 0, 0, 0, 1, 0x84, 0x0A]).is_empty());
-        let mut c = FrameCutter::new(FrameKind::Raw);
+        let mut c = FrameCutter::new(FrameKind::Raw, GAP);
         assert!(cut(&mut c, b"\r\n\x10\x03").is_empty());
     }
 }

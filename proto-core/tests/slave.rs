@@ -375,7 +375,7 @@ fn overlong_frames_and_line_faults() {
             SlaveEvent::Diagnostic(ids::CHARACTER_ERROR),
             // The 3 bytes before the fault and the 5 after it, up to the silence.
             SlaveEvent::Discarded {
-                reason: DiscardReason::LineFault,
+                reason: DiscardReason::LineError,
                 len: 8
             },
             SlaveEvent::Diagnostic(ids::LINE_BREAK)

@@ -689,4 +689,57 @@ mod tests {
             "altivar71"
         );
     }
+
+    /// Every problem of a polled device at once, where a user meets them (the config): its
+    /// address (003 6.4.3 "ADDR": 0 is broadcast, never polled), a limit above what the device
+    /// takes, a poll period of zero, a range past the address space or empty; and the back-off
+    /// bounds out of order. (These cases were `DeviceSettings::validate`'s, which only its test
+    /// called.)
+    #[test]
+    fn a_devices_problems_are_reported_at_once() {
+        let device = |address: u8, read_registers: u16, backoff_min: &str, zero: &str| {
+            format!(
+                "[lines.m]\nport = \"/dev/null\"\nbaud = 19200\nprotocol = \"modbus-master-rtu\"\n\
+                 [lines.m.devices.atv]\nprofile = \"altivar71\"\naddress = {address}\n\
+                 offline_backoff_min = \"{backoff_min}\"\noffline_backoff_max = \"1s\"\n\
+                 [lines.m.devices.atv.limits]\nread_registers = {read_registers}\n\
+                 [[lines.m.devices.atv.poll]]\nname = \"fast\"\nperiod = \"100ms\"\n\
+                 ranges = [{{ table = \"holding\", start = 3201, count = 1 }}]\n{zero}"
+            )
+        };
+        let zero = "[[lines.m.devices.atv.poll]]\nname = \"zero\"\nperiod = \"0s\"\n\
+             ranges = [{ table = \"holding\", start = 65535, count = 2 }, \
+             { table = \"holding\", start = 1, count = 0 }]\n";
+        assert!(crate::config::parse(&device(2, 63, "1s", "")).is_ok());
+        let issues = crate::config::parse(&device(0, 200, "1s", zero))
+            .expect_err("refused")
+            .issues;
+        let shown: Vec<String> = issues
+            .iter()
+            .map(|i| format!("{}: {}", i.path, i.message))
+            .collect();
+        assert_eq!(issues.len(), 5, "{shown:#?}");
+        assert!(
+            shown[0].contains("address: 0 is the broadcast address"),
+            "{shown:#?}"
+        );
+        assert!(
+            shown[1].contains("read_registers: must be between 1 and 63"),
+            "{shown:#?}"
+        );
+        assert!(shown[2].contains("poll[1].period"), "{shown:#?}");
+        assert!(
+            shown[3].contains("range 65535+2 runs past address 65535"),
+            "{shown:#?}"
+        );
+        assert!(shown[4].contains("poll[1].ranges[1].count"), "{shown:#?}");
+        let issues = crate::config::parse(&device(2, 63, "5s", ""))
+            .expect_err("refused")
+            .issues;
+        assert_eq!(issues.len(), 1, "{issues:#?}");
+        assert!(
+            issues[0].path.ends_with("offline_backoff_min"),
+            "{issues:#?}"
+        );
+    }
 }

@@ -17,7 +17,7 @@ use std::time::{Duration, SystemTime};
 use proto_core::cpmem::SlaveParams;
 use proto_core::event::EventId;
 use proto_core::modbus::rtu::CharTiming;
-use proto_core::modbus::slave::{DiscardReason, Outcome, Slave, SlaveEvent};
+use proto_core::modbus::slave::{self, DiscardReason, Outcome, Slave, SlaveEvent};
 use proto_core::serial_marks::LineError;
 use tokio::time::Instant;
 use tokio_serial::SerialPort;
@@ -99,7 +99,7 @@ pub struct SlaveCounters {
     pub writes: u64,
     /// Good frames for other slave addresses (normal on a multi-drop bus).
     pub other_address: u64,
-    /// Received bytes not served, by reason (`bad_crc`, `too_short`, `too_long`, `line_fault`,
+    /// Received bytes not served, by reason (`bad_crc`, `too_short`, `too_long`, `line_error`,
     /// `trailing_data`); also in the metrics as `gateway_frames_discarded_total`.
     pub discarded: BTreeMap<&'static str, u64>,
     /// When the last request for this slave (or a broadcast) was handled.
@@ -134,7 +134,7 @@ fn spawn_on<O: PortOpener>(
     let core = base.core(Vec::new());
     core.shared
         .metrics()
-        .init_frames_discarded(&DiscardReason::LOST.map(DiscardReason::as_str));
+        .init_frames_discarded(&slave::LOST.map(DiscardReason::as_str));
     let counters = Arc::new(Mutex::new(SlaveCounters::default()));
     let caps = SlaveCapabilities {
         params: settings.params.clone(),
@@ -462,7 +462,7 @@ mod tests {
         let counters = line.slave_counters().expect("slave counters");
         assert_eq!(counters.answered, 0);
         assert!(
-            counters.discarded.get("line_fault").copied().unwrap_or(0) >= 1,
+            counters.discarded.get("line_error").copied().unwrap_or(0) >= 1,
             "{counters:?}"
         );
 

@@ -119,7 +119,7 @@ pub(crate) fn spawn_on<O: PortOpener>(
     for device in &devices {
         shared.metrics().init_device(&device.name);
     }
-    let reasons: Vec<&'static str> = proto_core::modbus::tap::DiscardReason::ALL
+    let reasons: Vec<&'static str> = proto_core::modbus::tap::DISCARD_REASONS
         .iter()
         .map(|r| r.as_str())
         .collect();

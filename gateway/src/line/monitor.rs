@@ -3,7 +3,8 @@
 //!
 //! The port layer records ([`Recorder`], owned by the line's task): each transmission is a frame;
 //! received bytes are a frame until the protocol's end mark (the engine's
-//! [`Framing`], cut by [`FrameCutter`]), a transmission, or a silence of the framing's gap. A
+//! [`Framing`], cut by [`FrameCutter`]), a transmission, or a silence of the framing's gap (the
+//! cutter's deadline, which the line's one timer waits for with the engine's). A
 //! closed frame goes into the ring of the line's [`FrameMonitor`], which readers share. Nothing
 //! is formatted until someone reads: the verdict and summary ([`FrameMonitor::describe`]) are
 //! made from the bytes on request. A full ring reuses the buffers of the frame it lets go, so a
@@ -293,6 +294,7 @@ struct Open {
 pub(crate) struct Recorder {
     monitor: Arc<FrameMonitor>,
     clock: Clock,
+    /// Where a received frame ends: end marks, and the silence of the framing's gap.
     cutter: FrameCutter,
     /// Silence that ends a received frame.
     gap: Duration,
@@ -328,14 +330,11 @@ impl Recorder {
         framing: Framing,
         char_time: Duration,
     ) -> Self {
-        let gap = framing
-            .gap
-            .unwrap_or_else(|| char_time.saturating_mul(7) / 2)
-            .max(Duration::from_micros(100));
+        let gap = framing.silence(char_time);
         Self {
             monitor,
             clock,
-            cutter: FrameCutter::new(framing.kind),
+            cutter: FrameCutter::new(framing.kind, gap),
             gap,
             char_time,
             open: None,
@@ -368,17 +367,17 @@ impl Recorder {
     /// The port was (re)opened: a frame cut off by the loss of the port ends.
     pub(crate) fn opened(&mut self) {
         self.close();
-        self.cutter = FrameCutter::new(self.monitor.kind);
+        self.cutter = FrameCutter::new(self.monitor.kind, self.gap);
     }
 
     /// When the received frame in progress ends by silence.
     pub(crate) fn deadline(&self) -> Option<Instant> {
-        self.open.map(|open| open.last + self.gap)
+        self.cutter.deadline().map(|d| self.clock.to_tokio(d))
     }
 
     /// Ends the received frame in progress if its silence has passed at `now`.
     pub(crate) fn expire(&mut self, now: Instant) {
-        if self.deadline().is_some_and(|d| d <= now) {
+        if self.cutter.expire(self.clock.to_engine(now)) {
             self.close();
         }
     }
@@ -403,7 +402,8 @@ impl Recorder {
             });
             open.last = at.max(open.first);
             self.bytes.push(byte);
-            if self.cutter.push(byte) || self.bytes.len() >= MAX_FRAME_BYTES {
+            let ends = self.cutter.push(self.clock.to_engine(open.last), byte);
+            if ends || self.bytes.len() >= MAX_FRAME_BYTES {
                 self.close();
             }
         }
@@ -417,6 +417,7 @@ impl Recorder {
             last: now,
         });
         open.last = now;
+        self.cutter.line_error(self.clock.to_engine(now));
         self.errors.push(FrameLineError {
             offset: self.bytes.len(),
             error,

@@ -2,7 +2,7 @@
 //!
 //! A line is a serial port, a protocol engine and the line's status. The runtime owns the first
 //! and the last; the engine sits behind [`LineEngine`], a small adapter per protocol
-//! (`modbus_master`, `modbus_slave`, `telegram::task`) over a sans-IO proto-core machine:
+//! (`master`, `modbus_slave`, `telegram::task`) over a sans-IO proto-core machine:
 //!
 //! ```text
 //!   commands (queue) ──┐                    ┌──> status, events, metrics, image, mailbox
@@ -19,9 +19,10 @@
 //! `drive_timer`), lets the adapter start work (a poll, a queued command), writes what the engine
 //! transmits with the estimated end of each transmission, and hands the engine's events on; when
 //! that made progress (a request completed) the loop turns again at once, so a completion starts
-//! the next job without waiting. Then it waits for bytes, the engine's deadline (a timerfd: the
+//! the next job without waiting. Then it waits for bytes, the line's one timer (a timerfd: the
 //! deadlines of a Modbus line are fractions of a millisecond apart, tokio's timer would add
-//! 1.2 ms to each), the adapter's own wake-up (the next poll, a signal poll), a command or
+//! 1.2 ms to each; it wakes at the engine's deadline or at the silence that ends a frame the
+//! monitor is receiving, whichever comes first), the adapter's own wake-up (the next poll, a signal poll), a command or
 //! shutdown. On shutdown the adapter says how the line stops ([`Stop`]): whether the port is
 //! still read, whether the command queue closes at once, how long the engine may finish what it
 //! has started.
@@ -757,14 +758,17 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
             if stopping.is_some() && self.engine.done() {
                 return PortExit::Shutdown;
             }
+            // One timer for every deadline of the line: the engine's, and the end by silence of a
+            // frame the monitor is receiving (the turn of the loop closes it).
             let deadline = self.engine.poll_timeout().map(|t| self.clock.to_tokio(t));
-            let frame_end = match (
+            let wake_at = [
+                deadline,
                 self.first.frame_end(),
                 self.second.as_ref().and_then(Reader::frame_end),
-            ) {
-                (Some(a), Some(b)) => Some(a.min(b)),
-                (a, b) => a.or(b),
-            };
+            ]
+            .into_iter()
+            .flatten()
+            .min();
             let reading = stopping.is_none_or(|s| s.read);
             let taking = stopping.is_none();
             tokio::select! {
@@ -801,13 +805,13 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
                     }
                     Err(err) => return PortExit::Lost(format!("read from {second_path} failed: {err}")),
                 },
-                () = timer.sleep_until_opt(deadline) => {
-                    let (_, engine_now) = self.clock.now();
-                    self.engine.handle_timeout(engine_now);
+                () = timer.sleep_until_opt(wake_at) => {
+                    if deadline.is_some() && deadline == wake_at {
+                        let (_, engine_now) = self.clock.now();
+                        self.engine.handle_timeout(engine_now);
+                    }
                 }
                 () = self.engine.wake() => self.engine.woken(port.modem()),
-                // A received frame ends by silence (the turn of the loop closes it).
-                () = sleep_until_opt(frame_end) => {}
                 command = recv(&mut self.commands), if taking => match command {
                     Some(command) => self.engine.command(command, port.modem()),
                     None => self.commands = None,

@@ -14,7 +14,7 @@ use crate::codec::Writer;
 
 pub mod framer;
 
-pub use framer::SilenceFramer;
+pub use framer::{DiscardReason, SilenceFramer};
 
 /// The largest RTU ADU of the specification: 256 bytes (Modbus over Serial Line V1.02, 2.5.1.1:
 /// address 1 + PDU 253 + CRC 2).

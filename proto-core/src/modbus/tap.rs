@@ -91,62 +91,18 @@ impl TapConfig {
     }
 }
 
-/// Why a received frame was not used.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum DiscardReason {
-    /// The CRC does not match (003 7.2 0E 57h).
-    BadCrc,
-    /// A silence above t1.5 inside the frame.
-    GapInsideFrame,
-    /// A character with a parity or framing error, a BREAK or an overrun inside the frame
-    /// (003 7.2 08 0Ch, 08 0Dh).
-    LineError,
-    /// Fewer bytes than address, function and CRC.
-    TooShort,
-    /// More bytes than the largest frame.
-    TooLong,
-    /// Neither a request nor the answer awaited.
-    Unpaired,
-}
+/// Why a received frame was not used: the RTU receivers' one vocabulary.
+pub use crate::modbus::rtu::DiscardReason;
 
-// === impl DiscardReason ===
-
-impl DiscardReason {
-    /// Every reason, in a fixed order.
-    pub const ALL: [Self; 6] = [
-        Self::BadCrc,
-        Self::GapInsideFrame,
-        Self::LineError,
-        Self::TooShort,
-        Self::TooLong,
-        Self::Unpaired,
-    ];
-
-    /// The reason of a frame the RTU framer discarded.
-    const fn from_fault(fault: Fault) -> Self {
-        match fault {
-            Fault::BadCrc => Self::BadCrc,
-            Fault::GapInsideFrame => Self::GapInsideFrame,
-            Fault::LineError => Self::LineError,
-            Fault::TooShort => Self::TooShort,
-            // The tap does not check the announced length, so trailing data is never a fault
-            // here.
-            Fault::TooLong | Fault::TrailingData => Self::TooLong,
-        }
-    }
-
-    /// A short stable name (metrics label).
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::BadCrc => "bad_crc",
-            Self::GapInsideFrame => "gap_inside_frame",
-            Self::LineError => "line_error",
-            Self::TooShort => "too_short",
-            Self::TooLong => "too_long",
-            Self::Unpaired => "unpaired",
-        }
-    }
-}
+/// Every reason the tap reports, in a fixed order.
+pub const DISCARD_REASONS: [DiscardReason; 6] = [
+    DiscardReason::BadCrc,
+    DiscardReason::GapInsideFrame,
+    DiscardReason::LineError,
+    DiscardReason::TooShort,
+    DiscardReason::TooLong,
+    DiscardReason::Unpaired,
+];
 
 /// The values of one block of a table.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -338,7 +294,7 @@ impl Tap {
         let bytes = match framed {
             Framed::Frame(bytes) => bytes,
             Framed::Discard { fault, .. } => {
-                self.discard(DiscardReason::from_fault(fault), len);
+                self.discard(DiscardReason::from(fault), len);
                 return;
             }
         };

@@ -1,6 +1,7 @@
 //! The end of an RTU frame by silence, written once for every RTU receiver: the master's reply
-//! ([`crate::modbus::master`]), the slave's requests ([`crate::modbus::slave`]) and the tap's
-//! traffic ([`crate::modbus::tap`]).
+//! ([`crate::modbus::master`]), the slave's requests ([`crate::modbus::slave`]), the tap's
+//! traffic ([`crate::modbus::tap`]) and the frame monitor's cutter ([`crate::monitor`], which
+//! ends any line's received frames by the same silence, the line's gap in place of t3.5).
 //!
 //! A frame ends when no character arrives for 3.5 character times (003 6.4.3 "CRC-CHECK": the
 //! message end is "when no transmission takes place during the time period for the transmission
@@ -55,6 +56,71 @@ impl From<&FrameError> for Fault {
             FrameError::TooLong { .. } => Self::TooLong,
             _ => Self::TooShort,
         }
+    }
+}
+
+/// Why received RTU bytes were not used, for every RTU receiver that reports it (the slave and
+/// the tap): one vocabulary, one mapping from a [`Fault`] (and so from a [`FrameError`]), and one
+/// metric label per reason ([`Self::as_str`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum DiscardReason {
+    /// A good frame for another slave address (the slave ignores it, 003 6.4.6).
+    OtherAddress(u8),
+    /// The CRC does not match (003 7.2 0E 57h).
+    BadCrc,
+    /// A silence above t1.5 inside the frame (only where t1.5 is checked: the tap).
+    GapInsideFrame,
+    /// A character with a parity or framing error, a BREAK or an overrun inside the frame
+    /// (003 7.2 08 0Ch, 08 0Dh).
+    LineError,
+    /// Fewer bytes than address, function code and CRC.
+    TooShort,
+    /// More bytes than the largest frame (slave: event 08 16h); the rest until the silence is
+    /// dropped.
+    TooLong,
+    /// More bytes before the silence than the function code and byte count announce (003 6.4.6:
+    /// the frame ends by silence only; only where the length is checked: the slave).
+    TrailingData,
+    /// Neither a request nor the answer awaited (the tap).
+    Unpaired,
+}
+
+// === impl DiscardReason ===
+
+impl DiscardReason {
+    /// A stable name, the metric label (`gateway_frames_discarded_total{reason}`).
+    pub const fn as_str(self) -> &'static str {
+        match self {
+            Self::OtherAddress(_) => "other_address",
+            Self::BadCrc => "bad_crc",
+            Self::GapInsideFrame => "gap_inside_frame",
+            Self::LineError => "line_error",
+            Self::TooShort => "too_short",
+            Self::TooLong => "too_long",
+            Self::TrailingData => "trailing_data",
+            Self::Unpaired => "unpaired",
+        }
+    }
+}
+
+impl From<Fault> for DiscardReason {
+    /// The one mapping of a frame the framer discarded to its reason.
+    fn from(fault: Fault) -> Self {
+        match fault {
+            Fault::BadCrc => Self::BadCrc,
+            Fault::TooShort => Self::TooShort,
+            Fault::TooLong => Self::TooLong,
+            Fault::GapInsideFrame => Self::GapInsideFrame,
+            Fault::LineError => Self::LineError,
+            Fault::TrailingData => Self::TrailingData,
+        }
+    }
+}
+
+impl From<&FrameError> for DiscardReason {
+    /// A failed RTU frame check, through its [`Fault`].
+    fn from(error: &FrameError) -> Self {
+        Fault::from(error).into()
     }
 }
 
@@ -217,6 +283,12 @@ impl SilenceFramer {
         let received = core::mem::take(&mut open.received);
         open.bytes.clear();
         Some((fault, received))
+    }
+
+    /// The frame being received ended without its silence (a receiver that knows other ends,
+    /// such as the monitor's end marks or a transmission): it is dropped unchecked.
+    pub fn clear(&mut self) {
+        self.open = None;
     }
 
     /// Ends the frame being received if its silence has passed by `now`.

@@ -86,61 +86,18 @@ pub enum Outcome {
     BroadcastRefused(ExceptionCode),
 }
 
-/// Why received bytes were not served.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum DiscardReason {
-    /// A good frame for another slave address (ignored, 003 6.4.6).
-    OtherAddress(u8),
-    /// The CRC does not match (event 0E 57h).
-    BadCrc,
-    /// Fewer than 4 bytes before the silence.
-    TooShort,
-    /// More bytes than the largest request (event 08 16h); the rest until the silence is dropped.
-    TooLong,
-    /// A character error or break cut the frame (events 08 0Ch, 08 0Dh).
-    LineFault,
-    /// More bytes before the silence than the request's function code and byte count announce
-    /// (003 6.4.6: the frame ends by silence only); the CP's catalog has no slave event for it.
-    TrailingData,
-}
+/// Why received bytes were not served: the RTU receivers' one vocabulary.
+pub use crate::modbus::rtu::DiscardReason;
 
-// === impl DiscardReason ===
-
-impl DiscardReason {
-    /// The reasons of bytes lost to the line (every reason but a frame for another slave, which
-    /// is normal on a multi-drop bus).
-    pub const LOST: [Self; 5] = [
-        Self::BadCrc,
-        Self::TooShort,
-        Self::TooLong,
-        Self::LineFault,
-        Self::TrailingData,
-    ];
-
-    /// The reason of a frame the RTU framer discarded.
-    const fn from_fault(fault: Fault) -> Self {
-        match fault {
-            Fault::BadCrc => Self::BadCrc,
-            Fault::TooShort => Self::TooShort,
-            Fault::TooLong => Self::TooLong,
-            // The slave does not check t1.5 (see the module doc), so a gap is never a fault here.
-            Fault::LineError | Fault::GapInsideFrame => Self::LineFault,
-            Fault::TrailingData => Self::TrailingData,
-        }
-    }
-
-    /// A stable name, usable as a metric label.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::OtherAddress(_) => "other_address",
-            Self::BadCrc => "bad_crc",
-            Self::TooShort => "too_short",
-            Self::TooLong => "too_long",
-            Self::LineFault => "line_fault",
-            Self::TrailingData => "trailing_data",
-        }
-    }
-}
+/// The reasons of bytes lost to the line (every reason the slave reports but a frame for another
+/// slave, which is normal on a multi-drop bus).
+pub const LOST: [DiscardReason; 5] = [
+    DiscardReason::BadCrc,
+    DiscardReason::TooShort,
+    DiscardReason::TooLong,
+    DiscardReason::LineError,
+    DiscardReason::TrailingData,
+];
 
 /// The UART errors every engine of the crate takes (003 7.2: 08 0Ch parity, stop bit and
 /// overflow errors, 08 0Dh break).
@@ -291,7 +248,7 @@ impl<M: MemoryAccess> Slave<M> {
             // A second cause while dropping: the bytes so far go with the first.
             if let Some((earlier, len)) = self.framer.take_fault() {
                 self.events.push_back(SlaveEvent::Discarded {
-                    reason: DiscardReason::from_fault(earlier),
+                    reason: DiscardReason::from(earlier),
                     len,
                 });
             }
@@ -339,7 +296,7 @@ impl<M: MemoryAccess> Slave<M> {
                 } => {
                     // An overlong frame and a line fault raised their events when they came.
                     let event = (fault == Fault::BadCrc).then_some(ids::MODBUS_CHECKSUM_ERROR);
-                    self.discard(DiscardReason::from_fault(fault), received, event);
+                    self.discard(DiscardReason::from(fault), received, event);
                 }
             }
         }

@@ -10,7 +10,7 @@ use tokio::time::Instant;
 
 use super::*;
 use crate::image::Table;
-use crate::line::probe::ProbeSettings;
+use crate::line::master::probe::ProbeSettings;
 use crate::line::{AddrRange, DeviceLimits, PollGroup};
 
 fn ms(n: u64) -> Duration {

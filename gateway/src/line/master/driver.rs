@@ -21,18 +21,18 @@ use tokio_util::sync::CancellationToken;
 
 use super::command::{Command, CommandError, CommandResult, LineClient};
 use super::device_unit::DeviceUnit;
-use super::driver::{sleep_until_opt, Clock};
-use super::line_metrics::{master_result, BROADCAST_DEVICE, UNKNOWN_DEVICE};
 use super::registers32;
-use super::runtime::{
-    self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
-};
 use super::scanner::{ScanJob, Scanners};
 use super::scheduler::{cycle_bound, Job, PollJob, ReadKey, Scheduler, Transition};
-use super::status::{DeviceStatus, PollCycle, Shared};
 use super::writeback::{broadcast_echo, refresh_image};
 use super::{AddrRange, DeviceSettings, LineSettings};
 use crate::image::{ProcessImage, Quality, Table};
+use crate::line::driver::{sleep_until_opt, Clock};
+use crate::line::line_metrics::{master_result, BROADCAST_DEVICE, UNKNOWN_DEVICE};
+use crate::line::runtime::{
+    self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
+};
+use crate::line::status::{DeviceStatus, PollCycle, Shared};
 use crate::metrics::{PollCycleKind, RequestResult};
 use crate::unit::UnitService;
 
@@ -47,6 +47,41 @@ enum InFlight {
         device: Option<usize>,
         command: Command,
     },
+}
+
+// === impl InFlight ===
+
+impl InFlight {
+    /// The kind of job, for the request's DEBUG line.
+    const fn kind(&self) -> &'static str {
+        match self {
+            Self::Poll(..) => "poll",
+            Self::Scan(_) => "scan",
+            Self::Command { .. } => "command",
+        }
+    }
+
+    /// The master refused the job's request: a command is answered with the refusal (a poll and
+    /// a scan are the caller's to postpone).
+    fn refused(self, err: &registers32::Submit32Error) {
+        if let Self::Command { command, .. } = self {
+            command.answer(Err(CommandError::Refused(err.to_string())));
+        }
+    }
+}
+
+/// How a job's request ended, for the completion of its kind.
+struct Done<'a> {
+    /// The slave it went to.
+    slave: u8,
+    /// The request as sent (16-bit registers).
+    request: &'a Request,
+    /// The answer, exception or failure.
+    outcome: Outcome,
+    /// The master's reply delay (end of request to the answer's first byte).
+    reply_delay: Option<std::time::Duration>,
+    /// When it ended.
+    now: Instant,
 }
 
 /// Starts a Modbus master line: opens its port (reopening with back-off), polls `devices` into
@@ -489,6 +524,37 @@ impl MasterLine {
         }
     }
 
+    /// Hands `request` for `slave` to the master as `job` (the one call of
+    /// `registers32::submit`): in flight from now on success; the job and why back on refusal.
+    /// `registers32`: whether the request may go as a 32-bit register job (the scanner's words
+    /// never do).
+    fn submit(
+        &mut self,
+        now: Instant,
+        slave: u8,
+        request: Request,
+        attempts: Attempts,
+        registers32: bool,
+        job: InFlight,
+    ) -> Result<(), (InFlight, registers32::Submit32Error)> {
+        let span = Span::of(slave, &request, job.kind());
+        let engine_now = self.clock.to_engine(now);
+        match registers32::submit(
+            &mut self.master,
+            registers32,
+            engine_now,
+            slave,
+            request,
+            attempts,
+        ) {
+            Ok(id) => {
+                self.submitted(id, job, span);
+                Ok(())
+            }
+            Err(err) => Err((job, err)),
+        }
+    }
+
     /// A job was handed to the master: in flight from now, its request logged (DEBUG).
     fn submitted(&mut self, id: RequestId, job: InFlight, span: Span) {
         tracing::debug!(
@@ -544,7 +610,6 @@ impl MasterLine {
             return;
         }
         self.scanners.started(false);
-        let engine_now = self.clock.to_engine(now);
         while let Some(job) = self.sched.next_job(now) {
             match job {
                 Job::Command(mut command) => {
@@ -567,46 +632,35 @@ impl MasterLine {
                         _ => None,
                     }
                     .unwrap_or_else(|| command.request.clone());
-                    let span = Span::of(command.slave, &request, "command");
-                    let attempts = Attempts::default();
-                    match registers32::submit(
-                        &mut self.master,
-                        registers32,
-                        engine_now,
-                        command.slave,
-                        request,
-                        attempts,
-                    ) {
-                        Ok(id) => {
-                            self.submitted(id, InFlight::Command { device, command }, span);
-                            return;
-                        }
-                        Err(err) => command.answer(Err(CommandError::Refused(err.to_string()))),
+                    let slave = command.slave;
+                    let job = InFlight::Command { device, command };
+                    match self.submit(now, slave, request, Attempts::default(), registers32, job) {
+                        Ok(()) => return,
+                        Err((job, err)) => job.refused(&err),
                     }
                 }
                 Job::Poll(poll) => {
-                    let Some(device) = self.devices.get(poll.device) else {
+                    let Some(device) = self.devices.get(poll.device).cloned() else {
                         continue;
                     };
                     // A probe of an offline device is one attempt with its own wait (`probe`).
                     let attempts = self.sched.poll_attempts(poll.device, &self.settings.master);
                     let request = poll.read.request();
-                    let span = Span::of(device.slave, &request, "poll");
                     let registers32 = registers32::enabled(&self.settings.master);
-                    match registers32::submit(
-                        &mut self.master,
-                        registers32,
-                        engine_now,
-                        device.slave,
-                        request,
-                        attempts,
-                    ) {
-                        Ok(id) => {
-                            let riders = self.sched.riders(&poll);
-                            self.submitted(id, InFlight::Poll(poll, riders), span);
+                    let slave = device.slave;
+                    let job = InFlight::Poll(poll, Vec::new());
+                    match self.submit(now, slave, request, attempts, registers32, job) {
+                        Ok(()) => {
+                            // The queued reads it covers ride on it, once it is sent.
+                            if let Some((_, InFlight::Poll(poll, riders))) = &mut self.inflight {
+                                *riders = self.sched.riders(poll);
+                            }
                             return;
                         }
-                        Err(err) => {
+                        Err((job, err)) => {
+                            let InFlight::Poll(poll, _) = job else {
+                                continue;
+                            };
                             tracing::error!(
                                 line = %self.settings.name, device = %device.name, error = %err,
                                 "poll refused by the master; check the device limits"
@@ -645,23 +699,17 @@ impl MasterLine {
             return false;
         };
         let attempts = self.sched.poll_attempts(job.device, &self.settings.master);
-        let engine_now = self.clock.to_engine(now);
-        let span = Span::of(device.slave, &request, "scan");
+        let (slave, device) = (device.slave, Arc::clone(device));
         // The scanner words are 16-bit registers: never sent as a 32-bit register job.
-        match registers32::submit(
-            &mut self.master,
-            false,
-            engine_now,
-            device.slave,
-            request,
-            attempts,
-        ) {
-            Ok(id) => {
-                self.submitted(id, InFlight::Scan(job), span);
+        match self.submit(now, slave, request, attempts, false, InFlight::Scan(job)) {
+            Ok(()) => {
                 self.scanners.started(true);
                 true
             }
-            Err(err) => {
+            Err((job, err)) => {
+                let InFlight::Scan(job) = job else {
+                    return false;
+                };
                 tracing::error!(
                     line = %self.settings.name, device = %device.name, error = %err,
                     "scanner request refused by the master; check the device limits"
@@ -717,176 +765,228 @@ impl MasterLine {
             time_ms = duration.map(|d| (d.as_secs_f64() * 10_000.0).round() / 10.0),
             "answer"
         );
+        let done = Done {
+            slave,
+            request,
+            outcome,
+            reply_delay,
+            now,
+        };
         match job {
-            InFlight::Scan(scan) => {
-                let answered = matches!(outcome, Outcome::Response(_) | Outcome::Exception(_));
-                let exception = match &outcome {
-                    Outcome::Exception(code) => Some(u8::from(*code)),
-                    _ => None,
-                };
-                let response = match outcome {
-                    Outcome::Response(response) => Some(response),
-                    _ => None,
-                };
-                if let Some(device) = self.devices.get(scan.device).cloned() {
-                    if !answered {
-                        self.device_stat(scan.device, |d| d.polls_failed += 1);
-                    } else if response.is_none() {
-                        tracing::debug!(line = %self.settings.name, device = %device.name, ?request, "scanner request answered with an exception");
-                        self.device_stat(scan.device, |d| {
-                            d.polls_exception += 1;
-                            d.last_exception = exception.or(d.last_exception);
-                        });
-                    } else if self
-                        .scanners
-                        .done(scan, request, response.clone(), &self.image, now)
-                    {
-                        self.device_stat(scan.device, |d| {
-                            d.polls_ok += 1;
-                            d.last_answer = Some(SystemTime::now());
-                        });
-                        self.shared.metrics().image_updated(&device.name);
-                    } else {
-                        tracing::error!(line = %self.settings.name, device = %device.name, ?request, "scanner answer does not fit its request");
-                    }
-                    if response.is_none() {
-                        self.scanners.postpone(scan, now);
-                    }
-                    if answered {
-                        self.shared.metrics().device_up(&device.name, true);
-                        self.sched.heard(scan.device, reply_delay);
-                    }
-                }
-                let transition = self.sched.observe(scan.device, answered, now);
-                self.apply(scan.device, answered, transition);
-            }
-            InFlight::Poll(poll, riders) => {
-                for rider in riders {
-                    let answer = rider_answer(&poll, &rider.request, slave, &outcome);
-                    rider.answer(answer);
-                }
-                let Some(device) = self.devices.get(poll.device).cloned() else {
-                    return;
-                };
-                if let Some(duration) = duration {
-                    self.shared.metrics().poll_duration(&device.name, duration);
-                }
-                let range = poll.read.range;
-                let answered = match outcome {
-                    Outcome::Response(response) => {
-                        self.store_poll(&device, &poll, response);
-                        self.device_stat(poll.device, |d| d.polls_ok += 1);
-                        true
-                    }
-                    Outcome::Exception(code) => {
-                        tracing::debug!(line = %self.settings.name, device = %device.name, ?code, ?range, "poll answered with an exception");
-                        self.image.set_quality(
-                            device.unit_id,
-                            poll.read.table,
-                            range.start,
-                            range.count,
-                            Quality::Rejected,
-                        );
-                        self.device_stat(poll.device, |d| {
-                            d.polls_exception += 1;
-                            d.last_exception = Some(u8::from(code));
-                        });
-                        true
-                    }
-                    Outcome::Broadcast => true,
-                    Outcome::Failed(_) => {
-                        self.device_stat(poll.device, |d| d.polls_failed += 1);
-                        false
-                    }
-                };
-                if answered {
-                    self.shared.metrics().device_up(&device.name, true);
-                    self.sched.heard(poll.device, reply_delay);
-                }
-                let transition = self.sched.poll_done(poll, answered, now);
-                self.publish_cycle(&poll);
-                self.apply(poll.device, answered, transition);
-            }
-            InFlight::Command {
-                device,
-                mut command,
-            } => {
-                // The read of a read-modify-write: the write follows at once, in the same job.
-                let registers32 = registers32::enabled(&self.settings.master);
-                if let (Some(update), Outcome::Response(Response::ReadHoldingRegisters(words))) =
-                    (command.mask, &outcome)
-                {
-                    if let Some(write) = registers32::bit_update_write(update, words, registers32) {
-                        command.mask = None;
-                        command.request = write;
-                        let engine_now = self.clock.to_engine(now);
-                        match registers32::submit(
-                            &mut self.master,
-                            registers32,
-                            engine_now,
-                            command.slave,
-                            command.request.clone(),
-                            Attempts::default(),
-                        ) {
-                            Ok(id) => {
-                                let span = Span::of(command.slave, &command.request, "command");
-                                self.submitted(id, InFlight::Command { device, command }, span);
-                            }
-                            Err(err) => {
-                                command.answer(Err(CommandError::Refused(err.to_string())));
-                            }
-                        }
-                        return;
-                    }
-                }
-                let result: CommandResult = match outcome {
-                    // The read of a read-modify-write answered, but not with one register: the
-                    // write is not made.
-                    Outcome::Response(_) if command.mask.is_some() => Err(CommandError::Refused(
-                        "the read of a read-modify-write did not return the register it asked for"
-                            .into(),
-                    )),
-                    Outcome::Response(response) => {
-                        if let Some(d) = device.and_then(|d| self.devices.get(d)) {
-                            refresh_image(&self.image, d.unit_id, request, &response);
-                        }
-                        Ok(Ok(registers32::narrow(&command.request, request, response)))
-                    }
-                    Outcome::Exception(code) => Ok(Err(code)),
-                    Outcome::Broadcast => broadcast_echo(request)
-                        .map(Ok)
-                        .ok_or_else(|| CommandError::Refused("broadcast of a read".into())),
-                    Outcome::Failed(event) => Err(CommandError::NoReply { slave, event }),
-                };
-                let answered = !matches!(result, Err(CommandError::NoReply { .. }));
-                if let Some(d) = device
-                    .and_then(|d| self.devices.get(d))
-                    .filter(|_| answered)
-                {
-                    self.shared.metrics().device_up(&d.name, true);
-                }
-                self.shared.update(|s| {
-                    if answered {
-                        s.commands_answered += 1;
-                    } else {
-                        s.commands_failed += 1;
-                    }
+            InFlight::Scan(scan) => self.complete_scan(scan, done),
+            InFlight::Poll(poll, riders) => self.complete_poll(poll, riders, done, duration),
+            InFlight::Command { device, command } => self.complete_command(device, command, done),
+        }
+    }
+
+    /// A communication scanner exchange ended: its words into the image, the device's state.
+    fn complete_scan(&mut self, scan: ScanJob, done: Done<'_>) {
+        let Done {
+            request,
+            outcome,
+            reply_delay,
+            now,
+            ..
+        } = done;
+        let answered = matches!(outcome, Outcome::Response(_) | Outcome::Exception(_));
+        let exception = match &outcome {
+            Outcome::Exception(code) => Some(u8::from(*code)),
+            _ => None,
+        };
+        let response = match outcome {
+            Outcome::Response(response) => Some(response),
+            _ => None,
+        };
+        if let Some(device) = self.devices.get(scan.device).cloned() {
+            if !answered {
+                self.device_stat(scan.device, |d| d.polls_failed += 1);
+            } else if response.is_none() {
+                tracing::debug!(line = %self.settings.name, device = %device.name, ?request, "scanner request answered with an exception");
+                self.device_stat(scan.device, |d| {
+                    d.polls_exception += 1;
+                    d.last_exception = exception.or(d.last_exception);
                 });
-                if let Some(d) = device {
-                    if answered {
-                        self.device_stat(d, |s| s.last_answer = Some(SystemTime::now()));
-                        self.sched.heard(d, reply_delay);
-                    } else {
-                        self.device_stat(d, |s| s.commands_failed += 1);
-                    }
-                    // Only the device's own polls put it offline; a command without an answer
-                    // fails for its client alone.
-                    let transition = self.sched.command_done(d, answered, now);
-                    self.apply(d, answered, transition);
-                }
-                command.answer(result);
+            } else if self
+                .scanners
+                .done(scan, request, response.clone(), &self.image, now)
+            {
+                self.device_stat(scan.device, |d| {
+                    d.polls_ok += 1;
+                    d.last_answer = Some(SystemTime::now());
+                });
+                self.shared.metrics().image_updated(&device.name);
+            } else {
+                tracing::error!(line = %self.settings.name, device = %device.name, ?request, "scanner answer does not fit its request");
+            }
+            if response.is_none() {
+                self.scanners.postpone(scan, now);
+            }
+            if answered {
+                self.shared.metrics().device_up(&device.name, true);
+                self.sched.heard(scan.device, reply_delay);
             }
         }
+        let transition = self.sched.observe(scan.device, answered, now);
+        self.apply(scan.device, answered, transition);
+    }
+
+    /// A poll ended: the reads riding on it answered, its answer into the image, the device's
+    /// state; `duration` from its first frame written to its end.
+    fn complete_poll(
+        &mut self,
+        poll: PollJob,
+        riders: Vec<Command>,
+        done: Done<'_>,
+        duration: Option<std::time::Duration>,
+    ) {
+        let Done {
+            slave,
+            outcome,
+            reply_delay,
+            now,
+            ..
+        } = done;
+        for rider in riders {
+            let answer = rider_answer(&poll, &rider.request, slave, &outcome);
+            rider.answer(answer);
+        }
+        let Some(device) = self.devices.get(poll.device).cloned() else {
+            return;
+        };
+        if let Some(duration) = duration {
+            self.shared.metrics().poll_duration(&device.name, duration);
+        }
+        let range = poll.read.range;
+        let answered = match outcome {
+            Outcome::Response(response) => {
+                self.store_poll(&device, &poll, response);
+                self.device_stat(poll.device, |d| d.polls_ok += 1);
+                true
+            }
+            Outcome::Exception(code) => {
+                tracing::debug!(line = %self.settings.name, device = %device.name, ?code, ?range, "poll answered with an exception");
+                self.image.set_quality(
+                    device.unit_id,
+                    poll.read.table,
+                    range.start,
+                    range.count,
+                    Quality::Rejected,
+                );
+                self.device_stat(poll.device, |d| {
+                    d.polls_exception += 1;
+                    d.last_exception = Some(u8::from(code));
+                });
+                true
+            }
+            Outcome::Broadcast => true,
+            Outcome::Failed(_) => {
+                self.device_stat(poll.device, |d| d.polls_failed += 1);
+                false
+            }
+        };
+        if answered {
+            self.shared.metrics().device_up(&device.name, true);
+            self.sched.heard(poll.device, reply_delay);
+        }
+        let transition = self.sched.poll_done(poll, answered, now);
+        self.publish_cycle(&poll);
+        self.apply(poll.device, answered, transition);
+    }
+
+    /// A command ended: the write of a read-modify-write follows its read, anything else is
+    /// answered to its client, the image refreshed after a confirmed write.
+    fn complete_command(&mut self, device: Option<usize>, command: Command, done: Done<'_>) {
+        let command = match self.read_modify_write(device, command, &done) {
+            Ok(()) => return,
+            Err(command) => command,
+        };
+        let Done {
+            slave,
+            request,
+            outcome,
+            reply_delay,
+            now,
+        } = done;
+        let result: CommandResult = match outcome {
+            // The read of a read-modify-write answered, but not with one register: the
+            // write is not made.
+            Outcome::Response(_) if command.mask.is_some() => Err(CommandError::Refused(
+                "the read of a read-modify-write did not return the register it asked for".into(),
+            )),
+            Outcome::Response(response) => {
+                if let Some(d) = device.and_then(|d| self.devices.get(d)) {
+                    refresh_image(&self.image, d.unit_id, request, &response);
+                }
+                Ok(Ok(registers32::narrow(&command.request, request, response)))
+            }
+            Outcome::Exception(code) => Ok(Err(code)),
+            Outcome::Broadcast => broadcast_echo(request)
+                .map(Ok)
+                .ok_or_else(|| CommandError::Refused("broadcast of a read".into())),
+            Outcome::Failed(event) => Err(CommandError::NoReply { slave, event }),
+        };
+        let answered = !matches!(result, Err(CommandError::NoReply { .. }));
+        if let Some(d) = device
+            .and_then(|d| self.devices.get(d))
+            .filter(|_| answered)
+        {
+            self.shared.metrics().device_up(&d.name, true);
+        }
+        self.shared.update(|s| {
+            if answered {
+                s.commands_answered += 1;
+            } else {
+                s.commands_failed += 1;
+            }
+        });
+        if let Some(d) = device {
+            if answered {
+                self.device_stat(d, |s| s.last_answer = Some(SystemTime::now()));
+                self.sched.heard(d, reply_delay);
+            } else {
+                self.device_stat(d, |s| s.commands_failed += 1);
+            }
+            // Only the device's own polls put it offline; a command without an answer
+            // fails for its client alone.
+            let transition = self.sched.command_done(d, answered, now);
+            self.apply(d, answered, transition);
+        }
+        command.answer(result);
+    }
+
+    /// The read of a read-modify-write answered with its register: the write follows at once,
+    /// in the same job (sent, or refused to the client). The command back when it is not such
+    /// a read.
+    fn read_modify_write(
+        &mut self,
+        device: Option<usize>,
+        mut command: Command,
+        done: &Done<'_>,
+    ) -> Result<(), Command> {
+        let registers32 = registers32::enabled(&self.settings.master);
+        let write = match (command.mask, &done.outcome) {
+            (Some(update), Outcome::Response(Response::ReadHoldingRegisters(words))) => {
+                registers32::bit_update_write(update, words, registers32)
+            }
+            _ => None,
+        };
+        let Some(write) = write else {
+            return Err(command);
+        };
+        command.mask = None;
+        command.request = write.clone();
+        let (slave, job) = (command.slave, InFlight::Command { device, command });
+        if let Err((job, err)) = self.submit(
+            done.now,
+            slave,
+            write,
+            Attempts::default(),
+            registers32,
+            job,
+        ) {
+            job.refused(&err);
+        }
+        Ok(())
     }
 
     fn device_stat(&self, index: usize, f: impl FnOnce(&mut DeviceStatus)) {

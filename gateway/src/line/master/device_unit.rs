@@ -14,9 +14,9 @@ use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 use proto_core::profiles::BitUpdate;
 
 use super::command::LineClient;
-use super::status::Shared;
 use super::{AddrRange, DeviceSettings};
 use crate::image::{ImageError, ProcessImage, Quality, Table};
+use crate::line::status::Shared;
 use crate::unit::{UnitFuture, UnitService};
 
 /// One polled device served under its unit id; cheap to clone.
@@ -87,6 +87,37 @@ impl Polled {
         at.checked_sub(1)
             .and_then(|i| intervals.get(i))
             .is_some_and(|&(_, end)| range.end() <= end)
+    }
+}
+
+/// How a read of polled addresses is answered: decided once ([`Source::of`]) for both ways the
+/// image answers (a [`Response`] for [`UnitService::call`], bytes for
+/// [`UnitService::answer_now`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Source {
+    /// From the image: the values are live and the device answers.
+    Image,
+    /// Not from the image: ask the device (the poll was answered with an exception, or the range
+    /// has not been read yet, and the device answers).
+    Device,
+    /// The device is offline or the value stale: exception 0x0B.
+    Fail,
+}
+
+// === impl Source ===
+
+impl Source {
+    /// The one freshness decision: what the image holds for the read (its quality, or why it has
+    /// none) and whether the device answers.
+    fn of(found: Result<Quality, &ImageError>, online: bool) -> Self {
+        match found {
+            Ok(quality) if online && quality.is_live() => Self::Image,
+            // The poll of this range was answered with an exception: let the device answer.
+            Ok(Quality::Rejected) if online => Self::Device,
+            // Polled but not read yet: ask the device unless it is known to be offline.
+            Err(ImageError::Missing { .. } | ImageError::UnknownUnit(_)) if online => Self::Device,
+            Ok(_) | Err(_) => Self::Fail,
+        }
     }
 }
 
@@ -168,16 +199,12 @@ impl DeviceUnit {
                     (response, quality)
                 })
         };
-        match read {
-            Ok((response, quality)) if online && quality.is_live() => ImageAnswer::Answer(response),
-            // The poll of this range was answered with an exception: let the device answer.
-            Ok((_, Quality::Rejected)) if online => ImageAnswer::OnDemand,
-            Ok(_) => ImageAnswer::Fail(ExceptionCode::GatewayTargetFailedToRespond),
-            // Polled but not read yet: ask the device unless it is known to be offline.
-            Err(ImageError::Missing { .. } | ImageError::UnknownUnit(_)) if online => {
-                ImageAnswer::OnDemand
+        match (Source::of(read.as_ref().map(|r| r.1), online), read) {
+            (Source::Image, Ok((response, _))) => ImageAnswer::Answer(response),
+            (Source::Device, _) => ImageAnswer::OnDemand,
+            (Source::Image | Source::Fail, _) => {
+                ImageAnswer::Fail(ExceptionCode::GatewayTargetFailedToRespond)
             }
-            Err(_) => ImageAnswer::Fail(ExceptionCode::GatewayTargetFailedToRespond),
         }
     }
 }
@@ -196,19 +223,18 @@ impl UnitService for DeviceUnit {
         let online = self.shared.device_online(self.index);
         let mark = out.len();
         out.push(request.function().0);
-        let answer =
-            match self
-                .image
-                .encode_read(self.device.unit_id, table, address, quantity, out)
-            {
-                Ok(quality) if online && quality.is_live() => return Some(Ok(())),
-                Ok(Quality::Rejected) if online => None,
-                Ok(_) => Some(Err(ExceptionCode::GatewayTargetFailedToRespond)),
-                Err(ImageError::Missing { .. } | ImageError::UnknownUnit(_)) if online => None,
-                // Past the address space or the byte count: `call` decides.
-                Err(ImageError::InvalidRange { .. }) => None,
-                Err(_) => Some(Err(ExceptionCode::GatewayTargetFailedToRespond)),
-            };
+        let found = self
+            .image
+            .encode_read(self.device.unit_id, table, address, quantity, out);
+        let answer = match found {
+            // Past the address space or the byte count of one answer: `call` decides.
+            Err(ImageError::InvalidRange { .. }) => None,
+            found => match Source::of(found.as_ref().copied(), online) {
+                Source::Image => return Some(Ok(())),
+                Source::Device => None,
+                Source::Fail => Some(Err(ExceptionCode::GatewayTargetFailedToRespond)),
+            },
+        };
         out.truncate(mark);
         answer
     }

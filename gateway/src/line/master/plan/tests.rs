@@ -128,31 +128,6 @@ proptest! {
 }
 
 #[test]
-fn device_settings_report_every_problem_at_once() {
-    use crate::line::{DeviceSettings, PollGroup};
-    let mut d = DeviceSettings::new("atv", 2, 2);
-    d.limits = DeviceLimits::ALTIVAR;
-    d.groups = vec![PollGroup {
-        period: Duration::from_millis(100),
-        table: Table::HoldingRegisters,
-        ranges: vec![r(3201, 1)],
-    }];
-    assert!(d.validate().is_empty(), "{:?}", d.validate());
-    d.slave = 0;
-    d.limits.max_read_regs = 200;
-    d.groups.push(PollGroup {
-        period: Duration::ZERO,
-        table: Table::Coils,
-        ranges: vec![r(65535, 2), r(1, 0)],
-    });
-    d.backoff_max = Duration::from_millis(1);
-    let issues = d.validate();
-    assert_eq!(issues.len(), 6, "{issues:#?}");
-    assert!(issues[0].contains("slave address 0"));
-    assert!(issues[1].contains("max_read_regs 200 is outside 1..127"));
-}
-
-#[test]
 fn groups_of_one_table_and_period_merge_and_other_periods_stay_apart() {
     use crate::line::{DeviceSettings, PollGroup};
     let fast = Duration::from_millis(100);
