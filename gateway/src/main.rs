@@ -72,6 +72,10 @@ enum Command {
         /// config's 127.0.0.1:8080.
         #[arg(long, value_name = "ADDR")]
         http: Option<SocketAddr>,
+        /// REST changes need the bearer token in this file (named `default`, role admin)
+        /// instead of being accepted without one.
+        #[arg(long, value_name = "FILE")]
+        token_file: Option<PathBuf>,
     },
     /// Run one simulated device on a serial port (a pty end, or a real port).
     Sim(gateway::sim::SimArgs),
@@ -147,6 +151,7 @@ async fn async_main(command: Command) -> ExitCode {
                     metrics: Some(metrics),
                     acknowledge_mailboxes: false,
                     hangups: Some(hangups),
+                    api_token_file: None,
                 };
                 gateway::app::run(cfg, overrides, shutdown).await
             }
@@ -165,6 +170,7 @@ async fn async_main(command: Command) -> ExitCode {
             telegram_every,
             paced,
             no_mailbox_consumer,
+            token_file,
         } => {
             let metrics = match metrics_registry() {
                 Ok(metrics) => metrics,
@@ -180,6 +186,7 @@ async fn async_main(command: Command) -> ExitCode {
                 metrics: Some(metrics),
                 acknowledge_mailboxes: !no_mailbox_consumer,
                 hangups: Some(hangups),
+                api_token_file: token_file,
             };
             gateway::app::demo(overrides, shutdown).await
         }

@@ -24,6 +24,11 @@ const PACED_DELAY_MULTIPLIER: u8 = 10;
 /// Runs the demo until `shutdown` is cancelled.
 pub async fn demo(overrides: Overrides, shutdown: CancellationToken) -> Result<(), AppError> {
     let mut config = config::demo();
+    // `--token-file`: changes need that token, as on a gateway in a plant.
+    if let Some(file) = &overrides.api_token_file {
+        config.http.token_file = Some(file.clone());
+        config.http.insecure_allow_unauthenticated_changes = false;
+    }
     // The gateway's ends of the pty pairs: kept open for the whole run so that the paths stay
     // valid while the gateway reopens them.
     let mut keep = Vec::new();
