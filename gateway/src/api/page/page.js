@@ -153,7 +153,7 @@
     try {
       res = await fetch(API + path, { method, headers, body, cache: 'no-store' });
     } catch (e) {
-      return { ok: false, status: 0, reason: `no answer from the gateway (${e.message})` };
+      return { ok: false, status: 0, reason: e.message };
     }
     const text = await res.text();
     let json = null;
@@ -245,7 +245,7 @@
     const c = $('conn');
     c.hidden = ok;
     if (!ok) {
-      c.textContent = `No answer from the gateway (${why}): every value below is as of ${S.lastOk ? clock(S.lastOk) + ', ' + dur(Date.now() - S.lastOk) + ' ago' : 'never'}, stale.`;
+      c.textContent = `No answer from the gateway (${why || 'no status'}): every value below is as of ${S.lastOk ? clock(S.lastOk) + ', ' + dur(Date.now() - S.lastOk) + ' ago' : 'never'}, stale.`;
     }
   }
 
@@ -253,7 +253,12 @@
     const r = await api('GET', '/status');
     if (!r.ok || !r.json) { connection(false, r.reason); return false; }
     connection(true);
-    S.prev = S.status; S.prevAt = S.at; S.status = r.json; S.at = Date.now();
+    S.status = r.json; S.at = Date.now();
+    // Rates over the last 5 to 10 s of statuses: steady however the rounds are spaced.
+    S.hist = (S.hist || []).filter((h) => S.at - h.at < 10000);
+    S.hist.push({ at: S.at, status: r.json });
+    const base = S.hist.find((h) => S.at - h.at >= 5000) || S.hist[0];
+    S.prev = base.status; S.prevAt = base.at;
     const serverNow = Date.parse(r.json.started) + r.json.uptime_seconds * 1000;
     const skew = serverNow - Date.now();
     S.skew = Math.abs(skew) > 2000 ? skew : 0;
@@ -367,6 +372,8 @@
 
   function renderAll() {
     if (!S.status) return;
+    // The live view replaces the server's snapshot once it has something to show.
+    document.documentElement.classList.add('ready');
     renderHeader();
     renderProblems();
     renderFleet();
@@ -459,7 +466,7 @@
   }
 
   function rate(l, pick) {
-    if (!S.prev || !S.prevAt) return null;
+    if (!S.prev || !S.prevAt || S.at - S.prevAt < 900) return null;
     const p = S.prev.lines.find((x) => x.name === l.name);
     if (!p || p.started !== l.started) return null;
     const dt = (S.at - S.prevAt) / 1000;
@@ -784,13 +791,24 @@
   function frameRow(f) {
     const bad = !['ok', 'control', 'raw'].includes(f.verdict);
     const row = el('tr', { tabindex: 0, cls: bad ? 'bad' : '', 'data-seq': f.seq, 'data-first-us': f.first_us, 'data-dir': f.direction, 'data-verdict': f.verdict,
-      onclick: () => openDetail(f, row), onkeydown: (ev) => { if (ev.key === 'Enter' || ev.key === ' ') { ev.preventDefault(); openDetail(f, row); } } },
+      onclick: () => openDetail(f, row), onkeydown: (ev) => frameKey(ev, f, row) },
     el('td', { cls: 'num' }, clock(f.first_us / 1000)), el('td', {}, f.direction), el('td', { cls: 'num' }, `${f.length} B`),
     el('td', { cls: 'hex' }, spaced(f.bytes, 12)), el('td', { cls: bad ? 'bad' : '' }, f.verdict),
     el('td', { cls: 'sum' }, f.summary, f.errors.length ? ` · line errors: ${f.errors.map((e) => `${e.error} before byte ${e.offset}`).join(', ')}` : ''));
     row.frame = f;
     row.hidden = !frameVisible(f);
     return row;
+  }
+
+  /** Enter or Space opens a frame; the arrow keys move to the next or previous frame shown. */
+  function frameKey(ev, f, row) {
+    if (ev.key === 'Enter' || ev.key === ' ') { ev.preventDefault(); openDetail(f, row); return; }
+    const step = { ArrowDown: 'nextElementSibling', ArrowUp: 'previousElementSibling' }[ev.key];
+    if (!step) return;
+    ev.preventDefault();
+    let next = row[step];
+    while (next && next.hidden) next = next[step];
+    if (next) next.focus();
   }
 
   function addFrames(frames) {
