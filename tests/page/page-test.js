@@ -63,8 +63,9 @@ async function main() {
   page.on('console', (m) => {
     if (m.type() !== 'error') return;
     // The browser reports every 4xx answer in the console; the refusals this test provokes
-    // (a write with a wrong token, a configuration with a mistake) are expected.
-    if (/Failed to load resource: the server responded with a status of (401|422)/.test(m.text())) expectedRefusals.push(m.text());
+    // (a write with a wrong token, a configuration with a mistake, an edit of an older version) are
+    // expected.
+    if (/Failed to load resource: the server responded with a status of (401|412|422)/.test(m.text())) expectedRefusals.push(m.text());
     else consoleErrors.push(m.text());
   });
   page.on('pageerror', (e) => consoleErrors.push(`uncaught: ${e.message}`));
@@ -224,6 +225,44 @@ async function main() {
     check(after.headers.get('etag') === etag, 'the configuration changed');
     check((await rest('/lines/drive')).json.started === started, 'the drive line was restarted');
     log(`configuration: "${issue.trim()}" shown, Apply disabled, the ETag ${etag} and the line unchanged`);
+  }
+
+  // 6b. A valid one-line edit, applied with If-Match: refused (412) when the configuration changed
+  //     since the page loaded it, applied after loading it again; only that line restarts.
+  {
+    const ascii = (await rest('/lines/ascii')).json.started;
+    await page.selectOption('#cfg-scope', 'r3964');
+    const edit = async () => {
+      const t = await page.inputValue('#cfg-text');
+      check(/^\[lines\.r3964\]/.test(t) && /baud = 9600/.test(t), `the r3964 part: ${t.slice(0, 200)}`);
+      await page.fill('#cfg-text', t.replace('baud = 9600', 'baud = 19200'));
+      await page.locator('#cfg-validate').click();
+      await until(5000, () => page.locator('#cfg-apply').isEnabled(), 'Apply after a valid validation');
+    };
+    await edit();
+    // Someone else changes the configuration meanwhile (a key that only a restart applies).
+    const toml = (await rest('/config', { headers: { Accept: 'application/toml' } })).json;
+    const other = await rest('/config', { method: 'PUT', headers: { Authorization: `Bearer ${TOKEN}`, 'Content-Type': 'application/toml' }, body: toml.replace('[http]\n', '[http]\nbody_limit = 2097152\n') });
+    check(other.status === 200, `the other change: ${other.status} ${JSON.stringify(other.json)}`);
+    await page.locator('#cfg-apply').click();
+    const stale = await until(5000, async () => {
+      const t = await page.locator('#cfg-state').textContent();
+      return /changed since it was loaded/.test(t) && t;
+    }, 'the refusal of an edit of an older version');
+    check((await rest('/config/lines/r3964')).json.baud === 9600, 'the refused edit changed r3964');
+    await page.locator('#cfg-load').click();
+    await until(5000, async () => (await page.inputValue('#cfg-text')).includes('baud = 9600'), 'the newer version loaded');
+    await edit();
+    await page.locator('#cfg-apply').click();
+    const applied = await until(15000, async () => {
+      const t = await page.locator('#cfg-state').textContent();
+      return /^applied/.test(t) && t;
+    }, 'the edit applied');
+    check(/lines restarted: r3964/.test(applied), `applied: ${applied}`);
+    const after = (await rest('/config')).json;
+    check(after.lines.r3964.baud === 19200 && after.http.body_limit === 2097152, `after the edit: r3964 ${after.lines.r3964.baud}, body_limit ${after.http.body_limit}`);
+    check((await rest('/lines/ascii')).json.started === ascii, 'another line was restarted');
+    log(`configuration: an edit of an older version is refused ("${stale}"); after Load: "${applied}", the other change kept`);
   }
 
   // 7. Phone width: nothing wider than the screen but the tables' own scroll boxes.

@@ -9,7 +9,9 @@
 //! keyboard, pause; a tag write refused visibly without the token (read-only, and the server's
 //! 401 for a wrong one) and reaching the simulated drive with it (read back by a later poll); a
 //! configuration edit with a mistake shown at its path with nothing changed (same ETag, the line
-//! not restarted); the phone width; that no request leaves 127.0.0.1, no script error reaches
+//! not restarted); a valid one-line edit refused (412) when the configuration changed since the
+//! page loaded it and applied with `If-Match` after loading it again, restarting only that line;
+//! the phone width; that no request leaves 127.0.0.1, no script error reaches
 //! the console and at most 4 requests run at once. It saves a screenshot under
 //! `target/page/` (CI artifact); with `PAGE_README_SCREENSHOT=1` also `docs/page.png`, the
 //! README's picture.
