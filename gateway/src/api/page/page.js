@@ -554,26 +554,42 @@
     return t.unit ? `${v} ${t.unit}` : v;
   }
 
+  /** A tag's row: its write field stays while the other cells are updated in place. */
   function tagRow(t) {
     const key = `${t.line}/${t.device}/${t.tag}`;
-    const age = t.timestamp ? dur(now() - Date.parse(t.timestamp)) : '';
-    const offline = !!S.failing;
-    const q = offline ? `stale (no answer from the gateway), ${age}` : `${QUALITY[t.quality] || t.quality}${age ? ', ' + age : ''}`;
-    const good = (t.quality === 'good' || t.quality === 'unknown') && !offline;
-    const res = S.results[key];
     let write = '';
     if (t.writable) {
-      write = el('form', { cls: 'inline', 'data-tag': key, onsubmit: (ev) => { ev.preventDefault(); writeTag(t, ev.target); } },
+      write = el('form', { cls: 'inline', 'data-tag': key, onsubmit: (ev) => { ev.preventDefault(); writeTag(row.tag, ev.target); } },
         el('label', { cls: 'sr', for: `w-${key}` }, `new value of ${t.tag}`),
         el('input', { id: `w-${key}`, name: 'value', 'data-k': `in-${key}`, size: 8, autocomplete: 'off' }),
         el('button', { type: 'submit', 'data-change': true, 'data-k': `wr-${key}` }, 'Write'));
     }
-    return el('tr', { cls: good ? '' : 'stale', 'data-tag': key, 'data-ts': t.timestamp || '' },
+    const row = el('tr', { 'data-tag': key },
       el('th', { scope: 'row', cls: 'mono' }, t.tag),
-      el('td', { cls: 'num value' }, showValue(t)),
-      el('td', { cls: `quality ${t.quality === 'unknown' ? 'muted' : good ? 'ok' : 'warn'}` }, good ? q : `⚠ ${q}`),
-      el('td', { cls: 'hide-narrow' }, spark(key)),
-      el('td', {}, write, res ? el('span', { cls: `result ${res.ok ? 'ok' : 'refused'}`, role: 'status' }, res.text) : ''));
+      el('td', { cls: 'num value' }), el('td', { cls: 'quality' }), el('td', { cls: 'hide-narrow trend' }),
+      el('td', {}, write, el('span', { cls: 'result', role: 'status' })));
+    updateTagRow(row, t);
+    return row;
+  }
+
+  function updateTagRow(row, t) {
+    const key = `${t.line}/${t.device}/${t.tag}`;
+    row.tag = t;
+    const age = t.timestamp ? dur(now() - Date.parse(t.timestamp)) : '';
+    const offline = !!S.failing;
+    const q = offline ? `stale (no answer from the gateway), ${age}` : `${QUALITY[t.quality] || t.quality}${age ? ', ' + age : ''}`;
+    const good = (t.quality === 'good' || t.quality === 'unknown') && !offline;
+    row.className = good ? '' : 'stale';
+    row.setAttribute('data-ts', t.timestamp || '');
+    row.querySelector('td.value').textContent = showValue(t);
+    const qc = row.querySelector('td.quality');
+    qc.className = `quality ${t.quality === 'unknown' ? 'muted' : good ? 'ok' : 'warn'}`;
+    qc.textContent = good ? q : `⚠ ${q}`;
+    row.querySelector('td.trend').replaceChildren(spark(key));
+    const res = S.results[key];
+    const r = row.querySelector('span.result');
+    r.className = `result${res ? (res.ok ? ' ok' : ' refused') : ''}`;
+    r.textContent = res ? res.text : '';
   }
 
   function tagTable(tags) {
@@ -582,6 +598,29 @@
       el('tbody', {}, tags.map(tagRow))));
   }
 
+  /** What a device's block shows: whether open, and which tags are read and which are not. */
+  const shape = (tags, isOpen) => `${isOpen}|${tags.map((t) => `${t.tag}:${t.quality === 'unknown' ? 'u' : 'r'}`).join(',')}`;
+
+  function tagGroup(k, tags, isOpen) {
+    const read = tags.filter((t) => t.quality !== 'unknown').length;
+    const d = el('details', { cls: 'dev', 'data-dev': k, 'data-shape': shape(tags, isOpen), open: isOpen },
+      el('summary', { 'data-k': `sum-${k}` }, el('h3', { cls: 'sr' }, k), `${k} `,
+        el('span', { cls: 'muted' }, `${plural(tags.length, 'tag')}, ${read} read`)),
+      isOpen ? tagTable(tags.filter((t) => t.quality !== 'unknown')) : '',
+      isOpen && read < tags.length ? el('details', { cls: 'unread', open: S.unreadOpen.has(k), ontoggle: (ev) => { if (ev.target.open) S.unreadOpen.add(k); else S.unreadOpen.delete(k); } },
+        el('summary', { 'data-k': `unread-${k}` }, `${plural(tags.length - read, 'tag')} that no poll reads (never read; a write or a GET of the tag reads it)`),
+        tagTable(tags.filter((t) => t.quality === 'unknown'))) : '');
+    d.addEventListener('toggle', () => {
+      if (d.open === isOpen) return;
+      const list = [...document.querySelectorAll('#tags details.dev')].filter((x) => x.open).map((x) => x.getAttribute('data-dev'));
+      setUrl('dev', list.join(',') || '-');
+      if (d.open) S.kick = true;
+      renderTags();
+    });
+    return d;
+  }
+
+  /** Rebuilds only what changed shape; otherwise updates the rows in place (typing is never disturbed). */
   function renderTags() {
     const body = $('tags').querySelector('.body');
     const open = openDevices();
@@ -591,26 +630,28 @@
       if (!groups.has(k)) groups.set(k, []);
       groups.get(k).push(t);
     }
-    const blocks = [...groups.entries()].map(([k, tags]) => {
-      const isOpen = open.has(k);
-      const read = tags.filter((t) => t.quality !== 'unknown').length;
-      const d = el('details', { cls: 'dev', 'data-dev': k, open: isOpen },
-        el('summary', { 'data-k': `sum-${k}` }, el('h3', { cls: 'sr' }, k), `${k} `,
-          el('span', { cls: 'muted' }, `${plural(tags.length, 'tag')}, ${read} read`)),
-        isOpen ? tagTable(tags.filter((t) => t.quality !== 'unknown')) : '',
-        isOpen && read < tags.length ? el('details', { cls: 'unread', open: S.unreadOpen.has(k), ontoggle: (ev) => { if (ev.target.open) S.unreadOpen.add(k); else S.unreadOpen.delete(k); } },
-          el('summary', { 'data-k': `unread-${k}` }, `${plural(tags.length - read, 'tag')} that no poll reads (never read; a write or a GET of the tag reads it)`),
-          tagTable(tags.filter((t) => t.quality === 'unknown'))) : '');
-      d.addEventListener('toggle', () => {
-        if (d.open === open.has(k)) return;
-        const list = [...document.querySelectorAll('#tags details.dev')].filter((x) => x.open).map((x) => x.getAttribute('data-dev'));
-        setUrl('dev', list.join(',') || '-');
-        if (d.open) { S.kick = true; renderTags(); }
-      });
-      return d;
-    });
-    swap(body, blocks.length ? blocks : el('p', { cls: 'muted' }, 'No tag.'));
+    const old = new Map([...body.querySelectorAll(':scope > details.dev')].map((d) => [d.getAttribute('data-dev'), d]));
     setCount('tags', S.tags.length);
+    if ([...groups.keys()].join('\n') !== [...old.keys()].join('\n')) {
+      swap(body, groups.size ? [...groups.entries()].map(([k, tags]) => tagGroup(k, tags, open.has(k))) : el('p', { cls: 'muted' }, 'No tag.'));
+      return;
+    }
+    for (const [k, tags] of groups) {
+      const d = old.get(k);
+      if (d.getAttribute('data-shape') !== shape(tags, open.has(k))) {
+        const focused = d.contains(document.activeElement) ? document.activeElement.getAttribute('data-k') : null;
+        const fresh = tagGroup(k, tags, open.has(k));
+        d.replaceWith(fresh);
+        const again = focused && fresh.querySelector(`[data-k="${CSS.escape(focused)}"]`);
+        if (again) again.focus();
+        continue;
+      }
+      if (!open.has(k)) continue;
+      for (const t of tags) {
+        const row = d.querySelector(`tr[data-tag="${CSS.escape(`${t.line}/${t.device}/${t.tag}`)}"]`);
+        if (row) updateTagRow(row, t);
+      }
+    }
   }
 
   function parseValue(t, text) {
@@ -648,7 +689,8 @@
     const lines = S.status.lines.filter(isTelegramLine);
     const det = $('mailboxes');
     setCount('mailboxes', lines.length);
-    if (!det.open) return;
+    // Not while a telegram is being typed: the list follows when the field is left.
+    if (!det.open || (det.contains(document.activeElement) && document.activeElement.tagName === 'INPUT')) return;
     const blocks = lines.map((l) => {
       const q = S.tele[l.name];
       const res = S.results[`tele/${l.name}`];
