@@ -168,7 +168,7 @@ async function main() {
     await page.press('#token', 'Enter');
     await accRow.locator('input').fill(String(target));
     await accRow.locator('button').click();
-    const refused = await until(5000, async () => {
+    const refused = await until(15000, async () => {
       const t = await accRow.locator('.result').textContent().catch(() => '');
       return /^refused/.test(t) && t;
     }, 'the refusal of a wrong token on screen');
@@ -186,7 +186,7 @@ async function main() {
     check(stored === 1, 'the token is not kept in sessionStorage');
     await accRow.locator('input').fill(String(target));
     await accRow.locator('button').click();
-    const ok = await until(5000, async () => {
+    const ok = await until(15000, async () => {
       const t = await accRow.locator('.result').textContent().catch(() => '');
       return /^written/.test(t) && t;
     }, 'the write confirmed on screen');
@@ -206,16 +206,18 @@ async function main() {
     const etag = before.headers.get('etag');
     const started = (await rest('/lines/drive')).json.started;
     await page.locator('#config summary').click();
-    await until(5000, async () => (await page.inputValue('#cfg-text')).includes('[lines.'), 'the configuration loaded');
+    await until(15000, async () => (await page.inputValue('#cfg-text')).includes('[lines.'), 'the configuration loaded');
     await page.selectOption('#cfg-scope', 'drive');
     const text = await page.inputValue('#cfg-text');
     check(/^\[lines\.drive\]/.test(text) && !text.includes('[lines.ksvario]'), `the drive's part: ${text.slice(0, 200)}`);
     await page.fill('#cfg-text', text.replace(/parity = "even"/, 'parity = "sometimes"'));
     await page.locator('#cfg-validate').click();
-    const issue = await until(5000, async () => {
+    const issue = await until(15000, async () => {
       const t = await page.locator('#cfg-issues').textContent();
       return t.includes('lines.drive.parity') && t;
-    }, 'the problem at lines.drive.parity');
+    }, 'the problem at lines.drive.parity').catch(async (e) => {
+      fail(`${e.message}; the page says "${await page.locator('#cfg-state').textContent()}", issues "${await page.locator('#cfg-issues').textContent()}"`);
+    });
     check(await page.locator('#cfg-apply').isDisabled(), 'Apply is possible after a failed validation');
     check(/nothing changed/.test(await page.locator('#cfg-state').textContent()), 'the page does not say that nothing changed');
     await page.locator('#cfg-issues button').first().click();
@@ -237,7 +239,7 @@ async function main() {
       check(/^\[lines\.r3964\]/.test(t) && /baud = 9600/.test(t), `the r3964 part: ${t.slice(0, 200)}`);
       await page.fill('#cfg-text', t.replace('baud = 9600', 'baud = 19200'));
       await page.locator('#cfg-validate').click();
-      await until(5000, () => page.locator('#cfg-apply').isEnabled(), 'Apply after a valid validation');
+      await until(15000, () => page.locator('#cfg-apply').isEnabled(), 'Apply after a valid validation');
     };
     await edit();
     // Someone else changes the configuration meanwhile (a key that only a restart applies).
@@ -245,16 +247,16 @@ async function main() {
     const other = await rest('/config', { method: 'PUT', headers: { Authorization: `Bearer ${TOKEN}`, 'Content-Type': 'application/toml' }, body: toml.replace('[http]\n', '[http]\nbody_limit = 2097152\n') });
     check(other.status === 200, `the other change: ${other.status} ${JSON.stringify(other.json)}`);
     await page.locator('#cfg-apply').click();
-    const stale = await until(5000, async () => {
+    const stale = await until(15000, async () => {
       const t = await page.locator('#cfg-state').textContent();
       return /changed since it was loaded/.test(t) && t;
     }, 'the refusal of an edit of an older version');
     check((await rest('/config/lines/r3964')).json.baud === 9600, 'the refused edit changed r3964');
     await page.locator('#cfg-load').click();
-    await until(5000, async () => (await page.inputValue('#cfg-text')).includes('baud = 9600'), 'the newer version loaded');
+    await until(15000, async () => (await page.inputValue('#cfg-text')).includes('baud = 9600'), 'the newer version loaded');
     await edit();
     await page.locator('#cfg-apply').click();
-    const applied = await until(15000, async () => {
+    const applied = await until(30000, async () => {
       const t = await page.locator('#cfg-state').textContent();
       return /^applied/.test(t) && t;
     }, 'the edit applied');
