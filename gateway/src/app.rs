@@ -78,6 +78,9 @@ pub struct Overrides {
     /// The SIGHUP counter of [`handle_signals`]: every SIGHUP re-reads `config_file` and the TLS
     /// files; `None`: no reload on SIGHUP (a gateway run inside another program).
     pub hangups: Option<Hangups>,
+    /// `gateway demo --token-file`: REST changes need the token in this file (role admin)
+    /// instead of being open to anyone.
+    pub api_token_file: Option<PathBuf>,
 }
 
 /// The number of SIGHUPs received, raised by [`handle_signals`]; [`run`] reloads on every rise

@@ -76,6 +76,10 @@ enum Command {
         /// can share one zenoh fabric.
         #[arg(long, value_name = "NAME")]
         name: Option<String>,
+        /// REST changes need the bearer token in this file (named `default`, role admin)
+        /// instead of being accepted without one.
+        #[arg(long, value_name = "FILE")]
+        token_file: Option<PathBuf>,
     },
     /// Run one simulated device on a serial port (a pty end, or a real port).
     Sim(gateway::sim::SimArgs),
@@ -254,6 +258,7 @@ async fn async_main(command: Command) -> ExitCode {
                     metrics: Some(metrics),
                     acknowledge_mailboxes: false,
                     hangups: Some(hangups),
+                    api_token_file: None,
                 };
                 gateway::app::run(cfg, overrides, shutdown).await
             }
@@ -273,6 +278,7 @@ async fn async_main(command: Command) -> ExitCode {
             paced,
             no_mailbox_consumer,
             name,
+            token_file,
         } => {
             let metrics = match metrics_registry() {
                 Ok(metrics) => metrics,
@@ -288,6 +294,7 @@ async fn async_main(command: Command) -> ExitCode {
                 metrics: Some(metrics),
                 acknowledge_mailboxes: !no_mailbox_consumer,
                 hangups: Some(hangups),
+                api_token_file: token_file,
             };
             gateway::app::demo_named(name, overrides, shutdown).await
         }

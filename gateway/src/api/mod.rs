@@ -2,6 +2,7 @@
 //! at `/api/v1/openapi.json`.
 //!
 //! ```text
+//! GET    /                                               the status page ([`page`])
 //! GET    /healthz                                        alive
 //! GET    /readyz                                         ready (lines opened, Modbus TCP, zenoh)
 //! GET    /api/v1/openapi.json                            this API, generated from the code
@@ -49,6 +50,7 @@ mod io;
 pub mod metrics;
 pub mod model;
 mod openapi;
+pub mod page;
 pub mod places;
 mod server;
 pub mod tls;
@@ -460,6 +462,8 @@ pub fn router(state: ApiState) -> Router {
         Some(extra) => routes.merge(extra.with_state::<ApiState>(())),
         None => routes,
     };
+    // The status page at `/` ([`page`]), outside the OpenAPI document: it uses the API.
+    let routes = routes.merge(page::routes());
     routes
         .fallback(no_route)
         .method_not_allowed_fallback(method_not_allowed)

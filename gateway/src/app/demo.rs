@@ -39,6 +39,11 @@ pub async fn demo_named(
             .map_err(|e| AppError::Setup(format!("--name: {e}")))?;
         config.gateway.name = name;
     }
+    // `--token-file`: changes need that token, as on a gateway in a plant.
+    if let Some(file) = &overrides.api_token_file {
+        config.http.token_file = Some(file.clone());
+        config.http.insecure_allow_unauthenticated_changes = false;
+    }
     // The gateway's ends of the pty pairs: kept open for the whole run so that the paths stay
     // valid while the gateway reopens them.
     let mut keep = Vec::new();
