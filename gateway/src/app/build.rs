@@ -13,7 +13,7 @@ use crate::image::Table;
 use crate::line::telegram::Tap3964LineSettings;
 use crate::line::{
     AddrRange, DeviceLimits, DeviceSettings, LineSettings, PollGroup, ProbeSettings,
-    ScannerSettings, TapLineSettings,
+    ScannerSettings, TapLineSettings, TransparentSettings,
 };
 use crate::modbus_tcp::{WriteRange, WriteTable};
 use crate::serial::{self, PortSettings};
@@ -98,6 +98,7 @@ pub(crate) fn master_line(
         _ => return None,
     };
     settings.master = master;
+    settings.transparent = config::transparent_units(line).map(TransparentSettings::new);
     settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
     let devices = devices
         .iter()

@@ -20,7 +20,9 @@
 //!   from its own reply delay, every n-th probe the full reply monitoring time);
 //! - `command`: the bounded command queue and the error-to-exception mapping;
 //! - `writeback`: the image refresh after a confirmed write, the broadcast echo;
-//! - `device_unit`: a polled device as a Modbus TCP unit.
+//! - `device_unit`: a polled device as a Modbus TCP unit;
+//! - `transparent`: unit ids nobody claims forwarded to the slave of the same address, with the
+//!   dead-device rules per address.
 //!
 //! Shared by every line:
 //! - `status`: diagnostic buffer, event counters, STATUS word, device states;
@@ -50,6 +52,7 @@ mod status;
 pub mod telegram;
 #[cfg(test)]
 mod testing;
+mod transparent;
 mod writeback;
 
 use std::time::Duration;
@@ -73,6 +76,7 @@ pub use runtime::{
 };
 pub use scanner::{ScannerSettings, SCANNER_WORDS};
 pub use status::{DeviceStatus, LineEvent, LineStatus, DEFAULT_DIAG_DEPTH};
+pub use transparent::{TransparentSettings, TransparentUnit};
 
 use crate::config::{
     DEFAULT_COMMANDS_IN_ROW, DEFAULT_OFFLINE_AFTER, DEFAULT_OFFLINE_BACKOFF_MAX,
@@ -127,6 +131,8 @@ pub struct LineSettings {
     /// While a poll is due, at most this many commands go in a row (the fairness rule of the
     /// bus, see `scheduler`).
     pub commands_in_row: u32,
+    /// Transparent forwarding of unit ids nobody claims (`None`: off; see `transparent`).
+    pub transparent: Option<TransparentSettings>,
 }
 
 // === impl LineSettings ===
@@ -151,6 +157,7 @@ impl LineSettings {
             command_deadline: None,
             metrics: None,
             commands_in_row: DEFAULT_COMMANDS_IN_ROW,
+            transparent: None,
         }
     }
 

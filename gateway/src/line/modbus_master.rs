@@ -30,6 +30,7 @@ use super::runtime::{
 use super::scanner::{ScanJob, Scanners};
 use super::scheduler::{cycle_bound, Job, PollJob, ReadKey, Scheduler, Transition};
 use super::status::{DeviceStatus, PollCycle, Shared};
+use super::transparent::{self, Forwarded, Gate, TransparentSettings};
 use super::writeback::{broadcast_echo, refresh_image};
 use super::{AddrRange, DeviceSettings, LineSettings};
 use crate::image::{ProcessImage, Quality, Table};
@@ -96,6 +97,7 @@ fn spawn_on<O: PortOpener>(
         shared: Arc::clone(&shared),
         devices: devices.clone(),
         image: image.clone(),
+        transparent: settings.transparent.clone(),
     };
     let engine = MasterLine::new(settings, devices, image, shared, clock);
     runtime::spawn(core, engine, Some(rx), Arc::new(caps), opener, shutdown)
@@ -108,6 +110,8 @@ struct MasterCapabilities {
     shared: Arc<Shared>,
     devices: Vec<Arc<DeviceSettings>>,
     image: ProcessImage,
+    /// Unit ids forwarded to the slave of the same address (`transparent`).
+    transparent: Option<TransparentSettings>,
 }
 
 impl LineCapabilities for MasterCapabilities {
@@ -159,6 +163,14 @@ impl LineHandle {
             .unwrap_or_default()
     }
 
+    /// The unit ids a transparent Modbus master line forwards, each with its service; the unit
+    /// map takes them only where no declared unit holds the id.
+    pub fn transparent_units(&self) -> Vec<(u8, Arc<dyn UnitService>)> {
+        self.capability::<MasterCapabilities>()
+            .map(|c| transparent::units(c.transparent.as_ref(), &c.client))
+            .unwrap_or_default()
+    }
+
     /// The device named `name` of a Modbus master line as a Modbus TCP unit.
     pub fn device_unit(&self, name: &str) -> Option<DeviceUnit> {
         self.device_units()
@@ -176,6 +188,8 @@ struct MasterLine {
     shared: Arc<Shared>,
     clock: Clock,
     sched: Scheduler<Command>,
+    /// The dead-device rules of the forwarded addresses (`transparent`).
+    forwarded: Forwarded,
     scanners: Scanners,
     master: Master,
     inflight: Option<(RequestId, InFlight)>,
@@ -359,6 +373,7 @@ impl MasterLine {
         let sched = Scheduler::new(devices.iter().map(|d| &**d), clock.base())
             .with_commands_in_row(settings.commands_in_row);
         let scanners = Scanners::new(devices.iter().map(|d| &**d), clock.base());
+        let forwarded = Forwarded::new(settings.transparent.clone());
         let master = Master::new(settings.master);
         let n = devices.len();
         let line = Self {
@@ -368,6 +383,7 @@ impl MasterLine {
             shared,
             clock,
             sched,
+            forwarded,
             scanners,
             master,
             inflight: None,
@@ -554,6 +570,19 @@ impl MasterLine {
                         command.answer(Err(CommandError::Offline(slave)));
                         continue;
                     }
+                    // A forwarded address keeps the dead-device rules of its own.
+                    let gate = device
+                        .is_none()
+                        .then(|| {
+                            self.forwarded
+                                .gate(command.slave, now, &self.settings.master)
+                        })
+                        .flatten();
+                    if gate == Some(Gate::Offline) {
+                        let slave = command.slave;
+                        command.answer(Err(CommandError::Offline(slave)));
+                        continue;
+                    }
                     let registers32 = registers32::enabled(&self.settings.master);
                     if let (Some(update), true) = (command.mask, registers32) {
                         // The bit's register is half of a 32-bit register of the slave: the
@@ -568,7 +597,10 @@ impl MasterLine {
                     }
                     .unwrap_or_else(|| command.request.clone());
                     let span = Span::of(command.slave, &request, "command");
-                    let attempts = Attempts::default();
+                    let attempts = match gate {
+                        Some(Gate::Send(attempts)) => attempts,
+                        _ => Attempts::default(),
+                    };
                     match registers32::submit(
                         &mut self.master,
                         registers32,
@@ -883,6 +915,9 @@ impl MasterLine {
                     // fails for its client alone.
                     let transition = self.sched.command_done(d, answered, now);
                     self.apply(d, answered, transition);
+                } else {
+                    let transition = self.forwarded.done(slave, answered, reply_delay, now);
+                    transparent::log_transition(&self.settings.name, slave, transition);
                 }
                 command.answer(result);
             }
