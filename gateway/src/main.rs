@@ -1,4 +1,4 @@
-//! `gateway`: run, demo, sim, check.
+//! `gateway`: run, demo, sim, check, scan.
 //!
 //! A thin main (linkerd2-proxy order): parse the command line, set up logging, load and validate
 //! the config (exit 64 before any port is opened when it is wrong), create the Prometheus registry
@@ -81,11 +81,18 @@ enum Command {
         #[arg(long, short)]
         config: PathBuf,
     },
+    /// Find the slave addresses that answer on a serial bus, with their identity (FC 43/14,
+    /// FC 17).
+    Scan(gateway::scan::ScanArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    gateway::app::init_logging();
+    if matches!(cli.command, Command::Scan(_)) {
+        gateway::scan::init_logging();
+    } else {
+        gateway::app::init_logging();
+    }
     let runtime = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -189,6 +196,20 @@ async fn async_main(command: Command) -> ExitCode {
             gateway::sim::run(args, shutdown)
                 .await
                 .map_err(gateway::app::AppError::from)
+        }
+        Command::Scan(args) => {
+            drop(hangups);
+            return match gateway::scan::run(args, shutdown).await {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e @ gateway::scan::ScanError::Usage(_)) => {
+                    eprintln!("gateway scan: {e}");
+                    ExitCode::from(EX_USAGE)
+                }
+                Err(e) => {
+                    eprintln!("gateway scan: {e}");
+                    ExitCode::FAILURE
+                }
+            };
         }
         Command::Check { config } => {
             return match gateway::app::check_command(&config) {
