@@ -25,7 +25,7 @@ use tokio_util::sync::CancellationToken;
 
 use crate::config::REPLY_TIMEOUT_RANGE;
 use crate::image::ProcessImage;
-use crate::line::{self, CommandError, LineClient, LineSettings};
+use crate::line::{self, CommandError, LineClient, LineSettings, QueueError};
 use crate::serial::{self, OpenError, PortSettings, StopBits};
 use crate::sim::Parity;
 
@@ -184,7 +184,7 @@ pub async fn run(args: ScanArgs, shutdown: CancellationToken) -> Result<(), Scan
     let mut settings = LineSettings::rtu("scan", port);
     settings.master.reply_timeout = args.timeout;
     settings.master.retries = 0;
-    settings.queue_depth = 1;
+    settings.queue_depth = 2;
     let line_stop = CancellationToken::new();
     let handle = line::spawn_modbus_master_line(
         settings,
@@ -295,8 +295,14 @@ enum Asked {
 }
 
 async fn ask(client: &LineClient, address: u8, request: Request) -> Asked {
-    let Ok(rx) = client.try_submit(address, request) else {
-        return Asked::Lost;
+    // One request at a time; the previous one's place in the queue is freed just after its
+    // answer arrives, so a full queue is a moment to wait, a closed one the end.
+    let rx = loop {
+        match client.try_submit(address, request.clone()) {
+            Ok(rx) => break rx,
+            Err(QueueError::Full) => tokio::time::sleep(Duration::from_millis(1)).await,
+            Err(QueueError::Closed) => return Asked::Lost,
+        }
     };
     match rx.await {
         Ok(Ok(Ok(response))) => Asked::Answer(response),

@@ -158,8 +158,13 @@ address = 2
         ),
     )
     .expect("write config");
-    let mut gw = Gateway::run(&cfg);
-    gw.wait_for("port open", std::time::Duration::from_secs(10));
+    let gw = Gateway::run(&cfg);
+    // Its log (stderr, read by another thread than the announcement) says the port is open.
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(10);
+    while !gw.output().contains("port open") {
+        assert!(std::time::Instant::now() < deadline, "{}", gw.output());
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
 
     let out = scan(&link.a, &[]);
     let stderr = String::from_utf8_lossy(&out.stderr).into_owned();
