@@ -16,7 +16,7 @@
 //! so.
 
 use std::fmt::Write as _;
-use std::io::IsTerminal as _;
+use std::io::{IsTerminal as _, Write as _};
 use std::time::Duration;
 
 use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
@@ -196,13 +196,16 @@ pub async fn run(args: ScanArgs, shutdown: CancellationToken) -> Result<(), Scan
     line_stop.cancel();
     handle.join().await;
     let found = result?;
+    // A closed stdout (`| head`) ends the output quietly: what was found is printed or not.
+    let mut out = std::io::stdout().lock();
     if args.toml {
-        print!("{}", toml_document(&args, &found));
+        let _ = write!(out, "{}", toml_document(&args, &found));
     } else {
         for f in &found {
-            println!("{}", describe(f));
+            let _ = writeln!(out, "{}", describe(f));
         }
     }
+    let _ = out.flush();
     Ok(())
 }
 
