@@ -1239,4 +1239,63 @@ mod tests {
         shutdown.cancel();
         line.join().await;
     }
+
+    #[tokio::test]
+    async fn a_silent_forwarded_address_is_answered_0b_at_once_while_it_is_offline() {
+        let (port, mut device) = tokio::io::duplex(256);
+        let mut settings = LineSettings::rtu("bus", PortSettings::new("/dev/in-process", 19200));
+        settings.master.reply_timeout = Duration::from_millis(50);
+        let mut transparent = TransparentSettings::new(5..=5);
+        transparent.offline_after = 2;
+        transparent.backoff_min = Duration::from_secs(30);
+        transparent.backoff_max = Duration::from_secs(30);
+        settings.transparent = Some(transparent);
+        let shutdown = CancellationToken::new();
+        let line = spawn_on(
+            settings,
+            Vec::new(),
+            ProcessImage::default(),
+            shutdown.clone(),
+            OnePort(Mutex::new(Some(port))),
+        );
+        let units = line.transparent_units();
+        assert_eq!(units.iter().map(|(id, _)| *id).collect::<Vec<_>>(), [5]);
+        let unit = Arc::clone(&units[0].1);
+        let read = Request::ReadHoldingRegisters {
+            address: 0,
+            quantity: 1,
+        };
+
+        // Two requests reach the bus and get no reply: 0B after the reply monitoring time, and
+        // the address is offline.
+        for _ in 0..2 {
+            let answer = tokio::spawn(unit.call(read.clone()));
+            let req = request(&mut device).await;
+            assert_eq!(req.get(..2), Some(&[5, 3][..]));
+            assert_eq!(
+                answer.await.expect("join"),
+                Err(proto_core::modbus::pdu::ExceptionCode::GatewayTargetFailedToRespond)
+            );
+        }
+        // Within its back-off the next one is answered at once and nothing goes to the bus.
+        let started = Instant::now();
+        assert_eq!(
+            unit.call(read.clone()).await,
+            Err(proto_core::modbus::pdu::ExceptionCode::GatewayTargetFailedToRespond)
+        );
+        assert!(
+            started.elapsed() < Duration::from_millis(50),
+            "{:?}",
+            started.elapsed()
+        );
+        let mut byte = [0u8; 1];
+        assert!(
+            tokio::time::timeout(Duration::from_millis(150), device.read_exact(&mut byte))
+                .await
+                .is_err(),
+            "a request of an offline forwarded address reached the bus"
+        );
+        shutdown.cancel();
+        line.join().await;
+    }
 }
