@@ -13,6 +13,8 @@
 //! - closed loop: a closed-loop FC 06 writer and a closed-loop on-demand reader against one
 //!   polled device while a third client reads its cached values: cached reads answered, the
 //!   oldest cached value and the achieved poll cycle against the group's bound (`closed`);
+//! - transparent forwarding: a declared device's poll rate with and without two clients hammering
+//!   a forwarded unit on the same line, and the cached reads answered meanwhile (`transparent`);
 //! - zenoh: serial frame end to subscriber p99, sustained samples/s (`process`, real binary);
 //! - resident memory with 4 lines, 32 devices, 10 000 points (`process`, real binary);
 //! - zenoh bounds: log lines and counted refusals of a flood of refused puts, resident memory
@@ -41,6 +43,7 @@ mod tap;
 mod tcp;
 mod telegram;
 mod tls;
+mod transparent;
 mod zenoh_bounds;
 
 use std::path::PathBuf;
@@ -94,6 +97,8 @@ enum Group {
     Write,
     /// A closed-loop writer and on-demand reader beside a cached reader.
     Closed,
+    /// A declared device's poll rate while a client hammers a transparently forwarded unit.
+    Transparent,
     /// zenoh latency and throughput.
     Zenoh,
     /// Resident memory.
@@ -290,6 +295,13 @@ async fn run(args: &Args) -> Vec<Row> {
         match closed::closed_loop(&plan).await {
             Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
             Err(e) => push(&mut rows, failed("closed loop", e)),
+        }
+    }
+    if wanted(Group::Transparent) {
+        eprintln!("a forwarded unit hammered beside a declared device's polls");
+        match transparent::transparent(&plan).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(&mut rows, failed("transparent", e)),
         }
     }
     if wanted(Group::Zenoh) {

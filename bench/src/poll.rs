@@ -79,6 +79,17 @@ pub(crate) async fn rig(
     devices: Vec<DeviceSettings>,
     reply_timeout: Option<Duration>,
 ) -> std::io::Result<Rig> {
+    rig_with(baud, device, devices, reply_timeout, |_| {}).await
+}
+
+/// [`rig`] with the line's settings changed by `tune` before it starts.
+pub(crate) async fn rig_with(
+    baud: u32,
+    device: impl ModbusDevice + 'static,
+    devices: Vec<DeviceSettings>,
+    reply_timeout: Option<Duration>,
+    tune: impl FnOnce(&mut LineSettings),
+) -> std::io::Result<Rig> {
     let shutdown = CancellationToken::new();
     let settings = PacedSettings::from_frame(baud, 8, true, 1);
     let (link, _relay) = paced::paced_duplex(settings, None, shutdown.clone())?;
@@ -99,6 +110,7 @@ pub(crate) async fn rig(
     if let Some(timeout) = reply_timeout {
         line.master.reply_timeout = timeout;
     }
+    tune(&mut line);
     let image = ProcessImage::new(ImageConfig::default());
     let line = spawn_modbus_master_line(line, devices, image.clone(), shutdown.clone());
     Ok(Rig {

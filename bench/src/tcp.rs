@@ -51,6 +51,12 @@ async fn serve_gateway_over(
     for (id, unit) in line.device_units() {
         units.insert(id, Arc::new(unit));
     }
+    // As the gateway's unit map: forwarded unit ids only where no device holds them.
+    for (id, unit) in line.transparent_units() {
+        if units.get(id).is_none() {
+            units.insert(id, unit);
+        }
+    }
     let listener = modbus_tcp::bind(SocketAddr::from(([127, 0, 0, 1], 0)))?;
     let addr = listener.local_addr()?;
     let options = ServerOptions {

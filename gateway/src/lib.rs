@@ -39,6 +39,7 @@ pub mod metrics;
 pub mod modbus_tcp;
 pub mod paced;
 pub mod persist;
+pub mod scan;
 pub mod serial;
 pub mod signals;
 pub mod sim;

@@ -1,4 +1,4 @@
-//! `gateway`: run, demo, sim, check, fleet.
+//! `gateway`: run, demo, sim, check, fleet, tags, scan.
 //!
 //! A thin main (linkerd2-proxy order): parse the command line, set up logging, load and validate
 //! the config (exit 64 before any port is opened when it is wrong), create the Prometheus registry
@@ -95,6 +95,9 @@ enum Command {
     /// A device's (or a template's) tag list as CSV: export it, or import one into the file.
     #[command(subcommand)]
     Tags(TagsCommand),
+    /// Find the slave addresses that answer on a serial bus, with their identity (FC 43/14,
+    /// FC 17).
+    Scan(gateway::scan::ScanArgs),
 }
 
 /// `gateway tags export | import`.
@@ -196,7 +199,11 @@ nothing written"
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    gateway::app::init_logging();
+    if matches!(cli.command, Command::Scan(_)) {
+        gateway::scan::init_logging();
+    } else {
+        gateway::app::init_logging();
+    }
     let runtime = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
         .build()
@@ -310,6 +317,20 @@ async fn async_main(command: Command) -> ExitCode {
             return ExitCode::from(gateway::zenoh_bridge::fleet_cli::run(command, shutdown).await);
         }
         Command::Tags(command) => return tags_command(&command),
+        Command::Scan(args) => {
+            drop(hangups);
+            return match gateway::scan::run(args, shutdown).await {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e @ gateway::scan::ScanError::Usage(_)) => {
+                    eprintln!("gateway scan: {e}");
+                    ExitCode::from(EX_USAGE)
+                }
+                Err(e) => {
+                    eprintln!("gateway scan: {e}");
+                    ExitCode::FAILURE
+                }
+            };
+        }
         Command::Check { config } => {
             return match gateway::app::check_command(&config) {
                 0 => ExitCode::SUCCESS,

@@ -630,7 +630,8 @@ async fn stop_line(name: &str, line: RunningLine) {
 }
 
 /// The unit map of `lines`, with the diagnostic unit when `config` sets one (the validation
-/// keeps its unit id apart from the lines').
+/// keeps its unit id apart from the lines'), and the transparent lines' forwarded unit ids that
+/// remain free.
 fn unit_map(
     lines: &BTreeMap<String, RunningLine>,
     config: &Config,
@@ -648,6 +649,14 @@ fn unit_map(
             unit,
             Arc::new(modbus_tcp::DiagnosticUnit::new(handles, image.clone())),
         );
+    }
+    // Transparent forwarding takes only the unit ids nobody else holds: a declared unit wins.
+    for line in lines.values() {
+        for (unit, service) in line.handle.transparent_units() {
+            if map.get(unit).is_none() {
+                map.insert(unit, service);
+            }
+        }
     }
     map
 }

@@ -47,6 +47,9 @@ pub const MASTER_ASCII_CHARACTER_DELAY_RANGE: (Duration, Duration) =
     (Duration::from_millis(1), Duration::from_millis(6500));
 /// 003 6.4.2.2 "with 32-Bit Register ... deactivated".
 pub const DEFAULT_REGISTERS32: bool = false;
+/// `transparent_units` by default: every address a slave may have (Modbus over Serial Line
+/// V1.02, 2.2: 1..247).
+pub const DEFAULT_TRANSPARENT_UNITS: (u8, u8) = (1, 247);
 
 /// 003 6.4.5.1 "Slave address ... Range of values: 1 ... 255", default 222.
 pub const DEFAULT_SLAVE_ADDRESS: u8 = 222;
@@ -98,6 +101,9 @@ pub struct ModbusMasterRtuConfig {
     pub turnaround_delay: Duration,
     /// At most this many commands in a row while a poll is due.
     pub commands_in_row: u32,
+    /// Modbus TCP requests for unit ids nobody claims go to the slave of the same address.
+    #[serde(flatten)]
+    pub transparent: Transparent,
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub devices: BTreeMap<String, DeviceConfig>,
 }
@@ -118,8 +124,87 @@ pub struct ModbusMasterAsciiConfig {
     pub retries: u8,
     /// At most this many commands in a row while a poll is due.
     pub commands_in_row: u32,
+    /// Modbus TCP requests for unit ids nobody claims go to the slave of the same address.
+    #[serde(flatten)]
+    pub transparent: Transparent,
     #[serde(skip_serializing_if = "BTreeMap::is_empty")]
     pub devices: BTreeMap<String, DeviceConfig>,
+}
+
+/// Transparent forwarding of a Modbus master line (`transparent`, `transparent_units`): a Modbus
+/// TCP request for a unit id that no device or unit of the gateway claims goes, on demand, to the
+/// slave address of the same number on this line (as mbusd or a Moxa MGate forward).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct Transparent {
+    /// Forwarding on.
+    #[serde(rename = "transparent", skip_serializing_if = "std::ops::Not::not")]
+    pub enabled: bool,
+    /// The unit ids forwarded, `[FROM, TO]`.
+    #[serde(
+        rename = "transparent_units",
+        skip_serializing_if = "Transparent::default_units"
+    )]
+    pub units: (u8, u8),
+}
+
+impl Default for Transparent {
+    fn default() -> Self {
+        Self {
+            enabled: false,
+            units: DEFAULT_TRANSPARENT_UNITS,
+        }
+    }
+}
+
+// === impl Transparent ===
+
+impl Transparent {
+    fn default_units(units: &(u8, u8)) -> bool {
+        *units == DEFAULT_TRANSPARENT_UNITS
+    }
+
+    /// The unit ids forwarded, if forwarding is on.
+    pub fn range(&self) -> Option<std::ops::RangeInclusive<u8>> {
+        self.enabled.then_some(self.units.0..=self.units.1)
+    }
+
+    fn read(cx: &mut Cx, f: &mut Fields<'_>) -> Self {
+        const CITE: &str = "Modbus over Serial Line V1.02 2.2";
+        let enabled = f.bool_or(cx, "transparent", false);
+        let path = f.at("transparent_units");
+        let mut units = DEFAULT_TRANSPARENT_UNITS;
+        if let Some(v) = f.raw("transparent_units") {
+            let (lo, hi) = DEFAULT_TRANSPARENT_UNITS;
+            match v.as_array().map(Vec::as_slice) {
+                Some([from, to]) => {
+                    let from =
+                        super::reader::int_value(cx, from, &format!("{path}[0]"), lo..=hi, CITE);
+                    let to = super::reader::int_value(cx, to, &format!("{path}[1]"), lo..=hi, CITE);
+                    if let (Some(from), Some(to)) = (from, to) {
+                        if from > to {
+                            cx.issue(
+                                path.clone(),
+                                format!("[FROM, TO] with FROM <= TO, found [{from}, {to}]"),
+                            );
+                        } else {
+                            units = (from, to);
+                        }
+                    }
+                }
+                _ => cx.issue(
+                    path.clone(),
+                    "expected [FROM, TO], two unit ids within 1..=247",
+                ),
+            }
+            if !enabled {
+                cx.issue(
+                    path,
+                    "has no effect without transparent = true on this line",
+                );
+            }
+        }
+        Self { enabled, units }
+    }
 }
 
 /// One area of the bit-addressed CP memory: Modbus bit addresses `start..start+count` map to the
@@ -261,6 +346,7 @@ impl ModbusMasterRtuConfig {
                 "003 6.4.2.2",
             ),
             commands_in_row: commands_in_row(cx, f),
+            transparent: Transparent::read(cx, f),
             devices: read_devices(cx, f),
         }
     }
@@ -290,6 +376,7 @@ impl ModbusMasterAsciiConfig {
             registers32: f.bool_or(cx, "registers32", DEFAULT_REGISTERS32),
             retries: f.int_or(cx, "retries", 0..=MAX_RETRIES, DEFAULT_RETRIES, ""),
             commands_in_row: commands_in_row(cx, f),
+            transparent: Transparent::read(cx, f),
             devices: read_devices(cx, f),
         }
     }
@@ -397,6 +484,10 @@ impl ProtocolSection for ModbusMasterRtuConfig {
         check_rtu_data_bits(cx, path, serial);
     }
 
+    fn transparent_units(&self) -> Option<std::ops::RangeInclusive<u8>> {
+        self.transparent.range()
+    }
+
     fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
         Some(&self.devices)
     }
@@ -407,6 +498,10 @@ impl ProtocolSection for ModbusMasterRtuConfig {
 }
 
 impl ProtocolSection for ModbusMasterAsciiConfig {
+    fn transparent_units(&self) -> Option<std::ops::RangeInclusive<u8>> {
+        self.transparent.range()
+    }
+
     fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
         Some(&self.devices)
     }
@@ -501,4 +596,64 @@ fn check_areas(cx: &mut Cx, path: &str, areas: &[(&str, BitArea, bool)]) {
             }
         }
     }
+}
+
+// === transparent forwarding across lines ===
+
+/// The unit ids `line` forwards transparently (`transparent = true` on a Modbus master line).
+pub fn transparent_units(line: &super::LineConfig) -> Option<std::ops::RangeInclusive<u8>> {
+    line.protocol.section().transparent_units()
+}
+
+/// Two transparent lines may not claim the same unit id; where a device or unit of the gateway
+/// (`claimed`) holds the id, it wins and the overlap is harmless.
+pub(super) fn check_transparent(
+    cx: &mut Cx,
+    config: &super::Config,
+    claimed: &BTreeMap<u8, String>,
+) {
+    let transparent: Vec<(&String, std::ops::RangeInclusive<u8>)> = config
+        .lines
+        .iter()
+        .filter_map(|(name, line)| transparent_units(line).map(|units| (name, units)))
+        .collect();
+    for (i, (name, units)) in transparent.iter().enumerate() {
+        for (first, other) in transparent.iter().take(i) {
+            let shared: Vec<u8> = units
+                .clone()
+                .filter(|u| other.contains(u) && !claimed.contains_key(u))
+                .collect();
+            if !shared.is_empty() {
+                cx.issue(
+                    format!("lines.{name}.transparent_units"),
+                    format!(
+                        "unit ids {} are forwarded by lines.{first} too: two transparent lines \
+                         may not claim the same unit id (narrow transparent_units)",
+                        show_ids(&shared)
+                    ),
+                );
+            }
+        }
+    }
+}
+
+/// Unit ids as runs: `1..=9, 11, 13..=247`.
+fn show_ids(ids: &[u8]) -> String {
+    let mut runs: Vec<(u8, u8)> = Vec::new();
+    for &id in ids {
+        match runs.last_mut() {
+            Some((_, last)) if last.checked_add(1) == Some(id) => *last = id,
+            _ => runs.push((id, id)),
+        }
+    }
+    runs.iter()
+        .map(|&(a, b)| {
+            if a == b {
+                a.to_string()
+            } else {
+                format!("{a}..={b}")
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
 }

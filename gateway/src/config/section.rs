@@ -36,6 +36,12 @@ pub(crate) trait ProtocolSection {
         None
     }
 
+    /// The unit ids the line forwards transparently (a Modbus master line with
+    /// `transparent = true`); `None` otherwise.
+    fn transparent_units(&self) -> Option<std::ops::RangeInclusive<u8>> {
+        None
+    }
+
     /// The Modbus TCP unit id of the line itself (slave memory or telegram mailbox).
     fn unit_id(&self) -> Option<u8> {
         None

@@ -82,6 +82,7 @@ pub(crate) fn check(cx: &mut Cx, config: &Config) {
             "modbus_tcp.diagnostic_unit",
         );
     }
+    super::modbus::check_transparent(cx, config, &units);
     for (i, r) in config.modbus_tcp.write_ranges.iter().enumerate() {
         if config.modbus_tcp.diagnostic_unit == Some(r.unit_id) {
             cx.issue(
@@ -91,7 +92,13 @@ pub(crate) fn check(cx: &mut Cx, config: &Config) {
                     r.unit_id
                 ),
             );
-        } else if !units.contains_key(&r.unit_id) {
+        } else if !units.contains_key(&r.unit_id)
+            && !config
+                .lines
+                .values()
+                .filter_map(super::modbus::transparent_units)
+                .any(|t| t.contains(&r.unit_id))
+        {
             cx.issue(
                 format!("modbus_tcp.write_ranges[{i}].unit_id"),
                 format!("no device or line is served as unit id {}", r.unit_id),

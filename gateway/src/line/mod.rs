@@ -47,6 +47,7 @@ pub use master::{
     LineSettings, PollGroup, ProbeSettings, QueueError, ReadBlock, ScannerSettings,
     PROBE_TIMEOUT_FACTOR, SCANNER_WORDS,
 };
+pub use master::{TransparentSettings, TransparentUnit};
 pub use modbus_slave::{spawn_modbus_slave_line, CpMemoryView, SlaveCounters, SlaveLineSettings};
 pub use modbus_tap::{spawn_modbus_tap_line, TapLineSettings, TAP_PROTOCOL};
 pub use monitor::{Frame, FrameMonitor, DEFAULT_MONITOR_FRAMES, MAX_MONITOR_FRAMES};

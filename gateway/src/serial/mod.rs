@@ -183,6 +183,13 @@ pub enum OpenError {
 // === impl OpenError ===
 
 impl OpenError {
+    /// Whether another process holds the port: the serial library opens exclusively (`TIOCEXCL`,
+    /// then an exclusive `flock`), and reports a port already held so (`EBUSY` from the open,
+    /// `EWOULDBLOCK` from the lock) as `NoDevice`. A running gateway holds its ports this way.
+    pub fn is_busy(&self) -> bool {
+        matches!(self, Self::Open { source, .. } if source.kind() == tokio_serial::ErrorKind::NoDevice)
+    }
+
     /// The device path.
     pub fn path(&self) -> &str {
         match self {
@@ -240,12 +247,11 @@ pub fn probe(settings: &PortSettings) -> Result<(), OpenError> {
 /// Why the port did not open: a device node that does not exist is [`OpenError::NotFound`]
 /// (said as such, not as the generic "invalid parameterization" of event 02 0Fh).
 fn open_error(settings: &PortSettings, source: tokio_serial::Error) -> OpenError {
-    let missing = matches!(source.kind(), tokio_serial::ErrorKind::NoDevice)
-        || matches!(
-            source.kind(),
-            tokio_serial::ErrorKind::Io(io::ErrorKind::NotFound)
-        )
-        || !std::path::Path::new(&settings.path).exists();
+    // NoDevice for a node that exists: another process holds the port (`OpenError::is_busy`).
+    let missing = matches!(
+        source.kind(),
+        tokio_serial::ErrorKind::Io(io::ErrorKind::NotFound)
+    ) || !std::path::Path::new(&settings.path).exists();
     if missing {
         OpenError::NotFound {
             path: settings.path.clone(),

@@ -16,7 +16,7 @@ use crate::image::Table;
 use crate::line::start::{port_settings, StartDeps, StartError, StartLine};
 use crate::line::{
     self, AddrRange, DeviceLimits, DeviceSettings, LineHandle, LineSettings, PollGroup,
-    ProbeSettings, ScannerSettings,
+    ProbeSettings, ScannerSettings, TransparentSettings,
 };
 
 // === impl StartLine for the master sections ===
@@ -71,6 +71,7 @@ fn rtu_line(
         mode: operating_mode(m.operating_mode),
     };
     settings.commands_in_row = m.commands_in_row;
+    settings.transparent = m.transparent.range().map(TransparentSettings::new);
     with_devices(settings, &m.devices, config)
 }
 
@@ -93,6 +94,7 @@ fn ascii_line(
         mode: operating_mode(m.operating_mode),
     };
     settings.commands_in_row = m.commands_in_row;
+    settings.transparent = m.transparent.range().map(TransparentSettings::new);
     with_devices(settings, &m.devices, config)
 }
 

@@ -24,6 +24,7 @@ use super::device_unit::DeviceUnit;
 use super::registers32;
 use super::scanner::{ScanJob, Scanners};
 use super::scheduler::{cycle_bound, Job, PollJob, ReadKey, Scheduler, Transition};
+use super::transparent::{self, Forwarded, Gate, TransparentSettings};
 use super::writeback::{broadcast_echo, refresh_image};
 use super::{AddrRange, DeviceSettings, LineSettings};
 use crate::image::{ProcessImage, Quality, Table};
@@ -131,6 +132,7 @@ fn spawn_on<O: PortOpener>(
         shared: Arc::clone(&shared),
         devices: devices.clone(),
         image: image.clone(),
+        transparent: settings.transparent.clone(),
     };
     let engine = MasterLine::new(settings, devices, image, shared, clock);
     runtime::spawn(core, engine, Some(rx), Arc::new(caps), opener, shutdown)
@@ -143,6 +145,8 @@ struct MasterCapabilities {
     shared: Arc<Shared>,
     devices: Vec<Arc<DeviceSettings>>,
     image: ProcessImage,
+    /// Unit ids forwarded to the slave of the same address (`transparent`).
+    transparent: Option<TransparentSettings>,
 }
 
 impl LineCapabilities for MasterCapabilities {
@@ -194,6 +198,14 @@ impl LineHandle {
             .unwrap_or_default()
     }
 
+    /// The unit ids a transparent Modbus master line forwards, each with its service; the unit
+    /// map takes them only where no declared unit holds the id.
+    pub fn transparent_units(&self) -> Vec<(u8, Arc<dyn UnitService>)> {
+        self.capability::<MasterCapabilities>()
+            .map(|c| transparent::units(c.transparent.as_ref(), &c.client))
+            .unwrap_or_default()
+    }
+
     /// The device named `name` of a Modbus master line as a Modbus TCP unit.
     pub fn device_unit(&self, name: &str) -> Option<DeviceUnit> {
         self.device_units()
@@ -211,6 +223,8 @@ struct MasterLine {
     shared: Arc<Shared>,
     clock: Clock,
     sched: Scheduler<Command>,
+    /// The dead-device rules of the forwarded addresses (`transparent`).
+    forwarded: Forwarded,
     scanners: Scanners,
     master: Master,
     inflight: Option<(RequestId, InFlight)>,
@@ -394,6 +408,7 @@ impl MasterLine {
         let sched = Scheduler::new(devices.iter().map(|d| &**d), clock.base())
             .with_commands_in_row(settings.commands_in_row);
         let scanners = Scanners::new(devices.iter().map(|d| &**d), clock.base());
+        let forwarded = Forwarded::new(settings.transparent.clone());
         let master = Master::new(settings.master);
         let n = devices.len();
         let line = Self {
@@ -403,6 +418,7 @@ impl MasterLine {
             shared,
             clock,
             sched,
+            forwarded,
             scanners,
             master,
             inflight: None,
@@ -619,6 +635,19 @@ impl MasterLine {
                         command.answer(Err(CommandError::Offline(slave)));
                         continue;
                     }
+                    // A forwarded address keeps the dead-device rules of its own.
+                    let gate = device
+                        .is_none()
+                        .then(|| {
+                            self.forwarded
+                                .gate(command.slave, now, &self.settings.master)
+                        })
+                        .flatten();
+                    if gate == Some(Gate::Offline) {
+                        let slave = command.slave;
+                        command.answer(Err(CommandError::Offline(slave)));
+                        continue;
+                    }
                     let registers32 = registers32::enabled(&self.settings.master);
                     if let (Some(update), true) = (command.mask, registers32) {
                         // The bit's register is half of a 32-bit register of the slave: the
@@ -633,8 +662,12 @@ impl MasterLine {
                     }
                     .unwrap_or_else(|| command.request.clone());
                     let slave = command.slave;
+                    let attempts = match gate {
+                        Some(Gate::Send(attempts)) => attempts,
+                        _ => Attempts::default(),
+                    };
                     let job = InFlight::Command { device, command };
-                    match self.submit(now, slave, request, Attempts::default(), registers32, job) {
+                    match self.submit(now, slave, request, attempts, registers32, job) {
                         Ok(()) => return,
                         Err((job, err)) => job.refused(&err),
                     }
@@ -950,6 +983,9 @@ impl MasterLine {
             // fails for its client alone.
             let transition = self.sched.command_done(d, answered, now);
             self.apply(d, answered, transition);
+        } else {
+            let transition = self.forwarded.done(slave, answered, reply_delay, now);
+            transparent::log_transition(&self.settings.name, slave, transition);
         }
         command.answer(result);
     }
@@ -1300,6 +1336,65 @@ mod tests {
         assert_eq!(
             line.status().event_counts.get(&ids::CHARACTER_ERROR),
             Some(&1)
+        );
+        shutdown.cancel();
+        line.join().await;
+    }
+
+    #[tokio::test]
+    async fn a_silent_forwarded_address_is_answered_0b_at_once_while_it_is_offline() {
+        let (port, mut device) = tokio::io::duplex(256);
+        let mut settings = LineSettings::rtu("bus", PortSettings::new("/dev/in-process", 19200));
+        settings.master.reply_timeout = Duration::from_millis(50);
+        let mut transparent = TransparentSettings::new(5..=5);
+        transparent.offline_after = 2;
+        transparent.backoff_min = Duration::from_secs(30);
+        transparent.backoff_max = Duration::from_secs(30);
+        settings.transparent = Some(transparent);
+        let shutdown = CancellationToken::new();
+        let line = spawn_on(
+            settings,
+            Vec::new(),
+            ProcessImage::default(),
+            shutdown.clone(),
+            OnePort(Mutex::new(Some(port))),
+        );
+        let units = line.transparent_units();
+        assert_eq!(units.iter().map(|(id, _)| *id).collect::<Vec<_>>(), [5]);
+        let unit = Arc::clone(&units[0].1);
+        let read = Request::ReadHoldingRegisters {
+            address: 0,
+            quantity: 1,
+        };
+
+        // Two requests reach the bus and get no reply: 0B after the reply monitoring time, and
+        // the address is offline.
+        for _ in 0..2 {
+            let answer = tokio::spawn(unit.call(read.clone()));
+            let req = request(&mut device).await;
+            assert_eq!(req.get(..2), Some(&[5, 3][..]));
+            assert_eq!(
+                answer.await.expect("join"),
+                Err(proto_core::modbus::pdu::ExceptionCode::GatewayTargetFailedToRespond)
+            );
+        }
+        // Within its back-off the next one is answered at once and nothing goes to the bus.
+        let started = Instant::now();
+        assert_eq!(
+            unit.call(read.clone()).await,
+            Err(proto_core::modbus::pdu::ExceptionCode::GatewayTargetFailedToRespond)
+        );
+        assert!(
+            started.elapsed() < Duration::from_millis(50),
+            "{:?}",
+            started.elapsed()
+        );
+        let mut byte = [0u8; 1];
+        assert!(
+            tokio::time::timeout(Duration::from_millis(150), device.read_exact(&mut byte))
+                .await
+                .is_err(),
+            "a request of an offline forwarded address reached the bus"
         );
         shutdown.cancel();
         line.join().await;

@@ -15,6 +15,8 @@
 //! - `device_unit`: a polled device as a Modbus TCP unit;
 //! - `registers32`: the gateway's side of 32-bit registers (limits, read-modify-write of a bit);
 //! - `settings`: the line's and its devices' settings;
+//! - `transparent`: unit ids nobody claims forwarded to the slave of the same address, with the
+//!   dead-device rules per address;
 //! - `build`: from the config's master sections (RTU and ASCII) to the line's settings and its
 //!   polled devices, and the start of the line.
 
@@ -28,6 +30,7 @@ mod registers32;
 mod scanner;
 mod scheduler;
 mod settings;
+mod transparent;
 mod writeback;
 
 pub use command::{
@@ -39,3 +42,4 @@ pub use plan::{merge_ranges, AddrRange, DeviceLimits, ReadBlock};
 pub use probe::{ProbeSettings, PROBE_TIMEOUT_FACTOR};
 pub use scanner::{ScannerSettings, SCANNER_WORDS};
 pub use settings::{DeviceSettings, LineSettings, PollGroup};
+pub use transparent::{TransparentSettings, TransparentUnit};

@@ -1,6 +1,7 @@
 //! The settings of a Modbus master line and its polled devices: what the line's config section
 //! becomes (the config checks them; these types hold them).
 
+use super::transparent::TransparentSettings;
 use std::time::Duration;
 
 use proto_core::modbus::master::{Framing, MasterConfig};
@@ -45,6 +46,8 @@ pub struct LineSettings {
     /// While a poll is due, at most this many commands go in a row (the fairness rule of the
     /// bus, see `scheduler`).
     pub commands_in_row: u32,
+    /// Transparent forwarding of unit ids nobody claims (`None`: off; see `transparent`).
+    pub transparent: Option<TransparentSettings>,
 }
 
 // === impl LineSettings ===
@@ -69,6 +72,7 @@ impl LineSettings {
             command_deadline: None,
             metrics: None,
             commands_in_row: DEFAULT_COMMANDS_IN_ROW,
+            transparent: None,
         }
     }
 
