@@ -66,7 +66,10 @@ async fn serve_gateway_over(
     // Counted into the Prometheus families as in the gateway binary, which always registers them.
     let metrics = MetricsRegistry::new().map_err(std::io::Error::other)?;
     let units = Arc::new(RwLock::new(units));
-    let stats = Arc::new(ServerStats::with_metrics(metrics.metrics));
+    let stats = Arc::new(ServerStats::with_metrics(
+        metrics.metrics.modbus_tcp().clone(),
+        metrics.metrics.audit().clone(),
+    ));
     match tls {
         None => {
             tokio::spawn(modbus_tcp::serve(listener, units, options, shutdown, stats));

@@ -17,7 +17,6 @@ use prometheus::{IntCounter, IntCounterVec, Opts, Registry};
 use tracing::info;
 
 use crate::log_limit::Limiter;
-use crate::metrics::Metrics;
 
 /// At most one audit line per source, path and result in this interval.
 pub const AUDIT_INTERVAL: Duration = Duration::from_secs(10);
@@ -28,7 +27,7 @@ static AUDIT_LOG: Limiter = Limiter::new(AUDIT_INTERVAL);
 /// Records one write: counted always, logged within the rate limit. The reason is the one the
 /// path gives every write of that result ([`WriteReason::of`]); [`record_reason`] names another.
 pub fn record(
-    metrics: Option<&Metrics>,
+    metrics: Option<&AuditMetrics>,
     path: WritePath,
     source: &dyn Display,
     target: &dyn Display,
@@ -48,7 +47,7 @@ pub fn record(
 
 /// [`record`] with the reason of the result (which check refused the write).
 pub fn record_reason(
-    metrics: Option<&Metrics>,
+    metrics: Option<&AuditMetrics>,
     path: WritePath,
     source: &dyn Display,
     target: &dyn Display,
@@ -57,7 +56,7 @@ pub fn record_reason(
     detail: &dyn Display,
 ) {
     if let Some(m) = metrics {
-        m.audit().write(path, result, reason);
+        m.write(path, result, reason);
     }
     let key = format!(
         "{}/{}/{}/{source}",

@@ -466,7 +466,7 @@ impl ApiBackend for RestBackend {
         detail: &dyn std::fmt::Display,
     ) {
         audit::record(
-            Some(&self.sup.exported.metrics),
+            Some(self.sup.exported.metrics.audit()),
             WritePath::Rest,
             caller,
             target,

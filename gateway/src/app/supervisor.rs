@@ -189,7 +189,10 @@ impl Supervisor {
             config,
             lines,
         };
-        let tcp_stats = Arc::new(ServerStats::with_metrics(exported.metrics.clone()));
+        let tcp_stats = Arc::new(ServerStats::with_metrics(
+            exported.metrics.modbus_tcp().clone(),
+            exported.metrics.audit().clone(),
+        ));
         let reload = super::reload_notice::Reload::new();
         let tls = super::tls::start(
             &snapshot.config.modbus_tcp,

@@ -126,7 +126,10 @@ async fn open(follower: &ZenohFollower, sup: &Arc<Supervisor>) -> Result<(), App
         &snapshot.config.gateway.name,
         Arc::new(backend),
         token.clone(),
-        BridgeStats::with_metrics(sup.exported.metrics.clone()),
+        BridgeStats::with_metrics(
+            sup.exported.metrics.zenoh().clone(),
+            sup.exported.metrics.audit().clone(),
+        ),
     )
     .await
     .map_err(|e| match e {
@@ -381,8 +384,11 @@ impl BridgeBackend for ZenohBackend {
 
 impl ZenohBackend {
     /// The Prometheus families, while the gateway runs.
-    fn metrics(&self) -> Option<crate::metrics::Metrics> {
-        self.sup.upgrade().map(|sup| sup.exported.metrics.clone())
+    /// The audit's family the bridge's commands are counted in (while the gateway runs).
+    fn metrics(&self) -> Option<crate::audit::AuditMetrics> {
+        self.sup
+            .upgrade()
+            .map(|sup| sup.exported.metrics.audit().clone())
     }
 
     /// The checked write of a JSON value, or why there is none (and which check refused it).

@@ -314,7 +314,7 @@ fn base(found: &Found) -> Option<toml::Table> {
 
 #[cfg(test)]
 mod tests {
-    use crate::config::{self, Config, ProtocolConfig};
+    use crate::config::{self, Config};
 
     const TEMPLATE: &str = "profile = \"generic\"\n\
         tags = [\n\
@@ -340,10 +340,11 @@ mod tests {
     }
 
     fn devices(c: &Config) -> &std::collections::BTreeMap<String, config::DeviceConfig> {
-        match &c.lines["m"].protocol {
-            ProtocolConfig::ModbusMasterRtu(m) => &m.devices,
-            _ => panic!("a master line"),
-        }
+        c.lines["m"]
+            .protocol
+            .section()
+            .devices()
+            .expect("a master line")
     }
 
     #[test]

@@ -139,7 +139,7 @@ fn audit_write(
         Err(code) => format!("exception {:02X}", u8::from(code)),
     };
     crate::audit::record(
-        shared.stats.metrics(),
+        shared.stats.audit(),
         path,
         &format_args!("{} role={}", peer.ip(), authority.label()),
         &format_args!("unit {unit} function {function:02X} address {address}"),

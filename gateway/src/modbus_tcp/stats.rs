@@ -14,8 +14,8 @@ use std::sync::{Arc, Mutex, OnceLock, PoisonError};
 
 use prometheus::{IntCounter, IntCounterVec, IntGauge, Opts, Registry};
 
+use crate::audit::AuditMetrics;
 use crate::metrics::labels::{function_index, function_label, function_label_at, FUNCTION_COUNT};
-use crate::metrics::Metrics;
 
 /// Why a connection was closed at accept.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -119,7 +119,7 @@ pub enum FrameReject {
 /// The answer a request got: [`RequestResult::Ok`] or [`RequestResult::Exception`] (the server
 /// answers a device that did not reply with exception 0Bh, so it never counts `Timeout` or
 /// `Error`).
-pub use crate::metrics::RequestResult;
+pub use crate::metrics::labels::RequestResult;
 
 /// One line of [`ServerStats::requests`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -300,8 +300,8 @@ pub struct ServerStats {
     refused: Mutex<BTreeMap<String, u64>>,
     handshakes_failed: AtomicU64,
     /// The Prometheus families the counts are mirrored into, if any (the server's own, and
-    /// the audit's through [`Self::metrics`]).
-    metrics: Option<Metrics>,
+    /// the audit's through [`Self::audit`]).
+    metrics: Option<(ServerMetrics, AuditMetrics)>,
     /// The request series of `metrics`, each looked up once.
     request_series: [[OnceLock<IntCounter>; RequestResult::COUNT]; FUNCTION_COUNT],
 }
@@ -314,10 +314,11 @@ impl ServerStats {
         Self::default()
     }
 
-    /// All counters at zero, every count also made in the Prometheus families of `metrics`.
-    pub fn with_metrics(metrics: Metrics) -> Self {
+    /// All counters at zero, every count also made in the server's Prometheus families, and
+    /// the writes in the audit's.
+    pub fn with_metrics(server: ServerMetrics, audit: AuditMetrics) -> Self {
         Self {
-            metrics: Some(metrics),
+            metrics: Some((server, audit)),
             ..Self::default()
         }
     }
@@ -392,13 +393,13 @@ impl ServerStats {
         self.handshakes_failed.load(Ordering::Relaxed)
     }
 
-    /// The Prometheus families the counts are mirrored into, if any.
-    pub(crate) fn metrics(&self) -> Option<&Metrics> {
-        self.metrics.as_ref()
+    /// The audit's Prometheus family the server's writes are counted in, if any.
+    pub(crate) fn audit(&self) -> Option<&AuditMetrics> {
+        self.metrics.as_ref().map(|(_, audit)| audit)
     }
 
     fn families(&self) -> Option<&ServerMetrics> {
-        self.metrics.as_ref().map(Metrics::modbus_tcp)
+        self.metrics.as_ref().map(|(server, _)| server)
     }
 
     pub(crate) fn count_refused(&self, role: &str) {
@@ -519,7 +520,8 @@ mod tests {
     fn counts_are_mirrored_into_the_prometheus_families() {
         let registry = Registry::new();
         let stats = Arc::new(ServerStats::with_metrics(
-            Metrics::register(&registry).expect("register"),
+            ServerMetrics::register(&registry).expect("register"),
+            AuditMetrics::register(&registry).expect("register"),
         ));
         let open = stats.count_accepted();
         stats.count_rejected(RejectReason::Limit);
@@ -565,7 +567,10 @@ mod tests {
     #[test]
     fn every_connection_end_is_counted_by_reason() {
         let registry = Registry::new();
-        let stats = ServerStats::with_metrics(Metrics::register(&registry).expect("register"));
+        let stats = ServerStats::with_metrics(
+            ServerMetrics::register(&registry).expect("register"),
+            AuditMetrics::register(&registry).expect("register"),
+        );
         stats.count_closed(CloseReason::Peer);
         stats.count_closed(CloseReason::Peer);
         stats.count_closed(CloseReason::Idle);

@@ -12,9 +12,9 @@
 
 use std::fmt::Display;
 
+use crate::audit::AuditMetrics;
 pub use crate::audit::WriteReason;
 use crate::audit::{self, WritePath, WriteResult};
-use crate::metrics::Metrics;
 
 /// The audit source of every write over zenoh (zenoh carries no client identity the gateway
 /// could trust).
@@ -24,7 +24,7 @@ pub const SOURCE: &str = "zenoh";
 /// (rate-limited). `target` names what it asked for (`drive/atv71/ACC = 5`, `r3964/tx (5
 /// bytes)`), `detail` why it was refused (the text its result carries).
 pub fn refused(
-    metrics: Option<&Metrics>,
+    metrics: Option<&AuditMetrics>,
     target: &dyn Display,
     reason: WriteReason,
     detail: &dyn Display,
@@ -42,7 +42,12 @@ pub fn refused(
 
 /// Records a command that was carried out: `ok` when the device or line took it, else it
 /// failed there (`detail` says how).
-pub fn finished(metrics: Option<&Metrics>, target: &dyn Display, ok: bool, detail: &dyn Display) {
+pub fn finished(
+    metrics: Option<&AuditMetrics>,
+    target: &dyn Display,
+    ok: bool,
+    detail: &dyn Display,
+) {
     let result = if ok {
         WriteResult::Accepted
     } else {
@@ -66,7 +71,7 @@ mod tests {
     #[test]
     fn every_refusal_is_counted_by_its_reason() {
         let registry = prometheus::Registry::new();
-        let metrics = Metrics::register(&registry).expect("register");
+        let metrics = AuditMetrics::register(&registry).expect("register");
         for _ in 0..1000 {
             refused(
                 Some(&metrics),

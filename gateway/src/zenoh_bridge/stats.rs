@@ -11,7 +11,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use prometheus::{IntCounterVec, Opts, Registry};
 
-use crate::metrics::Metrics;
+use crate::audit::AuditMetrics;
 
 /// What was published.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -307,7 +307,7 @@ pub struct BridgeStats {
     /// Tag values published again by a heartbeat.
     heartbeats: AtomicU64,
     /// The Prometheus families the counts are mirrored into, if any.
-    metrics: Option<Metrics>,
+    metrics: Option<(BridgeMetrics, AuditMetrics)>,
 }
 
 // === impl BridgeStats ===
@@ -320,9 +320,9 @@ impl BridgeStats {
 
     /// All counters at zero, every publication, reply and drop also counted in the Prometheus
     /// families of `metrics`.
-    pub fn with_metrics(metrics: Metrics) -> Self {
+    pub fn with_metrics(bridge: BridgeMetrics, audit: AuditMetrics) -> Self {
         Self {
-            metrics: Some(metrics),
+            metrics: Some((bridge, audit)),
             ..Self::default()
         }
     }
@@ -338,14 +338,14 @@ impl BridgeStats {
 
     pub(crate) fn published(&self, kind: PublicationKind) {
         self.publications[kind as usize].fetch_add(1, Ordering::Relaxed);
-        if let Some(m) = &self.metrics {
-            m.zenoh().published(kind);
+        if let Some((m, _)) = &self.metrics {
+            m.published(kind);
         }
     }
 
-    /// The Prometheus families the counts go to, if any (for the audit of commands).
-    pub fn metrics(&self) -> Option<&Metrics> {
-        self.metrics.as_ref()
+    /// The audit's Prometheus family the commands are counted in, if any.
+    pub fn audit(&self) -> Option<&AuditMetrics> {
+        self.metrics.as_ref().map(|(_, audit)| audit)
     }
 
     pub(crate) fn dropped(&self, reason: DropReason) {
@@ -355,8 +355,8 @@ impl BridgeStats {
     /// Counts `count` updates dropped for one reason.
     pub fn dropped_many(&self, reason: DropReason, count: u64) {
         self.drops[reason as usize].fetch_add(count, Ordering::Relaxed);
-        if let Some(m) = &self.metrics {
-            m.zenoh().dropped(reason, count);
+        if let Some((m, _)) = &self.metrics {
+            m.dropped(reason, count);
         }
     }
 
@@ -366,8 +366,8 @@ impl BridgeStats {
 
     pub(crate) fn query_served(&self) {
         self.queries.fetch_add(1, Ordering::Relaxed);
-        if let Some(m) = &self.metrics {
-            m.zenoh().replied();
+        if let Some((m, _)) = &self.metrics {
+            m.replied();
         }
     }
 
@@ -493,7 +493,10 @@ mod tests {
     #[test]
     fn counts_feed_the_prometheus_families() {
         let registry = Registry::new();
-        let s = BridgeStats::with_metrics(Metrics::register(&registry).expect("register"));
+        let s = BridgeStats::with_metrics(
+            BridgeMetrics::register(&registry).expect("register"),
+            AuditMetrics::register(&registry).expect("register"),
+        );
         s.published(PublicationKind::Tag);
         s.published(PublicationKind::SetResult);
         s.query_served();

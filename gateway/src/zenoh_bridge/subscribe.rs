@@ -272,7 +272,7 @@ impl Commands {
     /// Refuses `cmd`: counted and audited ([`accounting::refused`]), answered on its result key
     /// (and to its query) with `error`. Every command the bridge itself refuses ends here.
     pub(crate) fn refuse(&self, cmd: Command, reason: WriteReason, error: String) {
-        accounting::refused(self.stats.metrics(), &cmd.target(), reason, &error);
+        accounting::refused(self.stats.audit(), &cmd.target(), reason, &error);
         let outcome = if reason == WriteReason::QueueFull {
             CommandOutcome::Busy
         } else {
