@@ -73,7 +73,8 @@ pub use self::config::{
 };
 pub use self::job::JobError;
 pub use self::registers32::{
-    Request32, Response32, FC_READ_32, FC_WRITE_MULTIPLE_32, FC_WRITE_SINGLE_32, IMAGE_WORDS,
+    narrow, widen_read, Request32, Response32, FC_READ_32, FC_WRITE_MULTIPLE_32,
+    FC_WRITE_SINGLE_32, IMAGE_WORDS,
 };
 pub use self::types::{Attempts, MasterEvent, Outcome, RequestId, SubmitError};
 /// The UART errors every engine of the crate takes (003 7.2: 08 0Ch parity, stop bit and

@@ -659,9 +659,9 @@ impl MasterLine {
                         command.request = registers32::bit_update_read(update);
                     }
                     // An on-demand read of part of a 32-bit register reads the whole of it; the
-                    // client gets what it asked for (`registers32::narrow`).
+                    // client gets what it asked for (`narrow`).
                     let request = match (registers32, command.mask) {
-                        (true, None) => registers32::widen_read(&command.request),
+                        (true, None) => proto_core::modbus::master::widen_read(&command.request),
                         _ => None,
                     }
                     .unwrap_or_else(|| command.request.clone());
@@ -954,7 +954,11 @@ impl MasterLine {
                 if let Some(d) = device.and_then(|d| self.devices.get(d)) {
                     refresh_image(&self.image, d.unit_id, request, &response);
                 }
-                Ok(Ok(registers32::narrow(&command.request, request, response)))
+                Ok(Ok(proto_core::modbus::master::narrow(
+                    &command.request,
+                    request,
+                    response,
+                )))
             }
             Outcome::Exception(code) => Ok(Err(code)),
             Outcome::Broadcast => broadcast_echo(request)

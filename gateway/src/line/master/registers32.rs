@@ -24,10 +24,11 @@
 //! proto-core's master does the translation itself: on such a line it takes the 16-bit request,
 //! sends the 32-bit job and completes with the 16-bit request and answer
 //! (`Master::submit_with`). What stays here needs the line: the devices' limits, the
-//! read-modify-write of a bit and the widening of a client's read of half a register.
+//! read-modify-write of a bit (its `BitUpdate` is a profile's, which proto-core's modbus module does
+//! not know).
 
 use proto_core::modbus::master::IMAGE_WORDS;
-use proto_core::modbus::pdu::{Request, Response};
+use proto_core::modbus::pdu::Request;
 use proto_core::profiles::BitUpdate;
 
 use super::plan::DeviceLimits;
@@ -107,42 +108,6 @@ pub(crate) fn bit_update_write(
     }
 }
 
-/// A read of holding registers that starts or ends inside a 32-bit register of the slave, widened
-/// to the whole 32-bit registers it touches (a slave register cannot be read by halves, 003
-/// 6.4.4); `None` when it needs no widening (or is no such read).
-pub(crate) fn widen_read(request: &Request) -> Option<Request> {
-    let Request::ReadHoldingRegisters { address, quantity } = *request else {
-        return None;
-    };
-    if address % IMAGE_WORDS == 0 && quantity % IMAGE_WORDS == 0 {
-        return None;
-    }
-    let start = address & !1;
-    let end = (u32::from(address) + u32::from(quantity)).next_multiple_of(u32::from(IMAGE_WORDS));
-    Some(Request::ReadHoldingRegisters {
-        address: start,
-        quantity: u16::try_from(end - u32::from(start)).ok()?,
-    })
-}
-
-/// The answer to the read a client `asked` for, out of the answer to the read `sent` for it
-/// ([`widen_read`]); any other answer as it is.
-pub(crate) fn narrow(asked: &Request, sent: &Request, response: Response) -> Response {
-    let (
-        Request::ReadHoldingRegisters { address, quantity },
-        Request::ReadHoldingRegisters { address: from, .. },
-        Response::ReadHoldingRegisters(words),
-    ) = (asked, sent, &response)
-    else {
-        return response;
-    };
-    let offset = usize::from(address.saturating_sub(*from));
-    match words.get(offset..offset + usize::from(*quantity)) {
-        Some(part) if part.len() != words.len() => Response::ReadHoldingRegisters(part.to_vec()),
-        _ => response,
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -212,40 +177,6 @@ mod tests {
         );
         assert_eq!(bit_update_write(set_bit_3(5), &[0x0001], true), None);
         assert_eq!(bit_update_write(set_bit_3(5), &[1, 2], false), None);
-    }
-
-    /// An on-demand read of part of a 32-bit register reads all of it, and the client gets the
-    /// part it asked for.
-    #[test]
-    fn a_read_of_half_a_register_reads_the_whole_and_answers_the_half() {
-        let read = |address, quantity| Request::ReadHoldingRegisters { address, quantity };
-        assert_eq!(widen_read(&read(4, 2)), None, "whole registers");
-        assert_eq!(widen_read(&read(5, 1)), Some(read(4, 2)));
-        assert_eq!(widen_read(&read(4, 1)), Some(read(4, 2)));
-        assert_eq!(widen_read(&read(3, 4)), Some(read(2, 6)));
-        assert_eq!(widen_read(&read(65_535, 1)), Some(read(65_534, 2)));
-        assert_eq!(
-            widen_read(&Request::ReadInputRegisters {
-                address: 5,
-                quantity: 1
-            }),
-            None,
-            "only holding registers are 32 bits wide"
-        );
-        let answer = Response::ReadHoldingRegisters(vec![0xA, 0xB, 0xC, 0xD, 0xE, 0xF]);
-        assert_eq!(
-            narrow(&read(3, 4), &read(2, 6), answer.clone()),
-            Response::ReadHoldingRegisters(vec![0xB, 0xC, 0xD, 0xE])
-        );
-        assert_eq!(
-            narrow(
-                &read(5, 1),
-                &read(4, 2),
-                Response::ReadHoldingRegisters(vec![1, 2])
-            ),
-            Response::ReadHoldingRegisters(vec![2])
-        );
-        assert_eq!(narrow(&read(2, 6), &read(2, 6), answer.clone()), answer);
     }
 
     #[test]
