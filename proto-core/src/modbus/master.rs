@@ -25,7 +25,8 @@
 //!    [`Master::poll_timeout`] has passed.
 //! 4. Drain [`Master::poll_event`] after every `handle_*` call: every diagnostic event is
 //!    [`MasterEvent::Raised`], every transaction ends with exactly one [`MasterEvent::Completed`]
-//!    (or [`MasterEvent::Completed32`] for a 32-bit register job).
+//!    (also a 16-bit request sent as a 32-bit register job on a line with `registers32`; only a
+//!    job of [`Master::submit_registers32`] ends with [`MasterEvent::Completed32`]).
 //!
 //! Decisions where the manual leaves room, each with its reason:
 //! - **Wrong slave address** (RTU, normal operation): the first character of the reply differs
@@ -72,7 +73,8 @@ pub use self::config::{
 };
 pub use self::job::JobError;
 pub use self::registers32::{
-    Request32, Response32, FC_READ_32, FC_WRITE_MULTIPLE_32, FC_WRITE_SINGLE_32,
+    narrow, widen_read, Request32, Response32, FC_READ_32, FC_WRITE_MULTIPLE_32,
+    FC_WRITE_SINGLE_32, IMAGE_WORDS,
 };
 pub use self::types::{Attempts, MasterEvent, Outcome, RequestId, SubmitError};
 /// The UART errors every engine of the crate takes (003 7.2: 08 0Ch parity, stop bit and
@@ -101,6 +103,8 @@ pub struct Master {
     stray_reported: bool,
     /// From the end of transmission to the first byte of the reply, in the current transaction.
     reply_delay: Option<core::time::Duration>,
+    /// The 32-bit job function of the last completed transaction ([`Master::job_function`]).
+    job_function: Option<u8>,
 }
 
 /// How many timer steps one [`Master::handle_timeout`] call takes at most (each step changes the
@@ -121,6 +125,7 @@ impl Master {
             last_activity: None,
             stray_reported: false,
             reply_delay: None,
+            job_function: None,
         }
     }
 
@@ -140,11 +145,17 @@ impl Master {
         slave: u8,
         request: Request,
     ) -> Result<RequestId, SubmitError> {
-        self.submit_job(now, slave, Job::Standard(request), Attempts::default())
+        self.submit_with(now, slave, request, Attempts::default())
     }
 
     /// [`Master::submit`] with its own reply monitoring time or repetitions (e.g. one short
     /// attempt at a device that stopped answering); the inter-frame gap is the same.
+    ///
+    /// On an ASCII line with `registers32` (003 6.4.4) a request to the holding registers goes out
+    /// as the 32-bit register job it stands for (two 16-bit registers per 32-bit register of the
+    /// slave, the high word first: 43h, 46h, 50h) and ends with the [`MasterEvent::Completed`] of
+    /// the 16-bit request; [`Master::job_function`] tells the job's function code. A range that
+    /// splits a 32-bit register is refused with [`SubmitError::HalfRegister`].
     pub fn submit_with(
         &mut self,
         now: Instant,
@@ -152,7 +163,23 @@ impl Master {
         request: Request,
         attempts: Attempts,
     ) -> Result<RequestId, SubmitError> {
-        self.submit_job(now, slave, Job::Standard(request), attempts)
+        match registers32::to_32bit(&request).filter(|_| self.config.framing.registers32()) {
+            Some(Ok(job)) => self.submit_job(now, slave, Job::Registers32(job), attempts, true),
+            Some(Err(e)) => Err(e),
+            None => self.submit_job(now, slave, Job::Standard(request), attempts, false),
+        }
+    }
+
+    /// [`Master::submit_with`] with the request sent as it is even on a line with `registers32`:
+    /// for 16-bit holding registers a slave keeps beside its 32-bit ones (a drive's scanner words).
+    pub fn submit_plain(
+        &mut self,
+        now: Instant,
+        slave: u8,
+        request: Request,
+        attempts: Attempts,
+    ) -> Result<RequestId, SubmitError> {
+        self.submit_job(now, slave, Job::Standard(request), attempts, false)
     }
 
     /// Queues a 32-bit register job of the ASCII master (003 6.4.4 "32bit access with Modbus
@@ -164,7 +191,13 @@ impl Master {
         slave: u8,
         request: Request32,
     ) -> Result<RequestId, SubmitError> {
-        self.submit_job(now, slave, Job::Registers32(request), Attempts::default())
+        self.submit_job(
+            now,
+            slave,
+            Job::Registers32(request),
+            Attempts::default(),
+            false,
+        )
     }
 
     /// Whether no transaction is in flight or queued and the inter-frame gap has elapsed.
@@ -177,6 +210,13 @@ impl Master {
     /// monitoring time watches (003 7.2 08 30h). `None` when no byte came.
     pub fn reply_delay(&self) -> Option<core::time::Duration> {
         self.reply_delay
+    }
+
+    /// The function code of the CP's job (003 6.4.4: 43h, 46h, 50h) when the last completed
+    /// transaction was a 32-bit register job made from a 16-bit request ([`Master::submit_with`]
+    /// on a line with `registers32`); `None` for any other.
+    pub fn job_function(&self) -> Option<u8> {
+        self.job_function
     }
 
     /// Bytes received from the line at `now`.
@@ -354,6 +394,7 @@ impl Master {
         slave: u8,
         job: Job,
         attempts: Attempts,
+        image16: bool,
     ) -> Result<RequestId, SubmitError> {
         let queue_free = match &self.state {
             State::Idle => true,
@@ -378,6 +419,7 @@ impl Master {
             attempt: 0,
             reply_timeout: attempts.reply_timeout.unwrap_or(self.config.reply_timeout),
             retries: attempts.retries.unwrap_or(self.config.retries),
+            image16,
         };
         self.reply_delay = None;
         let limit = now + self.config.reply_timeout;
@@ -563,7 +605,13 @@ impl Master {
 
     fn complete(&mut self, tx: Transaction, finish: Finish) {
         self.stray_reported = false;
-        let Transaction { id, slave, job, .. } = tx;
+        let Transaction {
+            id,
+            slave,
+            job,
+            image16,
+            ..
+        } = tx;
         let event = match job {
             Job::Standard(request) => {
                 let outcome = match finish {
@@ -601,6 +649,12 @@ impl Master {
                 }
             }
         };
+        let (event, function) = if image16 {
+            registers32::as_16bit(event)
+        } else {
+            (event, None)
+        };
+        self.job_function = function;
         self.events.push_back(event);
     }
 }

@@ -11,7 +11,9 @@ use std::sync::Arc;
 use std::time::SystemTime;
 
 use proto_core::event::{ids, EventId};
-use proto_core::modbus::master::{Attempts, Framing, Master, MasterEvent, Outcome, RequestId};
+use proto_core::modbus::master::{
+    Attempts, Framing, Master, MasterEvent, Outcome, RequestId, SubmitError,
+};
 use proto_core::modbus::pdu::{Request, Response};
 use proto_core::serial_marks::LineError;
 use tokio::sync::mpsc;
@@ -64,7 +66,7 @@ impl InFlight {
 
     /// The master refused the job's request: a command is answered with the refusal (a poll and
     /// a scan are the caller's to postpone).
-    fn refused(self, err: &registers32::Submit32Error) {
+    fn refused(self, err: &SubmitError) {
         if let Self::Command { command, .. } = self {
             command.answer(Err(CommandError::Refused(err.to_string())));
         }
@@ -280,7 +282,6 @@ impl LineEngine for MasterLine {
     fn handle_events(&mut self) -> bool {
         let mut completed = false;
         while let Some(event) = self.master.poll_event() {
-            let (event, function32) = registers32::as_16bit(event);
             match event {
                 // Slave 0: raised while the line was idle.
                 MasterEvent::Raised { id, slave } => {
@@ -299,7 +300,9 @@ impl LineEngine for MasterLine {
                     match self.inflight.take() {
                         Some((expected, job)) if expected == id => {
                             let delay = self.master.reply_delay();
-                            let function = function32.unwrap_or(request.function().0);
+                            // A 32-bit register job counts under its own code (43h, 46h, 50h).
+                            let function =
+                                self.master.job_function().unwrap_or(request.function().0);
                             self.complete(job, slave, &request, function, outcome, delay);
                         }
                         other => {
@@ -308,9 +311,10 @@ impl LineEngine for MasterLine {
                         }
                     }
                 }
-                // Turned into `Completed` by `registers32::as_16bit` above.
+                // The line never submits a bare 32-bit job (`submit_registers32`): on a line with
+                // `registers32` the master completes the 16-bit request it was given.
                 MasterEvent::Completed32 { slave, .. } => {
-                    tracing::error!(line = %self.settings.name, slave, "completion of a 32-bit job not converted");
+                    tracing::error!(line = %self.settings.name, slave, "completion of a 32-bit job not submitted by the line");
                 }
             }
         }
@@ -540,10 +544,10 @@ impl MasterLine {
         }
     }
 
-    /// Hands `request` for `slave` to the master as `job` (the one call of
-    /// `registers32::submit`): in flight from now on success; the job and why back on refusal.
-    /// `registers32`: whether the request may go as a 32-bit register job (the scanner's words
-    /// never do).
+    /// Hands `request` for `slave` to the master as `job`: in flight from now on success; the job
+    /// and why back on refusal. `registers32`: whether the request may go as a 32-bit register
+    /// job on a line with 32-bit registers (the master translates it; the scanner's words never
+    /// do).
     fn submit(
         &mut self,
         now: Instant,
@@ -552,17 +556,17 @@ impl MasterLine {
         attempts: Attempts,
         registers32: bool,
         job: InFlight,
-    ) -> Result<(), (InFlight, registers32::Submit32Error)> {
+    ) -> Result<(), (InFlight, SubmitError)> {
         let span = Span::of(slave, &request, job.kind());
         let engine_now = self.clock.to_engine(now);
-        match registers32::submit(
-            &mut self.master,
-            registers32,
-            engine_now,
-            slave,
-            request,
-            attempts,
-        ) {
+        let submitted = if registers32 {
+            self.master
+                .submit_with(engine_now, slave, request, attempts)
+        } else {
+            self.master
+                .submit_plain(engine_now, slave, request, attempts)
+        };
+        match submitted {
             Ok(id) => {
                 self.submitted(id, job, span);
                 Ok(())
@@ -655,9 +659,9 @@ impl MasterLine {
                         command.request = registers32::bit_update_read(update);
                     }
                     // An on-demand read of part of a 32-bit register reads the whole of it; the
-                    // client gets what it asked for (`registers32::narrow`).
+                    // client gets what it asked for (`narrow`).
                     let request = match (registers32, command.mask) {
-                        (true, None) => registers32::widen_read(&command.request),
+                        (true, None) => proto_core::modbus::master::widen_read(&command.request),
                         _ => None,
                     }
                     .unwrap_or_else(|| command.request.clone());
@@ -950,7 +954,11 @@ impl MasterLine {
                 if let Some(d) = device.and_then(|d| self.devices.get(d)) {
                     refresh_image(&self.image, d.unit_id, request, &response);
                 }
-                Ok(Ok(registers32::narrow(&command.request, request, response)))
+                Ok(Ok(proto_core::modbus::master::narrow(
+                    &command.request,
+                    request,
+                    response,
+                )))
             }
             Outcome::Exception(code) => Ok(Err(code)),
             Outcome::Broadcast => broadcast_echo(request)

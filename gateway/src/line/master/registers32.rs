@@ -21,17 +21,15 @@
 //! register (FC 06) or of an odd range would be half a slave register and is refused, as is a
 //! read of an odd range.
 //!
-//! The line's master submits through [`submit`] and turns the 32-bit completion back into the
-//! 16-bit request and answer the rest of the line handles with [`as_16bit`].
+//! proto-core's master does the translation itself: on such a line it takes the 16-bit request,
+//! sends the 32-bit job and completes with the 16-bit request and answer
+//! (`Master::submit_with`). What stays here needs the line: the devices' limits, the
+//! read-modify-write of a bit (its `BitUpdate` is a profile's, which proto-core's modbus module does
+//! not know).
 
-use std::fmt;
-
-use proto_core::modbus::master::{
-    Attempts, Master, MasterEvent, Outcome, Request32, RequestId, Response32, SubmitError,
-};
-use proto_core::modbus::pdu::{Request, Response};
+use proto_core::modbus::master::IMAGE_WORDS;
+use proto_core::modbus::pdu::Request;
 use proto_core::profiles::BitUpdate;
-use proto_core::time::Instant;
 
 use super::plan::DeviceLimits;
 
@@ -40,40 +38,9 @@ pub(crate) const MAX_READ_32: u16 = 62;
 /// Most 32-bit registers one 50h write carries (003 7.2, 0E 46h "with 32bit 1..61").
 pub(crate) const MAX_WRITE_32: u16 = 61;
 
-/// Image registers one 32-bit register of the slave occupies.
-const IMAGE_WORDS: u16 = 2;
-
-/// Why a request cannot go out as a 32-bit register job.
-#[derive(Debug)]
-pub(crate) enum Submit32Error {
-    /// The range starts or ends inside a 32-bit register (odd image address or count).
-    HalfRegister { address: u16, quantity: u16 },
-    /// The master refused the job.
-    Master(SubmitError),
-}
-
-impl fmt::Display for Submit32Error {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            Self::HalfRegister { address, quantity } => write!(
-                f,
-                "holding registers {address}+{quantity} split a 32-bit register of the slave \
-                 (registers32: each is two image registers from an even address)"
-            ),
-            Self::Master(e) => e.fmt(f),
-        }
-    }
-}
-
 /// Whether the line's master runs the 32-bit register mode.
 pub(crate) fn enabled(master: &proto_core::modbus::master::MasterConfig) -> bool {
-    matches!(
-        master.framing,
-        proto_core::modbus::master::Framing::Ascii {
-            registers32: true,
-            ..
-        }
-    )
+    master.framing.registers32()
 }
 
 /// The line's devices, with [`limits`] applied when the line runs the 32-bit register mode.
@@ -141,174 +108,13 @@ pub(crate) fn bit_update_write(
     }
 }
 
-/// A read of holding registers that starts or ends inside a 32-bit register of the slave, widened
-/// to the whole 32-bit registers it touches (a slave register cannot be read by halves, 003
-/// 6.4.4); `None` when it needs no widening (or is no such read).
-pub(crate) fn widen_read(request: &Request) -> Option<Request> {
-    let Request::ReadHoldingRegisters { address, quantity } = *request else {
-        return None;
-    };
-    if address % IMAGE_WORDS == 0 && quantity % IMAGE_WORDS == 0 {
-        return None;
-    }
-    let start = address & !1;
-    let end = (u32::from(address) + u32::from(quantity)).next_multiple_of(u32::from(IMAGE_WORDS));
-    Some(Request::ReadHoldingRegisters {
-        address: start,
-        quantity: u16::try_from(end - u32::from(start)).ok()?,
-    })
-}
-
-/// The answer to the read a client `asked` for, out of the answer to the read `sent` for it
-/// ([`widen_read`]); any other answer as it is.
-pub(crate) fn narrow(asked: &Request, sent: &Request, response: Response) -> Response {
-    let (
-        Request::ReadHoldingRegisters { address, quantity },
-        Request::ReadHoldingRegisters { address: from, .. },
-        Response::ReadHoldingRegisters(words),
-    ) = (asked, sent, &response)
-    else {
-        return response;
-    };
-    let offset = usize::from(address.saturating_sub(*from));
-    match words.get(offset..offset + usize::from(*quantity)) {
-        Some(part) if part.len() != words.len() => Response::ReadHoldingRegisters(part.to_vec()),
-        _ => response,
-    }
-}
-
-/// The 32-bit job for a request of the 16-bit image; `None` for a request the mode leaves alone
-/// (every table but the holding registers, FC 23).
-fn to_32bit(request: &Request) -> Option<Result<Request32, Submit32Error>> {
-    let half = |address: u16, quantity: u16| Submit32Error::HalfRegister { address, quantity };
-    let slave_address = |address: u16, quantity: u16| {
-        if address % IMAGE_WORDS != 0 || quantity % IMAGE_WORDS != 0 || quantity == 0 {
-            Err(half(address, quantity))
-        } else {
-            Ok(address / IMAGE_WORDS)
-        }
-    };
-    Some(match request {
-        Request::ReadHoldingRegisters { address, quantity } => slave_address(*address, *quantity)
-            .map(|address| Request32::ReadHoldingRegisters {
-                address,
-                quantity: quantity / IMAGE_WORDS,
-            }),
-        Request::WriteSingleRegister { address, .. } => Err(half(*address, 1)),
-        Request::WriteMultipleRegisters { address, values } => {
-            let quantity = u16::try_from(values.len()).unwrap_or(u16::MAX);
-            slave_address(*address, quantity).map(|address| {
-                let mut joined: Vec<u32> = values
-                    .chunks_exact(usize::from(IMAGE_WORDS))
-                    .map(|pair| match pair {
-                        [high, low] => u32::from(*high) << 16 | u32::from(*low),
-                        _ => 0,
-                    })
-                    .collect();
-                match (joined.pop(), joined.is_empty()) {
-                    (Some(value), true) => Request32::WriteSingleRegister { address, value },
-                    (last, _) => {
-                        joined.extend(last);
-                        Request32::WriteMultipleRegisters {
-                            address,
-                            values: joined,
-                        }
-                    }
-                }
-            })
-        }
-        _ => return None,
-    })
-}
-
-/// Submits `request` to the line's master: as a 32-bit register job when the line runs the mode
-/// and the request reaches holding registers, else as it is with `attempts`.
-pub(crate) fn submit(
-    master: &mut Master,
-    registers32: bool,
-    now: Instant,
-    slave: u8,
-    request: Request,
-    attempts: Attempts,
-) -> Result<RequestId, Submit32Error> {
-    match to_32bit(&request).filter(|_| registers32) {
-        Some(Ok(job)) => master
-            .submit_registers32(now, slave, job)
-            .map_err(Submit32Error::Master),
-        Some(Err(e)) => Err(e),
-        None => master
-            .submit_with(now, slave, request, attempts)
-            .map_err(Submit32Error::Master),
-    }
-}
-
-/// A master event with a finished 32-bit job turned into the completion of the 16-bit request it
-/// was made from (the answer's registers split high word first), and the function code to count
-/// it under (43h, 46h, 50h). Other events pass unchanged with `None`.
-pub(crate) fn as_16bit(event: MasterEvent) -> (MasterEvent, Option<u8>) {
-    let MasterEvent::Completed32 {
-        id,
-        slave,
-        request,
-        outcome,
-    } = event
-    else {
-        return (event, None);
-    };
-    let function = request.job_function();
-    let image = |address: u16| address.saturating_mul(IMAGE_WORDS);
-    let split = |value: u32| [(value >> 16) as u16, value as u16];
-    let request16 = match &request {
-        Request32::ReadHoldingRegisters { address, quantity } => Request::ReadHoldingRegisters {
-            address: image(*address),
-            quantity: quantity.saturating_mul(IMAGE_WORDS),
-        },
-        Request32::WriteSingleRegister { address, value } => Request::WriteMultipleRegisters {
-            address: image(*address),
-            values: split(*value).to_vec(),
-        },
-        Request32::WriteMultipleRegisters { address, values } => Request::WriteMultipleRegisters {
-            address: image(*address),
-            values: values.iter().flat_map(|v| split(*v)).collect(),
-        },
-    };
-    let outcome = match outcome {
-        Outcome::Response(response) => Outcome::Response(match response {
-            Response32::ReadHoldingRegisters(values) => {
-                Response::ReadHoldingRegisters(values.into_iter().flat_map(split).collect())
-            }
-            Response32::WriteSingleRegister { address, .. } => Response::WriteMultipleRegisters {
-                address: image(address),
-                quantity: IMAGE_WORDS,
-            },
-            Response32::WriteMultipleRegisters { address, quantity } => {
-                Response::WriteMultipleRegisters {
-                    address: image(address),
-                    quantity: quantity.saturating_mul(IMAGE_WORDS),
-                }
-            }
-        }),
-        Outcome::Exception(code) => Outcome::Exception(code),
-        Outcome::Broadcast => Outcome::Broadcast,
-        Outcome::Failed(event) => Outcome::Failed(event),
-    };
-    (
-        MasterEvent::Completed {
-            id,
-            slave,
-            request: request16,
-            outcome,
-        },
-        Some(function),
-    )
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proto_core::modbus::master::Request32;
 
     fn job(request: Request) -> Request32 {
-        match to_32bit(&request) {
+        match Request32::from_16bit(&request) {
             Some(Ok(job)) => job,
             other => panic!("{request:?} gave {other:?}"),
         }
@@ -371,129 +177,6 @@ mod tests {
         );
         assert_eq!(bit_update_write(set_bit_3(5), &[0x0001], true), None);
         assert_eq!(bit_update_write(set_bit_3(5), &[1, 2], false), None);
-    }
-
-    /// An on-demand read of part of a 32-bit register reads all of it, and the client gets the
-    /// part it asked for.
-    #[test]
-    fn a_read_of_half_a_register_reads_the_whole_and_answers_the_half() {
-        let read = |address, quantity| Request::ReadHoldingRegisters { address, quantity };
-        assert_eq!(widen_read(&read(4, 2)), None, "whole registers");
-        assert_eq!(widen_read(&read(5, 1)), Some(read(4, 2)));
-        assert_eq!(widen_read(&read(4, 1)), Some(read(4, 2)));
-        assert_eq!(widen_read(&read(3, 4)), Some(read(2, 6)));
-        assert_eq!(widen_read(&read(65_535, 1)), Some(read(65_534, 2)));
-        assert_eq!(
-            widen_read(&Request::ReadInputRegisters {
-                address: 5,
-                quantity: 1
-            }),
-            None,
-            "only holding registers are 32 bits wide"
-        );
-        let answer = Response::ReadHoldingRegisters(vec![0xA, 0xB, 0xC, 0xD, 0xE, 0xF]);
-        assert_eq!(
-            narrow(&read(3, 4), &read(2, 6), answer.clone()),
-            Response::ReadHoldingRegisters(vec![0xB, 0xC, 0xD, 0xE])
-        );
-        assert_eq!(
-            narrow(
-                &read(5, 1),
-                &read(4, 2),
-                Response::ReadHoldingRegisters(vec![1, 2])
-            ),
-            Response::ReadHoldingRegisters(vec![2])
-        );
-        assert_eq!(narrow(&read(2, 6), &read(2, 6), answer.clone()), answer);
-    }
-
-    #[test]
-    fn image_ranges_map_to_slave_registers() {
-        assert_eq!(
-            job(Request::ReadHoldingRegisters {
-                address: 10,
-                quantity: 4
-            }),
-            Request32::ReadHoldingRegisters {
-                address: 5,
-                quantity: 2
-            }
-        );
-        assert_eq!(
-            job(Request::WriteMultipleRegisters {
-                address: 2,
-                values: vec![0xDEAD, 0xBEEF]
-            }),
-            Request32::WriteSingleRegister {
-                address: 1,
-                value: 0xDEAD_BEEF
-            }
-        );
-        assert_eq!(
-            job(Request::WriteMultipleRegisters {
-                address: 0,
-                values: vec![1, 2, 3, 4]
-            }),
-            Request32::WriteMultipleRegisters {
-                address: 0,
-                values: vec![0x0001_0002, 0x0003_0004]
-            }
-        );
-        for half in [
-            Request::ReadHoldingRegisters {
-                address: 1,
-                quantity: 2,
-            },
-            Request::ReadHoldingRegisters {
-                address: 0,
-                quantity: 3,
-            },
-            Request::WriteSingleRegister {
-                address: 0,
-                value: 1,
-            },
-        ] {
-            assert!(matches!(
-                to_32bit(&half),
-                Some(Err(Submit32Error::HalfRegister { .. }))
-            ));
-        }
-        assert!(to_32bit(&Request::ReadInputRegisters {
-            address: 1,
-            quantity: 1
-        })
-        .is_none());
-    }
-
-    #[test]
-    fn a_finished_read_is_the_16_bit_read_high_word_first() {
-        let (event, function) = as_16bit(MasterEvent::Completed32 {
-            id: RequestId(7),
-            slave: 5,
-            request: Request32::ReadHoldingRegisters {
-                address: 1,
-                quantity: 2,
-            },
-            outcome: Outcome::Response(Response32::ReadHoldingRegisters(vec![
-                0x1234_5678,
-                0x435E_0000,
-            ])),
-        });
-        assert_eq!(function, Some(0x43));
-        assert_eq!(
-            event,
-            MasterEvent::Completed {
-                id: RequestId(7),
-                slave: 5,
-                request: Request::ReadHoldingRegisters {
-                    address: 2,
-                    quantity: 4
-                },
-                outcome: Outcome::Response(Response::ReadHoldingRegisters(vec![
-                    0x1234, 0x5678, 0x435E, 0
-                ])),
-            }
-        );
     }
 
     #[test]

@@ -83,6 +83,21 @@ pub enum ConfigError {
     CharDelay(Duration),
 }
 
+// === impl Framing ===
+
+impl Framing {
+    /// Whether the holding registers are 32 bits wide (ASCII "with 32-Bit Register", 003 6.4.4).
+    pub const fn registers32(&self) -> bool {
+        matches!(
+            self,
+            Self::Ascii {
+                registers32: true,
+                ..
+            }
+        )
+    }
+}
+
 // === impl MasterConfig ===
 
 impl MasterConfig {

@@ -12,9 +12,23 @@
 //! - read: `03 addr qty` -> `03 bytecount(4*qty) value32*qty`;
 //! - write single: `06 addr value32` -> the same echoed;
 //! - write multiple: `10 addr qty bytecount(4*qty) value32*qty` -> `10 addr qty`.
+//!
+//! The master's callers (the gateway's image, Modbus TCP) stay 16-bit, so on a line with
+//! `registers32` the master takes the 16-bit request and answers with the 16-bit completion
+//! itself: each 32-bit register of the slave is two 16-bit registers, the high word first.
+//!
+//! ```text
+//! slave register n (32 bits)  <->  16-bit holding registers 2n (high), 2n + 1 (low)
+//! ```
+//!
+//! A read of registers `2n .. 2n + 2k` goes out as 43h for `k` registers from `n`; a write of two
+//! registers (FC 16) as 46h, of more as 50h. A write of a single register (FC 06) or of an odd
+//! range would be half a slave register and is refused ([`SubmitError::HalfRegister`]), as is a
+//! read of an odd range. The other tables keep their 16-bit or bit access.
 
+use super::types::{MasterEvent, Outcome, SubmitError};
 use crate::codec::{Reader, Writer};
-use crate::modbus::pdu::{FunctionCode, PduError};
+use crate::modbus::pdu::{FunctionCode, PduError, Request, Response};
 
 /// The bytes of one 32-bit register.
 const REGISTER_BYTES: usize = 4;
@@ -25,6 +39,9 @@ pub const FC_READ_32: u8 = 0x43;
 pub const FC_WRITE_SINGLE_32: u8 = 0x46;
 /// The function code for a 32-bit multiple write (003 6.4.4 table: 50h).
 pub const FC_WRITE_MULTIPLE_32: u8 = 0x50;
+
+/// The 16-bit registers one 32-bit register of the slave occupies.
+pub const IMAGE_WORDS: u16 = 2;
 
 /// A 32-bit register job (only FC 03, 06 and 16 exist in 32-bit form, 003 7.2 event 0E 4Ah).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -67,6 +84,13 @@ impl Request32 {
             Self::WriteSingleRegister { .. } => FC_WRITE_SINGLE_32,
             Self::WriteMultipleRegisters { .. } => FC_WRITE_MULTIPLE_32,
         }
+    }
+
+    /// The job a 16-bit request to the holding registers stands for on a line with `registers32`
+    /// (see the module documentation); `None` for a request the mode leaves alone (every table but
+    /// the holding registers, FC 23), an error for a range that splits a 32-bit register.
+    pub fn from_16bit(request: &Request) -> Option<Result<Self, SubmitError>> {
+        to_32bit(request)
     }
 
     /// Appends the request PDU.
@@ -168,6 +192,147 @@ impl Request32 {
     }
 }
 
+/// The 32-bit job for a 16-bit request; `None` for a request the mode leaves alone (every table
+/// but the holding registers, FC 23).
+pub(super) fn to_32bit(request: &Request) -> Option<Result<Request32, SubmitError>> {
+    let half = |address: u16, quantity: u16| SubmitError::HalfRegister { address, quantity };
+    let slave_address = |address: u16, quantity: u16| {
+        if address % IMAGE_WORDS != 0 || quantity % IMAGE_WORDS != 0 || quantity == 0 {
+            Err(half(address, quantity))
+        } else {
+            Ok(address / IMAGE_WORDS)
+        }
+    };
+    Some(match request {
+        Request::ReadHoldingRegisters { address, quantity } => slave_address(*address, *quantity)
+            .map(|address| Request32::ReadHoldingRegisters {
+                address,
+                quantity: quantity / IMAGE_WORDS,
+            }),
+        Request::WriteSingleRegister { address, .. } => Err(half(*address, 1)),
+        Request::WriteMultipleRegisters { address, values } => {
+            let quantity = u16::try_from(values.len()).unwrap_or(u16::MAX);
+            slave_address(*address, quantity).map(|address| {
+                let mut joined: Vec<u32> = values
+                    .chunks_exact(usize::from(IMAGE_WORDS))
+                    .map(|pair| match pair {
+                        [high, low] => u32::from(*high) << 16 | u32::from(*low),
+                        _ => 0,
+                    })
+                    .collect();
+                match (joined.pop(), joined.is_empty()) {
+                    (Some(value), true) => Request32::WriteSingleRegister { address, value },
+                    (last, _) => {
+                        joined.extend(last);
+                        Request32::WriteMultipleRegisters {
+                            address,
+                            values: joined,
+                        }
+                    }
+                }
+            })
+        }
+        _ => return None,
+    })
+}
+
+/// A master event with a finished 32-bit job turned into the completion of the 16-bit request it
+/// was made from (the answer's registers split high word first), and the function code of the job
+/// (43h, 46h, 50h). Other events pass unchanged with `None`.
+pub(super) fn as_16bit(event: MasterEvent) -> (MasterEvent, Option<u8>) {
+    let MasterEvent::Completed32 {
+        id,
+        slave,
+        request,
+        outcome,
+    } = event
+    else {
+        return (event, None);
+    };
+    let function = request.job_function();
+    let image = |address: u16| address.saturating_mul(IMAGE_WORDS);
+    let split = |value: u32| [(value >> 16) as u16, value as u16];
+    let request16 = match &request {
+        Request32::ReadHoldingRegisters { address, quantity } => Request::ReadHoldingRegisters {
+            address: image(*address),
+            quantity: quantity.saturating_mul(IMAGE_WORDS),
+        },
+        Request32::WriteSingleRegister { address, value } => Request::WriteMultipleRegisters {
+            address: image(*address),
+            values: split(*value).to_vec(),
+        },
+        Request32::WriteMultipleRegisters { address, values } => Request::WriteMultipleRegisters {
+            address: image(*address),
+            values: values.iter().flat_map(|v| split(*v)).collect(),
+        },
+    };
+    let outcome = match outcome {
+        Outcome::Response(response) => Outcome::Response(match response {
+            Response32::ReadHoldingRegisters(values) => {
+                Response::ReadHoldingRegisters(values.into_iter().flat_map(split).collect())
+            }
+            Response32::WriteSingleRegister { address, .. } => Response::WriteMultipleRegisters {
+                address: image(address),
+                quantity: IMAGE_WORDS,
+            },
+            Response32::WriteMultipleRegisters { address, quantity } => {
+                Response::WriteMultipleRegisters {
+                    address: image(address),
+                    quantity: quantity.saturating_mul(IMAGE_WORDS),
+                }
+            }
+        }),
+        Outcome::Exception(code) => Outcome::Exception(code),
+        Outcome::Broadcast => Outcome::Broadcast,
+        Outcome::Failed(event) => Outcome::Failed(event),
+    };
+    (
+        MasterEvent::Completed {
+            id,
+            slave,
+            request: request16,
+            outcome,
+        },
+        Some(function),
+    )
+}
+
+/// A read of holding registers that starts or ends inside a 32-bit register of the slave, widened
+/// to the whole 32-bit registers it touches (a slave register cannot be read by halves, 003
+/// 6.4.4); `None` when it needs no widening (or is no such read).
+pub fn widen_read(request: &Request) -> Option<Request> {
+    let Request::ReadHoldingRegisters { address, quantity } = *request else {
+        return None;
+    };
+    if address % IMAGE_WORDS == 0 && quantity % IMAGE_WORDS == 0 {
+        return None;
+    }
+    let start = address & !1;
+    let end = (u32::from(address) + u32::from(quantity)).next_multiple_of(u32::from(IMAGE_WORDS));
+    Some(Request::ReadHoldingRegisters {
+        address: start,
+        quantity: u16::try_from(end - u32::from(start)).ok()?,
+    })
+}
+
+/// The answer to the read a client `asked` for, out of the answer to the read `sent` for it
+/// ([`widen_read`]); any other answer as it is.
+pub fn narrow(asked: &Request, sent: &Request, response: Response) -> Response {
+    let (
+        Request::ReadHoldingRegisters { address, quantity },
+        Request::ReadHoldingRegisters { address: from, .. },
+        Response::ReadHoldingRegisters(words),
+    ) = (asked, sent, &response)
+    else {
+        return response;
+    };
+    let offset = usize::from(address.saturating_sub(*from));
+    match words.get(offset..offset + usize::from(*quantity)) {
+        Some(part) if part.len() != words.len() => Response::ReadHoldingRegisters(part.to_vec()),
+        _ => response,
+    }
+}
+
 fn check_echo(function: u8, field: &'static str, expected: u16, got: u16) -> Result<(), PduError> {
     if expected == got {
         Ok(())
@@ -184,6 +349,137 @@ fn check_echo(function: u8, field: &'static str, expected: u16, got: u16) -> Res
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::modbus::master::RequestId;
+
+    fn job(request: Request) -> Request32 {
+        match to_32bit(&request) {
+            Some(Ok(job)) => job,
+            other => panic!("{request:?} gave {other:?}"),
+        }
+    }
+
+    /// An on-demand read of part of a 32-bit register reads all of it, and the client gets the
+    /// part it asked for.
+    #[test]
+    fn a_read_of_half_a_register_reads_the_whole_and_answers_the_half() {
+        let read = |address, quantity| Request::ReadHoldingRegisters { address, quantity };
+        assert_eq!(widen_read(&read(4, 2)), None, "whole registers");
+        assert_eq!(widen_read(&read(5, 1)), Some(read(4, 2)));
+        assert_eq!(widen_read(&read(4, 1)), Some(read(4, 2)));
+        assert_eq!(widen_read(&read(3, 4)), Some(read(2, 6)));
+        assert_eq!(widen_read(&read(65_535, 1)), Some(read(65_534, 2)));
+        assert_eq!(
+            widen_read(&Request::ReadInputRegisters {
+                address: 5,
+                quantity: 1
+            }),
+            None,
+            "only holding registers are 32 bits wide"
+        );
+        let answer = Response::ReadHoldingRegisters(vec![0xA, 0xB, 0xC, 0xD, 0xE, 0xF]);
+        assert_eq!(
+            narrow(&read(3, 4), &read(2, 6), answer.clone()),
+            Response::ReadHoldingRegisters(vec![0xB, 0xC, 0xD, 0xE])
+        );
+        assert_eq!(
+            narrow(
+                &read(5, 1),
+                &read(4, 2),
+                Response::ReadHoldingRegisters(vec![1, 2])
+            ),
+            Response::ReadHoldingRegisters(vec![2])
+        );
+        assert_eq!(narrow(&read(2, 6), &read(2, 6), answer.clone()), answer);
+    }
+
+    #[test]
+    fn image_ranges_map_to_slave_registers() {
+        assert_eq!(
+            job(Request::ReadHoldingRegisters {
+                address: 10,
+                quantity: 4
+            }),
+            Request32::ReadHoldingRegisters {
+                address: 5,
+                quantity: 2
+            }
+        );
+        assert_eq!(
+            job(Request::WriteMultipleRegisters {
+                address: 2,
+                values: vec![0xDEAD, 0xBEEF]
+            }),
+            Request32::WriteSingleRegister {
+                address: 1,
+                value: 0xDEAD_BEEF
+            }
+        );
+        assert_eq!(
+            job(Request::WriteMultipleRegisters {
+                address: 0,
+                values: vec![1, 2, 3, 4]
+            }),
+            Request32::WriteMultipleRegisters {
+                address: 0,
+                values: vec![0x0001_0002, 0x0003_0004]
+            }
+        );
+        for half in [
+            Request::ReadHoldingRegisters {
+                address: 1,
+                quantity: 2,
+            },
+            Request::ReadHoldingRegisters {
+                address: 0,
+                quantity: 3,
+            },
+            Request::WriteSingleRegister {
+                address: 0,
+                value: 1,
+            },
+        ] {
+            assert!(matches!(
+                to_32bit(&half),
+                Some(Err(SubmitError::HalfRegister { .. }))
+            ));
+        }
+        assert!(to_32bit(&Request::ReadInputRegisters {
+            address: 1,
+            quantity: 1
+        })
+        .is_none());
+    }
+
+    #[test]
+    fn a_finished_read_is_the_16_bit_read_high_word_first() {
+        let (event, function) = as_16bit(MasterEvent::Completed32 {
+            id: RequestId(7),
+            slave: 5,
+            request: Request32::ReadHoldingRegisters {
+                address: 1,
+                quantity: 2,
+            },
+            outcome: Outcome::Response(Response32::ReadHoldingRegisters(vec![
+                0x1234_5678,
+                0x435E_0000,
+            ])),
+        });
+        assert_eq!(function, Some(0x43));
+        assert_eq!(
+            event,
+            MasterEvent::Completed {
+                id: RequestId(7),
+                slave: 5,
+                request: Request::ReadHoldingRegisters {
+                    address: 2,
+                    quantity: 4
+                },
+                outcome: Outcome::Response(Response::ReadHoldingRegisters(vec![
+                    0x1234, 0x5678, 0x435E, 0
+                ])),
+            }
+        );
+    }
 
     #[test]
     fn read_round_trip() {

@@ -25,6 +25,8 @@ pub(super) struct Transaction {
     pub(super) reply_timeout: Duration,
     /// Repetitions after a failed attempt (the config's unless the submit chose others).
     pub(super) retries: u8,
+    /// A 32-bit register job made from a 16-bit request: it completes as that request.
+    pub(super) image16: bool,
 }
 
 /// A wait for line silence (after a frame, after a broadcast) with possibly a request queued.

@@ -37,6 +37,13 @@ pub enum SubmitError {
     /// The request fails the CP's job checks; its event has been raised too.
     #[error("request refused: {0}")]
     Invalid(JobError),
+    /// On a line with 32-bit registers (003 6.4.4) the 16-bit range starts or ends inside a
+    /// 32-bit register of the slave (odd address or count): half of one cannot be sent.
+    #[error(
+        "holding registers {address}+{quantity} split a 32-bit register of the slave \
+         (registers32: each is two image registers from an even address)"
+    )]
+    HalfRegister { address: u16, quantity: u16 },
 }
 
 /// How a transaction ended.
