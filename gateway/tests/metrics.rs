@@ -33,33 +33,34 @@ use support::{dashboard_exprs, dashboards, grafana_to_promql, metric_identifiers
 /// Records at least one sample through every helper, as the demo's lines would; the returned
 /// guard keeps one Modbus TCP connection open.
 fn record_samples(metrics: &Metrics) -> TcpConnectionGuard {
-    metrics.init_line("drive", "modbus-master-rtu");
-    metrics.line_started("drive", "modbus-master-rtu");
-    metrics.init_line("r3964", "3964r");
-    metrics.line_started("r3964", "3964r");
-    metrics.event("drive", event::ids::PTP_PARAMS_ACCEPTED);
-    metrics.event("drive", EventId::new(0x08, 0x30));
-    metrics.event("drive", EventId::new(0x0E, 0x62));
-    metrics.event("r3964", EventId::new(0x07, 0x03));
-    metrics.event("r3964", EventId::new(0x1F, 0x01)); // a class the catalog does not list
-    metrics.telegram("drive", Direction::Tx);
-    metrics.telegram("drive", Direction::Rx);
-    metrics.bytes("drive", Direction::Tx, 8);
-    metrics.bytes("drive", Direction::Rx, 23);
-    metrics.init_device("drive", "atv71");
-    metrics.set_device_up("drive", "atv71", true);
-    metrics.modbus_request("drive", "atv71", 0x03, RequestResult::Ok);
-    metrics.modbus_request(
+    let lines = metrics.line();
+    lines.init_line("drive", "modbus-master-rtu");
+    lines.line_started("drive", "modbus-master-rtu");
+    lines.init_line("r3964", "3964r");
+    lines.line_started("r3964", "3964r");
+    lines.event("drive", event::ids::PTP_PARAMS_ACCEPTED);
+    lines.event("drive", EventId::new(0x08, 0x30));
+    lines.event("drive", EventId::new(0x0E, 0x62));
+    lines.event("r3964", EventId::new(0x07, 0x03));
+    lines.event("r3964", EventId::new(0x1F, 0x01)); // a class the catalog does not list
+    lines.telegram("drive", Direction::Tx);
+    lines.telegram("drive", Direction::Rx);
+    lines.bytes("drive", Direction::Tx, 8);
+    lines.bytes("drive", Direction::Rx, 23);
+    lines.init_device("drive", "atv71");
+    lines.set_device_up("drive", "atv71", true);
+    lines.modbus_request("drive", "atv71", 0x03, RequestResult::Ok);
+    lines.modbus_request(
         "drive",
         "atv71",
         0x06,
         RequestResult::Exception(ExceptionCode::IllegalDataAddress),
     );
-    metrics.modbus_request("drive", "atv71", 0x03, RequestResult::Timeout);
-    metrics.modbus_request("drive", "atv71", 0x17, RequestResult::Error);
-    metrics.poll_duration("drive", "atv71", Duration::from_millis(18));
-    metrics.poll_duration("drive", "atv71", Duration::from_secs(2));
-    metrics.device_image_updated("drive", "atv71", Instant::now());
+    lines.modbus_request("drive", "atv71", 0x03, RequestResult::Timeout);
+    lines.modbus_request("drive", "atv71", 0x17, RequestResult::Error);
+    lines.poll_duration("drive", "atv71", Duration::from_millis(18));
+    lines.poll_duration("drive", "atv71", Duration::from_secs(2));
+    lines.device_image_updated("drive", "atv71", Instant::now());
     let connection = metrics.modbus_tcp().connection_accepted();
     metrics.modbus_tcp().request(0x03, RequestResult::Ok);
     metrics.modbus_tcp().request(
@@ -310,7 +311,7 @@ async fn metrics_endpoint_answers_over_tcp() {
     assert!(body.contains(r#"gateway_line_up{line="drive",protocol="modbus-master-rtu"} 1"#));
 
     // The counters move between scrapes.
-    metrics.telegram("drive", Direction::Rx);
+    metrics.line().telegram("drive", Direction::Rx);
     let (_, _, body) = http_get(addr, "/metrics?x=1").await;
     assert!(body.contains(r#"gateway_telegrams_total{direction="rx",line="drive"} 2"#));
 
@@ -348,12 +349,13 @@ async fn prometheus_scrapes_the_endpoint_and_evaluates_every_dashboard_query() {
             let mut tick = tokio::time::interval(Duration::from_millis(100));
             while !stop.is_cancelled() {
                 tick.tick().await;
-                metrics.event("drive", EventId::new(0x08, 0x30));
-                metrics.telegram("drive", Direction::Tx);
-                metrics.bytes("drive", Direction::Tx, 8);
-                metrics.modbus_request("drive", "atv71", 0x03, RequestResult::Ok);
-                metrics.poll_duration("drive", "atv71", Duration::from_millis(18));
-                metrics.device_image_updated("drive", "atv71", Instant::now());
+                let lines = metrics.line();
+                lines.event("drive", EventId::new(0x08, 0x30));
+                lines.telegram("drive", Direction::Tx);
+                lines.bytes("drive", Direction::Tx, 8);
+                lines.modbus_request("drive", "atv71", 0x03, RequestResult::Ok);
+                lines.poll_duration("drive", "atv71", Duration::from_millis(18));
+                lines.device_image_updated("drive", "atv71", Instant::now());
                 metrics.modbus_tcp().request(0x03, RequestResult::Ok);
                 metrics.zenoh().published(PublicationKind::Tag);
             }

@@ -395,7 +395,7 @@ impl Supervisor {
                 .unwrap_or_default();
             if let Some(before) = old.config.lines.get(name) {
                 for (device, _) in before.devices().filter(|(d, _)| !kept.contains(d)) {
-                    self.exported.metrics.forget_device(name, device);
+                    self.exported.metrics.line().forget_device(name, device);
                 }
                 // A removed line, or one under another protocol: its series (labelled with the
                 // old protocol) go; the new line's start from zero.
@@ -405,7 +405,7 @@ impl Supervisor {
                     .get(name)
                     .is_some_and(|l| l.protocol.kind().as_str() == protocol);
                 if !same_protocol {
-                    self.exported.metrics.forget_line(name, protocol);
+                    self.exported.metrics.line().forget_line(name, protocol);
                 }
             }
         }

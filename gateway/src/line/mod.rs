@@ -23,7 +23,8 @@
 //! - `driver`: clock conversion and timer helpers of the driver loop.
 
 mod driver;
-mod line_metrics;
+mod image_age;
+pub(crate) mod line_metrics;
 pub mod master;
 mod modbus_slave;
 mod modbus_tap;

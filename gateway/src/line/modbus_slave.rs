@@ -132,9 +132,7 @@ fn spawn_on<O: PortOpener>(
         settings.metrics.as_ref(),
     );
     let core = base.core(Vec::new());
-    core.shared
-        .metrics()
-        .init_frames_discarded(&slave::LOST.map(DiscardReason::as_str));
+    core.shared.metrics().init_frames_discarded(&slave::LOST);
     let counters = Arc::new(Mutex::new(SlaveCounters::default()));
     let caps = SlaveCapabilities {
         params: settings.params.clone(),
@@ -365,7 +363,7 @@ impl SlaveLine {
                 reason => {
                     tracing::debug!(line = %line, reason = reason.as_str(), len, "received bytes discarded");
                     self.count(|c| *c.discarded.entry(reason.as_str()).or_default() += 1);
-                    self.shared.metrics().frame_discarded(reason.as_str());
+                    self.shared.metrics().frame_discarded(reason);
                 }
             },
             SlaveEvent::Diagnostic(id) => self.shared.raise(id, None, None),

@@ -119,11 +119,9 @@ pub(crate) fn spawn_on<O: PortOpener>(
     for device in &devices {
         shared.metrics().init_device(&device.name);
     }
-    let reasons: Vec<&'static str> = proto_core::modbus::tap::DISCARD_REASONS
-        .iter()
-        .map(|r| r.as_str())
-        .collect();
-    shared.metrics().init_frames_discarded(&reasons);
+    shared
+        .metrics()
+        .init_frames_discarded(&proto_core::modbus::tap::DISCARD_REASONS);
     let caps = TapCapabilities {
         shared: Arc::clone(&shared),
         devices: devices.clone(),
@@ -313,7 +311,7 @@ impl LineEngine for TapLine {
                 TapEvent::Frame { .. } => self.shared.metrics().received_telegram(),
                 TapEvent::Discarded { reason, len } => {
                     tracing::debug!(line = %self.settings.name, ?reason, len, "frame discarded");
-                    self.shared.metrics().frame_discarded(reason.as_str());
+                    self.shared.metrics().frame_discarded(reason);
                 }
                 TapEvent::Exchange(exchange) => self.exchange(exchange),
             }

@@ -24,7 +24,7 @@ use tokio::time::Instant;
 use tokio_util::sync::{CancellationToken, WaitForCancellationFutureOwned};
 
 use super::driver::Clock;
-use crate::metrics::Metrics;
+use crate::metrics::{Metrics, MonitorDrop};
 
 /// Frames a line's monitor keeps by default (`monitor_frames`).
 pub const DEFAULT_MONITOR_FRAMES: usize = crate::config::DEFAULT_MONITOR_FRAMES as usize;
@@ -133,8 +133,8 @@ impl FrameMonitor {
             lagged: AtomicU64::new(0),
             counters: metrics.map(|m| {
                 (
-                    m.monitor_dropped(line, "overwritten"),
-                    m.monitor_dropped(line, "lagged"),
+                    m.line().monitor_dropped(line, MonitorDrop::Overwritten),
+                    m.line().monitor_dropped(line, MonitorDrop::Lagged),
                 )
             }),
             ended: CancellationToken::new(),

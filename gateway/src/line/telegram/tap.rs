@@ -27,6 +27,7 @@ use std::time::{Duration, SystemTime};
 
 use proto_core::event::{ids, EventId};
 use proto_core::monitor::{FrameKind, Framing};
+use proto_core::proc3964::frame::FrameError;
 use proto_core::proc3964::tap::{Fault, Side, Tap3964, TapConfig3964, TapEvent3964};
 use proto_core::proc3964::Variant;
 use proto_core::serial_marks::LineError;
@@ -133,7 +134,7 @@ pub(crate) fn spawn_on<O: PortOpener>(
     )
     .with_second_port(&settings.port_b);
     let core = base.core(Vec::new());
-    core.shared.metrics().init_frames_discarded(&Fault::REASONS);
+    core.shared.metrics().init_frames_discarded(&FAULT_KINDS);
     let mailbox = MailboxSettings {
         ack: crate::mailbox::AckMode::Explicit,
         queue_depth: settings.mailbox_depth,
@@ -303,7 +304,7 @@ impl TapLine {
                 );
             }
             TapEvent3964::Fault { side, fault } => {
-                self.shared.metrics.frame_discarded(fault.as_str());
+                self.shared.metrics.frame_discarded(fault);
                 let detail = format!("partner {}: {}", side.as_str(), describe(fault));
                 match fault_event(fault) {
                     Some(id) => self.shared.raise(id, Some(detail)),
@@ -313,6 +314,27 @@ impl TapLine {
         }
     }
 }
+
+/// One fault of each kind, in the order of [`Fault::REASONS`]: the discard series a 3964(R) tap
+/// line creates at 0.
+const FAULT_KINDS: [Fault; 7] = [
+    Fault::Nak {
+        after_telegram: false,
+    },
+    Fault::MissingDle {
+        after_telegram: false,
+    },
+    Fault::Frame(FrameError::BadBcc {
+        expected: 0,
+        actual: 0,
+    }),
+    Fault::Frame(FrameError::Incomplete),
+    Fault::Conflict,
+    Fault::Stray { len: 0 },
+    Fault::LineError {
+        error: LineError::Break,
+    },
+];
 
 /// The event of 003 7.2 that the sender of the exchange would raise for `fault` (a CP 341 in
 /// its place); `None` for what the catalog has no event for (both partners sending STX: each

@@ -248,3 +248,12 @@ async fn every_way_to_send_is_refused_and_reading_the_mailbox_still_works() {
         .await
         .expect("the line stops");
 }
+
+#[test]
+fn the_discard_series_created_at_start_are_one_per_fault_reason() {
+    let labels: Vec<&str> = FAULT_KINDS
+        .iter()
+        .map(|&fault| crate::metrics::FrameDiscard::from(fault).as_label())
+        .collect();
+    assert_eq!(labels, Fault::REASONS);
+}
