@@ -409,7 +409,8 @@ async fn a_line_status_is_the_same_view_over_zenoh_and_rest() {
         .collect();
     assert!(codes.contains(&&Value::from("0003")), "{codes:?}");
 
-    // The gateway's status carries every line in the same view.
+    // The gateway's status carries every line in the same view, with the fleet's two fields
+    // added (docs/fleet.md: `online`, `last_event_age_s`).
     let gateway = get_one(&s, "gw/demo/status").await;
     let drive = gateway["lines"]
         .as_array()
@@ -417,7 +418,13 @@ async fn a_line_status_is_the_same_view_over_zenoh_and_rest() {
         .iter()
         .find(|l| l["name"] == "drive")
         .expect("the drive line");
-    assert_eq!(keys(drive), keys(&rest), "{drive:#}");
+    let fleet = ["online", "last_event_age_s"];
+    let view: Vec<String> = keys(drive)
+        .into_iter()
+        .filter(|k| !fleet.contains(&k.as_str()))
+        .collect();
+    assert_eq!(view, keys(&rest), "{drive:#}");
+    assert!(fleet.iter().all(|k| drive.get(*k).is_some()), "{drive:#}");
     s.close().await.expect("close");
 }
 
