@@ -29,7 +29,7 @@ use proto_core::modbus::{rtu, slave};
 use proto_core::proc3964::tap::Fault;
 
 use super::image_age::ImageAge;
-use crate::metrics::{function_label, Direction, Metrics, RequestResult};
+use crate::metrics::labels::{function_label, Direction, RequestResult};
 
 /// The `device` label of master requests to slave address 0 (broadcast, 003 6.4.3 "ADDR").
 pub(crate) const BROADCAST_DEVICE: &str = "broadcast";
@@ -84,9 +84,8 @@ struct Inner {
 impl LineMetrics {
     /// The metrics of the line `line` speaking `protocol` (the config's `protocol` key); creates
     /// its series at 0 (line down) so that it shows before its port opens.
-    pub(crate) fn new(metrics: Option<Metrics>, line: &str, protocol: &'static str) -> Self {
-        let inner = metrics.map(|metrics| {
-            let families = metrics.line().clone();
+    pub(crate) fn new(families: Option<LineFamilies>, line: &str, protocol: &'static str) -> Self {
+        let inner = families.map(|families| {
             families.init_line(line, protocol);
             Inner {
                 families,
@@ -696,7 +695,7 @@ mod tests {
     use proto_core::modbus::pdu::ExceptionCode;
 
     use super::*;
-    use crate::metrics::encode_text;
+    use crate::metrics::{encode_text, Metrics};
 
     #[test]
     fn outcomes_map_to_their_result_labels() {
@@ -730,7 +729,7 @@ mod tests {
         LineMetrics::new(None, "drive", "modbus-master-rtu").started();
         let registry = Registry::new();
         let metrics = Metrics::register(&registry).expect("register");
-        let line = LineMetrics::new(Some(metrics), "drive", "modbus-master-rtu");
+        let line = LineMetrics::new(Some(metrics.line().clone()), "drive", "modbus-master-rtu");
         let text = encode_text(&registry);
         assert!(text.contains(r#"gateway_line_up{line="drive",protocol="modbus-master-rtu"} 0"#));
         line.started();
@@ -762,7 +761,12 @@ mod tests {
     fn the_line_counts_its_traffic_with_or_without_metrics() {
         for metrics in [
             None,
-            Some(Metrics::register(&Registry::new()).expect("register")),
+            Some(
+                Metrics::register(&Registry::new())
+                    .expect("register")
+                    .line()
+                    .clone(),
+            ),
         ] {
             let line = LineMetrics::new(metrics, "drive", "modbus-master-rtu");
             line.sent_bytes(8);

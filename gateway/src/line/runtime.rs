@@ -253,7 +253,11 @@ impl LineBase {
     pub(crate) fn core(self, devices: Vec<DeviceStatus>) -> LineCore {
         let status = LineStatus::new(self.name.clone(), devices);
         let clock = Clock::start();
-        let metrics = LineMetrics::new(self.metrics.clone(), &self.name, self.protocol);
+        let metrics = LineMetrics::new(
+            self.metrics.as_ref().map(|m| m.line().clone()),
+            &self.name,
+            self.protocol,
+        );
         LineCore {
             shared: Shared::with_metrics(status, self.diag_depth, clock, metrics),
             clock,

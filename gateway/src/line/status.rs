@@ -362,7 +362,7 @@ mod tests {
     fn start_up_is_recorded_like_every_event_and_counted_once_in_the_metrics() {
         let registry = prometheus::Registry::new();
         let metrics = crate::metrics::Metrics::register(&registry).expect("register");
-        let line = LineMetrics::new(Some(metrics), "drive", "modbus-master-rtu");
+        let line = LineMetrics::new(Some(metrics.line().clone()), "drive", "modbus-master-rtu");
         let shared = Shared::with_metrics(status(), 9, Clock::start(), line);
         let mut rx = shared.subscribe();
         shared.started();

@@ -59,6 +59,7 @@
 //!   32-bit registers 1..62 read, 1..61 written.
 
 mod config;
+mod image16;
 mod job;
 mod registers32;
 mod rx;
@@ -163,7 +164,7 @@ impl Master {
         request: Request,
         attempts: Attempts,
     ) -> Result<RequestId, SubmitError> {
-        match registers32::to_32bit(&request).filter(|_| self.config.framing.registers32()) {
+        match image16::to_32bit(&request).filter(|_| self.config.framing.registers32()) {
             Some(Ok(job)) => self.submit_job(now, slave, Job::Registers32(job), attempts, true),
             Some(Err(e)) => Err(e),
             None => self.submit_job(now, slave, Job::Standard(request), attempts, false),
@@ -650,7 +651,7 @@ impl Master {
             }
         };
         let (event, function) = if image16 {
-            registers32::as_16bit(event)
+            image16::as_16bit(event)
         } else {
             (event, None)
         };
