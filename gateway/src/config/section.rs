@@ -14,8 +14,8 @@ use super::serial::SerialConfig;
 
 /// What a protocol's config section tells the rest of the configuration about its line. Each
 /// section implements it in its own file (`config/modbus.rs`, `config/tap.rs`,
-/// `config/telegram.rs`); [`ProtocolConfig::section`](super::ProtocolConfig::section) is the one
-/// place that lists them. Every answer has the default of a line without that part.
+/// `config/telegram.rs`); the `section` method of [`super::ProtocolConfig`] is the one place
+/// that lists them. Every answer has the default of a line without that part.
 pub(crate) trait ProtocolSection {
     /// The section's checks that span keys or need the serial settings (timing minimums by baud
     /// rate, the protocol against the interface), each issue under `path` (`lines.<name>`).

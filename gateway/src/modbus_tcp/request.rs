@@ -26,7 +26,7 @@ use std::task::Poll;
 use std::time::Duration;
 
 use proto_core::modbus::pdu::{ExceptionCode, ExceptionResponse, FunctionCode, Request, Response};
-use tracing::{debug, error, warn};
+use tracing::{debug, warn};
 
 use super::access::Authority;
 use super::mbap::MAX_PDU_LEN;
@@ -75,7 +75,9 @@ pub(crate) async fn answer(
         if response.len() <= MAX_PDU_LEN && response.first() == Some(&function) {
             Ok(())
         } else {
-            error!(
+            // A forwarded slave's answer passes through here: rate-limited, one line per unit.
+            crate::error_limited!(
+                format!("unit {unit} response does not fit"),
                 unit,
                 function,
                 len = response.len(),
