@@ -86,8 +86,10 @@ out="$("$QEMU" "$BIN" --version)" || die "gateway --version failed under $QEMU: 
 step "under $QEMU: gateway --version -> $out"
 [ "$out" = "gateway $version" ] || die "gateway --version printed '$out', expected 'gateway $version'"
 
-# The example as shipped (its REST token line stays commented until the operator makes the file).
+# The example as shipped (its REST token line stays commented until the operator makes the file),
+# beside the template directory it names (template_dirs = ["templates"], taken from its directory).
 cp "$DEPLOY/gateway.example.toml" "$TMP/gateway.toml"
+cp -r "$DEPLOY/templates" "$TMP/templates"
 rc=0
 out="$("$QEMU" "$BIN" check --config "$TMP/gateway.toml" 2>&1)" || rc=$?
 step "under $QEMU: gateway check --config <example> -> exit $rc: $(printf '%s\n' "$out" | head -1)"

@@ -284,6 +284,25 @@ else
   skip "hadolint not installed (not packaged in Debian): Dockerfiles not linted"
 fi
 
+# --- the example's device templates travel with it ---------------------------------------------
+example_with_templates() {
+  # The example names template_dirs = ["templates"], taken from its own directory: wherever a
+  # recipe or a check installs gateway.example.toml as a configuration, it installs deploy/templates
+  # beside it, or `gateway check` of the installed example fails ("no template ...").
+  local ok=0 f
+  grep -q '^template_dirs = \["templates"\]' "$DEPLOY/gateway.example.toml" \
+    || { echo "gateway.example.toml no longer names template_dirs = [\"templates\"]: update this check"; ok=1; }
+  ls "$DEPLOY"/templates/*.toml >/dev/null 2>&1 || { echo "no templates in deploy/templates"; ok=1; }
+  for f in README.md compose.yaml Dockerfile Containerfile.scratch image-check.sh arm64-check.sh; do
+    if grep -Eq '(install|cp) .*gateway\.example\.toml|/etc/gateway|image-root/etc' "$DEPLOY/$f" \
+      && ! grep -q 'templates' "$DEPLOY/$f"; then
+      echo "deploy/$f installs the example configuration without deploy/templates"; ok=1
+    fi
+  done
+  return $ok
+}
+run "the example configuration is installed with the device templates it names" example_with_templates
+
 # --- udev rule ---------------------------------------------------------------------------------
 check_udev() {
   # udevadm verify exists from systemd 254 on; use it when there, else a syntax check of our own.
@@ -328,8 +347,9 @@ if [ "$build_image" = 1 ]; then
     local bin="$ROOT/target/x86_64-unknown-linux-musl/release/gateway"
     [ -x "$bin" ] || { echo "build $bin first (deploy/README.md)"; return 1; }
     file "$bin" | grep -q 'statically linked\|static-pie linked' || { file "$bin"; return 1; }
-    mkdir -p "$TMP/root/etc/gateway" "$TMP/root/var/lib/gateway"
+    mkdir -p "$TMP/root/etc/gateway/templates" "$TMP/root/var/lib/gateway"
     install -m 0755 "$bin" "$TMP/root/gateway"
+    install -m 0644 "$DEPLOY"/templates/*.toml "$TMP/root/etc/gateway/templates/"
     buildah bud -q -f "$DEPLOY/Containerfile.scratch" -t cp341-gateway-check "$TMP/root" \
       && buildah inspect --type image --format '{{.OCIv1.Config.User}}' cp341-gateway-check
   }

@@ -101,12 +101,15 @@ bin_bytes="$(stat -c %s "$BIN")"
 step "static binary: $BIN ($bin_bytes bytes, built in ${build_seconds}s)"
 
 # --- the image -------------------------------------------------------------------------------
-# The build context holds the binary, the example config and the state directory; the
-# Containerfile copies etc/gateway as it is, so the example becomes /etc/gateway/gateway.toml.
+# The build context holds the binary, the example config with the templates it names and the state
+# directory; the Containerfile copies etc/gateway as it is, so the example becomes
+# /etc/gateway/gateway.toml and its template directory ("templates") /etc/gateway/templates.
 ctx="$TMP/root"
 mkdir -p "$ctx/etc/gateway" "$ctx/var/lib/gateway"
 install -m 0755 "$BIN" "$ctx/gateway"
 install -m 0644 "$DEPLOY/gateway.example.toml" "$ctx/etc/gateway/gateway.toml"
+install -d -m 0755 "$ctx/etc/gateway/templates"
+install -m 0644 "$DEPLOY"/templates/*.toml "$ctx/etc/gateway/templates/"
 step "buildah bud -f deploy/Containerfile.scratch -t $IMAGE"
 t0=$SECONDS
 buildah bud -q -f "$DEPLOY/Containerfile.scratch" -t "$IMAGE" "$ctx" >/dev/null \
