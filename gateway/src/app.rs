@@ -150,10 +150,12 @@ impl From<crate::sim::SimError> for AppError {
     }
 }
 
-/// Logs through tracing to stderr; `RUST_LOG` selects the level (default `info`).
-pub fn init_logging() {
+/// Logs through tracing to stderr; `RUST_LOG` selects the level, else `default` (`info` for the
+/// gateway and the simulators, `warn` for the commands that print an answer: `fleet`'s table
+/// should not drown in zenoh's session notices).
+pub fn init_logging(default: &str) {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)

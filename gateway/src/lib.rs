@@ -42,6 +42,7 @@ pub mod persist;
 pub mod scan;
 pub mod serial;
 pub mod signals;
+pub mod sigpipe;
 pub mod sim;
 pub mod tags;
 pub mod timer;

@@ -199,10 +199,18 @@ nothing written"
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    if matches!(cli.command, Command::Scan(_)) {
-        gateway::scan::init_logging();
-    } else {
-        gateway::app::init_logging();
+    if matches!(
+        cli.command,
+        Command::Check { .. } | Command::Tags(_) | Command::Fleet(_) | Command::Scan(_)
+    ) {
+        gateway::sigpipe::end_on_closed_stdout();
+    }
+    match cli.command {
+        Command::Scan(_) => gateway::scan::init_logging(),
+        Command::Check { .. } | Command::Tags(_) | Command::Fleet(_) => {
+            gateway::app::init_logging("warn");
+        }
+        _ => gateway::app::init_logging("info"),
     }
     let runtime = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()

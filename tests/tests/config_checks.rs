@@ -585,6 +585,34 @@ end_chars = [0x03]
     );
 }
 
+/// `gateway check ... | head -1` and the like: when the reader of its output has gone, a printing
+/// command ends as Unix tools do (SIGPIPE), not with a panic message on stderr.
+#[test]
+fn check_into_a_closed_pipe_ends_quietly() {
+    let dir = temp_dir("check-closed-pipe");
+    let path = dir.join("ok.toml");
+    std::fs::write(
+        &path,
+        "[lines.t]\nport = \"/dev/gateway-check-no-such-port\"\nprotocol = \"ascii\"\n",
+    )
+    .expect("config");
+    // The reader (`true`) has exited long before the gateway, started 300 ms later, prints.
+    let script =
+        "(sleep 0.3; exec \"$0\" check --config \"$1\") | true; echo \"status=${PIPESTATUS[0]}\"";
+    let out = Command::new("bash")
+        .args(["-c", script])
+        .arg(gateway_bin())
+        .arg(&path)
+        .output()
+        .expect("bash");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("panicked"), "stderr: {stderr}");
+    assert!(!stderr.contains("Broken pipe"), "stderr: {stderr}");
+    // 128 + SIGPIPE (13): ended by the signal, as `grep` would be.
+    assert_eq!(stdout.trim(), "status=141", "stderr: {stderr}");
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn run_says_port_not_found_for_a_missing_port() {
     let dir = temp_dir("port-not-found");
