@@ -404,8 +404,8 @@ pub struct PollGroup {
     pub name: String,
     #[serde(with = "humantime_serde")]
     pub period: Duration,
-    /// Tag names (the config's tags and the profile's).
-    pub tags: Vec<String>,
+    /// Tag names (the config's tags and the profile's); boxed, as they are never grown.
+    pub tags: Vec<Box<str>>,
     /// Address ranges read as they are.
     pub ranges: Vec<AddressRange>,
 }
@@ -730,11 +730,12 @@ fn read_poll(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<PollGroup> 
     if raw_tags.is_empty() && raw_ranges.is_empty() {
         cx.issue(f.path().to_owned(), "a poll group needs tags or ranges");
     }
-    let mut tags = Vec::new();
+    // Sized to the file's lists: a device's lists are kept as long as it is in force.
+    let mut tags = Vec::with_capacity(raw_tags.len());
     for (p, v) in raw_tags {
-        tags.extend(string_value(cx, v, &p));
+        tags.extend(string_value(cx, v, &p).map(String::into_boxed_str));
     }
-    let mut ranges = Vec::new();
+    let mut ranges = Vec::with_capacity(raw_ranges.len());
     for (p, v) in raw_ranges {
         ranges.extend(read_range(cx, &p, v));
     }
@@ -824,12 +825,15 @@ impl DeviceConfig {
         if profile == Some(Profile::GENERIC) && raw_tags.is_empty() {
             cx.issue(f.at("tags"), "a generic device needs a tag list");
         }
-        let mut tags = Vec::new();
+        // Sized to the file's lists: they are kept as long as the device is in force (a
+        // hundred thousand tags in a large gateway).
+        let mut tags = Vec::with_capacity(raw_tags.len());
         for (p, v) in raw_tags {
             tags.extend(read_tag(cx, &p, v));
         }
-        let mut poll = Vec::new();
-        for (p, v) in f.array(cx, "poll") {
+        let raw_poll = f.array(cx, "poll");
+        let mut poll = Vec::with_capacity(raw_poll.len());
+        for (p, v) in raw_poll {
             poll.extend(read_poll(cx, &p, v));
         }
         f.finish(cx);
