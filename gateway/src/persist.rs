@@ -29,7 +29,7 @@
 use std::fs::{self, File, OpenOptions};
 use std::io::{self, Write};
 use std::path::{Path, PathBuf};
-use std::sync::{Mutex, PoisonError};
+use std::sync::{Arc, Mutex, PoisonError, Weak};
 
 use crate::config::{self, Config, ConfigErrors};
 
@@ -45,10 +45,22 @@ pub struct ConfigStore {
 /// The configuration as its operator wrote it: the TOML text (comments, order, spelling, the keys
 /// left out) and the configuration it reads as. `GET /config` shows it; a change over the REST
 /// API edits it ([`edit::merge_table`]) and writes it to the file.
-#[derive(Debug, Clone, PartialEq)]
+///
+/// The configuration is the one in force, shared (a large one holds every tag of every device:
+/// one copy in the process), and the text is shared by the clones: a clone costs two counts.
+#[derive(Debug, Clone)]
 pub struct ConfigText {
-    text: String,
-    config: Config,
+    text: Arc<str>,
+    config: Arc<Config>,
+}
+
+/// A [`ConfigText`] kept aside without holding its configuration: when that configuration is
+/// no longer in force (replaced by a SIGHUP re-read or a change), it is freed, and the text is
+/// read again to follow the one in force.
+#[derive(Debug, Clone)]
+pub struct KeptText {
+    text: Arc<str>,
+    config: Weak<Config>,
 }
 
 // === impl ConfigText ===
@@ -57,22 +69,22 @@ impl ConfigText {
     /// `text` when it reads as `config`; otherwise `text` with only what differs written into it
     /// (e.g. the demo's `pty:` placeholders replaced by the ports it made); `config` written out
     /// whole when `text` is not a configuration.
-    pub fn new(text: &str, config: &Config) -> Self {
+    pub fn new(text: &str, config: &Arc<Config>) -> Self {
         match config::parse(text) {
-            Ok(read) if read == *config => Self {
-                text: text.to_owned(),
-                config: read,
+            Ok(read) if read == **config => Self {
+                text: text.into(),
+                config: Arc::clone(config),
             },
             Ok(read) => {
                 let edited = toml::Table::try_from(&read)
                     .ok()
-                    .zip(toml::Table::try_from(config).ok())
+                    .zip(toml::Table::try_from(&**config).ok())
                     .and_then(|(old, new)| edit::edit_in_place(text, &old, &new))
-                    .filter(|edited| config::parse(edited).is_ok_and(|c| c == *config));
+                    .filter(|edited| config::parse(edited).is_ok_and(|c| c == **config));
                 match edited {
                     Some(text) => Self {
-                        text,
-                        config: config.clone(),
+                        text: text.into(),
+                        config: Arc::clone(config),
                     },
                     None => Self::of(config),
                 }
@@ -82,35 +94,28 @@ impl ConfigText {
     }
 
     /// `text` if it reads as `config` (and nothing else).
-    pub fn read(text: String, config: &Config) -> Option<Self> {
-        let read = config::parse(&text).ok().filter(|c| c == config)?;
-        Some(Self { text, config: read })
+    pub fn read(text: String, config: &Arc<Config>) -> Option<Self> {
+        config::parse(&text).ok().filter(|c| c == &**config)?;
+        Some(Self {
+            text: text.into(),
+            config: Arc::clone(config),
+        })
     }
 
     /// `config` written out whole (every key, defaults included): for a configuration that was
     /// never text.
-    pub fn of(config: &Config) -> Self {
+    pub fn of(config: &Arc<Config>) -> Self {
         Self {
-            text: toml::to_string(config).unwrap_or_default(),
-            config: config.clone(),
+            text: toml::to_string(&**config).unwrap_or_default().into(),
+            config: Arc::clone(config),
         }
     }
 
     /// An edited document and the configuration it reads as (the caller read it).
-    pub(crate) fn edited(doc: &toml_edit::DocumentMut, config: Config) -> Self {
+    pub(crate) fn edited(doc: &toml_edit::DocumentMut, config: Arc<Config>) -> Self {
         Self {
-            text: doc.to_string(),
+            text: doc.to_string().into(),
             config,
-        }
-    }
-
-    /// This text, or (when the configuration in force is no longer the one it reads as) this
-    /// text edited to read as `in_force`.
-    pub fn following(&self, in_force: &Config) -> Self {
-        if self.config == *in_force {
-            self.clone()
-        } else {
-            Self::new(&self.text, in_force)
         }
     }
 
@@ -124,12 +129,53 @@ impl ConfigText {
         &self.config
     }
 
+    /// This text kept aside without its configuration ([`KeptText`]).
+    pub fn keep(&self) -> KeptText {
+        KeptText {
+            text: Arc::clone(&self.text),
+            config: Arc::downgrade(&self.config),
+        }
+    }
+
     /// The text as a document to edit or show.
     pub fn document(&self) -> toml_edit::DocumentMut {
         self.text.parse().unwrap_or_else(|_| {
             // Only texts that read as a configuration are kept; this is never reached.
             toml_edit::DocumentMut::new()
         })
+    }
+}
+
+impl PartialEq for ConfigText {
+    fn eq(&self, other: &Self) -> bool {
+        self.text == other.text
+            && (Arc::ptr_eq(&self.config, &other.config) || self.config == other.config)
+    }
+}
+
+// === impl KeptText ===
+
+impl KeptText {
+    /// The TOML text.
+    pub fn text(&self) -> &str {
+        &self.text
+    }
+
+    /// The kept text, when the configuration it reads as is `in_force` (still in force, or an
+    /// equal one).
+    pub fn reading_as(&self, in_force: &Arc<Config>) -> Option<ConfigText> {
+        let config = self.config.upgrade()?;
+        (Arc::ptr_eq(&config, in_force) || config == *in_force).then(|| ConfigText {
+            text: Arc::clone(&self.text),
+            config: Arc::clone(in_force),
+        })
+    }
+
+    /// This text, or (when the configuration in force is no longer the one it reads as) this
+    /// text edited to read as `in_force`.
+    pub fn following(&self, in_force: &Arc<Config>) -> ConfigText {
+        self.reading_as(in_force)
+            .unwrap_or_else(|| ConfigText::new(&self.text, in_force))
     }
 }
 

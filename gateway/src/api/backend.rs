@@ -9,6 +9,7 @@
 use std::fmt::Display;
 use std::future::Future;
 use std::pin::Pin;
+use std::sync::Arc;
 
 use super::auth::Caller;
 use super::error::ApiError;
@@ -24,8 +25,8 @@ pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;
 
 /// The running gateway as the API sees it.
 pub trait ApiBackend: Send + Sync + 'static {
-    /// The configuration in force.
-    fn config(&self) -> Config;
+    /// The configuration in force (shared: it is not copied for a reader).
+    fn config(&self) -> Arc<Config>;
 
     /// Settings given on the command line that are in force in place of keys of the
     /// configuration (listeners), shown by `GET /config` beside it.
@@ -53,7 +54,7 @@ pub trait ApiBackend: Send + Sync + 'static {
 
     /// Puts `config` in force, restarting only the lines, devices and servers that changed.
     /// Called one change at a time, after the configuration was validated and persisted.
-    fn apply(&self, config: Config) -> BoxFuture<'_, Result<ApplyReport, ApiError>>;
+    fn apply(&self, config: Arc<Config>) -> BoxFuture<'_, Result<ApplyReport, ApiError>>;
 
     /// The whole gateway.
     fn gateway_status(&self) -> GatewayStatus;
@@ -134,7 +135,7 @@ pub trait ApiBackend: Send + Sync + 'static {
 
     /// A line's frame monitor; `not_found` for an unknown line, `conflict` when its monitor is
     /// off.
-    fn monitor(&self, line: &str) -> Result<std::sync::Arc<crate::line::FrameMonitor>, ApiError> {
+    fn monitor(&self, line: &str) -> Result<Arc<crate::line::FrameMonitor>, ApiError> {
         Err(ApiError::not_found("line", line))
     }
 }

@@ -77,7 +77,7 @@ pub use server::{serve, DEFAULT_HEADER_READ_TIMEOUT, DEFAULT_MAX_CONNECTIONS};
 pub use tls::HttpTls;
 
 use crate::config::Config;
-use crate::persist::{ConfigStore, ConfigText};
+use crate::persist::{ConfigStore, ConfigText, KeptText};
 
 /// The prefix of the versioned API.
 pub const API_PREFIX: &str = "/api/v1";
@@ -114,8 +114,9 @@ pub struct ApiState {
     extra: Option<Router>,
     /// The text the configuration was read from when there is no file (the demo's own).
     source_text: Option<Arc<str>>,
-    /// The configuration in force as its operator wrote it, once shown or changed.
-    document: Arc<std::sync::Mutex<Option<ConfigText>>>,
+    /// The configuration in force as its operator wrote it, once shown or changed; it does not
+    /// hold the configuration (the supervisor does), so a replaced one is freed.
+    document: Arc<std::sync::Mutex<Option<KeptText>>>,
 }
 
 impl std::fmt::Debug for ApiState {
@@ -360,24 +361,29 @@ impl ApiState {
     /// it reads as `in_force` (a comment added by hand since is kept); else the text of the last
     /// change, or the source text, with what differs in force written in; else `in_force`
     /// written out whole.
-    pub(crate) fn document(&self, in_force: &Config) -> ConfigText {
+    pub(crate) fn document(&self, in_force: &Arc<Config>) -> ConfigText {
         let mut kept = self
             .document
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner);
         let from_file = self.store.as_ref().and_then(|s| s.read_text());
-        let current = match (from_file, kept.take()) {
-            (Some(text), Some(k)) if k.text() == text && k.config() == in_force => k,
-            (Some(text), k) => ConfigText::read(text, in_force)
-                .unwrap_or_else(|| self.derived(k.as_ref(), in_force)),
-            (None, k) => self.derived(k.as_ref(), in_force),
+        let k = kept.take();
+        let same = match (&from_file, &k) {
+            (Some(text), Some(k)) if k.text() == text => k.reading_as(in_force),
+            _ => None,
         };
-        *kept = Some(current.clone());
+        let current = match (same, from_file) {
+            (Some(same), _) => same,
+            (None, Some(text)) => ConfigText::read(text, in_force)
+                .unwrap_or_else(|| self.derived(k.as_ref(), in_force)),
+            (None, None) => self.derived(k.as_ref(), in_force),
+        };
+        *kept = Some(current.keep());
         current
     }
 
     /// The kept text, else the source text, following `in_force`.
-    fn derived(&self, kept: Option<&ConfigText>, in_force: &Config) -> ConfigText {
+    fn derived(&self, kept: Option<&KeptText>, in_force: &Arc<Config>) -> ConfigText {
         match (kept, &self.source_text) {
             (Some(k), _) => k.following(in_force),
             (None, Some(source)) => ConfigText::new(source, in_force),
@@ -386,11 +392,11 @@ impl ApiState {
     }
 
     /// Keeps `text` as the configuration in force as written (after a change).
-    pub(crate) fn set_document(&self, text: ConfigText) {
+    pub(crate) fn set_document(&self, text: &ConfigText) {
         *self
             .document
             .lock()
-            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(text);
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = Some(text.keep());
     }
 }
 

@@ -634,7 +634,7 @@ pub fn unpolled_tags(config: &Config) -> Vec<ConfigIssue> {
                 if polled(&tag.name, tag.table, tag.address, tag.words()) {
                     continue;
                 }
-                match device.tags.iter().position(|t| t.name == tag.name) {
+                match device.tags.iter().position(|t| *t.name == *tag.name) {
                     Some(i) => warnings.push(ConfigIssue {
                         path: format!("{path}.tags[{i}]"),
                         message: format!(

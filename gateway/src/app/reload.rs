@@ -83,11 +83,11 @@ async fn reload_file(sup: &Arc<Supervisor>, path: &Path) {
     if let Err(issues) = sup.running_issues(&config) {
         return refused(path, &issues);
     }
-    if config == sup.snapshot().config {
+    if config == *sup.snapshot().config {
         info!(file = %path.display(), "SIGHUP: the configuration file is the configuration in force; nothing to apply");
         return;
     }
-    match sup.apply(config).await {
+    match sup.apply(Arc::new(config)).await {
         Ok(report) => info!(
             file = %path.display(),
             lines_started = ?report.lines_started,

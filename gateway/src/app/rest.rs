@@ -146,8 +146,8 @@ fn signals_view(s: crate::signals::ModemSignals) -> Signals {
 }
 
 impl ApiBackend for RestBackend {
-    fn config(&self) -> Config {
-        self.sup.snapshot().config.clone()
+    fn config(&self) -> Arc<Config> {
+        Arc::clone(&self.sup.snapshot().config)
     }
 
     fn overrides(&self) -> Vec<ConfigOverride> {
@@ -200,7 +200,7 @@ impl ApiBackend for RestBackend {
         super::check::config_issues(config, found)
     }
 
-    fn apply(&self, config: Config) -> BoxFuture<'_, Result<ApplyReport, ApiError>> {
+    fn apply(&self, config: Arc<Config>) -> BoxFuture<'_, Result<ApplyReport, ApiError>> {
         Box::pin(self.sup.apply(config))
     }
 

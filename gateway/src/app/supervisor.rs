@@ -41,7 +41,8 @@ use proto_core::cpmem::AddressMap;
 /// What is in force: read as a whole, replaced as a whole.
 #[derive(Debug)]
 pub(crate) struct Snapshot {
-    pub(crate) config: Config,
+    /// Shared with the REST API's view of it (one copy of every tag list in the process).
+    pub(crate) config: Arc<Config>,
     pub(crate) lines: BTreeMap<String, RunningLine>,
     pub(crate) tags: Arc<TagDirectory>,
     /// The Modbus TCP server's options (its write checks apply to REST and zenoh writes too).
@@ -186,7 +187,7 @@ impl Supervisor {
         let snapshot = Snapshot {
             tags: Arc::new(TagDirectory::from_config(&config)),
             server: server_options(&config.modbus_tcp),
-            config,
+            config: Arc::new(config),
             lines,
         };
         let tcp_stats = Arc::new(ServerStats::with_metrics(
@@ -361,7 +362,7 @@ impl Supervisor {
     }
 
     /// Puts `new` in force, restarting only what changed; reports what was restarted.
-    pub(crate) async fn apply(self: &Arc<Self>, new: Config) -> Result<ApplyReport, ApiError> {
+    pub(crate) async fn apply(self: &Arc<Self>, new: Arc<Config>) -> Result<ApplyReport, ApiError> {
         let old = self.snapshot();
         let diff = ConfigDiff::between(&old.config, &new);
         let mut report = diff.report();

@@ -54,6 +54,38 @@ fn a_save_keeps_the_previous_version_and_leaves_no_temporary_file() {
 }
 
 #[test]
+fn a_kept_text_shares_the_configuration_in_force_and_lets_a_replaced_one_go() {
+    let text = format!("# the operator's comment\n{}", version(3));
+    let first = Arc::new(config::parse(&text).unwrap());
+    let shown = ConfigText::read(text.clone(), &first).expect("the text reads as it");
+    assert!(std::ptr::eq(shown.config(), &*first), "shared, not a copy");
+    let kept = shown.keep();
+    drop(shown);
+
+    // Still in force: the kept text is that configuration's, comment and all.
+    let again = kept.reading_as(&first).expect("still in force");
+    assert!(std::ptr::eq(again.config(), &*first));
+    assert_eq!(again.text(), text);
+    drop(again);
+
+    // Replaced: the kept text does not hold the old configuration ...
+    let renamed = text.replace("name = \"v3\"", "name = \"renamed\"");
+    let second = Arc::new(config::parse(&renamed).unwrap());
+    let gone = Arc::downgrade(&first);
+    drop(first);
+    assert!(
+        gone.upgrade().is_none(),
+        "the replaced configuration is freed"
+    );
+    assert!(kept.reading_as(&second).is_none());
+
+    // ... and follows the one in force, the operator's comment kept.
+    let followed = kept.following(&second);
+    assert!(std::ptr::eq(followed.config(), &*second));
+    assert_eq!(followed.text(), renamed);
+}
+
+#[test]
 fn save_writes_a_config_that_loads_back_equal() {
     let dir = tempfile::tempdir().unwrap();
     let store = ConfigStore::new(dir.path().join("gateway.toml"));

@@ -4,7 +4,7 @@
 //! received telegrams, readiness) and read it back over HTTP.
 
 use std::collections::{BTreeMap, VecDeque};
-use std::sync::{Mutex, MutexGuard, PoisonError};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError};
 use std::time::{Duration, SystemTime};
 
 use gateway::api::auth::Caller;
@@ -119,7 +119,7 @@ impl LineRt {
 
 #[derive(Debug)]
 struct Inner {
-    config: Config,
+    config: Arc<Config>,
     lines: BTreeMap<String, LineRt>,
     tags: BTreeMap<(String, String, String), (TagSpec, Option<SystemTime>)>,
     modbus_tcp_clients: u64,
@@ -157,7 +157,7 @@ impl MemGateway {
             .collect();
         Self {
             inner: Mutex::new(Inner {
-                config,
+                config: Arc::new(config),
                 lines,
                 tags,
                 modbus_tcp_clients: 0,
@@ -318,8 +318,8 @@ impl MemGateway {
 }
 
 impl ApiBackend for MemGateway {
-    fn config(&self) -> Config {
-        self.lock().config.clone()
+    fn config(&self) -> Arc<Config> {
+        Arc::clone(&self.lock().config)
     }
 
     fn validate(&self, config: &Config) -> Result<(), Vec<ConfigIssue>> {
@@ -339,7 +339,7 @@ impl ApiBackend for MemGateway {
         }
     }
 
-    fn apply(&self, config: Config) -> BoxFuture<'_, Result<ApplyReport, ApiError>> {
+    fn apply(&self, config: Arc<Config>) -> BoxFuture<'_, Result<ApplyReport, ApiError>> {
         Box::pin(async move {
             tokio::time::sleep(self.apply_delay).await;
             let mut inner = self.lock();

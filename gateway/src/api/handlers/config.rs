@@ -493,7 +493,7 @@ async fn change_in_task(
     backend.validate(&new).map_err(backend_issues)?;
     let etag = body::etag(&new);
     let persisted = state.store().is_some();
-    if new == current {
+    if new == *current {
         // Nothing that means anything changed: the file stays byte for byte.
         return Ok(ConfigChangeResult {
             etag,
@@ -501,7 +501,8 @@ async fn change_in_task(
             applied: Default::default(),
         });
     }
-    let text = ConfigText::edited(&doc, new.clone());
+    let new = std::sync::Arc::new(new);
+    let text = ConfigText::edited(&doc, std::sync::Arc::clone(&new));
     if let Some(store) = state.store() {
         let to_save = text.text().to_owned();
         tokio::task::spawn_blocking(move || store.save_atomic(&to_save))
@@ -515,7 +516,7 @@ async fn change_in_task(
             })?;
         tracing::info!(file = %state.store().map(|s| s.path().display().to_string()).unwrap_or_default(), %etag, "configuration saved");
     }
-    state.set_document(text);
+    state.set_document(&text);
     let applied = backend.apply(new).await?;
     tracing::info!(%etag, ?applied, "configuration applied");
     Ok(ConfigChangeResult {
