@@ -83,6 +83,7 @@ mod presence;
 mod publish;
 mod queryable;
 mod subscribe;
+mod tag_queue;
 
 use std::future::Future;
 use std::path::PathBuf;
@@ -93,7 +94,6 @@ use std::time::{Duration, SystemTime};
 use serde_json::{json, Value};
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
-use zenoh::key_expr::OwnedKeyExpr;
 use zenoh::pubsub::Subscriber;
 use zenoh::query::Queryable;
 use zenoh::Session;
@@ -325,27 +325,18 @@ impl BridgeHandle {
     }
 
     /// Queues a tag value for `<prefix>/<line>/<device>/<tag>`; a newer value of the same tag
-    /// replaces one not yet published. The key expression is checked here, once per value, and
-    /// published as it is.
+    /// replaces one not yet published. The key is written into the outbox (no allocation per
+    /// value), checked as a key expression once when it becomes pending, and published as it is.
     pub fn publish_tag(&self, line: &str, device: &str, tag: &str, value: TagValue) {
         if self.check(&[line, device, tag]).is_err() {
             return;
         }
-        match OwnedKeyExpr::try_from(self.keys.tag(line, device, tag)) {
-            Ok(key) => {
-                let now = tokio::time::Instant::now();
-                match self
-                    .publishing
-                    .admit(&key, (line, device, tag), &value, now)
-                {
-                    Verdict::Publish => self.outbox.push_tag(key, value),
-                    Verdict::WithinDeadband => self.stats.suppressed_by_deadband(),
-                }
-            }
-            Err(e) => {
-                self.stats.dropped(DropReason::BadKey);
-                crate::warn_limited!("zenoh bad tag key", %line, %device, %tag, error = %e, "tag value not published on zenoh");
-            }
+        let now = tokio::time::Instant::now();
+        match self.publishing.admit((line, device, tag), &value, now) {
+            Verdict::Publish => self
+                .outbox
+                .push_tag(&[self.keys.prefix(), line, device, tag], value),
+            Verdict::WithinDeadband => self.stats.suppressed_by_deadband(),
         }
     }
 
@@ -612,13 +603,14 @@ async fn heartbeats(
                     .query_tags(Some(&line), Some(&device), Some(&tag))
                     .into_iter()
                     .find(|(l, d, t, _)| *l == line && *d == device && *t == tag);
-                let Ok(key) = OwnedKeyExpr::try_from(handle.keys.tag(&line, &device, &tag)) else {
-                    continue;
-                };
                 if let Some((_, _, _, value)) = current {
-                    handle.publishing.record(&key, &value, now);
+                    handle
+                        .publishing
+                        .record((&line, &device, &tag), &value, now);
                     handle.stats.heartbeat_sent();
-                    handle.outbox.push_tag(key, value);
+                    handle
+                        .outbox
+                        .push_tag(&[handle.keys.prefix(), &line, &device, &tag], value);
                 }
             }
         })

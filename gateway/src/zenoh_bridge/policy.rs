@@ -15,7 +15,6 @@ use std::time::Duration;
 
 use serde_json::Value;
 use tokio::time::Instant;
-use zenoh::key_expr::OwnedKeyExpr;
 
 use super::TagValue;
 use crate::config::{PublishConfig, TagPolicy};
@@ -40,7 +39,8 @@ struct Last {
 #[derive(Debug, Default)]
 pub(crate) struct Publishing {
     config: PublishConfig,
-    last: Mutex<HashMap<OwnedKeyExpr, Last>>,
+    /// By `<line>/<device>/<tag>`.
+    last: Mutex<HashMap<String, Last>>,
 }
 
 /// What to do with a new value.
@@ -62,16 +62,15 @@ impl Publishing {
         }
     }
 
-    fn lock(&self) -> MutexGuard<'_, HashMap<OwnedKeyExpr, Last>> {
+    fn lock(&self) -> MutexGuard<'_, HashMap<String, Last>> {
         // A panic while holding the lock leaves whole entries behind.
         self.last.lock().unwrap_or_else(PoisonError::into_inner)
     }
 
-    /// Whether `value` of tag `names` (under `key`) is published now; when it is, it becomes
-    /// the tag's last published value.
+    /// Whether `value` of tag `names` is published now; when it is, it becomes the tag's last
+    /// published value.
     pub(crate) fn admit(
         &self,
-        key: &OwnedKeyExpr,
         (line, device, tag): (&str, &str, &str),
         value: &TagValue,
         now: Instant,
@@ -80,8 +79,9 @@ impl Publishing {
         if !policy.is_active() {
             return Verdict::Publish;
         }
+        let key = format!("{line}/{device}/{tag}");
         let mut last = self.lock();
-        if let Some(l) = last.get_mut(key) {
+        if let Some(l) = last.get_mut(&key) {
             if l.quality == value.quality
                 && (l.value == value.value || within_deadband(&policy, &l.value, &value.value))
             {
@@ -93,7 +93,7 @@ impl Publishing {
             l.policy = policy;
         } else {
             last.insert(
-                key.clone(),
+                key,
                 Last {
                     line: line.to_owned(),
                     device: device.to_owned(),
@@ -113,9 +113,14 @@ impl Publishing {
         self.config.policy(line, device, tag).is_active()
     }
 
-    /// Records `value` as published by a heartbeat (whatever the deadband says).
-    pub(crate) fn record(&self, key: &OwnedKeyExpr, value: &TagValue, now: Instant) {
-        if let Some(l) = self.lock().get_mut(key) {
+    /// Records `value` of tag `names` as published by a heartbeat (whatever the deadband says).
+    pub(crate) fn record(
+        &self,
+        (line, device, tag): (&str, &str, &str),
+        value: &TagValue,
+        now: Instant,
+    ) {
+        if let Some(l) = self.lock().get_mut(&format!("{line}/{device}/{tag}")) {
             l.value.clone_from(&value.value);
             l.quality = value.quality;
             l.at = now;
@@ -241,10 +246,9 @@ mod tests {
             default: policy(1.0, 0.0, 1000),
             tags: Vec::new(),
         });
-        let key = OwnedKeyExpr::new("gw/t/l/d/x").unwrap();
         let names = ("l", "d", "x");
         let t0 = Instant::now();
-        let admit = |v: f64, q, at| p.admit(&key, names, &value(json!(v), q), at);
+        let admit = |v: f64, q, at| p.admit(names, &value(json!(v), q), at);
         assert_eq!(admit(10.0, "good", t0), Verdict::Publish);
         assert_eq!(admit(10.6, "good", t0), Verdict::WithinDeadband);
         // Small steps do not creep past the reference: 10.6, then 11.0 is 1.0 from 10.0.
@@ -253,8 +257,7 @@ mod tests {
         // A quality change always goes out; the same value and quality again does not.
         assert_eq!(admit(11.1, "stale", t0), Verdict::Publish);
         assert_eq!(admit(11.1, "stale", t0), Verdict::WithinDeadband);
-        let flag = OwnedKeyExpr::new("gw/t/l/d/on").unwrap();
-        let on = |v: bool| p.admit(&flag, ("l", "d", "on"), &value(json!(v), "good"), t0);
+        let on = |v: bool| p.admit(("l", "d", "on"), &value(json!(v), "good"), t0);
         assert_eq!(on(true), Verdict::Publish);
         assert_eq!(on(true), Verdict::WithinDeadband);
         assert_eq!(on(false), Verdict::Publish);
@@ -264,7 +267,7 @@ mod tests {
         let names = |t: &str| ("l".to_owned(), "d".to_owned(), t.to_owned());
         assert_eq!(due, [names("on"), names("x")]);
         p.record(
-            &key,
+            ("l", "d", "x"),
             &value(json!(11.2), "good"),
             t0 + Duration::from_secs(1),
         );

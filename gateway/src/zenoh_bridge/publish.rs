@@ -3,7 +3,8 @@
 //! ```text
 //! serial line / image / command worker          publisher thread (std, owns publishers + tokens)
 //!   BridgeHandle::publish_*  --try, never waits-->  Outbox { telegrams, events, results: FIFO,
-//!                                                            tags: newest value per key,
+//!                                                            tags: newest value per key, taken
+//!                                                                  a chunk of 1024 at a time,
 //!                                                            presence: latest state per device }
 //!                                                       --> Publisher::put / Session::put
 //! ```
@@ -12,9 +13,11 @@
 //! values and command results are plain session puts with the options given per call: a
 //! declared publisher holds state in the session and in zenoh's routing tables (its interest in
 //! matching subscribers), about 3 KiB each, 35 MiB for 10 000 tags; a put keeps nothing between
-//! samples and sends the same message. A tag's key expression is checked once, when its value
-//! is queued ([`BridgeHandle::publish_tag`](super::BridgeHandle::publish_tag)), and published as
-//! it is.
+//! samples and sends the same message. A tag's key expression is checked once, when the key
+//! becomes pending ([`BridgeHandle::publish_tag`](super::BridgeHandle::publish_tag)), and
+//! published as it is. The pending tag values are kept compact ([`super::tag_queue`]): with
+//! 100 000 tags pending the outbox holds 6.6 MiB, and each take hands the thread at most
+//! [`CHUNK`](super::tag_queue::CHUNK) of them, so no batch of every pending tag is ever built.
 //!
 //! A zenoh put with `CongestionControl::Block` waits while the network is congested; that wait
 //! happens on the publisher thread only, so a slow subscriber slows the outbox, never a serial
@@ -28,19 +31,21 @@ use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, SystemTime};
 
 use zenoh::bytes::Encoding;
-use zenoh::key_expr::OwnedKeyExpr;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::{Session, Wait};
 
 use super::presence::Presence;
 use super::stats::{BridgeStats, DropReason, PublicationKind};
+use super::tag_queue::{Chunk, Pushed, TagQueue};
 use super::TagValue;
 
 /// How long the thread sleeps between checks of a closed outbox when nothing arrives.
 const IDLE_WAIT: Duration = Duration::from_millis(500);
 /// At most this many presence changes wait (the devices of one gateway are far fewer).
 const PRESENCE_LIMIT: usize = 4096;
+/// Room for a tag payload without a description (about 80 bytes).
+const TAG_PAYLOAD: usize = 128;
 
 /// One publication that must not be coalesced: a telegram, an event, a command result.
 #[derive(Debug)]
@@ -67,15 +72,13 @@ pub(crate) struct Limits {
 }
 
 /// What waits for the publisher thread.
-#[derive(Default)]
 struct Pending {
     telegrams: VecDeque<Message>,
     events: VecDeque<Message>,
     results: VecDeque<Message>,
     frames: VecDeque<Message>,
-    /// Newest value per tag key, and the order in which keys became pending.
-    tags: HashMap<OwnedKeyExpr, TagValue>,
-    tag_order: VecDeque<OwnedKeyExpr>,
+    /// Newest value per tag key, in the order in which keys became pending.
+    tags: TagQueue,
     /// Latest online state per device token key, in order of first change.
     presence: HashMap<String, bool>,
     presence_order: VecDeque<String>,
@@ -86,28 +89,38 @@ struct Pending {
 }
 
 impl Pending {
+    fn new(tag_limit: usize) -> Self {
+        Self {
+            telegrams: VecDeque::new(),
+            events: VecDeque::new(),
+            results: VecDeque::new(),
+            frames: VecDeque::new(),
+            tags: TagQueue::new(tag_limit),
+            presence: HashMap::new(),
+            presence_order: VecDeque::new(),
+            session: None,
+            closed: false,
+        }
+    }
+
     fn is_empty(&self) -> bool {
         self.telegrams.is_empty()
             && self.events.is_empty()
             && self.results.is_empty()
             && self.frames.is_empty()
-            && self.tag_order.is_empty()
+            && self.tags.is_empty()
             && self.presence_order.is_empty()
     }
 
-    /// Takes everything pending, tags and presence changes in the order their keys became
-    /// pending.
+    /// Takes every message and presence change pending, and the oldest chunk of pending tag
+    /// values; presence changes and tags in the order their keys became pending.
     fn drain(&mut self) -> Batch {
         let mut presence_map = std::mem::take(&mut self.presence);
         let presence = std::mem::take(&mut self.presence_order)
             .into_iter()
             .filter_map(|k| presence_map.remove(&k).map(|on| (k, on)))
             .collect();
-        let mut tag_map = std::mem::take(&mut self.tags);
-        let tags = std::mem::take(&mut self.tag_order)
-            .into_iter()
-            .filter_map(|k| tag_map.remove(&k).map(|v| (k, v)))
-            .collect();
+        let tags = self.tags.take();
         Batch {
             presence,
             results: std::mem::take(&mut self.results),
@@ -119,14 +132,14 @@ impl Pending {
     }
 }
 
-/// Everything taken from the outbox in one go.
+/// What the publisher thread takes from the outbox in one go.
 struct Batch {
     presence: Vec<(String, bool)>,
     results: VecDeque<Message>,
     telegrams: VecDeque<Message>,
     events: VecDeque<Message>,
     frames: VecDeque<Message>,
-    tags: Vec<(OwnedKeyExpr, TagValue)>,
+    tags: Option<Chunk>,
 }
 
 /// The bounded hand-over between producers and the publisher thread.
@@ -142,7 +155,7 @@ pub(crate) struct Outbox {
 impl Outbox {
     pub(crate) fn new(limits: Limits, stats: Arc<BridgeStats>) -> Self {
         Self {
-            pending: Mutex::new(Pending::default()),
+            pending: Mutex::new(Pending::new(limits.tags)),
             wake: Condvar::new(),
             limits,
             stats,
@@ -199,30 +212,32 @@ impl Outbox {
         Ok(())
     }
 
-    /// Sets the pending value of a tag key; a pending older value is replaced (counted as
-    /// superseded).
-    pub(crate) fn push_tag(&self, key: OwnedKeyExpr, value: TagValue) {
+    /// Sets the pending value of the tag key made of `key` joined by `/`; a pending older value
+    /// is replaced (counted as superseded). A key not pending yet is checked as a key
+    /// expression (a bad one is dropped and counted) and waits behind the others.
+    pub(crate) fn push_tag(&self, key: &[&str], value: TagValue) {
         let mut p = self.lock();
         if p.closed {
             drop(p);
             self.stats.dropped(DropReason::BridgeClosed);
             return;
         }
-        if let Some(slot) = p.tags.get_mut(&key) {
-            *slot = value;
-            drop(p);
-            self.stats.dropped(DropReason::TagSuperseded);
-            return;
-        }
-        if p.tags.len() >= self.limits.tags {
-            drop(p);
-            self.stats.dropped(DropReason::TagQueueFull);
-            return;
-        }
-        p.tag_order.push_back(key.clone());
-        p.tags.insert(key, value);
+        let pushed = p.tags.push(key, value);
         drop(p);
-        self.wake.notify_one();
+        match pushed {
+            Pushed::New => self.wake.notify_one(),
+            Pushed::Superseded => self.stats.dropped(DropReason::TagSuperseded),
+            Pushed::Full => self.stats.dropped(DropReason::TagQueueFull),
+            Pushed::BadKey(key, error) => {
+                self.stats.dropped(DropReason::BadKey);
+                crate::warn_limited!("zenoh bad tag key", %key, %error, "tag value not published on zenoh");
+            }
+        }
+    }
+
+    /// Takes back a chunk of tag values the publisher thread has published, to be reused.
+    fn recycle(&self, chunk: Chunk) {
+        self.lock().tags.recycle(chunk);
     }
 
     /// Sets the latest online state of a device token key.
@@ -316,8 +331,11 @@ impl PublisherThread {
             {
                 self.publish_message(&session, msg);
             }
-            for (key, value) in batch.tags {
-                self.put_tag(&session, &key, &value);
+            if let Some(chunk) = batch.tags {
+                for i in 0..chunk.len() {
+                    self.put_tag(&session, &chunk, i);
+                }
+                self.outbox.recycle(chunk);
             }
         }
         // Undeclare in order: tokens first (peers see the devices and the gateway go), then
@@ -326,17 +344,23 @@ impl PublisherThread {
         self.publishers.clear();
     }
 
-    /// A tag value: a session put with the options a tag publisher had (congestion control
-    /// drop, default priority, not express), JSON, the session's timestamp.
-    fn put_tag(&self, session: &Session, key: &OwnedKeyExpr, value: &TagValue) {
-        let payload = value.to_json().to_string().into_bytes();
+    /// Tag value `i` of `chunk`: a session put with the options a tag publisher had (congestion
+    /// control drop, default priority, not express), JSON, the session's timestamp.
+    fn put_tag(&self, session: &Session, chunk: &Chunk, i: usize) {
+        let key = chunk.key(i);
+        let mut payload = Vec::with_capacity(TAG_PAYLOAD);
+        if let Err(e) = chunk.write_payload(i, &mut payload) {
+            self.stats.dropped(DropReason::PublishError);
+            crate::warn_limited!("zenoh tag payload not written", %key, error = %e, "zenoh tag payload not written");
+            return;
+        }
         let result = session
             .put(key, payload)
             .congestion_control(congestion(PublicationKind::Tag))
             .encoding(Encoding::APPLICATION_JSON)
             .timestamp(session.new_timestamp())
             .wait();
-        self.count(PublicationKind::Tag, key.as_str(), result);
+        self.count(PublicationKind::Tag, key, result);
     }
 
     /// A telegram, an event (declared publisher) or a command result (session put).
@@ -432,6 +456,7 @@ pub(crate) fn rfc3339(t: SystemTime) -> String {
 mod tests {
     use proptest::prelude::*;
 
+    use super::super::tag_queue::CHUNK;
     use super::*;
 
     fn outbox(limit: usize) -> (Arc<BridgeStats>, Outbox) {
@@ -455,10 +480,6 @@ mod tests {
             attachment: None,
             done: None,
         }
-    }
-
-    fn ke(key: &str) -> OwnedKeyExpr {
-        OwnedKeyExpr::try_from(key.to_owned()).unwrap()
     }
 
     fn value(v: i64) -> TagValue {
@@ -490,15 +511,53 @@ mod tests {
     #[test]
     fn newest_tag_value_wins_and_keys_keep_their_order() {
         let (stats, o) = outbox(2);
-        o.push_tag(ke("k/a"), value(1));
-        o.push_tag(ke("k/b"), value(2));
-        o.push_tag(ke("k/a"), value(3));
-        o.push_tag(ke("k/c"), value(4));
+        o.push_tag(&["k", "a"], value(1));
+        o.push_tag(&["k", "b"], value(2));
+        o.push_tag(&["k", "a"], value(3));
+        o.push_tag(&["k", "c"], value(4));
         assert_eq!(stats.drops(DropReason::TagSuperseded), 1);
         assert_eq!(stats.drops(DropReason::TagQueueFull), 1);
         let p = o.lock();
-        assert_eq!(p.tag_order, [ke("k/a"), ke("k/b")]);
-        assert_eq!(p.tags[&ke("k/a")].value, 3);
+        assert_eq!(p.tags.keys(), ["k/a", "k/b"]);
+        assert_eq!(p.tags.value("k/a").unwrap().value, 3);
+    }
+
+    #[test]
+    fn the_thread_takes_tags_a_chunk_at_a_time_in_order() {
+        let (stats, o) = outbox(3 * CHUNK);
+        let key = |n: usize| format!("t{n}");
+        for n in 0..2 * CHUNK + 5 {
+            o.push_tag(&["gw", "l", "d", &key(n)], value(n as i64));
+        }
+        // Newer values for keys of the first and the last chunk keep their places.
+        o.push_tag(&["gw", "l", "d", &key(1)], value(-1));
+        o.push_tag(&["gw", "l", "d", &key(2 * CHUNK + 4)], value(-2));
+        assert_eq!(stats.drops(DropReason::TagSuperseded), 2);
+        let mut sizes = Vec::new();
+        let mut taken = Vec::new();
+        loop {
+            let batch = o.lock().drain();
+            let Some(chunk) = batch.tags else { break };
+            sizes.push(chunk.len());
+            taken.extend((0..chunk.len()).map(|i| {
+                let (k, v) = chunk.get(i);
+                (k.to_owned(), v.value.as_i64().unwrap_or(i64::MIN))
+            }));
+            o.recycle(chunk);
+        }
+        assert_eq!(sizes, [CHUNK, CHUNK, 5]);
+        let expected: Vec<(String, i64)> = (0..2 * CHUNK + 5)
+            .map(|n| {
+                let v = match n {
+                    1 => -1,
+                    n if n == 2 * CHUNK + 4 => -2,
+                    n => n as i64,
+                };
+                (format!("gw/l/d/t{n}"), v)
+            })
+            .collect();
+        assert_eq!(taken, expected);
+        assert!(o.lock().is_empty());
     }
 
     #[derive(Clone, Debug)]
@@ -528,13 +587,20 @@ mod tests {
     }
 
     fn check_drain(o: &Outbox, model: &mut Model) -> Result<(), TestCaseError> {
-        let batch = o.lock().drain();
-        let tags: Vec<(String, i64)> = batch
-            .tags
-            .iter()
-            .map(|(k, v)| (k.as_str().to_owned(), v.value.as_i64().unwrap_or(i64::MIN)))
-            .collect();
-        let results: Vec<u8> = batch.results.iter().map(|m| m.payload[0]).collect();
+        // The thread takes a chunk of tags at a time: what it takes until nothing is pending.
+        let (mut tags, mut results) = (Vec::new(), Vec::new());
+        loop {
+            let batch = o.lock().drain();
+            results.extend(batch.results.iter().map(|m| m.payload[0]));
+            let Some(chunk) = batch.tags else { break };
+            tags.extend((0..chunk.len()).map(|i| {
+                let (k, v) = chunk.get(i);
+                (k.to_owned(), v.value.as_i64().unwrap_or(i64::MIN))
+            }));
+            o.recycle(chunk);
+        }
+        let tags: Vec<(String, i64)> = tags;
+        let results: Vec<u8> = results;
         prop_assert_eq!(tags, std::mem::take(&mut model.tags));
         prop_assert_eq!(results, std::mem::take(&mut model.results));
         prop_assert!(o.lock().is_empty());
@@ -555,7 +621,7 @@ mod tests {
                 match op {
                     Op::Tag(k, v) => {
                         let key = format!("k/{k}");
-                        o.push_tag(ke(&key), value(v));
+                        o.push_tag(&["k", &k.to_string()], value(v));
                         match model.tags.iter_mut().find(|(m, _)| *m == key) {
                             Some(slot) => {
                                 slot.1 = v;
@@ -587,7 +653,7 @@ mod tests {
             o.push(msg(PublicationKind::Event, 1)),
             Err(DropReason::BridgeClosed)
         );
-        o.push_tag(ke("k"), value(1));
+        o.push_tag(&["k"], value(1));
         assert_eq!(stats.drops(DropReason::BridgeClosed), 2);
         assert!(o.take().is_none());
     }
