@@ -10,6 +10,11 @@
 //! The directory is built once from the config; zenoh and REST read tags through it, and write
 //! them through the same unit service as a Modbus TCP write.
 //!
+//! Size and speed: one gateway may hold 100 000 tags. An entry keeps only its name and address
+//! and shares the rest: its line, device, unit id and profile with the device's other tags, its
+//! kind (type, scale, unit, description, ...) with every tag alike; about 50 bytes a tag where a
+//! full copy of each took 200.
+//!
 //! Names: a tag name compares without letter case (ASCII) wherever the gateway looks one up:
 //! poll groups in the config, REST paths, zenoh queries and sets (`acc` finds `ACC`). Every
 //! answer and every key the gateway writes uses the one spelling the profile or the config gives
@@ -24,29 +29,131 @@
 //! 0..=100) is refused with the nearest values it can hold, never rounded or clipped. Float tags
 //! hold what the float holds (at their `decimals` places, when set).
 
+use std::collections::HashSet;
+use std::hash::{Hash, Hasher};
+use std::ops::Range;
 use std::sync::Arc;
 use std::time::SystemTime;
 
 use proto_core::modbus::pdu::{ExceptionCode, Request};
-use proto_core::profiles::{self, BitUpdate, DeviceProfile, EncodeError, Tag, Value};
+use proto_core::profiles::{
+    self, BitUpdate, DataType, DeviceProfile, EncodeError, Quality, Tag, Value,
+};
 
 use crate::config::{self, Config, DeviceConfig};
 use crate::image::{ProcessImage, Table};
 
 /// One tag of one device on one line.
+///
+/// A gateway may hold 100 000 of them, so an entry keeps only what is its own (its name and
+/// address) and shares the rest: its device (line, device name, unit id, profile) with the
+/// device's other tags, and its kind (table, type, scale, unit, description, ...) with every
+/// tag alike (a device of 500 `u16` holding registers has one kind).
 #[derive(Clone, Debug)]
 pub struct TagEntry {
+    device: Arc<DeviceOfTags>,
+    /// The tag without its name and address (its name is empty, its address 0: the entry
+    /// keeps its own).
+    kind: Arc<Tag>,
+    name: Box<str>,
+    address: u16,
+}
+
+/// What the tags of one device share.
+#[derive(Debug)]
+struct DeviceOfTags {
+    line: String,
+    device: String,
+    unit_id: u8,
+    /// The device's profile, for decoding and encoding; its tag list is empty (the entries
+    /// hold the tags).
+    profile: DeviceProfile,
+}
+
+// === impl TagEntry ===
+
+impl TagEntry {
     /// The line's name.
-    pub line: String,
+    pub fn line(&self) -> &str {
+        &self.device.line
+    }
+
     /// The device's name.
-    pub device: String,
+    pub fn device(&self) -> &str {
+        &self.device.device
+    }
+
     /// The unit id the device is kept under.
-    pub unit_id: u8,
-    /// The device's profile (shared by its tags), for decoding and encoding; its tag list is
-    /// empty (each entry holds its own tag).
-    pub profile: Arc<DeviceProfile>,
-    /// The tag.
-    pub tag: Tag,
+    pub fn unit_id(&self) -> u8 {
+        self.device.unit_id
+    }
+
+    /// The tag's name, spelled as the profile or the config gives it.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The Modbus table.
+    pub fn table(&self) -> Table {
+        self.kind.table
+    }
+
+    /// The address of the first register (or bit).
+    pub fn address(&self) -> u16 {
+        self.address
+    }
+
+    /// How the words are read.
+    pub fn data_type(&self) -> DataType {
+        self.kind.data_type
+    }
+
+    /// How many registers (or bits) the tag occupies.
+    pub fn words(&self) -> u16 {
+        self.kind.data_type.words()
+    }
+
+    /// The engineering unit, empty for plain numbers.
+    pub fn unit(&self) -> &str {
+        &self.kind.unit
+    }
+
+    /// What the datum is, in a few words (empty when the profile or config says nothing).
+    pub fn description(&self) -> &str {
+        &self.kind.description
+    }
+
+    /// Whether the gateway may write the tag.
+    pub fn writable(&self) -> bool {
+        self.kind.writable
+    }
+
+    /// The whole tag, as the profile or the config gives it (a copy: for writes and checks).
+    pub fn tag(&self) -> Tag {
+        Tag {
+            name: self.name.to_string(),
+            address: self.address,
+            ..Tag::clone(&self.kind)
+        }
+    }
+
+    /// The value and the device's quality of the tag's words (`raw[0]` is the word at its
+    /// address), decoded by the device's profile.
+    pub fn decode(&self, raw: &[u16]) -> (Value, Quality) {
+        // Decoding reads neither the name nor the address.
+        self.device.profile.decode(&self.kind, raw)
+    }
+
+    /// The address after the tag's last register, as a `u32` so that it cannot overflow.
+    fn end(&self) -> u32 {
+        u32::from(self.address) + u32::from(self.words())
+    }
+
+    /// Whether the tag overlaps registers `start..end` of its table: the test
+    /// [`TagDirectory::overlapping`] applies.
+    fn overlaps(&self, start: u32, end: u32) -> bool {
+        u32::from(self.address) < end && start < self.end()
+    }
 }
 
 /// A tag's current value.
@@ -109,10 +216,13 @@ impl TagWriteOp {
     }
 }
 
-/// Every tag of the configured devices.
+/// Every tag of the configured devices, in the config's order.
 #[derive(Clone, Debug, Default)]
 pub struct TagDirectory {
+    /// The tags, each device's together, in the order of the config.
     entries: Vec<TagEntry>,
+    /// Each device with its tags, a range of `entries`, for [`Self::find`].
+    devices: Vec<(Arc<DeviceOfTags>, Range<usize>)>,
 }
 
 // === impl TagDirectory ===
@@ -121,37 +231,42 @@ impl TagDirectory {
     /// The tags of every polled device in `config`: the profile's tags, or the config's tag list
     /// for generic devices (plus any config tags on a profiled device).
     pub fn from_config(config: &Config) -> Self {
-        let mut entries = Vec::new();
+        let mut builder = Builder::default();
         for (line_name, line) in &config.lines {
             if let Some(slave) = line.protocol.cp_memory_slave() {
-                entries.extend(cp_memory_tags(config, line_name, slave));
+                if let Some((unit_id, tags)) = cp_memory_tags(config, slave) {
+                    builder.device(
+                        line_name,
+                        CP_MEMORY_DEVICE,
+                        unit_id,
+                        DeviceProfile::generic(CP_MEMORY_DEVICE, slave.address, tags),
+                    );
+                }
             }
             for (device_name, device) in line.devices() {
-                let (profile, tags) = shared(profile_of(device_name, device));
-                entries.extend(tags.into_iter().map(|tag| TagEntry {
-                    line: line_name.clone(),
-                    device: device_name.clone(),
-                    unit_id: device.unit_id,
-                    profile: Arc::clone(&profile),
-                    tag,
-                }));
+                builder.device(
+                    line_name,
+                    device_name,
+                    device.unit_id,
+                    profile_of(device_name, device),
+                );
             }
         }
-        // Kept for the life of the config: no spare capacity (10 000 tags, 2 MiB).
-        entries.shrink_to_fit();
-        Self { entries }
+        builder.build()
     }
 
-    /// All tags.
+    /// All tags, in the config's order (each device's tags together).
     pub fn iter(&self) -> impl Iterator<Item = &TagEntry> {
         self.entries.iter()
     }
 
     /// One tag by line, device and name (names compare without case: `eta` finds `ETA`).
     pub fn find(&self, line: &str, device: &str, tag: &str) -> Option<&TagEntry> {
-        self.entries
+        self.devices
             .iter()
-            .find(|e| e.line == line && e.device == device && e.tag.name.eq_ignore_ascii_case(tag))
+            .filter(|(d, _)| d.line == line && d.device == device)
+            .filter_map(|(_, range)| self.entries.get(range.clone()))
+            .find_map(|tags| tags.iter().find(|e| e.name.eq_ignore_ascii_case(tag)))
     }
 
     /// The tags that overlap registers `start..start + count` of `table` of `unit`.
@@ -162,23 +277,21 @@ impl TagDirectory {
         start: u16,
         count: u16,
     ) -> impl Iterator<Item = &TagEntry> {
-        let end = u32::from(start) + u32::from(count);
-        self.entries.iter().filter(move |e| {
-            let t_start = u32::from(e.tag.address);
-            let t_end = t_start + u32::from(e.tag.data_type.words());
-            e.unit_id == unit && e.tag.table == table && t_start < end && u32::from(start) < t_end
-        })
+        let (start, end) = (u32::from(start), u32::from(start) + u32::from(count));
+        self.entries
+            .iter()
+            .filter(move |e| e.unit_id() == unit && e.table() == table && e.overlaps(start, end))
     }
 
     /// The tag's value from the image; `None` while its registers are not in the image (nobody
     /// polls them, or no poll has answered yet).
     pub fn read(&self, image: &ProcessImage, entry: &TagEntry) -> Option<TagReading> {
-        let table = entry.tag.table;
-        let words = entry.tag.data_type.words();
+        let table = entry.table();
+        let (address, words) = (entry.address(), entry.words());
         let read = match table {
             Table::Coils | Table::DiscreteInputs => {
                 let r = image
-                    .read_bits(entry.unit_id, table, entry.tag.address, words)
+                    .read_bits(entry.unit_id(), table, address, words)
                     .ok()?;
                 crate::image::RangeRead {
                     values: r.values.iter().map(|&b| u16::from(b)).collect(),
@@ -188,14 +301,14 @@ impl TagDirectory {
                 }
             }
             Table::HoldingRegisters | Table::InputRegisters => image
-                .read_words(entry.unit_id, table, entry.tag.address, words)
+                .read_words(entry.unit_id(), table, address, words)
                 .ok()?,
         };
-        let (value, device_quality) = entry.profile.decode(&entry.tag, &read.values);
+        let (value, device_quality) = entry.decode(&read.values);
         let quality = read.quality.worst(device_quality);
         Some(TagReading {
             value,
-            unit: entry.tag.unit.clone(),
+            unit: entry.unit().to_owned(),
             quality: quality.as_str(),
             timestamp: read.oldest,
         })
@@ -207,7 +320,7 @@ impl TagDirectory {
         match Self::write_op(entry, &Value::Float(value))? {
             TagWriteOp::Request(request) => Ok(request),
             TagWriteOp::Bit(_) => Err(TagWriteError::Value {
-                tag: format!("{}/{}/{}", entry.line, entry.device, entry.tag.name),
+                tag: full_name(entry),
                 value: value.to_string(),
                 reason: "a bit tag is written by read-modify-write".to_owned(),
             }),
@@ -218,8 +331,8 @@ impl TagDirectory {
     /// to 64 bits), a bool, or a text for a string tag; checked against the tag's type, range
     /// and write permission.
     pub fn write_op(entry: &TagEntry, value: &Value) -> Result<TagWriteOp, TagWriteError> {
-        let name = || format!("{}/{}/{}", entry.line, entry.device, entry.tag.name);
-        if !entry.tag.writable {
+        let name = || full_name(entry);
+        if !entry.writable() {
             return Err(TagWriteError::ReadOnly(name()));
         }
         let refused = |reason: String| TagWriteError::Value {
@@ -227,11 +340,12 @@ impl TagDirectory {
             value: value.to_string(),
             reason,
         };
-        let tag = &entry.tag;
+        let tag = &entry.tag();
+        let profile = &entry.device.profile;
         let explain = |e: EncodeError| match e {
             EncodeError::OutOfRange { min, max, .. } => {
                 let number = value.as_f64();
-                let (lo, hi) = match exact_bounds(entry) {
+                let (lo, hi) = match exact_bounds(profile, tag) {
                     Some((lo, hi)) => (lo.to_string(), hi.to_string()),
                     None => (show(tag, min), show(tag, max)),
                 };
@@ -242,16 +356,16 @@ impl TagDirectory {
             }
             other => refused(other.to_string()),
         };
-        if let Some(update) = entry.profile.bit_update(tag, value) {
+        if let Some(update) = profile.bit_update(tag, value) {
             if tag.table != Table::HoldingRegisters {
                 return Err(TagWriteError::ReadOnly(name()));
             }
             return update.map(TagWriteOp::Bit).map_err(explain);
         }
-        let words = entry.profile.encode_value(tag, value).map_err(explain)?;
-        let exact = value.as_i128().is_some() && exact_bounds(entry).is_some();
+        let words = profile.encode_value(tag, value).map_err(explain)?;
+        let exact = value.as_i128().is_some() && exact_bounds(profile, tag).is_some();
         if !exact {
-            if let Some(nearest) = inexact(entry, value.as_f64()) {
+            if let Some(nearest) = inexact(profile, tag, value.as_f64()) {
                 let shown: Vec<String> = nearest.iter().map(|&v| show(tag, v)).collect();
                 return Err(refused(format!(
                     "{}; nearest: {}",
@@ -276,11 +390,15 @@ impl TagDirectory {
     }
 }
 
+/// `line/device/tag`, for messages.
+fn full_name(entry: &TagEntry) -> String {
+    format!("{}/{}/{}", entry.line(), entry.device(), entry.name())
+}
+
 /// The exact raw range of a plain integer tag (no scale, offset or device range),
 /// whose whole numbers are written without a detour through floats.
-fn exact_bounds(entry: &TagEntry) -> Option<(i128, i128)> {
-    let tag = &entry.tag;
-    let plain = tag.is_plain() && tag.raw_range.is_none() && entry.profile.special_values.is_none();
+fn exact_bounds(profile: &DeviceProfile, tag: &Tag) -> Option<(i128, i128)> {
+    let plain = tag.is_plain() && tag.raw_range.is_none() && profile.special_values.is_none();
     plain.then(|| tag.data_type.int_bounds()).flatten()
 }
 
@@ -291,16 +409,11 @@ fn exact_bounds(entry: &TagEntry) -> Option<(i128, i128)> {
 /// be raw 46 too, presented 4.6, so it is refused). With `decimals` coarser than the steps, the
 /// value must have no more places than `decimals`. Only neighbours the tag accepts (its range)
 /// are named. Floats hold any value in their range, at their `decimals` places when set.
-fn inexact(entry: &TagEntry, value: f64) -> Option<Vec<f64>> {
-    let tag = &entry.tag;
-    if matches!(
-        tag.data_type,
-        profiles::DataType::String { .. } | profiles::DataType::Bit(_)
-    ) || !value.is_finite()
-    {
+fn inexact(profile: &DeviceProfile, tag: &Tag, value: f64) -> Option<Vec<f64>> {
+    if matches!(tag.data_type, DataType::String { .. } | DataType::Bit(_)) || !value.is_finite() {
         return None;
     }
-    let accepted = |v: &f64| entry.profile.encode(tag, *v).is_ok();
+    let accepted = |v: &f64| profile.encode(tag, *v).is_ok();
     let at_places = |v: f64| {
         let (below, above) = tag.neighbours_at_places(v);
         let mut nearest = vec![below];
@@ -364,15 +477,10 @@ pub const CP_MEMORY_DEVICE: &str = "memory";
 
 /// The data words of the CP memory a slave line serves under its unit id, as tags named the
 /// PLC way (`DB800.DBW20`): register `(n - base) x 512 + w` of the holding table is word `w` of
-/// DB `n` (003 6.4.8). Writable where the line's write enables ("Limits") allow FC 06/16.
-fn cp_memory_tags(
-    config: &Config,
-    line: &str,
-    slave: &config::ModbusSlaveRtuConfig,
-) -> Vec<TagEntry> {
-    let Some(unit_id) = slave.unit_id else {
-        return Vec::new();
-    };
+/// DB `n` (003 6.4.8), with the unit id; `None` when the line serves no unit. Writable where
+/// the line's write enables ("Limits") allow FC 06/16.
+fn cp_memory_tags(config: &Config, slave: &config::ModbusSlaveRtuConfig) -> Option<(u8, Vec<Tag>)> {
+    let unit_id = slave.unit_id?;
     let blocks: Vec<(u16, u16)> = config
         .cp_memory
         .data_blocks
@@ -405,7 +513,7 @@ fn cp_memory_tags(
                 format!("DB{db}.DBW{}", w * 2),
                 Table::HoldingRegisters,
                 address,
-                profiles::DataType::U16,
+                DataType::U16,
             );
             if writable(base + w) {
                 tag = tag.writable();
@@ -413,28 +521,115 @@ fn cp_memory_tags(
             tags.push(tag);
         }
     }
-    let (profile, tags) = shared(DeviceProfile::generic(
-        CP_MEMORY_DEVICE,
-        slave.address,
-        tags,
-    ));
-    tags.into_iter()
-        .map(|tag| TagEntry {
-            line: line.to_owned(),
-            device: CP_MEMORY_DEVICE.to_owned(),
-            unit_id,
-            profile: Arc::clone(&profile),
-            tag,
-        })
-        .collect()
+    Some((unit_id, tags))
 }
 
-/// The profile shared by a device's entries, and its tags for the entries to own: each entry
-/// holds its tag, and the profile is only asked to decode and encode (its special values), so
-/// it keeps no second copy of them.
-fn shared(mut profile: DeviceProfile) -> (Arc<DeviceProfile>, Vec<Tag>) {
-    let tags = std::mem::take(&mut profile.tags);
-    (Arc::new(profile), tags)
+/// Builds a directory: the entries of each device share it, and tags alike share their kind.
+#[derive(Default)]
+struct Builder {
+    entries: Vec<TagEntry>,
+    devices: Vec<(Arc<DeviceOfTags>, Range<usize>)>,
+    kinds: HashSet<SameKind>,
+}
+
+/// A tag compared by its kind: everything but its name and address (floats by their bits).
+struct SameKind(Arc<Tag>);
+
+// === impl Builder ===
+
+impl Builder {
+    /// Adds the tags of `profile` (taken out of it: the entries hold them) as a device's.
+    fn device(&mut self, line: &str, device: &str, unit_id: u8, mut profile: DeviceProfile) {
+        let tags = std::mem::take(&mut profile.tags);
+        let shared = Arc::new(DeviceOfTags {
+            line: line.to_owned(),
+            device: device.to_owned(),
+            unit_id,
+            profile,
+        });
+        let first = self.entries.len();
+        for mut tag in tags {
+            let name = std::mem::take(&mut tag.name).into_boxed_str();
+            let address = std::mem::take(&mut tag.address);
+            let kind = self.kind(tag);
+            self.entries.push(TagEntry {
+                device: Arc::clone(&shared),
+                kind,
+                name,
+                address,
+            });
+        }
+        self.devices.push((shared, first..self.entries.len()));
+    }
+
+    /// The kind of `tag` (without name and address): the one of the first tag alike.
+    fn kind(&mut self, tag: Tag) -> Arc<Tag> {
+        let probe = SameKind(Arc::new(tag));
+        if let Some(SameKind(kind)) = self.kinds.get(&probe) {
+            return Arc::clone(kind);
+        }
+        let kind = Arc::clone(&probe.0);
+        self.kinds.insert(probe);
+        kind
+    }
+
+    fn build(mut self) -> TagDirectory {
+        // Kept for the life of the config: no spare capacity.
+        self.entries.shrink_to_fit();
+        self.devices.shrink_to_fit();
+        TagDirectory {
+            entries: self.entries,
+            devices: self.devices,
+        }
+    }
+}
+
+// === impl SameKind ===
+
+impl SameKind {
+    /// What two tags of a kind have in common: every field of [`Tag`] but the name and the
+    /// address (a field added to `Tag` must be named here).
+    fn key(&self) -> impl Hash + Eq + '_ {
+        let Tag {
+            name: _,
+            address: _,
+            description,
+            table,
+            data_type,
+            decimals,
+            scale,
+            offset,
+            unit,
+            writable,
+            raw_range,
+            bits,
+        } = &*self.0;
+        (
+            description,
+            table,
+            data_type,
+            decimals,
+            (scale.to_bits(), offset.to_bits()),
+            unit,
+            writable,
+            raw_range,
+            bits,
+        )
+    }
+}
+
+impl PartialEq for SameKind {
+    fn eq(&self, other: &Self) -> bool {
+        self.key() == other.key()
+    }
+}
+
+impl Eq for SameKind {}
+
+impl Hash for SameKind {
+    fn hash<H: Hasher>(&self, state: &mut H) {
+        self.key().hash(state);
+    }
 }
 
 /// The profile of a configured device, with the config's own tags added.
@@ -504,8 +699,8 @@ mod tests {
         let eta = dir
             .find("drive", "atv71", "eta")
             .expect("ETA in the Altivar profile");
-        assert_eq!(eta.tag.address, 3201);
-        assert_eq!(eta.unit_id, 2);
+        assert_eq!(eta.address(), 3201);
+        assert_eq!(eta.unit_id(), 2);
 
         let image = ProcessImage::new(ImageConfig::default());
         assert_eq!(dir.read(&image, eta), None, "nothing polled yet");
@@ -514,20 +709,20 @@ mod tests {
         image.store_words(
             2,
             Table::HoldingRegisters,
-            acc.tag.address,
+            acc.address(),
             &[13],
             Some(Duration::from_secs(5)),
         );
         let reading = dir.read(&image, acc).expect("ACC in the image");
         assert_eq!(reading.quality, "good");
         assert!(reading.value == Value::Float(1.3), "{reading:?}");
-        assert_eq!(reading.unit, acc.tag.unit);
+        assert_eq!(reading.unit, acc.unit());
 
         // 0x8000 is the Altivar's "not available".
         image.store_words(
             2,
             Table::HoldingRegisters,
-            eta.tag.address,
+            eta.address(),
             &[0x8000],
             Some(Duration::from_secs(5)),
         );
@@ -535,7 +730,7 @@ mod tests {
 
         let hits: Vec<_> = dir
             .overlapping(2, Table::HoldingRegisters, 9000, 3)
-            .map(|e| e.tag.name.as_str())
+            .map(|e| e.name())
             .collect();
         assert!(hits.contains(&"ACC") && hits.contains(&"DEC"), "{hits:?}");
     }
@@ -547,8 +742,8 @@ mod tests {
         let word = dir
             .find("hmi", CP_MEMORY_DEVICE, "DB800.DBW20")
             .expect("DB 800 word 10");
-        assert_eq!((word.unit_id, word.tag.address), (50, 10));
-        assert!(word.tag.writable, "the demo write-enables DB 800");
+        assert_eq!((word.unit_id(), word.address()), (50, 10));
+        assert!(word.writable(), "the demo write-enables DB 800");
         let image = ProcessImage::new(ImageConfig::default());
         image.store_words(50, Table::HoldingRegisters, 10, &[1234], None);
         assert_eq!(
@@ -569,7 +764,7 @@ mod tests {
     fn refusal(entry: &TagEntry, value: f64) -> String {
         match TagDirectory::write_request(entry, value) {
             Err(TagWriteError::Value { reason, .. }) => reason,
-            other => panic!("{value} on {}: {other:?}", entry.tag.name),
+            other => panic!("{value} on {}: {other:?}", entry.name()),
         }
     }
 
@@ -661,8 +856,8 @@ mod tests {
              { name = \"pf2\", table = \"holding\", address = 3417, type = \"f32\", decimals = 2, writable = true }",
         );
         let find = |name| dir.find("ksvario", "ksvario", name).expect(name);
-        assert_eq!(find("t").tag.decimals, None);
-        assert_eq!(find("t2").tag.decimals, Some(2));
+        assert_eq!(find("t").tag().decimals, None);
+        assert_eq!(find("t2").tag().decimals, Some(2));
         let image = ProcessImage::new(ImageConfig::default());
         image.store_words(17, Table::HoldingRegisters, 3415, &[2931, 460], None);
         image.store_words(
@@ -779,12 +974,69 @@ mod tests {
         );
     }
 
+    /// The demo with more tags on its meter (unit 30): of every table and length, some at the
+    /// ends of the address space.
+    fn with_every_kind_of_tag() -> TagDirectory {
+        let tags = [
+            r#"{ name = "c5", table = "coil", address = 5, type = "bool" },"#,
+            r#"{ name = "c6", table = "coil", address = 6, type = "bool", writable = true },"#,
+            r#"{ name = "d5", table = "discrete", address = 5, type = "bool" },"#,
+            r#"{ name = "i9", table = "input", address = 9, type = "u32" },"#,
+            r#"{ name = "w70", table = "holding", address = 70, type = "u16" },"#,
+            r#"{ name = "l71", table = "holding", address = 71, type = "i32" },"#,
+            r#"{ name = "w73", table = "holding", address = 73, type = "u16" },"#,
+            r#"{ name = "s100", table = "holding", address = 100, type = "string", registers = 8 },"#,
+            r#"{ name = "q110", table = "holding", address = 110, type = "u64" },"#,
+            r#"{ name = "b0", table = "holding", address = 200, bit = 0 },"#,
+            r#"{ name = "b15", table = "holding", address = 200, bit = 15 },"#,
+            r#"{ name = "b7", table = "holding", address = 200, bit = 7 },"#,
+            r#"{ name = "w201", table = "holding", address = 201, type = "u16" },"#,
+            r#"{ name = "top", table = "holding", address = 65534, type = "u32" },"#,
+            r#"{ name = "last", table = "input", address = 65535, type = "u16" },"#,
+        ];
+        let marker = "  # f32 low word first: holding 60..61";
+        assert!(
+            config::demo_toml().contains(marker),
+            "the demo's meter changed"
+        );
+        let text = config::demo_toml().replace(marker, &format!("{}\n{marker}", tags.join("\n")));
+        TagDirectory::from_config(&config::parse(&text).expect("valid"))
+    }
+
+    #[test]
+    fn tags_alike_share_their_kind_and_keep_their_own_name_and_address() {
+        let dir = with_every_kind_of_tag();
+        let find = |name| dir.find("ksvario", "meter", name).expect(name);
+        assert!(Arc::ptr_eq(&find("c5").device, &find("w70").device));
+        assert!(Arc::ptr_eq(&find("w70").kind, &find("w201").kind));
+        assert!(
+            !Arc::ptr_eq(&find("c5").kind, &find("c6").kind),
+            "c6 is writable"
+        );
+        assert!(
+            !Arc::ptr_eq(&find("b0").kind, &find("b7").kind),
+            "another bit"
+        );
+        let l71 = find("l71").tag();
+        assert_eq!((l71.name.as_str(), l71.address), ("l71", 71));
+        assert_eq!(l71.data_type, DataType::I32(profiles::ByteOrder::Abcd));
+        let cp = |name| dir.find("hmi", CP_MEMORY_DEVICE, name).expect(name);
+        assert!(Arc::ptr_eq(
+            &cp("DB800.DBW20").kind,
+            &cp("DB800.DBW22").kind
+        ));
+        let word = cp("DB800.DBW22").tag();
+        assert_eq!((word.name.as_str(), word.address), ("DB800.DBW22", 11));
+        assert_eq!(word.data_type, DataType::U16);
+        assert!(word.writable);
+    }
+
     #[test]
     fn names_compare_without_case_and_answer_with_the_profiles_spelling() {
         let dir = TagDirectory::from_config(&config::demo());
         for asked in ["sfr", "SFR", "SFr"] {
             let entry = dir.find("drive", "atv71", asked).expect("SFr");
-            assert_eq!(entry.tag.name, "SFr");
+            assert_eq!(entry.name(), "SFr");
         }
     }
 
