@@ -628,21 +628,21 @@ pub fn unpolled_tags(config: &Config) -> Vec<ConfigIssue> {
             let mut from_profile = Vec::new();
             for entry in directory
                 .iter()
-                .filter(|e| &e.line == line_name && &e.device == device_name)
+                .filter(|e| e.line() == line_name && e.device() == device_name)
             {
-                let tag = &entry.tag;
-                if polled(&tag.name, tag.table, tag.address, tag.words()) {
+                let name = entry.name();
+                if polled(name, entry.table(), entry.address(), entry.words()) {
                     continue;
                 }
-                match device.tags.iter().position(|t| *t.name == *tag.name) {
+                match device.tags.iter().position(|t| &*t.name == name) {
                     Some(i) => warnings.push(ConfigIssue {
                         path: format!("{path}.tags[{i}]"),
                         message: format!(
                             "tag {:?} is read by no poll group: it is read from the device only on demand and never published on change",
-                            tag.name
+                            name
                         ),
                     }),
-                    None => from_profile.push(tag.name.as_str()),
+                    None => from_profile.push(name),
                 }
             }
             if !from_profile.is_empty() {

@@ -73,12 +73,12 @@ impl RestBackend {
     fn image_value(&self, snapshot: &Snapshot, entry: &TagEntry) -> Option<TagValue> {
         let reading = snapshot.tags.read(&self.sup.image, entry)?;
         Some(TagValue {
-            description: entry.tag.description.clone(),
+            description: entry.description().to_owned(),
             ..TagValue::from_reading(
-                &entry.line,
-                &entry.device,
-                &entry.tag.name,
-                entry.tag.writable,
+                entry.line(),
+                entry.device(),
+                entry.name(),
+                entry.writable(),
                 reading,
             )
         })
@@ -96,10 +96,10 @@ impl RestBackend {
         if let Some(value) = self.image_value(&snapshot, &entry) {
             return Ok(value);
         }
-        let service = tag_io::service(&self.sup.units, entry.unit_id).ok_or_else(|| {
+        let service = tag_io::service(&self.sup.units, entry.unit_id()).ok_or_else(|| {
             ApiError::conflict(format!(
                 "unit {} of {line}/{device} is not served",
-                entry.unit_id
+                entry.unit_id()
             ))
         })?;
         let response = service.call(tag_io::read_request(&entry)).await?;
@@ -109,8 +109,8 @@ impl RestBackend {
             ))
         })?;
         Ok(TagValue {
-            description: entry.tag.description.clone(),
-            ..TagValue::from_reading(line, device, &entry.tag.name, entry.tag.writable, reading)
+            description: entry.description().to_owned(),
+            ..TagValue::from_reading(line, device, entry.name(), entry.writable(), reading)
         })
     }
 }
@@ -375,18 +375,20 @@ impl ApiBackend for RestBackend {
         Ok(snapshot
             .tags
             .iter()
-            .filter(|e| line.is_none_or(|l| l == e.line) && device.is_none_or(|d| d == e.device))
+            .filter(|e| {
+                line.is_none_or(|l| l == e.line()) && device.is_none_or(|d| d == e.device())
+            })
             .map(|e| {
                 self.image_value(&snapshot, e).unwrap_or_else(|| TagValue {
-                    line: e.line.clone(),
-                    device: e.device.clone(),
-                    tag: e.tag.name.clone(),
+                    line: e.line().to_owned(),
+                    device: e.device().to_owned(),
+                    tag: e.name().to_owned(),
                     value: None,
-                    unit: e.tag.unit.clone(),
+                    unit: e.unit().to_owned(),
                     quality: TagQuality::Unknown,
                     timestamp: None,
-                    writable: e.tag.writable,
-                    description: e.tag.description.clone(),
+                    writable: e.writable(),
+                    description: e.description().to_owned(),
                 })
             })
             .collect())
@@ -426,7 +428,7 @@ impl ApiBackend for RestBackend {
             Err(e) => return Box::pin(async move { Err(e) }),
         };
         let (line, device) = (line.to_owned(), device.to_owned());
-        let name = write.entry.tag.name.clone();
+        let name = write.entry.name().to_owned();
         Box::pin(async move {
             write.send().await.map_err(ApiError::from)?;
             self.read_tag(&line, &device, &name).await

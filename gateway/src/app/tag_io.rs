@@ -89,17 +89,18 @@ pub(crate) fn prepare_write(
     if policy.read_only {
         return Err(WriteRefused::ReadOnlyGateway);
     }
-    if let Some(code) = policy.check_write(entry.unit_id, &op.policy_request()) {
+    if let Some(code) = policy.check_write(entry.unit_id(), &op.policy_request()) {
         return Err(WriteRefused::OutsideRanges {
-            tag: format!("{line}/{device}/{}", entry.tag.name),
+            tag: format!("{line}/{device}/{}", entry.name()),
             code,
         });
     }
-    let service = service(units, entry.unit_id).ok_or(WriteRefused::NotServed(entry.unit_id))?;
+    let service =
+        service(units, entry.unit_id()).ok_or(WriteRefused::NotServed(entry.unit_id()))?;
     if service.listen_only() {
         return Err(WriteRefused::ListenOnly {
-            line: entry.line.clone(),
-            device: entry.device.clone(),
+            line: entry.line().to_owned(),
+            device: entry.device().to_owned(),
         });
     }
     Ok(PreparedWrite {
@@ -111,9 +112,9 @@ pub(crate) fn prepare_write(
 
 /// The request that reads the tag's registers or bits.
 pub(crate) fn read_request(entry: &TagEntry) -> Request {
-    let address = entry.tag.address;
-    let quantity = entry.tag.data_type.words();
-    match entry.tag.table {
+    let address = entry.address();
+    let quantity = entry.words();
+    match entry.table() {
         Table::Coils => Request::ReadCoils { address, quantity },
         Table::DiscreteInputs => Request::ReadDiscreteInputs { address, quantity },
         Table::InputRegisters => Request::ReadInputRegisters { address, quantity },
@@ -131,12 +132,12 @@ pub(crate) fn reading_from(entry: &TagEntry, response: &Response) -> Option<TagR
         Response::ReadHoldingRegisters(w) | Response::ReadInputRegisters(w) => w.clone(),
         _ => return None,
     };
-    let want = usize::from(entry.tag.data_type.words());
+    let want = usize::from(entry.words());
     let words = words.get(..want)?;
-    let (value, quality) = entry.profile.decode(&entry.tag, words);
+    let (value, quality) = entry.decode(words);
     Some(TagReading {
         value,
-        unit: entry.tag.unit.clone(),
+        unit: entry.unit().to_owned(),
         quality: quality.as_str(),
         timestamp: SystemTime::now(),
     })

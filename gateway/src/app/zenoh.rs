@@ -232,12 +232,17 @@ impl BridgeBackend for ZenohBackend {
         snapshot
             .tags
             .iter()
-            .filter(|e| line.is_none_or(|l| l == e.line))
-            .filter(|e| device.is_none_or(|d| d == e.device))
-            .filter(|e| tag.is_none_or(|t| t.eq_ignore_ascii_case(&e.tag.name)))
+            .filter(|e| line.is_none_or(|l| l == e.line()))
+            .filter(|e| device.is_none_or(|d| d == e.device()))
+            .filter(|e| tag.is_none_or(|t| t.eq_ignore_ascii_case(e.name())))
             .filter_map(|e| {
                 let value = tag_value(&snapshot.tags, &sup.image, e)?;
-                Some((e.line.clone(), e.device.clone(), e.tag.name.clone(), value))
+                Some((
+                    e.line().to_owned(),
+                    e.device().to_owned(),
+                    e.name().to_owned(),
+                    value,
+                ))
             })
             .collect()
     }
@@ -419,7 +424,7 @@ impl ZenohBackend {
             };
             (reason, e.to_string())
         })?;
-        let name = format!("{line}/{device}/{}", write.entry.tag.name);
+        let name = format!("{line}/{device}/{}", write.entry.name());
         Ok((write, name))
     }
 }
@@ -446,7 +451,7 @@ fn tag_value(tags: &TagDirectory, image: &ProcessImage, entry: &TagEntry) -> Opt
         unit,
         quality: reading.quality,
         timestamp: reading.timestamp,
-        description: (!entry.tag.description.is_empty()).then(|| entry.tag.description.clone()),
+        description: (!entry.description().is_empty()).then(|| entry.description().to_owned()),
     })
 }
 
@@ -475,9 +480,9 @@ fn spawn_feeds(sup: &Arc<Supervisor>, bridge: &BridgeHandle, token: &Cancellatio
                         {
                             if let Some(value) = tag_value(&tags, &image, entry) {
                                 bridge.publish_tag(
-                                    &entry.line,
-                                    &entry.device,
-                                    &entry.tag.name,
+                                    entry.line(),
+                                    entry.device(),
+                                    entry.name(),
                                     value,
                                 );
                             }

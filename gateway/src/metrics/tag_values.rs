@@ -78,14 +78,14 @@ impl TagValues {
         for (entry, _) in tags
             .iter()
             .zip(selected.iter())
-            .filter(|(entry, on)| **on && is_numeric(entry.tag.data_type))
+            .filter(|(entry, on)| **on && is_numeric(entry.data_type()))
         {
             let reading = tags.read(image, entry);
             let quality = reading.as_ref().map_or(QUALITY_UNKNOWN, |r| r.quality);
             let labels = Labels {
-                line: &entry.line,
-                device: &entry.device,
-                tag: &entry.tag.name,
+                line: entry.line(),
+                device: entry.device(),
+                tag: entry.name(),
             };
             if let Some(r) = reading.as_ref().filter(|r| r.quality == GOOD) {
                 if let Some(v) = number(&r.value) {
@@ -129,7 +129,7 @@ impl TagValues {
             .collect();
         let selected: Arc<[bool]> = tags
             .iter()
-            .map(|e| filter.is_empty() || includes(&rules, &e.line, &e.device, &e.tag.name))
+            .map(|e| filter.is_empty() || includes(&rules, e.line(), e.device(), e.name()))
             .collect();
         *cached = Some(Selection {
             tags: Arc::downgrade(tags),
@@ -243,13 +243,7 @@ mod tests {
         for (tag, word) in [("ACC", 13), ("ETA", 0x8000)] {
             let entry = tags.find("drive", "atv71", tag).expect("Altivar tag");
             let fresh = Some(Duration::from_secs(5));
-            image.store_words(
-                2,
-                Table::HoldingRegisters,
-                entry.tag.address,
-                &[word],
-                fresh,
-            );
+            image.store_words(2, Table::HoldingRegisters, entry.address(), &[word], fresh);
         }
         (config, tags, image)
     }
@@ -268,7 +262,7 @@ mod tests {
         let acc = tags.find("drive", "atv71", "ACC").expect("ACC");
         let line = format!(
             "gateway_tag_value{{line=\"drive\",device=\"atv71\",tag=\"ACC\",unit=\"{}\"}} 1.3\n",
-            acc.tag.unit
+            acc.unit()
         );
         assert!(text.contains(&line), "{line} missing in\n{text}");
         assert!(
