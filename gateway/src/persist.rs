@@ -50,7 +50,7 @@ pub struct ConfigStore {
 /// one copy in the process), and the text is shared by the clones: a clone costs two counts.
 #[derive(Debug, Clone)]
 pub struct ConfigText {
-    text: Arc<str>,
+    text: PackedText,
     config: Arc<Config>,
 }
 
@@ -59,8 +59,39 @@ pub struct ConfigText {
 /// read again to follow the one in force.
 #[derive(Debug, Clone)]
 pub struct KeptText {
-    text: Arc<str>,
+    text: PackedText,
     config: Weak<Config>,
+}
+
+/// The operator's text as the process keeps it: LZ4-compressed, shared by the clones. The text
+/// is read only when `GET /config` shows it or a change edits it, while a large configuration's
+/// text stays for the life of the process: 100 000 tags are a 6 MB file, about a tenth of the
+/// memory one gateway may take (docs/benchmarks.md, the ceiling rows); packed, a few hundred KB.
+#[derive(Clone, PartialEq, Eq)]
+struct PackedText(Arc<[u8]>);
+
+// === impl PackedText ===
+
+impl PackedText {
+    fn new(text: &str) -> Self {
+        Self(lz4_flex::compress_prepend_size(text.as_bytes()).into())
+    }
+
+    /// The text. Only texts packed by [`Self::new`] exist, so unpacking cannot fail; were the
+    /// bytes ever damaged, the answer is an empty text (which reads as no configuration) rather
+    /// than a panic.
+    fn unpack(&self) -> String {
+        lz4_flex::decompress_size_prepended(&self.0)
+            .ok()
+            .and_then(|bytes| String::from_utf8(bytes).ok())
+            .unwrap_or_default()
+    }
+}
+
+impl std::fmt::Debug for PackedText {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "PackedText({} bytes packed)", self.0.len())
+    }
 }
 
 // === impl ConfigText ===
@@ -72,7 +103,7 @@ impl ConfigText {
     pub fn new(text: &str, config: &Arc<Config>) -> Self {
         match config::parse(text) {
             Ok(read) if read == **config => Self {
-                text: text.into(),
+                text: PackedText::new(text),
                 config: Arc::clone(config),
             },
             Ok(read) => {
@@ -83,7 +114,7 @@ impl ConfigText {
                     .filter(|edited| config::parse(edited).is_ok_and(|c| c == **config));
                 match edited {
                     Some(text) => Self {
-                        text: text.into(),
+                        text: PackedText::new(&text),
                         config: Arc::clone(config),
                     },
                     None => Self::of(config),
@@ -97,7 +128,7 @@ impl ConfigText {
     pub fn read(text: String, config: &Arc<Config>) -> Option<Self> {
         config::parse(&text).ok().filter(|c| c == &**config)?;
         Some(Self {
-            text: text.into(),
+            text: PackedText::new(&text),
             config: Arc::clone(config),
         })
     }
@@ -106,7 +137,7 @@ impl ConfigText {
     /// never text.
     pub fn of(config: &Arc<Config>) -> Self {
         Self {
-            text: toml::to_string(&**config).unwrap_or_default().into(),
+            text: PackedText::new(&toml::to_string(&**config).unwrap_or_default()),
             config: Arc::clone(config),
         }
     }
@@ -114,14 +145,14 @@ impl ConfigText {
     /// An edited document and the configuration it reads as (the caller read it).
     pub(crate) fn edited(doc: &toml_edit::DocumentMut, config: Arc<Config>) -> Self {
         Self {
-            text: doc.to_string().into(),
+            text: PackedText::new(&doc.to_string()),
             config,
         }
     }
 
-    /// The TOML text.
-    pub fn text(&self) -> &str {
-        &self.text
+    /// The TOML text (unpacked for the caller).
+    pub fn text(&self) -> String {
+        self.text.unpack()
     }
 
     /// The configuration it reads as.
@@ -132,14 +163,14 @@ impl ConfigText {
     /// This text kept aside without its configuration ([`KeptText`]).
     pub fn keep(&self) -> KeptText {
         KeptText {
-            text: Arc::clone(&self.text),
+            text: self.text.clone(),
             config: Arc::downgrade(&self.config),
         }
     }
 
     /// The text as a document to edit or show.
     pub fn document(&self) -> toml_edit::DocumentMut {
-        self.text.parse().unwrap_or_else(|_| {
+        self.text.unpack().parse().unwrap_or_else(|_| {
             // Only texts that read as a configuration are kept; this is never reached.
             toml_edit::DocumentMut::new()
         })
@@ -156,9 +187,9 @@ impl PartialEq for ConfigText {
 // === impl KeptText ===
 
 impl KeptText {
-    /// The TOML text.
-    pub fn text(&self) -> &str {
-        &self.text
+    /// The TOML text (unpacked for the caller).
+    pub fn text(&self) -> String {
+        self.text.unpack()
     }
 
     /// The kept text, when the configuration it reads as is `in_force` (still in force, or an
@@ -166,7 +197,7 @@ impl KeptText {
     pub fn reading_as(&self, in_force: &Arc<Config>) -> Option<ConfigText> {
         let config = self.config.upgrade()?;
         (Arc::ptr_eq(&config, in_force) || config == *in_force).then(|| ConfigText {
-            text: Arc::clone(&self.text),
+            text: self.text.clone(),
             config: Arc::clone(in_force),
         })
     }
@@ -175,7 +206,7 @@ impl KeptText {
     /// text edited to read as `in_force`.
     pub fn following(&self, in_force: &Arc<Config>) -> ConfigText {
         self.reading_as(in_force)
-            .unwrap_or_else(|| ConfigText::new(&self.text, in_force))
+            .unwrap_or_else(|| ConfigText::new(&self.text.unpack(), in_force))
     }
 }
 

@@ -369,7 +369,7 @@ impl ApiState {
         let from_file = self.store.as_ref().and_then(|s| s.read_text());
         let k = kept.take();
         let same = match (&from_file, &k) {
-            (Some(text), Some(k)) if k.text() == text => k.reading_as(in_force),
+            (Some(text), Some(k)) if k.text() == *text => k.reading_as(in_force),
             _ => None,
         };
         let current = match (same, from_file) {

@@ -227,3 +227,38 @@ fn a_writer_killed_at_any_moment_leaves_a_loadable_file() {
         "the writer advanced in only {advanced} rounds"
     );
 }
+
+/// The kept text is packed: a large configuration's text costs a fraction of its size and reads
+/// back byte for byte (comments included), and two texts compare as their texts do.
+#[test]
+fn a_kept_text_is_packed_and_reads_back_exactly() {
+    let mut text = String::from("# the plant's meters\n[gateway]\nname = \"packed\"\n");
+    for d in 1..=20u8 {
+        text.push_str(&format!(
+            "\n[lines.m.devices.d{d}]  # meter {d}\nprofile = \"generic\"\naddress = {d}\ntags = [\n"
+        ));
+        for t in 0..500u16 {
+            text.push_str(&format!(
+                "  {{ name = \"t{t}\", table = \"holding\", address = {t} }},\n"
+            ));
+        }
+        text.push_str("]\n");
+    }
+    text.insert_str(
+        text.find("\n[lines.m.devices.d1]").expect("a device"),
+        "\n[lines.m]\nport = \"/dev/ttyS0\"\nprotocol = \"modbus-master-rtu\"\n",
+    );
+    let config = Arc::new(config::parse(&text).expect("the test's configuration reads"));
+    let kept = ConfigText::read(text.clone(), &config).expect("the text reads as its config");
+    assert_eq!(kept.text(), text);
+    assert_eq!(kept.keep().text(), text);
+    let packed = kept.text.0.len();
+    assert!(
+        packed * 4 < text.len(),
+        "{packed} bytes packed for a text of {} bytes",
+        text.len()
+    );
+    let other = ConfigText::read(text.replace("meter 7", "meter 8"), &config).expect("reads");
+    assert_ne!(kept, other);
+    assert_eq!(kept, ConfigText::read(text, &config).expect("reads"));
+}

@@ -142,7 +142,7 @@ pub(crate) async fn get_config(State(state): State<ApiState>, headers: HeaderMap
     let overrides = backend.overrides();
     let mut response = if body::wants_toml(&headers) {
         let mut answer = overrides_comment(&overrides);
-        answer.push_str(text.text());
+        answer.push_str(&text.text());
         ([(header::CONTENT_TYPE, TOML_MEDIA_TYPE)], answer).into_response()
     } else {
         Json(ConfigView {
@@ -504,7 +504,7 @@ async fn change_in_task(
     let new = std::sync::Arc::new(new);
     let text = ConfigText::edited(&doc, std::sync::Arc::clone(&new));
     if let Some(store) = state.store() {
-        let to_save = text.text().to_owned();
+        let to_save = text.text();
         tokio::task::spawn_blocking(move || store.save_atomic(&to_save))
             .await
             .map_err(|e| ApiError::internal(format!("the save task failed: {e}")))?
