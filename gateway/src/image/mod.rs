@@ -8,12 +8,17 @@
 //! A value is stale when it is older than `stale_factor` times the poll period it was stored with;
 //! staleness is computed when the value is read, so no task has to sweep the image.
 //!
+//! A slot keeps its times as integers (24 bytes a value, see `slot.rs`): wall times to the
+//! microsecond, a time before 1970 as the epoch; freshness limits in whole milliseconds, rounded
+//! up, at most about 49.7 days.
+//!
 //! Every store or quality change that alters something is announced on a bounded broadcast channel
 //! ([`ProcessImage::subscribe`]); a receiver that falls behind loses the oldest changes and learns
 //! how many from `RecvError::Lagged` (tokio's broadcast policy), so nothing is dropped silently.
 
 mod read;
 mod runs;
+mod slot;
 
 use std::collections::HashMap;
 use std::sync::{Arc, PoisonError, RwLock, RwLockReadGuard, RwLockWriteGuard};
@@ -25,6 +30,7 @@ use tokio::time::Instant;
 pub use proto_core::modbus::Table;
 pub use proto_core::profiles::Quality;
 use runs::Runs;
+use slot::{Clock, Slot};
 
 /// How many poll periods a value stays fresh by default.
 pub const DEFAULT_STALE_FACTOR: u32 = 3;
@@ -45,37 +51,6 @@ impl Default for ImageConfig {
         Self {
             stale_factor: DEFAULT_STALE_FACTOR,
             notify_capacity: DEFAULT_NOTIFY_CAPACITY,
-        }
-    }
-}
-
-/// One stored value.
-#[derive(Clone, Copy, Debug)]
-struct Slot {
-    /// The register value, or 0/1 for a bit.
-    value: u16,
-    /// The quality as stored (before the staleness check).
-    quality: Quality,
-    /// Wall-clock time of the read, for display.
-    updated: SystemTime,
-    /// Monotonic time of the read, for the age.
-    at: Instant,
-    /// Age after which the value is stale (`None`: never, e.g. written on demand only).
-    max_age: Option<Duration>,
-}
-
-// === impl Slot ===
-
-impl Slot {
-    fn effective_quality(&self, now: Instant) -> Quality {
-        match self.max_age {
-            Some(max)
-                if self.quality == Quality::Good
-                    && now.saturating_duration_since(self.at) > max =>
-            {
-                Quality::Stale
-            }
-            _ => self.quality,
         }
     }
 }
@@ -186,6 +161,8 @@ struct Inner {
     units: RwLock<HashMap<u8, UnitImage>>,
     changes: broadcast::Sender<Change>,
     stale_factor: u32,
+    /// The monotonic clock the slots' read times count from.
+    clock: Clock,
 }
 
 impl Default for ProcessImage {
@@ -205,6 +182,7 @@ impl ProcessImage {
                 units: RwLock::new(HashMap::new()),
                 changes,
                 stale_factor: config.stale_factor,
+                clock: Clock::new(),
             }),
         }
     }
@@ -310,9 +288,13 @@ impl ProcessImage {
         period: Option<Duration>,
         existing_only: bool,
     ) {
-        let now = Instant::now();
-        let wall = SystemTime::now();
-        let max_age = period.map(|p| p.saturating_mul(self.inner.stale_factor));
+        let now = self.inner.clock.ticks(Instant::now());
+        // The time as the slots keep it (to the microsecond), so that a change announces the
+        // time a snapshot shows afterwards.
+        let updated = slot::wall_micros(SystemTime::now());
+        let wall = slot::wall_time(updated);
+        let max_age =
+            slot::max_age_millis(period.map(|p| p.saturating_mul(self.inner.stale_factor)));
         // Stores stop at the last address instead of wrapping.
         let values: Vec<u16> = (start..=u16::MAX).zip(values).map(|(_, v)| v).collect();
         let end = u32::from(start) + u32::try_from(values.len()).unwrap_or(u32::MAX);
@@ -336,7 +318,7 @@ impl ProcessImage {
                     Some(Slot {
                         value,
                         quality,
-                        updated: wall,
+                        updated,
                         at: now,
                         max_age,
                     })
@@ -408,7 +390,7 @@ impl ProcessImage {
     }
 
     fn set_quality_where(&self, unit: u8, quality: Quality, select: impl Fn(Table, u16) -> bool) {
-        let now = Instant::now();
+        let now = self.inner.clock.ticks(Instant::now());
         let wall = SystemTime::now();
         let mut changes = Vec::new();
         {
@@ -458,7 +440,7 @@ impl ProcessImage {
 
     /// Every stored value of one table of a unit, in address order (for REST and diagnostics).
     pub fn snapshot(&self, unit: u8, table: Table) -> Vec<SlotView> {
-        let now = Instant::now();
+        let now = self.inner.clock.ticks(Instant::now());
         let units = self.read_units();
         units.get(&unit).map_or_else(Vec::new, |image| {
             image
@@ -468,7 +450,7 @@ impl ProcessImage {
                     address,
                     value: slot.value,
                     quality: slot.effective_quality(now),
-                    updated: slot.updated,
+                    updated: slot.updated(),
                 })
                 .collect()
         })
@@ -482,9 +464,10 @@ impl ProcessImage {
         Table::ALL
             .into_iter()
             .flat_map(|table| image.table(table).iter())
-            .filter(|(_, slot)| slot.max_age.is_some())
+            .filter(|(_, slot)| slot.polled())
             .map(|(_, slot)| slot.at)
             .min()
+            .map(|at| self.inner.clock.instant(at))
     }
 
     /// The units under the read lock. A poisoned lock is taken as it is: a writer that panicked

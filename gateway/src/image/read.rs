@@ -2,7 +2,6 @@
 //! response encoded straight into a buffer (the Modbus TCP server's cached reads).
 
 use std::collections::HashMap;
-use std::time::Duration;
 
 use tokio::time::Instant;
 
@@ -11,22 +10,22 @@ use super::{ImageError, ProcessImage, Quality, RangeRead, Slot, Table, UnitImage
 
 /// Staleness of many slots against one `now`: the check `now - at > max_age` as `at < now -
 /// max_age`, the threshold computed once for each freshness limit in a row (the slots of a polled
-/// range share theirs).
+/// range share theirs). Times are ticks of the image's clock.
 struct StaleCheck {
-    now: Instant,
+    now: u64,
     /// The last freshness limit seen and `now` minus it (`None`: before the clock's origin, so
     /// nothing is that old).
-    last: Option<(Duration, Option<Instant>)>,
+    last: Option<(u64, Option<u64>)>,
 }
 
 impl StaleCheck {
-    fn new(now: Instant) -> Self {
+    fn new(now: u64) -> Self {
         Self { now, last: None }
     }
 
     /// The quality of `slot` now: [`Slot::effective_quality`].
     fn quality(&mut self, slot: &Slot) -> Quality {
-        match slot.max_age {
+        match slot.max_age_nanos() {
             Some(max) if slot.quality == Quality::Good => {
                 let threshold = match self.last {
                     Some((last, threshold)) if last == max => threshold,
@@ -48,7 +47,7 @@ impl StaleCheck {
 }
 
 /// The worst quality of a stored range at `now`, staleness included.
-fn worst_quality(stored: Stored<'_>, now: Instant) -> Quality {
+fn worst_quality(stored: Stored<'_>, now: u64) -> Quality {
     let mut stale = StaleCheck::new(now);
     match stored.slots.first() {
         // Stored together (the usual poll of a whole range): one slot speaks for all.
@@ -93,7 +92,7 @@ impl ProcessImage {
         convert: impl Fn(u16) -> T,
     ) -> Result<RangeRead<T>, ImageError> {
         check_range(start, count)?;
-        let now = Instant::now();
+        let now = self.inner.clock.ticks(Instant::now());
         let units = self.read_units();
         let stored = range(&units, unit, table, start, count)?;
         let values = stored
@@ -114,8 +113,8 @@ impl ProcessImage {
         Ok(RangeRead {
             values,
             quality: worst_quality(stored, now),
-            oldest: oldest.updated,
-            oldest_at: oldest.at,
+            oldest: oldest.updated(),
+            oldest_at: self.inner.clock.instant(oldest.at),
         })
     }
 
@@ -141,7 +140,7 @@ impl ProcessImage {
         };
         let byte_count =
             u8::try_from(bytes).map_err(|_| ImageError::InvalidRange { start, count })?;
-        let now = Instant::now();
+        let now = self.inner.clock.ticks(Instant::now());
         let units = self.read_units();
         let stored = range(&units, unit, table, start, count)?;
         let slots = stored.slots;

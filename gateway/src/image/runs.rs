@@ -220,24 +220,20 @@ impl Runs {
 
 #[cfg(test)]
 mod tests {
-    use std::time::SystemTime;
-
-    use tokio::time::Instant;
-
     use super::*;
+    use crate::image::slot::NEVER_STALE;
     use crate::image::Quality;
 
     /// Slots stored together: one quality, one time.
     fn slots(values: impl IntoIterator<Item = u16>) -> Vec<Slot> {
-        let at = Instant::now();
         values
             .into_iter()
             .map(|value| Slot {
                 value,
                 quality: Quality::Good,
-                updated: SystemTime::UNIX_EPOCH,
-                at,
-                max_age: None,
+                updated: 0,
+                at: 0,
+                max_age: NEVER_STALE,
             })
             .collect()
     }

@@ -409,3 +409,60 @@ async fn the_oldest_polled_value_leaves_out_values_written_on_demand() {
     assert_eq!(image.oldest_polled(2), Some(Instant::now()));
     assert_eq!(image.oldest_polled(3), None);
 }
+
+#[tokio::test(start_paused = true)]
+async fn a_store_shows_one_time_in_its_change_snapshot_and_range_read() {
+    let image = ProcessImage::default();
+    let mut changes = image.subscribe();
+    let before = SystemTime::now();
+    let at = Instant::now();
+    image.store_words(4, Table::InputRegisters, 7, &[70, 80], None);
+    let after = SystemTime::now();
+    let change = changes.try_recv().unwrap();
+    let read = image.read_words(4, Table::InputRegisters, 7, 2).unwrap();
+    let view = image.snapshot(4, Table::InputRegisters);
+    assert_eq!(read.oldest, change.time);
+    assert_eq!(view[0].updated, change.time);
+    assert_eq!(view[1].updated, change.time);
+    assert_eq!(read.oldest_at, at, "the monotonic time comes back exactly");
+    // Kept to the microsecond: at most 1 µs before the clock read before the store.
+    assert!(change.time + Duration::from_micros(1) > before && change.time <= after);
+    let micros = change
+        .time
+        .duration_since(SystemTime::UNIX_EPOCH)
+        .unwrap()
+        .subsec_nanos()
+        % 1000;
+    assert_eq!(micros, 0, "whole microseconds");
+    // Not polled: never stale, however old.
+    tokio::time::advance(Duration::from_secs(400 * 86_400)).await;
+    let read = image.read_words(4, Table::InputRegisters, 7, 2).unwrap();
+    assert_eq!(read.quality, Quality::Good);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_poll_period_too_long_to_keep_still_turns_stale() {
+    let image = ProcessImage::default();
+    // 30 days times 3: past the longest freshness limit a slot keeps (about 49.7 days).
+    let period = Some(Duration::from_secs(30 * 86_400));
+    image.store_words(5, Table::HoldingRegisters, 0, &[1], period);
+    let quality = |image: &ProcessImage| {
+        image
+            .read_words(5, Table::HoldingRegisters, 0, 1)
+            .unwrap()
+            .quality
+    };
+    let limit = Duration::from_millis(u64::from(slot::MAX_AGE_MS_LIMIT));
+    tokio::time::advance(limit).await;
+    assert_eq!(quality(&image), Quality::Good);
+    tokio::time::advance(Duration::from_millis(1)).await;
+    assert_eq!(
+        quality(&image),
+        Quality::Stale,
+        "clamped to the longest limit"
+    );
+    assert_eq!(
+        image.snapshot(5, Table::HoldingRegisters)[0].quality,
+        Quality::Stale
+    );
+}
