@@ -366,7 +366,12 @@ async fn a_line_status_is_the_same_view_over_zenoh_and_rest() {
             .json()
             .await
             .expect("JSON");
-        if rest["state"] == "running" && rest["devices_online"] == 2 {
+        // Devices start online; each has answered once it has a `last_answer` (the view leaves
+        // the key out before), and only then do the two views have the same keys.
+        let answered = rest["devices"]
+            .as_array()
+            .is_some_and(|d| d.len() == 2 && d.iter().all(|d| !d["last_answer"].is_null()));
+        if rest["state"] == "running" && rest["devices_online"] == 2 && answered {
             break rest;
         }
         assert!(std::time::Instant::now() < deadline, "{rest:#}");
