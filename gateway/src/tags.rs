@@ -735,10 +735,10 @@ fn tag_of(t: &config::TagConfig) -> Tag {
     let mut tag = Tag::new(t.name.clone(), t.table.into(), t.address, data_type)
         .scale(t.scale)
         .offset(t.offset)
-        .unit(t.unit.clone());
+        .unit(t.unit());
     tag.decimals = t.decimals;
-    if let Some(description) = &t.description {
-        tag = tag.describe(description.clone());
+    if let Some(description) = t.description() {
+        tag = tag.describe(description);
     }
     if t.writable {
         tag = tag.writable();

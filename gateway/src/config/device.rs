@@ -344,24 +344,24 @@ pub enum ByteOrder {
     Dcba,
 }
 
-/// A named value of a device. Its texts are boxed (no spare capacity, 8 bytes less each): a
-/// large gateway keeps a hundred thousand tags for as long as they are in force.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// A named value of a device. Its name is boxed (no spare capacity, 8 bytes less), its unit and
+/// description share one pointer ([`TagTexts`]): a large gateway keeps a hundred thousand tags
+/// for as long as they are in force (56 bytes a tag, was 104).
+///
+/// Written out (`Serialize`) as `name, table, address, type, byte_order?, registers?, bit?,
+/// scale, offset, decimals?, unit, writable, description?` (`?`: only when given).
+#[derive(Debug, Clone, PartialEq)]
 pub struct TagConfig {
     pub name: Box<str>,
     pub table: ModbusTable,
     pub address: u16,
     /// Defaults to `bool` for coils and discrete inputs (and for a `bit`), `u16` for registers.
-    #[serde(rename = "type")]
     pub data_type: DataType,
     /// The byte order of a 32/64-bit value or the character order of a string; absent: ABCD.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub byte_order: Option<ByteOrder>,
     /// The registers of a string (required for strings; others may only give their width).
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub registers: Option<u16>,
     /// A bit (0..=15) of a holding or input register, read as a bool.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub bit: Option<u8>,
     /// The value is `raw * scale + offset`.
     pub scale: f64,
@@ -369,18 +369,90 @@ pub struct TagConfig {
     pub offset: f64,
     /// The places a value is presented with and a write is checked at, 0..=9; absent: the
     /// places scale and offset imply. Rounds only: the value is `raw * scale + offset`.
-    #[serde(skip_serializing_if = "Option::is_none")]
     pub decimals: Option<u8>,
-    /// Engineering unit, free text.
-    pub unit: Box<str>,
     /// Writes from Modbus TCP, zenoh or REST are accepted (holding registers and coils only).
     pub writable: bool,
-    /// What the value is, free text for people (REST, zenoh, the status page); absent: none.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub description: Option<Box<str>>,
+    /// The engineering unit (free text, `unit`) and what the value is (free text for people:
+    /// REST, zenoh, the status page; `description`).
+    pub texts: TagTexts,
+}
+
+// A hundred thousand of them stay in memory (docs/benchmarks.md, the ceiling rows).
+const _: () = assert!(size_of::<TagConfig>() <= 56);
+
+/// A tag's unit and description behind one pointer: none for a tag that has neither (the
+/// common case in a large list of plain registers), 8 bytes a tag instead of 32.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct TagTexts(Option<Box<UnitAndDescription>>);
+
+/// The unit (empty: none) and the description of a tag that has either.
+type UnitAndDescription = (Box<str>, Option<Box<str>>);
+
+// === impl TagTexts ===
+
+impl TagTexts {
+    /// A unit (empty: none) and a description.
+    pub fn new(unit: &str, description: Option<&str>) -> Self {
+        if unit.is_empty() && description.is_none() {
+            Self(None)
+        } else {
+            Self(Some(Box::new((unit.into(), description.map(Into::into)))))
+        }
+    }
+
+    /// The engineering unit, empty for none.
+    pub fn unit(&self) -> &str {
+        self.0.as_ref().map_or("", |t| &t.0)
+    }
+
+    /// The description, if there is one.
+    pub fn description(&self) -> Option<&str> {
+        self.0.as_ref().and_then(|t| t.1.as_deref())
+    }
+}
+
+impl Serialize for TagConfig {
+    fn serialize<S: serde::Serializer>(&self, serializer: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeStruct;
+        let mut s = serializer.serialize_struct("TagConfig", 13)?;
+        s.serialize_field("name", &self.name)?;
+        s.serialize_field("table", &self.table)?;
+        s.serialize_field("address", &self.address)?;
+        s.serialize_field("type", &self.data_type)?;
+        if let Some(order) = &self.byte_order {
+            s.serialize_field("byte_order", order)?;
+        }
+        if let Some(registers) = &self.registers {
+            s.serialize_field("registers", registers)?;
+        }
+        if let Some(bit) = &self.bit {
+            s.serialize_field("bit", bit)?;
+        }
+        s.serialize_field("scale", &self.scale)?;
+        s.serialize_field("offset", &self.offset)?;
+        if let Some(decimals) = &self.decimals {
+            s.serialize_field("decimals", decimals)?;
+        }
+        s.serialize_field("unit", self.texts.unit())?;
+        s.serialize_field("writable", &self.writable)?;
+        if let Some(description) = self.texts.description() {
+            s.serialize_field("description", description)?;
+        }
+        s.end()
+    }
 }
 
 impl TagConfig {
+    /// The engineering unit, empty for none.
+    pub fn unit(&self) -> &str {
+        self.texts.unit()
+    }
+
+    /// The description, if there is one.
+    pub fn description(&self) -> Option<&str> {
+        self.texts.description()
+    }
+
     /// The byte order in effect (ABCD unless given).
     pub fn byte_order(&self) -> ByteOrder {
         self.byte_order.unwrap_or(DEFAULT_BYTE_ORDER)
@@ -649,6 +721,12 @@ fn read_tag(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<TagConfig> {
             "scale 0 makes every raw value 0 and cannot be written back",
         );
     }
+    // Read in the order the keys are listed (the order of their issues).
+    let offset = f.float_or(cx, "offset", DEFAULT_OFFSET);
+    let decimals = f.int::<u8>(cx, "decimals", 0..=MAX_DECIMALS, "");
+    let unit = f.string_or(cx, "unit", "");
+    let writable = f.bool_or(cx, "writable", false);
+    let description = f.string(cx, "description");
     let tag = TagConfig {
         table: table_or_standin,
         address: address.unwrap_or_default(),
@@ -657,11 +735,10 @@ fn read_tag(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<TagConfig> {
         registers,
         bit,
         scale,
-        offset: f.float_or(cx, "offset", DEFAULT_OFFSET),
-        decimals: f.int::<u8>(cx, "decimals", 0..=MAX_DECIMALS, ""),
-        unit: f.string_or(cx, "unit", "").into_boxed_str(),
-        writable: f.bool_or(cx, "writable", false),
-        description: f.string(cx, "description").map(String::into_boxed_str),
+        offset,
+        decimals,
+        texts: TagTexts::new(&unit, description.as_deref()),
+        writable,
         name: name.clone().unwrap_or_default().into_boxed_str(),
     };
     f.finish(cx);

@@ -366,8 +366,8 @@ mod tests {
             |n: &str| -> Vec<String> { d[n].tags.iter().map(|t| t.name.to_string()).collect() };
         assert_eq!(names("a"), ["energy", "power"]);
         assert_eq!(names("b"), ["energy", "power", "extra"]);
-        assert_eq!((d["a"].tags[1].scale, &*d["a"].tags[1].unit), (0.1, "W"));
-        assert_eq!((d["b"].tags[1].scale, &*d["b"].tags[1].unit), (0.01, "kW"));
+        assert_eq!((d["a"].tags[1].scale, d["a"].tags[1].unit()), (0.1, "W"));
+        assert_eq!((d["b"].tags[1].scale, d["b"].tags[1].unit()), (0.01, "kW"));
         assert_eq!(d["a"].poll[0].name, "values");
         assert_eq!(names("c"), ["level"]);
         assert_eq!(d["a"].template.as_deref(), Some("meter"));
