@@ -2,11 +2,12 @@
 //! pty pair, connected as zenoh clients to one router (the Python binding in router mode on
 //! tcp/127.0.0.1, multicast scouting off everywhere).
 //!
-//! One test, in order, since three gateways and a router are slow to start on a loaded machine:
-//! the fleet query returns three; `gateway fleet status` prints all three with their lines;
-//! `GET /api/v1/fleet` of one lists the two others; writes are off by default (two gateways
-//! refuse a set) and a set through the router on the one with writes on lands in its drive and
-//! in no other; a duplicate name is refused (exit 64, naming the other); the router restarted
+//! One test, in order, since three gateways and a router are slow to start on a loaded machine: the
+//! fleet query returns three; `gateway fleet status` prints all three with their lines; `GET
+//! /api/v1/fleet` of one lists the two others, and its status page shows them in Debian's Chromium
+//! (tests/page/fleet-test.js), each with a link that opens its page; writes are off by default (two
+//! gateways refuse a set) and a set through the router on the one with writes on lands in its drive
+//! and in no other; a duplicate name is refused (exit 64, naming the other); the router restarted
 //! loses no gateway for good (the time each takes to come back is printed); a gateway frozen
 //! (SIGSTOP) leaves the fabric within its configured lease.
 
@@ -368,6 +369,18 @@ async fn three_gateways_through_one_router() {
         tokio::time::sleep(Duration::from_millis(200)).await;
     }
 
+    // The status page of g1 shows the same in a real browser: g2 and g3 online, each with a
+    // link that opens its own page.
+    let others = format!(
+        "g2=http://{},g3=http://{}",
+        gateways[1].http.expect("http"),
+        gateways[2].http.expect("http")
+    );
+    let page = tokio::task::spawn_blocking(move || fleet_page(&format!("http://{http}"), &others))
+        .await
+        .expect("the browser task");
+    println!("{page}");
+
     // Writes stay off by default: g2 and g3 refuse a set; on g1 it lands in g1's drive only.
     for name in ["g2", "g3"] {
         let r = set_hsp(&s, name, "42.5").await;
@@ -530,4 +543,52 @@ async fn three_gateways_through_one_router() {
     drop(router);
     drop((sims, links));
     let _ = std::fs::remove_dir_all(PathBuf::from(&dir));
+}
+
+/// Runs tests/page/fleet-test.js (Debian's Chromium through the pinned playwright-core, as the
+/// page test does) against the page at `base`; `others` is `name=url,...`. Its output.
+fn fleet_page(base: &str, others: &str) -> String {
+    let page_dir = gateway_tests::repo_root().join("tests/page");
+    assert!(
+        Path::new("/usr/bin/chromium").exists()
+            && page_dir
+                .join("node_modules/playwright-core/package.json")
+                .exists(),
+        "chromium or tests/page/node_modules is missing: run the tests with `.ci/test`, which \
+         installs Debian's chromium and runs `npm ci` in tests/page"
+    );
+    let mut child = Command::new("node")
+        .arg(page_dir.join("fleet-test.js"))
+        .current_dir(&page_dir)
+        .env("GATEWAY_URL", base)
+        .env("FLEET", others)
+        .env("CHROMIUM", "/usr/bin/chromium")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start node (Debian package nodejs)");
+    let started = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait for node") {
+            break status;
+        }
+        if started.elapsed() > Duration::from_secs(120) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("the fleet page script did not finish within 120 s");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let output = child.wait_with_output().expect("node output");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        status.success() && text.contains("fleet-test: all checks passed"),
+        "the fleet page script failed:\n{text}"
+    );
+    text
 }

@@ -343,7 +343,7 @@
     let list = [];
     if (r.ok && r.json) {
       const j = r.json;
-      list = Array.isArray(j) ? j : (j.gateways || j.peers || j.entries || j.fleet || []);
+      list = Array.isArray(j.gateways) ? j.gateways : [];
     }
     S.fleet = Array.isArray(list) ? list : [];
   }
@@ -452,16 +452,18 @@
     const f = $('fleet');
     f.hidden = !S.fleet.length;
     if (!S.fleet.length) return;
+    // GET /api/v1/fleet: {gateways: [{key, name, zid, host, online, since, link}]}.
     const rows = S.fleet.map((g) => {
-      const name = g.name || g.gateway || g.id || '?';
-      const link = g.page || g.url || g.http || g.link;
-      const page = typeof link === 'string' && /^https?:/.test(link) ? el('a', { href: link }, 'open its page') : '';
-      const state = g.alive === false || g.up === false ? 'gone' : 'seen';
-      return el('tr', {}, el('th', { scope: 'row' }, name), el('td', {}, state),
-        el('td', {}, g.last_seen ? `${dur(now() - Date.parse(g.last_seen))} ago` : ''), el('td', {}, page));
+      const name = g.name || g.key || '?';
+      const link = g.link;
+      const page = typeof link === 'string' && /^https?:/.test(link) ? el('a', { href: link }, `open ${name}'s page`) : 'no page';
+      const state = g.online ? 'online' : 'gone';
+      const since = g.since ? `${state} for ${dur(now() - Date.parse(g.since))}` : state;
+      return el('tr', {}, el('th', { scope: 'row' }, name), el('td', {}, since),
+        el('td', {}, g.host || ''), el('td', {}, page));
     });
     swap(f.querySelector('.body'), el('table', {}, el('thead', {}, el('tr', {},
-      ['gateway', 'state', 'last seen', 'page'].map((h) => el('th', { scope: 'col' }, h)))), el('tbody', {}, rows)));
+      ['gateway', 'state', 'host', 'page'].map((h) => el('th', { scope: 'col' }, h)))), el('tbody', {}, rows)));
     setCount('fleet', S.fleet.length);
   }
 
