@@ -7,7 +7,6 @@ use core::fmt;
 use super::params::{AddressMap, BitMapping};
 use super::Area;
 use crate::event::{ids, EventId};
-use crate::modbus::pdu::ExceptionCode;
 
 /// 003 6.4.8.1/6.4.8.2/6.4.8.8: "Values between 1 and 2040 are permitted as bit_number".
 pub const MAX_BITS: u16 = 2040;
@@ -96,8 +95,9 @@ impl fmt::Display for RegisterLocation {
     }
 }
 
-/// Why an access was refused. [`ExceptionCode::from`] gives the exception the slave answers (the one
-/// place of that mapping) and [`AccessError::event`] the 7.2 event the CP reports for it.
+/// Why an access was refused. `ExceptionCode::from` (in `modbus::slave::serve`, the one place of
+/// that mapping) gives the exception the slave answers and [`AccessError::event`] the 7.2 event the
+/// CP reports for it.
 ///
 /// 003 6.4.6 "Error codes" lists the Modbus exception codes but not which error gives which; the
 /// mapping follows the Modbus Application Protocol V1.1b3 (6.x state diagrams): a quantity out of
@@ -186,28 +186,6 @@ impl AccessError {
             Self::BeyondAreaEnd { .. } => Some(ids::SLAVE_BIT_AREA_ERROR),
             Self::DbMissingOrShort { .. } => Some(ids::SLAVE_DB_ERROR),
             _ => None,
-        }
-    }
-}
-
-impl From<AccessError> for ExceptionCode {
-    fn from(error: AccessError) -> Self {
-        Self::from(&error)
-    }
-}
-
-impl From<&AccessError> for ExceptionCode {
-    fn from(error: &AccessError) -> Self {
-        match error {
-            AccessError::IllegalQuantity { .. } => Self::IllegalDataValue,
-            AccessError::NotMapped { .. }
-            | AccessError::CrossesArea { .. }
-            | AccessError::Misaligned { .. }
-            | AccessError::ReadOnly { .. }
-            | AccessError::CrossesDb { .. }
-            | AccessError::WriteNotEnabled { .. }
-            | AccessError::BeyondAreaEnd { .. }
-            | AccessError::DbMissingOrShort { .. } => Self::IllegalDataAddress,
         }
     }
 }
@@ -317,6 +295,7 @@ pub fn locate_registers(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::modbus::pdu::ExceptionCode;
 
     #[test]
     fn boundaries() {

@@ -231,20 +231,28 @@ enum State {
         deadline: Instant,
     },
     /// The receiver answered DLE; the sender's telegram is coming.
-    Data {
-        sender: Side,
-        deframer: Deframer,
-        deadline: Instant,
-        /// A line error inside the telegram: the tap's copy is damaged.
-        damaged: Option<LineError>,
-    },
+    Data(Receiving),
     /// The telegram ended (or was cut off); waiting for the receiver's DLE or NAK.
-    Ack {
-        sender: Side,
-        result: Result<Vec<u8>, FrameError>,
-        deadline: Instant,
-        damaged: Option<LineError>,
-    },
+    Ack(Awaiting),
+}
+
+/// A telegram on its way from `sender`.
+#[derive(Clone, Debug)]
+struct Receiving {
+    sender: Side,
+    deframer: Deframer,
+    deadline: Instant,
+    /// A line error inside the telegram: the tap's copy is damaged.
+    damaged: Option<LineError>,
+}
+
+/// A telegram of `sender` that ended (`result`), waiting for the receiver's answer.
+#[derive(Clone, Debug)]
+struct Awaiting {
+    sender: Side,
+    result: Result<Vec<u8>, FrameError>,
+    deadline: Instant,
+    damaged: Option<LineError>,
 }
 
 /// The listen-only 3964(R) decoder; see the module documentation.
@@ -311,9 +319,9 @@ impl Tap3964 {
     pub fn handle_line_error(&mut self, side: Side, now: Instant, error: LineError) {
         self.handle_timeout(now);
         match &mut self.state {
-            State::Data {
+            State::Data(Receiving {
                 sender, damaged, ..
-            } if *sender == side => {
+            }) if *sender == side => {
                 damaged.get_or_insert(error);
             }
             _ => self.line_error_fault(side, error),
@@ -332,8 +340,8 @@ impl Tap3964 {
         match &self.state {
             State::Idle => None,
             State::Setup { deadline, .. }
-            | State::Data { deadline, .. }
-            | State::Ack { deadline, .. } => Some(*deadline),
+            | State::Data(Receiving { deadline, .. })
+            | State::Ack(Awaiting { deadline, .. }) => Some(*deadline),
         }
     }
 
@@ -344,8 +352,6 @@ impl Tap3964 {
 
     /// Takes one byte; false if it belongs to no exchange.
     fn byte(&mut self, side: Side, now: Instant, byte: u8) -> bool {
-        let qvz = self.config.qvz;
-        let zvz = self.config.zvz;
         match std::mem::replace(&mut self.state, State::Idle) {
             State::Idle => {
                 if byte == STX {
@@ -355,169 +361,176 @@ impl Tap3964 {
                     false
                 }
             }
-            State::Setup { mut pending, .. } => {
-                let other = side.other();
-                match byte {
-                    // 6.3.1 "Establishing a send connection": the partner answers STX with DLE.
-                    DLE if pending[other.index()] => {
-                        self.state = State::Data {
-                            sender: other,
-                            deframer: Deframer::new(
-                                self.config.variant,
-                                usize::from(self.config.max_len),
-                            ),
-                            deadline: now + zvz,
-                            damaged: None,
-                        };
-                        true
-                    }
-                    NAK if pending[other.index()] => {
-                        self.fail(
-                            other,
-                            Fault::Nak {
-                                after_telegram: false,
-                            },
-                        );
-                        pending[other.index()] = false;
-                        self.setup_or_idle(pending, now + qvz);
-                        true
-                    }
-                    STX if pending[side.index()] => {
-                        // The sender's own QVZ ran out before the tap's: it repeats the STX.
-                        self.fail(
-                            side,
-                            Fault::MissingDle {
-                                after_telegram: false,
-                            },
-                        );
-                        self.request(side, now);
-                        true
-                    }
-                    STX => {
-                        // 6.3.3 "Priority": both partners want to send; the one with the lower
-                        // priority answers with DLE, which tells the tap who won.
-                        self.counters.conflicts += 1;
-                        self.events.push_back(TapEvent3964::Fault {
-                            side,
-                            fault: Fault::Conflict,
-                        });
-                        pending[side.index()] = true;
-                        self.setup_or_idle(pending, now + qvz);
-                        true
-                    }
-                    _ => {
-                        self.state = State::Setup {
-                            pending,
-                            deadline: now + qvz,
-                        };
-                        false
-                    }
-                }
+            State::Setup { pending, .. } => self.byte_in_setup(pending, side, now, byte),
+            State::Data(receiving) => self.byte_in_data(receiving, side, now, byte),
+            State::Ack(awaiting) => self.byte_in_ack(awaiting, side, now, byte),
+        }
+    }
+
+    /// A byte while STX waits for its answer (6.3.1, 6.3.3).
+    fn byte_in_setup(
+        &mut self,
+        mut pending: [bool; 2],
+        side: Side,
+        now: Instant,
+        byte: u8,
+    ) -> bool {
+        let qvz = self.config.qvz;
+        let other = side.other();
+        match byte {
+            // 6.3.1 "Establishing a send connection": the partner answers STX with DLE.
+            DLE if pending[other.index()] => {
+                self.state = State::Data(Receiving {
+                    sender: other,
+                    deframer: Deframer::new(self.config.variant, usize::from(self.config.max_len)),
+                    deadline: now + self.config.zvz,
+                    damaged: None,
+                });
+                true
             }
-            State::Data {
-                sender,
-                mut deframer,
-                deadline,
-                damaged,
-            } => {
-                if side == sender {
-                    if deframer.push(byte) == Progress::Complete {
-                        self.state = State::Ack {
-                            sender,
-                            result: deframer.finish(),
-                            deadline: now + qvz,
-                            damaged,
-                        };
-                    } else {
-                        self.state = State::Data {
-                            sender,
-                            deframer,
-                            deadline: now + zvz,
-                            damaged,
-                        };
-                    }
-                    true
-                } else if byte == NAK {
-                    // The receiver gave up during the telegram (7.2 08 06h: ZVZ on its clock).
-                    self.fail(sender, Fault::Frame(FrameError::Incomplete));
-                    self.fail(
-                        sender,
-                        Fault::Nak {
-                            after_telegram: true,
-                        },
-                    );
-                    true
-                } else {
-                    self.state = State::Data {
-                        sender,
-                        deframer,
-                        deadline,
-                        damaged,
-                    };
-                    false
-                }
+            NAK if pending[other.index()] => {
+                self.fail(
+                    other,
+                    Fault::Nak {
+                        after_telegram: false,
+                    },
+                );
+                pending[other.index()] = false;
+                self.setup_or_idle(pending, now + qvz);
+                true
             }
-            State::Ack {
+            STX if pending[side.index()] => {
+                // The sender's own QVZ ran out before the tap's: it repeats the STX.
+                self.fail(
+                    side,
+                    Fault::MissingDle {
+                        after_telegram: false,
+                    },
+                );
+                self.request(side, now);
+                true
+            }
+            STX => {
+                // 6.3.3 "Priority": both partners want to send; the one with the lower
+                // priority answers with DLE, which tells the tap who won.
+                self.counters.conflicts += 1;
+                self.events.push_back(TapEvent3964::Fault {
+                    side,
+                    fault: Fault::Conflict,
+                });
+                pending[side.index()] = true;
+                self.setup_or_idle(pending, now + qvz);
+                true
+            }
+            _ => {
+                self.state = State::Setup {
+                    pending,
+                    deadline: now + qvz,
+                };
+                false
+            }
+        }
+    }
+
+    /// A byte while the sender's telegram comes (6.3.1 "Sending data").
+    fn byte_in_data(
+        &mut self,
+        mut receiving: Receiving,
+        side: Side,
+        now: Instant,
+        byte: u8,
+    ) -> bool {
+        let sender = receiving.sender;
+        if side == sender {
+            if receiving.deframer.push(byte) == Progress::Complete {
+                self.state = State::Ack(Awaiting {
+                    sender,
+                    result: receiving.deframer.finish(),
+                    deadline: now + self.config.qvz,
+                    damaged: receiving.damaged,
+                });
+            } else {
+                receiving.deadline = now + self.config.zvz;
+                self.state = State::Data(receiving);
+            }
+            true
+        } else if byte == NAK {
+            // The receiver gave up during the telegram (7.2 08 06h: ZVZ on its clock).
+            self.fail(sender, Fault::Frame(FrameError::Incomplete));
+            self.fail(
                 sender,
-                result,
-                deadline,
-                damaged,
-            } => {
-                if side == sender.other() && byte == DLE {
-                    match result {
-                        // The receiver took it, but the tap's copy has a line error in it.
-                        Ok(_) if damaged.is_some() => {
-                            self.failed[sender.index()] = false;
-                            self.damaged(sender, damaged);
-                        }
-                        Ok(data) => {
-                            self.failed[sender.index()] = false;
-                            self.counters.telegrams[sender.index()] += 1;
-                            self.events.push_back(TapEvent3964::Telegram {
-                                side: sender,
-                                data,
-                                at: now,
-                            });
-                        }
-                        // The receiver took a telegram the tap received damaged: reported, not
-                        // delivered.
-                        Err(error) => {
-                            self.damaged(sender, damaged);
-                            self.frame_fault(sender, error);
-                        }
-                    }
-                    true
-                } else if side == sender.other() && byte == NAK {
-                    self.telegram_failed(
-                        sender,
-                        &result,
-                        damaged,
-                        Fault::Nak {
-                            after_telegram: true,
-                        },
-                    );
-                    true
-                } else if byte == STX {
-                    // A new request before the acknowledgement: the one awaited is missing.
-                    self.telegram_failed(
-                        sender,
-                        &result,
-                        damaged,
-                        Fault::MissingDle {
-                            after_telegram: true,
-                        },
-                    );
-                    self.request(side, now);
-                    true
-                } else {
-                    self.state = State::Ack {
-                        sender,
-                        result,
-                        deadline,
-                        damaged,
-                    };
-                    false
-                }
+                Fault::Nak {
+                    after_telegram: true,
+                },
+            );
+            true
+        } else {
+            self.state = State::Data(receiving);
+            false
+        }
+    }
+
+    /// A byte while the telegram waits for the receiver's DLE or NAK (6.3.1).
+    fn byte_in_ack(&mut self, awaiting: Awaiting, side: Side, now: Instant, byte: u8) -> bool {
+        let receiver = awaiting.sender.other();
+        let fault = match byte {
+            DLE if side == receiver => {
+                self.acknowledged(awaiting, now);
+                return true;
+            }
+            NAK if side == receiver => Fault::Nak {
+                after_telegram: true,
+            },
+            // A new request before the acknowledgement: the one awaited is missing.
+            STX => Fault::MissingDle {
+                after_telegram: true,
+            },
+            _ => {
+                self.state = State::Ack(awaiting);
+                return false;
+            }
+        };
+        let Awaiting {
+            sender,
+            result,
+            damaged,
+            ..
+        } = awaiting;
+        self.telegram_failed(sender, &result, damaged, fault);
+        if byte == STX {
+            self.request(side, now);
+        }
+        true
+    }
+
+    /// The receiver answered the telegram of `awaiting` with DLE.
+    fn acknowledged(&mut self, awaiting: Awaiting, now: Instant) {
+        let Awaiting {
+            sender,
+            result,
+            damaged,
+            ..
+        } = awaiting;
+        match result {
+            // The receiver took it, but the tap's copy has a line error in it.
+            Ok(_) if damaged.is_some() => {
+                self.failed[sender.index()] = false;
+                self.damaged(sender, damaged);
+            }
+            Ok(data) => {
+                self.failed[sender.index()] = false;
+                self.counters.telegrams[sender.index()] += 1;
+                self.events.push_back(TapEvent3964::Telegram {
+                    side: sender,
+                    data,
+                    at: now,
+                });
+            }
+            // The receiver took a telegram the tap received damaged: reported, not
+            // delivered.
+            Err(error) => {
+                self.damaged(sender, damaged);
+                self.frame_fault(sender, error);
             }
         }
     }
@@ -560,28 +573,28 @@ impl Tap3964 {
                     }
                 }
             }
-            State::Data {
+            State::Data(Receiving {
                 sender,
                 deframer,
                 damaged,
                 ..
-            } => {
+            }) => {
                 // 7.2 08 06h: the character delay time ran out inside the telegram. The receiver
                 // answers NAK; it is awaited like the acknowledgement.
                 let error = deframer.error().unwrap_or(FrameError::Incomplete);
-                self.state = State::Ack {
+                self.state = State::Ack(Awaiting {
                     sender,
                     result: Err(error),
                     deadline: now + self.config.qvz,
                     damaged,
-                };
+                });
             }
-            State::Ack {
+            State::Ack(Awaiting {
                 sender,
                 result,
                 damaged,
                 ..
-            } => {
+            }) => {
                 self.telegram_failed(
                     sender,
                     &result,

@@ -22,6 +22,31 @@ impl From<AccessError> for Refusal {
     }
 }
 
+// The exception a refused access answers: the mapping of 003 6.4.6 "Error codes" as the Modbus
+// Application Protocol V1.1b3 (6.x state diagrams) gives it (see `AccessError`). It lives on the
+// Modbus side so that the CP memory does not depend on the Modbus PDU types.
+impl From<AccessError> for ExceptionCode {
+    fn from(error: AccessError) -> Self {
+        Self::from(&error)
+    }
+}
+
+impl From<&AccessError> for ExceptionCode {
+    fn from(error: &AccessError) -> Self {
+        match error {
+            AccessError::IllegalQuantity { .. } => Self::IllegalDataValue,
+            AccessError::NotMapped { .. }
+            | AccessError::CrossesArea { .. }
+            | AccessError::Misaligned { .. }
+            | AccessError::ReadOnly { .. }
+            | AccessError::CrossesDb { .. }
+            | AccessError::WriteNotEnabled { .. }
+            | AccessError::BeyondAreaEnd { .. }
+            | AccessError::DbMissingOrShort { .. } => Self::IllegalDataAddress,
+        }
+    }
+}
+
 /// A function the slave driver does not support: exception 01 (003 6.4.6 "FUNC": only the listed
 /// function codes are supported; Modbus Application Protocol V1.1b3, 7: "Illegal function").
 const UNSUPPORTED: Refusal = Refusal {
