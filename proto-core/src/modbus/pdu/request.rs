@@ -246,159 +246,47 @@ impl Request {
     pub fn decode_with(pdu: &[u8], limits: &Limits) -> Result<Self, PduError> {
         let mut r = Reader::new(pdu);
         let function = FunctionCode(r.u8().map_err(|_| PduError::Empty)?);
-        let err = |e| PduError::from_codec(function.0, e);
-        let request = match function {
+        let r = &mut r;
+        match function {
             FunctionCode::READ_COILS
             | FunctionCode::READ_DISCRETE_INPUTS
             | FunctionCode::READ_HOLDING_REGISTERS
-            | FunctionCode::READ_INPUT_REGISTERS => {
-                let address = r.u16_be().map_err(err)?;
-                let quantity = r.u16_be().map_err(err)?;
-                r.expect_end().map_err(err)?;
-                let max = match function {
-                    FunctionCode::READ_COILS | FunctionCode::READ_DISCRETE_INPUTS => {
-                        limits.read_bits
-                    }
-                    _ => limits.read_registers,
-                };
-                check_quantity(function, quantity, max)?;
-                check_address(function, address, quantity)?;
-                match function {
-                    FunctionCode::READ_COILS => Self::ReadCoils { address, quantity },
-                    FunctionCode::READ_DISCRETE_INPUTS => {
-                        Self::ReadDiscreteInputs { address, quantity }
-                    }
-                    FunctionCode::READ_HOLDING_REGISTERS => {
-                        Self::ReadHoldingRegisters { address, quantity }
-                    }
-                    _ => Self::ReadInputRegisters { address, quantity },
-                }
-            }
-            FunctionCode::WRITE_SINGLE_COIL => {
-                let address = r.u16_be().map_err(err)?;
-                let raw = r.u16_be().map_err(err)?;
-                r.expect_end().map_err(err)?;
-                let value = match raw {
-                    COIL_ON => true,
-                    COIL_OFF => false,
-                    value => {
-                        return Err(PduError::IllegalValue {
-                            function: function.0,
-                            field: "value",
-                            value,
-                        })
-                    }
-                };
-                Self::WriteSingleCoil { address, value }
-            }
+            | FunctionCode::READ_INPUT_REGISTERS => decode_read(r, function, limits),
+            FunctionCode::WRITE_SINGLE_COIL => decode_write_single_coil(r, function),
             FunctionCode::WRITE_SINGLE_REGISTER => {
-                let address = r.u16_be().map_err(err)?;
-                let value = r.u16_be().map_err(err)?;
-                r.expect_end().map_err(err)?;
-                Self::WriteSingleRegister { address, value }
+                let address = r.u16_be().map_err(codec(function))?;
+                let value = r.u16_be().map_err(codec(function))?;
+                r.expect_end().map_err(codec(function))?;
+                Ok(Self::WriteSingleRegister { address, value })
             }
             FunctionCode::READ_EXCEPTION_STATUS
             | FunctionCode::GET_COMM_EVENT_COUNTER
             | FunctionCode::GET_COMM_EVENT_LOG
             | FunctionCode::REPORT_SERVER_ID => {
-                r.expect_end().map_err(err)?;
-                match function {
+                r.expect_end().map_err(codec(function))?;
+                Ok(match function {
                     FunctionCode::READ_EXCEPTION_STATUS => Self::ReadExceptionStatus,
                     FunctionCode::GET_COMM_EVENT_COUNTER => Self::GetCommEventCounter,
                     FunctionCode::GET_COMM_EVENT_LOG => Self::GetCommEventLog,
                     _ => Self::ReportServerId,
-                }
+                })
             }
-            FunctionCode::DIAGNOSTICS => {
-                let sub_function = r.u16_be().map_err(err)?;
-                // 001 4.3.1: sub-function 00 echoes the data field, whatever it holds; every
-                // other sub-function of 001 4.3 carries exactly two bytes (00 00).
-                let data = if sub_function == diag::RETURN_QUERY_DATA {
-                    r.rest()
-                } else {
-                    let data = r.take(2).map_err(err)?;
-                    r.expect_end().map_err(err)?;
-                    data
-                };
-                Self::Diagnostics {
-                    sub_function,
-                    data: data.to_vec(),
-                }
-            }
-            FunctionCode::WRITE_MULTIPLE_COILS => {
-                let address = r.u16_be().map_err(err)?;
-                let quantity = r.u16_be().map_err(err)?;
-                let byte_count = r.u8().map_err(err)?;
-                check_quantity(function, quantity, limits.write_bits)?;
-                let expected = bit_byte_count(usize::from(quantity));
-                if usize::from(byte_count) != expected {
-                    return Err(PduError::ByteCountMismatch {
-                        function: function.0,
-                        byte_count,
-                        expected,
-                    });
-                }
-                let packed = r.take(expected).map_err(err)?;
-                r.expect_end().map_err(err)?;
-                check_address(function, address, quantity)?;
-                Self::WriteMultipleCoils {
-                    address,
-                    values: unpack_bits(packed, usize::from(quantity)),
-                }
-            }
+            FunctionCode::DIAGNOSTICS => decode_diagnostics(r, function),
+            FunctionCode::WRITE_MULTIPLE_COILS => decode_write_multiple_coils(r, function, limits),
             FunctionCode::WRITE_MULTIPLE_REGISTERS => {
-                let address = r.u16_be().map_err(err)?;
-                let quantity = r.u16_be().map_err(err)?;
-                let byte_count = r.u8().map_err(err)?;
+                let address = r.u16_be().map_err(codec(function))?;
+                let quantity = r.u16_be().map_err(codec(function))?;
+                let byte_count = r.u8().map_err(codec(function))?;
                 check_quantity(function, quantity, limits.write_registers)?;
-                let values = read_registers(&mut r, function, byte_count, quantity)?;
-                r.expect_end().map_err(err)?;
+                let values = read_registers(r, function, byte_count, quantity)?;
+                r.expect_end().map_err(codec(function))?;
                 check_address(function, address, quantity)?;
-                Self::WriteMultipleRegisters { address, values }
+                Ok(Self::WriteMultipleRegisters { address, values })
             }
-            FunctionCode::READ_WRITE_MULTIPLE_REGISTERS => {
-                let read_address = r.u16_be().map_err(err)?;
-                let read_quantity = r.u16_be().map_err(err)?;
-                let write_address = r.u16_be().map_err(err)?;
-                let write_quantity = r.u16_be().map_err(err)?;
-                let byte_count = r.u8().map_err(err)?;
-                check_quantity(function, read_quantity, limits.read_write_read_registers)?;
-                check_quantity(function, write_quantity, limits.read_write_write_registers)?;
-                let values = read_registers(&mut r, function, byte_count, write_quantity)?;
-                r.expect_end().map_err(err)?;
-                check_address(function, read_address, read_quantity)?;
-                check_address(function, write_address, write_quantity)?;
-                Self::ReadWriteMultipleRegisters {
-                    read_address,
-                    read_quantity,
-                    write_address,
-                    values,
-                }
-            }
-            FunctionCode::ENCAPSULATED_INTERFACE => {
-                let mei_type = r.u8().map_err(err)?;
-                if mei_type != MEI_READ_DEVICE_ID {
-                    return Err(PduError::UnsupportedMeiType(mei_type));
-                }
-                let read_code = r.u8().map_err(err)?;
-                let object_id = r.u8().map_err(err)?;
-                r.expect_end().map_err(err)?;
-                if !READ_DEVICE_ID_CODES.contains(&read_code) {
-                    let value = u16::from(read_code);
-                    return Err(PduError::IllegalValue {
-                        function: function.0,
-                        field: "read_device_id_code",
-                        value,
-                    });
-                }
-                Self::ReadDeviceIdentification {
-                    read_code,
-                    object_id,
-                }
-            }
-            FunctionCode(other) => return Err(PduError::UnsupportedFunction(other)),
-        };
-        Ok(request)
+            FunctionCode::READ_WRITE_MULTIPLE_REGISTERS => decode_read_write(r, function, limits),
+            FunctionCode::ENCAPSULATED_INTERFACE => decode_device_identification(r, function),
+            FunctionCode(other) => Err(PduError::UnsupportedFunction(other)),
+        }
     }
 
     /// Checks the request against a sender's `limits` before it is sent: quantities and value
@@ -490,6 +378,152 @@ impl Request {
             }
         }
     }
+}
+
+/// A codec error of `function`'s request as the PDU error it is.
+fn codec(function: FunctionCode) -> impl Fn(crate::codec::CodecError) -> PduError {
+    move |e| PduError::from_codec(function.0, e)
+}
+
+/// FC 01..04: address and quantity (Modbus Application Protocol V1.1b3, 6.1..6.4).
+fn decode_read(
+    r: &mut Reader<'_>,
+    function: FunctionCode,
+    limits: &Limits,
+) -> Result<Request, PduError> {
+    let address = r.u16_be().map_err(codec(function))?;
+    let quantity = r.u16_be().map_err(codec(function))?;
+    r.expect_end().map_err(codec(function))?;
+    let max = match function {
+        FunctionCode::READ_COILS | FunctionCode::READ_DISCRETE_INPUTS => limits.read_bits,
+        _ => limits.read_registers,
+    };
+    check_quantity(function, quantity, max)?;
+    check_address(function, address, quantity)?;
+    Ok(match function {
+        FunctionCode::READ_COILS => Request::ReadCoils { address, quantity },
+        FunctionCode::READ_DISCRETE_INPUTS => Request::ReadDiscreteInputs { address, quantity },
+        FunctionCode::READ_HOLDING_REGISTERS => Request::ReadHoldingRegisters { address, quantity },
+        _ => Request::ReadInputRegisters { address, quantity },
+    })
+}
+
+/// FC 05: a coil and FF00h or 0000h (003 6.4.4.5).
+fn decode_write_single_coil(
+    r: &mut Reader<'_>,
+    function: FunctionCode,
+) -> Result<Request, PduError> {
+    let address = r.u16_be().map_err(codec(function))?;
+    let raw = r.u16_be().map_err(codec(function))?;
+    r.expect_end().map_err(codec(function))?;
+    let value = match raw {
+        COIL_ON => true,
+        COIL_OFF => false,
+        value => {
+            return Err(PduError::IllegalValue {
+                function: function.0,
+                field: "value",
+                value,
+            })
+        }
+    };
+    Ok(Request::WriteSingleCoil { address, value })
+}
+
+/// FC 08: a sub-function and its data.
+fn decode_diagnostics(r: &mut Reader<'_>, function: FunctionCode) -> Result<Request, PduError> {
+    let sub_function = r.u16_be().map_err(codec(function))?;
+    // 001 4.3.1: sub-function 00 echoes the data field, whatever it holds; every
+    // other sub-function of 001 4.3 carries exactly two bytes (00 00).
+    let data = if sub_function == diag::RETURN_QUERY_DATA {
+        r.rest()
+    } else {
+        let data = r.take(2).map_err(codec(function))?;
+        r.expect_end().map_err(codec(function))?;
+        data
+    };
+    Ok(Request::Diagnostics {
+        sub_function,
+        data: data.to_vec(),
+    })
+}
+
+/// FC 15: address, quantity, byte count and the packed coils.
+fn decode_write_multiple_coils(
+    r: &mut Reader<'_>,
+    function: FunctionCode,
+    limits: &Limits,
+) -> Result<Request, PduError> {
+    let address = r.u16_be().map_err(codec(function))?;
+    let quantity = r.u16_be().map_err(codec(function))?;
+    let byte_count = r.u8().map_err(codec(function))?;
+    check_quantity(function, quantity, limits.write_bits)?;
+    let expected = bit_byte_count(usize::from(quantity));
+    if usize::from(byte_count) != expected {
+        return Err(PduError::ByteCountMismatch {
+            function: function.0,
+            byte_count,
+            expected,
+        });
+    }
+    let packed = r.take(expected).map_err(codec(function))?;
+    r.expect_end().map_err(codec(function))?;
+    check_address(function, address, quantity)?;
+    Ok(Request::WriteMultipleCoils {
+        address,
+        values: unpack_bits(packed, usize::from(quantity)),
+    })
+}
+
+/// FC 23: the read range, the write range and the values written.
+fn decode_read_write(
+    r: &mut Reader<'_>,
+    function: FunctionCode,
+    limits: &Limits,
+) -> Result<Request, PduError> {
+    let read_address = r.u16_be().map_err(codec(function))?;
+    let read_quantity = r.u16_be().map_err(codec(function))?;
+    let write_address = r.u16_be().map_err(codec(function))?;
+    let write_quantity = r.u16_be().map_err(codec(function))?;
+    let byte_count = r.u8().map_err(codec(function))?;
+    check_quantity(function, read_quantity, limits.read_write_read_registers)?;
+    check_quantity(function, write_quantity, limits.read_write_write_registers)?;
+    let values = read_registers(r, function, byte_count, write_quantity)?;
+    r.expect_end().map_err(codec(function))?;
+    check_address(function, read_address, read_quantity)?;
+    check_address(function, write_address, write_quantity)?;
+    Ok(Request::ReadWriteMultipleRegisters {
+        read_address,
+        read_quantity,
+        write_address,
+        values,
+    })
+}
+
+/// FC 43/14: read device ID code and object id (Modbus Application Protocol V1.1b3, 6.21).
+fn decode_device_identification(
+    r: &mut Reader<'_>,
+    function: FunctionCode,
+) -> Result<Request, PduError> {
+    let mei_type = r.u8().map_err(codec(function))?;
+    if mei_type != MEI_READ_DEVICE_ID {
+        return Err(PduError::UnsupportedMeiType(mei_type));
+    }
+    let read_code = r.u8().map_err(codec(function))?;
+    let object_id = r.u8().map_err(codec(function))?;
+    r.expect_end().map_err(codec(function))?;
+    if !READ_DEVICE_ID_CODES.contains(&read_code) {
+        let value = u16::from(read_code);
+        return Err(PduError::IllegalValue {
+            function: function.0,
+            field: "read_device_id_code",
+            value,
+        });
+    }
+    Ok(Request::ReadDeviceIdentification {
+        read_code,
+        object_id,
+    })
 }
 
 /// Reads `quantity` registers after a `byte_count` that must be exactly `2 * quantity` (a

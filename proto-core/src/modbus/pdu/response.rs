@@ -172,144 +172,163 @@ impl Response {
                 got,
             });
         }
-        let function = expected.0;
-        let err = |e: CodecError| PduError::from_codec(function, e);
-        let response = match request {
-            Request::ReadCoils { quantity, .. } => {
-                Self::ReadCoils(read_bits(&mut r, function, *quantity)?)
-            }
-            Request::ReadDiscreteInputs { quantity, .. } => {
-                Self::ReadDiscreteInputs(read_bits(&mut r, function, *quantity)?)
-            }
-            Request::ReadHoldingRegisters { quantity, .. } => {
-                Self::ReadHoldingRegisters(read_registers(&mut r, function, *quantity)?)
-            }
-            Request::ReadInputRegisters { quantity, .. } => {
-                Self::ReadInputRegisters(read_registers(&mut r, function, *quantity)?)
-            }
-            Request::ReadWriteMultipleRegisters { read_quantity, .. } => {
-                Self::ReadWriteMultipleRegisters(read_registers(&mut r, function, *read_quantity)?)
-            }
-            Request::WriteSingleCoil { address, value } => {
-                let got_address = r.u16_be().map_err(err)?;
-                let got_value = r.u16_be().map_err(err)?;
-                r.expect_end().map_err(err)?;
-                echo(function, "address", *address, got_address)?;
-                echo(
-                    function,
-                    "value",
-                    if *value { COIL_ON } else { COIL_OFF },
-                    got_value,
-                )?;
-                Self::WriteSingleCoil {
-                    address: got_address,
-                    value: *value,
-                }
-            }
-            Request::WriteSingleRegister { address, value } => {
-                let got_address = r.u16_be().map_err(err)?;
-                let got_value = r.u16_be().map_err(err)?;
-                r.expect_end().map_err(err)?;
-                echo(function, "address", *address, got_address)?;
-                echo(function, "value", *value, got_value)?;
-                Self::WriteSingleRegister {
-                    address: got_address,
-                    value: got_value,
-                }
-            }
-            Request::ReadExceptionStatus => {
-                let status = r.u8().map_err(err)?;
-                r.expect_end().map_err(err)?;
-                Self::ReadExceptionStatus(status)
-            }
-            Request::Diagnostics { sub_function, data } => {
-                let got_sub = r.u16_be().map_err(err)?;
-                echo(function, "sub_function", *sub_function, got_sub)?;
-                let got_data = if diag::echoes_data(*sub_function) {
-                    let got_data = r.take(data.len()).map_err(err)?;
-                    r.expect_end().map_err(err)?;
-                    if let Some((sent, got)) =
-                        data.iter().zip(got_data).find(|(sent, got)| sent != got)
-                    {
-                        return Err(PduError::EchoMismatch {
-                            function,
-                            field: "data",
-                            expected: u16::from(*sent),
-                            got: u16::from(*got),
-                        });
-                    }
-                    got_data
-                } else {
-                    // 001 4.3.3..4.3.15: a counter or register value of two bytes.
-                    let got_data = r.take(2).map_err(err)?;
-                    r.expect_end().map_err(err)?;
-                    got_data
-                };
-                Self::Diagnostics {
-                    sub_function: got_sub,
-                    data: got_data.to_vec(),
-                }
-            }
-            Request::GetCommEventCounter => {
-                let status = r.u16_be().map_err(err)?;
-                let event_count = r.u16_be().map_err(err)?;
-                r.expect_end().map_err(err)?;
-                Self::GetCommEventCounter {
-                    status,
-                    event_count,
-                }
-            }
-            Request::GetCommEventLog => {
-                let byte_count = r.u8().map_err(err)?;
-                if usize::from(byte_count) < EVENT_LOG_HEADER_LEN {
-                    return Err(PduError::ByteCountTooSmall {
-                        function,
-                        byte_count,
-                        expected: EVENT_LOG_HEADER_LEN,
-                    });
-                }
-                let body = r.take(usize::from(byte_count)).map_err(err)?;
-                r.expect_end().map_err(err)?;
-                let mut body = Reader::new(body);
-                let status = body.u16_be().map_err(err)?;
-                let event_count = body.u16_be().map_err(err)?;
-                let message_count = body.u16_be().map_err(err)?;
-                Self::GetCommEventLog {
-                    status,
-                    event_count,
-                    message_count,
-                    events: body.rest().to_vec(),
-                }
-            }
-            Request::WriteMultipleCoils { address, values } => {
-                let quantity =
-                    u16::try_from(values.len().min(MAX_BYTE_COUNT * 8)).unwrap_or(u16::MAX);
-                Self::WriteMultipleCoils {
-                    address: *address,
-                    quantity: read_echo(&mut r, function, *address, quantity)?,
-                }
-            }
-            Request::WriteMultipleRegisters { address, values } => {
-                let quantity =
-                    u16::try_from(values.len().min(MAX_BYTE_COUNT / 2)).unwrap_or(u16::MAX);
-                let quantity = read_echo(&mut r, function, *address, quantity)?;
-                Self::WriteMultipleRegisters {
-                    address: *address,
-                    quantity,
-                }
-            }
-            Request::ReportServerId => {
-                let byte_count = r.u8().map_err(err)?;
-                let bytes = r.take(usize::from(byte_count)).map_err(err)?;
-                r.expect_end().map_err(err)?;
-                Self::ReportServerId(bytes.to_vec())
-            }
-            Request::ReadDeviceIdentification { read_code, .. } => {
-                read_device_identification(&mut r, *read_code)?
-            }
-        };
-        Ok(Ok(response))
+        decode_body(request, &mut r, expected.0).map(Ok)
     }
+}
+
+/// The rest of a normal answer of `function` to `request`, after the function code.
+fn decode_body(request: &Request, r: &mut Reader<'_>, function: u8) -> Result<Response, PduError> {
+    let err = |e: CodecError| PduError::from_codec(function, e);
+    Ok(match request {
+        Request::ReadCoils { quantity, .. } => {
+            Response::ReadCoils(read_bits(r, function, *quantity)?)
+        }
+        Request::ReadDiscreteInputs { quantity, .. } => {
+            Response::ReadDiscreteInputs(read_bits(r, function, *quantity)?)
+        }
+        Request::ReadHoldingRegisters { quantity, .. } => {
+            Response::ReadHoldingRegisters(read_registers(r, function, *quantity)?)
+        }
+        Request::ReadInputRegisters { quantity, .. } => {
+            Response::ReadInputRegisters(read_registers(r, function, *quantity)?)
+        }
+        Request::ReadWriteMultipleRegisters { read_quantity, .. } => {
+            Response::ReadWriteMultipleRegisters(read_registers(r, function, *read_quantity)?)
+        }
+        Request::WriteSingleCoil { address, value } => {
+            let sent = if *value { COIL_ON } else { COIL_OFF };
+            let address = read_single_echo(r, function, *address, sent)?;
+            Response::WriteSingleCoil {
+                address,
+                value: *value,
+            }
+        }
+        Request::WriteSingleRegister { address, value } => {
+            let address = read_single_echo(r, function, *address, *value)?;
+            Response::WriteSingleRegister {
+                address,
+                value: *value,
+            }
+        }
+        Request::ReadExceptionStatus => {
+            let status = r.u8().map_err(err)?;
+            r.expect_end().map_err(err)?;
+            Response::ReadExceptionStatus(status)
+        }
+        Request::Diagnostics { sub_function, data } => {
+            read_diagnostics(r, function, *sub_function, data)?
+        }
+        Request::GetCommEventCounter => {
+            let status = r.u16_be().map_err(err)?;
+            let event_count = r.u16_be().map_err(err)?;
+            r.expect_end().map_err(err)?;
+            Response::GetCommEventCounter {
+                status,
+                event_count,
+            }
+        }
+        Request::GetCommEventLog => read_event_log(r, function)?,
+        Request::WriteMultipleCoils { address, values } => {
+            let quantity = u16::try_from(values.len().min(MAX_BYTE_COUNT * 8)).unwrap_or(u16::MAX);
+            Response::WriteMultipleCoils {
+                address: *address,
+                quantity: read_echo(r, function, *address, quantity)?,
+            }
+        }
+        Request::WriteMultipleRegisters { address, values } => {
+            let quantity = u16::try_from(values.len().min(MAX_BYTE_COUNT / 2)).unwrap_or(u16::MAX);
+            let quantity = read_echo(r, function, *address, quantity)?;
+            Response::WriteMultipleRegisters {
+                address: *address,
+                quantity,
+            }
+        }
+        Request::ReportServerId => {
+            let byte_count = r.u8().map_err(err)?;
+            let bytes = r.take(usize::from(byte_count)).map_err(err)?;
+            r.expect_end().map_err(err)?;
+            Response::ReportServerId(bytes.to_vec())
+        }
+        Request::ReadDeviceIdentification { read_code, .. } => {
+            read_device_identification(r, *read_code)?
+        }
+    })
+}
+
+/// The address and value echo of FC 05/06 (Modbus Application Protocol V1.1b3, 6.5, 6.6: the
+/// normal response is an echo of the request); returns the address.
+fn read_single_echo(
+    r: &mut Reader<'_>,
+    function: u8,
+    address: u16,
+    value: u16,
+) -> Result<u16, PduError> {
+    let err = |e: CodecError| PduError::from_codec(function, e);
+    let got_address = r.u16_be().map_err(err)?;
+    let got_value = r.u16_be().map_err(err)?;
+    r.expect_end().map_err(err)?;
+    echo(function, "address", address, got_address)?;
+    echo(function, "value", value, got_value)?;
+    Ok(got_address)
+}
+
+/// FC 08: the sub-function echoed, then its data echoed or a two-byte value.
+fn read_diagnostics(
+    r: &mut Reader<'_>,
+    function: u8,
+    sub_function: u16,
+    data: &[u8],
+) -> Result<Response, PduError> {
+    let err = |e: CodecError| PduError::from_codec(function, e);
+    let got_sub = r.u16_be().map_err(err)?;
+    echo(function, "sub_function", sub_function, got_sub)?;
+    let got_data = if diag::echoes_data(sub_function) {
+        let got_data = r.take(data.len()).map_err(err)?;
+        r.expect_end().map_err(err)?;
+        if let Some((sent, got)) = data.iter().zip(got_data).find(|(sent, got)| sent != got) {
+            return Err(PduError::EchoMismatch {
+                function,
+                field: "data",
+                expected: u16::from(*sent),
+                got: u16::from(*got),
+            });
+        }
+        got_data
+    } else {
+        // 001 4.3.3..4.3.15: a counter or register value of two bytes.
+        let got_data = r.take(2).map_err(err)?;
+        r.expect_end().map_err(err)?;
+        got_data
+    };
+    Ok(Response::Diagnostics {
+        sub_function: got_sub,
+        data: got_data.to_vec(),
+    })
+}
+
+/// FC 12: byte count, status, event count, message count and the events.
+fn read_event_log(r: &mut Reader<'_>, function: u8) -> Result<Response, PduError> {
+    let err = |e: CodecError| PduError::from_codec(function, e);
+    let byte_count = r.u8().map_err(err)?;
+    if usize::from(byte_count) < EVENT_LOG_HEADER_LEN {
+        return Err(PduError::ByteCountTooSmall {
+            function,
+            byte_count,
+            expected: EVENT_LOG_HEADER_LEN,
+        });
+    }
+    let body = r.take(usize::from(byte_count)).map_err(err)?;
+    r.expect_end().map_err(err)?;
+    let mut body = Reader::new(body);
+    let status = body.u16_be().map_err(err)?;
+    let event_count = body.u16_be().map_err(err)?;
+    let message_count = body.u16_be().map_err(err)?;
+    Ok(Response::GetCommEventLog {
+        status,
+        event_count,
+        message_count,
+        events: body.rest().to_vec(),
+    })
 }
 
 /// Fails with [`PduError::EchoMismatch`] unless `got == expected`.
