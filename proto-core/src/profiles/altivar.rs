@@ -274,8 +274,15 @@ fn cmd_bits() -> Vec<BitField> {
 /// communication parameters guide; 002 names the parameters but gives no units). Write ranges
 /// are plausible bounds where 002 gives none.
 pub fn tags() -> Vec<Tag> {
+    let mut tags = parameter_tags();
+    tags.extend(scanner_tags());
+    tags
+}
+
+/// The drive's parameters and measurements (see [`tags`] for their units).
+fn parameter_tags() -> Vec<Tag> {
     use DataType::{I16, U16};
-    let mut tags = vec![
+    vec![
         Tag::holding("SFr", SFR, U16)
             .describe("switching frequency")
             .fix_point(1)
@@ -346,7 +353,13 @@ pub fn tags() -> Vec<Tag> {
         Tag::holding("THR", THR, U16)
             .describe("motor thermal state")
             .unit("%"),
-    ];
+    ]
+}
+
+/// The communication scanner's addresses (NMA, NCA) and values (NM, NC).
+fn scanner_tags() -> Vec<Tag> {
+    use DataType::U16;
+    let mut tags = Vec::with_capacity(NMA.len() + NCA.len() + NM.len() + NC.len());
     for (i, address) in NMA.iter().enumerate() {
         tags.push(
             Tag::holding(format!("NMA{}", i + 1), *address, U16)

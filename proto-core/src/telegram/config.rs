@@ -214,79 +214,8 @@ impl AsciiParams {
             s.baud,
         )?;
         let code_max: u8 = if s.data_bits == 7 { 0x7F } else { 0xFF };
-        let fits = |name: &'static str, value: u8| {
-            if value > code_max {
-                Err(ConfigError::CodeTooWide { name, value })
-            } else {
-                Ok(())
-            }
-        };
-        let mut end_chars: [Option<u8>; 2] = [None, None];
-        match s.end {
-            EndCriterion::CharacterDelay => {}
-            EndCriterion::FixedLength(len) => {
-                check_range("message frame length", len.into(), 1, MAX_TELEGRAM as u64)?;
-            }
-            EndCriterion::EndChars { first, second } => {
-                fits("end character 1", first)?;
-                if let Some(second) = second {
-                    fits("end character 2", second)?;
-                }
-                end_chars = [Some(first), second];
-            }
-        }
-        if s.flow.can_pause() && !s.interface.is_full_duplex() {
-            return Err(ConfigError::FlowControlNeedsFullDuplex);
-        }
-        match s.flow {
-            FlowControl::None => {}
-            FlowControl::XonXoff { xon, xoff } => {
-                fits("XON code", xon)?;
-                fits("XOFF code", xoff)?;
-                if xon == xoff {
-                    return Err(ConfigError::SameCode {
-                        first: "XON code",
-                        second: "XOFF code",
-                        value: xon,
-                    });
-                }
-                // An end character equal to XON or XOFF could never end a telegram.
-                for (name, code) in [("XON code", xon), ("XOFF code", xoff)] {
-                    if end_chars.contains(&Some(code)) {
-                        return Err(ConfigError::SameCode {
-                            first: name,
-                            second: "end character",
-                            value: code,
-                        });
-                    }
-                }
-            }
-            FlowControl::RtsCts => {
-                if s.interface != Interface::Rs232 {
-                    return Err(ConfigError::NeedsRs232("RTS/CTS flow control"));
-                }
-            }
-            FlowControl::AutoV24 {
-                output_wait,
-                rts_hold,
-            } => {
-                if s.interface != Interface::Rs232 {
-                    return Err(ConfigError::NeedsRs232("automatic V24 signal handling"));
-                }
-                check_millis(
-                    "data output wait time",
-                    output_wait,
-                    V24_TIME_RANGE_MS.0,
-                    V24_TIME_RANGE_MS.1,
-                )?;
-                check_millis(
-                    "RTS hold time",
-                    rts_hold,
-                    V24_TIME_RANGE_MS.0,
-                    V24_TIME_RANGE_MS.1,
-                )?;
-            }
-        }
+        let end_chars = check_end(s.end, code_max)?;
+        check_flow(s, code_max, end_chars)?;
         check_millis(
             "wait time for XON / CTS = ON",
             s.flow_wait,
@@ -341,6 +270,94 @@ impl AsciiParams {
     pub fn send_length(&self) -> SendLength {
         self.send_length
     }
+}
+
+/// A code that must fit the character: 7 data bits carry 00..7Fh (003 6.2.1).
+fn check_fits(name: &'static str, value: u8, code_max: u8) -> Result<(), ConfigError> {
+    if value > code_max {
+        Err(ConfigError::CodeTooWide { name, value })
+    } else {
+        Ok(())
+    }
+}
+
+/// The end criterion of 003 6.2.1 "End of message frame"; returns the end characters.
+fn check_end(end: EndCriterion, code_max: u8) -> Result<[Option<u8>; 2], ConfigError> {
+    match end {
+        EndCriterion::CharacterDelay => Ok([None, None]),
+        EndCriterion::FixedLength(len) => {
+            check_range("message frame length", len.into(), 1, MAX_TELEGRAM as u64)?;
+            Ok([None, None])
+        }
+        EndCriterion::EndChars { first, second } => {
+            check_fits("end character 1", first, code_max)?;
+            if let Some(second) = second {
+                check_fits("end character 2", second, code_max)?;
+            }
+            Ok([Some(first), second])
+        }
+    }
+}
+
+/// The flow control of 003 6.2.1 "Data flow control" and 000 6.2.1 (automatic V24 signals).
+fn check_flow(
+    s: &AsciiSettings,
+    code_max: u8,
+    end_chars: [Option<u8>; 2],
+) -> Result<(), ConfigError> {
+    if s.flow.can_pause() && !s.interface.is_full_duplex() {
+        return Err(ConfigError::FlowControlNeedsFullDuplex);
+    }
+    match s.flow {
+        FlowControl::None => {}
+        FlowControl::XonXoff { xon, xoff } => {
+            check_fits("XON code", xon, code_max)?;
+            check_fits("XOFF code", xoff, code_max)?;
+            if xon == xoff {
+                return Err(ConfigError::SameCode {
+                    first: "XON code",
+                    second: "XOFF code",
+                    value: xon,
+                });
+            }
+            // An end character equal to XON or XOFF could never end a telegram.
+            for (name, code) in [("XON code", xon), ("XOFF code", xoff)] {
+                if end_chars.contains(&Some(code)) {
+                    return Err(ConfigError::SameCode {
+                        first: name,
+                        second: "end character",
+                        value: code,
+                    });
+                }
+            }
+        }
+        FlowControl::RtsCts => {
+            if s.interface != Interface::Rs232 {
+                return Err(ConfigError::NeedsRs232("RTS/CTS flow control"));
+            }
+        }
+        FlowControl::AutoV24 {
+            output_wait,
+            rts_hold,
+        } => {
+            if s.interface != Interface::Rs232 {
+                return Err(ConfigError::NeedsRs232("automatic V24 signal handling"));
+            }
+            check_millis(
+                "data output wait time",
+                output_wait,
+                V24_TIME_RANGE_MS.0,
+                V24_TIME_RANGE_MS.1,
+            )?;
+            check_millis(
+                "RTS hold time",
+                rts_hold,
+                V24_TIME_RANGE_MS.0,
+                V24_TIME_RANGE_MS.1,
+            )?;
+        }
+    }
+    Ok(())
 }
 
 #[cfg(test)]
