@@ -6,10 +6,11 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
-use super::device::{self, AddressRange, DeviceConfig, ModbusTable};
+use super::device::DeviceConfig;
 use super::reader::{check_name, Cx, Fields};
 use super::section::ProtocolSection;
 use super::serial::{DataBits, SerialConfig};
+use super::tag::{self, AddressRange, ModbusTable};
 
 /// 003 6.4.2.1/6.4.2.2 "Reply monitoring time ... Range: 5 ... 65500ms".
 pub const REPLY_TIMEOUT_RANGE: (Duration, Duration) =
@@ -446,7 +447,7 @@ impl ModbusSlaveRtuConfig {
         let input_db = f.int_or(cx, "input_db", 1..=max_db, DEFAULT_INPUT_DB, "003 6.4.8.4");
         let mut write_enable = Vec::new();
         for (path, v) in f.array(cx, "write_enable") {
-            if let Some(r) = device::read_range(cx, &path, v) {
+            if let Some(r) = tag::read_range(cx, &path, v) {
                 if !r.table.is_writable() {
                     cx.issue(
                         path.clone() + ".table",

@@ -9,8 +9,8 @@ use std::time::Duration;
 use ipnet::IpNet;
 use serde::Serialize;
 
-use super::device::{self, ModbusTable};
 use super::reader::{check_name, int_value, parsed_value, string_value, Cx, Fields};
+use super::tag::{self, ModbusTable};
 
 /// The Modbus TCP port (Modbus Messaging on TCP/IP Implementation Guide V1.0b, 4.1: port 502)
 /// on every interface: the production default. The demo uses 127.0.0.1:5020.
@@ -310,7 +310,7 @@ fn unit_ranges(cx: &mut Cx, f: &mut Fields<'_>) -> Vec<UnitRange> {
             continue;
         };
         let unit_id = t.required_int::<u8>(cx, "unit_id", 1..=u8::MAX, "");
-        let range = device::range_fields(cx, &mut t);
+        let range = tag::range_fields(cx, &mut t);
         t.finish(cx);
         if let Some(r) = range {
             if !r.table.is_writable() {

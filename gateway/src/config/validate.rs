@@ -4,9 +4,10 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::device::{serde_name, DataType, DeviceConfig, ModbusTable};
+use super::device::{serde_name, DeviceConfig};
 use super::line::LineConfig;
 use super::reader::{show_duration, Cx};
+use super::tag::{DataType, ModbusTable};
 use super::{Config, ConfigIssue};
 
 /// Every cross-field problem of `config`.
