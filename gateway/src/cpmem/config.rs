@@ -192,6 +192,23 @@ fn write_limits(
 ) -> Result<WriteLimits, Vec<ConvertIssue>> {
     let mut issues = Vec::new();
     let mut limits = WriteLimits::NONE;
+    bit_write_limits(cfg, map, layout, &mut limits, &mut issues);
+    limits.data_blocks = db_write_limits(cfg, layout, &mut issues);
+    if issues.is_empty() {
+        Ok(limits)
+    } else {
+        Err(issues)
+    }
+}
+
+/// The write limits of the bit areas (M, Q) from the config's coil ranges: one byte range each.
+fn bit_write_limits(
+    cfg: &ModbusSlaveRtuConfig,
+    map: &AddressMap,
+    layout: &MemoryLayout,
+    limits: &mut WriteLimits,
+    issues: &mut Vec<ConvertIssue>,
+) {
     let coil_ranges: Vec<(usize, &AddressRange)> = cfg
         .write_enable
         .iter()
@@ -254,6 +271,14 @@ fn write_limits(
             }
         }
     }
+}
+
+/// The write limits of the data blocks from the config's holding ranges: one range of whole DBs.
+fn db_write_limits(
+    cfg: &ModbusSlaveRtuConfig,
+    layout: &MemoryLayout,
+    issues: &mut Vec<ConvertIssue>,
+) -> Option<(u16, u16)> {
     let db_len = |db: u16| {
         layout
             .data_blocks
@@ -293,12 +318,7 @@ fn write_limits(
             }
         };
     }
-    limits.data_blocks = dbs.map(|(a, b, _)| (a, b));
-    if issues.is_empty() {
-        Ok(limits)
-    } else {
-        Err(issues)
-    }
+    dbs.map(|(a, b, _)| (a, b))
 }
 
 #[cfg(test)]

@@ -170,6 +170,33 @@ where
     SimMasterHandle { stats, task }
 }
 
+impl SimMasterStats {
+    /// Counts a completed request; a counter write that was answered is the last counter.
+    fn record(&self, request: &Request, outcome: &Outcome) {
+        let counter = match outcome {
+            Outcome::Response(_) => {
+                self.responses.fetch_add(1, Ordering::Relaxed);
+                match request {
+                    Request::WriteSingleRegister { value, .. } => Some(*value),
+                    _ => None,
+                }
+            }
+            Outcome::Exception(code) => {
+                tracing::debug!(?code, ?request, "simulated master: exception");
+                self.exceptions.fetch_add(1, Ordering::Relaxed);
+                None
+            }
+            Outcome::Broadcast | Outcome::Failed(_) => {
+                self.failures.fetch_add(1, Ordering::Relaxed);
+                None
+            }
+        };
+        if let Some(value) = counter {
+            self.last_counter.store(u64::from(value), Ordering::Relaxed);
+        }
+    }
+}
+
 async fn run<P: AsyncRead + AsyncWrite + Unpin>(
     mut port: P,
     settings: SimMasterSettings,
@@ -239,29 +266,7 @@ async fn run<P: AsyncRead + AsyncWrite + Unpin>(
             {
                 in_flight = false;
                 completed = true;
-                let counter = match outcome {
-                    Outcome::Response(_) => {
-                        stats.responses.fetch_add(1, Ordering::Relaxed);
-                        match request {
-                            Request::WriteSingleRegister { value, .. } => Some(value),
-                            _ => None,
-                        }
-                    }
-                    Outcome::Exception(code) => {
-                        tracing::debug!(?code, ?request, "simulated master: exception");
-                        stats.exceptions.fetch_add(1, Ordering::Relaxed);
-                        None
-                    }
-                    Outcome::Broadcast | Outcome::Failed(_) => {
-                        stats.failures.fetch_add(1, Ordering::Relaxed);
-                        None
-                    }
-                };
-                if let Some(value) = counter {
-                    stats
-                        .last_counter
-                        .store(u64::from(value), Ordering::Relaxed);
-                }
+                stats.record(&request, &outcome);
             }
         }
         if completed {
