@@ -30,6 +30,7 @@ use super::runtime::{
 use super::status::{Shared, DEFAULT_DIAG_DEPTH};
 use super::{DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::cpmem::{CpMemoryUnit, SharedCpMemory};
+use crate::line::runtime::{LineCommands, LineLifecycle, LineSignals, SecondPort};
 use crate::metrics::Metrics;
 use crate::serial::PortSettings;
 use crate::unit::UnitService;
@@ -238,8 +239,6 @@ struct SlaveLine {
 }
 
 impl LineEngine for SlaveLine {
-    type Command = ();
-
     fn opened(&mut self, _modem: Option<&mut dyn SerialPort>) {
         tracing::debug!(line = %self.settings.name, address = self.settings.params.address(), "slave address");
         self.slave = Slave::new(
@@ -279,11 +278,17 @@ impl LineEngine for SlaveLine {
         }
         false
     }
+}
+
+impl LineCommands for SlaveLine {
+    type Command = ();
 
     fn command(&mut self, (): (), _modem: Option<&mut dyn SerialPort>) {}
 
     fn refuse(&mut self, (): (), _shutting_down: bool) {}
+}
 
+impl LineLifecycle for SlaveLine {
     /// Nothing is read any more, so the frame being received ends by silence and the last
     /// request is answered; then the line stops.
     fn stop(&mut self) -> Stop {
@@ -312,6 +317,10 @@ impl LineEngine for SlaveLine {
         }
     }
 }
+
+impl LineSignals for SlaveLine {}
+
+impl SecondPort for SlaveLine {}
 
 // === impl SlaveLine ===
 

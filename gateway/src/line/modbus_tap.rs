@@ -31,6 +31,7 @@ use super::runtime::{
 use super::status::{DeviceStatus, Shared};
 use super::{DeviceSettings, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::image::{ImageError, ProcessImage, Quality, Table};
+use crate::line::runtime::{LineCommands, LineLifecycle, LineSignals, SecondPort};
 use crate::metrics::{Metrics, RequestResult};
 use crate::serial::PortSettings;
 use crate::unit::{UnitFuture, UnitService};
@@ -272,9 +273,6 @@ struct TapLine {
 }
 
 impl LineEngine for TapLine {
-    /// A tap takes no commands.
-    type Command = ();
-
     fn opened(&mut self, _modem: Option<&mut dyn SerialPort>) {
         self.tap = Tap::new(self.settings.tap);
     }
@@ -318,11 +316,18 @@ impl LineEngine for TapLine {
         }
         false
     }
+}
+
+impl LineCommands for TapLine {
+    /// A tap takes no commands.
+    type Command = ();
 
     fn command(&mut self, (): (), _modem: Option<&mut dyn SerialPort>) {}
 
     fn refuse(&mut self, (): (), _shutting_down: bool) {}
+}
 
+impl LineLifecycle for TapLine {
     /// Nothing to finish: the line stops at once.
     fn stop(&mut self) -> Stop {
         Stop {
@@ -357,6 +362,10 @@ impl LineEngine for TapLine {
         }
     }
 }
+
+impl LineSignals for TapLine {}
+
+impl SecondPort for TapLine {}
 
 // === impl TapLine ===
 

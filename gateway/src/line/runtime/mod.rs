@@ -129,10 +129,15 @@ pub(crate) struct Stop {
 /// What the runtime needs from a line protocol: the proto-core engine with what the protocol does
 /// with its results. Inputs are bytes, time and commands; outputs are bytes, RS232 actions,
 /// deadlines and the events the adapter hands on itself (status, image, mailbox).
-pub(crate) trait LineEngine: Send + 'static {
-    /// What clients queue for the line (`()` for a line without a queue).
-    type Command: Send + 'static;
-
+///
+/// The engine proper is this trait: bytes and time in, frames and the next deadline out. What a
+/// line does besides is grouped by capability, each with its own small trait: the queue of
+/// commands ([`LineCommands`]), how it starts being watched, stops, closes and fails
+/// ([`LineLifecycle`]), the RS232 outputs and the adapter's own wake-up ([`LineSignals`], nothing
+/// by default) and a second, receive-only port ([`SecondPort`], nothing by default).
+pub(crate) trait LineEngine:
+    LineCommands + LineLifecycle + LineSignals + SecondPort + Send + 'static
+{
     /// The port opened: the adapter starts a fresh engine (nothing carries over a reopen) and
     /// sets the outputs as the protocol wants them.
     fn opened(&mut self, modem: Option<&mut dyn SerialPort>);
@@ -141,24 +146,10 @@ pub(crate) trait LineEngine: Send + 'static {
     /// A character received with a parity or framing error, a BREAK, or characters lost to an
     /// overrun, at `now`, between the bytes handed to `handle_rx` before and after it.
     fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError);
-    /// Bytes received on the line's second, receive-only port at `now` (only a line started
-    /// with one, see [`LineBase::with_second_port`]: a listen-only tap of both directions of a
-    /// point-to-point link).
-    fn handle_rx_second(&mut self, _now: proto_core::time::Instant, _bytes: &[u8]) {}
-    /// A line error on the second port, as [`Self::handle_line_error`] on the first.
-    fn handle_line_error_second(&mut self, _now: proto_core::time::Instant, _error: LineError) {}
     /// The engine's deadline has come.
     fn handle_timeout(&mut self, now: proto_core::time::Instant);
     /// The engine's next deadline.
     fn poll_timeout(&self) -> Option<proto_core::time::Instant>;
-    /// Starts work while the line runs (the next poll or command); `now` on tokio's clock.
-    fn start(&mut self, _now: Instant) {}
-    /// The next RS232 output the engine sets (before its next transmission).
-    fn poll_action(&mut self) -> Option<Action> {
-        None
-    }
-    /// Sets an output the engine asks for.
-    fn apply_action(&mut self, _action: Action, _modem: Option<&mut dyn SerialPort>) {}
     /// The next bytes to write.
     fn poll_transmit(&mut self) -> Option<Vec<u8>>;
     /// `len` bytes were written at `written`, estimated to leave the line at `end`.
@@ -166,16 +157,23 @@ pub(crate) trait LineEngine: Send + 'static {
     /// Hands the engine's events on; true when that made progress that needs another turn at
     /// once (a completed request starts the next job).
     fn handle_events(&mut self) -> bool;
-    /// The adapter's own wake-up (the next poll, a signal poll, room in a mailbox).
-    fn wake(&self) -> impl Future<Output = ()> + Send + '_ {
-        std::future::pending()
-    }
-    /// The wake-up came.
-    fn woken(&mut self, _modem: Option<&mut dyn SerialPort>) {}
+}
+
+/// The line's queue: what clients ask of it, and the work it starts by itself.
+pub(crate) trait LineCommands {
+    /// What clients queue for the line (`()` for a line without a queue).
+    type Command: Send + 'static;
+
+    /// Starts work while the line runs (the next poll or command); `now` on tokio's clock.
+    fn start(&mut self, _now: Instant) {}
     /// A command from the queue while the port is open.
     fn command(&mut self, command: Self::Command, modem: Option<&mut dyn SerialPort>);
     /// A command that cannot be carried: the port is closed, or the line is `shutting_down`.
     fn refuse(&mut self, command: Self::Command, shutting_down: bool);
+}
+
+/// How a line is watched, stops, closes and fails.
+pub(crate) trait LineLifecycle {
     /// Shutdown began: refuses work not yet started, says how the line stops.
     fn stop(&mut self) -> Stop;
     /// Whether a stopping line is done (nothing in flight).
@@ -190,6 +188,33 @@ pub(crate) trait LineEngine: Send + 'static {
     fn monitor_framing(&self) -> Framing {
         Framing::RAW
     }
+}
+
+/// The RS232 outputs the engine sets and the adapter's own wake-up (the next poll, a signal
+/// poll, room in a mailbox); a line without either keeps the defaults.
+pub(crate) trait LineSignals {
+    /// The next RS232 output the engine sets (before its next transmission).
+    fn poll_action(&mut self) -> Option<Action> {
+        None
+    }
+    /// Sets an output the engine asks for.
+    fn apply_action(&mut self, _action: Action, _modem: Option<&mut dyn SerialPort>) {}
+    /// The adapter's own wake-up.
+    fn wake(&self) -> impl Future<Output = ()> + Send + '_ {
+        std::future::pending()
+    }
+    /// The wake-up came.
+    fn woken(&mut self, _modem: Option<&mut dyn SerialPort>) {}
+}
+
+/// The line's second, receive-only port (only a line started with one, see
+/// [`LineBase::with_second_port`]: a listen-only tap of both directions of a point-to-point
+/// link); a line without one keeps the defaults.
+pub(crate) trait SecondPort {
+    /// Bytes received on the second port at `now`.
+    fn handle_rx_second(&mut self, _now: proto_core::time::Instant, _bytes: &[u8]) {}
+    /// A line error on the second port, as [`LineEngine::handle_line_error`] on the first.
+    fn handle_line_error_second(&mut self, _now: proto_core::time::Instant, _error: LineError) {}
 }
 
 /// What every line is started with, whatever its protocol.

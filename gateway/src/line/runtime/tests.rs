@@ -14,40 +14,54 @@ struct Echo {
 }
 
 impl LineEngine for Echo {
-    type Command = Vec<u8>;
-
     fn opened(&mut self, modem: Option<&mut dyn SerialPort>) {
         assert!(modem.is_none(), "an in-process stream has no modem lines");
         self.out.clear();
     }
+
     fn handle_rx(&mut self, _now: proto_core::time::Instant, bytes: &[u8]) {
         self.out.push_back(bytes.to_vec());
     }
+
     fn handle_line_error(&mut self, _now: proto_core::time::Instant, error: LineError) {
         self.out.push_back(format!("<{error:?}>").into_bytes());
     }
+
     fn handle_timeout(&mut self, _now: proto_core::time::Instant) {}
+
     fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
         None
     }
+
     fn poll_transmit(&mut self) -> Option<Vec<u8>> {
         self.out.pop_front()
     }
+
     fn transmitted(&mut self, _at: Instant, _len: usize, _end: proto_core::time::Instant) {
         self.shared.metrics().sent_telegram();
     }
+
     fn handle_events(&mut self) -> bool {
         false
     }
+}
+
+impl LineCommands for Echo {
+    type Command = Vec<u8>;
+
     fn command(&mut self, command: Vec<u8>, _modem: Option<&mut dyn SerialPort>) {
         self.out.push_back(command);
     }
+
     fn refuse(&mut self, command: Vec<u8>, _shutting_down: bool) {
         self.refused
             .lock()
             .unwrap_or_else(PoisonError::into_inner)
             .push(command);
     }
+}
+
+impl LineLifecycle for Echo {
     fn stop(&mut self) -> Stop {
         Stop {
             read: true,
@@ -55,14 +69,21 @@ impl LineEngine for Echo {
             grace: None,
         }
     }
+
     fn done(&self) -> bool {
         self.out.is_empty()
     }
+
     fn closed(&mut self, _shutting_down: bool) {}
+
     fn port_failed(&mut self, id: EventId, reason: String) {
         self.shared.raise(id, None, Some(reason));
     }
 }
+
+impl LineSignals for Echo {}
+
+impl SecondPort for Echo {}
 
 #[derive(Debug)]
 struct Nothing;
@@ -281,35 +302,41 @@ struct Listener {
 }
 
 impl LineEngine for Listener {
-    type Command = ();
-
     fn opened(&mut self, _modem: Option<&mut dyn SerialPort>) {}
+
     fn handle_rx(&mut self, _now: proto_core::time::Instant, bytes: &[u8]) {
         let mut got = self.got.lock().unwrap_or_else(PoisonError::into_inner);
         got.push((Which::First, bytes.to_vec()));
     }
-    fn handle_rx_second(&mut self, _now: proto_core::time::Instant, bytes: &[u8]) {
-        let mut got = self.got.lock().unwrap_or_else(PoisonError::into_inner);
-        got.push((Which::Second, bytes.to_vec()));
-    }
+
     fn handle_line_error(&mut self, _now: proto_core::time::Instant, _error: LineError) {}
-    fn handle_line_error_second(&mut self, _now: proto_core::time::Instant, error: LineError) {
-        let mut got = self.got.lock().unwrap_or_else(PoisonError::into_inner);
-        got.push((Which::Second, format!("<{error:?}>").into_bytes()));
-    }
+
     fn handle_timeout(&mut self, _now: proto_core::time::Instant) {}
+
     fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
         None
     }
+
     fn poll_transmit(&mut self) -> Option<Vec<u8>> {
         None
     }
+
     fn transmitted(&mut self, _at: Instant, _len: usize, _end: proto_core::time::Instant) {}
+
     fn handle_events(&mut self) -> bool {
         false
     }
+}
+
+impl LineCommands for Listener {
+    type Command = ();
+
     fn command(&mut self, (): (), _modem: Option<&mut dyn SerialPort>) {}
+
     fn refuse(&mut self, (): (), _shutting_down: bool) {}
+}
+
+impl LineLifecycle for Listener {
     fn stop(&mut self) -> Stop {
         Stop {
             read: false,
@@ -317,18 +344,36 @@ impl LineEngine for Listener {
             grace: None,
         }
     }
+
     fn done(&self) -> bool {
         true
     }
+
     fn closed(&mut self, _shutting_down: bool) {}
+
     fn port_failed(&mut self, id: EventId, reason: String) {
         self.shared.raise(id, None, Some(reason));
     }
+
     fn monitor_framing(&self) -> Framing {
         Framing {
             kind: proto_core::monitor::FrameKind::Proc3964 { bcc: true },
             gap: Some(Duration::from_millis(50)),
         }
+    }
+}
+
+impl LineSignals for Listener {}
+
+impl SecondPort for Listener {
+    fn handle_rx_second(&mut self, _now: proto_core::time::Instant, bytes: &[u8]) {
+        let mut got = self.got.lock().unwrap_or_else(PoisonError::into_inner);
+        got.push((Which::Second, bytes.to_vec()));
+    }
+
+    fn handle_line_error_second(&mut self, _now: proto_core::time::Instant, error: LineError) {
+        let mut got = self.got.lock().unwrap_or_else(PoisonError::into_inner);
+        got.push((Which::Second, format!("<{error:?}>").into_bytes()));
     }
 }
 

@@ -41,6 +41,7 @@ use super::LineShared;
 use crate::line::runtime::{
     self, LineBase, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
 };
+use crate::line::runtime::{LineCommands, LineLifecycle, LineSignals, SecondPort};
 use crate::line::{DEFAULT_DIAG_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::mailbox::{Delivery, Mailbox, MailboxSettings, Overflow};
 use crate::metrics::Metrics;
@@ -168,8 +169,6 @@ struct TapLine {
 }
 
 impl LineEngine for TapLine {
-    type Command = Command;
-
     fn opened(&mut self, _modem: Option<&mut dyn SerialPort>) {
         self.shared.mailbox.set_port_open(true);
         self.tap = Tap3964::new(self.settings.tap);
@@ -179,16 +178,8 @@ impl LineEngine for TapLine {
         self.tap.handle_rx(Side::A, now, bytes);
     }
 
-    fn handle_rx_second(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
-        self.tap.handle_rx(Side::B, now, bytes);
-    }
-
     fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError) {
         self.tap.handle_line_error(Side::A, now, error);
-    }
-
-    fn handle_line_error_second(&mut self, now: proto_core::time::Instant, error: LineError) {
-        self.tap.handle_line_error(Side::B, now, error);
     }
 
     fn handle_timeout(&mut self, now: proto_core::time::Instant) {
@@ -212,6 +203,10 @@ impl LineEngine for TapLine {
         }
         false
     }
+}
+
+impl LineCommands for TapLine {
+    type Command = Command;
 
     fn command(&mut self, command: Command, _modem: Option<&mut dyn SerialPort>) {
         self.refuse_listen_only(command);
@@ -224,7 +219,9 @@ impl LineEngine for TapLine {
             self.refuse_listen_only(command);
         }
     }
+}
 
+impl LineLifecycle for TapLine {
     fn stop(&mut self) -> Stop {
         Stop {
             read: false,
@@ -255,6 +252,18 @@ impl LineEngine for TapLine {
             // A frame of one side ends at its end mark or after the character delay time.
             gap: Some(self.settings.tap.zvz),
         }
+    }
+}
+
+impl LineSignals for TapLine {}
+
+impl SecondPort for TapLine {
+    fn handle_rx_second(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
+        self.tap.handle_rx(Side::B, now, bytes);
+    }
+
+    fn handle_line_error_second(&mut self, now: proto_core::time::Instant, error: LineError) {
+        self.tap.handle_line_error(Side::B, now, error);
     }
 }
 

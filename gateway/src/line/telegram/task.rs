@@ -24,6 +24,7 @@ use super::client::{Command, SendResult, TelegramSendError};
 use super::engine::{EngineFactory, TelegramEngine};
 use super::{LineShared, TelegramLineSettings};
 use crate::line::driver::{sleep_until_opt, Clock};
+use crate::line::runtime::{LineCommands, LineLifecycle, LineSignals, SecondPort};
 use crate::line::runtime::{LineEngine, Stop};
 use crate::mailbox::Delivery;
 use crate::serial::Interface;
@@ -64,8 +65,6 @@ pub(crate) struct TelegramLine<F: EngineFactory> {
 }
 
 impl<F: EngineFactory> LineEngine for TelegramLine<F> {
-    type Command = Command;
-
     fn opened(&mut self, modem: Option<&mut dyn SerialPort>) {
         self.shared.mailbox.set_port_open(true);
         self.engine = self.factory.build();
@@ -119,28 +118,6 @@ impl<F: EngineFactory> LineEngine for TelegramLine<F> {
         self.engine.poll_timeout()
     }
 
-    fn poll_action(&mut self) -> Option<Action> {
-        self.engine.poll_action()
-    }
-
-    /// Sets the output the engine asks for; a port that refuses is reported once in the status.
-    fn apply_action(&mut self, action: Action, modem: Option<&mut dyn SerialPort>) {
-        let (output, on) = match action {
-            Action::SetRts(on) => (Output::Rts, on),
-            Action::SetDtr(on) => (Output::Dtr, on),
-        };
-        let path = &self.settings.port.path;
-        let result = match modem {
-            Some(port) => signals::set(port, path, &mut self.outputs, output, on),
-            None => Err(signals::no_modem(path, output.signal(), "set")),
-        };
-        if let Err(err) = result {
-            if self.shared.set_signals_error(err.to_string()) {
-                tracing::warn!(line = %self.name(), %err, "the data flow control cannot set its output");
-            }
-        }
-    }
-
     fn poll_transmit(&mut self) -> Option<Vec<u8>> {
         self.engine.poll_transmit()
     }
@@ -155,25 +132,10 @@ impl<F: EngineFactory> LineEngine for TelegramLine<F> {
         let moved = self.move_received(false);
         events || moved
     }
+}
 
-    fn wake(&self) -> impl Future<Output = ()> + Send + '_ {
-        // The notification is created before the check, so that no wake-up is missed.
-        let room = self.shared.mailbox.room_freed();
-        let wants_room = !self.received_at.is_empty() && !self.shared.mailbox.accepts();
-        let signal_poll = self.signal_poll;
-        async move {
-            tokio::select! {
-                () = sleep_until_opt(signal_poll) => {}
-                () = room, if wants_room => {}
-            }
-        }
-    }
-
-    fn woken(&mut self, modem: Option<&mut dyn SerialPort>) {
-        if self.signal_poll.is_some_and(|at| at <= Instant::now()) {
-            self.poll_signals(modem);
-        }
-    }
+impl<F: EngineFactory> LineCommands for TelegramLine<F> {
+    type Command = Command;
 
     fn command(&mut self, command: Command, modem: Option<&mut dyn SerialPort>) {
         self.handle_command(modem, command);
@@ -182,7 +144,9 @@ impl<F: EngineFactory> LineEngine for TelegramLine<F> {
     fn refuse(&mut self, command: Command, shutting_down: bool) {
         command.refuse(&self.settings.name, shutting_down);
     }
+}
 
+impl<F: EngineFactory> LineLifecycle for TelegramLine<F> {
     fn stop(&mut self) -> Stop {
         Stop {
             read: true,
@@ -227,6 +191,51 @@ impl<F: EngineFactory> LineEngine for TelegramLine<F> {
         self.factory.framing()
     }
 }
+
+impl<F: EngineFactory> LineSignals for TelegramLine<F> {
+    fn poll_action(&mut self) -> Option<Action> {
+        self.engine.poll_action()
+    }
+
+    /// Sets the output the engine asks for; a port that refuses is reported once in the status.
+    fn apply_action(&mut self, action: Action, modem: Option<&mut dyn SerialPort>) {
+        let (output, on) = match action {
+            Action::SetRts(on) => (Output::Rts, on),
+            Action::SetDtr(on) => (Output::Dtr, on),
+        };
+        let path = &self.settings.port.path;
+        let result = match modem {
+            Some(port) => signals::set(port, path, &mut self.outputs, output, on),
+            None => Err(signals::no_modem(path, output.signal(), "set")),
+        };
+        if let Err(err) = result {
+            if self.shared.set_signals_error(err.to_string()) {
+                tracing::warn!(line = %self.name(), %err, "the data flow control cannot set its output");
+            }
+        }
+    }
+
+    fn wake(&self) -> impl Future<Output = ()> + Send + '_ {
+        // The notification is created before the check, so that no wake-up is missed.
+        let room = self.shared.mailbox.room_freed();
+        let wants_room = !self.received_at.is_empty() && !self.shared.mailbox.accepts();
+        let signal_poll = self.signal_poll;
+        async move {
+            tokio::select! {
+                () = sleep_until_opt(signal_poll) => {}
+                () = room, if wants_room => {}
+            }
+        }
+    }
+
+    fn woken(&mut self, modem: Option<&mut dyn SerialPort>) {
+        if self.signal_poll.is_some_and(|at| at <= Instant::now()) {
+            self.poll_signals(modem);
+        }
+    }
+}
+
+impl<F: EngineFactory> SecondPort for TelegramLine<F> {}
 
 // === impl TelegramLine ===
 

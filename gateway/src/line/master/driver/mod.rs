@@ -35,6 +35,7 @@ use crate::line::line_metrics::{master_result, BROADCAST_DEVICE, UNKNOWN_DEVICE}
 use crate::line::runtime::{
     self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
 };
+use crate::line::runtime::{LineCommands, LineLifecycle, LineSignals, SecondPort};
 use crate::line::status::{DeviceStatus, PollCycle, Shared};
 use crate::metrics::{PollCycleKind, RequestResult};
 use crate::unit::UnitService;
@@ -240,8 +241,6 @@ struct MasterLine {
 }
 
 impl LineEngine for MasterLine {
-    type Command = Command;
-
     fn opened(&mut self, _modem: Option<&mut dyn SerialPort>) {
         self.master = Master::new(self.settings.master);
         self.scanners.unprime_all();
@@ -261,12 +260,6 @@ impl LineEngine for MasterLine {
 
     fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
         self.master.poll_timeout()
-    }
-
-    fn start(&mut self, now: Instant) {
-        if self.inflight.is_none() && self.master.is_idle() {
-            self.start_next(now);
-        }
     }
 
     fn poll_transmit(&mut self) -> Option<Vec<u8>> {
@@ -320,15 +313,15 @@ impl LineEngine for MasterLine {
         }
         completed
     }
+}
 
-    /// The next poll, while the line is idle.
-    fn wake(&self) -> impl std::future::Future<Output = ()> + Send + '_ {
-        let idle = self.inflight.is_none() && self.master.is_idle() && !self.stopping;
-        let next = [self.sched.next_wake(), self.scanners.next_wake()]
-            .into_iter()
-            .flatten()
-            .min();
-        sleep_until_opt(if idle { next } else { None })
+impl LineCommands for MasterLine {
+    type Command = Command;
+
+    fn start(&mut self, now: Instant) {
+        if self.inflight.is_none() && self.master.is_idle() {
+            self.start_next(now);
+        }
     }
 
     fn command(&mut self, command: Command, _modem: Option<&mut dyn SerialPort>) {
@@ -347,7 +340,9 @@ impl LineEngine for MasterLine {
             CommandError::PortClosed
         }));
     }
+}
 
+impl LineLifecycle for MasterLine {
     fn stop(&mut self) -> Stop {
         self.stopping = true;
         for command in self.sched.drain_commands() {
@@ -397,6 +392,20 @@ impl LineEngine for MasterLine {
         }
     }
 }
+
+impl LineSignals for MasterLine {
+    /// The next poll, while the line is idle.
+    fn wake(&self) -> impl std::future::Future<Output = ()> + Send + '_ {
+        let idle = self.inflight.is_none() && self.master.is_idle() && !self.stopping;
+        let next = [self.sched.next_wake(), self.scanners.next_wake()]
+            .into_iter()
+            .flatten()
+            .min();
+        sleep_until_opt(if idle { next } else { None })
+    }
+}
+
+impl SecondPort for MasterLine {}
 
 // === impl MasterLine ===
 
