@@ -9,7 +9,7 @@ use super::device::DeviceConfig;
 use super::modbus::{ModbusMasterAsciiConfig, ModbusMasterRtuConfig, ModbusSlaveRtuConfig};
 use super::reader::{check_name, Cx, Fields};
 use super::section::{AckConfig, ProtocolSection};
-use super::serial::{SerialConfig, DEFAULT_BAUD};
+use super::serial::{Baud, SerialConfig, DEFAULT_BAUD};
 use super::tap::{ModbusRtuTapConfig, Proc3964TapConfig};
 use super::telegram::{AsciiConfig, Proc3964Config};
 
@@ -22,66 +22,132 @@ pub struct LineConfig {
     pub protocol: ProtocolConfig,
 }
 
-/// The protocol driver of a line (003 6.1) with its parameters; `protocol = "..."` in TOML.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-#[serde(tag = "protocol")]
-pub enum ProtocolConfig {
-    #[serde(rename = "modbus-master-rtu")]
-    ModbusMasterRtu(ModbusMasterRtuConfig),
-    #[serde(rename = "modbus-master-ascii")]
-    ModbusMasterAscii(ModbusMasterAsciiConfig),
-    #[serde(rename = "modbus-slave-rtu")]
-    ModbusSlaveRtu(ModbusSlaveRtuConfig),
-    /// Listen-only: stores what another master's traffic shows.
-    #[serde(rename = "modbus-rtu-tap")]
-    ModbusRtuTap(ModbusRtuTapConfig),
-    #[serde(rename = "3964r")]
-    Proc3964(Proc3964Config),
-    /// Listen-only: both directions of a 3964(R) link on two ports.
-    #[serde(rename = "3964r-tap")]
-    Proc3964Tap(Proc3964TapConfig),
-    #[serde(rename = "ascii")]
-    Ascii(AsciiConfig),
+/// The protocols, in one table: each row is the variant, its `protocol = "..."` spelling and the
+/// type of its section (which reads itself, [`ReadSection`]). The row makes the variant of
+/// [`ProtocolConfig`] and of [`ProtocolKind`], the spelling, the section's accessors and the
+/// reader's dispatch; a new protocol is one row here (and its section type).
+macro_rules! protocols {
+    ($($(#[doc = $doc:literal])* $variant:ident = $name:literal => $config:ty;)+) => {
+        /// The protocol driver of a line (003 6.1) with its parameters; `protocol = "..."` in TOML.
+        #[derive(Debug, Clone, PartialEq, Serialize)]
+        #[serde(tag = "protocol")]
+        pub enum ProtocolConfig {
+            $($(#[doc = $doc])* #[serde(rename = $name)] $variant($config),)+
+        }
+
+        /// The value of a line's `protocol` key.
+        #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+        pub enum ProtocolKind {
+            $($(#[doc = $doc])* #[serde(rename = $name)] $variant,)+
+        }
+
+        impl ProtocolKind {
+            /// Every protocol, in the table's order.
+            pub const ALL: &[Self] = &[$(Self::$variant),+];
+
+            /// The TOML spelling.
+            pub fn as_str(self) -> &'static str {
+                match self {
+                    $(Self::$variant => $name,)+
+                }
+            }
+        }
+
+        impl ProtocolConfig {
+            /// The protocol's own section: the one match over the protocols in the configuration.
+            pub(crate) fn section(&self) -> &dyn ProtocolSection {
+                match self {
+                    $(Self::$variant(c) => c,)+
+                }
+            }
+
+            /// The protocol's own section, to change it.
+            pub(crate) fn section_mut(&mut self) -> &mut dyn ProtocolSection {
+                match self {
+                    $(Self::$variant(c) => c,)+
+                }
+            }
+
+            pub fn kind(&self) -> ProtocolKind {
+                match self {
+                    $(Self::$variant(_) => ProtocolKind::$variant,)+
+                }
+            }
+
+            /// Reads the section of `kind` from the line's table.
+            fn read(kind: ProtocolKind, cx: &mut Cx, f: &mut Fields<'_>, baud: Baud) -> Self {
+                match kind {
+                    $(ProtocolKind::$variant => Self::$variant(<$config>::read_section(cx, f, baud)),)+
+                }
+            }
+        }
+    };
 }
 
-/// The value of a line's `protocol` key.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
-pub enum ProtocolKind {
-    #[serde(rename = "modbus-master-rtu")]
-    ModbusMasterRtu,
-    #[serde(rename = "modbus-master-ascii")]
-    ModbusMasterAscii,
-    #[serde(rename = "modbus-slave-rtu")]
-    ModbusSlaveRtu,
-    /// Listen-only Modbus RTU.
-    #[serde(rename = "modbus-rtu-tap")]
-    ModbusRtuTap,
+protocols! {
+    ModbusMasterRtu = "modbus-master-rtu" => ModbusMasterRtuConfig;
+    ModbusMasterAscii = "modbus-master-ascii" => ModbusMasterAsciiConfig;
+    ModbusSlaveRtu = "modbus-slave-rtu" => ModbusSlaveRtuConfig;
+    /// Listen-only Modbus RTU: stores what another master's traffic shows.
+    ModbusRtuTap = "modbus-rtu-tap" => ModbusRtuTapConfig;
     /// 3964 or 3964R, by `block_check`.
-    #[serde(rename = "3964r")]
-    Proc3964,
-    /// Listen-only 3964(R) on two ports.
-    #[serde(rename = "3964r-tap")]
-    Proc3964Tap,
-    #[serde(rename = "ascii")]
-    Ascii,
+    Proc3964 = "3964r" => Proc3964Config;
+    /// Listen-only: both directions of a 3964(R) link on two ports.
+    Proc3964Tap = "3964r-tap" => Proc3964TapConfig;
+    Ascii = "ascii" => AsciiConfig;
+}
+
+/// A protocol's section reads its keys from the line's table (`baud`: the line's, for the
+/// protocols whose defaults follow it).
+trait ReadSection {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, baud: Baud) -> Self;
+}
+
+impl ReadSection for ModbusMasterRtuConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
+        Self::read(cx, f)
+    }
+}
+
+impl ReadSection for ModbusMasterAsciiConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
+        Self::read(cx, f)
+    }
+}
+
+impl ReadSection for ModbusSlaveRtuConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
+        Self::read(cx, f)
+    }
+}
+
+impl ReadSection for ModbusRtuTapConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
+        Self::read(cx, f)
+    }
+}
+
+impl ReadSection for Proc3964Config {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
+        Self::read(cx, f)
+    }
+}
+
+impl ReadSection for Proc3964TapConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
+        Self::read(cx, f)
+    }
+}
+
+impl ReadSection for AsciiConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, baud: Baud) -> Self {
+        Self::read(cx, f, baud)
+    }
 }
 
 // === impl ProtocolKind ===
 
 impl ProtocolKind {
-    /// The TOML spelling.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::ModbusMasterRtu => "modbus-master-rtu",
-            Self::ModbusMasterAscii => "modbus-master-ascii",
-            Self::ModbusSlaveRtu => "modbus-slave-rtu",
-            Self::ModbusRtuTap => "modbus-rtu-tap",
-            Self::Proc3964 => "3964r",
-            Self::Proc3964Tap => "3964r-tap",
-            Self::Ascii => "ascii",
-        }
-    }
-
     /// Whether the line polls devices.
     pub fn is_master(self) -> bool {
         matches!(self, Self::ModbusMasterRtu | Self::ModbusMasterAscii)
@@ -91,55 +157,27 @@ impl ProtocolKind {
     pub fn has_devices(self) -> bool {
         self.is_master() || self == Self::ModbusRtuTap
     }
+
+    /// Every spelling, as a message lists them: `a, b or c`.
+    fn listed() -> String {
+        let names: Vec<&str> = Self::ALL.iter().map(|k| k.as_str()).collect();
+        match names.split_last() {
+            Some((last, [])) => (*last).to_owned(),
+            Some((last, rest)) => format!("{} or {last}", rest.join(", ")),
+            None => String::new(),
+        }
+    }
 }
 
 // === impl ProtocolConfig ===
 
 impl ProtocolConfig {
-    /// The protocol's own section: the one match over the protocols in the configuration.
-    pub(crate) fn section(&self) -> &dyn ProtocolSection {
-        match self {
-            Self::ModbusMasterRtu(c) => c,
-            Self::ModbusMasterAscii(c) => c,
-            Self::ModbusSlaveRtu(c) => c,
-            Self::ModbusRtuTap(c) => c,
-            Self::Proc3964(c) => c,
-            Self::Proc3964Tap(c) => c,
-            Self::Ascii(c) => c,
-        }
-    }
-
     /// The section of a line that serves the CP memory (the memory's layout spans every such
     /// line).
     pub fn cp_memory_slave(&self) -> Option<&ModbusSlaveRtuConfig> {
         match self {
             Self::ModbusSlaveRtu(c) => Some(c),
             _ => None,
-        }
-    }
-
-    /// The protocol's own section, to change it.
-    pub(crate) fn section_mut(&mut self) -> &mut dyn ProtocolSection {
-        match self {
-            Self::ModbusMasterRtu(c) => c,
-            Self::ModbusMasterAscii(c) => c,
-            Self::ModbusSlaveRtu(c) => c,
-            Self::ModbusRtuTap(c) => c,
-            Self::Proc3964(c) => c,
-            Self::Proc3964Tap(c) => c,
-            Self::Ascii(c) => c,
-        }
-    }
-
-    pub fn kind(&self) -> ProtocolKind {
-        match self {
-            Self::ModbusMasterRtu(_) => ProtocolKind::ModbusMasterRtu,
-            Self::ModbusMasterAscii(_) => ProtocolKind::ModbusMasterAscii,
-            Self::ModbusSlaveRtu(_) => ProtocolKind::ModbusSlaveRtu,
-            Self::ModbusRtuTap(_) => ProtocolKind::ModbusRtuTap,
-            Self::Proc3964(_) => ProtocolKind::Proc3964,
-            Self::Proc3964Tap(_) => ProtocolKind::Proc3964Tap,
-            Self::Ascii(_) => ProtocolKind::Ascii,
         }
     }
 }
@@ -187,32 +225,14 @@ impl LineConfig {
         if !f.has("protocol") {
             cx.issue(
                 f.at("protocol"),
-                "missing required key (modbus-master-rtu, modbus-master-ascii, modbus-slave-rtu, modbus-rtu-tap, 3964r, 3964r-tap or ascii)",
+                format!("missing required key ({})", ProtocolKind::listed()),
             );
         }
         let serial = SerialConfig::read(cx, &mut f);
         // Without a protocol the valid keys are unknown: report nothing more for this line.
         let kind = kind?;
         let baud = serial.as_ref().map_or(DEFAULT_BAUD, |s| s.baud);
-        let protocol = match kind {
-            ProtocolKind::ModbusMasterRtu => {
-                ProtocolConfig::ModbusMasterRtu(ModbusMasterRtuConfig::read(cx, &mut f))
-            }
-            ProtocolKind::ModbusMasterAscii => {
-                ProtocolConfig::ModbusMasterAscii(ModbusMasterAsciiConfig::read(cx, &mut f))
-            }
-            ProtocolKind::ModbusSlaveRtu => {
-                ProtocolConfig::ModbusSlaveRtu(ModbusSlaveRtuConfig::read(cx, &mut f))
-            }
-            ProtocolKind::ModbusRtuTap => {
-                ProtocolConfig::ModbusRtuTap(ModbusRtuTapConfig::read(cx, &mut f))
-            }
-            ProtocolKind::Proc3964 => ProtocolConfig::Proc3964(Proc3964Config::read(cx, &mut f)),
-            ProtocolKind::Proc3964Tap => {
-                ProtocolConfig::Proc3964Tap(Proc3964TapConfig::read(cx, &mut f))
-            }
-            ProtocolKind::Ascii => ProtocolConfig::Ascii(AsciiConfig::read(cx, &mut f, baud)),
-        };
+        let protocol = ProtocolConfig::read(kind, cx, &mut f, baud);
         if !kind.has_devices() && f.has("devices") {
             let _ = f.raw("devices");
             cx.issue(
