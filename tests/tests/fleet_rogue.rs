@@ -5,7 +5,8 @@
 //! - A rogue peer with 1,000 liveliness tokens `gw/rogue<i>` whose status answers carry 28 KiB
 //!   fields: the gateway's resident memory grows by less than [`RSS_GROWTH_BOUND_KIB`], its
 //!   `GET /api/v1/fleet` stays under [`FLEET_BODY_BOUND`] and offers no link for the rogue's
-//!   addresses, and `gateway fleet status` prints less than [`FLEET_STATUS_BOUND`].
+//!   addresses (nor does the status page in Chromium, tests/page/fleet-rogue-test.js), and
+//!   `gateway fleet status` prints less than [`FLEET_STATUS_BOUND`].
 //! - A rogue holding the gateway's own name (`gw/g1`, with a forged host carrying terminal
 //!   escapes and a phishing link): the gateway serves its line over Modbus TCP and REST, reports
 //!   the conflict (ERROR log, `/readyz` 503 at `zenoh.name`, a problem on the page,
@@ -360,6 +361,12 @@ async fn a_rogue_peer_cannot_inflate_the_fleet_view() {
         &out[..out.len().min(2000)]
     );
     assert!(err.contains("answers left out"), "{err}");
+    // The page shows every rogue address as text, none as a link.
+    let base = format!("http://{http}");
+    let page = tokio::task::spawn_blocking(move || fleet_rogue_page(&base))
+        .await
+        .expect("the browser task");
+    println!("{page}");
     // Ten more seconds under the attack (the view asks nobody again: all are described).
     let until = Instant::now() + Duration::from_secs(10);
     while Instant::now() < until {
@@ -749,4 +756,51 @@ config_file = "{}"
     drop(gw);
     drop(router);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Runs tests/page/fleet-rogue-test.js (Debian's Chromium through the pinned playwright-core, as
+/// the fleet and page tests do) against the page at `base`; its output.
+fn fleet_rogue_page(base: &str) -> String {
+    let page_dir = gateway_tests::repo_root().join("tests/page");
+    assert!(
+        Path::new("/usr/bin/chromium").exists()
+            && page_dir
+                .join("node_modules/playwright-core/package.json")
+                .exists(),
+        "chromium or tests/page/node_modules is missing: run the tests with `.ci/test`, which \
+         installs Debian's chromium and runs `npm ci` in tests/page"
+    );
+    let mut child = Command::new("node")
+        .arg(page_dir.join("fleet-rogue-test.js"))
+        .current_dir(&page_dir)
+        .env("GATEWAY_URL", base)
+        .env("CHROMIUM", "/usr/bin/chromium")
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .expect("start node (Debian package nodejs)");
+    let started = Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().expect("wait for node") {
+            break status;
+        }
+        if started.elapsed() > Duration::from_secs(120) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("the fleet page script did not finish within 120 s");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    let output = child.wait_with_output().expect("node output");
+    let text = format!(
+        "{}{}",
+        String::from_utf8_lossy(&output.stdout),
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        status.success() && text.contains("fleet-rogue-test: all checks passed"),
+        "the fleet page script failed:\n{text}"
+    );
+    text
 }

@@ -64,6 +64,12 @@
 //! advanced subscriber with history, whose history query `<key expression>/@adv/**` the bridge
 //! answers (see `queryable.rs`).
 //!
+//! Name: the bridge declares, publishes and answers only once its name is its own: while another
+//! session holds the token `<prefix>` the session stays open (the fleet is followed) but nothing
+//! is declared or published, the conflict is reported ([`BridgeStats::name_conflict`]), and the
+//! name is taken when it is free ([`fleet::take_name`]); with [`OnDuplicate::Exit`] the start is
+//! refused instead ([`BridgeError::Duplicate`]).
+//!
 //! Runtime: call `start` inside a multi-threaded tokio runtime.
 //!
 //! Cargo features: zenoh is built with `transport_tcp`, and with `transport_tls` through the
