@@ -81,6 +81,10 @@ pub struct Overrides {
     /// `gateway demo --token-file`: REST changes need the token in this file (role admin)
     /// instead of being open to anyone.
     pub api_token_file: Option<PathBuf>,
+    /// `gateway run --exit-on-duplicate-name`: refuse the start (exit 64) when another zenoh
+    /// session holds the gateway's name, instead of serving everything but zenoh until the name
+    /// is free.
+    pub exit_on_duplicate_name: bool,
 }
 
 /// The number of SIGHUPs received, raised by [`handle_signals`]; [`run`] reloads on every rise

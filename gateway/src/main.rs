@@ -47,6 +47,10 @@ enum Command {
         /// Serve HTTP (REST API, /healthz, /readyz, /metrics) here instead of `[http] listen`.
         #[arg(long, value_name = "ADDR")]
         http: Option<SocketAddr>,
+        /// Refuse the start (exit 64) when another zenoh session holds this gateway's name,
+        /// instead of serving the lines, Modbus TCP and REST without zenoh until it is free.
+        #[arg(long)]
+        exit_on_duplicate_name: bool,
     },
     /// Run the embedded demo: virtual serial lines with simulated devices.
     Demo {
@@ -248,6 +252,7 @@ async fn async_main(command: Command) -> ExitCode {
             modbus_tcp,
             zenoh_listen,
             http,
+            exit_on_duplicate_name,
         } => match gateway::app::load_config(&config).and_then(|cfg| {
             // What run would refuse later (the API token, a line that cannot start) is a
             // configuration error too: refused here, before any port opens.
@@ -274,6 +279,7 @@ async fn async_main(command: Command) -> ExitCode {
                     acknowledge_mailboxes: false,
                     hangups: Some(hangups),
                     api_token_file: None,
+                    exit_on_duplicate_name,
                 };
                 gateway::app::run(cfg, overrides, shutdown).await
             }
@@ -310,6 +316,7 @@ async fn async_main(command: Command) -> ExitCode {
                 acknowledge_mailboxes: !no_mailbox_consumer,
                 hangups: Some(hangups),
                 api_token_file: token_file,
+                exit_on_duplicate_name: false,
             };
             gateway::app::demo_named(name, overrides, shutdown).await
         }

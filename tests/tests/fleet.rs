@@ -7,7 +7,8 @@
 //! /api/v1/fleet` of one lists the two others, and its status page shows them in Debian's Chromium
 //! (tests/page/fleet-test.js), each with a link that opens its page; writes are off by default (two
 //! gateways refuse a set) and a set through the router on the one with writes on lands in its drive
-//! and in no other; a duplicate name is refused (exit 64, naming the other); the router restarted
+//! and in no other; a duplicate name is refused with `--exit-on-duplicate-name` (exit 64, naming
+//! the other); the router restarted
 //! loses no gateway for good (the time each takes to come back is printed); a gateway frozen
 //! (SIGSTOP) leaves the fabric within its configured lease.
 
@@ -196,10 +197,11 @@ fn fleet_status(router: u16) -> std::process::Output {
         .expect("gateway fleet status")
 }
 
-/// Runs `gateway run` until it exits (at most `limit`): its exit code and output.
-fn run_to_exit(config: &Path, limit: Duration) -> (Option<i32>, String) {
+/// Runs `gateway run ... extra` until it exits (at most `limit`): its exit code and output.
+fn run_to_exit(config: &Path, extra: &[&str], limit: Duration) -> (Option<i32>, String) {
     let mut child: Child = Command::new(gateway_tests::gateway_bin())
         .args(Gateway::run_args(config))
+        .args(extra)
         .stdin(Stdio::null())
         .stdout(Stdio::piped())
         .stderr(Stdio::piped())
@@ -466,11 +468,13 @@ async fn three_gateways_through_one_router() {
     assert_eq!(hsp(&s, "g2").await, Some(50.0));
     assert_eq!(hsp(&s, "g3").await, Some(50.0));
 
-    // A second gateway named g2 is refused: exit 64, naming the name and the other gateway.
+    // A second gateway named g2 started with --exit-on-duplicate-name is refused: exit 64,
+    // naming the name and the other gateway (without the flag it would serve its lines and
+    // wait for the name: tests/tests/fleet_rogue.rs).
     let dup_link = SocatLink::new(&dir, "dup");
     let dup = dir.join("dup.toml");
     std::fs::write(&dup, gateway_config("g2", &dup_link.a, router_port, false)).expect("write");
-    let (code, out) = run_to_exit(&dup, Duration::from_secs(60));
+    let (code, out) = run_to_exit(&dup, &["--exit-on-duplicate-name"], Duration::from_secs(60));
     assert_eq!(code, Some(64), "{out}");
     let g2_zid = statuses(&s)
         .await

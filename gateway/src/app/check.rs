@@ -778,6 +778,8 @@ pub fn security_warnings(config: &Config) -> Vec<ConfigIssue> {
             ),
         );
     }
+    // One warning for the zenoh section, saying each way it is open.
+    let mut zenoh_open = Vec::new();
     // zenoh is a write path only with `writes = true`.
     if let Some(zenoh) = config.zenoh.as_ref().filter(|z| z.enabled && z.writes) {
         let open: Vec<&str> = zenoh
@@ -788,17 +790,76 @@ pub fn security_warnings(config: &Config) -> Vec<ConfigIssue> {
             .filter(|e| !endpoint_is_loopback(e))
             .collect();
         if !open.is_empty() && zenoh.config_file.is_none() {
-            warn(
-                "zenoh",
-                format!(
-                    "`tx` and tag `set` keys take writes from every peer reaching {} without \
+            zenoh_open.push(format!(
+                "`tx` and tag `set` keys take writes from every peer reaching {} without \
                  credentials; restrict them with zenoh's access_control (and TLS) in config_file",
-                    open.join(", ")
-                ),
-            );
+                open.join(", ")
+            ));
         }
     }
+    if let Some(zenoh) = config.zenoh.as_ref().filter(|z| z.enabled) {
+        if let Some(why) = unauthenticated_fabric(zenoh) {
+            zenoh_open.push(format!(
+                "any peer may join the fleet: {why}; without authentication any machine that \
+                 reaches it can hold this gateway's name (gw/<name>) or answer as a gateway; use \
+                 tls/ endpoints with enable_mtls and access_control by certificate name in \
+                 config_file (docs/fleet.md, deploy/zenoh/)"
+            ));
+        }
+    }
+    if !zenoh_open.is_empty() {
+        warn("zenoh", zenoh_open.join("; also "));
+    }
     warnings
+}
+
+/// Why the zenoh fabric of `zenoh` does not authenticate its peers, when it does not: an
+/// endpoint (listen or connect) beyond loopback that is not `tls/` or `quic/` with
+/// `enable_mtls`, or multicast scouting on. `None` when every endpoint is on loopback, or every
+/// one beyond it is mutual TLS. The settings are read as the bridge builds them (the zenoh file
+/// with the section's keys over it); a file that does not load is reported elsewhere.
+fn unauthenticated_fabric(zenoh: &config::ZenohConfig) -> Option<String> {
+    let (z, mode) = zenoh.to_zenoh().ok()?;
+    let mode = mode.as_str().to_owned();
+    let endpoints = |key: &str| -> Vec<String> {
+        let value: serde_json::Value = z
+            .get_json(key)
+            .ok()
+            .and_then(|j| serde_json::from_str(&j).ok())
+            .unwrap_or_default();
+        // A list, or a list per role ({router: [...], peer: [...]}): the session's mode's.
+        let list = match &value {
+            serde_json::Value::Object(m) => m.get(&mode).cloned().unwrap_or_default(),
+            other => other.clone(),
+        };
+        list.as_array()
+            .into_iter()
+            .flatten()
+            .filter_map(serde_json::Value::as_str)
+            .map(str::to_owned)
+            .collect()
+    };
+    let mtls = z
+        .get_json("transport/link/tls/enable_mtls")
+        .is_ok_and(|v| v.trim() == "true");
+    let mut all = endpoints("listen/endpoints");
+    all.extend(endpoints("connect/endpoints"));
+    let open: Vec<String> = all
+        .into_iter()
+        .filter(|e| !endpoint_is_loopback(e))
+        .filter(|e| !(mtls && (e.starts_with("tls/") || e.starts_with("quic/"))))
+        .collect();
+    let scouting = z
+        .get_json("scouting/multicast/enabled")
+        .is_ok_and(|v| v.trim() == "true");
+    match (open.is_empty(), scouting) {
+        (true, false) => None,
+        (false, _) => Some(format!(
+            "{} beyond loopback without mutual TLS",
+            open.join(", ")
+        )),
+        (true, true) => Some("multicast scouting is on".to_owned()),
+    }
 }
 
 /// Whether a zenoh endpoint (`tcp/127.0.0.1:7447`, `tcp/[::1]:7447`, `tcp/localhost:7447`)
@@ -948,6 +1009,59 @@ mod tests {
         // The demo's loopback listeners are not warned about.
         let demo = config::parse(config::demo_toml()).expect("demo parses");
         assert_eq!(security_warnings(&demo), Vec::<ConfigIssue>::new());
+    }
+
+    #[test]
+    fn a_fabric_without_authentication_is_warned_about() {
+        let zenoh = |section: &str| -> Vec<ConfigIssue> {
+            let c = config::parse(&format!("[zenoh]\n{section}")).expect("parses");
+            security_warnings(&c)
+                .into_iter()
+                .filter(|w| w.path == "zenoh")
+                .collect()
+        };
+        let client = zenoh("mode = \"client\"\nconnect = [\"tcp/10.1.0.1:7447\"]\n");
+        assert_eq!(client.len(), 1, "{client:#?}");
+        assert!(
+            client[0].message.contains("any peer may join the fleet")
+                && client[0].message.contains("tcp/10.1.0.1:7447"),
+            "{}",
+            client[0].message
+        );
+        let listener = zenoh("listen = [\"tcp/0.0.0.0:7447\"]\n");
+        assert!(
+            listener[0].message.contains("tcp/0.0.0.0:7447"),
+            "{listener:#?}"
+        );
+        let scouting = zenoh("multicast_scouting = true\n");
+        assert!(
+            scouting[0].message.contains("multicast scouting"),
+            "{scouting:#?}"
+        );
+        assert_eq!(zenoh("listen = [\"tcp/127.0.0.1:7447\"]\n"), Vec::new());
+        // tls/ with mutual TLS from the zenoh file: authenticated, no warning; without
+        // enable_mtls the peers are not authenticated.
+        let dir = tempfile::tempdir().expect("temp dir");
+        let file = |mtls: bool| {
+            let path = dir.path().join(format!("z{mtls}.json5"));
+            std::fs::write(
+                &path,
+                format!(
+                    "{{ transport: {{ link: {{ tls: {{ enable_mtls: {mtls}, \
+                     root_ca_certificate: \"/etc/gateway/zenoh/ca.crt\" }} }} }} }}"
+                ),
+            )
+            .expect("write");
+            path
+        };
+        let tls = |path: &Path| {
+            zenoh(&format!(
+                "mode = \"client\"\nconnect = [\"tls/10.1.0.1:7448\"]\nconfig_file = \"{}\"\n",
+                path.display()
+            ))
+        };
+        assert_eq!(tls(&file(true)), Vec::new());
+        assert_eq!(tls(&file(false)).len(), 1);
     }
 }
 

@@ -208,7 +208,12 @@ impl ApiBackend for RestBackend {
         super::fleet::members(&self.sup)
             .into_iter()
             .map(|m| crate::api::model::FleetEntry {
-                link: m.http.map(|u| format!("{u}/")),
+                link: m
+                    .http
+                    .as_deref()
+                    .filter(|u| crate::zenoh_bridge::fleet::plain_http_url(u))
+                    .map(|u| format!("{}/", u.trim_end_matches('/'))),
+                http: m.http,
                 key: m.key,
                 name: m.name,
                 zid: m.zid,
@@ -242,6 +247,7 @@ impl ApiBackend for RestBackend {
                     .stats
                     .as_ref()
                     .map_or(0, |s| s.publication_counts().iter().map(|(_, n)| n).sum()),
+                name_conflict: z.stats.as_ref().and_then(|s| s.name_conflict()),
             });
         GatewayStatus {
             name: snapshot.config.gateway.name.clone(),
@@ -478,6 +484,12 @@ impl ApiBackend for RestBackend {
     }
 
     fn readiness(&self) -> Readiness {
+        let zenoh = self
+            .sup
+            .zenoh_state
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .clone();
         let snapshot = self.sup.snapshot();
         Readiness {
             lines: snapshot
@@ -490,13 +502,13 @@ impl ApiBackend for RestBackend {
                 })
                 .collect(),
             modbus_tcp: self.sup.tcp_ready(),
-            zenoh: self
-                .sup
-                .zenoh_state
-                .lock()
-                .unwrap_or_else(PoisonError::into_inner)
+            zenoh: zenoh
                 .as_ref()
                 .map(|z| z.stats.as_ref().is_some_and(|s| s.session_open())),
+            zenoh_name_conflict: zenoh
+                .as_ref()
+                .and_then(|z| z.stats.as_ref())
+                .and_then(|s| s.name_conflict()),
         }
     }
 }

@@ -32,7 +32,7 @@ use crate::tags::{TagDirectory, TagEntry, TagWriteError};
 use crate::zenoh_bridge::accounting::{self, WriteReason};
 use crate::zenoh_bridge::{
     BackendFuture, Bridge, BridgeBackend, BridgeError, BridgeHandle, BridgeStats, DropReason,
-    TagValue, ZenohConfig,
+    OnDuplicate, TagValue, ZenohConfig,
 };
 
 /// How often device presence is compared with the last published state.
@@ -121,7 +121,12 @@ async fn open(follower: &ZenohFollower, sup: &Arc<Supervisor>) -> Result<(), App
     let backend = ZenohBackend {
         sup: Arc::downgrade(sup),
     };
-    let (bridge, handle) = Bridge::start_counted(
+    let on_duplicate = if sup.overrides.exit_on_duplicate_name {
+        OnDuplicate::Exit
+    } else {
+        OnDuplicate::Wait
+    };
+    let (bridge, handle) = Bridge::start_with(
         cfg,
         &snapshot.config.gateway.name,
         Arc::new(backend),
@@ -130,6 +135,7 @@ async fn open(follower: &ZenohFollower, sup: &Arc<Supervisor>) -> Result<(), App
             sup.exported.metrics.zenoh().clone(),
             sup.exported.metrics.audit().clone(),
         ),
+        on_duplicate,
     )
     .await
     .map_err(|e| match e {

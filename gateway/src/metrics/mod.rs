@@ -81,6 +81,7 @@ pub const METRIC_NAMES: &[&str] = &[
     AuditMetrics::NAME,
     BridgeMetrics::NAMES[0],
     BridgeMetrics::NAMES[1],
+    BridgeMetrics::NAMES[2],
     LineFamilies::NAMES[9],
     LineFamilies::NAMES[10],
     HttpMetrics::NAMES[0],

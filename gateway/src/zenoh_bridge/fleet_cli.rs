@@ -9,7 +9,12 @@
 //! `status` asks `<gateways>/status` (default `gw/*/status`, every gateway under the default
 //! prefix) and prints one table: a row per gateway, per line and per device, with what each
 //! answered (online, the STATUS word of the line's last event, how long ago). It exits 1 when
-//! no gateway answered within `--timeout`.
+//! no gateway answered within `--timeout`. What it prints is bounded whatever the peers answer:
+//! an answer over [`fleet::STATUS_MAX`] bytes is skipped, at most [`fleet::MEMBER_LIMIT`]
+//! answers and [`ANSWERS_MAX_BYTES`] of them are kept (stderr says how many were left out),
+//! every cell is escaped and cut to [`CELL_MAX`] bytes (the WHERE column to its parts' bounds),
+//! and the table has at most [`ROWS_MAX`] rows (about 1 KiB each), so under 5 MiB; `--json`
+//! prints the kept answers (at most [`ANSWERS_MAX_BYTES`], control characters escaped by JSON).
 //!
 //! `watch KEYEXPR` prints every sample under `KEYEXPR` as it comes, one line each:
 //! `<receive time, RFC 3339 UTC> <key> <payload>` (the payload as text when it is UTF-8, else
@@ -22,6 +27,15 @@ use std::time::{Duration, SystemTime};
 use serde_json::Value;
 use tokio_util::sync::CancellationToken;
 use zenoh::sample::{Sample, SampleKind};
+
+use super::fleet::{self, bounded_text};
+
+/// The most bytes of status answers `fleet status` keeps (the rest are left out, counted).
+pub const ANSWERS_MAX_BYTES: usize = 4 * 1024 * 1024;
+/// The longest cell of the table (bytes, after escaping), but WHERE.
+pub const CELL_MAX: usize = 64;
+/// The most rows of the table (the rest are left out, counted in a last line).
+pub const ROWS_MAX: usize = 4096;
 
 /// Where `fleet` commands connect without `--connect`: a gateway or router on this machine.
 pub const LOCAL_ENDPOINT: &str = "tcp/127.0.0.1:7447";
@@ -173,20 +187,42 @@ pub async fn collect_status(
         .await
         .map_err(|e| FleetError::Zenoh(format!("query {key}: {e}")))?;
     let mut answers = Vec::new();
+    let (mut kept_bytes, mut left_out) = (0usize, 0usize);
     while let Ok(reply) = replies.recv_async().await {
         match reply.result() {
-            Ok(sample) => match serde_json::from_slice::<Value>(&sample.payload().to_bytes()) {
-                Ok(v) => answers.push((sample.key_expr().as_str().to_owned(), v)),
-                Err(e) => eprintln!(
-                    "gateway fleet: {} answered something that is not JSON: {e}",
-                    sample.key_expr()
-                ),
-            },
+            Ok(sample) => {
+                let len = sample.payload().len();
+                let key = bounded_text(sample.key_expr().as_str(), fleet::KEY_MAX + 7);
+                if len > fleet::STATUS_MAX
+                    || answers.len() >= fleet::MEMBER_LIMIT
+                    || kept_bytes + len > ANSWERS_MAX_BYTES
+                {
+                    left_out += 1;
+                    continue;
+                }
+                match serde_json::from_slice::<Value>(&sample.payload().to_bytes()) {
+                    Ok(v) => {
+                        kept_bytes += len;
+                        answers.push((key, v));
+                    }
+                    Err(e) => {
+                        eprintln!("gateway fleet: {key} answered something that is not JSON: {e}");
+                    }
+                }
+            }
             Err(e) => eprintln!(
                 "gateway fleet: an error reply: {}",
-                String::from_utf8_lossy(&e.payload().to_bytes())
+                bounded_text(&String::from_utf8_lossy(&e.payload().to_bytes()), 256)
             ),
         }
+    }
+    if left_out > 0 {
+        eprintln!(
+            "gateway fleet: {left_out} answers left out (over {} bytes each, over {} answers or \
+             {ANSWERS_MAX_BYTES} bytes in all)",
+            fleet::STATUS_MAX,
+            fleet::MEMBER_LIMIT
+        );
     }
     answers.sort_by(|a, b| a.0.cmp(&b.0));
     Ok(answers)
@@ -209,14 +245,14 @@ pub fn table(answers: &[(String, Value)]) -> String {
         let gw = text(s, "name").unwrap_or_else(|| key.trim_end_matches("/status").to_owned());
         let lines = s.get("lines").and_then(Value::as_array);
         let mut place = vec![];
-        if let Some(h) = text(s, "host") {
-            place.push(h);
+        if let Some(h) = s.get("host").and_then(Value::as_str) {
+            place.push(bounded_text(h, fleet::HOST_MAX));
         }
         if let Some(z) = s.pointer("/zenoh/zid").and_then(Value::as_str) {
-            place.push(format!("zid {z}"));
+            place.push(format!("zid {}", bounded_text(z, fleet::ZID_MAX)));
         }
-        if let Some(u) = text(s, "http") {
-            place.push(u);
+        if let Some(u) = s.get("http").and_then(Value::as_str) {
+            place.push(bounded_text(u, fleet::HTTP_MAX));
         }
         rows.push([
             gw.clone(),
@@ -282,6 +318,8 @@ pub fn table(answers: &[(String, Value)]) -> String {
             }
         }
     }
+    let left_out = rows.len().saturating_sub(ROWS_MAX);
+    rows.truncate(ROWS_MAX);
     let mut widths = header.map(str::len);
     for row in &rows {
         for (w, cell) in widths.iter_mut().zip(row) {
@@ -305,11 +343,20 @@ pub fn table(answers: &[(String, Value)]) -> String {
     for row in &rows {
         put(&row.each_ref().map(String::as_str));
     }
+    if left_out > 0 {
+        let _ = writeln!(
+            out,
+            "... {left_out} more rows left out (at most {ROWS_MAX})"
+        );
+    }
     out
 }
 
+/// A text member of `v`, escaped and cut to [`CELL_MAX`].
 fn text(v: &Value, key: &str) -> Option<String> {
-    v.get(key).and_then(Value::as_str).map(str::to_owned)
+    v.get(key)
+        .and_then(Value::as_str)
+        .map(|t| bounded_text(t, CELL_MAX))
 }
 
 fn yes_no(b: Option<bool>) -> String {

@@ -64,6 +64,12 @@
 //! advanced subscriber with history, whose history query `<key expression>/@adv/**` the bridge
 //! answers (see `queryable.rs`).
 //!
+//! Name: the bridge declares, publishes and answers only once its name is its own: while another
+//! session holds the token `<prefix>` the session stays open (the fleet is followed) but nothing
+//! is declared or published, the conflict is reported ([`BridgeStats::name_conflict`]), and the
+//! name is taken when it is free ([`fleet::take_name`]); with [`OnDuplicate::Exit`] the start is
+//! refused instead ([`BridgeError::Duplicate`]).
+//!
 //! Runtime: call `start` inside a multi-threaded tokio runtime.
 //!
 //! Cargo features: zenoh is built with `transport_tcp`, and with `transport_tls` through the
@@ -464,6 +470,28 @@ impl Bridge {
         shutdown: CancellationToken,
         stats: BridgeStats,
     ) -> Result<(Self, BridgeHandle), BridgeError> {
+        Self::start_with(
+            cfg,
+            gateway_name,
+            backend,
+            shutdown,
+            stats,
+            OnDuplicate::Wait,
+        )
+        .await
+    }
+
+    /// [`Self::start_counted`] with what to do when another session holds the gateway's name:
+    /// wait for it ([`OnDuplicate::Wait`], serving everything but zenoh meanwhile) or refuse
+    /// the start ([`OnDuplicate::Exit`], `Err(BridgeError::Duplicate)`).
+    pub async fn start_with(
+        cfg: ZenohConfig,
+        gateway_name: &str,
+        backend: Arc<dyn BridgeBackend>,
+        shutdown: CancellationToken,
+        stats: BridgeStats,
+        on_duplicate: OnDuplicate,
+    ) -> Result<(Self, BridgeHandle), BridgeError> {
         let keys = Arc::new(Keys::new(&cfg.prefix_for(gateway_name)?)?);
         let (zcfg, mode) = cfg.to_zenoh()?;
         let stats = Arc::new(stats);
@@ -478,11 +506,13 @@ impl Bridge {
 
         let session = match zenoh::open(zcfg.clone()).await {
             Ok(s) => {
-                if let Err(e) = fleet::refuse_duplicate(&s, &keys, gateway_name).await {
-                    if let Err(close) = s.close().await {
-                        tracing::debug!(error = %close, "zenoh session close failed");
+                if on_duplicate == OnDuplicate::Exit {
+                    if let Err(e) = fleet::refuse_duplicate(&s, &keys, gateway_name).await {
+                        if let Err(close) = s.close().await {
+                            tracing::debug!(error = %close, "zenoh session close failed");
+                        }
+                        return Err(e);
                     }
-                    return Err(e);
                 }
                 Some(s)
             }
@@ -521,6 +551,7 @@ impl Bridge {
                 .unwrap_or(Value::Null),
             gateway_name: gateway_name.to_owned(),
             fleet: Arc::new(fleet::FleetView::default()),
+            on_duplicate,
         };
         let fleet_view = parts.fleet.clone();
         let publishing = Arc::new(Publishing::new(cfg.publish.clone()));
@@ -635,6 +666,19 @@ struct Parts {
     listen: Value,
     gateway_name: String,
     fleet: Arc<fleet::FleetView>,
+    on_duplicate: OnDuplicate,
+}
+
+/// What a gateway does when another session holds its name (its liveliness token `<prefix>`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum OnDuplicate {
+    /// Serve the lines, Modbus TCP and REST, publish nothing on zenoh, report the conflict,
+    /// and take the name when it is free ([`fleet::take_name`]).
+    #[default]
+    Wait,
+    /// Refuse the start (`gateway run --exit-on-duplicate-name`); a client that connects
+    /// only later stays off the fabric.
+    Exit,
 }
 
 /// The subscribers and queryables; dropping them undeclares them.
@@ -655,38 +699,53 @@ async fn drive(
         None => match open_with_retry(zcfg, &shutdown).await {
             // A client that connected late checks the fleet then; refused, it stays off the
             // fabric (the process runs on: its lines, Modbus TCP and REST are not zenoh's).
-            Some(s) => match fleet::refuse_duplicate(&s, &parts.keys, &parts.gateway_name).await {
-                Ok(()) => Some(s),
-                Err(e) => {
-                    crate::error_limited!("zenoh duplicate gateway", error = %e, "zenoh: this gateway stays off the fabric");
-                    if let Err(close) = s.close().await {
-                        tracing::debug!(error = %close, "zenoh session close failed");
+            Some(s) if parts.on_duplicate == OnDuplicate::Exit => {
+                match fleet::refuse_duplicate(&s, &parts.keys, &parts.gateway_name).await {
+                    Ok(()) => Some(s),
+                    Err(e) => {
+                        crate::error_limited!("zenoh duplicate gateway", error = %e, "zenoh: this gateway stays off the fabric");
+                        if let Err(close) = s.close().await {
+                            tracing::debug!(error = %close, "zenoh session close failed");
+                        }
+                        None
                     }
-                    None
                 }
-            },
-            None => None,
+            }
+            other => other,
         },
     };
     let mut declared = None;
     if let Some(session) = &session {
-        match declare(&parts, session, &shutdown).await {
-            Ok(d) => declared = Some(d),
-            Err(e) => {
-                crate::error_limited!("zenoh declare failed", error = %e, "zenoh subscribers and queryables not declared")
-            }
-        }
-        parts.outbox.push_presence(parts.keys.gateway_token(), true);
+        parts.stats.set_session_open(true);
+        // The fleet is followed whoever holds this gateway's name.
         tokio::spawn(fleet::follow(
             session.clone(),
             parts.keys.clone(),
             parts.fleet.clone(),
             shutdown.clone(),
         ));
-        parts.outbox.set_session(session.clone());
-        parts.stats.set_session_open(true);
-        tracing::info!(zid = %session.zid(), prefix = parts.keys.prefix(), mode = parts.mode.as_str(), "zenoh session open");
-        shutdown.cancelled().await;
+        // Publications, queryables, subscribers and the token only once the name is ours.
+        let ours = parts.on_duplicate == OnDuplicate::Exit
+            || fleet::take_name(
+                session,
+                &parts.keys,
+                &parts.gateway_name,
+                &parts.stats,
+                &shutdown,
+            )
+            .await;
+        if ours {
+            match declare(&parts, session, &shutdown).await {
+                Ok(d) => declared = Some(d),
+                Err(e) => {
+                    crate::error_limited!("zenoh declare failed", error = %e, "zenoh subscribers and queryables not declared")
+                }
+            }
+            parts.outbox.push_presence(parts.keys.gateway_token(), true);
+            parts.outbox.set_session(session.clone());
+            tracing::info!(zid = %session.zid(), prefix = parts.keys.prefix(), mode = parts.mode.as_str(), "zenoh session open");
+            shutdown.cancelled().await;
+        }
     }
     // Stop taking commands and queries, publish what is pending, undeclare the tokens (the
     // publisher thread does both), then close the session.
@@ -707,6 +766,7 @@ async fn drive(
         }
     }
     parts.stats.set_session_open(false);
+    parts.stats.set_name_conflict(None);
     tracing::info!("zenoh bridge stopped");
 }
 

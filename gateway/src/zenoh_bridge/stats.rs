@@ -5,11 +5,12 @@
 //! `gateway_dropped_updates_total{reason}`, whose label sets are coarser: the same enums give
 //! both labels ([`PublicationKind::as_str`] and [`PublicationKind::metric_label`],
 //! [`DropReason::as_str`] and [`DropReason::metric_label`]). With [`BridgeStats::with_metrics`]
-//! every count is also made there.
+//! every count is also made there. `gateway_zenoh_name_conflict` is 1 while another session
+//! holds this gateway's name (its token) and the gateway publishes nothing on zenoh.
 
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
-use prometheus::{IntCounterVec, Opts, Registry};
+use prometheus::{IntCounterVec, IntGauge, Opts, Registry};
 
 use crate::audit::AuditMetrics;
 
@@ -233,20 +234,23 @@ pub struct BridgeMetrics {
     publications: IntCounterVec,
     /// `gateway_dropped_updates_total{reason}`.
     dropped: IntCounterVec,
+    /// `gateway_zenoh_name_conflict`: 1 while another session holds this gateway's name.
+    name_conflict: IntGauge,
 }
 
 // === impl BridgeMetrics ===
 
 impl BridgeMetrics {
     /// The names of the families.
-    pub const NAMES: [&'static str; 2] = [
+    pub const NAMES: [&'static str; 3] = [
         "gateway_zenoh_publications_total",
         "gateway_dropped_updates_total",
+        "gateway_zenoh_name_conflict",
     ];
 
     /// Registers the families in `registry`, with every kind's and reason's series at 0.
     pub fn register(registry: &Registry) -> Result<Self, prometheus::Error> {
-        let [publications, dropped] = Self::NAMES;
+        let [publications, dropped, name_conflict] = Self::NAMES;
         let metrics = Self {
             publications: IntCounterVec::new(
                 Opts::new(publications, "zenoh publications and replies, by kind."),
@@ -259,9 +263,14 @@ impl BridgeMetrics {
                 ),
                 &["reason"],
             )?,
+            name_conflict: IntGauge::new(
+                name_conflict,
+                "1 while another zenoh session holds this gateway's name: the gateway publishes nothing on zenoh until it is free.",
+            )?,
         };
         registry.register(Box::new(metrics.publications.clone()))?;
         registry.register(Box::new(metrics.dropped.clone()))?;
+        registry.register(Box::new(metrics.name_conflict.clone()))?;
         for kind in PublicationKind::ALL {
             metrics
                 .publications
@@ -298,6 +307,9 @@ impl BridgeMetrics {
 #[derive(Debug, Default)]
 pub struct BridgeStats {
     session_open: AtomicBool,
+    /// Who holds this gateway's name while another session does (bounded and escaped text,
+    /// see [`super::fleet::take_name`]).
+    name_conflict: std::sync::Mutex<Option<String>>,
     publications: [AtomicU64; PublicationKind::ALL.len()],
     drops: [AtomicU64; DropReason::ALL.len()],
     commands: [[AtomicU64; CommandOutcome::ALL.len()]; CommandKind::ALL.len()],
@@ -334,6 +346,25 @@ impl BridgeStats {
 
     pub(crate) fn set_session_open(&self, open: bool) {
         self.session_open.store(open, Ordering::Release);
+    }
+
+    /// While another session holds this gateway's name: who, in words (bounded, escaped).
+    pub fn name_conflict(&self) -> Option<String> {
+        self.name_conflict
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .clone()
+    }
+
+    pub(crate) fn set_name_conflict(&self, holder: Option<String>) {
+        let on = holder.is_some();
+        *self
+            .name_conflict
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner) = holder;
+        if let Some((m, _)) = &self.metrics {
+            m.name_conflict.set(i64::from(on));
+        }
     }
 
     pub(crate) fn published(&self, kind: PublicationKind) {

@@ -399,6 +399,7 @@ impl ApiBackend for MemGateway {
                 up,
                 mode: "peer".into(),
                 publications_total: 0,
+                name_conflict: None,
             }),
         }
     }
@@ -615,6 +616,7 @@ impl ApiBackend for MemGateway {
                 .collect(),
             modbus_tcp: true,
             zenoh: inner.zenoh,
+            zenoh_name_conflict: None,
         }
     }
 

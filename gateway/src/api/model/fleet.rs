@@ -6,7 +6,10 @@ use utoipa::ToSchema;
 use super::Timestamp;
 
 /// Another gateway of the fleet (a liveliness token under the parent of this gateway's key
-/// prefix, `gw/*` by default), described by its own `<prefix>/status` answer.
+/// prefix, `gw/*` by default), described by its own `<prefix>/status` answer. Every text a
+/// peer gave is escaped and cut (key 128, name 64, zid 32, host 253, http 256 bytes, plus `…`
+/// when cut), so one entry is under 1 KiB of JSON and the whole answer (at most 256 gateways)
+/// under 256 KiB.
 #[derive(Debug, Clone, PartialEq, Serialize, ToSchema)]
 pub struct FleetEntry {
     /// Its key prefix on zenoh (`gw/<name>`).
@@ -21,7 +24,11 @@ pub struct FleetEntry {
     pub online: bool,
     /// When it came online or went offline last.
     pub since: Timestamp,
-    /// Its status page (`http://host:port/`), when it serves HTTP.
+    /// Its HTTP address as it gave it (text; may be anything a peer sends, bounded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub http: Option<String>,
+    /// Its status page (`http://host:port/`): only when its HTTP address is a plain
+    /// `http(s)://host:port` URL, else absent (the page then shows `http` as text).
     pub link: Option<String>,
 }
 

@@ -200,6 +200,9 @@ pub struct Readiness {
     /// Whether the zenoh session is up; absent when zenoh is not configured.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub zenoh: Option<bool>,
+    /// While another zenoh session holds this gateway's name: who (bounded, escaped text).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub zenoh_name_conflict: Option<String>,
 }
 
 // === impl Readiness ===
@@ -231,6 +234,14 @@ impl Readiness {
             issues.push(Issue {
                 path: "zenoh".into(),
                 message: "the zenoh session is not up".into(),
+            });
+        }
+        if let Some(conflict) = &self.zenoh_name_conflict {
+            issues.push(Issue {
+                path: "zenoh.name".into(),
+                message: format!(
+                    "{conflict}; this gateway publishes nothing on zenoh until the name is free"
+                ),
             });
         }
         issues
@@ -276,6 +287,7 @@ mod tests {
             lines: [("a".to_owned(), true), ("b".to_owned(), false)].into(),
             modbus_tcp: true,
             zenoh: None,
+            zenoh_name_conflict: None,
         };
         assert!(!r.is_ready());
         assert_eq!(r.issues()[0].path, "lines.b");
@@ -283,5 +295,9 @@ mod tests {
         assert!(r.is_ready());
         r.zenoh = Some(false);
         assert_eq!(r.issues()[0].path, "zenoh");
+        r.zenoh = Some(true);
+        r.zenoh_name_conflict = Some("held by gateway \"g2\" on host cab7".into());
+        assert_eq!(r.issues()[0].path, "zenoh.name");
+        assert!(r.issues()[0].message.contains("cab7"));
     }
 }

@@ -308,4 +308,8 @@ pub struct ZenohStatus {
     /// `peer`, `client` or `router`.
     pub mode: String,
     pub publications_total: u64,
+    /// While another zenoh session holds this gateway's name: who (bounded, escaped text);
+    /// the gateway publishes nothing on zenoh meanwhile.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub name_conflict: Option<String>,
 }

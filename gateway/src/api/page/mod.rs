@@ -175,6 +175,12 @@ fn snapshot(status: &GatewayStatus, now: SystemTime) -> String {
 /// newest event is an error.
 fn problems(status: &GatewayStatus) -> Vec<String> {
     let mut out = Vec::new();
+    if let Some(conflict) = status.zenoh.as_ref().and_then(|z| z.name_conflict.as_ref()) {
+        out.push(format!(
+            "zenoh: this gateway's name is held by another session, so it publishes nothing on \
+             zenoh until the name is free: {conflict}"
+        ));
+    }
     for line in &status.lines {
         if line.state != LineState::Running {
             let why = line

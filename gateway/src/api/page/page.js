@@ -435,6 +435,7 @@
     if (S.config && mt.enabled !== false && !mt.read_only && !(mt.write_ranges || []).length && !(mt.allowed_networks || []).length) {
       items.push(el('li', { cls: 'warn' }, 'Modbus TCP writes are open to every client (no read_only, write_ranges or allowed_networks)'));
     }
+    if (s.zenoh && s.zenoh.name_conflict) items.push(el('li', {}, el('b', {}, 'zenoh: '), `this gateway's name is held by another session, so it publishes nothing on zenoh until the name is free: ${s.zenoh.name_conflict}`));
     if (S.config && S.config.zenoh && S.config.zenoh.writes) items.push(el('li', { cls: 'warn' }, 'zenoh writes are on: any zenoh peer may write tags and send telegrams'));
     const body = $('problems').querySelector('.body');
     swap(body, items.length ? el('ul', { cls: 'problems' }, items) : el('p', { cls: 'ok' }, 'No problem: every line runs, every device answers, every value is good.'));
@@ -448,15 +449,21 @@
     c.textContent = n === null ? '' : `(${n})`;
   }
 
+  /** A plain http(s)://host:port URL, with an optional / at the end: the only fleet address shown as a link. */
+  const PLAIN_URL = /^https?:\/\/([A-Za-z0-9][A-Za-z0-9.-]{0,252}|\[[0-9A-Fa-f:.]+\]):[0-9]{1,5}\/?$/;
+
   function renderFleet() {
     const f = $('fleet');
     f.hidden = !S.fleet.length;
     if (!S.fleet.length) return;
-    // GET /api/v1/fleet: {gateways: [{key, name, zid, host, online, since, link}]}.
-    const rows = S.fleet.map((g) => {
-      const name = g.name || g.key || '?';
+    // GET /api/v1/fleet: {gateways: [{key, name, zid, host, online, since, http, link}]}. Every
+    // text is a peer's, bounded by the gateway and shown as text; a link only for a plain
+    // http(s)://host:port URL (no user, path, query or fragment), anything else as text.
+    const rows = S.fleet.slice(0, 256).map((g) => {
+      const name = String(g.name || g.key || '?');
       const link = g.link;
-      const page = typeof link === 'string' && /^https?:/.test(link) ? el('a', { href: link }, `open ${name}'s page`) : 'no page';
+      const page = typeof link === 'string' && PLAIN_URL.test(link) ? el('a', { href: link, rel: 'noopener noreferrer' }, `open ${name}'s page`)
+        : (typeof g.http === 'string' && g.http ? el('span', { cls: 'text-url' }, g.http) : 'no page');
       const state = g.online ? 'online' : 'gone';
       const since = g.since ? `${state} for ${dur(now() - Date.parse(g.since))}` : state;
       return el('tr', {}, el('th', { scope: 'row' }, name), el('td', {}, since),
