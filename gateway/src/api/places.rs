@@ -26,10 +26,16 @@
 //! - one that has waited at least [`EVICT_AFTER`] gives its place to a new connection (its own
 //!   address's first when that address has all its places);
 //! - a client address whose connections end without a request (evicted or timed out while
-//!   waiting for a head, or for a body) is **backed off** for [`BACKOFF_FOR`] after the last such
-//!   end: a new connection of an address that is not backed off takes the place of a waiting
+//!   waiting for a head, or for a body), or that asks for more places while every place is taken
+//!   and one of its connections has waited [`STALE_AFTER`] without a request, [`BACKOFF_STRIKES`] times, each within [`BACKOFF_FOR`] of
+//!   the one before, is **backed off** until [`BACKOFF_FOR`] after the last such end (one stalled
+//!   connection of an honest client does not do it, a slowloris's eight do at once): a new connection of an address that is not backed off takes the place of a waiting
 //!   connection of a backed-off address at once, whatever its age, and a backed-off address may
-//!   only take free places (or its own connections' places), never another client's.
+//!   only take free places (or its own connections' places), never another client's;
+//! - an address holding [`UNSERVED_TO_TAKE`] connections without a request takes no other
+//!   address's place at once, and a new connection of an address holding fewer takes the place
+//!   of one of them (of the address holding the most), so no address gathers many places before
+//!   it is backed off.
 //!
 //! So a distributed slowloris (many addresses trickling heads or bodies and reconnecting at once)
 //! backs all its addresses off within about a second of the first evictions, and a client that
@@ -73,6 +79,14 @@ pub const EVICT_AFTER: Duration = Duration::from_secs(1);
 /// How long a client address stays backed off after one of its connections ended without a
 /// request (evicted or timed out waiting for a head or a body).
 pub const BACKOFF_FOR: Duration = Duration::from_secs(30);
+/// An address holding this many connections without a request may not take other addresses'
+/// places at once (and its connections may be taken by an address holding fewer).
+pub const UNSERVED_TO_TAKE: usize = 2;
+/// A connection that has waited this long without a request counts against its address when the
+/// address asks for more places while every place is taken.
+pub const STALE_AFTER: Duration = Duration::from_millis(500);
+/// Connections ending without a request that back an address off.
+pub const BACKOFF_STRIKES: u32 = 3;
 /// Most client addresses remembered as backed off (about 64 bytes each: 256 KiB at most); beyond
 /// it a new address is not remembered until old ones expire (an attack from more addresses than
 /// this is for the firewall).
@@ -146,9 +160,9 @@ struct Inner {
     /// Places by client address and pool.
     clients: HashMap<IpAddr, [usize; 3]>,
     open: HashMap<u64, Entry>,
-    /// When each backed-off address (an IPv6 one by its /64) last had a connection end without
-    /// a request; at most [`BACKOFF_ADDRESSES`].
-    backoff: HashMap<IpAddr, Instant>,
+    /// How many connections of an address (an IPv6 one by its /64) ended without a request, and
+    /// when the last did; at most [`BACKOFF_ADDRESSES`] addresses.
+    backoff: HashMap<IpAddr, (u32, Instant)>,
     /// The last time expired entries were swept out of `backoff` (at most once a second).
     swept: Option<Instant>,
 }
@@ -240,7 +254,6 @@ impl Places {
         let now = Instant::now();
         let mut inner = self.lock();
         let mut evicted = 0;
-        let backed_off = inner.backed_off(ip, now);
         let [general_mine, health_mine, monitoring_mine] =
             inner.clients.get(&ip).copied().unwrap_or_default();
         let general_free = if general_mine >= self.limits.per_client {
@@ -250,6 +263,17 @@ impl Places {
         } else {
             Ok(())
         };
+        // An address that asks for another place while every place is taken and one of its own
+        // connections has waited [`STALE_AFTER`] without sending a request is holding a place it
+        // does not use: counted as a connection ended without a request.
+        if general_free.is_err()
+            && inner
+                .oldest_waiting(now, STALE_AFTER, |e| e.ip == ip && e.unserved())
+                .is_some()
+        {
+            inner.back_off(ip, now);
+        }
+        let backed_off = inner.backed_off(ip, now);
         let pool = match general_free {
             Ok(()) => Pool::General,
             Err(why) => {
@@ -402,9 +426,11 @@ impl Places {
 impl Inner {
     /// A place of `kind` (of which there are `places`) for a new connection from `ip`: a free one
     /// unless `at_own_cap` (its address has all its places of that kind); else the place of a
-    /// waiting connection (its own address's when `at_own_cap` or `backed_off`; another's when a
-    /// backed-off address's, whatever its wait, or when it waited [`EVICT_AFTER`]). `Some(n)`:
-    /// a place, having evicted `n` connections.
+    /// waiting connection: its own address's (waited [`EVICT_AFTER`]) when `at_own_cap` or
+    /// `backed_off`; else, while the address itself holds fewer than [`UNSERVED_TO_TAKE`]
+    /// connections without a request, at once a backed-off address's, or one of an address
+    /// holding [`UNSERVED_TO_TAKE`] or more connections without a request (the one holding the
+    /// most); else one that waited [`EVICT_AFTER`]. `Some(n)`: a place, having evicted `n`.
     fn take(
         &mut self,
         now: Instant,
@@ -422,13 +448,48 @@ impl Inner {
         let victim = if own_only {
             self.oldest_waiting(now, EVICT_AFTER, |e| e.kind == kind && e.ip == ip)
         } else {
-            self.oldest_waiting(now, Duration::ZERO, |e| {
-                e.kind == kind && e.ip != ip && self.backed_off(e.ip, now)
-            })
-            .or_else(|| self.oldest_waiting(now, EVICT_AFTER, |e| e.kind == kind))
+            let unserved = self.unserved_by_address();
+            let holds = |a: &IpAddr| unserved.get(a).copied().unwrap_or(0);
+            let may_take = holds(&ip) < UNSERVED_TO_TAKE;
+            let backed = may_take
+                .then(|| {
+                    self.oldest_waiting(now, Duration::ZERO, |e| {
+                        e.kind == kind && e.ip != ip && self.backed_off(e.ip, now)
+                    })
+                })
+                .flatten();
+            let hoarder = || {
+                may_take
+                    .then(|| {
+                        self.open
+                            .iter()
+                            .filter(|(_, e)| {
+                                e.kind == kind
+                                    && e.ip != ip
+                                    && e.unserved()
+                                    && e.waiting(now, Duration::ZERO)
+                                    && holds(&e.ip) >= UNSERVED_TO_TAKE
+                            })
+                            .max_by_key(|(_, e)| (holds(&e.ip), std::cmp::Reverse(e.waiting_since)))
+                            .map(|(id, _)| *id)
+                    })
+                    .flatten()
+            };
+            backed
+                .or_else(hoarder)
+                .or_else(|| self.oldest_waiting(now, EVICT_AFTER, |e| e.kind == kind))
         }?;
         self.evict(victim, now);
         Some(1)
+    }
+
+    /// Connections without a request yet (no head, or a body still coming), by address.
+    fn unserved_by_address(&self) -> HashMap<IpAddr, usize> {
+        let mut by = HashMap::new();
+        for e in self.open.values().filter(|e| e.unserved()) {
+            *by.entry(e.ip).or_insert(0) += 1;
+        }
+        by
     }
 
     /// The connection that has waited longest, at least `at_least`, among those `which` selects.
@@ -460,10 +521,12 @@ impl Inner {
     fn backed_off(&self, ip: IpAddr, now: Instant) -> bool {
         self.backoff
             .get(&backoff_key(ip))
-            .is_some_and(|since| now.saturating_duration_since(*since) < BACKOFF_FOR)
+            .is_some_and(|(n, since)| {
+                *n >= BACKOFF_STRIKES && now.saturating_duration_since(*since) < BACKOFF_FOR
+            })
     }
 
-    /// Backs `ip` off from `now` for [`BACKOFF_FOR`] (not remembered when
+    /// Counts a connection of `ip` that ended without a request at `now` (not remembered when
     /// [`BACKOFF_ADDRESSES`] other addresses are, none of them expired).
     fn back_off(&mut self, ip: IpAddr, now: Instant) {
         let key = backoff_key(ip);
@@ -476,12 +539,17 @@ impl Inner {
             }
             self.swept = Some(now);
             self.backoff
-                .retain(|_, since| now.saturating_duration_since(*since) < BACKOFF_FOR);
+                .retain(|_, (_, since)| now.saturating_duration_since(*since) < BACKOFF_FOR);
             if self.backoff.len() >= BACKOFF_ADDRESSES {
                 return;
             }
         }
-        self.backoff.insert(key, now);
+        let (n, since) = self.backoff.entry(key).or_insert((0, now));
+        if now.saturating_duration_since(*since) >= BACKOFF_FOR {
+            *n = 0;
+        }
+        *n = n.saturating_add(1);
+        *since = now;
     }
 
     fn count(&mut self, ip: IpAddr, kind: Kind, add: bool) {
@@ -604,6 +672,14 @@ mod tests {
         )
     }
 
+    /// Counts `n` connections of `ip` that ended without a request.
+    fn strike(p: &Places, ip: IpAddr, n: u32) {
+        let now = Instant::now();
+        for _ in 0..n {
+            p.lock().back_off(ip, now);
+        }
+    }
+
     /// Backdates connection `place`'s wait by `by`.
     fn backdate(p: &Places, place: &Place, by: Duration) {
         if let Some(e) = p.lock().open.get_mut(&place.id) {
@@ -689,8 +765,11 @@ mod tests {
             .iter()
             .map(|a| p.admit(*a).unwrap().place)
             .collect();
-        for place in &held {
+        for (place, a) in held.iter().zip(&attackers) {
             backdate(&p, place, EVICT_AFTER);
+            // Two of their connections ended without a request before.
+            strike(&p, *a, BACKOFF_STRIKES - 1);
+            assert!(!p.is_backed_off(*a));
         }
         // Another attacker's connection takes the oldest waiting place: that address, which had
         // sent no request on it, is backed off.
@@ -732,6 +811,10 @@ mod tests {
         let a = ip("127.0.60.1");
         let first = p.admit(a).unwrap().place;
         let second = p.admit(a).unwrap().place;
+        // One connection that timed out does not back an address off; three do.
+        first.timed_out();
+        assert!(!p.is_backed_off(a));
+        first.timed_out();
         first.timed_out();
         assert!(p.is_backed_off(a));
         // Both just connected (no wait at all): a fresh address still gets a general place.
@@ -762,6 +845,7 @@ mod tests {
     fn a_request_whose_body_is_still_coming_counts_as_waiting() {
         let p = places(1, 8);
         let slow = p.admit(ip("127.0.61.1")).unwrap().place;
+        strike(&p, ip("127.0.61.1"), BACKOFF_STRIKES - 1);
         let handle = slow.handle();
         let _request = handle.request(true);
         let body = handle.body();

@@ -102,6 +102,7 @@ pub async fn serve(
             () = &mut shutdown => break,
         };
         if !gate.allows_peer(peer.ip()) {
+            refuse(&stream);
             gate.refused(
                 HttpRejectReason::Network,
                 Some(peer),
@@ -118,6 +119,7 @@ pub async fn serve(
                 } else {
                     "no connection place left (the health places are taken too), closed"
                 };
+                refuse(&stream);
                 gate.refused(why, Some(peer), what);
                 continue;
             }
@@ -143,6 +145,13 @@ pub async fn serve(
     );
     graceful.shutdown().await;
     Ok(())
+}
+
+/// Closes a connection refused at accept with a reset rather than a FIN: nothing was exchanged,
+/// and the listener keeps no TIME_WAIT socket for it (a client reconnecting a thousand times a
+/// second would otherwise leave tens of thousands of them).
+fn refuse(stream: &TcpStream) {
+    let _ = stream.set_zero_linger();
 }
 
 type Service = TowerToHyperService<axum::Router>;
