@@ -929,4 +929,31 @@ mod tests {
         let later = now + BACKOFF_FOR;
         assert!(!inner.backed_off(IpAddr::from([0x2001, 0xdb8, 0, 1, 0, 0, 0, 1]), later));
     }
+
+    #[test]
+    fn an_address_holding_unused_connections_gives_way_and_is_backed_off_when_it_asks_for_more() {
+        let p = places(3, 8);
+        let hoarder = ip("127.0.62.1");
+        let held: Vec<Place> = (0..3).map(|_| p.admit(hoarder).unwrap().place).collect();
+        // None has waited, but the hoarder holds two or more connections without a request: a
+        // fresh address takes one of them at once, and another one again.
+        let fresh = p.admit(ip("127.0.4.1")).unwrap();
+        assert_eq!((fresh.place.pool, fresh.evicted), (Pool::General, 1));
+        let other = ip("127.0.4.2");
+        let second = p.admit(other).unwrap();
+        assert_eq!((second.place.pool, second.evicted), (Pool::General, 1));
+        // Now nobody holds two: a third new connection finds nothing to take.
+        let third = p.admit(other).unwrap();
+        assert_eq!(
+            (third.place.pool, third.evicted),
+            (Pool::Health(HttpRejectReason::ConnectionLimit), 0)
+        );
+        // The hoarder lost two connections without a request; asking for another place while
+        // its last one has waited unused counts a third time: backed off.
+        assert!(!p.is_backed_off(hoarder));
+        let last = held.iter().find(|h| !h.evicted.is_cancelled()).unwrap();
+        backdate(&p, last, STALE_AFTER);
+        let _more = p.admit(hoarder);
+        assert!(p.is_backed_off(hoarder));
+    }
 }
