@@ -34,8 +34,9 @@
 //!   only take free places (or its own connections' places), never another client's;
 //! - an address holding [`UNSERVED_TO_TAKE`] connections without a request takes no other
 //!   address's place at once, and a new connection of an address holding fewer takes the place
-//!   of one of them (of the address holding the most), so no address gathers many places before
-//!   it is backed off.
+//!   of one of them that has waited [`STALE_AFTER`] (of the address holding the most), so no
+//!   address gathers many places before it is backed off, while the connections a browser opens
+//!   at once have the time to send their requests.
 //!
 //! So a distributed slowloris (many addresses trickling heads or bodies and reconnecting at once)
 //! backs all its addresses off within about a second of the first evictions, and a client that
@@ -428,9 +429,9 @@ impl Inner {
     /// unless `at_own_cap` (its address has all its places of that kind); else the place of a
     /// waiting connection: its own address's (waited [`EVICT_AFTER`]) when `at_own_cap` or
     /// `backed_off`; else, while the address itself holds fewer than [`UNSERVED_TO_TAKE`]
-    /// connections without a request, at once a backed-off address's, or one of an address
-    /// holding [`UNSERVED_TO_TAKE`] or more connections without a request (the one holding the
-    /// most); else one that waited [`EVICT_AFTER`]. `Some(n)`: a place, having evicted `n`.
+    /// connections without a request, at once a backed-off address's, or one that waited
+    /// [`STALE_AFTER`] of an address holding [`UNSERVED_TO_TAKE`] or more connections without a
+    /// request (the one holding the most); else one that waited [`EVICT_AFTER`]. `Some(n)`: a place, having evicted `n`.
     fn take(
         &mut self,
         now: Instant,
@@ -467,7 +468,7 @@ impl Inner {
                                 e.kind == kind
                                     && e.ip != ip
                                     && e.unserved()
-                                    && e.waiting(now, Duration::ZERO)
+                                    && e.waiting(now, STALE_AFTER)
                                     && holds(&e.ip) >= UNSERVED_TO_TAKE
                             })
                             .max_by_key(|(_, e)| (holds(&e.ip), std::cmp::Reverse(e.waiting_since)))
@@ -935,8 +936,16 @@ mod tests {
         let p = places(3, 8);
         let hoarder = ip("127.0.62.1");
         let held: Vec<Place> = (0..3).map(|_| p.admit(hoarder).unwrap().place).collect();
-        // None has waited, but the hoarder holds two or more connections without a request: a
-        // fresh address takes one of them at once, and another one again.
+        // Just opened (a browser's connections opened at once): not taken.
+        let early = p.admit(ip("127.0.4.9")).unwrap();
+        assert_eq!(early.evicted, 0);
+        assert!(matches!(early.place.pool, Pool::Health(_)));
+        drop(early);
+        // Half a second unused, and the hoarder holds two or more connections without a request
+        // (none has waited the second): a fresh address takes one of them, and another one again.
+        for place in &held {
+            backdate(&p, place, STALE_AFTER);
+        }
         let fresh = p.admit(ip("127.0.4.1")).unwrap();
         assert_eq!((fresh.place.pool, fresh.evicted), (Pool::General, 1));
         let other = ip("127.0.4.2");
@@ -951,8 +960,6 @@ mod tests {
         // The hoarder lost two connections without a request; asking for another place while
         // its last one has waited unused counts a third time: backed off.
         assert!(!p.is_backed_off(hoarder));
-        let last = held.iter().find(|h| !h.evicted.is_cancelled()).unwrap();
-        backdate(&p, last, STALE_AFTER);
         let _more = p.admit(hoarder);
         assert!(p.is_backed_off(hoarder));
     }
