@@ -357,6 +357,17 @@ async fn serve_http(
             })
         })?
         .with_routes(metrics_route(Arc::clone(sup)))
+        // The names a request's Host may carry: [http] hosts and the gateway's name (a fleet
+        // reaches its members by it, as the compose file's Prometheus scrapes cab1:8080).
+        .with_hosts(
+            http.hosts.iter().map(String::as_str).chain([sup
+                .snapshot()
+                .config
+                .gateway
+                .name
+                .as_str()]),
+            http.tls.is_some(),
+        )
         .with_change_lock(Arc::clone(&sup.change_lock))
         .with_metrics(sup.exported.metrics.clone());
     let state = match source {

@@ -90,7 +90,10 @@ async fn client(gw: &Gateway) -> Context {
 async fn scrape(http: SocketAddr) -> String {
     let mut stream = TcpStream::connect(http).await.expect("connect to /metrics");
     stream
-        .write_all(b"GET /metrics HTTP/1.1\r\nHost: gateway\r\nConnection: close\r\n\r\n")
+        .write_all(
+            format!("GET /metrics HTTP/1.1\r\nHost: {http}\r\nConnection: close\r\n\r\n")
+                .as_bytes(),
+        )
         .await
         .expect("request /metrics");
     let mut text = String::new();

@@ -221,7 +221,10 @@ ranges = [{{ table = "input", start = 1004, count = 3 }}]
     let metrics = std::net::TcpStream::connect(http)
         .and_then(|mut s| {
             use std::io::{Read, Write};
-            s.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")?;
+            s.write_all(
+                format!("GET /metrics HTTP/1.1\r\nHost: {http}\r\nConnection: close\r\n\r\n")
+                    .as_bytes(),
+            )?;
             let mut text = String::new();
             s.read_to_string(&mut text)?;
             Ok(text)
@@ -251,8 +254,10 @@ ranges = [{{ table = "input", start = 1004, count = 3 }}]
 fn scrape(http: std::net::SocketAddr) -> String {
     use std::io::{Read, Write};
     let mut s = std::net::TcpStream::connect(http).expect("connect /metrics");
-    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
-        .expect("request");
+    s.write_all(
+        format!("GET /metrics HTTP/1.1\r\nHost: {http}\r\nConnection: close\r\n\r\n").as_bytes(),
+    )
+    .expect("request");
     let mut text = String::new();
     s.read_to_string(&mut text).expect("read");
     text

@@ -46,8 +46,10 @@ end_chars = [0x03]
 fn scrape(http: SocketAddr) -> String {
     use std::io::{Read, Write};
     let mut s = std::net::TcpStream::connect(http).expect("connect /metrics");
-    s.write_all(b"GET /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n")
-        .expect("request");
+    s.write_all(
+        format!("GET /metrics HTTP/1.1\r\nHost: {http}\r\nConnection: close\r\n\r\n").as_bytes(),
+    )
+    .expect("request");
     let mut text = String::new();
     s.read_to_string(&mut text).expect("read");
     text

@@ -28,13 +28,22 @@ pub enum HttpRejectReason {
     TlsHandshake,
     /// `accept()` failed (out of file descriptors, connection aborted, ...).
     AcceptError,
+    /// Every place was taken and the client address is backed off (its connections recently
+    /// ended without a request: evicted or timed out waiting for a head or a body), so it may
+    /// not take another client's place: closed at accept.
+    Backoff,
+    /// A change (a method other than GET, HEAD, OPTIONS) whose `Origin` is not the listener's
+    /// own origin: 403.
+    Origin,
+    /// A request whose `Host` is not one of the listener's names nor in `[http] hosts`: 403.
+    Host,
 }
 
 // === impl HttpRejectReason ===
 
 impl HttpRejectReason {
     /// Every reason, for pre-creating series.
-    pub const ALL: [Self; 9] = [
+    pub const ALL: [Self; 12] = [
         Self::Network,
         Self::ClientLimit,
         Self::ConnectionLimit,
@@ -44,6 +53,9 @@ impl HttpRejectReason {
         Self::Evicted,
         Self::TlsHandshake,
         Self::AcceptError,
+        Self::Backoff,
+        Self::Origin,
+        Self::Host,
     ];
 
     /// The `reason` label value.
@@ -58,6 +70,9 @@ impl HttpRejectReason {
             Self::Evicted => "evicted",
             Self::TlsHandshake => "tls_handshake",
             Self::AcceptError => "accept_error",
+            Self::Backoff => "backoff",
+            Self::Origin => "origin",
+            Self::Host => "host",
         }
     }
 }
@@ -69,19 +84,22 @@ pub enum ConnectionPool {
     General,
     /// The places held back for `/metrics`, `/healthz` and `/readyz`.
     Health,
+    /// The places held back for the same paths for clients of `[http] monitoring_networks`.
+    Monitoring,
 }
 
 // === impl ConnectionPool ===
 
 impl ConnectionPool {
     /// Both pools, for pre-creating series.
-    pub const ALL: [Self; 2] = [Self::General, Self::Health];
+    pub const ALL: [Self; 3] = [Self::General, Self::Health, Self::Monitoring];
 
     /// The `pool` label value.
     pub const fn as_label(self) -> &'static str {
         match self {
             Self::General => "general",
             Self::Health => "health",
+            Self::Monitoring => "monitoring",
         }
     }
 }
@@ -115,7 +133,8 @@ impl HttpMetrics {
                 Opts::new(
                     connections,
                     "HTTP connections open now, by pool (general; health: the places held back \
-                     for /metrics, /healthz and /readyz).",
+                     for /metrics, /healthz and /readyz; monitoring: those held back for the \
+                     clients of [http] monitoring_networks).",
                 ),
                 &["pool"],
             )?,

@@ -36,8 +36,9 @@
 //! timeout ([`io`]), HTTPS when configured ([`tls`]), a graceful stop. SSE follows and timed
 //! captures need a stream place as well (`max_streams`; 503 with Retry-After beyond).
 //! Layers, outermost first: a panic becomes a 500 in the error shape; any error answer some
-//! layer made without a JSON body gets one ([`error`]); the request timeout (504); the bearer
-//! token check for changes ([`auth`]); the body limit (413). The service implements
+//! layer made without a JSON body gets one ([`error`]); the request timeout (504); the `Host`
+//! and, for changes, `Origin` check ([`origin`], 403); the bearer token check for changes
+//! ([`auth`]); the body limit (413). The service implements
 //! [`ApiBackend`]; [`router`] turns it into an `axum::Router`.
 
 pub mod auth;
@@ -50,6 +51,7 @@ mod io;
 pub mod metrics;
 pub mod model;
 mod openapi;
+pub mod origin;
 pub mod page;
 pub mod places;
 mod server;
@@ -107,6 +109,10 @@ pub struct ApiState {
     metrics: Option<crate::metrics::Metrics>,
     /// Client networks accepted; empty: every client.
     allowed_networks: Vec<ipnet::IpNet>,
+    /// Networks whose clients have places held back for `/metrics`, `/healthz`, `/readyz`.
+    monitoring_networks: Vec<ipnet::IpNet>,
+    /// The names a request's `Host` may carry besides an IP address ([`origin`]).
+    host_names: Arc<origin::HostNames>,
     /// Configuration changes run one at a time.
     change_lock: Arc<tokio::sync::Mutex<()>>,
     /// Routes served beside the API on the same listener (e.g. `/metrics`), outside its
@@ -164,6 +170,8 @@ impl ApiState {
             tls: None,
             metrics: None,
             allowed_networks: Vec::new(),
+            monitoring_networks: Vec::new(),
+            host_names: Arc::default(),
             change_lock: Arc::default(),
             extra: None,
             source_text: None,
@@ -186,7 +194,9 @@ impl ApiState {
                 http.max_streams,
                 http.write_timeout,
             )
-            .with_allowed_networks(http.allowed_networks.clone());
+            .with_allowed_networks(http.allowed_networks.clone())
+            .with_monitoring_networks(http.monitoring_networks.clone())
+            .with_hosts(http.hosts.iter().map(String::as_str), http.tls.is_some());
         Ok(match store {
             Some(s) => state.with_store(s),
             None => state,
@@ -318,6 +328,24 @@ impl ApiState {
     pub fn with_allowed_networks(mut self, networks: Vec<ipnet::IpNet>) -> Self {
         self.allowed_networks = networks;
         self
+    }
+
+    /// Clients in `networks` have places held back for `/metrics`, `/healthz` and `/readyz`
+    /// that no other client can take.
+    pub fn with_monitoring_networks(mut self, networks: Vec<ipnet::IpNet>) -> Self {
+        self.monitoring_networks = networks;
+        self
+    }
+
+    /// A request's `Host` may carry `names` besides an IP address (and `localhost` on a
+    /// loopback connection); `https`: the listener speaks HTTPS ([`origin`]).
+    pub fn with_hosts<'a>(mut self, names: impl IntoIterator<Item = &'a str>, https: bool) -> Self {
+        self.host_names = Arc::new(origin::HostNames::new(names, https));
+        self
+    }
+
+    pub(crate) fn host_names(&self) -> &origin::HostNames {
+        &self.host_names
     }
 
     /// Whether a client at `peer` may connect.
@@ -478,6 +506,11 @@ pub fn router(state: ApiState) -> Router {
         .layer(middleware::from_fn_with_state(
             state.clone(),
             auth::require_auth,
+        ))
+        // Before the token is looked at: a foreign Host, or a change from a foreign Origin.
+        .layer(middleware::from_fn_with_state(
+            state.clone(),
+            origin::require_own_origin,
         ))
         .layer(middleware::from_fn_with_state(state.clone(), timeout))
         .layer(middleware::from_fn(json_errors))

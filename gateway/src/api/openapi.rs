@@ -3,8 +3,9 @@
 //! exactly the routes the router serves.
 //!
 //! A modifier adds what every operation shares and the middleware guarantees: the bearer
-//! security scheme and the 401/403 answers on every change, 413/415 on every body, and the
-//! timeout and internal-error answers everywhere, all in the one error shape.
+//! security scheme and the 401 answer on every change, 403 everywhere (a foreign `Host`; on a
+//! change also a foreign `Origin` and what the token's role lacks), 413/415 on every body, and
+//! the timeout and internal-error answers everywhere, all in the one error shape.
 
 use utoipa::openapi::path::{Operation, PathItem};
 use utoipa::openapi::response::ResponseBuilder;
@@ -122,14 +123,27 @@ fn common_answers(op: &mut Operation, changes: bool, mode: AuthMode) {
             "No token, another scheme, or a wrong token (WWW-Authenticate says which)",
         );
     }
-    if changes && mode == AuthMode::Token {
-        add(
-            "403",
-            "The token's role does not grant the right this change needs (write, send, diagnostics or config)",
+    // 403: a foreign Host on any request, a foreign Origin on a change (every mode, the
+    // insecure one too), and what the token's mode refuses.
+    let mut forbidden = vec![
+        "The Host is not a name of this listener (an IP address, localhost on loopback, the \
+         gateway's name, or one of [http] hosts)",
+    ];
+    if changes {
+        forbidden.push(
+            "the Origin is not the listener's own origin nor one of [http] hosts (a change from \
+             another site's page)",
         );
-    } else if changes && mode == AuthMode::Locked {
-        add("403", "Changes are disabled: no token is configured");
+        match mode {
+            AuthMode::Token => forbidden.push(
+                "the token's role does not grant the right this change needs (write, send, \
+                 diagnostics or config)",
+            ),
+            AuthMode::Locked => forbidden.push("changes are disabled: no token is configured"),
+            AuthMode::Insecure => {}
+        }
     }
+    add("403", &forbidden.join("; or "));
     if has_parameters {
         // A path parameter that does not parse (a sequence number that is not a number) or a
         // query parameter the operation does not know.

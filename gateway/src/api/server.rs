@@ -34,6 +34,7 @@ use tokio::net::{TcpListener, TcpStream};
 
 use super::auth::PeerAddr;
 use super::io::WriteTimeout;
+use super::origin::LocalAddr;
 use super::places::{
     is_health_path, Limits, Place, PlaceHandle, Places, Pool, HEALTH_HEAD_TIMEOUT,
 };
@@ -73,12 +74,14 @@ pub async fn serve(
         (
             http.connections(ConnectionPool::General),
             http.connections(ConnectionPool::Health),
+            http.connections(ConnectionPool::Monitoring),
         )
     });
     let places = Places::new(
         Limits {
             max_connections: state.max_connections,
             per_client: state.max_connections_per_client,
+            monitoring: state.monitoring_networks.clone(),
         },
         gauges,
     );
@@ -99,6 +102,7 @@ pub async fn serve(
             () = &mut shutdown => break,
         };
         if !gate.allows_peer(peer.ip()) {
+            refuse(&stream);
             gate.refused(
                 HttpRejectReason::Network,
                 Some(peer),
@@ -109,20 +113,25 @@ pub async fn serve(
         let admitted = match places.admit(peer.ip()) {
             Ok(admitted) => admitted,
             Err(why) => {
-                gate.refused(
-                    why,
-                    Some(peer),
-                    "no connection place left (the health places are taken too), closed",
-                );
+                let what = if why == HttpRejectReason::Backoff {
+                    "no connection place left and the client address is backed off (its \
+                     connections ended without a request), closed"
+                } else {
+                    "no connection place left (the health places are taken too), closed"
+                };
+                refuse(&stream);
+                gate.refused(why, Some(peer), what);
                 continue;
             }
         };
         for _ in 0..admitted.evicted {
             gate.count(HttpRejectReason::Evicted);
         }
+        let local = stream.local_addr().ok();
         tokio::spawn(connection(
             stream,
             peer,
+            local,
             admitted.place,
             gate.clone(),
             service.clone(),
@@ -138,41 +147,53 @@ pub async fn serve(
     Ok(())
 }
 
+/// Closes a connection refused at accept with a reset rather than a FIN: nothing was exchanged,
+/// and the listener keeps no TIME_WAIT socket for it (a client reconnecting a thousand times a
+/// second would otherwise leave tens of thousands of them).
+fn refuse(stream: &TcpStream) {
+    let _ = stream.set_zero_linger();
+}
+
 type Service = TowerToHyperService<axum::Router>;
 
 /// Serves one connection in its place: the TLS handshake first when configured.
 async fn connection(
     stream: TcpStream,
     peer: SocketAddr,
+    local: Option<SocketAddr>,
     place: Place,
     state: ApiState,
     service: Service,
     watcher: Watcher,
 ) {
-    let head_timeout = match place.pool {
-        Pool::General => state.header_read_timeout,
-        Pool::Health(_) => state.header_read_timeout.min(HEALTH_HEAD_TIMEOUT),
+    let head_timeout = match place.pool.health_only() {
+        None => state.header_read_timeout,
+        Some(_) => state.header_read_timeout.min(HEALTH_HEAD_TIMEOUT),
     };
+    let conn = Conn { peer, local };
     let io = WriteTimeout::new(stream, state.write_timeout);
     let fired = io.fired();
     let evicted = place.evicted.clone();
     let served = async {
         match state.tls.as_ref().map(super::tls::HttpTls::acceptor) {
-            None => serve_io(io, peer, &place, &state, service, watcher, head_timeout).await,
+            None => serve_io(io, conn, &place, &state, service, watcher, head_timeout).await,
             Some(acceptor) => match tokio::time::timeout(head_timeout, acceptor.accept(io)).await {
                 Ok(Ok(tls)) => {
-                    serve_io(tls, peer, &place, &state, service, watcher, head_timeout).await;
+                    serve_io(tls, conn, &place, &state, service, watcher, head_timeout).await;
                 }
                 Ok(Err(e)) => state.refused(
                     HttpRejectReason::TlsHandshake,
                     Some(peer),
                     &format!("TLS handshake failed: {e}"),
                 ),
-                Err(_) => state.refused(
-                    HttpRejectReason::TlsHandshake,
-                    Some(peer),
-                    "TLS handshake not complete within the header read timeout",
-                ),
+                Err(_) => {
+                    place.timed_out();
+                    state.refused(
+                        HttpRejectReason::TlsHandshake,
+                        Some(peer),
+                        "TLS handshake not complete within the header read timeout",
+                    );
+                }
             },
         }
     };
@@ -192,9 +213,16 @@ async fn connection(
     drop(place);
 }
 
+/// The addresses of a connection: the client's, and the listener's own address it reached.
+#[derive(Clone, Copy, Debug)]
+struct Conn {
+    peer: SocketAddr,
+    local: Option<SocketAddr>,
+}
+
 async fn serve_io<I>(
     io: I,
-    peer: SocketAddr,
+    conn: Conn,
     place: &Place,
     state: &ApiState,
     service: Service,
@@ -203,7 +231,8 @@ async fn serve_io<I>(
 ) where
     I: AsyncRead + AsyncWrite + Unpin + Send + 'static,
 {
-    let conn = http1::Builder::new()
+    let peer = conn.peer;
+    let served = http1::Builder::new()
         .timer(TokioTimer::new())
         .header_read_timeout(head_timeout)
         // A health place serves one request.
@@ -213,17 +242,21 @@ async fn serve_io<I>(
             ConnService {
                 inner: service,
                 peer: PeerAddr(peer),
+                local: conn.local.map(LocalAddr),
                 place: place.handle(),
                 state: state.clone(),
             },
         );
-    match watcher.watch(conn).await {
+    match watcher.watch(served).await {
         Ok(()) => {}
-        Err(e) if e.is_timeout() => state.refused(
-            HttpRejectReason::HeaderTimeout,
-            Some(peer),
-            "request head not complete within the header read timeout, connection closed",
-        ),
+        Err(e) if e.is_timeout() => {
+            place.timed_out();
+            state.refused(
+                HttpRejectReason::HeaderTimeout,
+                Some(peer),
+                "request head not complete within the header read timeout, connection closed",
+            );
+        }
         Err(e) => tracing::debug!(%peer, error = %e, "REST API connection ended with an error"),
     }
 }
@@ -234,6 +267,7 @@ async fn serve_io<I>(
 struct ConnService {
     inner: Service,
     peer: PeerAddr,
+    local: Option<LocalAddr>,
     place: PlaceHandle,
     state: ApiState,
 }
@@ -243,8 +277,8 @@ impl hyper::service::Service<hyper::Request<Incoming>> for ConnService {
     type Error = Infallible;
     type Future = Pin<Box<dyn Future<Output = Result<Response, Infallible>> + Send>>;
 
-    fn call(&self, mut req: hyper::Request<Incoming>) -> Self::Future {
-        if let Pool::Health(why) = self.place.pool {
+    fn call(&self, req: hyper::Request<Incoming>) -> Self::Future {
+        if let Some(why) = self.place.pool.health_only() {
             if !is_health_path(req.uri().path()) {
                 let what = match why {
                     HttpRejectReason::ClientLimit => {
@@ -262,8 +296,21 @@ impl hyper::service::Service<hyper::Request<Incoming>> for ConnService {
                 return Box::pin(async move { Ok(response) });
             }
         }
+        // A body still to come keeps the connection "waiting" (its place may be given to another
+        // connection after a while, see `places`) until it has been read or given up.
+        let with_body = !http_body::Body::is_end_stream(req.body());
+        let guard = self.place.request(with_body);
+        let body_guard = with_body.then(|| self.place.body());
+        let mut req = req.map(|body| {
+            Body::new(Tracked {
+                body,
+                guard: body_guard,
+            })
+        });
         req.extensions_mut().insert(self.peer);
-        let guard = self.place.request();
+        if let Some(local) = self.local {
+            req.extensions_mut().insert(local);
+        }
         let call = hyper::service::Service::call(&self.inner, req);
         Box::pin(async move {
             let response = call.await?;
@@ -275,6 +322,42 @@ impl hyper::service::Service<hyper::Request<Incoming>> for ConnService {
                 })
             }))
         })
+    }
+}
+
+/// A request body that marks the connection as waiting for it until it has been read whole,
+/// has failed, or is dropped.
+struct Tracked {
+    body: Incoming,
+    guard: Option<super::places::BodyGuard>,
+}
+
+impl http_body::Body for Tracked {
+    type Data = axum::body::Bytes;
+    type Error = hyper::Error;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Result<http_body::Frame<Self::Data>, Self::Error>>> {
+        let polled = Pin::new(&mut self.body).poll_frame(cx);
+        let done = match &polled {
+            std::task::Poll::Ready(None | Some(Err(_))) => true,
+            std::task::Poll::Ready(Some(Ok(_))) => self.body.is_end_stream(),
+            std::task::Poll::Pending => false,
+        };
+        if done {
+            self.guard = None;
+        }
+        polled
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.body.is_end_stream()
+    }
+
+    fn size_hint(&self) -> http_body::SizeHint {
+        self.body.size_hint()
     }
 }
 

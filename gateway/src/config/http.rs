@@ -12,6 +12,11 @@
 //! max_streams = 8                           # SSE follows and timed captures open at once
 //! write_timeout = "10s"                     # an answer the client does not read is closed
 //! header_read_timeout = "10s"               # a request head (or the next one) must arrive
+//! monitoring_networks = ["10.0.9.0/24"]     # their clients have places held back for /metrics,
+//!                                           # /healthz and /readyz that nobody else can take
+//! hosts = ["gw1.plant.local"]               # names a request's Host may carry (besides the
+//!                                           # listener's own: an IP address, localhost on
+//!                                           # loopback, the gateway's name)
 //! tag_metrics = true                        # process values on /metrics (default false)
 //! tag_metrics_filter = ["drive/**"]         # only these <line>/<device>/<tag> (default: all)
 //!
@@ -74,6 +79,10 @@ pub const HTTP_IO_TIMEOUT_RANGE: (Duration, Duration) =
     (Duration::from_millis(100), Duration::from_secs(600));
 /// Changes are refused without a token unless this is set.
 pub const DEFAULT_INSECURE: bool = false;
+/// Most entries of `hosts` and `monitoring_networks`: an operator's list, kept short.
+pub const HTTP_LIST_MAX: usize = 64;
+/// Longest name in `hosts`: a DNS name is at most 253 characters (RFC 1035 2.3.4).
+pub const HTTP_HOST_NAME_MAX: usize = 253;
 /// Process values are not on `/metrics` unless asked for: 10 000 tags are about 1.3 MB a scrape.
 pub const DEFAULT_TAG_METRICS: bool = false;
 
@@ -109,6 +118,15 @@ pub struct HttpConfig {
     pub header_read_timeout: Duration,
     /// Client networks accepted (CIDR); empty: every client. Others are closed at accept.
     pub allowed_networks: Vec<IpNet>,
+    /// Networks (CIDR) whose clients have places held back for `/metrics`, `/healthz` and
+    /// `/readyz` that no other client can take (`api::places`); empty: none held back for them.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub monitoring_networks: Vec<IpNet>,
+    /// Names a request's `Host` (and a change's `Origin`) may carry besides the listener's own
+    /// (an IP address, `localhost` on a loopback connection, the gateway's name); lower case,
+    /// without a port. Any other `Host` is refused (403), against DNS rebinding.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub hosts: Vec<String>,
     /// Export the good numeric and bool tags as `gateway_tag_value` on `/metrics`, and every
     /// tag's quality as `gateway_tag_quality` (docs/metrics.md).
     #[serde(skip_serializing_if = "is_false")]
@@ -231,6 +249,8 @@ impl Default for HttpConfig {
             write_timeout: DEFAULT_HTTP_WRITE_TIMEOUT,
             header_read_timeout: DEFAULT_HTTP_HEADER_READ_TIMEOUT,
             allowed_networks: Vec::new(),
+            monitoring_networks: Vec::new(),
+            hosts: Vec::new(),
             tag_metrics: DEFAULT_TAG_METRICS,
             tag_metrics_filter: Vec::new(),
             tokens: BTreeMap::new(),
@@ -317,6 +337,34 @@ impl HttpConfig {
                 "network (e.g. \"10.0.0.0/8\")",
             ));
         }
+        let mut monitoring_networks = Vec::new();
+        for (path, v) in f.array(cx, "monitoring_networks") {
+            monitoring_networks.extend(parsed_value::<IpNet>(
+                cx,
+                v,
+                &path,
+                "network (e.g. \"10.0.9.0/24\")",
+            ));
+        }
+        if monitoring_networks.len() > HTTP_LIST_MAX {
+            cx.issue(
+                f.at("monitoring_networks"),
+                format!("at most {HTTP_LIST_MAX} networks"),
+            );
+        }
+        let mut hosts = Vec::new();
+        for (path, v) in f.array(cx, "hosts") {
+            let Some(name) = string_value(cx, v, &path) else {
+                continue;
+            };
+            match host_name(&name) {
+                Ok(name) => hosts.push(name),
+                Err(why) => cx.issue(path, why),
+            }
+        }
+        if hosts.len() > HTTP_LIST_MAX {
+            cx.issue(f.at("hosts"), format!("at most {HTTP_LIST_MAX} names"));
+        }
         let tag_metrics = f.bool_or(cx, "tag_metrics", DEFAULT_TAG_METRICS);
         let mut tag_metrics_filter = Vec::new();
         for (path, v) in f.array(cx, "tag_metrics_filter") {
@@ -360,6 +408,8 @@ impl HttpConfig {
             write_timeout,
             header_read_timeout,
             allowed_networks,
+            monitoring_networks,
+            hosts,
             tag_metrics,
             tag_metrics_filter,
             tokens,
@@ -459,6 +509,39 @@ fn check_token_place(
     if token_file.is_some_and(|p| p.as_os_str().is_empty()) {
         cx.issue(f.at("token_file"), "empty path");
     }
+}
+
+/// A name of `[http] hosts` as it is compared: a DNS name (letters, digits, `-`, `.`, at most
+/// [`HTTP_HOST_NAME_MAX`] characters) in lower case, without a trailing dot; no port, no scheme,
+/// no wildcard.
+pub fn host_name(text: &str) -> Result<String, String> {
+    let name = text.trim_end_matches('.').to_ascii_lowercase();
+    if name.is_empty() {
+        return Err("empty name".to_owned());
+    }
+    if name.len() > HTTP_HOST_NAME_MAX {
+        return Err(format!("longer than {HTTP_HOST_NAME_MAX} characters"));
+    }
+    if name.contains(':') || name.contains('/') {
+        return Err(format!(
+            "{text:?} is not a host name: give the name alone (e.g. \"gw1.plant.local\"), without scheme or port"
+        ));
+    }
+    let valid = name.split('.').all(|label| {
+        !label.is_empty()
+            && label.len() <= 63
+            && !label.starts_with('-')
+            && !label.ends_with('-')
+            && label
+                .bytes()
+                .all(|b| b.is_ascii_alphanumeric() || b == b'-' || b == b'_')
+    });
+    if !valid {
+        return Err(format!(
+            "{text:?} is not a host name (labels of letters, digits and '-', separated by '.')"
+        ));
+    }
+    Ok(name)
 }
 
 /// A byte count of [`BODY_LIMIT_RANGE`] as the reader's integer type (the range fits in `u32`).
@@ -617,6 +700,43 @@ mod tests {
                 .all(|i| i.path.starts_with("http.tag_metrics_filter")),
             "{issues:?}"
         );
+    }
+
+    #[test]
+    fn monitoring_networks_and_hosts_are_read_checked_and_written_back() {
+        let c = read(
+            "monitoring_networks = [\"10.0.9.0/24\", \"127.0.0.1/32\"]\nhosts = [\"GW1.Plant.Local.\", \"gateway\"]",
+        )
+        .unwrap();
+        assert_eq!(c.monitoring_networks.len(), 2);
+        assert_eq!(c.hosts, ["gw1.plant.local", "gateway"]);
+        let text = toml::to_string(&c).unwrap();
+        assert_eq!(read(&text).unwrap(), c);
+        // Not written back when empty.
+        assert!(!toml::to_string(&HttpConfig::default())
+            .unwrap()
+            .contains("hosts"));
+
+        let issues = read(
+            "monitoring_networks = [\"10.0.9.0/33\"]\nhosts = [\"gw1:8080\", \"http://gw1\", \"\", \"a b\", \"*.plant\"]",
+        )
+        .unwrap_err();
+        let paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
+        assert_eq!(
+            paths,
+            [
+                "http.monitoring_networks[0]",
+                "http.hosts[0]",
+                "http.hosts[1]",
+                "http.hosts[2]",
+                "http.hosts[3]",
+                "http.hosts[4]",
+            ],
+            "{issues:?}"
+        );
+        let many: Vec<String> = (0..=HTTP_LIST_MAX).map(|n| format!("\"h{n}\"")).collect();
+        let issues = read(&format!("hosts = [{}]", many.join(","))).unwrap_err();
+        assert_eq!(issues[0].path, "http.hosts", "{issues:?}");
     }
 
     #[test]
