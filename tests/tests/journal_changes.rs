@@ -433,6 +433,7 @@ async fn a_changed_journal_path_carries_the_waiting_telegrams_and_their_numbers(
         (1..=DEPTH as u64).collect::<Vec<_>>()
     );
 
+    let put = Instant::now();
     let (status, answer) = send(
         reqwest::Method::PUT,
         &format!("{base}/config/lines/r3964"),
@@ -440,6 +441,10 @@ async fn a_changed_journal_path_carries_the_waiting_telegrams_and_their_numbers(
     )
     .await;
     assert_eq!(status, 200, "{answer:#}");
+    eprintln!(
+        "PUT of a new journal path with {DEPTH} telegrams waiting answered in {:?}",
+        put.elapsed()
+    );
     assert_eq!(
         waiting(&gw).await,
         before,

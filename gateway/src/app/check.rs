@@ -410,7 +410,11 @@ fn zenoh_issues(config: &Config) -> Vec<ConfigIssue> {
 /// The persisted CP memory, which `run` loads before the slave lines start: opened as `run`
 /// opens it ([`cpmem::probe_file`]): a directory, a file that is not a CP memory file (no
 /// header: it is never renamed or overwritten), a read-only directory or file system is an
-/// issue at `cp_memory.persist_file`. A missing file is created and removed again.
+/// issue at `cp_memory.persist_file`. A missing file is created and removed again. A missing
+/// directory is not refused, as `run` does not refuse it (the memory starts zeroed, and saves
+/// are retried until the directory exists: systemd's `StateDirectory=` makes it when the
+/// service starts); `gateway check` warns about it ([`persist_dir_warnings`]). A REST change
+/// cannot name one (`state_dirs` confines it to existing directories).
 fn cp_memory_issues(config: &Config) -> Vec<ConfigIssue> {
     let serves_memory = config
         .lines
@@ -424,9 +428,46 @@ fn cp_memory_issues(config: &Config) -> Vec<ConfigIssue> {
     else {
         return Vec::new();
     };
+    if missing_dir(path) {
+        return Vec::new();
+    }
     match cpmem::probe_file(path) {
         Ok(()) => Vec::new(),
         Err(message) => vec![issue("cp_memory.persist_file", message)],
+    }
+}
+
+/// Whether the directory of `path` does not exist (a path under a regular file is not missing:
+/// `run` cannot read it).
+fn missing_dir(path: &Path) -> bool {
+    std::fs::metadata(parent_dir(path)).is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound)
+}
+
+/// The directory a file `path` names lies in (`.` for a bare name).
+fn parent_dir(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
+/// `gateway check`'s warning about a CP memory file whose directory does not exist (yet).
+pub(crate) fn persist_dir_warnings(config: &Config) -> Vec<ConfigIssue> {
+    let serves_memory = config
+        .lines
+        .values()
+        .any(|l| l.protocol.cp_memory_slave().is_some());
+    match &config.cp_memory.persist_file {
+        Some(path) if serves_memory && missing_dir(path) => vec![issue(
+            "cp_memory.persist_file",
+            format!(
+                "the directory {} does not exist: the memory starts zeroed and every save fails \
+                 (logged) until it exists (systemd's StateDirectory= makes it when the service \
+                 starts)",
+                parent_dir(path).display()
+            ),
+        )],
+        _ => Vec::new(),
     }
 }
 
@@ -891,6 +932,7 @@ pub fn check_report(path: &Path) -> (String, i32) {
     warnings.extend(ignored_keys_of(path));
     warnings.extend(unpolled_tags(&config));
     warnings.extend(ack_warnings(&config));
+    warnings.extend(persist_dir_warnings(&config));
     errors.extend(port_errors);
     let code = i32::from(!errors.is_empty());
     let mut text = if errors.is_empty() {
@@ -1498,16 +1540,18 @@ mod state_file_tests {
         )
     }
 
-    /// Whether `run` can use a CP memory file of this kind.
-    fn memory_usable(kind: Kind) -> bool {
+    /// Whether `run` can use a CP memory file of this kind (in a missing directory: it starts
+    /// zeroed and saves once the directory exists, so only `check` warns; a REST change cannot
+    /// name one, being confined to existing directories).
+    fn memory_usable(kind: Kind, api: bool) -> bool {
         matches!(
             kind,
             Kind::New | Kind::Empty | Kind::CpMemory | Kind::InForce
-        )
+        ) || (matches!(kind, Kind::MissingParent) && !api)
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(64))]
+        #![proptest_config(ProptestConfig::with_cases(256))]
 
         #[test]
         fn what_the_start_check_accepts_opens_and_the_check_changes_no_file(
@@ -1549,7 +1593,7 @@ mod state_file_tests {
             for (key, kind, usable) in [
                 ("lines.a.journal", a, journal_usable(a)),
                 ("lines.b.journal", b, journal_usable(b)),
-                ("cp_memory.persist_file", persist, memory_usable(persist)),
+                ("cp_memory.persist_file", persist, memory_usable(persist, api)),
             ] {
                 prop_assert_eq!(at(key), !usable, "{} {:?}: {:#?}", key, kind, issues);
             }
@@ -1566,7 +1610,7 @@ mod state_file_tests {
             if journal_usable(b) {
                 prop_assert!(crate::mailbox::journal::Journal::open(&pb).is_ok());
             }
-            if memory_usable(persist) {
+            if memory_usable(persist, api) {
                 let layout = proto_core::cpmem::MemoryLayout::default();
                 prop_assert!(cpmem::SharedCpMemory::open(layout, &pp).is_ok());
             }
