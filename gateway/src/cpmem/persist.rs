@@ -340,7 +340,7 @@ pub fn probe(path: &Path) -> Result<(), String> {
         Err(e) if e.kind() == io::ErrorKind::NotFound => {
             create_and_remove(path).map_err(|e| format!("cannot create {shown}: {e}"))
         }
-        Err(e) => Err(format!("cannot open {shown}: {e}")),
+        Err(e) => Err(format!("cannot read {shown}: {e}")),
     }
 }
 
