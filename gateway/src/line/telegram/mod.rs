@@ -436,14 +436,17 @@ fn open_mailbox(settings: &TelegramLineSettings) -> Result<OpenedMailbox, Journa
         .journal
         .as_deref()
         .map_or_else(|| "memory".to_owned(), |p| p.display().to_string());
-    tracing::info!(
-        line = %settings.name,
-        waiting,
-        last_seq,
-        from = %from,
-        to = %to,
-        "waiting telegrams carried over with their numbers (the line's journal changed)"
-    );
+    // A line without a journal before and after, with nothing waiting, has nothing to say.
+    if waiting > 0 || carried.journal.is_some() || settings.journal.is_some() {
+        tracing::info!(
+            line = %settings.name,
+            waiting,
+            last_seq,
+            from = %from,
+            to = %to,
+            "waiting telegrams carried over to the restarted line with their numbers"
+        );
+    }
     if let Some(old) = &carried.journal {
         if let Err(e) = crate::mailbox::journal::clear(old, last_seq, last_acked) {
             tracing::error!(line = %settings.name, error = %e, "the old journal was not emptied: its telegrams wait in the new one too; do not name it again before removing it");
