@@ -179,9 +179,15 @@ impl Gateway {
 
     /// [`Self::try_start`] with `RUST_LOG=filter`.
     pub fn try_start_logging(args: &[&str], filter: &str) -> Result<Self, String> {
-        let mut child = Command::new(gateway_bin())
-            .args(args)
-            .env("RUST_LOG", filter)
+        let mut command = Command::new(gateway_bin());
+        command.args(args).env("RUST_LOG", filter);
+        Self::try_start_command(command)
+    }
+
+    /// [`Self::try_start`] with the gateway started by `command` (the binary and its arguments,
+    /// or a program that ends in `exec` of it in the same process, such as `unshare`).
+    pub fn try_start_command(mut command: Command) -> Result<Self, String> {
+        let mut child = command
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(Stdio::piped())

@@ -111,6 +111,7 @@ pub fn start_issues(config: &Config, door: Door<'_>) -> Vec<ConfigIssue> {
     if !refused("cp_memory.persist_file") {
         issues.extend(cp_memory_issues(config));
     }
+    issues.extend(journal_issues(config, &refused));
     if !TLS_KEYS.iter().any(|k| refused(k)) {
         issues.extend(tls_issues(config));
     }
@@ -406,8 +407,14 @@ fn zenoh_issues(config: &Config) -> Vec<ConfigIssue> {
     }
 }
 
-/// The persisted CP memory, which `run` loads before the slave lines start: a file that exists
-/// but cannot be read stops it (a missing file starts zeroed, a damaged one is moved aside).
+/// The persisted CP memory, which `run` loads before the slave lines start: opened as `run`
+/// opens it ([`cpmem::probe_file`]): a directory, a file that is not a CP memory file (no
+/// header: it is never renamed or overwritten), a read-only directory or file system is an
+/// issue at `cp_memory.persist_file`. A missing file is created and removed again. A missing
+/// directory is not refused, as `run` does not refuse it (the memory starts zeroed, and saves
+/// are retried until the directory exists: systemd's `StateDirectory=` makes it when the
+/// service starts); `gateway check` warns about it ([`persist_dir_warnings`]). A REST change
+/// cannot name one (`state_dirs` confines it to existing directories).
 fn cp_memory_issues(config: &Config) -> Vec<ConfigIssue> {
     let serves_memory = config
         .lines
@@ -421,13 +428,102 @@ fn cp_memory_issues(config: &Config) -> Vec<ConfigIssue> {
     else {
         return Vec::new();
     };
-    match std::fs::File::open(path) {
-        Err(e) if e.kind() != std::io::ErrorKind::NotFound => vec![ConfigIssue {
-            path: "cp_memory.persist_file".to_owned(),
-            message: format!("cannot read {}: {e}", path.display()),
-        }],
+    if missing_dir(path) {
+        return Vec::new();
+    }
+    match cpmem::probe_file(path) {
+        Ok(()) => Vec::new(),
+        Err(message) => vec![issue("cp_memory.persist_file", message)],
+    }
+}
+
+/// Whether the directory of `path` does not exist (a path under a regular file is not missing:
+/// `run` cannot read it).
+fn missing_dir(path: &Path) -> bool {
+    std::fs::metadata(parent_dir(path)).is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound)
+}
+
+/// The directory a file `path` names lies in (`.` for a bare name).
+fn parent_dir(path: &Path) -> &Path {
+    match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    }
+}
+
+/// `gateway check`'s warning about a CP memory file whose directory does not exist (yet).
+pub(crate) fn persist_dir_warnings(config: &Config) -> Vec<ConfigIssue> {
+    let serves_memory = config
+        .lines
+        .values()
+        .any(|l| l.protocol.cp_memory_slave().is_some());
+    match &config.cp_memory.persist_file {
+        Some(path) if serves_memory && missing_dir(path) => vec![issue(
+            "cp_memory.persist_file",
+            format!(
+                "the directory {} does not exist: the memory starts zeroed and every save fails \
+                 (logged) until it exists (systemd's StateDirectory= makes it when the service \
+                 starts)",
+                parent_dir(path).display()
+            ),
+        )],
         _ => Vec::new(),
     }
+}
+
+/// The journals of the telegram lines, each opened as its line opens it at start
+/// ([`crate::mailbox::journal::probe`]): a directory, a file that is not a journal (no header:
+/// never renamed or overwritten), a read-only directory or file system, a missing directory is
+/// an issue at `lines.<line>.journal`; so is a journal that another line or the CP memory file
+/// names too (resolved: links and `..` followed). A journal whose key `refused` names (outside
+/// `state_dirs` in a REST change) is not opened.
+fn journal_issues(config: &Config, refused: &dyn Fn(&str) -> bool) -> Vec<ConfigIssue> {
+    let mut issues = Vec::new();
+    let mut seen: Vec<(String, std::path::PathBuf)> = Vec::new();
+    if let Some(persist) = &config.cp_memory.persist_file {
+        seen.push(("cp_memory.persist_file".to_owned(), resolved(persist)));
+    }
+    for (name, line) in &config.lines {
+        let Some(path) = line.journal() else {
+            continue;
+        };
+        let key = format!("lines.{name}.journal");
+        if refused(&key) {
+            continue;
+        }
+        let here = resolved(path);
+        if let Some((other, _)) = seen.iter().find(|(_, p)| *p == here) {
+            issues.push(issue(
+                &key,
+                format!(
+                    "{} is the file {other} names too: every line needs its own journal, apart \
+                     from the CP memory file",
+                    path.display()
+                ),
+            ));
+            continue;
+        }
+        seen.push((key.clone(), here));
+        if let Err(message) = crate::mailbox::journal::probe(path) {
+            issues.push(issue(&key, message));
+        }
+    }
+    issues
+}
+
+/// `path` resolved as [`inside`] resolves it (links and `..` followed; a file that does not
+/// exist by its directory), or as given when its directory does not exist either.
+pub(crate) fn resolved(path: &Path) -> std::path::PathBuf {
+    std::fs::canonicalize(path)
+        .or_else(|_| {
+            let name = path.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
+            let parent = match path.parent() {
+                Some(p) if !p.as_os_str().is_empty() => p,
+                _ => Path::new("."),
+            };
+            std::fs::canonicalize(parent).map(|dir| dir.join(name))
+        })
+        .unwrap_or_else(|_| path.to_owned())
 }
 
 /// The token of `[http]` as run reads it, with `env` for the process environment: the first
@@ -897,6 +993,7 @@ pub fn check_report(path: &Path) -> (String, i32) {
     warnings.extend(ignored_keys_of(path));
     warnings.extend(unpolled_tags(&config));
     warnings.extend(ack_warnings(&config));
+    warnings.extend(persist_dir_warnings(&config));
     errors.extend(port_errors);
     let code = i32::from(!errors.is_empty());
     let mut text = if errors.is_empty() {
@@ -1417,5 +1514,248 @@ mod api_path_tests {
         let issues = all_token_issues(&http, |_| Some("same-token-0123456789".into()), &|_| false);
         assert_eq!(issues.len(), 1, "{issues:#?}");
         assert_eq!(issues[0].path, "http.tokens");
+    }
+}
+
+#[cfg(test)]
+mod state_file_tests {
+    //! The start check of journal and CP memory files against what `run` does with them: a
+    //! config the check accepts opens at start, the check itself changes no file, and what it
+    //! refuses is refused at the file's key.
+
+    use super::*;
+    use proptest::prelude::*;
+    use std::collections::BTreeMap;
+    use std::path::PathBuf;
+
+    /// What a configured path names.
+    #[derive(Clone, Copy, Debug)]
+    enum Kind {
+        /// A new file in the state directory.
+        New,
+        /// An empty file (a journal or memory file not written yet).
+        Empty,
+        /// The state directory itself.
+        Directory,
+        /// A file in a directory that does not exist.
+        MissingParent,
+        /// A path under a regular file (ENOTDIR).
+        UnderAFile,
+        /// A directory that takes no new file (sysfs as root: EACCES; /proc: ENOENT). Tests may
+        /// run as root, which a read-only permission does not stop.
+        NoNewFiles,
+        /// Another program's file.
+        Foreign,
+        /// A CP memory file.
+        CpMemory,
+        /// A journal with two telegrams waiting.
+        Journal,
+        /// The path in force (a journal the running line holds).
+        InForce,
+    }
+
+    fn kind() -> impl Strategy<Value = Kind> {
+        prop_oneof![
+            Just(Kind::New),
+            Just(Kind::Empty),
+            Just(Kind::Directory),
+            Just(Kind::MissingParent),
+            Just(Kind::UnderAFile),
+            Just(Kind::NoNewFiles),
+            Just(Kind::Foreign),
+            Just(Kind::CpMemory),
+            Just(Kind::Journal),
+            Just(Kind::InForce),
+        ]
+    }
+
+    fn journal_bytes() -> Vec<u8> {
+        use crate::mailbox::journal::{JournaledTelegram, Record, MAGIC};
+        let mut bytes = MAGIC.to_vec();
+        for seq in [7, 8] {
+            Record::Telegram(JournaledTelegram {
+                seq,
+                received: std::time::UNIX_EPOCH,
+                data: b"3964R 000007".to_vec(),
+            })
+            .encode(&mut bytes);
+        }
+        bytes
+    }
+
+    /// Makes what `kind` names for the file `name` in `state` and returns its path.
+    fn make(state: &Path, name: &str, kind: Kind, no_new_files: &Path) -> PathBuf {
+        let path = state.join(name);
+        let write = |bytes: &[u8]| std::fs::write(&path, bytes).expect("write");
+        match kind {
+            Kind::New => {}
+            Kind::Empty => write(b""),
+            Kind::Directory => {
+                std::fs::create_dir(&path).expect("mkdir");
+            }
+            Kind::MissingParent => return state.join("missing").join(name),
+            Kind::UnderAFile => {
+                write(b"a plain file");
+                return path.join(name);
+            }
+            Kind::NoNewFiles => return no_new_files.join(format!("gateway-check-{name}")),
+            Kind::Foreign => write(b"[gateway]\nname = \"x\"\n"),
+            Kind::CpMemory => {
+                let layout = proto_core::cpmem::MemoryLayout::default();
+                let memory = proto_core::cpmem::CpMemory::new(&layout);
+                write(&cpmem::persist::encode(&layout, &memory));
+            }
+            Kind::InForce if name.ends_with(".bin") => {
+                return make(state, name, Kind::CpMemory, no_new_files);
+            }
+            Kind::Journal | Kind::InForce => write(&journal_bytes()),
+        }
+        path
+    }
+
+    /// Every file under `dir` with its bytes (a directory as its name only).
+    fn tree(dir: &Path) -> BTreeMap<PathBuf, Option<Vec<u8>>> {
+        let mut out = BTreeMap::new();
+        let mut todo = vec![dir.to_owned()];
+        while let Some(d) = todo.pop() {
+            for entry in std::fs::read_dir(&d).expect("list") {
+                let path = entry.expect("entry").path();
+                if path.is_dir() {
+                    out.insert(path.clone(), None);
+                    todo.push(path);
+                } else {
+                    out.insert(path.clone(), Some(std::fs::read(&path).expect("read")));
+                }
+            }
+        }
+        out
+    }
+
+    fn config(state: &Path, a: &Path, b: &Path, persist: &Path) -> Config {
+        config::parse(&format!(
+            "[gateway]\nstate_dirs = [\"{state}\"]\n\
+             [cp_memory]\npersist_file = \"{persist}\"\n\
+             [lines.a]\nport = \"/dev/null\"\nprotocol = \"3964r\"\njournal = \"{a}\"\n\
+             [lines.b]\nport = \"/dev/zero\"\nprotocol = \"ascii\"\njournal = \"{b}\"\n\
+             [lines.s]\nport = \"/dev/full\"\nprotocol = \"modbus-slave-rtu\"\n",
+            state = state.display(),
+            a = a.display(),
+            b = b.display(),
+            persist = persist.display(),
+        ))
+        .expect("parses")
+    }
+
+    /// Whether `run` can use a journal of this kind.
+    fn journal_usable(kind: Kind) -> bool {
+        matches!(
+            kind,
+            Kind::New | Kind::Empty | Kind::Journal | Kind::InForce
+        )
+    }
+
+    /// Whether `run` can use a CP memory file of this kind (in a missing directory: it starts
+    /// zeroed and saves once the directory exists, so only `check` warns; a REST change cannot
+    /// name one, being confined to existing directories).
+    fn memory_usable(kind: Kind, api: bool) -> bool {
+        matches!(
+            kind,
+            Kind::New | Kind::Empty | Kind::CpMemory | Kind::InForce
+        ) || (matches!(kind, Kind::MissingParent) && !api)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+
+        #[test]
+        fn what_the_start_check_accepts_opens_and_the_check_changes_no_file(
+            a in kind(), b in kind(), persist in kind(), api in any::<bool>(),
+        ) {
+            let dir = tempfile::tempdir().expect("dir");
+            let state = dir.path().join("state");
+            std::fs::create_dir(&state).expect("mkdir");
+            // As root, sysfs refuses new files; otherwise /proc, which never takes one.
+            let no_new_files = if std::fs::File::create("/sys/gateway-check-probe").is_err() {
+                PathBuf::from("/sys")
+            } else {
+                let _ = std::fs::remove_file("/sys/gateway-check-probe");
+                PathBuf::from("/proc")
+            };
+            let pa = make(&state, "a.journal", a, &no_new_files);
+            let pb = make(&state, "b.journal", b, &no_new_files);
+            let pp = make(&state, "cp-memory.bin", persist, &no_new_files);
+            let new = config(&state, &pa, &pb, &pp);
+            let in_force = |k: Kind, p: &Path, other: &str| {
+                if matches!(k, Kind::InForce) { p.to_owned() } else { state.join(other) }
+            };
+            let old = config(
+                &state,
+                &in_force(a, &pa, "a-old.journal"),
+                &in_force(b, &pb, "b-old.journal"),
+                &in_force(persist, &pp, "cp-old.bin"),
+            );
+            let before = tree(dir.path());
+            let issues = if api {
+                start_issues(&new, Door::Api { in_force: &old })
+            } else {
+                start_issues(&new, Door::File)
+            };
+            // The check changes nothing, accepted or refused.
+            prop_assert_eq!(&tree(dir.path()), &before);
+            let at = |key: &str| issues.iter().any(|i| i.path == key);
+            // Outside state_dirs (sysfs, /proc) a REST change is refused by the confinement.
+            for (key, kind, usable) in [
+                ("lines.a.journal", a, journal_usable(a)),
+                ("lines.b.journal", b, journal_usable(b)),
+                ("cp_memory.persist_file", persist, memory_usable(persist, api)),
+            ] {
+                prop_assert_eq!(at(key), !usable, "{} {:?}: {:#?}", key, kind, issues);
+            }
+            prop_assert_eq!(
+                issues.iter().filter(|i| !i.path.ends_with(".journal")
+                    && i.path != "cp_memory.persist_file").count(),
+                0,
+                "{:#?}", issues
+            );
+            // What the check accepts, run opens.
+            if journal_usable(a) {
+                prop_assert!(crate::mailbox::journal::Journal::open(&pa).is_ok());
+            }
+            if journal_usable(b) {
+                prop_assert!(crate::mailbox::journal::Journal::open(&pb).is_ok());
+            }
+            if memory_usable(persist, api) {
+                let layout = proto_core::cpmem::MemoryLayout::default();
+                prop_assert!(cpmem::SharedCpMemory::open(layout, &pp).is_ok());
+            }
+        }
+    }
+
+    #[test]
+    fn two_lines_naming_one_journal_or_the_memory_file_are_refused() {
+        let dir = tempfile::tempdir().expect("dir");
+        let state = dir.path();
+        let one = state.join("one.journal");
+        std::fs::write(&one, b"").expect("write");
+        let link = state.join("link.journal");
+        std::os::unix::fs::symlink(&one, &link).expect("symlink");
+        let c = config(state, &one, &link, &state.join("cp.bin"));
+        let issues = start_issues(&c, Door::File);
+        assert_eq!(issues.len(), 1, "{issues:#?}");
+        assert_eq!(issues[0].path, "lines.b.journal");
+        assert!(
+            issues[0].message.contains("lines.a.journal"),
+            "{}",
+            issues[0].message
+        );
+        let c = config(state, &one, &state.join("two.journal"), &one);
+        let issues = start_issues(&c, Door::File);
+        assert_eq!(issues.len(), 1, "{issues:#?}");
+        assert_eq!(issues[0].path, "lines.a.journal");
+        assert!(
+            issues[0].message.contains("cp_memory.persist_file"),
+            "{}",
+            issues[0].message
+        );
     }
 }

@@ -81,11 +81,13 @@ fn protocol(config: &ProtocolConfig) -> &dyn StartLine {
     }
 }
 
-/// Starts line `name` of `deps.config` under its own token.
+/// Starts line `name` of `deps.config` under its own token; `carried` is what the line it
+/// replaces left (its waiting telegrams, when both are telegram lines).
 pub(crate) fn start_line(
     name: &str,
     line: &LineConfig,
     deps: &LineDeps<'_>,
+    carried: Option<crate::mailbox::Carried>,
 ) -> Result<RunningLine, AppError> {
     let token = deps.parent.child_token();
     let start = StartDeps {
@@ -94,6 +96,7 @@ pub(crate) fn start_line(
         metrics: deps.metrics,
         cp_memory: deps.cp_memory,
         token: token.clone(),
+        carried,
     };
     let handle = protocol(&line.protocol)
         .start(name, line, &start)

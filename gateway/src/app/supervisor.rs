@@ -160,7 +160,7 @@ impl Supervisor {
                 mirrored: &mirrored,
             };
             for (name, line) in &config.lines {
-                match lines::start_line(name, line, &deps) {
+                match lines::start_line(name, line, &deps, None) {
                     Ok(running) => {
                         lines.insert(name.clone(), running);
                     }
@@ -337,6 +337,7 @@ impl Supervisor {
                 ));
             }
         }
+        issues.extend(changed_journal_issues(new, &old.config));
         let layout = slave_layout(new);
         let (current, persisted) = {
             let cp = lock(&self.cp);
@@ -373,12 +374,19 @@ impl Supervisor {
         report.devices_restarted.clear();
         report.lines_restarted = restart.iter().cloned().collect();
 
-        // Stop the removed and the changed lines; their ports close before they reopen.
+        // Stop the removed and the changed lines; their ports close before they reopen. A
+        // restarted telegram line hands its waiting telegrams (confirmed to the partner) and
+        // numbers to the line that replaces it.
         let mut lines = old.lines.clone();
+        let mut carried: BTreeMap<String, crate::mailbox::Carried> = BTreeMap::new();
         for name in diff.lines_removed.iter().chain(&restart) {
             let Some(line) = lines.remove(name) else {
                 continue;
             };
+            let mailbox = line
+                .handle
+                .mailbox()
+                .filter(|_| new.lines.contains_key(name));
             {
                 let key = (name.clone(), line.port.clone());
                 let mut opened = lock(&self.opened_before);
@@ -389,6 +397,9 @@ impl Supervisor {
                 }
             }
             stop_line(name, line).await;
+            if let Some(mailbox) = mailbox {
+                carried.insert(name.clone(), mailbox.carry());
+            }
             let kept: BTreeSet<&String> = new
                 .lines
                 .get(name)
@@ -427,7 +438,7 @@ impl Supervisor {
                 let Some(line) = new.lines.get(name) else {
                     continue;
                 };
-                match lines::start_line(name, line, &deps) {
+                match lines::start_line(name, line, &deps, carried.remove(name)) {
                     Ok(running) => {
                         info!(line = %name, port = %running.port, "line started");
                         lines.insert(name.clone(), running);
@@ -663,6 +674,54 @@ fn unit_map(
         }
     }
     map
+}
+
+/// What a running gateway refuses of a line's changed `journal` path (REST changes and SIGHUP
+/// re-reads): the line's waiting telegrams are carried into the new journal, so it must not be
+/// the journal of another line in force (two numberings would mix) and must hold no telegrams
+/// of an earlier use. A line the change adds restores its journal as a start does.
+fn changed_journal_issues(new: &Config, in_force: &Config) -> Vec<ConfigIssue> {
+    use super::check::resolved;
+    let mut issues = Vec::new();
+    for (name, line) in &new.lines {
+        let (Some(path), Some(before)) = (line.journal(), in_force.lines.get(name)) else {
+            continue;
+        };
+        let here = resolved(path);
+        if before.journal().is_some_and(|b| resolved(b) == here) {
+            continue;
+        }
+        let key = format!("lines.{name}.journal");
+        let other = in_force
+            .lines
+            .iter()
+            .find(|(n, l)| *n != name && l.journal().is_some_and(|j| resolved(j) == here));
+        if let Some((other, _)) = other {
+            issues.push(issue(
+                &key,
+                format!(
+                    "{} is the journal of line {other} in force: a change does not move a \
+                     journal from one line to another (their sequence numbers would mix)",
+                    path.display()
+                ),
+            ));
+        } else if let Ok(probe) = crate::mailbox::journal::probe(path) {
+            if probe.waiting > 0 {
+                issues.push(issue(
+                    &key,
+                    format!(
+                        "{} holds {} telegrams of an earlier use (numbers up to {}): the line's \
+                         waiting telegrams are carried into its new journal, which must hold \
+                         none; name another file, or move this one away on the host",
+                        path.display(),
+                        probe.waiting,
+                        probe.last_seq
+                    ),
+                ));
+            }
+        }
+    }
+    issues
 }
 
 fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {

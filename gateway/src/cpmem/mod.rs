@@ -35,7 +35,8 @@ use crate::image::ProcessImage;
 
 pub use mirror::Mirror;
 pub use persist::{
-    spawn_persistence, LoadReport, LoadStatus, PersistError, PersistSettings, DEFAULT_SAVE_INTERVAL,
+    probe as probe_file, spawn_persistence, LoadReport, LoadStatus, PersistError, PersistSettings,
+    DEFAULT_SAVE_INTERVAL,
 };
 pub use unit::CpMemoryUnit;
 

@@ -12,9 +12,13 @@
 //! ```
 //!
 //! A file made with other sizes loads as far as it fits: what the file has beyond an area's size is
-//! dropped, what it lacks stays zero, and the [`LoadReport`] says which areas differed. A file that
-//! does not decode is renamed to `<file>.corrupt` and the memory starts zeroed, with an error in
-//! the log: the file is never overwritten before someone could look at it.
+//! dropped, what it lacks stays zero, and the [`LoadReport`] says which areas differed. A memory
+//! file that does not decode (it starts with the header but is damaged) is renamed to
+//! `<file>.corrupt` and the memory starts zeroed, with an error in the log: the file is never
+//! overwritten before someone could look at it. A file that does not start with the header is
+//! not a memory file (a journal, another program's file): it is refused ([`probe`] at every
+//! door, [`SharedCpMemory::open`] at start) and left as it is, never renamed or overwritten. An
+//! empty file is no memory yet.
 
 use std::io::{self, Write as _};
 use std::path::{Path, PathBuf};
@@ -30,6 +34,8 @@ use super::SharedCpMemory;
 
 /// The first 8 bytes of a memory file.
 const MAGIC: &[u8; 8] = b"GWCPMEM1";
+/// What [`probe`] reads of an existing file before it decides: the header only.
+const HEADER_LEN: u64 = MAGIC.len() as u64;
 /// How often a changed memory is saved by default.
 pub const DEFAULT_SAVE_INTERVAL: Duration = Duration::from_secs(10);
 
@@ -74,6 +80,9 @@ pub enum PersistError {
     /// The file is not a memory file or is damaged.
     #[error("memory file is damaged: {0}")]
     Corrupt(String),
+    /// The file is not a memory file at all (no header): it is left as it is.
+    #[error("{0}")]
+    Foreign(String),
 }
 
 impl From<CodecError> for PersistError {
@@ -272,14 +281,94 @@ pub fn save_atomic(path: &Path, bytes: &[u8]) -> Result<(), PersistError> {
         .map_err(io_err)
 }
 
+/// Why `path`, which is not a regular file, cannot be the memory file.
+fn not_a_file(path: &Path, meta: &std::fs::Metadata) -> String {
+    let kind = if meta.is_dir() {
+        "a directory"
+    } else {
+        "not a regular file (a device, pipe or socket)"
+    };
+    format!("{} is {kind}, not a CP memory file", path.display())
+}
+
+/// Why a file without the header is refused.
+fn foreign(path: &Path) -> String {
+    format!(
+        "{} is not a CP memory file: it does not start with the header GWCPMEM1 (a file the \
+         gateway did not write); the gateway neither renames nor overwrites it: name another file",
+        path.display()
+    )
+}
+
+/// The start check of the memory file (`gateway check`, `run`, a SIGHUP re-read and every REST
+/// change), changing nothing: an existing file must be a regular file that can be read and
+/// starts with the header (only the header is read) or is empty; its directory must take a new
+/// file, since a save writes `<path>.tmp` and renames it (the check creates and removes
+/// `<path>.probe-<pid>`); a missing file is created (`O_CREAT | O_EXCL`) and removed again.
+///
+/// # Errors
+///
+/// Why the path cannot be the memory file, naming it.
+pub fn probe(path: &Path) -> Result<(), String> {
+    use std::io::Read as _;
+    let shown = path.display();
+    let create_and_remove = |p: &Path| {
+        drop(
+            std::fs::OpenOptions::new()
+                .write(true)
+                .create_new(true)
+                .open(p)?,
+        );
+        std::fs::remove_file(p)
+    };
+    match std::fs::metadata(path) {
+        Ok(meta) if !meta.is_file() => Err(not_a_file(path, &meta)),
+        Ok(_) => {
+            let mut head = Vec::new();
+            std::fs::File::open(path)
+                .and_then(|f| f.take(HEADER_LEN).read_to_end(&mut head))
+                .map_err(|e| format!("cannot read {shown}: {e}"))?;
+            if !head.is_empty() && head != MAGIC {
+                return Err(foreign(path));
+            }
+            let mut probe_name = path.as_os_str().to_owned();
+            probe_name.push(format!(".probe-{}", std::process::id()));
+            create_and_remove(Path::new(&probe_name)).map_err(|e| {
+                format!("the directory of {shown} takes no new file (a save writes one): {e}")
+            })
+        }
+        Err(e) if e.kind() == io::ErrorKind::NotFound => {
+            create_and_remove(path).map_err(|e| format!("cannot create {shown}: {e}"))
+        }
+        Err(e) => Err(format!("cannot read {shown}: {e}")),
+    }
+}
+
 // === impl SharedCpMemory (persistence) ===
 
 impl SharedCpMemory {
-    /// The memory of `layout`, loaded from `path` if the file exists. A damaged file is moved to
-    /// `<path>.corrupt` and the memory starts zeroed; only an I/O error (other than a missing
-    /// file) is an error.
+    /// The memory of `layout`, loaded from `path` if the file exists. A damaged memory file is
+    /// moved to `<path>.corrupt` and the memory starts zeroed; an empty file is no memory yet.
+    /// A file without the header is refused and left as it is ([`PersistError::Foreign`]), as
+    /// is a path that is not a regular file; an I/O error (other than a missing file) is an
+    /// error.
     pub fn open(layout: MemoryLayout, path: &Path) -> Result<(Self, LoadReport), PersistError> {
+        if let Ok(meta) = std::fs::metadata(path) {
+            if !meta.is_file() {
+                return Err(PersistError::Foreign(not_a_file(path, &meta)));
+            }
+        }
         let bytes = match std::fs::read(path) {
+            Ok(bytes) if !bytes.is_empty() && !bytes.starts_with(MAGIC) => {
+                return Err(PersistError::Foreign(foreign(path)));
+            }
+            Ok(bytes) if bytes.is_empty() => {
+                let report = LoadReport {
+                    status: LoadStatus::NoFile,
+                    differences: Vec::new(),
+                };
+                return Ok((Self::new(layout), report));
+            }
             Ok(bytes) => bytes,
             Err(err) if err.kind() == io::ErrorKind::NotFound => {
                 let report = LoadReport {
@@ -424,6 +513,44 @@ mod tests {
             decode(&layout, &body),
             Err(PersistError::Corrupt(_))
         ));
+    }
+
+    #[test]
+    fn a_file_without_the_header_is_refused_and_left_as_it_is() {
+        let dir = tempfile::tempdir().expect("dir");
+        let layout = MemoryLayout::default();
+        let journal = dir.path().join("r3964.journal");
+        std::fs::write(&journal, b"GWMBXJ01\x04\x00\x00\x00").expect("write");
+        let why = probe(&journal).expect_err("a journal");
+        assert!(why.contains("not a CP memory file"), "{why}");
+        assert!(matches!(
+            SharedCpMemory::open(layout.clone(), &journal),
+            Err(PersistError::Foreign(_))
+        ));
+        assert_eq!(
+            std::fs::read(&journal).expect("kept"),
+            b"GWMBXJ01\x04\x00\x00\x00"
+        );
+        let why = probe(dir.path()).expect_err("a directory");
+        assert!(why.contains("is a directory"), "{why}");
+        // Empty: no memory yet; a new path: creatable, nothing left behind.
+        let empty = dir.path().join("empty.bin");
+        std::fs::write(&empty, b"").expect("write");
+        assert_eq!(probe(&empty), Ok(()));
+        let (_, report) = SharedCpMemory::open(layout.clone(), &empty).expect("opens");
+        assert_eq!(report.status, LoadStatus::NoFile);
+        assert_eq!(probe(&dir.path().join("new.bin")), Ok(()));
+        // A memory file: accepted, and a damaged one is still ours (moved to .corrupt at start).
+        let (_, memory) = filled();
+        let good = dir.path().join("cp.bin");
+        std::fs::write(&good, encode(&layout, &memory)).expect("write");
+        assert_eq!(probe(&good), Ok(()));
+        let mut names: Vec<String> = std::fs::read_dir(dir.path())
+            .expect("list")
+            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["cp.bin", "empty.bin", "r3964.journal"]);
     }
 
     #[test]

@@ -32,6 +32,9 @@ pub(crate) struct StartDeps<'a> {
     pub(crate) cp_memory: Option<&'a SharedCpMemory>,
     /// The line's own token: cancelling it stops the line.
     pub(crate) token: CancellationToken,
+    /// What the line this one replaces left (a configuration change restarted it): a telegram
+    /// line takes over its waiting telegrams and numbers.
+    pub(crate) carried: Option<crate::mailbox::Carried>,
 }
 
 /// Why a line did not start: the message names the line.

@@ -17,6 +17,13 @@
 //!          3 state      last_seq: u16 LE | last_acked: u16 LE
 //! ```
 //!
+//! The header marks the file as a journal and names its format version: a file that does not
+//! start with it (another program's file, the CP memory file, a directory) is refused with an
+//! error at start and by the start check ([`probe`]), never renamed, truncated or written. Every
+//! journal the gateway has written starts with `GWMBXJ01` (the header came with the first
+//! version of the format), so there is no older layout to recognise. An empty file, or one cut
+//! short inside the header (a crash while the journal was being created), is a new journal.
+//!
 //! Replaying the records in order gives the waiting telegrams (oldest first), the last sequence
 //! number given and the last one acknowledged. Reading stops at the first record that is cut
 //! short or whose checksum does not match: that record and everything after it are reported as
@@ -331,19 +338,24 @@ pub struct Journal {
 
 impl Journal {
     /// Opens (or creates) the journal at `path` and replays it. An unreadable tail is cut off
-    /// (reported in [`Replayed::loss`]); a file that is not a journal at all is kept beside it
-    /// as `<name>.bad` and a new journal begins.
+    /// (reported in [`Replayed::loss`]); a file that is not a journal (no header, another
+    /// format version, not a regular file) is refused and left as it is.
     ///
     /// # Errors
     ///
-    /// The file cannot be read, created or written.
+    /// The file is not a journal, or cannot be read, created or written.
     pub fn open(path: &Path) -> Result<(Self, Replayed), JournalError> {
         let err = |step| {
             let path = path.to_owned();
             move |source| JournalError { path, step, source }
         };
-        // A compaction that a crash interrupted leaves its temporary file: never read.
-        let _ = fs::remove_file(temp_path(path));
+        // A FIFO or a device would block or be written to: only a regular file is opened.
+        match fs::metadata(path) {
+            Ok(meta) if !meta.is_file() => {
+                return Err(err("open")(not_a_journal(kind_of(&meta))));
+            }
+            _ => {}
+        }
         let mut bytes = Vec::new();
         match File::open(path) {
             Ok(mut f) => {
@@ -352,13 +364,13 @@ impl Journal {
             Err(e) if e.kind() == io::ErrorKind::NotFound => {}
             Err(e) => return Err(err("open")(e)),
         }
+        if let Err(why) = header_check(&bytes) {
+            return Err(err("check the header")(not_a_journal(&why)));
+        }
+        // A compaction that a crash interrupted leaves its temporary file: never read.
+        let _ = fs::remove_file(temp_path(path));
         let replayed = Replayed::from_bytes(&bytes);
         let total = bytes.len() as u64;
-        if replayed.loss.as_ref().is_some_and(|l| l.offset == 0) && total > 0 {
-            let mut bad = path.as_os_str().to_owned();
-            bad.push(".bad");
-            fs::rename(path, &bad).map_err(err("move aside"))?;
-        }
         let mut file = OpenOptions::new()
             .create(true)
             .read(true)
@@ -367,9 +379,6 @@ impl Journal {
             .open(path)
             .map_err(err("open"))?;
         let mut size = replayed.readable_len(total).min(total);
-        if replayed.loss.as_ref().is_some_and(|l| l.offset == 0) {
-            size = 0;
-        }
         if size < MAGIC.len() as u64 {
             file.set_len(0).map_err(err("truncate"))?;
             file.write_all(MAGIC).map_err(err("write"))?;
@@ -490,40 +499,246 @@ impl Journal {
         last_acked: u16,
         waiting: impl Iterator<Item = &'a JournaledTelegram>,
     ) -> Result<(), JournalError> {
-        let temp = temp_path(&self.path);
-        let err = |step| {
-            let path = self.path.clone();
-            move |source| JournalError { path, step, source }
-        };
-        let mut bytes = MAGIC.to_vec();
-        Record::State {
-            last_seq,
-            last_acked,
-        }
-        .encode(&mut bytes);
-        let mut live = 0;
-        for t in waiting {
-            live += telegram_record_len(t);
-            Record::Telegram(t.clone()).encode(&mut bytes);
-        }
-        let mut file = OpenOptions::new()
-            .create(true)
-            .write(true)
-            .truncate(true)
-            .read(true)
-            .open(&temp)
-            .map_err(err("create the compacted file"))?;
-        file.write_all(&bytes)
-            .and_then(|()| file.sync_all())
-            .map_err(err("write the compacted file"))?;
-        fs::rename(&temp, &self.path).map_err(err("rename the compacted file"))?;
-        sync_dir(&self.path).map_err(err("sync directory"))?;
-        file.seek(SeekFrom::End(0)).map_err(err("seek"))?;
+        let (file, size, live) = write_whole(&self.path, last_seq, last_acked, waiting)?;
         self.file = file;
-        self.size = bytes.len() as u64;
+        self.size = size;
         self.live = live;
         Ok(())
     }
+}
+
+/// Writes a whole journal at `path` holding `waiting` and the counters: a new file beside it,
+/// synced, renamed over it, the directory synced. Returns the file (positioned at its end), its
+/// size and the bytes of its telegram records.
+fn write_whole<'a>(
+    path: &Path,
+    last_seq: u16,
+    last_acked: u16,
+    waiting: impl Iterator<Item = &'a JournaledTelegram>,
+) -> Result<(File, u64, u64), JournalError> {
+    let temp = temp_path(path);
+    let err = |step| {
+        let path = path.to_owned();
+        move |source| JournalError { path, step, source }
+    };
+    let mut bytes = MAGIC.to_vec();
+    Record::State {
+        last_seq,
+        last_acked,
+    }
+    .encode(&mut bytes);
+    let mut live = 0;
+    for t in waiting {
+        live += telegram_record_len(t);
+        Record::Telegram(t.clone()).encode(&mut bytes);
+    }
+    let mut file = OpenOptions::new()
+        .create(true)
+        .write(true)
+        .truncate(true)
+        .read(true)
+        .open(&temp)
+        .map_err(err("create the compacted file"))?;
+    file.write_all(&bytes)
+        .and_then(|()| file.sync_all())
+        .map_err(err("write the compacted file"))?;
+    fs::rename(&temp, path).map_err(err("rename the compacted file"))?;
+    sync_dir(path).map_err(err("sync directory"))?;
+    file.seek(SeekFrom::End(0)).map_err(err("seek"))?;
+    Ok((file, bytes.len() as u64, live))
+}
+
+/// The name part of the header; the two characters after it are the format version.
+const MAGIC_NAME: &[u8; 6] = b"GWMBXJ";
+
+/// Whether a file starting with `bytes` is a journal this gateway reads: the header, or an
+/// empty file or one cut short inside the header (a crash while it was created: a new
+/// journal). Otherwise why not (the version bytes escaped; at most 2 of them are shown).
+pub fn header_check(bytes: &[u8]) -> Result<(), String> {
+    let head = &bytes[..bytes.len().min(MAGIC.len())];
+    if MAGIC.starts_with(head) {
+        return Ok(());
+    }
+    if head.len() == MAGIC.len() && head.starts_with(MAGIC_NAME) {
+        return Err(format!(
+            "a journal of format version \"{}\" (this gateway reads 01)",
+            head[MAGIC_NAME.len()..].escape_ascii()
+        ));
+    }
+    Err(
+        "it does not start with the journal header GWMBXJ01 (a file the gateway did not write)"
+            .to_owned(),
+    )
+}
+
+/// The error of a file that is not a journal.
+fn not_a_journal(why: &str) -> io::Error {
+    io::Error::new(
+        io::ErrorKind::InvalidData,
+        format!("not a journal: {why}; the file is left as it is"),
+    )
+}
+
+/// What a path that is not a regular file is.
+fn kind_of(meta: &fs::Metadata) -> &'static str {
+    if meta.is_dir() {
+        "a directory"
+    } else {
+        "not a regular file (a device, pipe or socket)"
+    }
+}
+
+/// What the start check found at a journal's path.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Probe {
+    /// The file exists (else the check created it and removed it again).
+    pub exists: bool,
+    /// Telegrams that wait in it.
+    pub waiting: usize,
+    /// The last sequence number it gave.
+    pub last_seq: u16,
+}
+
+/// The start check of a journal path (`gateway check`, `run`, a SIGHUP re-read and every REST
+/// change): opens what [`Journal::open`] opens, as it opens it, and changes nothing:
+///
+/// - an existing file must be a regular file that opens for reading and writing and starts with
+///   the header ([`header_check`]; a file without it is read no further); its directory must
+///   take a new file (a compaction writes one beside it: the check creates and removes
+///   `<path>.probe-<pid>`);
+/// - a missing file is created (`O_CREAT | O_EXCL`) and removed again at once, so the check
+///   leaves no file behind, also when the change is then refused for another reason.
+///
+/// A journal a running line holds is only read: records it appends meanwhile are at most a tail
+/// cut short, which the check does not count as damage.
+///
+/// # Errors
+///
+/// Why the path cannot be a journal, naming it: a directory, not a regular file, a file that is
+/// not a journal, a read-only file system or directory, a missing directory, a path under a file.
+pub fn probe(path: &Path) -> Result<Probe, String> {
+    let shown = path.display();
+    match fs::metadata(path) {
+        Ok(meta) if !meta.is_file() => {
+            Err(format!("{shown} is {}, not a journal file", kind_of(&meta)))
+        }
+        Ok(_) => {
+            let mut file = OpenOptions::new()
+                .read(true)
+                .write(true)
+                .open(path)
+                .map_err(|e| format!("cannot open {shown} for writing: {e}"))?;
+            let mut bytes = Vec::new();
+            (&mut file)
+                .take(MAGIC.len() as u64)
+                .read_to_end(&mut bytes)
+                .map_err(|e| format!("cannot read {shown}: {e}"))?;
+            header_check(&bytes).map_err(|why| {
+                format!(
+                    "{shown} is not a journal: {why}; the gateway neither renames nor overwrites \
+                     it: name another file"
+                )
+            })?;
+            file.read_to_end(&mut bytes)
+                .map_err(|e| format!("cannot read {shown}: {e}"))?;
+            let replayed = Replayed::from_bytes(&bytes);
+            let mut probe_name = path.as_os_str().to_owned();
+            probe_name.push(format!(".probe-{}", std::process::id()));
+            create_and_remove(Path::new(&probe_name)).map_err(|e| {
+                format!("the directory of {shown} takes no new file (a compaction writes one): {e}")
+            })?;
+            Ok(Probe {
+                exists: true,
+                waiting: replayed.telegrams.len(),
+                last_seq: replayed.last_seq,
+            })
+        }
+        Err(e) if e.kind() == io::ErrorKind::NotFound => match create_and_remove(path) {
+            Ok(()) => Ok(Probe::default()),
+            Err(e) if e.kind() == io::ErrorKind::NotFound => {
+                let dir = match path.parent() {
+                    Some(p) if !p.as_os_str().is_empty() => p,
+                    _ => Path::new("."),
+                };
+                if dir.is_dir() {
+                    // A directory that takes no files of this kind (/proc answers ENOENT).
+                    Err(format!("cannot create {shown}: {e}"))
+                } else {
+                    Err(format!(
+                        "the directory {} of the journal does not exist",
+                        dir.display()
+                    ))
+                }
+            }
+            Err(e) => Err(format!("cannot create {shown}: {e}")),
+        },
+        Err(e) => Err(format!("cannot open {shown}: {e}")),
+    }
+}
+
+/// Creates `path` (which must not exist) and removes it again.
+fn create_and_remove(path: &Path) -> io::Result<()> {
+    drop(OpenOptions::new().write(true).create_new(true).open(path)?);
+    fs::remove_file(path)
+}
+
+/// Writes a journal at `path` that holds `waiting` and the counters: the telegrams a line
+/// carries into a new journal when its `journal` path changes. A file already at `path` must
+/// be a journal (or empty) with no telegram waiting; it is replaced as a compaction replaces it
+/// (a new file, synced, renamed over it).
+///
+/// # Errors
+///
+/// `path` is not a journal, holds telegrams of its own, or cannot be written.
+pub fn take_over(
+    path: &Path,
+    last_seq: u16,
+    last_acked: u16,
+    waiting: &[JournaledTelegram],
+) -> Result<(), JournalError> {
+    let err = |step| {
+        let path = path.to_owned();
+        move |source| JournalError { path, step, source }
+    };
+    match fs::metadata(path) {
+        Ok(meta) if !meta.is_file() => return Err(err("open")(not_a_journal(kind_of(&meta)))),
+        Ok(_) => {
+            let bytes = fs::read(path).map_err(err("read"))?;
+            header_check(&bytes).map_err(|why| err("check the header")(not_a_journal(&why)))?;
+            let own = Replayed::from_bytes(&bytes).telegrams.len();
+            if own > 0 {
+                return Err(err("take over")(io::Error::new(
+                    io::ErrorKind::AlreadyExists,
+                    format!("{own} telegrams of an earlier use wait in it"),
+                )));
+            }
+        }
+        Err(e) if e.kind() == io::ErrorKind::NotFound => {}
+        Err(e) => return Err(err("open")(e)),
+    }
+    write_whole(path, last_seq, last_acked, waiting.iter()).map(drop)
+}
+
+/// Empties the journal at `path` of its telegrams (they were carried into another journal),
+/// keeping the counters; a missing file or one that is not a journal is left alone.
+///
+/// # Errors
+///
+/// The journal cannot be rewritten.
+pub fn clear(path: &Path, last_seq: u16, last_acked: u16) -> Result<(), JournalError> {
+    let Ok(meta) = fs::metadata(path) else {
+        return Ok(());
+    };
+    let mut head = Vec::new();
+    let is_journal = meta.is_file()
+        && File::open(path)
+            .and_then(|f| f.take(MAGIC.len() as u64).read_to_end(&mut head))
+            .is_ok()
+        && header_check(&head).is_ok();
+    if !is_journal {
+        return Ok(());
+    }
+    write_whole(path, last_seq, last_acked, std::iter::empty()).map(drop)
 }
 
 /// The bytes a telegram's record takes.
@@ -754,17 +969,119 @@ mod tests {
     }
 
     #[test]
-    fn a_file_that_is_not_a_journal_is_kept_aside() {
+    fn a_file_that_is_not_a_journal_is_refused_and_left_as_it_is() {
         let dir = tempfile::tempdir().expect("dir");
-        let path = dir.path().join("j");
-        fs::write(&path, b"something else entirely").expect("write");
-        let (_, r) = Journal::open(&path).expect("open");
-        assert_eq!(r.loss.map(|l| l.reason), Some("not a journal"));
+        // Another program's file, the CP memory file, a journal of another format version.
+        for (name, bytes) in [
+            ("j", &b"something else entirely"[..]),
+            ("cp-memory.bin", &b"GWCPMEM1\x00\x01\x02\x03"[..]),
+            ("v2.journal", &b"GWMBXJ02\x00\x00\x00\x00"[..]),
+        ] {
+            let path = dir.path().join(name);
+            fs::write(&path, bytes).expect("write");
+            let e = Journal::open(&path).expect_err("refused");
+            assert_eq!(e.source.kind(), io::ErrorKind::InvalidData, "{e}");
+            assert!(e.to_string().contains("not a journal"), "{e}");
+            assert_eq!(fs::read(&path).expect("still there"), bytes, "{name}");
+            let why = probe(&path).expect_err("refused by the check");
+            assert!(why.contains("is not a journal"), "{why}");
+        }
+        let v2 = probe(&dir.path().join("v2.journal")).expect_err("refused");
+        assert!(v2.contains("format version \"02\""), "{v2}");
+        // Nothing was renamed or created beside them.
+        let mut names: Vec<String> = fs::read_dir(dir.path())
+            .expect("list")
+            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["cp-memory.bin", "j", "v2.journal"]);
+    }
+
+    #[test]
+    fn the_start_check_refuses_what_open_cannot_use_and_leaves_nothing_behind() {
+        let dir = tempfile::tempdir().expect("dir");
+        let shown = |p: &Path| p.display().to_string();
+        // A new path: fine, and no file is left.
+        let new = dir.path().join("new.journal");
+        assert_eq!(probe(&new), Ok(Probe::default()));
+        assert!(!new.exists());
+        // A directory.
+        let why = probe(dir.path()).expect_err("a directory");
+        assert!(why.contains("is a directory"), "{why}");
+        // A missing directory.
+        let why = probe(&dir.path().join("missing/r.journal")).expect_err("no directory");
+        assert!(why.contains("does not exist"), "{why}");
+        // A path under a file (ENOTDIR).
+        let file = dir.path().join("plain");
+        fs::write(&file, b"x").expect("write");
+        let why = probe(&file.join("r.journal")).expect_err("under a file");
+        assert!(why.contains(&shown(&file.join("r.journal"))), "{why}");
+        // A FIFO: refused without being opened (an open would wait for a writer).
+        let fifo = dir.path().join("fifo");
+        let made = std::process::Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .expect("mkfifo");
+        assert!(made.success());
+        let why = probe(&fifo).expect_err("a FIFO");
+        assert!(why.contains("not a regular file"), "{why}");
+        assert!(Journal::open(&fifo).is_err());
+        // An existing journal: read, counted, unchanged; an empty file is a new journal.
+        let path = dir.path().join("r.journal");
+        {
+            let (mut j, _) = Journal::open(&path).expect("open");
+            j.append_telegram(&telegram(1, b"one")).expect("append");
+            j.append_telegram(&telegram(2, b"two")).expect("append");
+        }
+        let before = fs::read(&path).expect("read");
         assert_eq!(
-            fs::read(dir.path().join("j.bad")).expect("kept"),
-            b"something else entirely"
+            probe(&path),
+            Ok(Probe {
+                exists: true,
+                waiting: 2,
+                last_seq: 2
+            })
         );
-        assert_eq!(fs::read(&path).expect("new"), MAGIC);
+        assert_eq!(fs::read(&path).expect("read"), before);
+        let empty = dir.path().join("empty.journal");
+        fs::write(&empty, b"").expect("write");
+        assert_eq!(probe(&empty).map(|p| p.waiting), Ok(0));
+        let mut names: Vec<String> = fs::read_dir(dir.path())
+            .expect("list")
+            .map(|e| e.expect("entry").file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["empty.journal", "fifo", "plain", "r.journal"]);
+    }
+
+    #[test]
+    fn telegrams_are_taken_over_by_a_new_journal_and_the_old_one_is_emptied() {
+        let dir = tempfile::tempdir().expect("dir");
+        let old = dir.path().join("old.journal");
+        let new = dir.path().join("new.journal");
+        let waiting = [telegram(56, b"a"), telegram(57, b"b")];
+        {
+            let (mut j, _) = Journal::open(&old).expect("open");
+            for t in &waiting {
+                j.append_telegram(t).expect("append");
+            }
+        }
+        take_over(&new, 57, 55, &waiting).expect("take over");
+        let (_, r) = Journal::open(&new).expect("open");
+        assert_eq!(r.telegrams, waiting);
+        assert_eq!((r.last_seq, r.last_acked), (57, 55));
+        clear(&old, 57, 55).expect("clear");
+        let (_, r) = Journal::open(&old).expect("open");
+        assert!(r.telegrams.is_empty());
+        assert_eq!((r.last_seq, r.last_acked), (57, 55));
+        // A journal holding telegrams of its own is not taken over; a foreign file neither.
+        let e = take_over(&new, 60, 55, &waiting).expect_err("refused");
+        assert!(e.to_string().contains("2 telegrams"), "{e}");
+        let foreign = dir.path().join("foreign");
+        fs::write(&foreign, b"keep me").expect("write");
+        assert!(take_over(&foreign, 1, 0, &waiting).is_err());
+        clear(&foreign, 1, 0).expect("left alone");
+        assert_eq!(fs::read(&foreign).expect("read"), b"keep me");
     }
 
     #[test]

@@ -134,6 +134,21 @@ impl Default for MailboxSettings {
     }
 }
 
+/// What a telegram line hands to the line that replaces it (a configuration change restarted
+/// it): the waiting telegrams, already confirmed to the partner, with their numbers, and the
+/// counters, so that none is lost and the numbering goes on.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct Carried {
+    /// The waiting telegrams, oldest first.
+    pub telegrams: Vec<JournaledTelegram>,
+    /// The last sequence number given.
+    pub last_seq: u16,
+    /// The last sequence number acknowledged.
+    pub last_acked: u16,
+    /// The journal the telegrams were kept in (`None`: in memory only).
+    pub journal: Option<std::path::PathBuf>,
+}
+
 /// What a mailbox found in its journal when it opened.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct Restored {
@@ -334,6 +349,55 @@ impl Mailbox {
             Self::compact(&mut state);
         }
         Ok((mailbox, restored))
+    }
+
+    /// [`Mailbox::new`] holding what a replaced line `carried` (in memory: the line has no
+    /// journal). More telegrams than the depth may wait; the line takes new ones again (under
+    /// its overflow policy) once fewer wait.
+    pub fn with_carried(
+        line: &str,
+        settings: MailboxSettings,
+        max_send_len: usize,
+        carried: Carried,
+    ) -> Arc<Self> {
+        let mailbox = Self::new(line, settings, max_send_len);
+        {
+            let mut state = mailbox.lock();
+            state.last_seq = carried.last_seq;
+            state.last_acked = carried.last_acked;
+            state.queue = carried
+                .telegrams
+                .into_iter()
+                .map(|t| TelegramRx {
+                    line: Arc::clone(&mailbox.line),
+                    seq: t.seq,
+                    received: t.received,
+                    data: Arc::from(t.data),
+                    side: None,
+                })
+                .collect();
+        }
+        mailbox
+    }
+
+    /// What the line that replaces this one takes over: the waiting telegrams, the counters
+    /// and the journal's path. Call it once the line stopped (no telegram comes in any more).
+    pub fn carry(&self) -> Carried {
+        let state = self.lock();
+        Carried {
+            telegrams: state
+                .queue
+                .iter()
+                .map(|t| JournaledTelegram {
+                    seq: t.seq,
+                    received: t.received,
+                    data: t.data.to_vec(),
+                })
+                .collect(),
+            last_seq: state.last_seq,
+            last_acked: state.last_acked,
+            journal: state.journal.as_ref().map(|j| j.path().to_owned()),
+        }
     }
 
     /// Whether the mailbox keeps its telegrams in a journal.

@@ -469,3 +469,47 @@ async fn a_line_without_sends_refuses_the_send_block_and_its_client_refuses_ever
     );
     assert!(line.try_recv().is_err(), "nothing reached the line");
 }
+
+#[test]
+fn what_a_line_carries_waits_again_under_its_numbers_and_the_numbering_goes_on() {
+    let dir = tempfile::tempdir().expect("dir");
+    let path = dir.path().join("old.journal");
+    let (old, _) = journaled(&path, 5, Overflow::Refuse);
+    for i in 0..5u8 {
+        old.try_deliver(vec![i], SystemTime::now())
+            .expect("journaled");
+    }
+    old.ack(1).expect("ack");
+    let carried = old.carry();
+    assert_eq!(
+        carried.telegrams.iter().map(|t| t.seq).collect::<Vec<_>>(),
+        [2, 3, 4, 5]
+    );
+    assert_eq!((carried.last_seq, carried.last_acked), (5, 1));
+    assert_eq!(carried.journal.as_deref(), Some(path.as_path()));
+    // In memory, with a smaller depth: all wait; a full mailbox refuses until fewer wait.
+    let new = Mailbox::with_carried(
+        "test",
+        MailboxSettings {
+            queue_depth: 2,
+            overflow: Overflow::Refuse,
+            ack: AckMode::Explicit,
+        },
+        250,
+        carried,
+    );
+    assert_eq!(
+        waiting_of(&new),
+        [(2, vec![1]), (3, vec![2]), (4, vec![3]), (5, vec![4])]
+    );
+    assert!(!new.accepts());
+    assert_eq!(new.last_acknowledged(), 1);
+    for seq in 2..=4 {
+        new.ack(seq).expect("ack");
+    }
+    assert!(new.accepts());
+    assert_eq!(
+        new.deliver(vec![9], SystemTime::now()),
+        Delivery::Kept { seq: 6 }
+    );
+}

@@ -305,15 +305,17 @@ fn start_telegram_line(
     settings.diag_depth = usize::from(deps.config.gateway.diag_buffer_depth);
     settings.metrics = Some(deps.metrics.clone());
     settings.mailbox.ack = mailbox_ack(cfg::ack_mode(deps.config, line));
+    settings.carried = deps.carried.clone();
     try_spawn_telegram_line(settings, deps.token.clone())
         .map_err(|e| StartError(format!("line {name}: {e}")))
 }
 
 /// What would keep a telegram line from starting: the parameter its engine refuses
-/// (`refused`), a journal in a directory that does not exist.
+/// (`refused`). Its journal is opened by the start check of every door
+/// (`app::check::start_issues`), which knows whether a REST change may name the file at all.
 fn telegram_issues(
     name: &str,
-    line: &LineConfig,
+    _line: &LineConfig,
     refused: Option<TelegramConfigError>,
 ) -> Vec<ConfigIssue> {
     let mut issues = Vec::new();
@@ -322,21 +324,6 @@ fn telegram_issues(
             path: format!("lines.{name}"),
             message: e.to_string(),
         });
-    }
-    if let Some(journal) = line.journal() {
-        let dir = match journal.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p,
-            _ => std::path::Path::new("."),
-        };
-        if !dir.is_dir() {
-            issues.push(ConfigIssue {
-                path: format!("lines.{name}.journal"),
-                message: format!(
-                    "the directory {} of the journal does not exist",
-                    dir.display()
-                ),
-            });
-        }
     }
     issues
 }

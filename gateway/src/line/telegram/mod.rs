@@ -131,6 +131,9 @@ pub struct TelegramLineSettings {
     /// with the process). With a journal, a 3964(R) telegram is acknowledged (final DLE) only
     /// once it is written and synced, and the driver holds no telegram beyond the mailbox.
     pub journal: Option<std::path::PathBuf>,
+    /// What the line this one replaces left: its waiting telegrams and numbers are taken over
+    /// (into the journal when it has another path, else into memory).
+    pub carried: Option<crate::mailbox::Carried>,
 }
 
 // === impl TelegramLineSettings ===
@@ -154,6 +157,7 @@ impl TelegramLineSettings {
             unit_id: None,
             sends: true,
             journal: None,
+            carried: None,
         }
     }
 
@@ -377,18 +381,92 @@ pub fn try_spawn_telegram_line(
 /// The mailbox of a line, with what its journal held.
 type OpenedMailbox = (Arc<Mailbox>, Option<Restored>);
 
-/// The line's mailbox: from its journal when it has one.
+/// The line's mailbox: from its journal when it has one; with what a replaced line carried
+/// when the journal's path changed (or there is none): written into the new journal first
+/// (synced), then the old journal emptied of them, so they wait in one file only.
 fn open_mailbox(settings: &TelegramLineSettings) -> Result<OpenedMailbox, JournalError> {
-    match &settings.journal {
+    let carried = settings
+        .carried
+        .clone()
+        .filter(|c| !same_journal(c.journal.as_deref(), settings.journal.as_deref()));
+    let Some(carried) = carried else {
+        return match &settings.journal {
+            Some(path) => {
+                let (mailbox, restored) = Mailbox::with_journal(
+                    &settings.name,
+                    settings.mailbox,
+                    settings.max_len,
+                    path,
+                )?;
+                Ok((mailbox, Some(restored)))
+            }
+            None => Ok((
+                Mailbox::new(&settings.name, settings.mailbox, settings.max_len),
+                None,
+            )),
+        };
+    };
+    let (waiting, last_seq, last_acked) = (
+        carried.telegrams.len(),
+        carried.last_seq,
+        carried.last_acked,
+    );
+    let from = carried
+        .journal
+        .as_deref()
+        .map_or_else(|| "memory".to_owned(), |p| p.display().to_string());
+    let opened = match &settings.journal {
         Some(path) => {
+            crate::mailbox::journal::take_over(path, last_seq, last_acked, &carried.telegrams)?;
             let (mailbox, restored) =
                 Mailbox::with_journal(&settings.name, settings.mailbox, settings.max_len, path)?;
-            Ok((mailbox, Some(restored)))
+            (mailbox, Some(restored))
         }
-        None => Ok((
-            Mailbox::new(&settings.name, settings.mailbox, settings.max_len),
+        None => (
+            Mailbox::with_carried(
+                &settings.name,
+                settings.mailbox,
+                settings.max_len,
+                carried.clone(),
+            ),
             None,
-        )),
+        ),
+    };
+    let to = settings
+        .journal
+        .as_deref()
+        .map_or_else(|| "memory".to_owned(), |p| p.display().to_string());
+    // A line without a journal before and after, with nothing waiting, has nothing to say.
+    if waiting > 0 || carried.journal.is_some() || settings.journal.is_some() {
+        tracing::info!(
+            line = %settings.name,
+            waiting,
+            last_seq,
+            from = %from,
+            to = %to,
+            "waiting telegrams carried over to the restarted line with their numbers"
+        );
+    }
+    if let Some(old) = &carried.journal {
+        if let Err(e) = crate::mailbox::journal::clear(old, last_seq, last_acked) {
+            tracing::error!(line = %settings.name, error = %e, "the old journal was not emptied: its telegrams wait in the new one too; do not name it again before removing it");
+        }
+    }
+    Ok(opened)
+}
+
+/// Whether two journal settings name the same file (links and `..` followed when both exist).
+fn same_journal(a: Option<&std::path::Path>, b: Option<&std::path::Path>) -> bool {
+    match (a, b) {
+        (None, None) => false,
+        (Some(a), Some(b)) => {
+            a == b
+                || matches!(
+                    (std::fs::canonicalize(a), std::fs::canonicalize(b)),
+                    (Ok(x), Ok(y)) if x == y
+                )
+        }
+        _ => false,
     }
 }
 
