@@ -186,17 +186,36 @@ pub fn handle_signals(shutdown: CancellationToken) -> Hangups {
             return rx;
         };
         tokio::spawn(async move {
+            // SIGHUP lines are rate-limited (`reload::HANGUP_LOG`); the number left out is told
+            // once the window is over.
+            let mut tell_at = None;
             loop {
+                let tell = async {
+                    match tell_at {
+                        Some(at) => tokio::time::sleep_until(at).await,
+                        None => std::future::pending().await,
+                    }
+                };
                 tokio::select! {
                     _ = term.recv() => info!("SIGTERM received, stopping"),
                     _ = int.recv() => info!("SIGINT received, stopping"),
                     _ = hup.recv() => {
-                        if tx.receiver_count() == 0 {
-                            info!("SIGHUP received: nothing to reload in this command");
-                        } else {
-                            info!("SIGHUP received: reading the configuration and TLS files again");
+                        if let Some(suppressed) = reload::hangup_line(&reload::HANGUP_LOG) {
+                            if tx.receiver_count() == 0 {
+                                info!(suppressed, "SIGHUP received: nothing to reload in this command");
+                            } else {
+                                info!(suppressed, "SIGHUP received: reading the configuration and TLS files again");
+                            }
                         }
                         tx.send_modify(|n| *n = n.wrapping_add(1));
+                        tell_at = reload::hangup_left_out_until().or(tell_at);
+                        continue;
+                    }
+                    () = tell => {
+                        reload::tell_hangup_left_out();
+                        // Never at once again: a window ends in the future or has nothing left.
+                        let soon = tokio::time::Instant::now() + Duration::from_millis(50);
+                        tell_at = reload::hangup_left_out_until().map(|at| at.max(soon));
                         continue;
                     }
                     () = shutdown.cancelled() => return,

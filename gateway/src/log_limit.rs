@@ -247,6 +247,26 @@ impl LogLimit {
     pub fn check(&self) -> Verdict {
         self.check_at(Instant::now())
     }
+
+    /// When the current window ends, if lines were left out in it: the moment to say how many
+    /// ([`Self::take_left_out_at`]) when no further line may come to say it.
+    pub fn left_out_until(&self) -> Option<Instant> {
+        let state = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+        state
+            .filter(|w| w.suppressed > 0)
+            .map(|w| w.start + self.window)
+    }
+
+    /// The lines left out in a window that is over at `now`, counted once: the caller writes
+    /// one line with the number; the next line's [`Verdict::Log`] then says 0.
+    pub fn take_left_out_at(&self, now: Instant) -> Option<u64> {
+        let mut state = self.state.lock().unwrap_or_else(PoisonError::into_inner);
+        let window = state.as_mut()?;
+        if window.suppressed == 0 || now.saturating_duration_since(window.start) < self.window {
+            return None;
+        }
+        Some(std::mem::take(&mut window.suppressed))
+    }
 }
 
 #[cfg(test)]
@@ -266,5 +286,27 @@ mod burst_tests {
         let later = t0 + Duration::from_secs(10);
         assert_eq!(limit.check_at(later), Verdict::Log { suppressed: 1000 });
         assert_eq!(limit.check_at(later), Verdict::Log { suppressed: 0 });
+    }
+
+    #[test]
+    fn the_lines_left_out_are_told_once_after_the_window() {
+        let limit = LogLimit::new(Duration::from_secs(10), 2);
+        let t0 = Instant::now();
+        assert_eq!(limit.left_out_until(), None);
+        for _ in 0..2 {
+            assert_eq!(limit.check_at(t0), Verdict::Log { suppressed: 0 });
+        }
+        assert_eq!(limit.left_out_until(), None);
+        for _ in 0..7 {
+            assert_eq!(limit.check_at(t0), Verdict::Suppress);
+        }
+        let end = t0 + Duration::from_secs(10);
+        assert_eq!(limit.left_out_until(), Some(end));
+        assert_eq!(limit.take_left_out_at(t0 + Duration::from_secs(9)), None);
+        assert_eq!(limit.take_left_out_at(end), Some(7));
+        assert_eq!(limit.take_left_out_at(end), None);
+        assert_eq!(limit.left_out_until(), None);
+        // Told already: the next line does not count them again.
+        assert_eq!(limit.check_at(end), Verdict::Log { suppressed: 0 });
     }
 }

@@ -163,27 +163,15 @@ fn tags_command(command: &TagsCommand) -> ExitCode {
         TagsCommand::Export { owner } => {
             tag_csv::export(&owner.config, &owner.owner()).map(|csv| print!("{csv}"))
         }
-        TagsCommand::Import { owner, csv } => {
-            let text = if csv.as_os_str() == "-" {
-                let mut text = String::new();
-                std::io::Read::read_to_string(&mut std::io::stdin(), &mut text).map(|_| text)
-            } else {
-                std::fs::read_to_string(csv)
-            };
-            match text {
-                Err(e) => Err(TagCsvError::File(format!(
-                    "cannot read {}: {e}",
-                    csv.display()
-                ))),
-                Ok(text) => tag_csv::import(&owner.config, &owner.owner(), &text).map(|n| {
-                    println!(
-                        "ok: {n} tags written to {} ({})",
-                        owner.config.display(),
-                        owner.owner().path()
-                    );
-                }),
-            }
-        }
+        TagsCommand::Import { owner, csv } => tag_csv::open_csv(csv).and_then(|reader| {
+            tag_csv::import_from(&owner.config, &owner.owner(), reader).map(|n| {
+                println!(
+                    "ok: {n} tags written to {} ({})",
+                    owner.config.display(),
+                    owner.owner().path()
+                );
+            })
+        }),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -218,3 +218,129 @@ fn a_csv_with_bad_rows_writes_nothing_and_names_row_and_column() {
     );
     assert_eq!(std::fs::read_to_string(&config).expect("read"), CONFIG);
 }
+
+/// Cells a spreadsheet would run as formulas (OWASP "CSV Injection"): export writes each text cell
+/// that starts with `=`, `+`, `-`, `@`, a tab or a carriage return after a `'` and in quotes, a
+/// negative number stays a number, and import gives the texts back as they were.
+#[test]
+fn formula_cells_are_escaped_on_export_and_read_back_on_import() {
+    let dir = gateway_tests::temp_dir("tags_csv_formulas");
+    let config = dir.join("gateway.toml");
+    let texts = [
+        "=HYPERLINK(\"http://evil.example/x\",\"click\")",
+        "+cmd|' /C calc'!A0",
+        "@SUM(A1:A9)",
+        "-x",
+        "\tleading tab",
+        "\rleading return",
+    ];
+    let mut file = CONFIG.to_owned();
+    for (i, text) in texts.iter().enumerate() {
+        let escaped = text
+            .replace('\\', "\\\\")
+            .replace('"', "\\\"")
+            .replace('\t', "\\t")
+            .replace('\r', "\\r");
+        file.push_str(&format!(
+            "\n[[lines.m.devices.meter.tags]]\nname = \"f{i}\"\ntable = \"holding\"\n\
+             address = {}\nunit = \"{escaped}\"\ndescription = \"{escaped}\"\noffset = -1.5\n",
+            100 + i
+        ));
+    }
+    // A tag name may start with '-' too.
+    file.push_str(
+        "\n[[lines.m.devices.meter.tags]]\nname = \"-dash\"\ntable = \"holding\"\naddress = 120\n",
+    );
+    std::fs::write(&config, &file).expect("write config");
+    let (ok, report) = gateway_tests::check_config(&config);
+    assert!(ok, "{report}");
+
+    let csv = export(&config, &METER);
+    for text in texts {
+        let cell = format!("\"'{}\"", text.replace('"', "\"\""));
+        assert!(
+            csv.contains(&format!("{cell},,{cell}")),
+            "unit and description of {text:?} escaped as {cell:?}:\n{csv}"
+        );
+    }
+    assert!(csv.contains("\n\"'-dash\",holding,120,"), "{csv}");
+    // The offset of the formula tags stays a number.
+    assert!(csv.contains(",-1.5,"), "{csv}");
+    assert!(!csv.contains("'-1.5"), "{csv}");
+
+    // Import reads them back: the same configuration, byte for byte in its values.
+    let same = dir.join("same.csv");
+    std::fs::write(&same, &csv).expect("write csv");
+    let out = import(&config, &METER, &same);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let before: toml::Table = file.parse().expect("TOML");
+    let after: toml::Table = std::fs::read_to_string(&config)
+        .expect("read")
+        .parse()
+        .expect("TOML");
+    assert_eq!(after, before);
+    assert_eq!(export(&config, &METER), csv);
+}
+
+/// A CSV over the stated bound (16 MiB) is refused before it is read, with a clear error, and the
+/// configuration stays as it was.
+#[test]
+fn a_csv_over_the_bound_is_refused_before_it_is_read() {
+    let dir = gateway_tests::temp_dir("tags_csv_too_large");
+    let config = dir.join("gateway.toml");
+    std::fs::write(&config, CONFIG).expect("write config");
+    let big = dir.join("big.csv");
+    let file = std::fs::File::create(&big).expect("create");
+    // Sparse: the size says 16 MiB + 1 without writing them.
+    file.set_len(16 * 1024 * 1024 + 1).expect("set_len");
+    drop(file);
+    let out = import(&config, &METER, &big);
+    assert_eq!(out.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("is too large: a tag list may have at most 16 MiB")
+            && err.contains("16777217 bytes"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read_to_string(&config).expect("read"), CONFIG);
+
+    // From standard input the same bound holds while reading.
+    let mut child = Command::new(gateway_tests::gateway_bin())
+        .args(["tags", "import", "--config"])
+        .arg(&config)
+        .args(METER)
+        .arg("-")
+        .stdin(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("spawn");
+    let mut stdin = child.stdin.take().expect("stdin");
+    let writer = std::thread::spawn(move || {
+        use std::io::Write;
+        if stdin.write_all(format!("{HEADER}\n").as_bytes()).is_err() {
+            return;
+        }
+        let row = "t,input,0,,,,,,,,,,".to_owned() + &"d".repeat(80) + "\n";
+        let mut text = String::new();
+        while text.len() < 1024 * 1024 {
+            text.push_str(&row);
+        }
+        // 17 MiB, or less if the gateway stops reading first.
+        for _ in 0..17 {
+            if stdin.write_all(text.as_bytes()).is_err() {
+                break;
+            }
+        }
+    });
+    let out = child.wait_with_output().expect("wait");
+    writer.join().expect("writer");
+    assert_eq!(out.status.code(), Some(1), "{out:?}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("is too large"), "{err}");
+    assert_eq!(std::fs::read_to_string(&config).expect("read"), CONFIG);
+}

@@ -16,6 +16,12 @@
 //!    a renewed certificate is taken even when an unrelated part of the file is refused.
 //!
 //! `gateway demo` has no file: a SIGHUP says so and only step 3 runs.
+//!
+//! The log lines of SIGHUPs are rate-limited ([`HANGUP_LOG`], [`HANGUP_WARN_LOG`]): a burst of
+//! SIGHUPs writes at most [`HANGUP_BURST`] INFO and [`HANGUP_BURST`] WARN lines per
+//! [`HANGUP_WINDOW`], then, once the window is over, one line with the number left out. Every
+//! SIGHUP is still handled (SIGHUPs that arrive while one is handled are taken together: the
+//! file is read once more after them, so its last change is the one applied).
 
 use std::path::Path;
 use std::sync::Arc;
@@ -25,8 +31,59 @@ use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
 use super::supervisor::Supervisor;
+use crate::log_limit::{LogLimit, Verdict};
 
 use crate::config::{ConfigErrors, ConfigIssue};
+
+/// The window of the SIGHUP log limits.
+pub(crate) const HANGUP_WINDOW: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// The most lines of one level the SIGHUPs of one window write (three SIGHUPs' worth: each
+/// writes "received" and what came of it).
+pub(crate) const HANGUP_BURST: u32 = 6;
+
+/// INFO lines of SIGHUPs: received, applied, nothing to apply, certificates read again.
+pub(crate) static HANGUP_LOG: LogLimit = LogLimit::new(HANGUP_WINDOW, HANGUP_BURST);
+
+/// WARN lines of SIGHUPs: a file refused, a part not started, certificates not reloaded.
+pub(crate) static HANGUP_WARN_LOG: LogLimit = LogLimit::new(HANGUP_WINDOW, HANGUP_BURST);
+
+/// Whether a SIGHUP line of `limit` is written now: `Some(n)` with the `n` left out before it.
+pub(crate) fn hangup_line(limit: &LogLimit) -> Option<u64> {
+    match limit.check() {
+        Verdict::Log { suppressed } => Some(suppressed),
+        Verdict::Suppress => None,
+    }
+}
+
+/// When the SIGHUP lines left out must be told (the end of a window with lines left out).
+pub(crate) fn hangup_left_out_until() -> Option<tokio::time::Instant> {
+    [&HANGUP_LOG, &HANGUP_WARN_LOG]
+        .iter()
+        .filter_map(|limit| limit.left_out_until())
+        .max()
+        .map(tokio::time::Instant::from_std)
+}
+
+/// Writes one line with the number of SIGHUP lines left out in windows that are over.
+pub(crate) fn tell_hangup_left_out() {
+    let now = std::time::Instant::now();
+    let info = HANGUP_LOG.take_left_out_at(now).unwrap_or(0);
+    let warn = HANGUP_WARN_LOG.take_left_out_at(now).unwrap_or(0);
+    let secs = HANGUP_WINDOW.as_secs();
+    let left_out = info + warn;
+    if warn > 0 {
+        warn!(
+            left_out, info, warn,
+            "SIGHUP: {left_out} log lines about SIGHUPs left out in the last {secs} s (rate limit; every SIGHUP was handled)"
+        );
+    } else if info > 0 {
+        info!(
+            left_out, info, warn,
+            "SIGHUP: {left_out} log lines about SIGHUPs left out in the last {secs} s (rate limit; every SIGHUP was handled)"
+        );
+    }
+}
 
 /// Handles every SIGHUP counted by `hangups` (the counter [`super::handle_signals`] raises)
 /// until `shutdown`; a SIGHUP that arrived before this started is handled at once.
@@ -49,10 +106,15 @@ pub(crate) async fn on_hangup(
 pub(crate) async fn reload(sup: &Arc<Supervisor>) {
     match sup.overrides.config_file.clone() {
         Some(path) => reload_file(sup, &path).await,
-        None => info!(
-            "SIGHUP: no configuration file to re-read (the demo's configuration is built in); \
-             the running configuration stays"
-        ),
+        None => {
+            if let Some(suppressed) = hangup_line(&HANGUP_LOG) {
+                info!(
+                    suppressed,
+                    "SIGHUP: no configuration file to re-read (the demo's configuration is built \
+                     in); the running configuration stays"
+                );
+            }
+        }
     }
     sup.reload.notify();
 }
@@ -74,7 +136,9 @@ async fn reload_file(sup: &Arc<Supervisor>, path: &Path) {
         Ok(Ok(config)) => config,
         Ok(Err(errors)) => return refused(path, &errors.issues),
         Err(e) => {
-            warn!(file = %path.display(), error = %e, "SIGHUP: the configuration file was not checked; the running configuration stays");
+            if let Some(suppressed) = hangup_line(&HANGUP_WARN_LOG) {
+                warn!(file = %path.display(), error = %e, suppressed, "SIGHUP: the configuration file was not checked; the running configuration stays");
+            }
             return;
         }
     };
@@ -84,29 +148,42 @@ async fn reload_file(sup: &Arc<Supervisor>, path: &Path) {
         return refused(path, &issues);
     }
     if config == *sup.snapshot().config {
-        info!(file = %path.display(), "SIGHUP: the configuration file is the configuration in force; nothing to apply");
+        if let Some(suppressed) = hangup_line(&HANGUP_LOG) {
+            info!(file = %path.display(), suppressed, "SIGHUP: the configuration file is the configuration in force; nothing to apply");
+        }
         return;
     }
     match sup.apply(Arc::new(config)).await {
-        Ok(report) => info!(
-            file = %path.display(),
-            lines_started = ?report.lines_started,
-            lines_stopped = ?report.lines_stopped,
-            lines_restarted = ?report.lines_restarted,
-            servers_restarted = ?report.servers_restarted,
-            pending_restart = ?report.pending_restart,
-            "SIGHUP: configuration file applied (only what changed restarted)"
-        ),
+        Ok(report) => {
+            if let Some(suppressed) = hangup_line(&HANGUP_LOG) {
+                info!(
+                    file = %path.display(),
+                    lines_started = ?report.lines_started,
+                    lines_stopped = ?report.lines_stopped,
+                    lines_restarted = ?report.lines_restarted,
+                    servers_restarted = ?report.servers_restarted,
+                    pending_restart = ?report.pending_restart,
+                    suppressed,
+                    "SIGHUP: configuration file applied (only what changed restarted)"
+                );
+            }
+        }
         Err(e) => {
-            warn!(file = %path.display(), error = %e, "SIGHUP: configuration file applied, but not every part started")
+            if let Some(suppressed) = hangup_line(&HANGUP_WARN_LOG) {
+                warn!(file = %path.display(), error = %e, suppressed, "SIGHUP: configuration file applied, but not every part started");
+            }
         }
     }
 }
 
 /// The warning for a refused file: every problem with its path, on one line.
 fn refused(path: &Path, issues: &[ConfigIssue]) {
+    let Some(suppressed) = hangup_line(&HANGUP_WARN_LOG) else {
+        return;
+    };
     let problems: Vec<String> = issues.iter().map(ToString::to_string).collect();
     warn!(
+        suppressed,
         file = %path.display(),
         problems = %problems.join("; "),
         "SIGHUP: configuration file refused by the checks of `gateway check`, not applied; the running configuration stays"

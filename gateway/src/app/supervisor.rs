@@ -5,8 +5,11 @@
 //! and only that is stopped and started again. A line whose serial or protocol settings or
 //! devices changed is restarted as a whole (a line task takes its device list at start); a line
 //! that did not change keeps its task, its open port, its counters and its diagnostic buffer, and
-//! the Modbus TCP clients of its units keep their connections. The Modbus TCP server restarts
-//! only when `[modbus_tcp]` changed; the zenoh session only when the gateway's name (its key
+//! the Modbus TCP clients of its units keep their connections. A changed `[modbus_tcp]` limit
+//! (caps, idle and request timeouts, networks, read-only, write ranges, TLS files and roles) is
+//! put in force in the running servers (`modbus_tcp::LiveOptions`) for new connections and the
+//! next request of open ones, which stay connected; only a changed listen address (or plain
+//! Modbus TCP switched on or off) restarts a server. The zenoh session only when the gateway's name (its key
 //! prefix) changed. Other sections (`[cp_memory]`, `[http]`, `[zenoh]`) take effect at the next
 //! start of the process and are reported as pending. A SIGHUP re-read of the configuration file
 //! (`super::reload`) applies the file the same way, one change at a time with the REST API's
@@ -32,7 +35,7 @@ use crate::api::{ApiError, BoxFuture, ConfigDiff};
 use crate::config::{Config, ConfigIssue};
 use crate::cpmem::{self, SharedCpMemory};
 use crate::image::{ImageConfig, ProcessImage};
-use crate::modbus_tcp::{self, ServerOptions, ServerStats};
+use crate::modbus_tcp::{self, LiveOptions, ServerOptions, ServerStats};
 use crate::tags::TagDirectory;
 use crate::unit::{SharedUnits, UnitMap};
 use crate::zenoh_bridge::BridgeStats;
@@ -112,6 +115,8 @@ pub(crate) struct Supervisor {
     /// The address the Modbus TCP server listens on and whether it is up.
     tcp_state: Mutex<(SocketAddr, Arc<AtomicBool>)>,
     pub(crate) tcp_stats: Arc<ServerStats>,
+    /// The plain Modbus TCP server's limits, replaced in place by a configuration change.
+    tcp_options: Arc<LiveOptions>,
     /// What follows the lines besides the supervisor (the zenoh bridge), once it started.
     follower: std::sync::OnceLock<Arc<dyn Follower>>,
     /// What status and readiness show of zenoh; `None` when it is not configured.
@@ -184,9 +189,10 @@ impl Supervisor {
             info!("plain Modbus TCP switched off ([modbus_tcp] enabled = false)");
             None
         };
+        let snapshot_options = server_options(&config.modbus_tcp);
         let snapshot = Snapshot {
             tags: Arc::new(TagDirectory::from_config(&config)),
-            server: server_options(&config.modbus_tcp),
+            server: snapshot_options.clone(),
             config: Arc::new(config),
             lines,
         };
@@ -220,6 +226,7 @@ impl Supervisor {
             tcp: tokio::sync::Mutex::new(None),
             tls: tokio::sync::Mutex::new(tls),
             tcp_state: Mutex::new((addr, Arc::new(AtomicBool::new(false)))),
+            tcp_options: LiveOptions::new(snapshot_options),
             follower: std::sync::OnceLock::new(),
             zenoh_state: Mutex::new(None),
             http_url: std::sync::OnceLock::new(),
@@ -275,11 +282,10 @@ impl Supervisor {
         let local = listener.local_addr()?;
         let token = self.root.child_token();
         let up = Arc::new(AtomicBool::new(true));
-        let options = server_options(&self.snapshot().config.modbus_tcp);
-        let serve = modbus_tcp::serve(
+        let serve = modbus_tcp::serve_live(
             listener,
             Arc::clone(&self.units),
-            options,
+            Arc::clone(&self.tcp_options),
             token.clone(),
             Arc::clone(&self.tcp_stats),
         );
@@ -492,8 +498,13 @@ impl Supervisor {
 
         report.servers_restarted.clear();
         if diff.modbus_tcp_changed {
+            // The limits first: a server that keeps running takes them for what comes next.
+            self.tcp_options.set(snapshot.server.clone());
             match self.restart_tcp().await {
-                Ok(()) => report.servers_restarted.push("modbus_tcp".into()),
+                Ok(true) => report.servers_restarted.push("modbus_tcp".into()),
+                Ok(false) => info!(
+                    "Modbus TCP limits applied to the running server; its clients stay connected"
+                ),
                 Err(e) => failures.push(e),
             }
             let cfg = &self.snapshot().config.modbus_tcp;
@@ -554,9 +565,11 @@ impl Supervisor {
         Some(memory)
     }
 
-    /// Stops the Modbus TCP server and starts it with the configuration in force. A port 0
-    /// address keeps the port the server had.
-    async fn restart_tcp(&self) -> Result<(), String> {
+    /// Restarts the Modbus TCP server when its address changed, or switches it on or off, as the
+    /// configuration in force says; `Ok(true)` when it restarted (or stopped). A port 0 address
+    /// keeps the port the server had. The same address keeps the server and its connections (its
+    /// limits were replaced in place).
+    async fn restart_tcp(&self) -> Result<bool, String> {
         let config = self.snapshot().config.modbus_tcp.clone();
         let mut slot = self.tcp.lock().await;
         let want = self.overrides.modbus_tcp.unwrap_or(config.listen);
@@ -576,8 +589,12 @@ impl Supervisor {
                 }
                 old.up.store(false, Ordering::Release);
                 info!("plain Modbus TCP switched off");
+                return Ok(true);
             }
-            return Ok(());
+            return Ok(false);
+        }
+        if slot.is_some() && Some(addr) == old_local {
+            return Ok(false);
         }
         // A new address is bound before the old server stops: a failure leaves it running.
         let early = if Some(addr) == old_local {
@@ -599,7 +616,7 @@ impl Supervisor {
         let server = self.spawn_tcp(listener).map_err(|e| e.to_string())?;
         info!(local = %server.local, "Modbus TCP server restarted");
         *slot = Some(server);
-        Ok(())
+        Ok(true)
     }
 
     /// Stops everything: lines finish their transaction in flight, connections their request;

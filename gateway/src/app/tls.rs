@@ -14,17 +14,17 @@ use super::build::unit_write_ranges;
 use super::reload_notice::Reload;
 use super::{server_options, AppError};
 use crate::config::{FunctionClassConfig, ModbusTcpConfig, ModbusTlsConfig};
-use crate::modbus_tcp::{self, RoleRights, Roles, ServerOptions, ServerStats, TlsFiles, TlsServer};
+use crate::modbus_tcp::{self, LiveOptions, RoleRights, Roles, ServerStats, TlsFiles, TlsServer};
 use crate::unit::SharedUnits;
 
 /// The running Modbus/TCP Security server.
 pub(crate) struct TlsRun {
     pub(crate) server: TlsServer,
     pub(crate) local: SocketAddr,
-    /// What it was started with: a change of these restarts it, a change of the files and
-    /// roles only replaces them.
+    /// What it was started with: a change of it restarts the server; a change of the files,
+    /// roles or limits only replaces them (new connections take them, open ones stay).
     listen: SocketAddr,
-    options: ServerOptions,
+    options: Arc<LiveOptions>,
     token: CancellationToken,
     task: JoinHandle<()>,
 }
@@ -76,11 +76,11 @@ pub(crate) fn start(
     })?;
     let local = listener.local_addr()?;
     let token = root.child_token();
-    let options = server_options(cfg);
-    let serve = modbus_tcp::serve_tls(
+    let options = LiveOptions::new(server_options(cfg));
+    let serve = modbus_tcp::serve_tls_live(
         listener,
         Arc::clone(units),
-        options.clone(),
+        Arc::clone(&options),
         server.clone(),
         token.clone(),
         Arc::clone(stats),
@@ -105,8 +105,9 @@ pub(crate) fn start(
     }))
 }
 
-/// Applies a changed `[modbus_tcp]`: the same address and limits keep the server and its clients
-/// and take the new files and roles (for new connections); otherwise the server restarts.
+/// Applies a changed `[modbus_tcp]`: the same address keeps the server and its clients, which
+/// take the new files, roles and limits (for new connections; the write policy and timeouts for
+/// the next request); a new address restarts the server.
 pub(crate) async fn apply(
     running: &mut Option<TlsRun>,
     cfg: &ModbusTcpConfig,
@@ -116,7 +117,8 @@ pub(crate) async fn apply(
     reload: &Reload,
 ) -> Result<(), String> {
     if let (Some(run), Some(tls)) = (running.as_ref(), &cfg.tls) {
-        if run.listen == tls.listen && run.options == server_options(cfg) {
+        if run.listen == tls.listen {
+            run.options.set(server_options(cfg));
             return run
                 .server
                 .replace(files(tls), roles(tls))
@@ -161,10 +163,20 @@ pub(crate) fn spawn_reloader<E: std::fmt::Display>(
                 changed = reloads.changed() => if changed.is_err() { return },
             }
             reloads.borrow_and_update();
+            // Within the SIGHUP log limits (a burst of SIGHUPs writes a bounded number of lines).
             match reload() {
-                Ok(()) => info!("SIGHUP: {what} certificates read again"),
+                Ok(()) => {
+                    if let Some(suppressed) = super::reload::hangup_line(&super::reload::HANGUP_LOG)
+                    {
+                        info!(suppressed, "SIGHUP: {what} certificates read again");
+                    }
+                }
                 Err(e) => {
-                    warn!(error = %e, "SIGHUP: {what} certificates not reloaded, the old ones stay");
+                    if let Some(suppressed) =
+                        super::reload::hangup_line(&super::reload::HANGUP_WARN_LOG)
+                    {
+                        warn!(error = %e, suppressed, "SIGHUP: {what} certificates not reloaded, the old ones stay");
+                    }
                 }
             }
         }

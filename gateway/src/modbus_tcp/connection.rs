@@ -14,7 +14,6 @@ use std::sync::Arc;
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpStream;
-use tokio::sync::OwnedSemaphorePermit;
 use tokio::time::{sleep_until, Instant};
 use tokio_util::sync::CancellationToken;
 use tracing::debug;
@@ -53,7 +52,7 @@ impl ClientStream for tokio_rustls::server::TlsStream<TcpStream> {}
 /// What holds one connection's places: in the server's cap, in its client address's cap, and in
 /// the open-connections gauge.
 pub(crate) struct Places {
-    pub(crate) _permit: OwnedSemaphorePermit,
+    pub(crate) _permit: super::shared::ServerPlace,
     pub(crate) _client: super::shared::ClientPlace,
     pub(crate) _open: OpenConnection,
 }
@@ -86,7 +85,10 @@ async fn serve<S: ClientStream>(
     shutdown: &CancellationToken,
     authority: &Authority,
 ) -> CloseReason {
-    let idle = shared.options.idle_timeout;
+    // The options in force, taken again when a configuration change replaced them.
+    let mut generation = shared.options.generation();
+    let mut options = shared.options.get();
+    let mut idle = options.idle_timeout;
     let mut reader = FrameReader::new();
     let mut chunk = [0u8; READ_CHUNK];
     // The response ADU: the header's room, then the PDU written by `answer`.
@@ -117,11 +119,24 @@ async fn serve<S: ClientStream>(
                     return CloseReason::BadFrame;
                 }
             };
+            if shared.options.generation() != generation {
+                generation = shared.options.generation();
+                options = shared.options.get();
+                idle = options.idle_timeout;
+            }
             let header = frame.header;
             adu.clear();
             adu.resize(HEADER_LEN, 0);
-            if let Err(reject) =
-                answer(shared, authority, peer, header.unit_id, frame.pdu, &mut adu).await
+            if let Err(reject) = answer(
+                shared,
+                &options,
+                authority,
+                peer,
+                header.unit_id,
+                frame.pdu,
+                &mut adu,
+            )
+            .await
             {
                 crate::warn_limited!(
                     "modbus_tcp/no_function",

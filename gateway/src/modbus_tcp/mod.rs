@@ -28,9 +28,10 @@ mod shared;
 
 pub use access::{Authority, FunctionClass, Refusal, RoleRights, Roles};
 pub use diagnostic::DiagnosticUnit;
+pub use options::LiveOptions;
 pub use server::{
-    bind, serve, serve_tls, ServerOptions, DEFAULT_BACKLOG, DEFAULT_IDLE_TIMEOUT,
-    DEFAULT_MAX_CONNECTIONS, DEFAULT_REQUEST_TIMEOUT,
+    bind, serve, serve_live, serve_tls, serve_tls_live, ServerOptions, DEFAULT_BACKLOG,
+    DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS, DEFAULT_REQUEST_TIMEOUT,
 };
 pub use stats::{
     AcceptError, CloseReason, FrameReject, RejectReason, RequestCount, RequestResult, ServerStats,

@@ -2,6 +2,8 @@
 //! ([`crate::unit::write_policy`]).
 
 use std::net::IpAddr;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, PoisonError, RwLock};
 use std::time::Duration;
 
 use ipnet::IpNet;
@@ -59,6 +61,47 @@ impl ServerOptions {
         let peer = peer.to_canonical();
         self.allowed_networks.is_empty()
             || self.allowed_networks.iter().any(|net| net.contains(&peer))
+    }
+}
+
+/// The options of a running server, replaced whole by a configuration change while it serves
+/// (REST `PUT /api/v1/config`, SIGHUP): the caps and `allowed_networks` apply to the next
+/// connection accepted, the write policy and `request_timeout` to the next request of every
+/// connection, `idle_timeout` to the next wait of every connection. No connection is closed by
+/// a change; one over a lowered cap stays until it ends.
+#[derive(Debug)]
+pub struct LiveOptions {
+    current: RwLock<Arc<ServerOptions>>,
+    /// Raised by every [`Self::set`]: a connection compares it after each request (one atomic
+    /// load) and takes the options again only when it moved.
+    generation: AtomicU64,
+}
+
+// === impl LiveOptions ===
+
+impl LiveOptions {
+    /// Options in force from now on, until [`Self::set`].
+    pub fn new(options: ServerOptions) -> Arc<Self> {
+        Arc::new(Self {
+            current: RwLock::new(Arc::new(options)),
+            generation: AtomicU64::new(0),
+        })
+    }
+
+    /// The options in force.
+    pub fn get(&self) -> Arc<ServerOptions> {
+        Arc::clone(&self.current.read().unwrap_or_else(PoisonError::into_inner))
+    }
+
+    /// Puts `options` in force for what the server does next.
+    pub fn set(&self, options: ServerOptions) {
+        *self.current.write().unwrap_or_else(PoisonError::into_inner) = Arc::new(options);
+        self.generation.fetch_add(1, Ordering::Release);
+    }
+
+    /// How often the options were replaced.
+    pub fn generation(&self) -> u64 {
+        self.generation.load(Ordering::Acquire)
     }
 }
 

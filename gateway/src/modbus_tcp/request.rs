@@ -30,6 +30,7 @@ use tracing::{debug, warn};
 
 use super::access::Authority;
 use super::mbap::MAX_PDU_LEN;
+use super::options::ServerOptions;
 use super::shared::Shared;
 use super::stats::{FrameReject, RequestResult};
 use crate::audit::{WritePath, WriteResult};
@@ -45,6 +46,7 @@ static REFUSAL_LOG: LogLimit = LogLimit::new(Duration::from_secs(10), 10);
 /// `Err` when there is nothing to answer (no function code): the connection closes.
 pub(crate) async fn answer(
     shared: &Shared,
+    options: &ServerOptions,
     authority: &Authority,
     peer: SocketAddr,
     unit: u8,
@@ -56,13 +58,13 @@ pub(crate) async fn answer(
     };
     let mark = out.len();
     let mut refused = false;
-    let result = match admit(shared, authority, peer, unit, pdu, out) {
+    let result = match admit(shared, options, authority, peer, unit, pdu, out) {
         Admitted::Answered(result) => result,
         Admitted::Refused(code) => {
             refused = true;
             Err(code)
         }
-        Admitted::Call(service, request) => match call(service.as_ref(), request, shared).await {
+        Admitted::Call(service, request) => match call(service.as_ref(), request, options).await {
             Ok(response) => {
                 encode_response(&response, out);
                 Ok(())
@@ -164,6 +166,7 @@ enum Admitted {
 /// under the read lock of the unit map: no clone of the service, no future, no timer).
 fn admit(
     shared: &Shared,
+    options: &ServerOptions,
     authority: &Authority,
     peer: SocketAddr,
     unit: u8,
@@ -193,8 +196,7 @@ fn admit(
     let Some(service) = units.get(unit) else {
         return Admitted::Answered(Err(ExceptionCode::GatewayPathUnavailable));
     };
-    if let Some(code) = shared
-        .options
+    if let Some(code) = options
         .writes
         .check_write(unit, &request)
         .or_else(|| service.refuses(&request))
@@ -209,12 +211,12 @@ fn admit(
 
 /// Step 6: the service's answer, or 0x0B after `request_timeout`. A future that is ready at its
 /// first poll is taken without arming the timer.
-async fn call(service: &dyn UnitService, request: Request, shared: &Shared) -> UnitResult {
+async fn call(service: &dyn UnitService, request: Request, options: &ServerOptions) -> UnitResult {
     let mut future = service.call(request);
     if let Poll::Ready(result) = poll_fn(|cx| Poll::Ready(future.as_mut().poll(cx))).await {
         return result;
     }
-    tokio::time::timeout(shared.options.request_timeout, future)
+    tokio::time::timeout(options.request_timeout, future)
         .await
         .unwrap_or(Err(ExceptionCode::GatewayTargetFailedToRespond))
 }

@@ -8,14 +8,14 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use tokio::net::{TcpListener, TcpSocket, TcpStream};
-use tokio::sync::Semaphore;
 use tokio_util::sync::CancellationToken;
 use tokio_util::task::TaskTracker;
 use tracing::{debug, error, info, warn};
 
 use super::access::Authority;
 use super::connection::{self, Places};
-use super::shared::{ClientPlace, Shared};
+use super::options::LiveOptions;
+use super::shared::{ClientPlace, ServerPlace, Shared};
 use super::stats::{AcceptError, CloseReason, RejectReason, ServerStats};
 use super::tls::{role_of, TlsServer};
 use crate::log_limit::{LogLimit, Verdict};
@@ -62,6 +62,27 @@ pub async fn serve(
     shutdown: CancellationToken,
     stats: Arc<ServerStats>,
 ) -> io::Result<()> {
+    run(
+        listener,
+        units,
+        LiveOptions::new(options),
+        None,
+        shutdown,
+        stats,
+    )
+    .await
+}
+
+/// As [`serve`], with options the caller replaces while the server runs ([`LiveOptions::set`]):
+/// a changed limit applies to new connections (the caps, the networks) and to the next request or
+/// wait of the open ones (write policy, request and idle timeouts), and closes none of them.
+pub async fn serve_live(
+    listener: TcpListener,
+    units: SharedUnits,
+    options: Arc<LiveOptions>,
+    shutdown: CancellationToken,
+    stats: Arc<ServerStats>,
+) -> io::Result<()> {
     run(listener, units, options, None, shutdown, stats).await
 }
 
@@ -77,23 +98,41 @@ pub async fn serve_tls(
     shutdown: CancellationToken,
     stats: Arc<ServerStats>,
 ) -> io::Result<()> {
+    run(
+        listener,
+        units,
+        LiveOptions::new(options),
+        Some(tls),
+        shutdown,
+        stats,
+    )
+    .await
+}
+
+/// [`serve_tls`] with options replaced while it runs, as [`serve_live`].
+pub async fn serve_tls_live(
+    listener: TcpListener,
+    units: SharedUnits,
+    options: Arc<LiveOptions>,
+    tls: TlsServer,
+    shutdown: CancellationToken,
+    stats: Arc<ServerStats>,
+) -> io::Result<()> {
     run(listener, units, options, Some(tls), shutdown, stats).await
 }
 
 async fn run(
     listener: TcpListener,
     units: SharedUnits,
-    options: ServerOptions,
+    options: Arc<LiveOptions>,
     tls: Option<TlsServer>,
     shutdown: CancellationToken,
     stats: Arc<ServerStats>,
 ) -> io::Result<()> {
-    let limit = Arc::new(Semaphore::new(
-        options.max_connections.min(Semaphore::MAX_PERMITS),
-    ));
     let shared = Arc::new(Shared {
         units,
         options,
+        open: Arc::default(),
         stats,
         tls,
         clients: Arc::new(Mutex::new(HashMap::new())),
@@ -105,8 +144,9 @@ async fn run(
     };
     let tracker = TaskTracker::new();
     if let Ok(local) = listener.local_addr() {
-        info!(%local, max_connections = shared.options.max_connections,
-            max_connections_per_client = shared.options.max_connections_per_client,
+        let options = shared.options.get();
+        info!(%local, max_connections = options.max_connections,
+            max_connections_per_client = options.max_connections_per_client,
             "{what} server listening");
     }
     let result = loop {
@@ -116,7 +156,7 @@ async fn run(
             accepted = listener.accept() => accepted,
         };
         match accepted {
-            Ok((stream, peer)) => admit(stream, peer, &shared, &limit, &tracker, &shutdown),
+            Ok((stream, peer)) => admit(stream, peer, &shared, &tracker, &shutdown),
             Err(error) => {
                 let Some(kind) = classify(&error) else {
                     error!(%error, "Modbus TCP listener failed");
@@ -143,16 +183,17 @@ fn admit(
     stream: TcpStream,
     peer: SocketAddr,
     shared: &Arc<Shared>,
-    limit: &Arc<Semaphore>,
     tracker: &TaskTracker,
     shutdown: &CancellationToken,
 ) {
-    if !shared.options.allows_peer(peer.ip()) {
+    // The limits in force at this accept (a configuration change replaces them for the next).
+    let options = shared.options.get();
+    if !options.allows_peer(peer.ip()) {
         refused(shared, peer, "the client is outside allowed_networks");
         shared.stats.count_rejected(RejectReason::Network);
         return;
     }
-    let Some(client) = ClientPlace::take(shared, peer.ip()) else {
+    let Some(client) = ClientPlace::take(shared, &options, peer.ip()) else {
         refused(
             shared,
             peer,
@@ -161,7 +202,7 @@ fn admit(
         shared.stats.count_rejected(RejectReason::Limit);
         return;
     };
-    let Ok(permit) = Arc::clone(limit).try_acquire_owned() else {
+    let Some(permit) = ServerPlace::take(shared, options.max_connections) else {
         refused(shared, peer, "the server has max_connections open");
         shared.stats.count_rejected(RejectReason::Limit);
         return;
@@ -190,7 +231,7 @@ fn admit(
         return;
     };
     tracker.spawn(async move {
-        let handshake_timeout = shared.options.idle_timeout.min(HANDSHAKE_TIMEOUT);
+        let handshake_timeout = options.idle_timeout.min(HANDSHAKE_TIMEOUT);
         let handshake = tokio::time::timeout(handshake_timeout, tls.acceptor().accept(stream));
         let result = tokio::select! {
             () = shutdown.cancelled() => {

@@ -3,9 +3,10 @@
 
 use std::collections::HashMap;
 use std::net::IpAddr;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
-use super::options::ServerOptions;
+use super::options::{LiveOptions, ServerOptions};
 use super::stats::ServerStats;
 use super::tls::TlsServer;
 use crate::unit::SharedUnits;
@@ -14,8 +15,10 @@ use crate::unit::SharedUnits;
 pub(crate) struct Shared {
     /// The units; replaced at run time by whoever holds the other `Arc`.
     pub(crate) units: SharedUnits,
-    /// Limits and policy.
-    pub(crate) options: ServerOptions,
+    /// Limits and policy, replaced while the server runs.
+    pub(crate) options: Arc<LiveOptions>,
+    /// Connections open (for `max_connections`, read at each accept).
+    pub(crate) open: Arc<AtomicUsize>,
     /// Counters.
     pub(crate) stats: Arc<ServerStats>,
     /// The TLS settings and roles of a Modbus/TCP Security server; `None` for plain Modbus TCP.
@@ -35,15 +38,14 @@ pub(crate) struct ClientPlace {
 impl ClientPlace {
     /// A place for a connection from `ip`, or `None` when the address has its
     /// `max_connections_per_client` open.
-    pub(crate) fn take(shared: &Shared, ip: IpAddr) -> Option<Self> {
+    pub(crate) fn take(shared: &Shared, options: &ServerOptions, ip: IpAddr) -> Option<Self> {
         let ip = ip.to_canonical();
         let mut clients = shared
             .clients
             .lock()
             .unwrap_or_else(PoisonError::into_inner);
         let open = clients.entry(ip).or_default();
-        if shared
-            .options
+        if options
             .max_connections_per_client
             .is_some_and(|cap| *open >= cap)
         {
@@ -69,5 +71,34 @@ impl Drop for ClientPlace {
                 clients.remove(&self.ip);
             }
         }
+    }
+}
+
+/// One connection's place in the server's `max_connections`; given back when dropped. A cap
+/// lowered below the connections open closes none of them: new ones wait until enough left.
+pub(crate) struct ServerPlace {
+    open: Arc<AtomicUsize>,
+}
+
+// === impl ServerPlace ===
+
+impl ServerPlace {
+    /// A place, or `None` when `max_connections` are open.
+    pub(crate) fn take(shared: &Shared, max_connections: usize) -> Option<Self> {
+        shared
+            .open
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |open| {
+                (open < max_connections).then_some(open + 1)
+            })
+            .ok()?;
+        Some(Self {
+            open: Arc::clone(&shared.open),
+        })
+    }
+}
+
+impl Drop for ServerPlace {
+    fn drop(&mut self) {
+        self.open.fetch_sub(1, Ordering::AcqRel);
     }
 }
