@@ -505,7 +505,7 @@ async fn a_rogue_holding_the_name_does_not_stop_the_gateway() {
         "the holder named, escaped: {issue}"
     );
     assert!(!body.contains('\u{1b}'), "no raw escape: {body}");
-    let log = gw.wait_for("held by another session", Duration::from_secs(10));
+    let log = gw.wait_for("held by another session", Duration::from_secs(30));
     assert!(log.contains("ERROR"), "{log}");
     assert!(!gw.output().contains('\u{1b}'), "no raw escape in the log");
     assert_eq!(

@@ -361,6 +361,11 @@ fn check_reports_counts_or_issues() {
         }
     }
     expected.push(UNPOLLED_ATV71.to_owned());
+    // The CP memory's persistence file is opened by the start check as run opens it: where its
+    // state directory does not exist yet (systemd makes it), a warning, not a problem.
+    if !std::path::Path::new("/var/lib/gateway").exists() {
+        expected.push("warning: cp_memory.persist_file: the directory /var/lib/gateway does not exist: the memory starts zeroed and every save fails (logged) until it exists (systemd's StateDirectory= makes it when the service starts)".to_owned());
+    }
     assert_eq!((text.as_str(), code), (expected.join("\n").as_str(), 0));
     assert_eq!(gateway::app::check_command(&ok), 0);
 
