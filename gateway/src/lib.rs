@@ -28,6 +28,7 @@ pub mod app;
 pub mod audit;
 pub mod config;
 pub mod cpmem;
+pub mod feeds;
 #[cfg(any(fuzzing, test))]
 pub mod fuzzing;
 mod heap;

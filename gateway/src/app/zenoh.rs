@@ -1,42 +1,32 @@
 //! The zenoh bridge wired to the running gateway: the backend that answers queries and commands
-//! from the supervisor's snapshot (image, tags, lines), and the tasks that feed publications
-//! (tag values on change, events, received telegrams, device presence).
+//! from the supervisor's snapshot (image, tags, lines), and the start of the feeds that publish
+//! (tag values on change, events, received telegrams, device presence: [`crate::feeds::zenoh`]).
 //!
 //! Lines come and go with configuration changes: the feeds of one line (its events, its
 //! telegrams) run under that line's token and stop with it; a line started later gets its own.
 //! A write from zenoh takes the same path and checks as a Modbus TCP write ([`super::tag_io`]).
 
 use crate::line::telegram::TelegramSendError;
-use crate::mailbox::AckMode;
-use std::collections::BTreeSet;
 use std::sync::{Arc, PoisonError, Weak};
-use std::time::Duration;
 
-use proto_core::event;
 use proto_core::profiles::Value;
 use serde_json::{json, Value as Json};
-use tokio::sync::broadcast::error::RecvError;
 use tokio_util::sync::CancellationToken;
-use tracing::{debug, info};
+use tracing::info;
 
-use super::lines::RunningLine;
 use super::status::line_view;
 use super::supervisor::{Follower, Snapshot, Supervisor, ZenohState};
 use super::tag_io::{self, WriteRefused};
 use super::AppError;
 use crate::api::model::ScalarValue;
 use crate::api::BoxFuture;
-use crate::image::ProcessImage;
-use crate::line::LineEvent;
-use crate::tags::{TagDirectory, TagEntry, TagWriteError};
+use crate::feeds::zenoh as feeds;
+use crate::tags::TagWriteError;
 use crate::zenoh_bridge::accounting::{self, WriteReason};
 use crate::zenoh_bridge::{
-    BackendFuture, Bridge, BridgeBackend, BridgeError, BridgeHandle, BridgeStats, DropReason,
-    OnDuplicate, TagValue, ZenohConfig,
+    BackendFuture, Bridge, BridgeBackend, BridgeError, BridgeHandle, BridgeStats, OnDuplicate,
+    TagValue, ZenohConfig,
 };
-
-/// How often device presence is compared with the last published state.
-const PRESENCE_PERIOD: Duration = Duration::from_millis(500);
 
 /// A running bridge.
 struct ZenohRun {
@@ -144,7 +134,7 @@ async fn open(follower: &ZenohFollower, sup: &Arc<Supervisor>) -> Result<(), App
     })?;
     spawn_feeds(sup, &handle, &token);
     for (name, line) in &snapshot.lines {
-        spawn_line_feeds(&handle, name, line, &token);
+        feeds::spawn_line_feeds(&handle, name, &line.handle, &line.token, &token);
     }
     let endpoints: Vec<&str> = listen
         .iter()
@@ -207,7 +197,7 @@ async fn lines_started(follower: &ZenohFollower, snapshot: &Snapshot, names: &[S
     let Some(run) = run.as_ref() else { return };
     for name in names {
         if let Some(line) = snapshot.lines.get(name) {
-            spawn_line_feeds(&run.handle, name, line, &run.token);
+            feeds::spawn_line_feeds(&run.handle, name, &line.handle, &line.token, &run.token);
         }
     }
 }
@@ -242,7 +232,7 @@ impl BridgeBackend for ZenohBackend {
             .filter(|e| device.is_none_or(|d| d == e.device()))
             .filter(|e| tag.is_none_or(|t| t.eq_ignore_ascii_case(e.name())))
             .filter_map(|e| {
-                let value = tag_value(&snapshot.tags, &sup.image, e)?;
+                let value = feeds::tag_value(&snapshot.tags, &sup.image, e)?;
                 Some((
                     e.line().to_owned(),
                     e.device().to_owned(),
@@ -447,298 +437,18 @@ fn json_value(value: &Json) -> Option<Value> {
     Some(scalar.into())
 }
 
-/// A tag's value as the bridge publishes it.
-fn tag_value(tags: &TagDirectory, image: &ProcessImage, entry: &TagEntry) -> Option<TagValue> {
-    let reading = tags.read(image, entry)?;
-    let value = json!(ScalarValue::from(reading.value));
-    let unit = (!reading.unit.is_empty()).then_some(reading.unit);
-    Some(TagValue {
-        value,
-        unit,
-        quality: reading.quality,
-        timestamp: reading.timestamp,
-        description: (!entry.description().is_empty()).then(|| entry.description().to_owned()),
-    })
-}
-
-/// The feeds of the whole gateway: tag values on change (every image change maps to the tags
-/// it overlaps in the directory in force) and device presence.
+/// The feeds of the whole gateway ([`crate::feeds::zenoh`]): tag values on change, from the
+/// tag directory in force, and the presence of the lines in force and their devices.
 fn spawn_feeds(sup: &Arc<Supervisor>, bridge: &BridgeHandle, token: &CancellationToken) {
-    {
-        let bridge = bridge.clone();
-        let weak = Arc::downgrade(sup);
-        let image = sup.image.clone();
-        let mut changes = image.subscribe();
-        let token = token.clone();
-        tokio::spawn(async move {
-            loop {
-                let change = tokio::select! {
-                    () = token.cancelled() => return,
-                    change = changes.recv() => change,
-                };
-                match change {
-                    Ok(change) => {
-                        let Some(sup) = weak.upgrade() else { return };
-                        let tags = Arc::clone(&sup.snapshot().tags);
-                        let count = u16::try_from(change.values.len()).unwrap_or(u16::MAX);
-                        for entry in
-                            tags.overlapping(change.unit, change.table, change.start, count)
-                        {
-                            if let Some(value) = tag_value(&tags, &image, entry) {
-                                bridge.publish_tag(
-                                    entry.line(),
-                                    entry.device(),
-                                    entry.name(),
-                                    value,
-                                );
-                            }
-                        }
-                    }
-                    Err(RecvError::Lagged(n)) => {
-                        // The newest values follow; publishing skipped ones would be stale.
-                        bridge.stats().dropped_many(DropReason::FeedLagged, n);
-                        debug!(
-                            skipped = n,
-                            "zenoh feed fell behind the image; newest values win"
-                        );
-                    }
-                    Err(RecvError::Closed) => return,
-                }
-            }
-        });
-    }
-    // Presence: a liveliness token per line whose port is open and per online device, of the
-    // lines in force.
-    let bridge = bridge.clone();
     let weak = Arc::downgrade(sup);
-    let token = token.clone();
-    tokio::spawn(async move {
-        let mut online: BTreeSet<(String, String)> = BTreeSet::new();
-        let mut open: BTreeSet<String> = BTreeSet::new();
-        let mut ticker = tokio::time::interval(PRESENCE_PERIOD);
-        loop {
-            tokio::select! {
-                () = token.cancelled() => return,
-                _ = ticker.tick() => {}
-            }
-            let Some(sup) = weak.upgrade() else { return };
-            let mut now: BTreeSet<(String, String)> = BTreeSet::new();
-            let mut open_now: BTreeSet<String> = BTreeSet::new();
-            for line in sup.snapshot().lines.values() {
-                let status = line.handle.status();
-                if status.port_open {
-                    open_now.insert(status.name.clone());
-                }
-                for d in status.devices.iter().filter(|d| d.online) {
-                    now.insert((status.name.clone(), d.name.clone()));
-                }
-            }
-            for key in online.difference(&now) {
-                bridge.device_online(&key.0, &key.1, false);
-            }
-            for line in open.difference(&open_now) {
-                bridge.line_online(line, false);
-            }
-            for line in open_now.difference(&open) {
-                bridge.line_online(line, true);
-            }
-            open = open_now;
-            for key in now.difference(&online) {
-                bridge.device_online(&key.0, &key.1, true);
-            }
-            online = now;
-        }
-    });
-}
-
-/// The feeds of one line: its events and its received telegrams (in order, each once; the
-/// bridge's queue counts what it must drop). They end with the line or the bridge.
-fn spawn_line_feeds(
-    bridge: &BridgeHandle,
-    name: &str,
-    line: &RunningLine,
-    token: &CancellationToken,
-) {
-    let mut events = line.handle.subscribe_events();
-    {
-        let bridge = bridge.clone();
-        let (token, line_token) = (token.clone(), line.token.clone());
-        tokio::spawn(async move {
-            loop {
-                let received = tokio::select! {
-                    () = token.cancelled() => return,
-                    () = line_token.cancelled() => return,
-                    e = events.recv() => e,
-                };
-                match received {
-                    Ok(e) => publish_event(&bridge, &e),
-                    Err(RecvError::Lagged(n)) => {
-                        bridge.stats().dropped_many(DropReason::FeedLagged, n);
-                        crate::warn_limited!(
-                            "zenoh event feed lagged",
-                            missed = n,
-                            "zenoh event feed fell behind a line"
-                        );
-                    }
-                    Err(RecvError::Closed) => return,
-                }
-            }
-        });
-    }
-    if let Some(monitor) = line.handle.monitor() {
-        spawn_frame_feed(bridge, Arc::clone(monitor), token, &line.token);
-    }
-    let Some(mut rx) = line.handle.subscribe_rx() else {
-        return;
+    let tags = move || weak.upgrade().map(|sup| Arc::clone(&sup.snapshot().tags));
+    feeds::spawn_tag_feed(bridge, sup.image.clone(), tags, token);
+    let weak = Arc::downgrade(sup);
+    let statuses = move || {
+        weak.upgrade().map(|sup| {
+            let snapshot = sup.snapshot();
+            snapshot.lines.values().map(|l| l.handle.status()).collect()
+        })
     };
-    if let Some(mailbox) = line
-        .handle
-        .mailbox()
-        .filter(|m| m.settings().ack == AckMode::OnPublish)
-    {
-        spawn_on_publish_feed(bridge, mailbox, rx, token, &line.token);
-        return;
-    }
-    let bridge = bridge.clone();
-    let (token, line_token) = (token.clone(), line.token.clone());
-    let name = name.to_owned();
-    tokio::spawn(async move {
-        loop {
-            let received = tokio::select! {
-                () = token.cancelled() => return,
-                () = line_token.cancelled() => return,
-                t = rx.recv() => t,
-            };
-            match received {
-                Ok(t) => {
-                    let data = t.data.to_vec();
-                    if bridge
-                        .publish_telegram_from(
-                            &t.line,
-                            u64::from(t.seq),
-                            t.received,
-                            t.side.map(proto_core::proc3964::tap::Side::as_str),
-                            data,
-                        )
-                        .is_err()
-                    {
-                        debug!(line = %t.line, seq = t.seq, "zenoh telegram queue full; the drop is counted");
-                    }
-                }
-                Err(RecvError::Lagged(n)) => {
-                    bridge.stats().dropped_many(DropReason::FeedLagged, n);
-                    crate::warn_limited!(format!("zenoh telegram feed lagged {name}"), line = %name, missed = n, "zenoh telegram feed fell behind a line; the telegrams stay in the mailbox");
-                }
-                Err(RecvError::Closed) => return,
-            }
-        }
-    });
-}
-
-/// How long the feed of a line acknowledged on publication waits before it offers a telegram
-/// again that zenoh did not take (its queue full, a put that failed).
-const ON_PUBLISH_RETRY: Duration = Duration::from_millis(100);
-
-/// `<prefix>/<line>/rx` of a line with `ack = "on-publish"`: the mailbox's waiting telegrams,
-/// oldest first, each acknowledged once zenoh took its put (so a telegram the journal restored
-/// is published after a restart, and one zenoh did not take waits and is offered again). The
-/// broadcast of received telegrams only wakes the feed.
-fn spawn_on_publish_feed(
-    bridge: &BridgeHandle,
-    mailbox: Arc<crate::mailbox::Mailbox>,
-    mut arrivals: tokio::sync::broadcast::Receiver<crate::mailbox::TelegramRx>,
-    token: &CancellationToken,
-    line_token: &CancellationToken,
-) {
-    let bridge = bridge.clone();
-    let (token, line_token) = (token.clone(), line_token.clone());
-    tokio::spawn(async move {
-        loop {
-            while let Some(t) = mailbox.head() {
-                let pushed = bridge.publish_telegram_confirmed(
-                    &t.line,
-                    u64::from(t.seq),
-                    t.received,
-                    t.data.to_vec(),
-                );
-                let taken = match pushed {
-                    Ok(done) => tokio::select! {
-                        () = token.cancelled() => return,
-                        () = line_token.cancelled() => return,
-                        ok = done => ok.unwrap_or(false),
-                    },
-                    Err(DropReason::BridgeClosed) => return,
-                    Err(_) => false,
-                };
-                if taken {
-                    // A client may have acknowledged it meanwhile: either way it is done.
-                    let _ = mailbox.ack(t.seq);
-                } else {
-                    tokio::select! {
-                        () = token.cancelled() => return,
-                        () = line_token.cancelled() => return,
-                        () = tokio::time::sleep(ON_PUBLISH_RETRY) => {}
-                    }
-                }
-            }
-            let arrived = tokio::select! {
-                () = token.cancelled() => return,
-                () = line_token.cancelled() => return,
-                t = arrivals.recv() => t,
-            };
-            if let Err(RecvError::Closed) = arrived {
-                return;
-            }
-        }
-    });
-}
-
-/// `<prefix>/<line>/frames`: every frame of the line's monitor, as the REST API shows it. The
-/// copy of each frame is made only while this feed listens (the bridge is on).
-fn spawn_frame_feed(
-    bridge: &BridgeHandle,
-    monitor: Arc<crate::line::FrameMonitor>,
-    token: &CancellationToken,
-    line_token: &CancellationToken,
-) {
-    let mut frames = monitor.subscribe();
-    let bridge = bridge.clone();
-    let (token, line_token) = (token.clone(), line_token.clone());
-    tokio::spawn(async move {
-        let ended = monitor.ended();
-        tokio::pin!(ended);
-        loop {
-            let received = tokio::select! {
-                () = token.cancelled() => return,
-                () = line_token.cancelled() => return,
-                () = &mut ended => return,
-                f = frames.recv() => f,
-            };
-            match received {
-                Ok(frame) => {
-                    let view = crate::api::model::FrameView::new(&monitor, &frame);
-                    let json = serde_json::to_vec(&view).unwrap_or_default();
-                    if bridge.publish_frame(monitor.line(), json).is_err() {
-                        debug!(line = %monitor.line(), seq = frame.seq, "zenoh frame queue full; the drop is counted");
-                    }
-                }
-                Err(RecvError::Lagged(n)) => {
-                    monitor.count_lagged(n);
-                    bridge.stats().dropped_many(DropReason::FeedLagged, n);
-                }
-                Err(RecvError::Closed) => return,
-            }
-        }
-    });
-}
-
-fn publish_event(bridge: &BridgeHandle, e: &LineEvent) {
-    let name = event::class_name(e.id.class).unwrap_or("unknown");
-    let text = event::lookup(e.id).map_or("", |i| i.description);
-    if bridge
-        .publish_event(&e.line, e.id.class, e.id.number, name, text)
-        .is_err()
-    {
-        debug!(line = %e.line, event = %e.id, "zenoh event queue full; the drop is counted");
-    }
+    feeds::spawn_presence_feed(bridge, statuses, token);
 }

@@ -228,99 +228,119 @@ pub async fn collect_status(
     Ok(answers)
 }
 
+/// A row of the `fleet status` table, one cell per column of [`HEADER`].
+type Row = [String; 8];
+
+/// The columns of the `fleet status` table.
+const HEADER: [&str; 8] = [
+    "GATEWAY",
+    "LINE",
+    "DEVICE",
+    "ONLINE",
+    "STATUS",
+    "LAST EVENT",
+    "AGE",
+    "WHERE",
+];
+
 /// The table of `fleet status`: a row per gateway, per line and per device.
 pub fn table(answers: &[(String, Value)]) -> String {
-    let header = [
-        "GATEWAY",
-        "LINE",
-        "DEVICE",
-        "ONLINE",
-        "STATUS",
-        "LAST EVENT",
-        "AGE",
-        "WHERE",
-    ];
-    let mut rows: Vec<[String; 8]> = Vec::new();
+    let mut rows: Vec<Row> = Vec::new();
     for (key, s) in answers {
-        let gw = text(s, "name").unwrap_or_else(|| key.trim_end_matches("/status").to_owned());
-        let lines = s.get("lines").and_then(Value::as_array);
-        let mut place = vec![];
-        if let Some(h) = s.get("host").and_then(Value::as_str) {
-            place.push(bounded_text(h, fleet::HOST_MAX));
-        }
-        if let Some(z) = s.pointer("/zenoh/zid").and_then(Value::as_str) {
-            place.push(format!("zid {}", bounded_text(z, fleet::ZID_MAX)));
-        }
-        if let Some(u) = s.get("http").and_then(Value::as_str) {
-            place.push(bounded_text(u, fleet::HTTP_MAX));
-        }
-        rows.push([
-            gw.clone(),
-            format!("({} lines)", lines.map_or(0, Vec::len)),
-            "-".into(),
-            "yes".into(),
-            "-".into(),
-            "-".into(),
-            s.get("uptime_s")
-                .and_then(Value::as_f64)
-                .map_or_else(|| "-".into(), |u| format!("up {}", age(u))),
-            place.join(" "),
-        ]);
-        for line in lines.into_iter().flatten() {
-            let name = text(line, "name").unwrap_or_default();
-            let online = line
-                .get("online")
-                .or_else(|| line.get("port_open"))
-                .and_then(Value::as_bool);
-            let event = line.get("last_event").filter(|e| !e.is_null()).map(|e| {
-                format!(
-                    "{} {}",
-                    text(e, "code").unwrap_or_default(),
-                    text(e, "class_name").unwrap_or_default()
-                )
-                .trim()
-                .to_owned()
-            });
-            rows.push([
-                gw.clone(),
-                name.clone(),
-                "-".into(),
-                yes_no(online),
-                line.get("status_word")
-                    .and_then(Value::as_u64)
-                    .map_or_else(|| "-".into(), |w| format!("{w:04X}")),
-                event.unwrap_or_else(|| "-".into()),
-                line.get("last_event_age_s")
-                    .and_then(Value::as_f64)
-                    .map_or_else(|| "-".into(), age),
-                text(line, "protocol").unwrap_or_default(),
-            ]);
-            for d in line
-                .get("devices")
-                .and_then(Value::as_array)
-                .into_iter()
-                .flatten()
-            {
-                rows.push([
-                    gw.clone(),
-                    name.clone(),
-                    text(d, "name").unwrap_or_default(),
-                    yes_no(d.get("online").and_then(Value::as_bool)),
-                    "-".into(),
-                    "-".into(),
-                    d.get("last_answer_age_s")
-                        .and_then(Value::as_f64)
-                        .map_or_else(|| "-".into(), age),
-                    d.get("address")
-                        .and_then(Value::as_u64)
-                        .map_or_else(String::new, |a| format!("address {a}")),
-                ]);
-            }
-        }
+        gateway_rows(key, s, &mut rows);
     }
+    layout(rows)
+}
+
+/// The rows of one gateway's status answer: the gateway, then each line and its devices.
+fn gateway_rows(key: &str, s: &Value, rows: &mut Vec<Row>) {
+    let gw = text(s, "name").unwrap_or_else(|| key.trim_end_matches("/status").to_owned());
+    let lines = s.get("lines").and_then(Value::as_array);
+    let mut place = vec![];
+    if let Some(h) = s.get("host").and_then(Value::as_str) {
+        place.push(bounded_text(h, fleet::HOST_MAX));
+    }
+    if let Some(z) = s.pointer("/zenoh/zid").and_then(Value::as_str) {
+        place.push(format!("zid {}", bounded_text(z, fleet::ZID_MAX)));
+    }
+    if let Some(u) = s.get("http").and_then(Value::as_str) {
+        place.push(bounded_text(u, fleet::HTTP_MAX));
+    }
+    rows.push([
+        gw.clone(),
+        format!("({} lines)", lines.map_or(0, Vec::len)),
+        "-".into(),
+        "yes".into(),
+        "-".into(),
+        "-".into(),
+        s.get("uptime_s")
+            .and_then(Value::as_f64)
+            .map_or_else(|| "-".into(), |u| format!("up {}", age(u))),
+        place.join(" "),
+    ]);
+    for line in lines.into_iter().flatten() {
+        line_rows(&gw, line, rows);
+    }
+}
+
+/// The rows of one line of a gateway: the line, then each of its devices.
+fn line_rows(gw: &str, line: &Value, rows: &mut Vec<Row>) {
+    let name = text(line, "name").unwrap_or_default();
+    let online = line
+        .get("online")
+        .or_else(|| line.get("port_open"))
+        .and_then(Value::as_bool);
+    let event = line.get("last_event").filter(|e| !e.is_null()).map(|e| {
+        format!(
+            "{} {}",
+            text(e, "code").unwrap_or_default(),
+            text(e, "class_name").unwrap_or_default()
+        )
+        .trim()
+        .to_owned()
+    });
+    rows.push([
+        gw.to_owned(),
+        name.clone(),
+        "-".into(),
+        yes_no(online),
+        line.get("status_word")
+            .and_then(Value::as_u64)
+            .map_or_else(|| "-".into(), |w| format!("{w:04X}")),
+        event.unwrap_or_else(|| "-".into()),
+        line.get("last_event_age_s")
+            .and_then(Value::as_f64)
+            .map_or_else(|| "-".into(), age),
+        text(line, "protocol").unwrap_or_default(),
+    ]);
+    for d in line
+        .get("devices")
+        .and_then(Value::as_array)
+        .into_iter()
+        .flatten()
+    {
+        rows.push([
+            gw.to_owned(),
+            name.clone(),
+            text(d, "name").unwrap_or_default(),
+            yes_no(d.get("online").and_then(Value::as_bool)),
+            "-".into(),
+            "-".into(),
+            d.get("last_answer_age_s")
+                .and_then(Value::as_f64)
+                .map_or_else(|| "-".into(), age),
+            d.get("address")
+                .and_then(Value::as_u64)
+                .map_or_else(String::new, |a| format!("address {a}")),
+        ]);
+    }
+}
+
+/// The rows as aligned text under [`HEADER`], at most [`ROWS_MAX`] of them.
+fn layout(mut rows: Vec<Row>) -> String {
     let left_out = rows.len().saturating_sub(ROWS_MAX);
     rows.truncate(ROWS_MAX);
-    let mut widths = header.map(str::len);
+    let mut widths = HEADER.map(str::len);
     for row in &rows {
         for (w, cell) in widths.iter_mut().zip(row) {
             *w = (*w).max(cell.chars().count());
@@ -339,7 +359,7 @@ pub fn table(answers: &[(String, Value)]) -> String {
         out.push_str(line.trim_end());
         out.push('\n');
     };
-    put(&header);
+    put(&HEADER);
     for row in &rows {
         put(&row.each_ref().map(String::as_str));
     }

@@ -84,10 +84,12 @@ pub mod fleet_cli;
 pub mod keys;
 pub mod stats;
 
+mod handle;
 mod policy;
 mod presence;
 mod publish;
 mod queryable;
+mod session;
 mod subscribe;
 mod tag_queue;
 
@@ -95,32 +97,24 @@ use std::future::Future;
 use std::path::PathBuf;
 use std::pin::Pin;
 use std::sync::Arc;
-use std::time::{Duration, SystemTime};
+use std::time::SystemTime;
 
 use serde_json::{json, Value};
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
-use zenoh::pubsub::Subscriber;
-use zenoh::query::Queryable;
-use zenoh::Session;
 
 pub use crate::config::{Deadband, PublishConfig, TagPolicy, TagRule};
 pub use config::{Endpoint, Mode, Prefix, ZenohConfig};
+pub use handle::BridgeHandle;
 pub use keys::{KeyError, Keys};
 pub use stats::{BridgeStats, CommandKind, CommandOutcome, DropReason, PublicationKind};
 
-use policy::{Publishing, Verdict};
-use publish::{Limits, Message, Outbox, PublisherThread};
-use queryable::{Answerer, Queries, QueryKind};
-use subscribe::{Commands, CommandsConfig};
+use policy::Publishing;
+use publish::{Limits, Outbox, PublisherThread};
 
-/// First wait before a client retries opening its session.
 /// Monitored frames waiting for the publisher thread (`<line>/frames`), all lines together;
 /// more are dropped and counted (`frame_queue_full`): the line's ring keeps them for REST.
 const FRAME_QUEUE: usize = 1024;
-const RETRY_MIN: Duration = Duration::from_secs(1);
-/// Longest wait between retries.
-const RETRY_MAX: Duration = Duration::from_secs(30);
 
 /// The future a [`BridgeBackend`] command returns.
 pub type BackendFuture<T> = Pin<Box<dyn Future<Output = T> + Send + 'static>>;
@@ -242,202 +236,6 @@ pub enum BridgeError {
     Thread(std::io::Error),
 }
 
-/// The producer side of the bridge, for lines and the image. Cheap to clone; no method waits.
-#[derive(Clone)]
-pub struct BridgeHandle {
-    keys: Arc<Keys>,
-    outbox: Arc<Outbox>,
-    stats: Arc<BridgeStats>,
-    /// Deadbands and heartbeats of the tags.
-    publishing: Arc<Publishing>,
-}
-
-// === impl BridgeHandle ===
-
-impl BridgeHandle {
-    /// Queues a received telegram for `<prefix>/<line>/rx`. `Err` when it was dropped (queue
-    /// full, bridge closed, bad line name); the drop is counted and logged.
-    pub fn publish_telegram(
-        &self,
-        line: &str,
-        seq: u64,
-        received: SystemTime,
-        bytes: Vec<u8>,
-    ) -> Result<(), DropReason> {
-        self.publish_telegram_from(line, seq, received, None, bytes)
-    }
-
-    /// [`Self::publish_telegram`] for a telegram partner `side` sent (a 3964(R) tap line): the
-    /// attachment also carries `"side": "a"` or `"b"`.
-    ///
-    /// # Errors
-    ///
-    /// As [`Self::publish_telegram`].
-    pub fn publish_telegram_from(
-        &self,
-        line: &str,
-        seq: u64,
-        received: SystemTime,
-        side: Option<&str>,
-        bytes: Vec<u8>,
-    ) -> Result<(), DropReason> {
-        self.push_telegram(line, seq, received, side, bytes, None)
-    }
-
-    /// [`Self::publish_telegram`] that tells, once the put was made, whether zenoh took it
-    /// (`true`): a line that acknowledges on publication waits for it.
-    ///
-    /// # Errors
-    ///
-    /// As [`Self::publish_telegram`].
-    pub fn publish_telegram_confirmed(
-        &self,
-        line: &str,
-        seq: u64,
-        received: SystemTime,
-        bytes: Vec<u8>,
-    ) -> Result<tokio::sync::oneshot::Receiver<bool>, DropReason> {
-        let (done, taken) = tokio::sync::oneshot::channel();
-        self.push_telegram(line, seq, received, None, bytes, Some(done))?;
-        Ok(taken)
-    }
-
-    fn push_telegram(
-        &self,
-        line: &str,
-        seq: u64,
-        received: SystemTime,
-        side: Option<&str>,
-        bytes: Vec<u8>,
-        done: Option<tokio::sync::oneshot::Sender<bool>>,
-    ) -> Result<(), DropReason> {
-        self.check(&[line])?;
-        let mut attachment = json!({"seq": seq, "time": publish::rfc3339(received)});
-        if let Some(side) = side {
-            attachment["side"] = json!(side);
-        }
-        let pushed = self.outbox.push(Message {
-            kind: PublicationKind::Telegram,
-            key: self.keys.rx(line),
-            payload: bytes,
-            json: false,
-            attachment: Some(attachment.to_string().into_bytes()),
-            done,
-        });
-        if let Err(reason) = pushed {
-            crate::warn_limited!(format!("zenoh telegram dropped {line}"), %line, seq, reason = reason.as_str(), "telegram not published on zenoh");
-        }
-        pushed
-    }
-
-    /// Queues a tag value for `<prefix>/<line>/<device>/<tag>`; a newer value of the same tag
-    /// replaces one not yet published. The key is written into the outbox (no allocation per
-    /// value), checked as a key expression once when it becomes pending, and published as it is.
-    pub fn publish_tag(&self, line: &str, device: &str, tag: &str, value: TagValue) {
-        if self.check(&[line, device, tag]).is_err() {
-            return;
-        }
-        let now = tokio::time::Instant::now();
-        match self.publishing.admit((line, device, tag), &value, now) {
-            Verdict::Publish => self
-                .outbox
-                .push_tag(&[self.keys.prefix(), line, device, tag], value),
-            Verdict::WithinDeadband => self.stats.suppressed_by_deadband(),
-        }
-    }
-
-    /// Queues a monitored frame (JSON) for `<prefix>/<line>/frames`. `Err` when it was dropped
-    /// (counted).
-    pub fn publish_frame(&self, line: &str, json: Vec<u8>) -> Result<(), DropReason> {
-        self.check(&[line])?;
-        self.outbox.push(Message {
-            kind: PublicationKind::Frame,
-            key: self.keys.frames(line),
-            payload: json,
-            json: true,
-            attachment: None,
-            done: None,
-        })
-    }
-
-    /// Queues an event for `<prefix>/<line>/events`. `Err` when it was dropped (counted).
-    pub fn publish_event(
-        &self,
-        line: &str,
-        class: u8,
-        number: u8,
-        name: &str,
-        text: &str,
-    ) -> Result<(), DropReason> {
-        self.check(&[line])?;
-        let body = json!({
-            "class": class,
-            "number": number,
-            "event": format!("{class:02X}{number:02X}"),
-            "name": name,
-            "text": text,
-            "time": publish::rfc3339(SystemTime::now()),
-        });
-        let pushed = self.outbox.push(Message {
-            kind: PublicationKind::Event,
-            key: self.keys.events(line),
-            payload: body.to_string().into_bytes(),
-            json: true,
-            attachment: None,
-            done: None,
-        });
-        if let Err(reason) = pushed {
-            crate::warn_limited!(format!("zenoh event dropped {line}"), %line, class, number, reason = reason.as_str(), "event not published on zenoh");
-        }
-        pushed
-    }
-
-    /// Declares (online) or undeclares (offline) the liveliness token of a line.
-    pub fn line_online(&self, line: &str, online: bool) {
-        if self.check(&[line]).is_ok() {
-            self.outbox
-                .push_presence(self.keys.line_token(line), online);
-        }
-    }
-
-    /// Declares (online) or undeclares (offline) the liveliness token of a device.
-    pub fn device_online(&self, line: &str, device: &str, online: bool) {
-        if self.check(&[line, device]).is_ok() {
-            self.outbox
-                .push_presence(self.keys.device_token(line, device), online);
-        }
-    }
-
-    /// The bridge's counters.
-    pub fn stats(&self) -> &Arc<BridgeStats> {
-        &self.stats
-    }
-
-    /// The key prefix in use.
-    pub fn prefix(&self) -> &str {
-        self.keys.prefix()
-    }
-
-    fn check(&self, names: &[&str]) -> Result<(), DropReason> {
-        for name in names {
-            if let Err(e) = keys::check_chunk("name", name) {
-                self.stats.dropped(DropReason::BadKey);
-                crate::warn_limited!("zenoh bad name", error = %e, "update not published on zenoh");
-                return Err(DropReason::BadKey);
-            }
-        }
-        Ok(())
-    }
-}
-
-impl std::fmt::Debug for BridgeHandle {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("BridgeHandle")
-            .field("prefix", &self.keys.prefix())
-            .finish_non_exhaustive()
-    }
-}
-
 /// The running bridge. Stops when the shutdown token given to [`Bridge::start`] is cancelled;
 /// [`Bridge::join`] waits for that.
 #[derive(Debug)]
@@ -535,7 +333,7 @@ impl Bridge {
                 .map_err(BridgeError::Thread)?
         };
 
-        let parts = Parts {
+        let parts = session::Parts {
             keys: keys.clone(),
             outbox: outbox.clone(),
             stats: stats.clone(),
@@ -562,14 +360,14 @@ impl Bridge {
             publishing,
         };
         if let Some(tick) = handle.publishing.tick() {
-            tokio::spawn(heartbeats(
+            tokio::spawn(handle::heartbeats(
                 handle.clone(),
                 parts.backend.clone(),
                 tick,
                 shutdown.clone(),
             ));
         }
-        let driver = tokio::spawn(drive(parts, session, zcfg, thread, shutdown));
+        let driver = tokio::spawn(session::drive(parts, session, zcfg, thread, shutdown));
         Ok((
             Self {
                 driver,
@@ -599,76 +397,6 @@ impl Bridge {
     }
 }
 
-/// Publishes the current value of every tag whose heartbeat fell due, every `tick`, until
-/// shutdown; first every current value once (through the policy). The values come from the
-/// backend (the image), with the time their poll read them.
-async fn heartbeats(
-    handle: BridgeHandle,
-    backend: Arc<dyn BridgeBackend>,
-    tick: Duration,
-    shutdown: CancellationToken,
-) {
-    let mut ticker = tokio::time::interval(tick);
-    ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut first_round = true;
-    loop {
-        tokio::select! {
-            () = shutdown.cancelled() => return,
-            _ = ticker.tick() => {}
-        }
-        let (handle, backend) = (handle.clone(), backend.clone());
-        let first = std::mem::take(&mut first_round);
-        let round = tokio::task::spawn_blocking(move || {
-            let now = tokio::time::Instant::now();
-            if first {
-                // Values read before the bridge started were never announced to it: publish
-                // those of tags with a policy once, which starts their heartbeats.
-                for (line, device, tag, value) in backend.query_tags(None, None, None) {
-                    if handle.publishing.has_policy(&line, &device, &tag) {
-                        handle.publish_tag(&line, &device, &tag, value);
-                    }
-                }
-            }
-            for (line, device, tag) in handle.publishing.due(now) {
-                let current = backend
-                    .query_tags(Some(&line), Some(&device), Some(&tag))
-                    .into_iter()
-                    .find(|(l, d, t, _)| *l == line && *d == device && *t == tag);
-                if let Some((_, _, _, value)) = current {
-                    handle
-                        .publishing
-                        .record((&line, &device, &tag), &value, now);
-                    handle.stats.heartbeat_sent();
-                    handle
-                        .outbox
-                        .push_tag(&[handle.keys.prefix(), &line, &device, &tag], value);
-                }
-            }
-        })
-        .await;
-        if let Err(e) = round {
-            crate::error_limited!("zenoh heartbeat round failed", error = %e, "zenoh heartbeat round failed");
-        }
-    }
-}
-
-/// What the driver task needs.
-struct Parts {
-    keys: Arc<Keys>,
-    outbox: Arc<Outbox>,
-    stats: Arc<BridgeStats>,
-    backend: Arc<dyn BridgeBackend>,
-    mode: Mode,
-    command_queue: usize,
-    query_queue: usize,
-    max_payload: usize,
-    /// The listen endpoints in force (JSON list), for the gateway status.
-    listen: Value,
-    gateway_name: String,
-    fleet: Arc<fleet::FleetView>,
-    on_duplicate: OnDuplicate,
-}
-
 /// What a gateway does when another session holds its name (its liveliness token `<prefix>`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum OnDuplicate {
@@ -681,196 +409,13 @@ pub enum OnDuplicate {
     Exit,
 }
 
-/// The subscribers and queryables; dropping them undeclares them.
-struct Declared {
-    _subscribers: Vec<Subscriber<()>>,
-    _queryables: Vec<Queryable<()>>,
-}
-
-async fn drive(
-    parts: Parts,
-    session: Option<Session>,
-    zcfg: zenoh::Config,
-    thread: std::thread::JoinHandle<()>,
-    shutdown: CancellationToken,
-) {
-    let session = match session {
-        Some(s) => Some(s),
-        None => match open_with_retry(zcfg, &shutdown).await {
-            // A client that connected late checks the fleet then; refused, it stays off the
-            // fabric (the process runs on: its lines, Modbus TCP and REST are not zenoh's).
-            Some(s) if parts.on_duplicate == OnDuplicate::Exit => {
-                match fleet::refuse_duplicate(&s, &parts.keys, &parts.gateway_name).await {
-                    Ok(()) => Some(s),
-                    Err(e) => {
-                        crate::error_limited!("zenoh duplicate gateway", error = %e, "zenoh: this gateway stays off the fabric");
-                        if let Err(close) = s.close().await {
-                            tracing::debug!(error = %close, "zenoh session close failed");
-                        }
-                        None
-                    }
-                }
-            }
-            other => other,
-        },
-    };
-    let mut declared = None;
-    if let Some(session) = &session {
-        parts.stats.set_session_open(true);
-        // The fleet is followed whoever holds this gateway's name.
-        tokio::spawn(fleet::follow(
-            session.clone(),
-            parts.keys.clone(),
-            parts.fleet.clone(),
-            shutdown.clone(),
-        ));
-        // Publications, queryables, subscribers and the token only once the name is ours.
-        let ours = parts.on_duplicate == OnDuplicate::Exit
-            || fleet::take_name(
-                session,
-                &parts.keys,
-                &parts.gateway_name,
-                &parts.stats,
-                &shutdown,
-            )
-            .await;
-        if ours {
-            match declare(&parts, session, &shutdown).await {
-                Ok(d) => declared = Some(d),
-                Err(e) => {
-                    crate::error_limited!("zenoh declare failed", error = %e, "zenoh subscribers and queryables not declared")
-                }
-            }
-            parts.outbox.push_presence(parts.keys.gateway_token(), true);
-            parts.outbox.set_session(session.clone());
-            tracing::info!(zid = %session.zid(), prefix = parts.keys.prefix(), mode = parts.mode.as_str(), "zenoh session open");
-            shutdown.cancelled().await;
-        }
-    }
-    // Stop taking commands and queries, publish what is pending, undeclare the tokens (the
-    // publisher thread does both), then close the session.
-    drop(declared);
-    parts.outbox.close();
-    if tokio::task::spawn_blocking(move || thread.join())
-        .await
-        .is_err()
-    {
-        crate::error_limited!(
-            "zenoh publisher thread panicked",
-            "zenoh publisher thread panicked"
-        );
-    }
-    if let Some(session) = session {
-        if let Err(e) = session.close().await {
-            crate::warn_limited!("zenoh session close failed", error = %e, "zenoh session close failed");
-        }
-    }
-    parts.stats.set_session_open(false);
-    parts.stats.set_name_conflict(None);
-    tracing::info!("zenoh bridge stopped");
-}
-
-/// Opens a client session, retrying with back-off; `None` on shutdown.
-async fn open_with_retry(zcfg: zenoh::Config, shutdown: &CancellationToken) -> Option<Session> {
-    let mut wait = RETRY_MIN;
-    loop {
-        tokio::select! {
-            () = tokio::time::sleep(wait) => {}
-            () = shutdown.cancelled() => return None,
-        }
-        match zenoh::open(zcfg.clone()).await {
-            Ok(s) => return Some(s),
-            Err(e) => {
-                crate::warn_limited!("zenoh client not connected", error = %e, retry_in = ?wait, "zenoh client still not connected");
-            }
-        }
-        wait = (wait * 2).min(RETRY_MAX);
-    }
-}
-
-async fn declare(
-    parts: &Parts,
-    session: &Session,
-    shutdown: &CancellationToken,
-) -> zenoh::Result<Declared> {
-    let keys = &parts.keys;
-    let (commands, command_rx) = Commands::new(
-        keys.clone(),
-        parts.outbox.clone(),
-        parts.stats.clone(),
-        parts.backend.clone(),
-        &CommandsConfig {
-            capacity: parts.command_queue,
-            max_payload: parts.max_payload,
-        },
-        tokio::runtime::Handle::current(),
-    );
-    tokio::spawn(subscribe::dispatch(
-        commands.clone(),
-        command_rx,
-        parts.backend.clone(),
-        shutdown.clone(),
-    ));
-    let (queries, query_rx) =
-        Queries::new(parts.stats.clone(), parts.query_queue, parts.max_payload);
-    let answerer = Arc::new(Answerer {
-        keys: keys.clone(),
-        backend: parts.backend.clone(),
-        stats: parts.stats.clone(),
-        identity: json!({
-            "zid": session.zid().to_string(),
-            "prefix": keys.prefix(),
-            "mode": parts.mode.as_str(),
-            "listen": parts.listen,
-        }),
-    });
-    tokio::spawn(queryable::serve(answerer, query_rx, shutdown.clone()));
-
-    let mut subscribers = Vec::new();
-    for key in [keys.tx_pattern(), keys.set_pattern(), keys.ack_pattern()] {
-        let commands = commands.clone();
-        let sub = session
-            .declare_subscriber(key)
-            .callback(move |sample| commands.on_sample(&sample))
-            .await?;
-        subscribers.push(sub);
-    }
-    let mut queryables = Vec::new();
-    for key in [keys.tx_pattern(), keys.set_pattern(), keys.ack_pattern()] {
-        let commands = commands.clone();
-        let q = session
-            .declare_queryable(key)
-            .callback(move |query| commands.on_query(query))
-            .await?;
-        queryables.push(q);
-    }
-    for (key, kind) in [
-        (keys.tag_pattern(), QueryKind::Tags),
-        (keys.history_pattern(), QueryKind::History),
-        (keys.line_status_pattern(), QueryKind::LineStatus),
-        (keys.gateway_status(), QueryKind::GatewayStatus),
-    ] {
-        let queries = queries.clone();
-        let q = session
-            .declare_queryable(key)
-            .complete(true)
-            .callback(move |query| queries.on_query(kind, query))
-            .await?;
-        queryables.push(q);
-    }
-    Ok(Declared {
-        _subscribers: subscribers,
-        _queryables: queryables,
-    })
-}
-
 #[cfg(test)]
 mod tests {
     use std::path::Path;
 
     /// A peer decides how often the bridge's paths run: no WARN or ERROR line may be written
     /// there except through the rate-limited macros (`warn_limited!`, `error_limited!`) or the
-    /// audit. Checked over every source of the bridge and of its wiring in the app.
+    /// audit. Checked over every source of the bridge, of its feeds and of its wiring in the app.
     #[test]
     fn no_warning_without_a_rate_limit() {
         let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("src");
@@ -880,6 +425,7 @@ mod tests {
             .filter(|p| p.extension().is_some_and(|e| e == "rs"))
             .collect();
         files.push(src.join("app/zenoh.rs"));
+        files.push(src.join("feeds/zenoh.rs"));
         assert!(files.len() > 5, "{files:?}");
         // Spelled in pieces so that this test does not find itself.
         let plain = [

@@ -28,16 +28,31 @@ use super::ApiState;
 const INDEX_HTML: &str = include_str!("index.html");
 /// The style sheet.
 const PAGE_CSS: &str = include_str!("page.css");
-/// The script that makes the page live.
-const PAGE_JS: &str = include_str!("page.js");
+/// The script that makes the page live: ES modules, one per part of the page, each served at
+/// `/page/<name>.js` with the same headers. `page.js` is the entry `index.html` names (`<script
+/// type="module">`); it loads the others one after the other, in this order (lowest first).
+const MODULES: &[(&str, &str)] = &[
+    ("page.js", include_str!("page.js")),
+    ("base.js", include_str!("base.js")),
+    ("rest.js", include_str!("rest.js")),
+    ("poll.js", include_str!("poll.js")),
+    ("overview.js", include_str!("overview.js")),
+    ("tags.js", include_str!("tags.js")),
+    ("mailboxes.js", include_str!("mailboxes.js")),
+    ("monitor.js", include_str!("monitor.js")),
+    ("config.js", include_str!("config.js")),
+    ("main.js", include_str!("main.js")),
+];
 
 /// Where the snapshot goes in [`INDEX_HTML`].
 const SNAPSHOT_MARK: &str = "<!--snapshot-->";
 
 /// The path of the style sheet.
 pub const CSS_PATH: &str = "/page/page.css";
-/// The path of the script.
+/// The path of the script's entry module.
 pub const JS_PATH: &str = "/page/page.js";
+/// Where the script's modules are served: `/page/<name>.js`.
+const JS_DIR: &str = "/page/";
 
 /// Nothing but this origin: no request of the page leaves the gateway.
 const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; \
@@ -45,15 +60,20 @@ const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; img-
 
 /// The bytes of every embedded asset, for the size budget (300 KB).
 pub fn asset_bytes() -> usize {
-    INDEX_HTML.len() + PAGE_CSS.len() + PAGE_JS.len()
+    INDEX_HTML.len() + PAGE_CSS.len() + MODULES.iter().map(|(_, js)| js.len()).sum::<usize>()
 }
 
 /// The page's routes, merged beside the API's (outside its OpenAPI document).
 pub(crate) fn routes() -> Router<ApiState> {
-    Router::new()
+    let router = Router::new()
         .route("/", get(index))
-        .route(CSS_PATH, get(css))
-        .route(JS_PATH, get(js))
+        .route(CSS_PATH, get(css));
+    MODULES.iter().fold(router, |router, &(name, js)| {
+        router.route(
+            &format!("{JS_DIR}{name}"),
+            get(move || async move { asset(js, "text/javascript; charset=utf-8") }),
+        )
+    })
 }
 
 async fn index(State(state): State<ApiState>) -> Response {
@@ -64,10 +84,6 @@ async fn index(State(state): State<ApiState>) -> Response {
 
 async fn css() -> Response {
     asset(PAGE_CSS, "text/css; charset=utf-8")
-}
-
-async fn js() -> Response {
-    asset(PAGE_JS, "text/javascript; charset=utf-8")
 }
 
 fn asset(body: impl IntoResponse, content_type: &'static str) -> Response {
@@ -305,16 +321,54 @@ mod tests {
 
     #[test]
     fn the_page_names_no_other_origin() {
-        for (name, text) in [
-            ("index.html", INDEX_HTML),
-            ("page.css", PAGE_CSS),
-            ("page.js", PAGE_JS),
-        ] {
+        let assets = [("index.html", INDEX_HTML), ("page.css", PAGE_CSS)];
+        for &(name, text) in assets.iter().chain(MODULES) {
             // The SVG namespace names no resource: the script creates the sparklines with it.
             let text = text.replace("http://www.w3.org/2000/svg", "");
             for scheme in ["http://", "https://", "//fonts", "@import"] {
                 assert!(!text.contains(scheme), "{name} contains {scheme}");
             }
+        }
+    }
+
+    /// The names a module imports: `from './x.js'` and `import(`./${name}.js`)` of the entry's
+    /// list.
+    fn imports(js: &str) -> Vec<String> {
+        let mut out: Vec<String> = js
+            .split("from './")
+            .skip(1)
+            .filter_map(|rest| rest.split_once('\'').map(|(name, _)| name.to_owned()))
+            .collect();
+        if let Some(list) = js.split("const MODULES = [").nth(1) {
+            let list = list.split_once(']').map_or("", |(l, _)| l);
+            out.extend(
+                list.split(',')
+                    .map(|n| format!("{}.js", n.trim().trim_matches('\'')))
+                    .filter(|n| n != ".js"),
+            );
+        }
+        out
+    }
+
+    #[test]
+    fn the_script_modules_are_served_loaded_in_order_and_small() {
+        assert!(INDEX_HTML.contains(&format!("<script type=\"module\" src=\"{JS_PATH}\">")));
+        assert_eq!(JS_PATH, format!("{JS_DIR}{}", MODULES[0].0));
+        let served: Vec<String> = MODULES.iter().map(|(n, _)| (*n).to_owned()).collect();
+        // The entry loads every other module, in the order of MODULES (lowest first).
+        assert_eq!(imports(MODULES[0].1), served[1..], "page.js's list");
+        for (i, &(name, js)) in MODULES.iter().enumerate().skip(1) {
+            for import in imports(js) {
+                let at = served.iter().position(|n| *n == import);
+                // A module imports only modules loaded before it: they are in the browser's
+                // module map already, so no import asks for a script of its own.
+                assert!(
+                    at.is_some_and(|at| at > 0 && at < i),
+                    "{name} imports {import}, which is not loaded before it"
+                );
+            }
+            let lines = js.lines().count();
+            assert!(lines <= 300, "{name} has {lines} lines, more than 300");
         }
     }
 
