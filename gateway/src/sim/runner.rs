@@ -339,8 +339,14 @@ where
 {
     // Ends with the shutdown or the stream, whichever comes first.
     let stop = shutdown.child_token();
-    let engine = DeviceEngine::new(device, timing, stop.clone());
-    let line = spawn_line("sim", engine, Unmarked(stream), timing.char_time, stop);
+    let engine = |_| DeviceEngine::new(device, timing, stop.clone());
+    let line = spawn_line(
+        "sim",
+        engine,
+        Unmarked(stream),
+        timing.char_time,
+        stop.clone(),
+    );
     line.join().await;
     Ok(())
 }

@@ -28,7 +28,7 @@ use crate::line::runtime::{
     self, GivenPort, LineBase, LineCapabilities, LineCommands, LineEngine, LineHandle,
     LineLifecycle, LinePort, LineSignals, SecondPort, Stop,
 };
-use crate::line::{DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
+use crate::line::{Clock, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::serial::PortSettings;
 
 /// How often the devices' own clock advances (the drive's ramps, its time-out).
@@ -249,12 +249,13 @@ impl<D: ModbusDevice> LineSignals for DeviceEngine<D> {
 
 impl<D> SecondPort for DeviceEngine<D> {}
 
-/// Starts `engine` on `port` (a stream its caller opened) on the line runtime, as line `name`
-/// whose characters take `char_time`, until `shutdown` is cancelled. Without a monitor, metrics
-/// or commands: a simulator has only the port task of a line.
+/// Starts the engine `make` builds on the line's clock on `port` (a stream its caller opened) on
+/// the line runtime, as line `name` whose characters take `char_time`, until `shutdown` is
+/// cancelled. Without a monitor, metrics or commands: a simulator has only the port task of a
+/// line.
 pub(crate) fn spawn_line<E, P>(
     name: &str,
-    engine: E,
+    make: impl FnOnce(Clock) -> E,
     port: P,
     char_time: Duration,
     shutdown: CancellationToken,
@@ -273,14 +274,9 @@ where
     let reopen = (DEFAULT_REOPEN_MIN, DEFAULT_REOPEN_MAX);
     let base = LineBase::new(name, "simulator", &settings, 1, reopen, None);
     let caps = Arc::new(NoCapabilities);
-    runtime::spawn(
-        base.core(Vec::new()),
-        engine,
-        None,
-        caps,
-        GivenPort::new(port),
-        shutdown,
-    )
+    let core = base.core(Vec::new());
+    let engine = make(core.clock);
+    runtime::spawn(core, engine, None, caps, GivenPort::new(port), shutdown)
 }
 
 /// A simulator offers nothing beyond its port task.
