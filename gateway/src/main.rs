@@ -85,7 +85,8 @@ enum Command {
         #[arg(long, value_name = "FILE")]
         token_file: Option<PathBuf>,
     },
-    /// Run one simulated device on a serial port (a pty end, or a real port).
+    /// Run simulated devices on a serial port (a pty end, or a real port): one, or a bus of
+    /// several (`--device` repeated, each with its own `--address`).
     Sim(gateway::sim::SimArgs),
     /// Validate a config file: print every problem with its path, exit 1 if there is any.
     Check {

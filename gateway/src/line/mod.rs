@@ -23,6 +23,7 @@
 //! - `driver`: clock conversion and timer helpers of the driver loop.
 
 mod driver;
+pub(crate) use driver::Clock;
 mod image_age;
 pub(crate) mod line_metrics;
 pub mod master;

@@ -5,8 +5,9 @@
 //! Each cycle reads every area the slave's address map reaches (FC 01 on the M, Q, T and C rows,
 //! FC 02 on the M and I rows, FC 03 and FC 04 from the first register) and writes the cycle
 //! counter into one holding register (FC 06, a DB word), then waits for the next period. It runs
-//! proto-core's [`Master`] engine, the same one the gateway's master lines use, on any byte stream
-//! (one end of `tokio_serial::SerialStream::pair()` in the demo).
+//! proto-core's [`Master`] engine, the same one the gateway's master lines use, as a line engine
+//! on the gateway's line runtime (the same port task, timerfd and end-of-transmission estimate),
+//! on any byte stream (one end of `tokio_serial::SerialStream::pair()` in the demo).
 
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -16,12 +17,18 @@ use std::time::Duration;
 use proto_core::cpmem::{AddressMap, SlaveParams};
 use proto_core::modbus::master::{Master, MasterConfig, MasterEvent, Outcome};
 use proto_core::modbus::pdu::Request;
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use proto_core::serial_marks::LineError;
+use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
+use tokio_serial::SerialPort;
 use tokio_util::sync::CancellationToken;
 
-use crate::timer::LineTimer;
+use super::slaves::spawn_line;
+use crate::line::runtime::{
+    LineCommands, LineEngine, LineLifecycle, LineSignals, SecondPort, Stop, Unmarked,
+};
+use crate::line::Clock;
 
 /// Pause between two poll cycles by default.
 pub const DEFAULT_PERIOD: Duration = Duration::from_millis(500);
@@ -166,7 +173,13 @@ where
     P: AsyncRead + AsyncWrite + Unpin + Send + 'static,
 {
     let stats = Arc::new(SimMasterStats::default());
-    let task = tokio::spawn(run(port, settings, Arc::clone(&stats), shutdown));
+    let bits = u64::from(settings.bits_per_char);
+    let char_time = Duration::from_nanos(bits * 1_000_000_000 / u64::from(settings.baud.max(1)));
+    // Ends with the shutdown or the port, whichever comes first.
+    let stop = shutdown.child_token();
+    let make = |clock| SimMaster::new(settings, clock, Arc::clone(&stats), stop.clone());
+    let line = spawn_line("sim-master", make, Unmarked(port), char_time, stop.clone());
+    let task = tokio::spawn(line.join());
     SimMasterHandle { stats, task }
 }
 
@@ -197,111 +210,184 @@ impl SimMasterStats {
     }
 }
 
-async fn run<P: AsyncRead + AsyncWrite + Unpin>(
-    mut port: P,
+/// The simulated master as a line engine.
+struct SimMaster {
     settings: SimMasterSettings,
+    config: MasterConfig,
+    master: Master,
+    clock: Clock,
     stats: Arc<SimMasterStats>,
-    shutdown: CancellationToken,
-) {
-    let mut config = MasterConfig::rtu(settings.baud, settings.bits_per_char);
-    config.reply_timeout = settings.reply_timeout;
-    let char_time = Duration::from_nanos(
-        u64::from(settings.bits_per_char) * 1_000_000_000 / u64::from(settings.baud.max(1)),
-    );
-    let mut master = Master::new(config);
-    let base = Instant::now();
-    let engine = |at: Instant| {
-        let micros = at.saturating_duration_since(base).as_micros();
-        proto_core::time::Instant::from_micros(u64::try_from(micros).unwrap_or(u64::MAX))
-    };
-    let tokio_at = |at: proto_core::time::Instant| base + Duration::from_micros(at.as_micros());
-    let mut queue: VecDeque<Request> = VecDeque::new();
-    let mut in_flight = false;
-    let mut counter: u16 = 0;
-    let mut next_cycle = Instant::now();
-    let mut buf = [0u8; 512];
-    // The master's t3.5 gap and end of reply: finer than tokio's millisecond timer.
-    let mut timer = LineTimer::new();
-    loop {
-        let now = Instant::now();
-        if master.poll_timeout().is_some_and(|t| tokio_at(t) <= now) {
-            master.handle_timeout(engine(now));
+    /// The requests of the cycle not yet sent.
+    queue: VecDeque<Request>,
+    in_flight: bool,
+    counter: u16,
+    next_cycle: Instant,
+    /// Cancelled when the port is lost: the master ends with its port.
+    on_lost: CancellationToken,
+}
+
+// === impl SimMaster ===
+
+impl SimMaster {
+    fn new(
+        settings: SimMasterSettings,
+        clock: Clock,
+        stats: Arc<SimMasterStats>,
+        on_lost: CancellationToken,
+    ) -> Self {
+        let mut config = MasterConfig::rtu(settings.baud, settings.bits_per_char);
+        config.reply_timeout = settings.reply_timeout;
+        Self {
+            settings,
+            config,
+            master: Master::new(config),
+            clock,
+            stats,
+            queue: VecDeque::new(),
+            in_flight: false,
+            counter: 0,
+            next_cycle: Instant::now(),
+            on_lost,
         }
-        if !in_flight && master.is_idle() {
-            if queue.is_empty() && now >= next_cycle {
-                counter = counter.wrapping_add(1);
-                queue.extend(settings.reads.iter().cloned());
-                if let Some(address) = settings.counter_register {
-                    queue.push_back(Request::WriteSingleRegister {
-                        address,
-                        value: counter,
-                    });
-                }
-                stats.cycles.fetch_add(1, Ordering::Relaxed);
-                next_cycle = now + settings.period;
-            }
-            if let Some(request) = queue.pop_front() {
-                match master.submit(engine(now), settings.slave, request) {
-                    Ok(_) => in_flight = true,
-                    Err(err) => {
-                        tracing::warn!(%err, "simulated master: request refused by the engine");
-                        stats.failures.fetch_add(1, Ordering::Relaxed);
-                    }
-                }
-            }
-        }
-        while let Some(frame) = master.poll_transmit() {
-            if let Err(err) = port.write_all(&frame).await {
-                tracing::warn!(%err, "simulated master: port failed");
-                return;
-            }
-            let len = u32::try_from(frame.len()).unwrap_or(u32::MAX);
-            master.handle_tx_done(engine(Instant::now() + char_time.saturating_mul(len)));
-        }
+    }
+
+    /// Nothing in flight and nothing left of the cycle: waiting for the next one.
+    fn idle(&self) -> bool {
+        !self.in_flight && self.master.is_idle() && self.queue.is_empty()
+    }
+}
+
+impl LineEngine for SimMaster {
+    fn opened(&mut self, _modem: Option<&mut dyn SerialPort>) {
+        self.master = Master::new(self.config);
+        self.in_flight = false;
+    }
+
+    fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
+        self.master.handle_rx(now, bytes);
+    }
+
+    fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError) {
+        self.master.handle_line_error(now, error);
+    }
+
+    fn handle_timeout(&mut self, now: proto_core::time::Instant) {
+        self.master.handle_timeout(now);
+    }
+
+    fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
+        self.master.poll_timeout()
+    }
+
+    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        self.master.poll_transmit()
+    }
+
+    fn transmitted(&mut self, _written: Instant, _len: usize, end: proto_core::time::Instant) {
+        self.master.handle_tx_done(end);
+    }
+
+    fn handle_events(&mut self) -> bool {
         let mut completed = false;
-        while let Some(event) = master.poll_event() {
+        while let Some(event) = self.master.poll_event() {
             if let MasterEvent::Completed {
                 request, outcome, ..
             } = event
             {
-                in_flight = false;
+                self.in_flight = false;
                 completed = true;
-                stats.record(&request, &outcome);
+                self.stats.record(&request, &outcome);
             }
         }
-        if completed {
-            // Start the next request at once: after a reply timeout the engine is idle already
-            // (the line was silent), with no timer left to wake this loop.
-            continue;
+        // A completion starts the next request at once: after a reply timeout the engine is
+        // idle already (the line was silent), with no deadline left to wake the loop.
+        completed
+    }
+}
+
+impl LineCommands for SimMaster {
+    type Command = ();
+
+    /// Starts the next cycle when its time came, and the next request of the cycle.
+    fn start(&mut self, now: Instant) {
+        if self.in_flight || !self.master.is_idle() {
+            return;
         }
-        let deadline = master.poll_timeout().map(tokio_at);
-        let idle = !in_flight && master.is_idle() && queue.is_empty();
-        let cycle = idle.then_some(next_cycle);
-        tokio::select! {
-            biased;
-            () = shutdown.cancelled() => return,
-            read = port.read(&mut buf) => match read {
-                Ok(0) | Err(_) => {
-                    tracing::warn!("simulated master: port closed");
-                    return;
-                }
-                Ok(n) => master.handle_rx(engine(Instant::now()), buf.get(..n).unwrap_or_default()),
-            },
-            () = timer.sleep_until_opt(deadline) => master.handle_timeout(engine(Instant::now())),
-            () = sleep_until(cycle) => {}
+        if self.queue.is_empty() && now >= self.next_cycle {
+            self.counter = self.counter.wrapping_add(1);
+            self.queue.extend(self.settings.reads.iter().cloned());
+            if let Some(address) = self.settings.counter_register {
+                self.queue.push_back(Request::WriteSingleRegister {
+                    address,
+                    value: self.counter,
+                });
+            }
+            self.stats.cycles.fetch_add(1, Ordering::Relaxed);
+            self.next_cycle = now + self.settings.period;
+        }
+        let Some(request) = self.queue.pop_front() else {
+            return;
+        };
+        match self
+            .master
+            .submit(self.clock.to_engine(now), self.settings.slave, request)
+        {
+            Ok(_) => self.in_flight = true,
+            Err(err) => {
+                tracing::warn!(%err, "simulated master: request refused by the engine");
+                self.stats.failures.fetch_add(1, Ordering::Relaxed);
+            }
+        }
+    }
+
+    fn command(&mut self, (): (), _modem: Option<&mut dyn SerialPort>) {}
+
+    fn refuse(&mut self, (): (), _shutting_down: bool) {}
+}
+
+impl LineLifecycle for SimMaster {
+    fn stop(&mut self) -> Stop {
+        Stop {
+            read: false,
+            close_queue: true,
+            grace: Some(Duration::ZERO),
+        }
+    }
+
+    fn done(&self) -> bool {
+        true
+    }
+
+    fn closed(&mut self, _shutting_down: bool) {
+        self.queue.clear();
+        self.in_flight = false;
+    }
+
+    fn port_failed(&mut self, id: proto_core::event::EventId, reason: String) {
+        tracing::warn!(event = %id, %reason, "simulated master: port closed");
+        self.on_lost.cancel();
+    }
+}
+
+impl LineSignals for SimMaster {
+    /// The next cycle, while idle.
+    fn wake(&self) -> impl std::future::Future<Output = ()> + Send + '_ {
+        let at = self.idle().then_some(self.next_cycle);
+        async move {
+            match at {
+                Some(at) => tokio::time::sleep_until(at).await,
+                None => std::future::pending().await,
+            }
         }
     }
 }
 
-async fn sleep_until(deadline: Option<Instant>) {
-    match deadline {
-        Some(at) => tokio::time::sleep_until(at).await,
-        None => std::future::pending().await,
-    }
-}
+impl SecondPort for SimMaster {}
 
 #[cfg(test)]
 mod tests {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
     use super::*;
 
     /// A slave on the other end of `port` that answers every request with one register, except

@@ -25,6 +25,7 @@ pub mod ksvario;
 pub mod master;
 pub mod meter;
 pub mod runner;
+mod slaves;
 pub mod telegram;
 
 use std::sync::{Arc, Mutex, PoisonError};

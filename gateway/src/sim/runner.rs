@@ -1,29 +1,18 @@
-//! Running a simulated device on a serial port or any byte stream (`gateway sim`).
-//!
-//! Requests are framed as a slave does (003 6.4.3; Modbus over Serial Line V1.02, 2.5.1.1): the
-//! function code and byte counts give the frame's length
-//! ([`rtu::expected_request_len`]), so a frame ends with its last byte; where the length cannot
-//! be known (an unknown function, the free-length FC 08 echo), or bytes stop arriving before it is
-//! complete, 3.5 character times of silence end the frame. The answer goes out after the t3.5
-//! turnaround (001 3.5: "Eine Antwort wird jedoch frühestens nach 3,5 Zeichen gestartet").
+//! Running simulated devices on a serial port or any byte stream (`gateway sim`): the devices
+//! are a line engine ([`super::slaves`]) on the gateway's own line runtime, which frames the
+//! requests and times the answers.
 
 use std::time::Duration;
 
-use proto_core::modbus::rtu::{self, CharTiming, FrameLen};
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
-use tokio::time::Instant;
+use proto_core::modbus::rtu::CharTiming;
+use tokio::io::{AsyncRead, AsyncWrite};
 use tokio_serial::SerialPortBuilderExt;
 use tokio_util::sync::CancellationToken;
 
 use super::bus::Bus;
+use super::slaves::{spawn_line, DeviceEngine};
 use super::{Faults, ModbusDevice, SimModel};
-use crate::timer::LineTimer;
-
-/// How often the device's own clock advances (the drive's ramps, the time-out).
-const TICK: Duration = Duration::from_millis(100);
-/// Bytes kept while a frame is incomplete: more than any RTU frame (the longest the codec takes
-/// is 264 bytes); beyond that the bytes are noise and are dropped at the next silence.
-const MAX_PENDING: usize = 1024;
+use crate::line::runtime::Unmarked;
 /// Slave addresses a device may have (Modbus over Serial Line V1.02, 2.2: 1..247; 001 3.1 and
 /// 002 "Adressen" say the same).
 const SLAVE_ADDRESSES: core::ops::RangeInclusive<u8> = 1..=247;
@@ -131,17 +120,19 @@ pub enum SimFault {
 /// `gateway sim` arguments.
 #[derive(Clone, Debug, clap::Args)]
 pub struct SimArgs {
-    /// The device to simulate.
-    #[arg(long, value_enum)]
-    pub device: DeviceKind,
+    /// The device to simulate. Repeat it for several Modbus devices of any kinds on the same
+    /// port, a multi-drop bus (a 3964r or ascii partner is alone on its port).
+    #[arg(long, value_enum, required = true)]
+    pub device: Vec<DeviceKind>,
     /// The serial port (a pty end or a real port).
     #[arg(long)]
     pub port: String,
-    /// The slave address (default: the device's, Altivar 2, KS vario 17, meter 30).
+    /// The slave address of each `--device`, in the same order (default: the device's, Altivar
+    /// 2, KS vario 17, meter 30).
     #[arg(long)]
-    pub address: Option<u8>,
-    /// Modbus devices: more devices of the same kind on the same port, a multi-drop bus, at
-    /// these slave addresses (repeat the option or separate them by commas).
+    pub address: Vec<u8>,
+    /// Modbus devices: more devices of the first `--device`'s kind on the same port, a
+    /// multi-drop bus, at these slave addresses (repeat the option or separate them by commas).
     #[arg(long, value_delimiter = ',')]
     pub also_address: Vec<u8>,
     /// Baud rate.
@@ -180,6 +171,9 @@ pub enum SimError {
     /// A slave address outside 1..=247.
     #[error("slave address {0} is outside 1..=247")]
     InvalidAddress(u8),
+    /// Two devices on one port at the same slave address.
+    #[error("two devices at slave address {0}")]
+    DuplicateAddress(u8),
     /// Line settings the device cannot use.
     #[error("invalid line settings: {0}")]
     InvalidSettings(&'static str),
@@ -213,17 +207,37 @@ impl SimArgs {
         CharTiming::new(self.baud, self.bits_per_char())
     }
 
-    /// The device the arguments describe: one, or a [`Bus`] of devices of the same kind when
-    /// `--also-address` names more addresses.
+    /// The devices the arguments describe: one, or a [`Bus`] of devices when `--device` is
+    /// repeated or `--also-address` names more addresses. The i-th `--address` goes with the
+    /// i-th `--device`; a device without one has its model's default address.
     pub fn device(&self) -> Result<Box<dyn ModbusDevice>, SimError> {
-        let DeviceKind::Modbus(model) = self.device else {
-            return Err(SimError::NotYetAvailable(self.device));
-        };
-        let default = model.default_address;
-        let first = self.address.unwrap_or(default);
+        if self.address.len() > self.device.len() {
+            return Err(SimError::InvalidSettings("more --address than --device"));
+        }
+        let mut placed: Vec<(u8, &SimModel)> = Vec::new();
+        for (i, kind) in self.device.iter().enumerate() {
+            let DeviceKind::Modbus(model) = *kind else {
+                return Err(if self.device.len() > 1 {
+                    SimError::InvalidSettings("a 3964r or ascii partner is alone on its port")
+                } else {
+                    SimError::NotYetAvailable(*kind)
+                });
+            };
+            let address = self.address.get(i).copied();
+            placed.push((address.unwrap_or(model.default_address), model));
+        }
+        if let Some(&(_, first)) = placed.first() {
+            placed.extend(self.also_address.iter().map(|&a| (a, first)));
+        }
         let mut devices = Vec::new();
-        for address in std::iter::once(first).chain(self.also_address.iter().copied()) {
-            devices.push(self.one_device(address)?);
+        for (i, &(address, model)) in placed.iter().enumerate() {
+            if !SLAVE_ADDRESSES.contains(&address) {
+                return Err(SimError::InvalidAddress(address));
+            }
+            if placed.iter().take(i).any(|&(a, _)| a == address) {
+                return Err(SimError::DuplicateAddress(address));
+            }
+            devices.push((model.build)(address, self.faults()));
         }
         let device: Box<dyn ModbusDevice> = if devices.len() == 1 {
             devices.remove(0)
@@ -238,17 +252,6 @@ impl SimArgs {
             Some(function) => Box::new(Ignoring::new(device, function)),
             None => device,
         })
-    }
-
-    /// One device of the kind at `address`, with the injected faults.
-    fn one_device(&self, address: u8) -> Result<Box<dyn ModbusDevice>, SimError> {
-        if !SLAVE_ADDRESSES.contains(&address) {
-            return Err(SimError::InvalidAddress(address));
-        }
-        let DeviceKind::Modbus(model) = self.device else {
-            return Err(SimError::NotYetAvailable(self.device));
-        };
-        Ok((model.build)(address, self.faults()))
     }
 
     /// The faults `--fault` injects into the device's answers (noise is added by [`Noisy`]).
@@ -267,10 +270,10 @@ impl SimArgs {
 
 /// Runs the simulator the arguments describe until `shutdown` is cancelled.
 pub async fn run(args: SimArgs, shutdown: CancellationToken) -> Result<(), SimError> {
-    let telegram = match args.device {
-        DeviceKind::Proc3964r => Some(super::telegram::TelegramDevice::P3964r),
-        DeviceKind::Ascii => Some(super::telegram::TelegramDevice::Ascii),
-        DeviceKind::Modbus(_) => None,
+    let telegram = match args.device.as_slice() {
+        [DeviceKind::Proc3964r] => Some(super::telegram::TelegramDevice::P3964r),
+        [DeviceKind::Ascii] => Some(super::telegram::TelegramDevice::Ascii),
+        _ => None,
     };
     if let Some(device) = telegram {
         let mut port = crate::serial::PortSettings::new(args.port.clone(), args.baud);
@@ -289,7 +292,7 @@ pub async fn run(args: SimArgs, shutdown: CancellationToken) -> Result<(), SimEr
         } else {
             crate::serial::StopBits::One
         };
-        tracing::info!(device = %args.device, port = %args.port, baud = args.baud, every = ?args.every, "simulator serving");
+        tracing::info!(device = ?args.device, port = %args.port, baud = args.baud, every = ?args.every, "simulator serving");
         return super::telegram::run_telegram_sim(device, port, args.every, shutdown)
             .await
             .map_err(|e| SimError::Telegram(e.to_string()));
@@ -316,85 +319,36 @@ pub async fn run(args: SimArgs, shutdown: CancellationToken) -> Result<(), SimEr
             port: args.port.clone(),
             source,
         })?;
-    tracing::info!(device = %args.device, port = %args.port, baud = args.baud, "simulator serving");
+    tracing::info!(devices = ?args.device, addresses = ?args.address, port = %args.port, baud = args.baud, "simulator serving");
     serve_modbus(port, device, args.timing(), shutdown).await
 }
 
-/// Serves `device` on `stream` until `shutdown` is cancelled or the stream ends.
+/// Serves `device` on `stream` until `shutdown` is cancelled or the stream ends: the device as
+/// a line engine on the line runtime (see [`super::slaves`]).
 ///
 /// The demo runs a simulator in-process on one end of a `tokio_serial::SerialStream::pair()`;
-/// tests do the same and talk to the other end.
+/// tests do the same and talk to the other end. The stream's bytes carry no line error marks.
 pub async fn serve_modbus<S>(
-    mut stream: S,
-    mut device: impl ModbusDevice,
+    stream: S,
+    device: impl ModbusDevice + 'static,
     timing: CharTiming,
     shutdown: CancellationToken,
 ) -> Result<(), SimError>
 where
-    S: AsyncRead + AsyncWrite + Unpin,
+    S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
 {
-    let mut pending: Vec<u8> = Vec::new();
-    let mut chunk = [0u8; 512];
-    // When the last bytes arrived, while a frame is incomplete.
-    let mut last_rx: Option<Instant> = None;
-    let mut ticker = tokio::time::interval(TICK);
-    ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-    let mut last_tick = Instant::now();
-    // The end of a frame by silence and the turnaround are t3.5 (1.75 ms at 115200 Bd): tokio's
-    // millisecond timer would make the device 1.2 ms slower than a real one.
-    let mut timer = LineTimer::new();
-    loop {
-        while let Some(frame) = take_frame(&mut pending) {
-            // The frame's last byte just arrived: the answer starts t3.5 later at the earliest.
-            let not_before = Instant::now() + timing.t3_5();
-            if !answer(
-                &mut stream,
-                &mut device,
-                &frame,
-                not_before,
-                timing,
-                &mut timer,
-                &shutdown,
-            )
-            .await?
-            {
-                return Ok(());
-            }
-        }
-        if pending.is_empty() {
-            last_rx = None;
-        }
-        let silence_at = last_rx.map(|at| at + timing.t3_5());
-        tokio::select! {
-            biased;
-            () = shutdown.cancelled() => return Ok(()),
-            read = stream.read(&mut chunk) => {
-                let n = read?;
-                if n == 0 {
-                    return Ok(());
-                }
-                pending.extend_from_slice(chunk.get(..n).unwrap_or_default());
-                last_rx = Some(Instant::now());
-            }
-            () = timer.sleep_until_opt(silence_at), if silence_at.is_some() => {
-                last_rx = None;
-                let frame = std::mem::take(&mut pending);
-                if frame.len() > MAX_PENDING {
-                    tracing::debug!(len = frame.len(), "dropping noise");
-                    continue;
-                }
-                // t3.5 of silence has passed since the last byte: the answer may start now.
-                let not_before = Instant::now();
-                if !answer(&mut stream, &mut device, &frame, not_before, timing, &mut timer, &shutdown).await? {
-                    return Ok(());
-                }
-            }
-            now = ticker.tick() => {
-                device.tick(now.saturating_duration_since(last_tick));
-                last_tick = now;
-            }
-        }
-    }
+    // Ends with the shutdown or the stream, whichever comes first.
+    let stop = shutdown.child_token();
+    let engine = |_| DeviceEngine::new(device, timing, stop.clone());
+    let line = spawn_line(
+        "sim",
+        engine,
+        Unmarked(stream),
+        timing.char_time,
+        stop.clone(),
+    );
+    line.join().await;
+    Ok(())
 }
 
 /// Bytes of noise after each answer of a [`Noisy`] device.
@@ -489,63 +443,17 @@ impl ModbusDevice for Ignoring {
     }
 }
 
-/// Cuts the first complete frame off `pending`, if its length is known and all of it is there.
-fn take_frame(pending: &mut Vec<u8>) -> Option<Vec<u8>> {
-    match rtu::expected_request_len(pending) {
-        FrameLen::Complete(len) if len <= pending.len() => Some(pending.drain(..len).collect()),
-        _ => None,
-    }
-}
-
-/// Lets the device handle one frame and sends its answer at `not_before` (the end of the
-/// frame plus t3.5: 001 3.5 "Eine Antwort wird jedoch frühestens nach 3,5 Zeichen gestartet"),
-/// plus the fault delay. Returns false when shutdown came during the wait.
-async fn answer<S>(
-    stream: &mut S,
-    device: &mut impl ModbusDevice,
-    frame: &[u8],
-    not_before: Instant,
-    timing: CharTiming,
-    timer: &mut LineTimer,
-    shutdown: &CancellationToken,
-) -> Result<bool, SimError>
-where
-    S: AsyncWrite + Unpin,
-{
-    let Some(reply) = device.handle_frame(frame) else {
-        return Ok(true);
-    };
-    let at = not_before + device.faults().delay;
-    tokio::select! {
-        () = shutdown.cancelled() => return Ok(false),
-        () = timer.sleep_until(at) => {}
-    }
-    // No flush: a serial stream's flush is tcdrain(3), a blocking call on a runtime thread, and
-    // the write is in the kernel already.
-    stream.write_all(&reply).await?;
-    if let Some(burst) = device.after_answer() {
-        // After the answer has left the wire and more than t3.5 of silence: a burst of its own.
-        let at = Instant::now() + timing.transmit_time(reply.len()) + timing.t3_5() * 2;
-        tokio::select! {
-            () = shutdown.cancelled() => return Ok(false),
-            () = timer.sleep_until(at) => {}
-        }
-        stream.write_all(&burst).await?;
-    }
-    Ok(true)
-}
-
 #[cfg(test)]
 mod tests {
-    use proto_core::modbus::rtu::decode_frame;
+    use proto_core::modbus::rtu::{self, decode_frame};
 
     use super::*;
 
     fn args(fault: Option<SimFault>) -> SimArgs {
         SimArgs {
-            device: DeviceKind::named("ksvario").expect("a model"),
+            device: vec![DeviceKind::named("ksvario").expect("a model")],
             port: String::new(),
-            address: None,
+            address: Vec::new(),
             also_address: Vec::new(),
             baud: 19_200,
             parity: Parity::Even,
@@ -577,7 +485,7 @@ mod tests {
     #[test]
     fn the_meter_answers_at_30_by_default_and_takes_its_faults() {
         let mut a = args(None);
-        a.device = DeviceKind::named("meter").expect("a model");
+        a.device = vec![DeviceKind::named("meter").expect("a model")];
         let mut meter = a.device().expect("a meter");
         let mut read = Vec::new();
         let address = crate::sim::meter::map::TEMPERATURE;

@@ -190,9 +190,9 @@ async fn run_opens_a_port_by_path() {
     let (mut port, slave) = SerialStream::pair().expect("pty pair");
     let path = slave.name().expect("pty name");
     let args = SimArgs {
-        device: DeviceKind::named("ksvario").expect("a model"),
+        device: vec![DeviceKind::named("ksvario").expect("a model")],
         port: path,
-        address: None,
+        address: Vec::new(),
         also_address: Vec::new(),
         baud: 19_200,
         parity: Parity::Even,
@@ -239,9 +239,9 @@ async fn gateway_sim_runs_the_telegram_partners_on_a_port_path() {
         let (mut master, slave) = SerialStream::pair().unwrap();
         let path = SerialPort::name(&slave).unwrap();
         let args = SimArgs {
-            device,
+            device: vec![device],
             port: path,
-            address: None,
+            address: Vec::new(),
             also_address: Vec::new(),
             baud: 9600,
             parity: Parity::Even,

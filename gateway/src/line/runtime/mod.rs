@@ -74,6 +74,79 @@ pub trait LinePort: AsyncRead + AsyncWrite + Unpin + Send + 'static {
     fn uart_counters(&self) -> Option<std::io::Result<UartCounters>> {
         None
     }
+    /// Whether the tty layer marks line errors in the received bytes (`INPCK | PARMRK`, as
+    /// [`serial::open`] sets them): the runtime then undoes the marks. A port opened without
+    /// them says false, and its bytes reach the engine as they are.
+    fn marks_line_errors(&self) -> bool {
+        true
+    }
+}
+
+/// A byte stream whose bytes carry no line error marks (a serial port opened without
+/// `PARMRK`, one end of `SerialStream::pair()`, an in-process stream): the simulators' ports.
+#[derive(Debug)]
+pub struct Unmarked<S>(pub S);
+
+impl<S: AsyncRead + Unpin> AsyncRead for Unmarked<S> {
+    fn poll_read(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &mut tokio::io::ReadBuf<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.0).poll_read(cx, buf)
+    }
+}
+
+impl<S: AsyncWrite + Unpin> AsyncWrite for Unmarked<S> {
+    fn poll_write(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+        buf: &[u8],
+    ) -> std::task::Poll<std::io::Result<usize>> {
+        std::pin::Pin::new(&mut self.0).poll_write(cx, buf)
+    }
+    fn poll_flush(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.0).poll_flush(cx)
+    }
+    fn poll_shutdown(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<std::io::Result<()>> {
+        std::pin::Pin::new(&mut self.0).poll_shutdown(cx)
+    }
+}
+
+impl<S: AsyncRead + AsyncWrite + Unpin + Send + 'static> LinePort for Unmarked<S> {
+    fn marks_line_errors(&self) -> bool {
+        false
+    }
+}
+
+/// Hands out one port already open, then refuses: a line on a stream its caller made (the
+/// simulators on one end of a pty pair).
+#[derive(Debug)]
+pub(crate) struct GivenPort<P>(Mutex<Option<P>>);
+
+impl<P> GivenPort<P> {
+    /// The opener of `port`.
+    pub(crate) fn new(port: P) -> Self {
+        Self(Mutex::new(Some(port)))
+    }
+}
+
+impl<P: LinePort> PortOpener for GivenPort<P> {
+    type Port = P;
+
+    fn open(&self, _settings: &PortSettings) -> Result<P, String> {
+        self.0
+            .lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .take()
+            .ok_or_else(|| "the port was closed".to_owned())
+    }
 }
 
 impl LinePort for SerialStream {
@@ -441,6 +514,7 @@ pub(crate) fn spawn<E: LineEngine, O: PortOpener>(
     });
     let reader = |direction| Reader {
         marks: MarkDecoder::new(),
+        unmarked: false,
         uart: None,
         no_uart_counters: false,
         recorder: monitor.as_ref().map(|m| {

@@ -37,6 +37,8 @@ pub(super) enum Which {
 pub(super) struct Reader {
     /// Undoes the tty layer's line error marks of the open port (reset on every opening).
     pub(super) marks: MarkDecoder,
+    /// The open port's bytes carry no marks ([`LinePort::marks_line_errors`]): none are undone.
+    pub(super) unmarked: bool,
     /// The UART's counters at the last look; `None` before the first look on this opening.
     pub(super) uart: Option<UartCounters>,
     /// The port has no UART counters (a pty): not asked again until it is reopened.
@@ -187,7 +189,9 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
                 None => return,
             },
         };
-        for piece in reader.marks.decode(bytes) {
+        let plain = reader.unmarked.then_some(Piece::Data(bytes));
+        let decoded = (!reader.unmarked).then(|| reader.marks.decode(bytes));
+        for piece in plain.into_iter().chain(decoded.into_iter().flatten()) {
             match piece {
                 Piece::Data(bytes) => {
                     data += bytes.len();
@@ -259,9 +263,11 @@ impl<E: LineEngine, O: PortOpener> PortTask<E, O> {
     /// and the engine learn of it.
     fn opened(&mut self, port: &mut O::Port, second: Option<&O::Port>) {
         self.first.opened();
+        self.first.unmarked = !port.marks_line_errors();
         self.check_uart(Which::First, port); // the counters' start on this opening
         if let (Some(reader), Some(port)) = (&mut self.second, second) {
             reader.opened();
+            reader.unmarked = !port.marks_line_errors();
             let _ = reader.overruns(port, &self.base.name);
         }
         self.engine.opened(port.modem());
