@@ -41,7 +41,9 @@ fn http(gw: &Gateway) -> std::io::Result<SocketAddr> {
 fn refused(http: SocketAddr) -> std::io::Result<u64> {
     use std::io::{Read, Write};
     let mut s = std::net::TcpStream::connect(http)?;
-    s.write_all(format!("GET /metrics HTTP/1.1\r\nHost: {http}\r\nConnection: close\r\n\r\n").as_bytes())?;
+    s.write_all(
+        format!("GET /metrics HTTP/1.1\r\nHost: {http}\r\nConnection: close\r\n\r\n").as_bytes(),
+    )?;
     let mut text = String::new();
     s.read_to_string(&mut text)?;
     Ok(text
