@@ -29,6 +29,7 @@ mod build;
 mod check;
 mod demo;
 mod fleet;
+mod hangup_log;
 mod lines;
 mod reload;
 mod reload_notice;
@@ -186,7 +187,7 @@ pub fn handle_signals(shutdown: CancellationToken) -> Hangups {
             return rx;
         };
         tokio::spawn(async move {
-            // SIGHUP lines are rate-limited (`reload::HANGUP_LOG`); the number left out is told
+            // SIGHUP lines are rate-limited (`hangup_log::HANGUP_LOG`); the number left out is told
             // once the window is over.
             let mut tell_at = None;
             loop {
@@ -200,7 +201,7 @@ pub fn handle_signals(shutdown: CancellationToken) -> Hangups {
                     _ = term.recv() => info!("SIGTERM received, stopping"),
                     _ = int.recv() => info!("SIGINT received, stopping"),
                     _ = hup.recv() => {
-                        if let Some(suppressed) = reload::hangup_line(&reload::HANGUP_LOG) {
+                        if let Some(suppressed) = hangup_log::hangup_line(&hangup_log::HANGUP_LOG) {
                             if tx.receiver_count() == 0 {
                                 info!(suppressed, "SIGHUP received: nothing to reload in this command");
                             } else {
@@ -208,14 +209,14 @@ pub fn handle_signals(shutdown: CancellationToken) -> Hangups {
                             }
                         }
                         tx.send_modify(|n| *n = n.wrapping_add(1));
-                        tell_at = reload::hangup_left_out_until().or(tell_at);
+                        tell_at = hangup_log::hangup_left_out_until().or(tell_at);
                         continue;
                     }
                     () = tell => {
-                        reload::tell_hangup_left_out();
+                        hangup_log::tell_hangup_left_out();
                         // Never at once again: a window ends in the future or has nothing left.
                         let soon = tokio::time::Instant::now() + Duration::from_millis(50);
-                        tell_at = reload::hangup_left_out_until().map(|at| at.max(soon));
+                        tell_at = hangup_log::hangup_left_out_until().map(|at| at.max(soon));
                         continue;
                     }
                     () = shutdown.cancelled() => return,

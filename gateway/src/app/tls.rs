@@ -166,14 +166,15 @@ pub(crate) fn spawn_reloader<E: std::fmt::Display>(
             // Within the SIGHUP log limits (a burst of SIGHUPs writes a bounded number of lines).
             match reload() {
                 Ok(()) => {
-                    if let Some(suppressed) = super::reload::hangup_line(&super::reload::HANGUP_LOG)
+                    if let Some(suppressed) =
+                        super::hangup_log::hangup_line(&super::hangup_log::HANGUP_LOG)
                     {
                         info!(suppressed, "SIGHUP: {what} certificates read again");
                     }
                 }
                 Err(e) => {
                     if let Some(suppressed) =
-                        super::reload::hangup_line(&super::reload::HANGUP_WARN_LOG)
+                        super::hangup_log::hangup_line(&super::hangup_log::HANGUP_WARN_LOG)
                     {
                         warn!(error = %e, suppressed, "SIGHUP: {what} certificates not reloaded, the old ones stay");
                     }

@@ -612,14 +612,6 @@ fn written_against(whole: toml::Table, base: &toml::Table) -> toml::Table {
     out
 }
 
-/// The TOML spelling of a unit-like enum value.
-pub(super) fn serde_name<T: Serialize>(value: T) -> String {
-    toml::Value::try_from(value)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_owned))
-        .unwrap_or_default()
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;

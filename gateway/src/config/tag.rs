@@ -6,8 +6,7 @@ use std::mem::size_of;
 use proto_core::modbus::Table;
 use serde::{Deserialize, Serialize};
 
-use super::device::serde_name;
-use super::reader::{check_name, Cx, Fields};
+use super::reader::{check_name, serde_name, Cx, Fields};
 
 /// A tag value is `raw * scale`, by default the raw value.
 pub const DEFAULT_SCALE: f64 = 1.0;

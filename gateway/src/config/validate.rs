@@ -4,9 +4,9 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::device::{serde_name, DeviceConfig};
+use super::device::DeviceConfig;
 use super::line::LineConfig;
-use super::reader::{show_duration, Cx};
+use super::reader::{serde_name, show_duration, Cx};
 use super::tag::{DataType, ModbusTable};
 use super::{Config, ConfigIssue};
 

@@ -162,7 +162,9 @@ async fn run(
                     error!(%error, "Modbus TCP listener failed");
                     break Err(error);
                 };
-                warn!(%error, ?kind, "accept failed, retrying");
+                // Clients can cause it (EMFILE under a connection flood): at most one line per
+                // 10 s, the rest counted in the stats.
+                crate::warn_limited!("modbus tcp accept", %error, ?kind, "accept failed, retrying");
                 shared.stats.count_accept_error(kind);
                 tokio::select! {
                     () = shutdown.cancelled() => break Ok(()),
