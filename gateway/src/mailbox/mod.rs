@@ -331,19 +331,12 @@ impl Mailbox {
         };
         {
             let mut state = mailbox.lock();
-            state.last_seq = replayed.last_seq;
-            state.last_acked = replayed.last_acked;
-            state.queue = replayed
-                .telegrams
-                .into_iter()
-                .map(|t| TelegramRx {
-                    line: Arc::clone(&mailbox.line),
-                    seq: t.seq,
-                    received: t.received,
-                    data: Arc::from(t.data),
-                    side: None,
-                })
-                .collect();
+            mailbox.take_waiting(
+                &mut state,
+                replayed.telegrams,
+                replayed.last_seq,
+                replayed.last_acked,
+            );
             state.journal = Some(journal);
             // Start from a compact file: the damaged tail is gone and the size bound holds.
             Self::compact(&mut state);
@@ -363,21 +356,37 @@ impl Mailbox {
         let mailbox = Self::new(line, settings, max_send_len);
         {
             let mut state = mailbox.lock();
-            state.last_seq = carried.last_seq;
-            state.last_acked = carried.last_acked;
-            state.queue = carried
-                .telegrams
-                .into_iter()
-                .map(|t| TelegramRx {
-                    line: Arc::clone(&mailbox.line),
-                    seq: t.seq,
-                    received: t.received,
-                    data: Arc::from(t.data),
-                    side: None,
-                })
-                .collect();
+            mailbox.take_waiting(
+                &mut state,
+                carried.telegrams,
+                carried.last_seq,
+                carried.last_acked,
+            );
         }
         mailbox
+    }
+
+    /// Puts `telegrams` (from a journal or a replaced line) in the queue with the numbering
+    /// they had.
+    fn take_waiting(
+        &self,
+        state: &mut State,
+        telegrams: impl IntoIterator<Item = JournaledTelegram>,
+        last_seq: u16,
+        last_acked: u16,
+    ) {
+        state.last_seq = last_seq;
+        state.last_acked = last_acked;
+        state.queue = telegrams
+            .into_iter()
+            .map(|t| TelegramRx {
+                line: Arc::clone(&self.line),
+                seq: t.seq,
+                received: t.received,
+                data: Arc::from(t.data),
+                side: None,
+            })
+            .collect();
     }
 
     /// What the line that replaces this one takes over: the waiting telegrams, the counters
