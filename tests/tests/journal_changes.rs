@@ -244,14 +244,21 @@ async fn a_journal_the_gateway_cannot_open_is_refused_at_every_door_and_no_file_
     let original = std::fs::read(&file).expect("config bytes");
     let ro = state.join("ro");
     std::fs::create_dir(&ro).expect("ro dir");
-    let (mut gw, read_only) = match run_with_read_only(&file, &ro) {
-        Some(gw) => (gw, ro.join("r3964.journal")),
+    // What the check says of the read-only path: "cannot create" on the read-only file system;
+    // where no mount is possible (a chroot, a container) the path lies under a regular file,
+    // which the check cannot open either ("Not a directory").
+    let (mut gw, read_only, read_only_says) = match run_with_read_only(&file, &ro) {
+        Some(gw) => (gw, ro.join("r3964.journal"), "cannot create"),
         None => {
             // Not allowed to mount here: a path under a regular file cannot be created either.
             let plain = state.join("plain");
             std::fs::write(&plain, b"a regular file").expect("plain");
             eprintln!("no read-only mount possible here: a path under a file (ENOTDIR) instead");
-            (Gateway::run(&file), plain.join("r3964.journal"))
+            (
+                Gateway::run(&file),
+                plain.join("r3964.journal"),
+                "Not a directory",
+            )
         }
     };
     let base = format!("http://{}/api/v1", gw.http.expect("HTTP"));
@@ -293,11 +300,7 @@ async fn a_journal_the_gateway_cannot_open_is_refused_at_every_door_and_no_file_
             cp_copy.clone(),
             "is not a journal",
         ),
-        (
-            "a read-only file system",
-            read_only.clone(),
-            "cannot create",
-        ),
+        ("a read-only file system", read_only.clone(), read_only_says),
     ];
     for (what, path, says) in &cases {
         let line = r3964(&link.a, Some(path), 20);
