@@ -20,7 +20,6 @@ use tracing::{info, warn};
 
 use crate::api::ApiState;
 use crate::config::{self, Config};
-use crate::metrics::Metrics;
 use crate::modbus_tcp::ServerOptions;
 use crate::persist::ConfigStore;
 use crate::unit::write_policy::WritePolicy;
@@ -31,6 +30,7 @@ mod demo;
 mod fleet;
 mod hangup_log;
 mod lines;
+mod metrics;
 mod reload;
 mod reload_notice;
 mod rest;
@@ -47,6 +47,7 @@ pub use check::{
     unpolled_tags, Door,
 };
 pub use demo::{demo, demo_named};
+pub use metrics::{Metrics, METRIC_NAMES};
 
 /// How long a stopping gateway waits for lines to finish their transaction in flight and for
 /// Modbus TCP connections to finish their request (systemd's TimeoutStopSec must be longer).
@@ -389,7 +390,7 @@ async fn serve_http(
             http.tls.is_some(),
         )
         .with_change_lock(Arc::clone(&sup.change_lock))
-        .with_metrics(sup.exported.metrics.clone());
+        .with_metrics(sup.exported.metrics.http().clone());
     let state = match source {
         Some(text) => state.with_source_text(text),
         None => state,
@@ -439,7 +440,7 @@ async fn serve_http(
 fn metrics_route(sup: Arc<supervisor::Supervisor>) -> axum::Router {
     use axum::http::header;
     use axum::response::IntoResponse;
-    let tag_values = Arc::new(crate::metrics::TagValues::new());
+    let tag_values = Arc::new(crate::tags::TagValues::new());
     axum::Router::new().route(
         "/metrics",
         axum::routing::get(move || {

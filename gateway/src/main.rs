@@ -220,14 +220,10 @@ fn main() -> ExitCode {
 
 /// The registry `/metrics` serves, with every family of the gateway registered: one per process.
 fn metrics_registry() -> Result<MetricsRegistry, ExitCode> {
-    let registry = prometheus::Registry::new();
-    match gateway::metrics::Metrics::register(&registry) {
-        Ok(metrics) => Ok(MetricsRegistry { registry, metrics }),
-        Err(e) => {
-            eprintln!("gateway: cannot register the metrics: {e}");
-            Err(ExitCode::from(EX_SOFTWARE))
-        }
-    }
+    MetricsRegistry::new().map_err(|e| {
+        eprintln!("gateway: cannot register the metrics: {e}");
+        ExitCode::from(EX_SOFTWARE)
+    })
 }
 
 async fn async_main(command: Command) -> ExitCode {

@@ -45,6 +45,10 @@ use proto_core::profiles::{
 use crate::config::{self, Config, DeviceConfig};
 use crate::image::{ProcessImage, Table};
 
+mod metrics;
+
+pub use metrics::TagValues;
+
 /// One tag of one device on one line.
 ///
 /// A gateway may hold 100 000 of them, so an entry keeps only what is its own (its name and

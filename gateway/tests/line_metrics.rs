@@ -4,9 +4,10 @@
 
 use std::time::Duration;
 
+use gateway::app::Metrics;
 use gateway::image::{ProcessImage, Table};
 use gateway::line::{spawn_modbus_master_line, AddrRange, DeviceSettings, LineSettings, PollGroup};
-use gateway::metrics::{encode_text, Metrics};
+use gateway::metrics::encode_text;
 use gateway::serial::PortSettings;
 use gateway::sim::{altivar::AltivarSim, serve_modbus};
 use gateway::unit::UnitService;
@@ -58,7 +59,7 @@ async fn a_master_line_counts_start_up_traffic_requests_and_device_state() {
     let metrics = Metrics::register(&registry).expect("register");
     let mut settings = LineSettings::rtu("drive", port);
     settings.master.reply_timeout = Duration::from_millis(300);
-    settings.metrics = Some(metrics);
+    settings.metrics = Some(metrics.line().clone());
     let mut device = DeviceSettings::new("atv71", 2, 2);
     // SFr, tFr, HSP, LSP (002, the manual's FC03 example).
     device.groups = vec![PollGroup {

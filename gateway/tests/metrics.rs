@@ -11,9 +11,9 @@ use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::{Duration, Instant};
 
-use gateway::metrics::{
-    encode_text, serve_metrics, Direction, Metrics, RequestResult, TcpConnectionGuard, METRIC_NAMES,
-};
+use gateway::app::{Metrics, METRIC_NAMES};
+use gateway::metrics::{encode_text, serve_metrics, Direction, RequestResult};
+use gateway::modbus_tcp::metrics::TcpConnectionGuard;
 use gateway::modbus_tcp::RejectReason;
 use gateway::zenoh_bridge::{DropReason, PublicationKind};
 use prometheus::proto::MetricType;

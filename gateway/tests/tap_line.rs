@@ -9,9 +9,10 @@
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
+use gateway::app::Metrics;
 use gateway::image::{ProcessImage, Table};
 use gateway::line::{spawn_modbus_tap_line, DeviceSettings, LineHandle, TapLineSettings};
-use gateway::metrics::{encode_text, Metrics};
+use gateway::metrics::encode_text;
 use gateway::modbus_tcp::{bind, serve, ServerOptions, ServerStats};
 use gateway::serial::PortSettings;
 use gateway::unit::{SharedUnits, UnitMap};
@@ -84,7 +85,7 @@ async fn a_tap_fills_the_image_from_another_masters_traffic_and_never_transmits(
     let mut settings = TapLineSettings::new("tap", PortSettings::new(path, 1200));
     settings.tap.answer_timeout = Duration::from_millis(400);
     settings.expected_cycle = Duration::from_secs(30);
-    settings.metrics = Some(metrics);
+    settings.metrics = Some(metrics.line().clone());
     let image = ProcessImage::default();
     let shutdown = CancellationToken::new();
     let line: LineHandle = spawn_modbus_tap_line(

@@ -106,7 +106,7 @@ pub struct ApiState {
     /// HTTPS; `None`: plain HTTP.
     tls: Option<HttpTls>,
     /// Where refusals and connections are counted.
-    metrics: Option<crate::metrics::Metrics>,
+    metrics: Option<metrics::HttpMetrics>,
     /// Client networks accepted; empty: every client.
     allowed_networks: Vec<ipnet::IpNet>,
     /// Networks whose clients have places held back for `/metrics`, `/healthz`, `/readyz`.
@@ -262,7 +262,7 @@ impl ApiState {
     }
 
     /// Counts connections, streams and refusals in `metrics`.
-    pub fn with_metrics(mut self, metrics: crate::metrics::Metrics) -> Self {
+    pub fn with_metrics(mut self, metrics: metrics::HttpMetrics) -> Self {
         self.metrics = Some(metrics);
         self
     }
@@ -275,7 +275,7 @@ impl ApiState {
     ) -> Result<StreamPlace, ApiError> {
         match Arc::clone(&self.streams).try_acquire_owned() {
             Ok(permit) => {
-                let gauge = self.metrics.as_ref().map(|m| m.http().streams());
+                let gauge = self.metrics.as_ref().map(|m| m.streams());
                 if let Some(g) = &gauge {
                     g.inc();
                 }
@@ -289,7 +289,7 @@ impl ApiState {
                     "every stream place is taken ([http] max_streams = {})",
                     self.max_streams
                 );
-                self.refused(crate::metrics::HttpRejectReason::StreamLimit, peer, &what);
+                self.refused(metrics::HttpRejectReason::StreamLimit, peer, &what);
                 Err(ApiError::busy_for(
                     format!("{what}; try again later"),
                     STREAM_RETRY_AFTER_SECONDS,
@@ -299,9 +299,9 @@ impl ApiState {
     }
 
     /// Counts a refusal of `reason`.
-    pub(crate) fn count(&self, reason: crate::metrics::HttpRejectReason) {
+    pub(crate) fn count(&self, reason: metrics::HttpRejectReason) {
         if let Some(m) = &self.metrics {
-            m.http().rejected(reason);
+            m.rejected(reason);
         }
     }
 
@@ -309,7 +309,7 @@ impl ApiState {
     /// client's address and how many were left out).
     pub(crate) fn refused(
         &self,
-        reason: crate::metrics::HttpRejectReason,
+        reason: metrics::HttpRejectReason,
         peer: Option<std::net::SocketAddr>,
         what: &str,
     ) {

@@ -34,9 +34,9 @@ use axum::response::{IntoResponse, Response};
 
 use super::auth::{AuthMode, Caller, PeerAddr, Who};
 use super::error::ApiError;
+use super::metrics::HttpRejectReason;
 use super::ApiState;
 use crate::audit::WriteResult;
-use crate::metrics::HttpRejectReason;
 
 /// At most this many bytes of a `Host` or `Origin` a peer sent are shown in a log, an audit line
 /// or an answer (escaped, then marked as cut).

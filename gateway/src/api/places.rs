@@ -62,7 +62,7 @@ use ipnet::IpNet;
 use prometheus::IntGauge;
 use tokio_util::sync::CancellationToken;
 
-use crate::metrics::HttpRejectReason;
+use super::metrics::HttpRejectReason;
 
 /// Places held back for `/metrics`, `/healthz` and `/readyz`.
 pub const HEALTH_PLACES: usize = 8;

@@ -34,12 +34,12 @@ use tokio::net::{TcpListener, TcpStream};
 
 use super::auth::PeerAddr;
 use super::io::WriteTimeout;
+use super::metrics::{ConnectionPool, HttpRejectReason};
 use super::origin::LocalAddr;
 use super::places::{
     is_health_path, Limits, Place, PlaceHandle, Places, Pool, HEALTH_HEAD_TIMEOUT,
 };
 use super::{router, ApiError, ApiState};
-use crate::metrics::{ConnectionPool, HttpRejectReason};
 
 /// Connections served at once by default (`[http] max_connections`).
 pub const DEFAULT_MAX_CONNECTIONS: u32 = crate::config::DEFAULT_HTTP_MAX_CONNECTIONS;
@@ -69,8 +69,7 @@ pub async fn serve(
             "REST API listening"
         );
     }
-    let gauges = state.metrics.as_ref().map(|m| {
-        let http = m.http();
+    let gauges = state.metrics.as_ref().map(|http| {
         (
             http.connections(ConnectionPool::General),
             http.connections(ConnectionPool::Health),

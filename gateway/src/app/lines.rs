@@ -10,12 +10,12 @@ use std::sync::{Arc, Mutex, PoisonError};
 use tokio_util::sync::CancellationToken;
 
 use super::AppError;
+use super::Metrics;
 use crate::config::{Config, LineConfig, ProtocolConfig};
 use crate::cpmem::{self, SharedCpMemory};
 use crate::image::ProcessImage;
 use crate::line::start::{StartDeps, StartLine};
 use crate::line::LineHandle;
-use crate::metrics::Metrics;
 use crate::unit::UnitService;
 
 /// A running line and what it registered.
@@ -93,7 +93,7 @@ pub(crate) fn start_line(
     let start = StartDeps {
         config: deps.config,
         image: deps.image,
-        metrics: deps.metrics,
+        metrics: deps.metrics.line(),
         cp_memory: deps.cp_memory,
         token: token.clone(),
         carried,

@@ -15,7 +15,7 @@
 //!
 //! Shared by every line:
 //! - `status`: diagnostic buffer, event counters, STATUS word, device states;
-//! - `line_metrics`: the line's counters ([`LineTraffic`]) and its Prometheus metrics (events,
+//! - `metrics`: the line's counters ([`LineTraffic`]) and its Prometheus metrics (events,
 //!   port state, traffic, requests);
 //! - [`monitor`]: the frame monitor (every frame with its times, bytes and line errors, in a
 //!   bounded ring), fed by the runtime where bytes pass;
@@ -25,8 +25,8 @@
 mod driver;
 pub(crate) use driver::Clock;
 mod image_age;
-pub(crate) mod line_metrics;
 pub mod master;
+pub mod metrics;
 mod modbus_slave;
 mod modbus_tap;
 pub mod monitor;
@@ -42,7 +42,6 @@ use std::time::Duration;
 
 use proto_core::modbus::rtu::CharTiming;
 
-pub use line_metrics::LineTraffic;
 pub use master::{
     exception_for, exception_for_queue, merge_ranges, plan, spawn_modbus_master_line, AddrRange,
     CommandError, CommandResult, DeviceLimits, DeviceSettings, DeviceUnit, LineClient,
@@ -50,6 +49,7 @@ pub use master::{
     PROBE_TIMEOUT_FACTOR, SCANNER_WORDS,
 };
 pub use master::{TransparentSettings, TransparentUnit};
+pub use metrics::LineTraffic;
 pub use modbus_slave::{spawn_modbus_slave_line, CpMemoryView, SlaveCounters, SlaveLineSettings};
 pub use modbus_tap::{spawn_modbus_tap_line, TapLineSettings, TAP_PROTOCOL};
 pub use monitor::{Frame, FrameMonitor, DEFAULT_MONITOR_FRAMES, MAX_MONITOR_FRAMES};

@@ -23,7 +23,7 @@ use tokio::time::Instant;
 use tokio_serial::SerialPort;
 use tokio_util::sync::CancellationToken;
 
-use super::line_metrics::{slave_result, SLAVE_LINE_PARTNER};
+use super::metrics::{slave_result, LineFamilies, SLAVE_LINE_PARTNER};
 use super::runtime::{
     self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
 };
@@ -31,7 +31,6 @@ use super::status::{Shared, DEFAULT_DIAG_DEPTH};
 use super::{DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::cpmem::{CpMemoryUnit, SharedCpMemory};
 use crate::line::runtime::{LineCommands, LineLifecycle, LineSignals, SecondPort};
-use crate::metrics::Metrics;
 use crate::serial::PortSettings;
 use crate::unit::UnitService;
 
@@ -51,7 +50,7 @@ pub struct SlaveLineSettings {
     /// Longest delay between reopen attempts.
     pub reopen_max: Duration,
     /// Where the line counts its events, traffic and requests (`None`: nowhere).
-    pub metrics: Option<Metrics>,
+    pub metrics: Option<LineFamilies>,
     /// The unit id under which Modbus TCP serves the memory with the line's address conversion
     /// (`None`: not served there).
     pub unit_id: Option<u8>,
@@ -439,7 +438,7 @@ mod tests {
             SlaveParams::new(ADDRESS, mode, 1, AddressMap::manual_example()).expect("params");
         let mut settings =
             SlaveLineSettings::new("hmi", PortSettings::new("/dev/in-process", 19200), params);
-        settings.metrics = Some(Metrics::register(&registry).expect("metrics"));
+        settings.metrics = Some(LineFamilies::register(&registry).expect("metrics"));
         let shutdown = CancellationToken::new();
         let memory = SharedCpMemory::new(MemoryLayout::default());
         let line = spawn_on(

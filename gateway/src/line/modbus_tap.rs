@@ -24,7 +24,7 @@ use tokio::time::Instant;
 use tokio_serial::SerialPort;
 use tokio_util::sync::CancellationToken;
 
-use super::line_metrics::{LineTraffic, BROADCAST_DEVICE, UNKNOWN_DEVICE};
+use super::metrics::{LineFamilies, LineTraffic, BROADCAST_DEVICE, UNKNOWN_DEVICE};
 use super::runtime::{
     self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
 };
@@ -32,7 +32,7 @@ use super::status::{DeviceStatus, Shared};
 use super::{DeviceSettings, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::image::{ImageError, ProcessImage, Quality, Table};
 use crate::line::runtime::{LineCommands, LineLifecycle, LineSignals, SecondPort};
-use crate::metrics::{Metrics, RequestResult};
+use crate::metrics::RequestResult;
 use crate::serial::PortSettings;
 use crate::unit::{UnitFuture, UnitService};
 
@@ -58,7 +58,7 @@ pub struct TapLineSettings {
     /// Longest delay between reopen attempts.
     pub reopen_max: Duration,
     /// Where the line counts its events, traffic and requests (`None`: nowhere).
-    pub metrics: Option<Metrics>,
+    pub metrics: Option<LineFamilies>,
 }
 
 // === impl TapLineSettings ===

@@ -24,7 +24,7 @@ use tokio::time::Instant;
 use tokio_util::sync::{CancellationToken, WaitForCancellationFutureOwned};
 
 use super::driver::Clock;
-use crate::metrics::{Metrics, MonitorDrop};
+use super::metrics::{LineFamilies, MonitorDrop};
 
 /// Frames a line's monitor keeps by default (`monitor_frames`).
 pub const DEFAULT_MONITOR_FRAMES: usize = crate::config::DEFAULT_MONITOR_FRAMES as usize;
@@ -116,7 +116,7 @@ impl FrameMonitor {
         line: &str,
         kind: FrameKind,
         capacity: usize,
-        metrics: Option<&Metrics>,
+        metrics: Option<&LineFamilies>,
     ) -> Self {
         let capacity = capacity.clamp(1, MAX_MONITOR_FRAMES);
         let (live, _) = broadcast::channel(LIVE_DEPTH);
@@ -133,8 +133,8 @@ impl FrameMonitor {
             lagged: AtomicU64::new(0),
             counters: metrics.map(|m| {
                 (
-                    m.line().monitor_dropped(line, MonitorDrop::Overwritten),
-                    m.line().monitor_dropped(line, MonitorDrop::Lagged),
+                    m.monitor_dropped(line, MonitorDrop::Overwritten),
+                    m.monitor_dropped(line, MonitorDrop::Lagged),
                 )
             }),
             ended: CancellationToken::new(),

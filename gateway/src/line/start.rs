@@ -12,11 +12,11 @@
 use proto_core::cpmem::MemoryLayout;
 use tokio_util::sync::CancellationToken;
 
+use super::metrics::LineFamilies;
 use super::LineHandle;
 use crate::config::{self, Config, ConfigIssue, LineConfig};
 use crate::cpmem::SharedCpMemory;
 use crate::image::ProcessImage;
-use crate::metrics::Metrics;
 use crate::serial::{self, PortSettings};
 
 /// What starting a line needs from the gateway.
@@ -27,7 +27,7 @@ pub(crate) struct StartDeps<'a> {
     /// The process image master and tap lines keep their devices' values in.
     pub(crate) image: &'a ProcessImage,
     /// Where the line counts its events, traffic and requests.
-    pub(crate) metrics: &'a Metrics,
+    pub(crate) metrics: &'a LineFamilies,
     /// The CP memory slave lines serve (`None` without slave lines).
     pub(crate) cp_memory: Option<&'a SharedCpMemory>,
     /// The line's own token: cancelling it stops the line.

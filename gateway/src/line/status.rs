@@ -13,7 +13,7 @@ use proto_core::event::{self, ids, DiagBuffer, DiagEntry, EventId};
 use tokio::sync::broadcast;
 
 use super::driver::Clock;
-use super::line_metrics::LineMetrics;
+use super::metrics::LineMetrics;
 
 /// Depth of the diagnostic buffer by default: the CP's 9 entries (003 7.3).
 pub const DEFAULT_DIAG_DEPTH: usize = event::DEFAULT_DEPTH;
@@ -361,8 +361,8 @@ mod tests {
     #[test]
     fn start_up_is_recorded_like_every_event_and_counted_once_in_the_metrics() {
         let registry = prometheus::Registry::new();
-        let metrics = crate::metrics::Metrics::register(&registry).expect("register");
-        let line = LineMetrics::new(Some(metrics.line().clone()), "drive", "modbus-master-rtu");
+        let metrics = crate::line::metrics::LineFamilies::register(&registry).expect("register");
+        let line = LineMetrics::new(Some(metrics), "drive", "modbus-master-rtu");
         let shared = Shared::with_metrics(status(), 9, Clock::start(), line);
         let mut rx = shared.subscribe();
         shared.started();

@@ -20,9 +20,9 @@ use tracing::debug;
 
 use super::access::Authority;
 use super::mbap::{complete_frame, FrameReader, MbapError, HEADER_LEN, MAX_ADU_LEN};
+use super::metrics::{CloseReason, FrameReject, OpenConnection};
 use super::request::answer;
 use super::shared::Shared;
-use super::stats::{CloseReason, FrameReject, OpenConnection};
 
 /// Bytes asked from the socket at once.
 const READ_CHUNK: usize = 1024;

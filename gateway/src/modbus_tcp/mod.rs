@@ -17,8 +17,8 @@
 pub mod access;
 pub mod diagnostic;
 pub mod mbap;
+pub mod metrics;
 pub mod server;
-pub mod stats;
 pub mod tls;
 
 mod connection;
@@ -28,12 +28,12 @@ mod shared;
 
 pub use access::{Authority, FunctionClass, Refusal, RoleRights, Roles};
 pub use diagnostic::DiagnosticUnit;
+pub use metrics::{
+    AcceptError, CloseReason, FrameReject, RejectReason, RequestCount, RequestResult, ServerStats,
+};
 pub use options::LiveOptions;
 pub use server::{
     bind, serve, serve_live, serve_tls, serve_tls_live, ServerOptions, DEFAULT_BACKLOG,
     DEFAULT_IDLE_TIMEOUT, DEFAULT_MAX_CONNECTIONS, DEFAULT_REQUEST_TIMEOUT,
-};
-pub use stats::{
-    AcceptError, CloseReason, FrameReject, RejectReason, RequestCount, RequestResult, ServerStats,
 };
 pub use tls::{TlsError, TlsFiles, TlsServer, ROLE_OID};

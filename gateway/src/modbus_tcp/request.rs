@@ -30,9 +30,9 @@ use tracing::{debug, warn};
 
 use super::access::Authority;
 use super::mbap::MAX_PDU_LEN;
+use super::metrics::{FrameReject, RequestResult};
 use super::options::ServerOptions;
 use super::shared::Shared;
-use super::stats::{FrameReject, RequestResult};
 use crate::audit::{WritePath, WriteResult};
 use crate::log_limit::{LogLimit, Verdict};
 use crate::unit::{UnitResult, UnitService};

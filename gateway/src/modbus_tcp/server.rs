@@ -14,9 +14,9 @@ use tracing::{debug, error, info, warn};
 
 use super::access::Authority;
 use super::connection::{self, Places};
+use super::metrics::{AcceptError, CloseReason, RejectReason, ServerStats};
 use super::options::LiveOptions;
 use super::shared::{ClientPlace, ServerPlace, Shared};
-use super::stats::{AcceptError, CloseReason, RejectReason, ServerStats};
 use super::tls::{role_of, TlsServer};
 use crate::log_limit::{LogLimit, Verdict};
 use crate::unit::SharedUnits;

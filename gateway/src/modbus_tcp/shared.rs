@@ -6,8 +6,8 @@ use std::net::IpAddr;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, PoisonError};
 
+use super::metrics::ServerStats;
 use super::options::{LiveOptions, ServerOptions};
-use super::stats::ServerStats;
 use super::tls::TlsServer;
 use crate::unit::SharedUnits;
 

@@ -46,7 +46,7 @@ use zenoh::sample::SampleKind;
 use zenoh::Session;
 
 use super::keys::Keys;
-use super::stats::BridgeStats;
+use super::metrics::BridgeStats;
 use super::BridgeError;
 
 /// How long a status or liveliness query waits for its replies.

@@ -9,9 +9,9 @@ use serde_json::json;
 use tokio_util::sync::CancellationToken;
 
 use super::keys::{self, Keys};
+use super::metrics::{BridgeStats, DropReason, PublicationKind};
 use super::policy::{Publishing, Verdict};
 use super::publish::{self, Message, Outbox};
-use super::stats::{BridgeStats, DropReason, PublicationKind};
 use super::{BridgeBackend, TagValue};
 
 /// The producer side of the bridge, for lines and the image. Cheap to clone; no method waits.

@@ -82,7 +82,7 @@ pub mod config;
 pub mod fleet;
 pub mod fleet_cli;
 pub mod keys;
-pub mod stats;
+pub mod metrics;
 
 mod handle;
 mod policy;
@@ -107,7 +107,7 @@ pub use crate::config::{Deadband, PublishConfig, TagPolicy, TagRule};
 pub use config::{Endpoint, Mode, Prefix, ZenohConfig};
 pub use handle::BridgeHandle;
 pub use keys::{KeyError, Keys};
-pub use stats::{BridgeStats, CommandKind, CommandOutcome, DropReason, PublicationKind};
+pub use metrics::{BridgeStats, CommandKind, CommandOutcome, DropReason, PublicationKind};
 
 use policy::Publishing;
 use publish::{Limits, Outbox, PublisherThread};

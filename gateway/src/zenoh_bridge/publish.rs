@@ -35,8 +35,8 @@ use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
 use zenoh::{Session, Wait};
 
+use super::metrics::{BridgeStats, DropReason, PublicationKind};
 use super::presence::Presence;
-use super::stats::{BridgeStats, DropReason, PublicationKind};
 use super::tag_queue::{Chunk, Pushed, TagQueue};
 use super::TagValue;
 

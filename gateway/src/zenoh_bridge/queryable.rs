@@ -33,7 +33,7 @@ use zenoh::query::Query;
 use zenoh::Wait;
 
 use super::keys::{self, Keys};
-use super::stats::{BridgeStats, DropReason};
+use super::metrics::{BridgeStats, DropReason};
 use super::BridgeBackend;
 
 /// Which queryable a query came to.

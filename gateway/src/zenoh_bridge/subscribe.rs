@@ -36,8 +36,8 @@ use zenoh::Wait;
 
 use super::accounting::{self, WriteReason};
 use super::keys::Keys;
+use super::metrics::{BridgeStats, CommandKind, CommandOutcome, PublicationKind};
 use super::publish::{Message, Outbox};
-use super::stats::{BridgeStats, CommandKind, CommandOutcome, PublicationKind};
 use super::BridgeBackend;
 
 /// What a command asks for.
@@ -257,7 +257,7 @@ impl Commands {
     /// A command that found its queue full: answered `busy`.
     fn busy(&self, cmd: Command) {
         self.stats
-            .dropped(super::stats::DropReason::CommandQueueFull);
+            .dropped(super::metrics::DropReason::CommandQueueFull);
         crate::warn_limited!(
             "zenoh command queue full",
             "zenoh command queue full, commands answered busy"

@@ -586,7 +586,7 @@ async fn an_answer_the_client_does_not_read_is_closed_after_the_write_timeout() 
 #[tokio::test]
 async fn clients_outside_the_allowed_networks_are_closed_at_accept() {
     let registry = prometheus::Registry::new();
-    let metrics = gateway::metrics::Metrics::register(&registry).expect("metrics");
+    let metrics = gateway::app::Metrics::register(&registry).expect("metrics");
     let outside = start_with(Setup {
         allowed_networks: vec!["192.0.2.0/24".parse().expect("net")],
         metrics: Some(metrics),

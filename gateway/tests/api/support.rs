@@ -79,7 +79,7 @@ pub(crate) struct Setup {
     pub(crate) max_streams: u32,
     pub(crate) write_timeout: Duration,
     /// Where the listener counts refusals and connections.
-    pub(crate) metrics: Option<gateway::metrics::Metrics>,
+    pub(crate) metrics: Option<gateway::app::Metrics>,
     pub(crate) config: Config,
     /// Client networks served; empty: every client.
     pub(crate) allowed_networks: Vec<ipnet::IpNet>,
@@ -204,7 +204,7 @@ pub(crate) async fn start_with(setup: Setup) -> TestApi {
         )
         .with_allowed_networks(setup.allowed_networks.clone());
     if let Some(metrics) = setup.metrics.clone() {
-        state = state.with_metrics(metrics);
+        state = state.with_metrics(metrics.http().clone());
     }
     let (dir, store_path) = if setup.store {
         let dir = tempfile::tempdir().expect("temp dir");

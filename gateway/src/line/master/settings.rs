@@ -14,11 +14,11 @@ use crate::config::{
     DEFAULT_OFFLINE_BACKOFF_MIN,
 };
 use crate::image::Table;
+use crate::line::metrics::LineFamilies;
 use crate::line::status::DEFAULT_DIAG_DEPTH;
 use crate::line::{
     rtu_timing, DEFAULT_COMMAND_SLACK, DEFAULT_QUEUE_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN,
 };
-use crate::metrics::Metrics;
 use crate::serial::PortSettings;
 
 /// Settings of one Modbus master line.
@@ -42,7 +42,7 @@ pub struct LineSettings {
     /// monitoring time x (retries + 1) + [`DEFAULT_COMMAND_SLACK`]).
     pub command_deadline: Option<Duration>,
     /// Where the line counts its events, traffic and requests (`None`: nowhere).
-    pub metrics: Option<Metrics>,
+    pub metrics: Option<LineFamilies>,
     /// While a poll is due, at most this many commands go in a row (the fairness rule of the
     /// bus, see `scheduler`).
     pub commands_in_row: u32,

@@ -45,10 +45,9 @@ use tokio_serial::{SerialPort, SerialStream};
 use tokio_util::sync::CancellationToken;
 
 use super::driver::{estimated_tx_end, sleep_until_opt, Clock};
-use super::line_metrics::{LineMetrics, LineTraffic};
+use super::metrics::{LineFamilies, LineMetrics, LineTraffic};
 use super::monitor::{FrameMonitor, Recorder};
 use super::status::{DeviceStatus, LineEvent, LineStatus, Shared};
-use crate::metrics::Metrics;
 use crate::serial::{self, Backoff, PortSettings, UartCounters};
 use crate::timer::LineTimer;
 use crate::unit::UnitService;
@@ -308,7 +307,7 @@ pub(crate) struct LineBase {
     /// Longest delay between reopen attempts.
     pub(crate) reopen_max: Duration,
     /// Where the line counts its events, traffic and requests (`None`: nowhere).
-    pub(crate) metrics: Option<Metrics>,
+    pub(crate) metrics: Option<LineFamilies>,
     /// A second port the line only reads, with the first port's settings (`None`: one port).
     pub(crate) second_port: Option<String>,
 }
@@ -323,7 +322,7 @@ impl LineBase {
         port: &PortSettings,
         diag_depth: usize,
         reopen: (Duration, Duration),
-        metrics: Option<&Metrics>,
+        metrics: Option<&LineFamilies>,
     ) -> Self {
         Self {
             name: name.to_owned(),
@@ -351,11 +350,7 @@ impl LineBase {
     pub(crate) fn core(self, devices: Vec<DeviceStatus>) -> LineCore {
         let status = LineStatus::new(self.name.clone(), devices);
         let clock = Clock::start();
-        let metrics = LineMetrics::new(
-            self.metrics.as_ref().map(|m| m.line().clone()),
-            &self.name,
-            self.protocol,
-        );
+        let metrics = LineMetrics::new(self.metrics.clone(), &self.name, self.protocol);
         LineCore {
             shared: Shared::with_metrics(status, self.diag_depth, clock, metrics),
             clock,

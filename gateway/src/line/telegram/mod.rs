@@ -44,7 +44,7 @@ pub use convert::{engine_protocol, mailbox_ack, params_3964, params_ascii, Teleg
 pub use mailbox_unit::MailboxUnit;
 pub use tap::{spawn_3964_tap_line, Tap3964LineSettings, DEFAULT_TAP_MAILBOX, TAP_3964_PROTOCOL};
 
-use super::line_metrics::{LineMetrics, LineTraffic};
+use super::metrics::{LineFamilies, LineMetrics, LineTraffic};
 use super::runtime::{self, LineBase, LineCapabilities, LineHandle, PortOpener, SerialOpener};
 use super::status::{self, LineStatus};
 use super::{DEFAULT_DIAG_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
@@ -121,7 +121,7 @@ pub struct TelegramLineSettings {
     /// How long a stopping line may finish the telegram in progress.
     pub shutdown_grace: Duration,
     /// Prometheus families, if the gateway exports them.
-    pub metrics: Option<crate::metrics::Metrics>,
+    pub metrics: Option<LineFamilies>,
     /// The unit id under which Modbus TCP serves the mailbox (`None`: not served there).
     pub unit_id: Option<u8>,
     /// Sends allowed; when not, every client's send is refused at once

@@ -38,13 +38,13 @@ use tokio_util::sync::CancellationToken;
 
 use super::client::{Command, TelegramClient, TelegramSendError};
 use super::LineShared;
+use crate::line::metrics::LineFamilies;
 use crate::line::runtime::{
     self, LineBase, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
 };
 use crate::line::runtime::{LineCommands, LineLifecycle, LineSignals, SecondPort};
 use crate::line::{DEFAULT_DIAG_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::mailbox::{Delivery, Mailbox, MailboxSettings, Overflow};
-use crate::metrics::Metrics;
 use crate::serial::PortSettings;
 use crate::signals::SignalError;
 
@@ -76,7 +76,7 @@ pub struct Tap3964LineSettings {
     /// Longest delay between reopen attempts.
     pub reopen_max: Duration,
     /// Prometheus families, if the gateway exports them.
-    pub metrics: Option<Metrics>,
+    pub metrics: Option<LineFamilies>,
     /// The unit id under which Modbus TCP serves the (read-only) mailbox.
     pub unit_id: Option<u8>,
 }

@@ -31,13 +31,13 @@ use super::writeback::{broadcast_echo, refresh_image};
 use super::{AddrRange, DeviceSettings, LineSettings};
 use crate::image::{ProcessImage, Quality, Table};
 use crate::line::driver::{sleep_until_opt, Clock};
-use crate::line::line_metrics::{master_result, BROADCAST_DEVICE, UNKNOWN_DEVICE};
+use crate::line::metrics::{master_result, PollCycleKind, BROADCAST_DEVICE, UNKNOWN_DEVICE};
 use crate::line::runtime::{
     self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
 };
 use crate::line::runtime::{LineCommands, LineLifecycle, LineSignals, SecondPort};
 use crate::line::status::{DeviceStatus, PollCycle, Shared};
-use crate::metrics::{PollCycleKind, RequestResult};
+use crate::metrics::RequestResult;
 use crate::unit::UnitService;
 
 /// What is in flight on the line.

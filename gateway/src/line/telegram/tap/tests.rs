@@ -253,7 +253,7 @@ async fn every_way_to_send_is_refused_and_reading_the_mailbox_still_works() {
 fn the_discard_series_created_at_start_are_one_per_fault_reason() {
     let labels: Vec<&str> = FAULT_KINDS
         .iter()
-        .map(|&fault| crate::metrics::FrameDiscard::from(fault).as_label())
+        .map(|&fault| crate::line::metrics::FrameDiscard::from(fault).as_label())
         .collect();
     assert_eq!(labels, Fault::REASONS);
 }

@@ -695,7 +695,7 @@ mod tests {
     use proto_core::modbus::pdu::ExceptionCode;
 
     use super::*;
-    use crate::metrics::{encode_text, Metrics};
+    use crate::metrics::encode_text;
 
     #[test]
     fn outcomes_map_to_their_result_labels() {
@@ -728,8 +728,8 @@ mod tests {
     fn a_line_without_metrics_records_nothing_and_one_with_metrics_everything() {
         LineMetrics::new(None, "drive", "modbus-master-rtu").started();
         let registry = Registry::new();
-        let metrics = Metrics::register(&registry).expect("register");
-        let line = LineMetrics::new(Some(metrics.line().clone()), "drive", "modbus-master-rtu");
+        let metrics = LineFamilies::register(&registry).expect("register");
+        let line = LineMetrics::new(Some(metrics.clone()), "drive", "modbus-master-rtu");
         let text = encode_text(&registry);
         assert!(text.contains(r#"gateway_line_up{line="drive",protocol="modbus-master-rtu"} 0"#));
         line.started();
@@ -761,12 +761,7 @@ mod tests {
     fn the_line_counts_its_traffic_with_or_without_metrics() {
         for metrics in [
             None,
-            Some(
-                Metrics::register(&Registry::new())
-                    .expect("register")
-                    .line()
-                    .clone(),
-            ),
+            Some(LineFamilies::register(&Registry::new()).expect("register")),
         ] {
             let line = LineMetrics::new(metrics, "drive", "modbus-master-rtu");
             line.sent_bytes(8);
@@ -791,7 +786,7 @@ mod tests {
     #[test]
     fn poll_cycles_are_labelled_by_period_and_kind_and_leave_with_their_device() {
         let registry = Registry::new();
-        let metrics = Metrics::register(&registry).expect("register");
+        let metrics = LineFamilies::register(&registry).expect("register");
         let period = Duration::from_millis(200);
         for (kind, ms) in [
             (PollCycleKind::Planned, 200),
@@ -799,13 +794,7 @@ mod tests {
             (PollCycleKind::Achieved, 212),
             (PollCycleKind::AchievedMax, 250),
         ] {
-            metrics.line().set_poll_cycle(
-                "drive",
-                "atv71",
-                period,
-                kind,
-                Duration::from_millis(ms),
-            );
+            metrics.set_poll_cycle("drive", "atv71", period, kind, Duration::from_millis(ms));
         }
         let text = encode_text(&registry);
         assert!(
@@ -814,7 +803,7 @@ mod tests {
             ),
             "{text}"
         );
-        metrics.line().forget_device("drive", "atv71");
+        metrics.forget_device("drive", "atv71");
         let text = encode_text(&registry);
         assert!(!text.contains("gateway_poll_cycle_seconds{"), "{text}");
     }
@@ -822,8 +811,8 @@ mod tests {
     #[test]
     fn start_up_counts_parameters_accepted() {
         let registry = Registry::new();
-        let metrics = Metrics::register(&registry).expect("register");
-        metrics.line().line_started("r3964", "3964r");
+        let metrics = LineFamilies::register(&registry).expect("register");
+        metrics.line_started("r3964", "3964r");
         let text = encode_text(&registry);
         assert!(
             text.contains(

@@ -26,16 +26,16 @@ use std::sync::{Arc, Mutex, PoisonError, Weak};
 use proto_core::profiles::{DataType, Value};
 use zenoh::key_expr::{keyexpr, OwnedKeyExpr};
 
+use super::TagDirectory;
 use crate::config::HttpConfig;
 use crate::image::ProcessImage;
-use crate::tags::TagDirectory;
 
 /// The family of the good values.
-pub const TAG_VALUE: &str = "gateway_tag_value";
+const TAG_VALUE: &str = "gateway_tag_value";
 /// The family of the quality words.
-pub const TAG_QUALITY: &str = "gateway_tag_quality";
+const TAG_QUALITY: &str = "gateway_tag_quality";
 /// The `quality` of a tag whose registers no poll has answered yet.
-pub const QUALITY_UNKNOWN: &str = "unknown";
+const QUALITY_UNKNOWN: &str = "unknown";
 
 /// Renders the tag families; keeps the selection of the last directory and filter.
 #[derive(Debug, Default)]
