@@ -54,12 +54,10 @@ const OWNERS: &[&[&str]] = &[
 
 /// How many names `parts` hold together.
 const fn count(parts: &[&[&str]]) -> usize {
-    let (mut n, mut i) = (0, 0);
-    while i < parts.len() {
-        n += parts[i].len();
-        i += 1;
+    match parts {
+        [first, rest @ ..] => first.len() + count(rest),
+        [] => 0,
     }
-    n
 }
 
 /// The names of `parts` one after the other, in an array of their [`count`].
@@ -122,14 +120,10 @@ impl Metrics {
         Ok(metrics)
     }
 
-    // --- serial lines ---
-
     /// The serial lines' and their devices' families (registered by [`LineFamilies::register`]).
     pub fn line(&self) -> &LineFamilies {
         &self.line
     }
-
-    // --- Modbus TCP server ---
 
     /// The Modbus TCP server's families (registered by [`ServerMetrics::register`]).
     pub fn modbus_tcp(&self) -> &ServerMetrics {
@@ -141,14 +135,10 @@ impl Metrics {
         &self.audit
     }
 
-    // --- HTTP listener ---
-
     /// The HTTP listener's families (registered by [`HttpMetrics::register`]).
     pub fn http(&self) -> &HttpMetrics {
         &self.http
     }
-
-    // --- zenoh ---
 
     /// The zenoh bridge's families (registered by [`BridgeMetrics::register`]).
     pub fn zenoh(&self) -> &BridgeMetrics {

@@ -99,6 +99,13 @@ impl LineMetrics {
         }
     }
 
+    /// Calls `f` with the line's families and labels; nothing without metrics.
+    fn each(&self, f: impl FnOnce(&Inner)) {
+        if let Some(inner) = &self.inner {
+            f(inner);
+        }
+    }
+
     /// Frames and bytes since the line started (commands zero: the status counts them).
     pub(crate) fn traffic(&self) -> LineTraffic {
         let w = &self.wire;
@@ -115,23 +122,17 @@ impl LineMetrics {
     /// The line took its parameters and its port is open: line up and event 00 03h counted
     /// (the event itself is raised by [`Shared::started`](super::status::Shared::started)).
     pub(crate) fn started(&self) {
-        if let Some(i) = &self.inner {
-            i.families.line_started(&i.line, i.protocol);
-        }
+        self.each(|i| i.families.line_started(&i.line, i.protocol));
     }
 
     /// The port closed or failed: line down.
     pub(crate) fn port_closed(&self) {
-        if let Some(i) = &self.inner {
-            i.families.set_line_up(&i.line, i.protocol, false);
-        }
+        self.each(|i| i.families.set_line_up(&i.line, i.protocol, false));
     }
 
     /// One event raised on the line.
     pub(crate) fn event(&self, id: EventId) {
-        if let Some(i) = &self.inner {
-            i.families.event(&i.line, id);
-        }
+        self.each(|i| i.families.event(&i.line, id));
     }
 
     /// `len` bytes written to the port (telegram lines: framing included).
@@ -148,9 +149,7 @@ impl LineMetrics {
     /// partner (telegram lines).
     pub(crate) fn sent_telegram(&self) {
         self.wire.frames_sent.fetch_add(1, Ordering::Relaxed);
-        if let Some(i) = &self.inner {
-            i.families.telegram(&i.line, Direction::Tx);
-        }
+        self.each(|i| i.families.telegram(&i.line, Direction::Tx));
     }
 
     /// `len` bytes read from the port.
@@ -158,52 +157,38 @@ impl LineMetrics {
         self.wire
             .bytes_received
             .fetch_add(len as u64, Ordering::Relaxed);
-        if let Some(i) = &self.inner {
-            i.families.bytes(&i.line, Direction::Rx, len);
-        }
+        self.each(|i| i.families.bytes(&i.line, Direction::Rx, len));
     }
 
     /// One complete telegram (frame) received and accepted.
     pub(crate) fn received_telegram(&self) {
         self.wire.frames_received.fetch_add(1, Ordering::Relaxed);
-        if let Some(i) = &self.inner {
-            i.families.telegram(&i.line, Direction::Rx);
-        }
+        self.each(|i| i.families.telegram(&i.line, Direction::Rx));
     }
 
     /// Creates the series of a configured device at 0 (down, empty histogram).
     pub(crate) fn init_device(&self, device: &str) {
-        if let Some(i) = &self.inner {
-            i.families.init_device(&i.line, device);
-        }
+        self.each(|i| i.families.init_device(&i.line, device));
     }
 
     /// Creates the slave line's discard series at 0, one per reason.
     pub(crate) fn init_frames_discarded<R: Into<FrameDiscard> + Copy>(&self, reasons: &[R]) {
-        if let Some(i) = &self.inner {
-            i.families.init_frames_discarded(&i.line, reasons);
-        }
+        self.each(|i| i.families.init_frames_discarded(&i.line, reasons));
     }
 
     /// One received frame discarded unanswered by a slave line, for `reason`.
     pub(crate) fn frame_discarded(&self, reason: impl Into<FrameDiscard>) {
-        if let Some(i) = &self.inner {
-            i.families.frame_discarded(&i.line, reason);
-        }
+        self.each(|i| i.families.frame_discarded(&i.line, reason));
     }
 
     /// One Modbus request with function code `function` to (or, on a slave line, from) `device`.
     pub(crate) fn request(&self, device: &str, function: u8, result: RequestResult) {
-        if let Some(i) = &self.inner {
-            i.families.modbus_request(&i.line, device, function, result);
-        }
+        self.each(|i| i.families.modbus_request(&i.line, device, function, result));
     }
 
     /// The duration of one poll exchange of `device`.
     pub(crate) fn poll_duration(&self, device: &str, duration: Duration) {
-        if let Some(i) = &self.inner {
-            i.families.poll_duration(&i.line, device, duration);
-        }
+        self.each(|i| i.families.poll_duration(&i.line, device, duration));
     }
 
     /// The poll cycle of the poll group of `period` of `device`.
@@ -214,25 +199,23 @@ impl LineMetrics {
         kind: PollCycleKind,
         value: Duration,
     ) {
-        if let Some(i) = &self.inner {
+        self.each(|i| {
             i.families
-                .set_poll_cycle(&i.line, device, period, kind, value);
-        }
+                .set_poll_cycle(&i.line, device, period, kind, value)
+        });
     }
 
     /// Whether `device` answers.
     pub(crate) fn device_up(&self, device: &str, up: bool) {
-        if let Some(i) = &self.inner {
-            i.families.set_device_up(&i.line, device, up);
-        }
+        self.each(|i| i.families.set_device_up(&i.line, device, up));
     }
 
     /// The image of `device` was updated from a reply just now.
     pub(crate) fn image_updated(&self, device: &str) {
-        if let Some(i) = &self.inner {
+        self.each(|i| {
             i.families
-                .device_image_updated(&i.line, device, Instant::now());
-        }
+                .device_image_updated(&i.line, device, Instant::now())
+        });
     }
 }
 
@@ -382,7 +365,7 @@ pub struct LineFamilies {
 // === impl LineFamilies ===
 
 impl LineFamilies {
-    /// The names of the families, in the order of `Metrics`' list.
+    /// The names of the families (`app::METRIC_NAMES` chains every owner's).
     pub const NAMES: [&'static str; 11] = [
         "gateway_events_total",
         "gateway_telegrams_total",

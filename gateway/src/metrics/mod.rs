@@ -2,11 +2,8 @@
 //! ([`labels`]), the text encoding and the minimal `/metrics` listener ([`serve_metrics`]). No
 //! global registry, no default registry: `main` creates the one registry and hands it down.
 //!
-//! This module imports nothing of the gateway's subsystems. Each subsystem owns its families in
-//! its own `metrics.rs` (`line/`, `modbus_tcp/`, `zenoh_bridge/`, `api/`, `audit/`, and `tags/`
-//! for the process values rendered at scrape time) and registers them in the registry it is
-//! given; the bundle of them all, `app::Metrics`, and the list of every exported name,
-//! `app::METRIC_NAMES`, live with the wiring.
+//! This module imports nothing of the gateway's subsystems: each owns its families in its own
+//! `metrics.rs`, and `app::Metrics` registers them all in the registry it is given.
 //!
 //! Label sets are bounded:
 //! - `line`, `device`, `protocol` come from the configuration (line and device names, the

@@ -402,6 +402,13 @@ impl ServerStats {
         self.metrics.as_ref().map(|(server, _)| server)
     }
 
+    /// Calls `f` with the server's families, if the counts are mirrored there.
+    fn each(&self, f: impl FnOnce(&ServerMetrics)) {
+        if let Some(m) = self.families() {
+            f(m);
+        }
+    }
+
     pub(crate) fn count_refused(&self, role: &str) {
         *self
             .refused
@@ -409,16 +416,12 @@ impl ServerStats {
             .unwrap_or_else(PoisonError::into_inner)
             .entry(role.to_owned())
             .or_default() += 1;
-        if let Some(m) = self.families() {
-            m.refused(role);
-        }
+        self.each(|m| m.refused(role));
     }
 
     pub(crate) fn count_handshake_failed(&self) {
         self.handshakes_failed.fetch_add(1, Ordering::Relaxed);
-        if let Some(m) = self.families() {
-            m.handshake_failed();
-        }
+        self.each(|m| m.handshake_failed());
     }
 
     pub(crate) fn count_accepted(self: &Arc<Self>) -> OpenConnection {
@@ -432,23 +435,17 @@ impl ServerStats {
 
     pub(crate) fn count_rejected(&self, reason: RejectReason) {
         self.rejected[reason as usize].fetch_add(1, Ordering::Relaxed);
-        if let Some(m) = self.families() {
-            m.connection_rejected(reason);
-        }
+        self.each(|m| m.connection_rejected(reason));
     }
 
     pub(crate) fn count_accept_error(&self, kind: AcceptError) {
         self.accept_errors[kind as usize].fetch_add(1, Ordering::Relaxed);
-        if let Some(m) = self.families() {
-            m.accept_failed();
-        }
+        self.each(|m| m.accept_failed());
     }
 
     pub(crate) fn count_closed(&self, reason: CloseReason) {
         self.closed[reason as usize].fetch_add(1, Ordering::Relaxed);
-        if let Some(m) = self.families() {
-            m.connection_closed(reason);
-        }
+        self.each(|m| m.connection_closed(reason));
     }
 
     pub(crate) fn count_frame_rejected(&self, reason: FrameReject) {

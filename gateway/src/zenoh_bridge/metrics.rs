@@ -362,21 +362,24 @@ impl BridgeStats {
             .name_conflict
             .lock()
             .unwrap_or_else(std::sync::PoisonError::into_inner) = holder;
-        if let Some((m, _)) = &self.metrics {
-            m.name_conflict.set(i64::from(on));
-        }
+        self.each(|m| m.name_conflict.set(i64::from(on)));
     }
 
     pub(crate) fn published(&self, kind: PublicationKind) {
         self.publications[kind as usize].fetch_add(1, Ordering::Relaxed);
-        if let Some((m, _)) = &self.metrics {
-            m.published(kind);
-        }
+        self.each(|m| m.published(kind));
     }
 
     /// The audit's Prometheus family the commands are counted in, if any.
     pub fn audit(&self) -> Option<&AuditMetrics> {
         self.metrics.as_ref().map(|(_, audit)| audit)
+    }
+
+    /// Calls `f` with the bridge's families, if the counts are mirrored there.
+    fn each(&self, f: impl FnOnce(&BridgeMetrics)) {
+        if let Some((bridge, _)) = &self.metrics {
+            f(bridge);
+        }
     }
 
     pub(crate) fn dropped(&self, reason: DropReason) {
@@ -386,9 +389,7 @@ impl BridgeStats {
     /// Counts `count` updates dropped for one reason.
     pub fn dropped_many(&self, reason: DropReason, count: u64) {
         self.drops[reason as usize].fetch_add(count, Ordering::Relaxed);
-        if let Some((m, _)) = &self.metrics {
-            m.dropped(reason, count);
-        }
+        self.each(|m| m.dropped(reason, count));
     }
 
     pub(crate) fn command(&self, kind: CommandKind, result: CommandOutcome) {
@@ -397,9 +398,7 @@ impl BridgeStats {
 
     pub(crate) fn query_served(&self) {
         self.queries.fetch_add(1, Ordering::Relaxed);
-        if let Some((m, _)) = &self.metrics {
-            m.replied();
-        }
+        self.each(|m| m.replied());
     }
 
     pub(crate) fn suppressed_by_deadband(&self) {
