@@ -42,3 +42,35 @@ pub fn encode_text(registry: &Registry) -> String {
 
 /// The `Content-Type` of [`encode_text`]'s output.
 pub const TEXT_CONTENT_TYPE: &str = "text/plain; version=0.0.4; charset=utf-8";
+
+#[cfg(test)]
+mod tests {
+    /// metrics/ stays at the bottom: none of its files names a module of the gateway outside it
+    /// (the families belong to their subsystems, the bundle to app/).
+    #[test]
+    fn metrics_imports_nothing_of_the_gateway() {
+        let crate_path = concat!("crate", "::");
+        let own_path = concat!("crate", "::metrics");
+        for (file, text) in [
+            ("mod.rs", include_str!("mod.rs")),
+            ("http.rs", include_str!("http.rs")),
+            ("labels.rs", include_str!("labels.rs")),
+        ] {
+            for line in text.lines().filter(|line| line.contains(crate_path)) {
+                assert!(
+                    line.replace(own_path, "").find(crate_path).is_none(),
+                    "metrics/{file} names a module above it: {line}"
+                );
+            }
+        }
+        let files: Vec<_> = std::fs::read_dir(concat!(env!("CARGO_MANIFEST_DIR"), "/src/metrics"))
+            .expect("src/metrics")
+            .map(|entry| entry.expect("entry").file_name())
+            .collect();
+        assert_eq!(
+            files.len(),
+            3,
+            "a new file in metrics/ joins this test: {files:?}"
+        );
+    }
+}
