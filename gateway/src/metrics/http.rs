@@ -1,4 +1,4 @@
-//! A minimal HTTP/1.1 responder for `/metrics`, until the REST API serves it.
+//! A minimal HTTP/1.1 responder for `/metrics` alone (the gateway answers it on its REST listener).
 //!
 //! One request per connection (`Connection: close`, which RFC 9112 9.6 allows a server to send):
 //! `GET` or `HEAD /metrics` answers the registry in the text format 0.0.4, another method on
