@@ -28,16 +28,14 @@ mod build;
 mod check;
 mod demo;
 mod fleet;
+mod gateway;
 mod hangup_log;
 mod lines;
 mod metrics;
 mod reload;
 mod reload_notice;
-mod rest;
-mod status;
 mod supervisor;
 pub mod tag_csv;
-mod tag_io;
 mod tls;
 mod zenoh;
 
@@ -370,7 +368,7 @@ async fn serve_http(
             None
         }
     };
-    let backend = Arc::new(rest::RestBackend::new(Arc::clone(sup)));
+    let backend = Arc::new(crate::feeds::rest::RestBackend::new(Arc::clone(sup) as _));
     let state = ApiState::from_config(Arc::clone(&backend) as _, http, store)
         .map_err(|e| {
             AppError::Config(config::ConfigErrors {

@@ -236,13 +236,7 @@ fn start_simulator(
                 Some(every) => partner.every(every),
                 None => partner,
             };
-            let token = shutdown.clone();
-            let line_name = name.to_owned();
-            tokio::spawn(async move {
-                if let Err(e) = partner.serve(stream, token).await {
-                    tracing::error!(line = %line_name, error = %e, "simulated telegram partner stopped");
-                }
-            });
+            tokio::spawn(partner.serve(stream, shutdown.clone()));
             Ok(())
         }
         _ => {

@@ -3,7 +3,7 @@
 //! address), and the other gateways it sees for `GET /api/v1/fleet`.
 //!
 //! Each line's object is the line status the bridge answers on `<prefix>/<line>/status` and REST
-//! on `/api/v1/lines/{line}` ([`super::status::line_view`]) with the fleet's fields added (`online`, `last_event_age_s`,
+//! on `/api/v1/lines/{line}` ([`line_view`]) with the fleet's fields added (`online`, `last_event_age_s`,
 //! a device's `last_answer_age_s`), so that the line status stays defined in one place.
 
 use std::net::SocketAddr;
@@ -12,8 +12,8 @@ use std::time::SystemTime;
 
 use serde_json::{json, Value as Json};
 
-use super::lines::RunningLine;
 use super::supervisor::Supervisor;
+use crate::feeds::gateway::{line_view, RunningLine};
 
 /// Remembers where the HTTP listener is, for the fleet's links (`http` in the gateway status).
 /// An unspecified address (`0.0.0.0`, `::`) is named by the host name.
@@ -61,11 +61,11 @@ pub(crate) fn members(sup: &Supervisor) -> Vec<crate::zenoh_bridge::fleet::Fleet
         .unwrap_or_default()
 }
 
-/// One line: its status view ([`super::status::line_view`]) with the fleet's fields.
+/// One line: its status view ([`line_view`]) with the fleet's fields.
 pub(crate) fn line_json(name: &str, running: &RunningLine, now: SystemTime) -> Json {
     let status = running.handle.status();
-    let mut line = serde_json::to_value(super::status::line_view(name, running))
-        .unwrap_or_else(|_| json!({ "name": name }));
+    let mut line =
+        serde_json::to_value(line_view(name, running)).unwrap_or_else(|_| json!({ "name": name }));
     line["online"] = json!(status.port_open);
     line["last_event_age_s"] = json!(status.last_event.as_ref().map(|e| age(e.time, now)));
     if let Some(devices) = line.get_mut("devices").and_then(Json::as_array_mut) {

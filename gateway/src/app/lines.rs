@@ -5,7 +5,7 @@
 //! configuration change adds or changes; it stops a line by cancelling its token and joining it.
 
 use proto_core::cpmem::AddressMap;
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Mutex, PoisonError};
 
 use tokio_util::sync::CancellationToken;
 
@@ -13,43 +13,9 @@ use super::AppError;
 use super::Metrics;
 use crate::config::{Config, LineConfig, ProtocolConfig};
 use crate::cpmem::{self, SharedCpMemory};
+use crate::feeds::gateway::RunningLine;
 use crate::image::ProcessImage;
 use crate::line::start::{StartDeps, StartLine};
-use crate::line::LineHandle;
-use crate::unit::UnitService;
-
-/// A running line and what it registered.
-#[derive(Clone)]
-pub(crate) struct RunningLine {
-    /// The line's task: status, events, capabilities.
-    pub(crate) handle: LineHandle,
-    /// Cancels this line only (a child of the gateway's lines token).
-    pub(crate) token: CancellationToken,
-    /// The config's protocol name (`modbus-master-rtu`, `3964r`, ...).
-    pub(crate) protocol: &'static str,
-    /// The serial port's path.
-    pub(crate) port: String,
-    /// The second receive port's path, for a line that has one (`3964r-tap`).
-    pub(crate) port_b: Option<String>,
-    /// The Modbus TCP units the line answers.
-    pub(crate) units: Vec<(u8, Arc<dyn UnitService>)>,
-    /// The CP memory mirror a slave line keeps in the image: its unit id and address map.
-    pub(crate) mirror: Option<(u8, AddressMap)>,
-}
-
-impl std::fmt::Debug for RunningLine {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("RunningLine")
-            .field("handle", &self.handle)
-            .field("protocol", &self.protocol)
-            .field("port", &self.port)
-            .field(
-                "units",
-                &self.units.iter().map(|(u, _)| *u).collect::<Vec<_>>(),
-            )
-            .finish_non_exhaustive()
-    }
-}
 
 /// What starting a line needs from the gateway.
 pub(crate) struct LineDeps<'a> {

@@ -30,7 +30,7 @@ use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
-use super::lines::{self, slave_layout, LineDeps, RunningLine};
+use super::lines::{self, slave_layout, LineDeps};
 
 mod apply;
 mod plan;
@@ -38,6 +38,7 @@ use super::{server_options, AppError, MetricsRegistry, Overrides, GRACE_PERIOD};
 use crate::api::BoxFuture;
 use crate::config::{Config, ConfigIssue};
 use crate::cpmem::{self, SharedCpMemory};
+use crate::feeds::gateway::RunningLine;
 use crate::image::{ImageConfig, ProcessImage};
 use crate::modbus_tcp::{self, LiveOptions, ServerOptions, ServerStats};
 use crate::tags::TagDirectory;

@@ -2,36 +2,40 @@
 //! telegram they receive with the same bytes (an echo) and send one telegram of their own every
 //! `--every` interval (default 1 s, 0 = never).
 //!
-//! They run the same proto-core engines as the gateway's lines, so a pty pair with a line on one
-//! end and a simulator on the other is two engines of ours talking. Defaults: the 3964(R)
+//! They run the same proto-core engines as the gateway's lines, as line engines on the same line
+//! runtime (one port task, the timerfd, the estimated end of each transmission), so a pty pair
+//! with a line on one end and a simulator on the other is two engines of ours talking. Defaults: the 3964(R)
 //! partner has low priority (the demo line `r3964` has high, 003 6.3.3 "Priority": one partner
 //! high, the other low), the ASCII partner ends its telegrams with ETX (003 6.2.1 "End character
 //! 1: 3 (03h = ETX)"). Their own telegrams count up: `3964R 000001`, `ASCII 000001<ETX>`, ...
 
-use std::io;
 use std::time::Duration;
 
+use proto_core::event::EventId;
 use proto_core::proc3964::{Params3964, Priority, Settings3964, Variant};
+use proto_core::serial_marks::LineError;
 use proto_core::telegram::{
-    AsciiParams, AsciiSettings, ConfigError, EndCriterion, FlowControl, Interface, TelegramEvent,
-    DEFAULT_END_CHAR,
+    Action, AsciiParams, AsciiSettings, ConfigError, EndCriterion, FlowControl, Interface,
+    TelegramEvent, DEFAULT_END_CHAR,
 };
-use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite};
+use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::sync::mpsc;
-use tokio::time::{Instant, MissedTickBehavior};
+use tokio::time::Instant;
+use tokio_serial::SerialPort;
 use tokio_util::sync::CancellationToken;
 
+use super::slaves::spawn_line;
 use crate::config::LineConfig;
+use crate::line::runtime::{
+    LineCommands, LineEngine, LineLifecycle, LinePort, LineSignals, SecondPort, Stop, Unmarked,
+};
 use crate::line::telegram::engine::{EngineFactory, TelegramEngine};
-use crate::line::telegram::pump::{sleep_until_opt, Pump};
 use crate::line::telegram::{engine_protocol, TelegramProtocol};
+use crate::line::Clock;
 use crate::serial::{self, DataBits, OpenError, PortSettings};
 
 /// How often a simulator sends a telegram of its own by default (`--every`; 0 = never).
 pub const DEFAULT_EVERY: Duration = Duration::from_secs(1);
-/// Pause before reading again after the port failed (a pty whose other end is being reopened
-/// reads EIO meanwhile).
-const READ_RETRY: Duration = Duration::from_millis(100);
 
 /// Which telegram partner to simulate.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -51,9 +55,6 @@ pub enum TelegramSimError {
     /// The line settings give no valid protocol parameters.
     #[error("invalid protocol parameters: {0}")]
     Params(#[from] ConfigError),
-    /// Writing the port failed.
-    #[error("serial I/O failed: {0}")]
-    Io(#[from] io::Error),
 }
 
 /// The 3964R partner's parameters: the manual's defaults (003 6.3.3), low priority.
@@ -190,22 +191,20 @@ impl TelegramSim {
         }
     }
 
-    /// Serves on `stream` until `shutdown` is cancelled.
-    ///
-    /// # Errors
-    ///
-    /// A failed write (the port is gone).
-    pub async fn serve<S>(
-        self,
-        stream: S,
-        shutdown: CancellationToken,
-    ) -> Result<(), TelegramSimError>
+    /// Serves on `stream` (its bytes carry no line error marks) until `shutdown` is cancelled or
+    /// the stream is lost: the partner as a line engine on the line runtime.
+    pub async fn serve<S>(self, stream: S, shutdown: CancellationToken)
     where
-        S: AsyncRead + AsyncWrite + Unpin,
+        S: AsyncRead + AsyncWrite + Unpin + Send + 'static,
     {
+        self.serve_on(Unmarked(stream), shutdown).await;
+    }
+
+    /// Serves on `port` until `shutdown` is cancelled or the port is lost.
+    async fn serve_on<P: LinePort>(self, port: P, shutdown: CancellationToken) {
         match self.protocol.clone() {
-            TelegramProtocol::P3964(params) => self.run(params, stream, shutdown).await,
-            TelegramProtocol::Ascii(params) => self.run(params, stream, shutdown).await,
+            TelegramProtocol::P3964(params) => self.run(params, port, shutdown).await,
+            TelegramProtocol::Ascii(params) => self.run(params, port, shutdown).await,
         }
     }
 
@@ -234,92 +233,115 @@ impl TelegramSim {
         }
     }
 
-    async fn run<F, S>(
+    async fn run<F: EngineFactory, P: LinePort>(
         self,
         factory: F,
-        mut stream: S,
+        port: P,
         shutdown: CancellationToken,
-    ) -> Result<(), TelegramSimError>
-    where
-        F: EngineFactory,
-        S: AsyncRead + AsyncWrite + Unpin,
-    {
-        let mut pump = Pump::new(factory.build(), self.char_time);
-        let mut ticker = (!self.every.is_zero()).then(|| {
-            let mut t = tokio::time::interval_at(Instant::now() + self.every, self.every);
-            t.set_missed_tick_behavior(MissedTickBehavior::Delay);
-            t
-        });
-        let mut own: u64 = 0;
-        let mut read_failing = false;
-        let mut retry_at: Option<Instant> = None;
-        let mut buf = [0u8; 1024];
-        tracing::info!(protocol = pump.engine.protocol(), every = ?self.every, "telegram simulator serving");
-        loop {
-            pump.handle_due();
-            loop {
-                let wrote = pump
-                    .flush(&mut stream, |_, action| {
-                        tracing::trace!(?action, "the simulator has no RS232 outputs");
-                    })
-                    .await?;
-                let events = self.handle_events(&mut pump);
-                if !(wrote || events) {
-                    break;
-                }
-            }
-            let sending = ticker.is_some() && self.limit.is_none_or(|l| own < l);
-            tokio::select! {
-                biased;
-                () = shutdown.cancelled() => return Ok(()),
-                read = stream.read(&mut buf), if retry_at.is_none() => match read {
-                    Ok(0) => return Ok(()),
-                    Ok(n) => {
-                        read_failing = false;
-                        pump.handle_rx(buf.get(..n).unwrap_or_default());
-                    }
-                    Err(err) => {
-                        if !read_failing {
-                            tracing::warn!(%err, "simulator read failed; retrying");
-                        }
-                        read_failing = true;
-                        retry_at = Some(Instant::now() + READ_RETRY);
-                    }
-                },
-                () = sleep_until_opt(retry_at) => retry_at = None,
-                () = sleep_until_opt(pump.deadline()) => pump.handle_timeout(),
-                _ = async { ticker.as_mut()?.tick().await; Some(()) }, if sending => {
-                    let telegram = self.own_telegram(own + 1);
-                    let now = pump.now();
-                    match pump.engine.send(now, telegram) {
-                        Ok(_) => own += 1,
-                        Err(err) => tracing::debug!(%err, "own telegram skipped"),
-                    }
-                }
-            }
+    ) {
+        let engine = factory.build();
+        tracing::info!(protocol = engine.protocol(), every = ?self.every, "telegram simulator serving");
+        // Ends with the shutdown or the port, whichever comes first.
+        let stop = shutdown.child_token();
+        let char_time = self.char_time;
+        let make = |clock| Partner::new(self, engine, clock, stop.clone());
+        spawn_line("telegram-sim", make, port, char_time, stop.clone())
+            .join()
+            .await;
+    }
+}
+
+/// The partner as a line engine: its 3964(R) or ASCII engine, driven by the line runtime's port
+/// task (reads, writes with the estimated end of each transmission, the engine's deadlines on the
+/// timerfd); its own telegrams are its wake-up.
+struct Partner<E> {
+    sim: TelegramSim,
+    engine: E,
+    clock: Clock,
+    /// Its own telegrams accepted by the engine.
+    own: u64,
+    /// When its next own telegram is due (`None`: never).
+    next_own: Option<Instant>,
+    /// The estimated end of the last transmission.
+    tx_end: Option<proto_core::time::Instant>,
+    /// Cancelled when the port is lost: the partner ends with its port.
+    on_lost: CancellationToken,
+}
+
+// === impl Partner ===
+
+impl<E: TelegramEngine> Partner<E> {
+    fn new(sim: TelegramSim, engine: E, clock: Clock, on_lost: CancellationToken) -> Self {
+        let next_own = (!sim.every.is_zero()).then(|| Instant::now() + sim.every);
+        Self {
+            sim,
+            engine,
+            clock,
+            own: 0,
+            next_own,
+            tx_end: None,
+            on_lost,
         }
     }
 
-    /// Echoes received telegrams and logs the rest; returns whether there were events.
-    fn handle_events<E: TelegramEngine>(&self, pump: &mut Pump<E>) -> bool {
+    /// Now on the engine's clock.
+    fn now(&self) -> proto_core::time::Instant {
+        self.clock.now().1
+    }
+}
+
+impl<E: TelegramEngine> LineEngine for Partner<E> {
+    fn opened(&mut self, _modem: Option<&mut dyn SerialPort>) {}
+
+    /// Received bytes, timestamped as the protocol counts them ([`TelegramEngine::rx_time`]).
+    fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
+        let at = self.engine.rx_time(now, self.tx_end);
+        self.engine.handle_rx(at, bytes);
+    }
+
+    fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError) {
+        let at = self.engine.rx_time(now, self.tx_end);
+        self.engine.handle_line_error(at, error);
+    }
+
+    fn handle_timeout(&mut self, now: proto_core::time::Instant) {
+        self.engine.handle_timeout(now);
+    }
+
+    fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
+        self.engine.poll_timeout()
+    }
+
+    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+        self.engine.poll_transmit()
+    }
+
+    fn transmitted(&mut self, _written: Instant, _len: usize, end: proto_core::time::Instant) {
+        self.tx_end = Some(end);
+        self.engine.handle_tx_done(end);
+    }
+
+    /// Echoes received telegrams and logs the rest; true when there were events (an echo is
+    /// written at once).
+    fn handle_events(&mut self) -> bool {
         let mut any = false;
-        while let Some(event) = pump.engine.poll_event() {
+        while let Some(event) = self.engine.poll_event() {
             any = true;
             match event {
                 TelegramEvent::Received { .. } => {
-                    let Some(data) = pump.engine.take_received() else {
+                    let Some(data) = self.engine.take_received() else {
                         continue;
                     };
-                    if let Some(observer) = &self.observer {
+                    if let Some(observer) = &self.sim.observer {
                         if observer.try_send(data.clone()).is_err() {
                             tracing::warn!(
                                 "simulator observer full: a received telegram not shown"
                             );
                         }
                     }
-                    if self.echo {
-                        let now = pump.now();
-                        if let Err(err) = pump.engine.send(now, data) {
+                    if self.sim.echo {
+                        let now = self.now();
+                        if let Err(err) = self.engine.send(now, data) {
                             tracing::warn!(%err, "echo not sent");
                         }
                     }
@@ -335,51 +357,84 @@ impl TelegramSim {
     }
 }
 
-/// Serves a 3964(R) partner on `stream`: echo, and its own telegram every `every` (zero: never).
-///
-/// # Errors
-///
-/// A failed write.
-pub async fn serve_3964r<S>(
-    stream: S,
-    params: Params3964,
-    every: Duration,
-    shutdown: CancellationToken,
-) -> Result<(), TelegramSimError>
-where
-    S: AsyncRead + AsyncWrite + Unpin,
-{
-    TelegramSim::new(TelegramProtocol::P3964(params))
-        .every(every)
-        .serve(stream, shutdown)
-        .await
+impl<E> LineCommands for Partner<E> {
+    type Command = ();
+
+    fn command(&mut self, (): (), _modem: Option<&mut dyn SerialPort>) {}
+
+    fn refuse(&mut self, (): (), _shutting_down: bool) {}
 }
 
-/// Serves an ASCII partner on `stream`: echo, and its own telegram every `every` (zero: never).
-///
-/// # Errors
-///
-/// A failed write.
-pub async fn serve_ascii<S>(
-    stream: S,
-    params: AsciiParams,
-    every: Duration,
-    shutdown: CancellationToken,
-) -> Result<(), TelegramSimError>
-where
-    S: AsyncRead + AsyncWrite + Unpin,
-{
-    TelegramSim::new(TelegramProtocol::Ascii(params))
-        .every(every)
-        .serve(stream, shutdown)
-        .await
+impl<E> LineLifecycle for Partner<E> {
+    fn stop(&mut self) -> Stop {
+        // A simulated partner stops at once, as one switched off.
+        Stop {
+            read: false,
+            close_queue: true,
+            grace: Some(Duration::ZERO),
+        }
+    }
+
+    fn done(&self) -> bool {
+        true
+    }
+
+    fn closed(&mut self, _shutting_down: bool) {}
+
+    fn port_failed(&mut self, id: EventId, reason: String) {
+        tracing::info!(event = %id, %reason, "telegram simulator: port closed, the partner stops");
+        self.on_lost.cancel();
+    }
 }
 
-/// `gateway sim --device 3964r|ascii`: opens `port` and serves the partner until `shutdown`.
+impl<E: TelegramEngine> LineSignals for Partner<E> {
+    /// The engine's RS232 actions are taken and dropped: the simulator has no outputs.
+    fn poll_action(&mut self) -> Option<Action> {
+        self.engine.poll_action()
+    }
+
+    fn apply_action(&mut self, action: Action, _modem: Option<&mut dyn SerialPort>) {
+        tracing::trace!(?action, "the simulator has no RS232 outputs");
+    }
+
+    /// Its next own telegram, until the limit is reached.
+    fn wake(&self) -> impl std::future::Future<Output = ()> + Send + '_ {
+        let sending = self.sim.limit.is_none_or(|l| self.own < l);
+        let at = self.next_own.filter(|_| sending);
+        async move {
+            match at {
+                Some(at) => tokio::time::sleep_until(at).await,
+                None => std::future::pending().await,
+            }
+        }
+    }
+
+    /// Sends its own telegram; the next is due `every` later (from now when this one was late).
+    fn woken(&mut self, _modem: Option<&mut dyn SerialPort>) {
+        let Some(at) = self.next_own else { return };
+        let now = Instant::now();
+        let next = at + self.sim.every;
+        self.next_own = Some(if next <= now {
+            now + self.sim.every
+        } else {
+            next
+        });
+        let telegram = self.sim.own_telegram(self.own + 1);
+        match self.engine.send(self.clock.to_engine(now), telegram) {
+            Ok(_) => self.own += 1,
+            Err(err) => tracing::debug!(%err, "own telegram skipped"),
+        }
+    }
+}
+
+impl<E> SecondPort for Partner<E> {}
+
+/// `gateway sim --device 3964r|ascii`: opens `port` and serves the partner until `shutdown` or
+/// until the port is lost.
 ///
 /// # Errors
 ///
-/// The port does not open, the line settings give no valid parameters, or a write fails.
+/// The port does not open, or the line settings give no valid parameters.
 pub async fn run_telegram_sim(
     device: TelegramDevice,
     port: PortSettings,
@@ -398,11 +453,13 @@ pub async fn run_telegram_sim(
     };
     let stream = serial::open(&port)?;
     tracing::info!(port = %port.path, baud = port.baud, ?device, "telegram simulator on its port");
+    // The port marks line errors (`serial::open` sets `PARMRK`): the runtime undoes the marks.
     TelegramSim::new(protocol)
         .every(every)
         .char_time(port.char_time())
-        .serve(stream, shutdown)
-        .await
+        .serve_on(stream, shutdown)
+        .await;
+    Ok(())
 }
 
 #[cfg(test)]

@@ -24,7 +24,6 @@ mod client;
 mod convert;
 pub(crate) mod engine;
 mod mailbox_unit;
-pub(crate) mod pump;
 mod tap;
 mod task;
 

@@ -10,11 +10,10 @@ use std::time::SystemTime;
 
 use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 use proto_core::modbus::Table;
-
-use super::supervisor::Snapshot;
 use proto_core::profiles::Value;
 
 use crate::tags::{TagDirectory, TagEntry, TagReading, TagWriteError, TagWriteOp};
+use crate::unit::write_policy::WritePolicy;
 use crate::unit::{SharedUnits, UnitFuture, UnitService};
 
 /// Why a tag write was not sent to the device.
@@ -71,21 +70,21 @@ pub(crate) fn service(units: &SharedUnits, unit: u8) -> Option<Arc<dyn UnitServi
         .cloned()
 }
 
-/// The checked request of a write of `value` (engineering units) to `line/device/tag`.
+/// The checked request of a write of `value` (engineering units) to `line/device/tag` of the
+/// directory `tags`, under the Modbus TCP server's write `policy`.
 pub(crate) fn prepare_write(
-    snapshot: &Snapshot,
+    tags: &TagDirectory,
+    policy: &WritePolicy,
     units: &SharedUnits,
     line: &str,
     device: &str,
     tag: &str,
     value: &Value,
 ) -> Result<PreparedWrite, WriteRefused> {
-    let entry = snapshot
-        .tags
+    let entry = tags
         .find(line, device, tag)
         .ok_or_else(|| TagWriteError::UnknownTag(format!("{line}/{device}/{tag}")))?;
     let op = TagDirectory::write_op(entry, value)?;
-    let policy = &snapshot.server.writes;
     if policy.read_only {
         return Err(WriteRefused::ReadOnlyGateway);
     }

@@ -1,35 +1,35 @@
-//! The REST API's backend over the running gateway ([`ApiBackend`] for the supervisor).
+//! The REST API's backend over the running gateway ([`ApiBackend`] over a [`Gateway`], app/'s
+//! supervisor).
 //!
-//! Status and diagnostics come from the line handles of the snapshot in force; telegrams from the
+//! Status and diagnostics come from the line handles of the configuration in force; telegrams from the
 //! telegram line's mailbox (the same queue Modbus TCP clients acknowledge through), sends through
 //! its `TelegramClient`, signals through its `SignalsClient`; tags from the tag directory over
 //! the process image, tag writes through the device's unit service with the Modbus TCP server's
-//! checks ([`super::tag_io`]).
+//! checks ([`super::tag_io`]). What only the running gateway knows (overrides, applying a
+//! configuration, the fleet, the gateway's status and readiness) it answers itself.
 
-use std::sync::{Arc, PoisonError};
+use std::sync::Arc;
 
 use crate::api::auth::Caller;
 use crate::api::model::{
     ApplyReport, ConfigOverride, DiagRecord, DiagSnapshot, GatewayStatus, LineStatusView,
-    ModbusTcpStatus, Readiness, ScalarValue, SendResult, Signals, SignalsPatch, TagQuality,
-    TagValue, Telegram, TelegramQueue, Timestamp, ZenohStatus,
+    Readiness, ScalarValue, SendResult, Signals, SignalsPatch, TagQuality, TagValue, Telegram,
+    TelegramQueue, Timestamp,
 };
 use crate::api::{ApiBackend, ApiError, BoxFuture};
+use crate::audit::{self, WritePath, WriteResult};
 use crate::config::{Config, ConfigIssue};
 use crate::line::telegram::TelegramSendError;
 use crate::line::LineHandle;
 use crate::signals::{Output, SignalError};
 use crate::tags::TagEntry;
 
-use super::lines::RunningLine;
-use super::status::line_view;
-use super::supervisor::{Snapshot, Supervisor};
+use super::gateway::{line_view, Gateway, InForce, RunningLine};
 use super::tag_io::{self, WriteRefused};
-use crate::audit::{self, WritePath, WriteResult};
 
 /// The API's view of the running gateway.
 pub(crate) struct RestBackend {
-    sup: Arc<Supervisor>,
+    gateway: Arc<dyn Gateway>,
     /// The address the HTTP listener bound, once bound (for `--http` in `GET /config`).
     http_local: std::sync::OnceLock<std::net::SocketAddr>,
 }
@@ -37,9 +37,9 @@ pub(crate) struct RestBackend {
 // === impl RestBackend ===
 
 impl RestBackend {
-    pub(crate) fn new(sup: Arc<Supervisor>) -> Self {
+    pub(crate) fn new(gateway: Arc<dyn Gateway>) -> Self {
         Self {
-            sup,
+            gateway,
             http_local: std::sync::OnceLock::new(),
         }
     }
@@ -49,16 +49,16 @@ impl RestBackend {
         let _ = self.http_local.set(local);
     }
 
-    fn line<'a>(snapshot: &'a Snapshot, line: &str) -> Result<&'a RunningLine, ApiError> {
+    fn line<'a>(snapshot: &'a dyn InForce, line: &str) -> Result<&'a RunningLine, ApiError> {
         snapshot
-            .lines
+            .lines()
             .get(line)
             .ok_or_else(|| ApiError::not_found("line", line))
     }
 
     /// What `get` finds on a telegram line; a conflict on a line that carries no telegrams.
     fn telegram_line<T>(
-        snapshot: &Snapshot,
+        snapshot: &dyn InForce,
         line: &str,
         get: impl FnOnce(&LineHandle) -> Option<T>,
     ) -> Result<T, ApiError> {
@@ -70,8 +70,8 @@ impl RestBackend {
     }
 
     /// A tag's value from the image; `None` while its registers are not in the image.
-    fn image_value(&self, snapshot: &Snapshot, entry: &TagEntry) -> Option<TagValue> {
-        let reading = snapshot.tags.read(&self.sup.image, entry)?;
+    fn image_value(&self, snapshot: &dyn InForce, entry: &TagEntry) -> Option<TagValue> {
+        let reading = snapshot.tags().read(self.gateway.image(), entry)?;
         Some(TagValue {
             description: entry.description().to_owned(),
             ..TagValue::from_reading(
@@ -86,17 +86,17 @@ impl RestBackend {
 
     /// The value of a tag, read from the device when the image does not have it.
     async fn read_tag(&self, line: &str, device: &str, tag: &str) -> Result<TagValue, ApiError> {
-        let snapshot = self.sup.snapshot();
-        Self::line(&snapshot, line)?;
+        let snapshot = self.gateway.in_force();
+        Self::line(&*snapshot, line)?;
         let entry = snapshot
-            .tags
+            .tags()
             .find(line, device, tag)
             .ok_or_else(|| ApiError::not_found("tag", &format!("{line}/{device}/{tag}")))?
             .clone();
-        if let Some(value) = self.image_value(&snapshot, &entry) {
+        if let Some(value) = self.image_value(&*snapshot, &entry) {
             return Ok(value);
         }
-        let service = tag_io::service(&self.sup.units, entry.unit_id()).ok_or_else(|| {
+        let service = tag_io::service(self.gateway.units(), entry.unit_id()).ok_or_else(|| {
             ApiError::conflict(format!(
                 "unit {} of {line}/{device} is not served",
                 entry.unit_id()
@@ -147,65 +147,28 @@ fn signals_view(s: crate::signals::ModemSignals) -> Signals {
 
 impl ApiBackend for RestBackend {
     fn config(&self) -> Arc<Config> {
-        Arc::clone(&self.sup.snapshot().config)
+        Arc::clone(self.gateway.in_force().config())
     }
 
     fn overrides(&self) -> Vec<ConfigOverride> {
-        let given = &self.sup.overrides;
-        let mut overrides = Vec::new();
-        if let Some(addr) = given.modbus_tcp {
-            let in_force = if self.sup.snapshot().config.modbus_tcp.enabled {
-                self.sup.tcp_listen().0.to_string()
-            } else {
-                "switched off (modbus_tcp.enabled = false)".to_owned()
-            };
-            overrides.push(ConfigOverride {
-                key: "modbus_tcp.listen".into(),
-                option: "--modbus-tcp".into(),
-                given: addr.to_string(),
-                in_force,
-                note: None,
-            });
-        }
-        if let Some(addr) = given.http {
-            overrides.push(ConfigOverride {
-                key: "http.listen".into(),
-                option: "--http".into(),
-                given: addr.to_string(),
-                in_force: self.http_local.get().unwrap_or(&addr).to_string(),
-                note: None,
-            });
-        }
-        if let Some(endpoint) = &given.zenoh_listen {
-            overrides.push(ConfigOverride {
-                key: "zenoh.listen".into(),
-                option: "--zenoh-listen".into(),
-                given: endpoint.clone(),
-                in_force: endpoint.clone(),
-                note: Some(
-                    "a peer that listens there only: zenoh.mode = \"peer\", no zenoh.connect, \
-                     zenoh.multicast_scouting = false; prefix and publishing from the configuration"
-                        .into(),
-                ),
-            });
-        }
-        overrides
+        self.gateway.overrides(self.http_local.get().copied())
     }
 
     fn validate(&self, config: &Config) -> Result<(), Vec<ConfigIssue>> {
-        self.sup.validate(config)
+        self.gateway.validate(config)
     }
 
     fn config_issues(&self, config: &Config, found: &[ConfigIssue]) -> Vec<ConfigIssue> {
-        super::check::config_issues(config, found)
+        self.gateway.config_issues(config, found)
     }
 
     fn apply(&self, config: Arc<Config>) -> BoxFuture<'_, Result<ApplyReport, ApiError>> {
-        Box::pin(self.sup.apply(config))
+        Arc::clone(&self.gateway).apply(config)
     }
 
     fn fleet(&self) -> Vec<crate::api::model::FleetEntry> {
-        super::fleet::members(&self.sup)
+        self.gateway
+            .fleet()
             .into_iter()
             .map(|m| crate::api::model::FleetEntry {
                 link: m
@@ -225,61 +188,18 @@ impl ApiBackend for RestBackend {
     }
 
     fn gateway_status(&self) -> GatewayStatus {
-        let snapshot = self.sup.snapshot();
-        let lines = snapshot
-            .lines
-            .iter()
-            .map(|(name, line)| line_view(name, line))
-            .collect();
-        let (listen, up) = self.sup.tcp_listen();
-        let stats = &self.sup.tcp_stats;
-        let requests = stats.requests();
-        let zenoh = self
-            .sup
-            .zenoh_state
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .clone()
-            .map(|z| ZenohStatus {
-                up: z.stats.as_ref().is_some_and(|s| s.session_open()),
-                mode: z.mode.to_owned(),
-                publications_total: z
-                    .stats
-                    .as_ref()
-                    .map_or(0, |s| s.publication_counts().iter().map(|(_, n)| n).sum()),
-                name_conflict: z.stats.as_ref().and_then(|s| s.name_conflict()),
-            });
-        GatewayStatus {
-            name: snapshot.config.gateway.name.clone(),
-            version: env!("CARGO_PKG_VERSION").to_owned(),
-            started: Timestamp(self.sup.started),
-            uptime_seconds: self.sup.started.elapsed().map_or(0, |d| d.as_secs()),
-            ready: self.readiness().is_ready(),
-            lines,
-            modbus_tcp: ModbusTcpStatus {
-                listen: listen.to_string(),
-                up,
-                connections: stats.connections_open(),
-                requests_total: requests.iter().map(|r| r.count).sum(),
-                exceptions_total: requests
-                    .iter()
-                    .filter(|r| r.result != "ok")
-                    .map(|r| r.count)
-                    .sum(),
-            },
-            zenoh,
-        }
+        self.gateway.status()
     }
 
     fn line_status(&self, line: &str) -> Result<LineStatusView, ApiError> {
-        let snapshot = self.sup.snapshot();
-        let running = Self::line(&snapshot, line)?;
+        let snapshot = self.gateway.in_force();
+        let running = Self::line(&*snapshot, line)?;
         Ok(line_view(line, running))
     }
 
     fn monitor(&self, line: &str) -> Result<Arc<crate::line::FrameMonitor>, ApiError> {
-        let snapshot = self.sup.snapshot();
-        Self::line(&snapshot, line)?
+        let snapshot = self.gateway.in_force();
+        Self::line(&*snapshot, line)?
             .handle
             .monitor()
             .cloned()
@@ -291,10 +211,10 @@ impl ApiBackend for RestBackend {
     }
 
     fn diag(&self, line: &str) -> Result<DiagSnapshot, ApiError> {
-        let snapshot = self.sup.snapshot();
-        let status = Self::line(&snapshot, line)?.handle.status();
+        let snapshot = self.gateway.in_force();
+        let status = Self::line(&*snapshot, line)?.handle.status();
         Ok(DiagSnapshot {
-            depth: usize::from(snapshot.config.gateway.diag_buffer_depth),
+            depth: usize::from(snapshot.config().gateway.diag_buffer_depth),
             entries: status
                 .diagnostics
                 .iter()
@@ -304,15 +224,15 @@ impl ApiBackend for RestBackend {
     }
 
     fn clear_diag(&self, line: &str) -> Result<(), ApiError> {
-        let snapshot = self.sup.snapshot();
+        let snapshot = self.gateway.in_force();
         // The line's own buffer is emptied: an event that comes again starts a new entry with a
         // count of 1, not the count it had before the clear.
-        Self::line(&snapshot, line)?.handle.clear_diagnostics();
+        Self::line(&*snapshot, line)?.handle.clear_diagnostics();
         Ok(())
     }
 
     fn telegrams(&self, line: &str) -> Result<TelegramQueue, ApiError> {
-        let mailbox = Self::telegram_line(&self.sup.snapshot(), line, LineHandle::mailbox)?;
+        let mailbox = Self::telegram_line(&*self.gateway.in_force(), line, LineHandle::mailbox)?;
         Ok(TelegramQueue {
             line: line.to_owned(),
             capacity: mailbox.settings().queue_depth,
@@ -329,7 +249,7 @@ impl ApiBackend for RestBackend {
     }
 
     fn ack_telegram(&self, line: &str, seq: u32) -> Result<(), ApiError> {
-        let mailbox = Self::telegram_line(&self.sup.snapshot(), line, LineHandle::mailbox)?;
+        let mailbox = Self::telegram_line(&*self.gateway.in_force(), line, LineHandle::mailbox)?;
         let waiting = mailbox.waiting();
         let Some(seq16) = u16::try_from(seq)
             .ok()
@@ -350,7 +270,8 @@ impl ApiBackend for RestBackend {
         line: &str,
         data: Vec<u8>,
     ) -> BoxFuture<'_, Result<SendResult, ApiError>> {
-        let client = Self::telegram_line(&self.sup.snapshot(), line, LineHandle::telegram_client);
+        let client =
+            Self::telegram_line(&*self.gateway.in_force(), line, LineHandle::telegram_client);
         Box::pin(async move {
             let client = client?;
             let len = data.len();
@@ -374,18 +295,18 @@ impl ApiBackend for RestBackend {
     }
 
     fn tags(&self, line: Option<&str>, device: Option<&str>) -> Result<Vec<TagValue>, ApiError> {
-        let snapshot = self.sup.snapshot();
+        let snapshot = self.gateway.in_force();
         if let Some(l) = line {
-            Self::line(&snapshot, l)?;
+            Self::line(&*snapshot, l)?;
         }
         Ok(snapshot
-            .tags
+            .tags()
             .iter()
             .filter(|e| {
                 line.is_none_or(|l| l == e.line()) && device.is_none_or(|d| d == e.device())
             })
             .map(|e| {
-                self.image_value(&snapshot, e).unwrap_or_else(|| TagValue {
+                self.image_value(&*snapshot, e).unwrap_or_else(|| TagValue {
                     line: e.line().to_owned(),
                     device: e.device().to_owned(),
                     tag: e.name().to_owned(),
@@ -417,11 +338,12 @@ impl ApiBackend for RestBackend {
         tag: &str,
         value: ScalarValue,
     ) -> BoxFuture<'_, Result<TagValue, ApiError>> {
-        let snapshot = self.sup.snapshot();
-        let prepared = Self::line(&snapshot, line).and_then(|_| {
+        let snapshot = self.gateway.in_force();
+        let prepared = Self::line(&*snapshot, line).and_then(|_| {
             tag_io::prepare_write(
-                &snapshot,
-                &self.sup.units,
+                snapshot.tags(),
+                snapshot.writes(),
+                self.gateway.units(),
                 line,
                 device,
                 tag,
@@ -474,7 +396,7 @@ impl ApiBackend for RestBackend {
         detail: &dyn std::fmt::Display,
     ) {
         audit::record(
-            Some(self.sup.exported.metrics.audit()),
+            Some(self.gateway.audit_metrics()),
             WritePath::Rest,
             caller,
             target,
@@ -484,39 +406,14 @@ impl ApiBackend for RestBackend {
     }
 
     fn readiness(&self) -> Readiness {
-        let zenoh = self
-            .sup
-            .zenoh_state
-            .lock()
-            .unwrap_or_else(PoisonError::into_inner)
-            .clone();
-        let snapshot = self.sup.snapshot();
-        Readiness {
-            lines: snapshot
-                .lines
-                .iter()
-                .map(|(n, l)| {
-                    let opened =
-                        l.handle.status().port_opens > 0 || self.sup.opened_before(n, &l.port);
-                    (n.clone(), opened)
-                })
-                .collect(),
-            modbus_tcp: self.sup.tcp_ready(),
-            zenoh: zenoh
-                .as_ref()
-                .map(|z| z.stats.as_ref().is_some_and(|s| s.session_open())),
-            zenoh_name_conflict: zenoh
-                .as_ref()
-                .and_then(|z| z.stats.as_ref())
-                .and_then(|s| s.name_conflict()),
-        }
+        self.gateway.readiness()
     }
 }
 
 impl RestBackend {
     fn signals_client(&self, line: &str) -> Result<crate::line::telegram::SignalsClient, ApiError> {
-        let snapshot = self.sup.snapshot();
-        Self::line(&snapshot, line)?
+        let snapshot = self.gateway.in_force();
+        Self::line(&*snapshot, line)?
             .handle
             .signals()
             .ok_or_else(|| {
