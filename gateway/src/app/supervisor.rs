@@ -1,8 +1,9 @@
 //! The supervisor of a running gateway: its lines (each with its own cancellation token), the
 //! Modbus TCP server, the zenoh bridge, and the configuration in force.
 //!
-//! A configuration change is applied by [`Supervisor::apply`]: [`ConfigDiff`] says what changed,
-//! and only that is stopped and started again. A line whose serial or protocol settings or
+//! A configuration change is applied by [`Supervisor::apply`]: its [`Plan`] says, as data, what
+//! changed, and the supervisor's steps stop and start only that, in the plan's order (the CP
+//! memory, the lines stopped, the lines started, the mirrors, the new snapshot, the servers). A line whose serial or protocol settings or
 //! devices changed is restarted as a whole (a line task takes its device list at start); a line
 //! that did not change keeps its task, its open port, its counters and its diagnostic buffer, and
 //! the Modbus TCP clients of its units keep their connections. A changed `[modbus_tcp]` limit
@@ -24,14 +25,17 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex, PoisonError, RwLock};
 use std::time::SystemTime;
 
+use tokio::net::TcpListener;
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
 use super::lines::{self, slave_layout, LineDeps, RunningLine};
+
+mod apply;
+mod plan;
 use super::{server_options, AppError, MetricsRegistry, Overrides, GRACE_PERIOD};
-use crate::api::model::ApplyReport;
-use crate::api::{ApiError, BoxFuture, ConfigDiff};
+use crate::api::BoxFuture;
 use crate::config::{Config, ConfigIssue};
 use crate::cpmem::{self, SharedCpMemory};
 use crate::image::{ImageConfig, ProcessImage};
@@ -50,6 +54,20 @@ pub(crate) struct Snapshot {
     pub(crate) tags: Arc<TagDirectory>,
     /// The Modbus TCP server's options (its write checks apply to REST and zenoh writes too).
     pub(crate) server: ServerOptions,
+}
+
+// === impl Snapshot ===
+
+impl Snapshot {
+    /// `config` in force with `lines`: its tag directory and Modbus TCP server options.
+    fn new(config: Arc<Config>, lines: BTreeMap<String, RunningLine>) -> Self {
+        Self {
+            tags: Arc::new(TagDirectory::from_config(&config)),
+            server: server_options(&config.modbus_tcp),
+            config,
+            lines,
+        }
+    }
 }
 
 /// What status and readiness show of zenoh.
@@ -84,6 +102,17 @@ struct TcpServer {
     task: JoinHandle<()>,
     local: SocketAddr,
     up: Arc<AtomicBool>,
+}
+
+impl TcpServer {
+    /// Stops the server, waiting (bounded) for its connections to finish their request.
+    async fn stop(self) {
+        self.token.cancel();
+        if tokio::time::timeout(GRACE_PERIOD, self.task).await.is_err() {
+            warn!("the old Modbus TCP server did not stop within the grace period");
+        }
+        self.up.store(false, Ordering::Release);
+    }
 }
 
 /// The state of the CP memory the slave lines serve.
@@ -154,48 +183,19 @@ impl Supervisor {
         };
         let lines_token = shutdown.child_token();
         let mirrored = Mutex::new(Vec::new());
-        let mut lines = BTreeMap::new();
-        {
-            let deps = LineDeps {
-                config: &config,
-                image: &image,
-                metrics: &exported.metrics,
-                cp_memory: memory.as_ref(),
-                parent: &lines_token,
-                mirrored: &mirrored,
-            };
-            for (name, line) in &config.lines {
-                match lines::start_line(name, line, &deps, None) {
-                    Ok(running) => {
-                        lines.insert(name.clone(), running);
-                    }
-                    Err(e) => {
-                        lines_token.cancel();
-                        return Err(e);
-                    }
-                }
-            }
-        }
+        let lines = start_every_line(&LineDeps {
+            config: &config,
+            image: &image,
+            metrics: &exported.metrics,
+            cp_memory: memory.as_ref(),
+            parent: &lines_token,
+            mirrored: &mirrored,
+        })?;
         let units = Arc::new(RwLock::new(unit_map(&lines, &config, &image)));
         let addr = overrides.modbus_tcp.unwrap_or(config.modbus_tcp.listen);
-        // `[modbus_tcp] enabled = false`: no plain listener (Modbus/TCP Security only).
-        let listener = if config.modbus_tcp.enabled {
-            Some(modbus_tcp::bind(addr).map_err(|source| AppError::Bind {
-                what: "Modbus TCP",
-                addr,
-                source,
-            })?)
-        } else {
-            info!("plain Modbus TCP switched off ([modbus_tcp] enabled = false)");
-            None
-        };
-        let snapshot_options = server_options(&config.modbus_tcp);
-        let snapshot = Snapshot {
-            tags: Arc::new(TagDirectory::from_config(&config)),
-            server: snapshot_options.clone(),
-            config: Arc::new(config),
-            lines,
-        };
+        let listener = bind_plain(&config, addr)?;
+        let snapshot = Snapshot::new(Arc::new(config), lines);
+        let tcp_options = LiveOptions::new(snapshot.server.clone());
         let tcp_stats = Arc::new(ServerStats::with_metrics(
             exported.metrics.modbus_tcp().clone(),
             exported.metrics.audit().clone(),
@@ -226,7 +226,7 @@ impl Supervisor {
             tcp: tokio::sync::Mutex::new(None),
             tls: tokio::sync::Mutex::new(tls),
             tcp_state: Mutex::new((addr, Arc::new(AtomicBool::new(false)))),
-            tcp_options: LiveOptions::new(snapshot_options),
+            tcp_options,
             follower: std::sync::OnceLock::new(),
             zenoh_state: Mutex::new(None),
             http_url: std::sync::OnceLock::new(),
@@ -278,7 +278,7 @@ impl Supervisor {
     }
 
     /// Binds the listener's server task under its own token.
-    fn spawn_tcp(&self, listener: tokio::net::TcpListener) -> Result<TcpServer, AppError> {
+    fn spawn_tcp(&self, listener: TcpListener) -> Result<TcpServer, AppError> {
         let local = listener.local_addr()?;
         let token = self.root.child_token();
         let up = Arc::new(AtomicBool::new(true));
@@ -368,257 +368,6 @@ impl Supervisor {
         }
     }
 
-    /// Puts `new` in force, restarting only what changed; reports what was restarted.
-    pub(crate) async fn apply(self: &Arc<Self>, new: Arc<Config>) -> Result<ApplyReport, ApiError> {
-        let old = self.snapshot();
-        let diff = ConfigDiff::between(&old.config, &new);
-        let mut report = diff.report();
-        // A line task takes its devices at start: a device change restarts its line.
-        let mut restart: BTreeSet<String> = diff.lines_changed.iter().cloned().collect();
-        restart.extend(diff.devices_changed.iter().map(|(line, _)| line.clone()));
-        let memory = self.memory_for(&new, &old.config, &mut restart);
-        report.devices_restarted.clear();
-        report.lines_restarted = restart.iter().cloned().collect();
-
-        // Stop the removed and the changed lines; their ports close before they reopen. A
-        // restarted telegram line hands its waiting telegrams (confirmed to the partner) and
-        // numbers to the line that replaces it.
-        let mut lines = old.lines.clone();
-        let mut carried: BTreeMap<String, crate::mailbox::Carried> = BTreeMap::new();
-        for name in diff.lines_removed.iter().chain(&restart) {
-            let Some(line) = lines.remove(name) else {
-                continue;
-            };
-            let mailbox = line
-                .handle
-                .mailbox()
-                .filter(|_| new.lines.contains_key(name));
-            {
-                let key = (name.clone(), line.port.clone());
-                let mut opened = lock(&self.opened_before);
-                let known = opened.contains(&key);
-                opened.retain(|(line_name, _)| line_name != name);
-                if new.lines.contains_key(name) && (known || line.handle.status().port_opens > 0) {
-                    opened.insert(key);
-                }
-            }
-            stop_line(name, line).await;
-            if let Some(mailbox) = mailbox {
-                carried.insert(name.clone(), mailbox.carry());
-            }
-            let kept: BTreeSet<&String> = new
-                .lines
-                .get(name)
-                .map(|l| l.devices().map(|(d, _)| d).collect())
-                .unwrap_or_default();
-            if let Some(before) = old.config.lines.get(name) {
-                for (device, _) in before.devices().filter(|(d, _)| !kept.contains(d)) {
-                    self.exported.metrics.line().forget_device(name, device);
-                }
-                // A removed line, or one under another protocol: its series (labelled with the
-                // old protocol) go; the new line's start from zero.
-                let protocol = before.protocol.kind().as_str();
-                let same_protocol = new
-                    .lines
-                    .get(name)
-                    .is_some_and(|l| l.protocol.kind().as_str() == protocol);
-                if !same_protocol {
-                    self.exported.metrics.line().forget_line(name, protocol);
-                }
-            }
-        }
-
-        // Start the added and the changed lines.
-        let mut failures = Vec::new();
-        let mut started = Vec::new();
-        {
-            let deps = LineDeps {
-                config: &new,
-                image: &self.image,
-                metrics: &self.exported.metrics,
-                cp_memory: memory.as_ref(),
-                parent: &self.lines_token,
-                mirrored: &self.mirrored,
-            };
-            for name in diff.lines_added.iter().chain(&restart) {
-                let Some(line) = new.lines.get(name) else {
-                    continue;
-                };
-                match lines::start_line(name, line, &deps, carried.remove(name)) {
-                    Ok(running) => {
-                        info!(line = %name, port = %running.port, "line started");
-                        lines.insert(name.clone(), running);
-                        started.push(name.clone());
-                    }
-                    Err(e) => {
-                        warn!(line = %name, error = %e, "line did not start");
-                        failures.push(format!("line {name}: {e}"));
-                    }
-                }
-            }
-        }
-
-        // A mirror no running slave line keeps any more (its unit id or address map changed, or
-        // the line went) stops: the memory's changes no longer reach the image there.
-        let gone: Vec<(u8, AddressMap)> = {
-            let live: Vec<&(u8, AddressMap)> =
-                lines.values().filter_map(|l| l.mirror.as_ref()).collect();
-            let mut mirrored = lock(&self.mirrored);
-            let (kept, gone) = mirrored.drain(..).partition(|key| live.contains(&key));
-            *mirrored = kept;
-            gone
-        };
-        // The memory in force (a replaced one was emptied of mirrors with the set). The mirror
-        // set's lock is released first: `memory_for` takes the two in the other order.
-        let current = lock(&self.cp).memory.clone();
-        if let Some(memory) = current {
-            for (unit, map) in &gone {
-                if memory.unmirror(*unit, map) {
-                    info!(
-                        unit = *unit,
-                        "CP memory mirror stopped: no slave line serves it"
-                    );
-                }
-            }
-        }
-
-        // The units of every line, then the new snapshot, in one swap each.
-        let map = unit_map(&lines, &new, &self.image);
-        *self.units.write().unwrap_or_else(PoisonError::into_inner) = map;
-        let snapshot = Arc::new(Snapshot {
-            tags: Arc::new(TagDirectory::from_config(&new)),
-            server: server_options(&new.modbus_tcp),
-            config: new,
-            lines,
-        });
-        *self.state.write().unwrap_or_else(PoisonError::into_inner) = Arc::clone(&snapshot);
-        if let Some(follower) = self.follower.get() {
-            follower.lines_started(&snapshot, &started).await;
-        }
-
-        report.servers_restarted.clear();
-        if diff.modbus_tcp_changed {
-            // The limits first: a server that keeps running takes them for what comes next.
-            self.tcp_options.set(snapshot.server.clone());
-            match self.restart_tcp().await {
-                Ok(true) => report.servers_restarted.push("modbus_tcp".into()),
-                Ok(false) => info!(
-                    "Modbus TCP limits applied to the running server; its clients stay connected"
-                ),
-                Err(e) => failures.push(e),
-            }
-            let cfg = &self.snapshot().config.modbus_tcp;
-            let mut tls = self.tls.lock().await;
-            if let Err(e) = super::tls::apply(
-                &mut tls,
-                cfg,
-                &self.units,
-                &self.tcp_stats,
-                &self.root,
-                &self.reload,
-            )
-            .await
-            {
-                failures.push(e);
-            }
-        }
-        let renamed = match self.follower.get() {
-            Some(follower) if diff.name_changed => follower.renamed(self).await,
-            _ => false,
-        };
-        if renamed {
-            report.servers_restarted.push("zenoh".into());
-        }
-        if failures.is_empty() {
-            Ok(report)
-        } else {
-            Err(ApiError::internal(format!(
-                "the configuration was saved but not every part started: {}",
-                failures.join("; ")
-            )))
-        }
-    }
-
-    /// The CP memory the slave lines of `new` serve: the running one when its layout fits,
-    /// otherwise a new one, and then every slave line restarts on it.
-    fn memory_for(
-        &self,
-        new: &Config,
-        old: &Config,
-        restart: &mut BTreeSet<String>,
-    ) -> Option<SharedCpMemory> {
-        let layout = slave_layout(new)?;
-        let mut cp = lock(&self.cp);
-        if let Some(memory) = cp.memory.as_ref().filter(|m| m.layout() == &layout) {
-            return Some(memory.clone());
-        }
-        // Only an unpersisted memory gets here (validate refuses the other case).
-        info!("the slave lines need another CP memory layout: a new memory, every slave line restarts");
-        let memory = SharedCpMemory::new(layout);
-        cp.memory = Some(memory.clone());
-        lock(&self.mirrored).clear();
-        for (name, line) in &new.lines {
-            if line.protocol.cp_memory_slave().is_some() && old.lines.contains_key(name) {
-                restart.insert(name.clone());
-            }
-        }
-        Some(memory)
-    }
-
-    /// Restarts the Modbus TCP server when its address changed, or switches it on or off, as the
-    /// configuration in force says; `Ok(true)` when it restarted (or stopped). A port 0 address
-    /// keeps the port the server had. The same address keeps the server and its connections (its
-    /// limits were replaced in place).
-    async fn restart_tcp(&self) -> Result<bool, String> {
-        let config = self.snapshot().config.modbus_tcp.clone();
-        let mut slot = self.tcp.lock().await;
-        let want = self.overrides.modbus_tcp.unwrap_or(config.listen);
-        let old_local = slot.as_ref().map(|s| s.local);
-        let addr = match old_local {
-            Some(local) if want.port() == 0 && want.ip() == local.ip() => local,
-            _ => want,
-        };
-        let bind = |addr| {
-            modbus_tcp::bind(addr).map_err(|e| format!("Modbus TCP cannot listen on {addr}: {e}"))
-        };
-        if !config.enabled {
-            if let Some(old) = slot.take() {
-                old.token.cancel();
-                if tokio::time::timeout(GRACE_PERIOD, old.task).await.is_err() {
-                    warn!("the old Modbus TCP server did not stop within the grace period");
-                }
-                old.up.store(false, Ordering::Release);
-                info!("plain Modbus TCP switched off");
-                return Ok(true);
-            }
-            return Ok(false);
-        }
-        if slot.is_some() && Some(addr) == old_local {
-            return Ok(false);
-        }
-        // A new address is bound before the old server stops: a failure leaves it running.
-        let early = if Some(addr) == old_local {
-            None
-        } else {
-            Some(bind(addr)?)
-        };
-        if let Some(old) = slot.take() {
-            old.token.cancel();
-            if tokio::time::timeout(GRACE_PERIOD, old.task).await.is_err() {
-                warn!("the old Modbus TCP server did not stop within the grace period");
-            }
-            old.up.store(false, Ordering::Release);
-        }
-        let listener = match early {
-            Some(l) => l,
-            None => bind(addr)?,
-        };
-        let server = self.spawn_tcp(listener).map_err(|e| e.to_string())?;
-        info!(local = %server.local, "Modbus TCP server restarted");
-        *slot = Some(server);
-        Ok(true)
-    }
-
     /// Stops everything: lines finish their transaction in flight, connections their request;
     /// the CP memory is saved last.
     pub(crate) async fn stop(&self) {
@@ -648,17 +397,38 @@ impl Supervisor {
     }
 }
 
-/// Cancels a line and waits (bounded) for its task, which closes its port.
-async fn stop_line(name: &str, line: RunningLine) {
-    line.token.cancel();
-    if tokio::time::timeout(GRACE_PERIOD, line.handle.join())
-        .await
-        .is_err()
-    {
-        warn!(line = %name, grace = ?GRACE_PERIOD, "line did not stop within the grace period");
-    } else {
-        info!(line = %name, "line stopped");
+/// Starts every line of `deps.config`; a line that cannot start cancels those started (under
+/// `deps.parent`) and stops the start.
+fn start_every_line(deps: &LineDeps<'_>) -> Result<BTreeMap<String, RunningLine>, AppError> {
+    let mut lines = BTreeMap::new();
+    for (name, line) in &deps.config.lines {
+        match lines::start_line(name, line, deps, None) {
+            Ok(running) => {
+                lines.insert(name.clone(), running);
+            }
+            Err(e) => {
+                deps.parent.cancel();
+                return Err(e);
+            }
+        }
     }
+    Ok(lines)
+}
+
+/// The plain Modbus TCP listener bound to `addr`; none with `[modbus_tcp] enabled = false`
+/// (Modbus/TCP Security only).
+fn bind_plain(config: &Config, addr: SocketAddr) -> Result<Option<TcpListener>, AppError> {
+    if !config.modbus_tcp.enabled {
+        info!("plain Modbus TCP switched off ([modbus_tcp] enabled = false)");
+        return Ok(None);
+    }
+    modbus_tcp::bind(addr)
+        .map(Some)
+        .map_err(|source| AppError::Bind {
+            what: "Modbus TCP",
+            addr,
+            source,
+        })
 }
 
 /// The unit map of `lines`, with the diagnostic unit when `config` sets one (the validation
