@@ -254,10 +254,8 @@ impl Places {
         let ip = ip.to_canonical();
         let now = Instant::now();
         let mut inner = self.lock();
-        let mut evicted = 0;
-        let [general_mine, health_mine, monitoring_mine] =
-            inner.clients.get(&ip).copied().unwrap_or_default();
-        let general_free = if general_mine >= self.limits.per_client {
+        let mine = inner.clients.get(&ip).copied().unwrap_or_default();
+        let general_free = if mine[0] >= self.limits.per_client {
             Err(HttpRejectReason::ClientLimit)
         } else if inner.open_by[0] >= self.limits.max_connections {
             Err(HttpRejectReason::ConnectionLimit)
@@ -275,54 +273,67 @@ impl Places {
             inner.back_off(ip, now);
         }
         let backed_off = inner.backed_off(ip, now);
-        let pool = match general_free {
-            Ok(()) => Pool::General,
-            Err(why) => {
-                let monitoring = self.is_monitoring(ip).then(|| {
-                    inner.take(
-                        now,
-                        Kind::Monitoring,
-                        ip,
-                        monitoring_mine >= MONITORING_PLACES_PER_CLIENT,
-                        MONITORING_PLACES,
-                        false,
-                    )
-                });
-                match monitoring {
-                    Some(Some(n)) => {
-                        evicted += n;
-                        Pool::Monitoring(why)
-                    }
-                    _ => {
-                        if let Some(n) = inner.take(
-                            now,
-                            Kind::General,
-                            ip,
-                            why == HttpRejectReason::ClientLimit,
-                            self.limits.max_connections,
-                            backed_off,
-                        ) {
-                            evicted += n;
-                            Pool::General
-                        } else if let Some(n) = inner.take(
-                            now,
-                            Kind::Health,
-                            ip,
-                            health_mine >= HEALTH_PLACES_PER_CLIENT,
-                            HEALTH_PLACES,
-                            backed_off,
-                        ) {
-                            evicted += n;
-                            Pool::Health(why)
-                        } else if backed_off {
-                            return Err(HttpRejectReason::Backoff);
-                        } else {
-                            return Err(why);
-                        }
-                    }
-                }
-            }
+        let (pool, evicted) = match general_free {
+            Ok(()) => (Pool::General, 0),
+            Err(why) => self.place_when_full(&mut inner, now, ip, why, mine, backed_off)?,
         };
+        let place = self.open(&mut inner, now, ip, pool);
+        drop(inner);
+        Ok(Admitted { place, evicted })
+    }
+
+    /// A place for `ip` when no general place is free to it (`why`): a monitoring place for an
+    /// address of `monitoring_networks`, else a general place taken from another connection,
+    /// else a health place; with the number of connections evicted to make room.
+    fn place_when_full(
+        &self,
+        inner: &mut Inner,
+        now: Instant,
+        ip: IpAddr,
+        why: HttpRejectReason,
+        [_, health_mine, monitoring_mine]: [usize; 3],
+        backed_off: bool,
+    ) -> Result<(Pool, usize), HttpRejectReason> {
+        let monitoring = self.is_monitoring(ip).then(|| {
+            inner.take(
+                now,
+                Kind::Monitoring,
+                ip,
+                monitoring_mine >= MONITORING_PLACES_PER_CLIENT,
+                MONITORING_PLACES,
+                false,
+            )
+        });
+        if let Some(Some(n)) = monitoring {
+            return Ok((Pool::Monitoring(why), n));
+        }
+        if let Some(n) = inner.take(
+            now,
+            Kind::General,
+            ip,
+            why == HttpRejectReason::ClientLimit,
+            self.limits.max_connections,
+            backed_off,
+        ) {
+            Ok((Pool::General, n))
+        } else if let Some(n) = inner.take(
+            now,
+            Kind::Health,
+            ip,
+            health_mine >= HEALTH_PLACES_PER_CLIENT,
+            HEALTH_PLACES,
+            backed_off,
+        ) {
+            Ok((Pool::Health(why), n))
+        } else if backed_off {
+            Err(HttpRejectReason::Backoff)
+        } else {
+            Err(why)
+        }
+    }
+
+    /// Opens connection place `pool` for `ip`: counted, and the gauges follow.
+    fn open(self: &Arc<Self>, inner: &mut Inner, now: Instant, ip: IpAddr, pool: Pool) -> Place {
         let id = inner.next_id;
         inner.next_id += 1;
         let kind = pool.kind();
@@ -340,17 +351,13 @@ impl Places {
             },
         );
         inner.count(ip, kind, true);
-        self.update_gauges(&inner);
-        drop(inner);
-        Ok(Admitted {
-            place: Place {
-                places: Arc::clone(self),
-                id,
-                pool,
-                evicted: evict,
-            },
-            evicted,
-        })
+        self.update_gauges(inner);
+        Place {
+            places: Arc::clone(self),
+            id,
+            pool,
+            evicted: evict,
+        }
     }
 
     /// A request of connection `id` begins (its head was read); `with_body`: its body is still

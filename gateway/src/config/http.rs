@@ -328,72 +328,22 @@ impl HttpConfig {
             "",
         );
         let tls = f.table(cx, "tls").map(|t| HttpTlsConfig::read(cx, t));
-        let mut allowed_networks = Vec::new();
-        for (path, v) in f.array(cx, "allowed_networks") {
-            allowed_networks.extend(parsed_value::<IpNet>(
-                cx,
-                v,
-                &path,
-                "network (e.g. \"10.0.0.0/8\")",
-            ));
-        }
-        let mut monitoring_networks = Vec::new();
-        for (path, v) in f.array(cx, "monitoring_networks") {
-            monitoring_networks.extend(parsed_value::<IpNet>(
-                cx,
-                v,
-                &path,
-                "network (e.g. \"10.0.9.0/24\")",
-            ));
-        }
+        let allowed_networks = networks(cx, &mut f, "allowed_networks", "10.0.0.0/8");
+        let monitoring_networks = networks(cx, &mut f, "monitoring_networks", "10.0.9.0/24");
         if monitoring_networks.len() > HTTP_LIST_MAX {
             cx.issue(
                 f.at("monitoring_networks"),
                 format!("at most {HTTP_LIST_MAX} networks"),
             );
         }
-        let mut hosts = Vec::new();
-        for (path, v) in f.array(cx, "hosts") {
-            let Some(name) = string_value(cx, v, &path) else {
-                continue;
-            };
-            match host_name(&name) {
-                Ok(name) => hosts.push(name),
-                Err(why) => cx.issue(path, why),
-            }
-        }
-        if hosts.len() > HTTP_LIST_MAX {
-            cx.issue(f.at("hosts"), format!("at most {HTTP_LIST_MAX} names"));
-        }
+        let hosts = hosts(cx, &mut f);
         let tag_metrics = f.bool_or(cx, "tag_metrics", DEFAULT_TAG_METRICS);
-        let mut tag_metrics_filter = Vec::new();
-        for (path, v) in f.array(cx, "tag_metrics_filter") {
-            let Some(key) = string_value(cx, v, &path) else {
-                continue;
-            };
-            if let Err(e) = zenoh::key_expr::OwnedKeyExpr::new(key.as_str()) {
-                cx.issue(
-                    path,
-                    format!("not a canonical key expression (<line>/<device>/<tag>, wildcards allowed): {e}"),
-                );
-                continue;
-            }
-            tag_metrics_filter.push(key);
-        }
+        let tag_metrics_filter = tag_metrics_filter(cx, &mut f);
         if f.has("token_file") && f.has("token_env") {
             cx.issue(f.at("token_env"), "set token_file or token_env, not both");
         }
         check_token_place(cx, &f, token_file.as_ref(), token_env.as_ref());
-        let mut tokens = BTreeMap::new();
-        for (name, path, v) in f.named_tables(cx, "tokens") {
-            check_name(cx, &path, &name);
-            let Some(t) = Fields::of(cx, v, path) else {
-                continue;
-            };
-            if let Some(token) = TokenConfig::read(cx, t) {
-                tokens.insert(name, token);
-            }
-        }
+        let tokens = tokens(cx, &mut f);
         f.finish(cx);
         Self {
             listen,
@@ -425,6 +375,69 @@ impl HttpConfig {
             (None, None) => None,
         }
     }
+}
+
+/// The networks of list `key`, each as `IpNet` (`example` in the message of one that is not).
+fn networks(cx: &mut Cx, f: &mut Fields<'_>, key: &'static str, example: &str) -> Vec<IpNet> {
+    let what = format!("network (e.g. \"{example}\")");
+    let mut networks = Vec::new();
+    for (path, v) in f.array(cx, key) {
+        networks.extend(parsed_value::<IpNet>(cx, v, &path, &what));
+    }
+    networks
+}
+
+/// `hosts`: the names a request's Host may carry besides the gateway's, at most
+/// [`HTTP_LIST_MAX`].
+fn hosts(cx: &mut Cx, f: &mut Fields<'_>) -> Vec<String> {
+    let mut hosts = Vec::new();
+    for (path, v) in f.array(cx, "hosts") {
+        let Some(name) = string_value(cx, v, &path) else {
+            continue;
+        };
+        match host_name(&name) {
+            Ok(name) => hosts.push(name),
+            Err(why) => cx.issue(path, why),
+        }
+    }
+    if hosts.len() > HTTP_LIST_MAX {
+        cx.issue(f.at("hosts"), format!("at most {HTTP_LIST_MAX} names"));
+    }
+    hosts
+}
+
+/// `tag_metrics_filter`: canonical key expressions.
+fn tag_metrics_filter(cx: &mut Cx, f: &mut Fields<'_>) -> Vec<String> {
+    let mut filter = Vec::new();
+    for (path, v) in f.array(cx, "tag_metrics_filter") {
+        let Some(key) = string_value(cx, v, &path) else {
+            continue;
+        };
+        if let Err(e) = zenoh::key_expr::OwnedKeyExpr::new(key.as_str()) {
+            cx.issue(
+                path,
+                format!("not a canonical key expression (<line>/<device>/<tag>, wildcards allowed): {e}"),
+            );
+            continue;
+        }
+        filter.push(key);
+    }
+    filter
+}
+
+/// `[http.tokens.<name>]`: the named tokens.
+fn tokens(cx: &mut Cx, f: &mut Fields<'_>) -> BTreeMap<String, TokenConfig> {
+    let mut tokens = BTreeMap::new();
+    for (name, path, v) in f.named_tables(cx, "tokens") {
+        check_name(cx, &path, &name);
+        let Some(t) = Fields::of(cx, v, path) else {
+            continue;
+        };
+        if let Some(token) = TokenConfig::read(cx, t) {
+            tokens.insert(name, token);
+        }
+    }
+    tokens
 }
 
 // === impl HttpTlsConfig ===

@@ -19,7 +19,7 @@ use tokio_util::sync::CancellationToken;
 use tracing::debug;
 
 use super::access::Authority;
-use super::mbap::{complete_frame, FrameReader, MbapError, HEADER_LEN, MAX_ADU_LEN};
+use super::mbap::{complete_frame, Frame, FrameReader, MbapError, HEADER_LEN, MAX_ADU_LEN};
 use super::metrics::{CloseReason, FrameReject, OpenConnection};
 use super::request::answer;
 use super::shared::Shared;
@@ -104,20 +104,10 @@ async fn serve<S: ClientStream>(
     loop {
         // Answer every complete frame already received, in order.
         loop {
-            let frame = match reader.next_frame() {
+            let frame = match next_frame(&mut reader, peer, shared) {
                 Ok(Some(frame)) => frame,
                 Ok(None) => break,
-                Err(error) => {
-                    crate::warn_limited!(
-                        "modbus_tcp/bad_header",
-                        %peer, %error, "bad MBAP header, closing the connection"
-                    );
-                    shared.stats.count_frame_rejected(match error {
-                        MbapError::ProtocolId(_) => FrameReject::ProtocolId,
-                        MbapError::Length(_) => FrameReject::Length,
-                    });
-                    return CloseReason::BadFrame;
-                }
+                Err(reason) => return reason,
             };
             if shared.options.generation() != generation {
                 generation = shared.options.generation();
@@ -173,18 +163,54 @@ async fn serve<S: ClientStream>(
                 continue;
             }
         };
-        match read {
-            Ok(0) => {
-                if reader.buffered() > 0 {
-                    debug!(%peer, bytes = reader.buffered(), "client closed inside a frame");
-                }
-                return CloseReason::Peer;
+        if let Err(reason) = received(read, &chunk, &mut reader, peer) {
+            return reason;
+        }
+    }
+}
+
+/// The next complete frame received, `Ok(None)` when more bytes are needed; a bad header closes
+/// the connection.
+fn next_frame<'r>(
+    reader: &'r mut FrameReader,
+    peer: SocketAddr,
+    shared: &Shared,
+) -> Result<Option<Frame<'r>>, CloseReason> {
+    reader.next_frame().map_err(|error| {
+        crate::warn_limited!(
+            "modbus_tcp/bad_header",
+            %peer, %error, "bad MBAP header, closing the connection"
+        );
+        shared.stats.count_frame_rejected(match error {
+            MbapError::ProtocolId(_) => FrameReject::ProtocolId,
+            MbapError::Length(_) => FrameReject::Length,
+        });
+        CloseReason::BadFrame
+    })
+}
+
+/// Hands what a read of the socket gave (into `chunk`) to the reader; `Err` when the connection
+/// ends there: the client closed it, or the read failed.
+fn received(
+    read: io::Result<usize>,
+    chunk: &[u8],
+    reader: &mut FrameReader,
+    peer: SocketAddr,
+) -> Result<(), CloseReason> {
+    match read {
+        Ok(0) => {
+            if reader.buffered() > 0 {
+                debug!(%peer, bytes = reader.buffered(), "client closed inside a frame");
             }
-            Ok(n) => reader.extend(chunk.get(..n).unwrap_or_default()),
-            Err(error) => {
-                debug!(%peer, %error, "read failed");
-                return CloseReason::Io;
-            }
+            Err(CloseReason::Peer)
+        }
+        Ok(n) => {
+            reader.extend(chunk.get(..n).unwrap_or_default());
+            Ok(())
+        }
+        Err(error) => {
+            debug!(%peer, %error, "read failed");
+            Err(CloseReason::Io)
         }
     }
 }
