@@ -263,15 +263,7 @@ pub async fn run(
 /// before any port opens; then runs it until `shutdown` with the process's registry, saving
 /// changes to the file. The exit code, as [`exit_code`] says.
 pub async fn run_file(file: &Path, overrides: Overrides, shutdown: CancellationToken) -> u8 {
-    let checked = load_config(file).and_then(|cfg| {
-        let issues = run_issues(&cfg);
-        if issues.is_empty() {
-            Ok(cfg)
-        } else {
-            Err(config::ConfigErrors { issues })
-        }
-    });
-    let cfg = match checked {
+    let cfg = match load_for_run(file) {
         Ok(cfg) => cfg,
         Err(errors) => {
             eprintln!(
@@ -291,6 +283,18 @@ pub async fn run_file(file: &Path, overrides: Overrides, shutdown: CancellationT
         ..overrides
     };
     exit_code(run(cfg, overrides, shutdown).await)
+}
+
+/// The configuration file at `path`, read and checked as `gateway run` checks it at start and at
+/// each SIGHUP: the file's own rules and what run would refuse ([`run_issues`]).
+pub(crate) fn load_for_run(path: &Path) -> Result<Config, config::ConfigErrors> {
+    let config = load_config(path)?;
+    let issues = run_issues(&config);
+    if issues.is_empty() {
+        Ok(config)
+    } else {
+        Err(config::ConfigErrors { issues })
+    }
 }
 
 /// `gateway demo`: the embedded demo (named `name`, else `demo`) until `shutdown`, with the
