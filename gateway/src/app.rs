@@ -9,7 +9,7 @@
 //! only the lines and servers that changed (see [`supervisor`]).
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -46,6 +46,11 @@ pub use check::{
 };
 pub use demo::{demo, demo_named};
 pub use metrics::{Metrics, METRIC_NAMES};
+
+/// sysexits.h EX_USAGE: the configuration (or the command line) is unusable.
+pub const EX_USAGE: u8 = 64;
+/// sysexits.h EX_SOFTWARE: the gateway stopped on an internal error.
+pub const EX_SOFTWARE: u8 = 70;
 
 /// How long a stopping gateway waits for lines to finish their transaction in flight and for
 /// Modbus TCP connections to finish their request (systemd's TimeoutStopSec must be longer).
@@ -142,8 +147,8 @@ impl AppError {
     /// The process exit code (sysexits.h): 64 for configuration errors, 70 otherwise.
     pub fn exit_code(&self) -> u8 {
         match self {
-            Self::Config(_) | Self::Refused(_) => 64,
-            _ => 70,
+            Self::Config(_) | Self::Refused(_) => EX_USAGE,
+            _ => EX_SOFTWARE,
         }
     }
 }
@@ -249,6 +254,86 @@ pub async fn run(
     shutdown: CancellationToken,
 ) -> Result<(), AppError> {
     run_from(config, None, overrides, shutdown).await
+}
+
+/// `gateway run --config FILE`: reads the file and refuses it (exit 64, the problems on stderr)
+/// when it is wrong or run would refuse it later (the API token, a line that cannot start),
+/// before any port opens; then runs it until `shutdown` with the process's registry, saving
+/// changes to the file. The exit code, as [`exit_code`] says.
+pub async fn run_file(file: &Path, overrides: Overrides, shutdown: CancellationToken) -> u8 {
+    let cfg = match load_for_run(file) {
+        Ok(cfg) => cfg,
+        Err(errors) => {
+            eprintln!(
+                "gateway: {} is not a valid config:\n{errors}",
+                file.display()
+            );
+            return EX_USAGE;
+        }
+    };
+    let metrics = match process_registry() {
+        Ok(metrics) => metrics,
+        Err(code) => return code,
+    };
+    let overrides = Overrides {
+        config_file: Some(file.to_path_buf()),
+        metrics: Some(metrics),
+        ..overrides
+    };
+    exit_code(run(cfg, overrides, shutdown).await)
+}
+
+/// The configuration file at `path`, read and checked as `gateway run` checks it at start and at
+/// each SIGHUP: the file's own rules and what run would refuse ([`run_issues`]).
+pub(crate) fn load_for_run(path: &Path) -> Result<Config, config::ConfigErrors> {
+    let config = load_config(path)?;
+    let issues = run_issues(&config);
+    if issues.is_empty() {
+        Ok(config)
+    } else {
+        Err(config::ConfigErrors { issues })
+    }
+}
+
+/// `gateway demo`: the embedded demo (named `name`, else `demo`) until `shutdown`, with the
+/// process's registry. The exit code, as [`exit_code`] says.
+pub async fn demo_command(
+    name: Option<String>,
+    overrides: Overrides,
+    shutdown: CancellationToken,
+) -> u8 {
+    let metrics = match process_registry() {
+        Ok(metrics) => metrics,
+        Err(code) => return code,
+    };
+    let overrides = Overrides {
+        metrics: Some(metrics),
+        ..overrides
+    };
+    exit_code(demo_named(name, overrides, shutdown).await)
+}
+
+/// The registry `/metrics` serves, with every family of the gateway registered: one per process;
+/// when it cannot be made, the exit code (70, said on stderr).
+fn process_registry() -> Result<MetricsRegistry, u8> {
+    MetricsRegistry::new().map_err(|e| {
+        eprintln!("gateway: cannot register the metrics: {e}");
+        EX_SOFTWARE
+    })
+}
+
+/// The process's exit code for a gateway (or simulator) that stopped with `result`: 0, or the
+/// error's code, the error logged and printed on stderr.
+pub fn exit_code(result: Result<(), AppError>) -> u8 {
+    match result {
+        Ok(()) => 0,
+        Err(e) => {
+            // Under the binary's target, where this line has always been logged.
+            tracing::error!(target: "gateway", error = %e, "gateway stopped");
+            eprintln!("gateway: {e}");
+            e.exit_code()
+        }
+    }
 }
 
 /// [`run`] for a configuration read from `source` rather than from a file (the demo's embedded

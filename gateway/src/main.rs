@@ -1,24 +1,21 @@
 //! `gateway`: run, demo, sim, check, fleet, tags, scan.
 //!
-//! A thin main (linkerd2-proxy order): parse the command line, set up logging, load and validate
-//! the config (exit 64 before any port is opened when it is wrong), create the Prometheus registry
-//! of the process, then hand over to [`gateway::app`], which runs until SIGINT or SIGTERM and
-//! drains within a grace period. The signal handlers are installed first of all: SIGHUP re-reads
-//! the configuration file and the TLS files (`gateway run`), and never kills the process. `gateway run` saves configuration changes made over the REST API
-//! to its `--config` file; `gateway demo` keeps them in memory.
+//! A thin main (linkerd2-proxy order): parse the command line, set up logging, install the signal
+//! handlers first of all (SIGHUP re-reads the configuration file and the TLS files in `gateway
+//! run`, and never kills the process), then hand the subcommand to its function and exit with its
+//! code: [`gateway::app::run_file`] loads and validates the config (exit 64 before any port is
+//! opened when it is wrong), creates the Prometheus registry of the process and runs until SIGINT
+//! or SIGTERM, draining within a grace period; `gateway run` saves configuration changes made
+//! over the REST API to its `--config` file, `gateway demo` ([`gateway::app::demo_command`])
+//! keeps them in memory.
 
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use gateway::app::{MetricsRegistry, Overrides};
+use gateway::app::{self, tag_csv, AppError, Overrides};
 use tokio_util::sync::CancellationToken;
-
-/// sysexits.h EX_USAGE: the configuration is unusable.
-const EX_USAGE: u8 = 64;
-/// sysexits.h EX_SOFTWARE: the gateway stopped on an internal error.
-const EX_SOFTWARE: u8 = 70;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -99,95 +96,10 @@ enum Command {
     Fleet(gateway::zenoh_bridge::fleet_cli::FleetCommand),
     /// A device's (or a template's) tag list as CSV: export it, or import one into the file.
     #[command(subcommand)]
-    Tags(TagsCommand),
+    Tags(tag_csv::TagsCommand),
     /// Find the slave addresses that answer on a serial bus, with their identity (FC 43/14,
     /// FC 17).
     Scan(gateway::scan::ScanArgs),
-}
-
-/// `gateway tags export | import`.
-#[derive(Debug, Subcommand)]
-enum TagsCommand {
-    /// Print the tag list as CSV (header name,table,address,type,byte_order,bit,registers,scale,
-    /// offset,decimals,unit,writable,description).
-    Export {
-        #[command(flatten)]
-        owner: TagsOwnerArgs,
-    },
-    /// Replace the tag list in the config file with the tags of a CSV file (checked first as
-    /// `gateway check` does; nothing is written on any problem; the file is replaced atomically,
-    /// its comments kept, the previous version as FILE.prev).
-    Import {
-        #[command(flatten)]
-        owner: TagsOwnerArgs,
-        /// The CSV file (`-` for standard input).
-        csv: PathBuf,
-    },
-}
-
-/// Whose tag list: `--line L --device D`, or `--template NAME` (a `[templates.NAME]`).
-#[derive(Debug, clap::Args)]
-struct TagsOwnerArgs {
-    /// The config file.
-    #[arg(long, short)]
-    config: PathBuf,
-    /// The line of the device.
-    #[arg(long, requires = "device", conflicts_with = "template")]
-    line: Option<String>,
-    /// The device.
-    #[arg(long, requires = "line", conflicts_with = "template")]
-    device: Option<String>,
-    /// A template of the config's [templates] instead of a device.
-    #[arg(long, required_unless_present = "line")]
-    template: Option<String>,
-}
-
-// === impl TagsOwnerArgs ===
-
-impl TagsOwnerArgs {
-    fn owner(&self) -> gateway::app::tag_csv::TagOwner {
-        use gateway::app::tag_csv::TagOwner;
-        match (&self.line, &self.device, &self.template) {
-            (Some(line), Some(device), _) => TagOwner::Device {
-                line: line.clone(),
-                device: device.clone(),
-            },
-            (_, _, template) => TagOwner::Template(template.clone().unwrap_or_default()),
-        }
-    }
-}
-
-/// Runs `gateway tags`: 0 done, 1 problems (printed on stderr), 2 no such file or owner.
-fn tags_command(command: &TagsCommand) -> ExitCode {
-    use gateway::app::tag_csv::{self, TagCsvError};
-    let result = match command {
-        TagsCommand::Export { owner } => {
-            tag_csv::export(&owner.config, &owner.owner()).map(|csv| print!("{csv}"))
-        }
-        TagsCommand::Import { owner, csv } => tag_csv::open_csv(csv).and_then(|reader| {
-            tag_csv::import_from(&owner.config, &owner.owner(), reader).map(|n| {
-                println!(
-                    "ok: {n} tags written to {} ({})",
-                    owner.config.display(),
-                    owner.owner().path()
-                );
-            })
-        }),
-    };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e @ TagCsvError::Problems(_)) => {
-            eprintln!(
-                "{e}
-nothing written"
-            );
-            ExitCode::from(1)
-        }
-        Err(e) => {
-            eprintln!("gateway tags: {e}");
-            ExitCode::from(2)
-        }
-    }
 }
 
 fn main() -> ExitCode {
@@ -201,9 +113,9 @@ fn main() -> ExitCode {
     match cli.command {
         Command::Scan(_) => gateway::scan::init_logging(),
         Command::Check { .. } | Command::Tags(_) | Command::Fleet(_) => {
-            gateway::app::init_logging("warn");
+            app::init_logging("warn");
         }
-        _ => gateway::app::init_logging("info"),
+        _ => app::init_logging("info"),
     }
     let runtime = match tokio::runtime::Builder::new_multi_thread()
         .enable_all()
@@ -212,70 +124,35 @@ fn main() -> ExitCode {
         Ok(rt) => rt,
         Err(e) => {
             eprintln!("gateway: cannot start the runtime: {e}");
-            return ExitCode::from(EX_SOFTWARE);
+            return ExitCode::from(app::EX_SOFTWARE);
         }
     };
     runtime.block_on(async_main(cli.command))
-}
-
-/// The registry `/metrics` serves, with every family of the gateway registered: one per process.
-fn metrics_registry() -> Result<MetricsRegistry, ExitCode> {
-    MetricsRegistry::new().map_err(|e| {
-        eprintln!("gateway: cannot register the metrics: {e}");
-        ExitCode::from(EX_SOFTWARE)
-    })
 }
 
 async fn async_main(command: Command) -> ExitCode {
     let shutdown = CancellationToken::new();
     // First thing: a SIGHUP from here on is remembered (and handled once the gateway runs)
     // instead of killing the process.
-    let hangups = gateway::app::handle_signals(shutdown.clone());
-    let result = match command {
+    let hangups = app::handle_signals(shutdown.clone());
+    let code = match command {
         Command::Run {
             config,
             modbus_tcp,
             zenoh_listen,
             http,
             exit_on_duplicate_name,
-        } => match gateway::app::load_config(&config).and_then(|cfg| {
-            // What run would refuse later (the API token, a line that cannot start) is a
-            // configuration error too: refused here, before any port opens.
-            let issues = gateway::app::run_issues(&cfg);
-            if issues.is_empty() {
-                Ok(cfg)
-            } else {
-                Err(gateway::config::ConfigErrors { issues })
-            }
-        }) {
-            Ok(cfg) => {
-                let metrics = match metrics_registry() {
-                    Ok(metrics) => metrics,
-                    Err(code) => return code,
-                };
-                let overrides = Overrides {
-                    modbus_tcp,
-                    zenoh_listen,
-                    telegram_every: None,
-                    paced: false,
-                    http,
-                    config_file: Some(config.clone()),
-                    metrics: Some(metrics),
-                    acknowledge_mailboxes: false,
-                    hangups: Some(hangups),
-                    api_token_file: None,
-                    exit_on_duplicate_name,
-                };
-                gateway::app::run(cfg, overrides, shutdown).await
-            }
-            Err(errors) => {
-                eprintln!(
-                    "gateway: {} is not a valid config:\n{errors}",
-                    config.display()
-                );
-                return ExitCode::from(EX_USAGE);
-            }
-        },
+        } => {
+            let overrides = Overrides {
+                modbus_tcp,
+                zenoh_listen,
+                http,
+                hangups: Some(hangups),
+                exit_on_duplicate_name,
+                ..Overrides::default()
+            };
+            app::run_file(&config, overrides, shutdown).await
+        }
         Command::Demo {
             modbus_tcp,
             zenoh_listen,
@@ -286,64 +163,38 @@ async fn async_main(command: Command) -> ExitCode {
             name,
             token_file,
         } => {
-            let metrics = match metrics_registry() {
-                Ok(metrics) => metrics,
-                Err(code) => return code,
-            };
             let overrides = Overrides {
                 modbus_tcp: Some(modbus_tcp),
                 zenoh_listen: Some(zenoh_listen),
                 telegram_every: Some(telegram_every),
                 paced,
                 http,
-                config_file: None,
-                metrics: Some(metrics),
                 acknowledge_mailboxes: !no_mailbox_consumer,
                 hangups: Some(hangups),
                 api_token_file: token_file,
-                exit_on_duplicate_name: false,
+                ..Overrides::default()
             };
-            gateway::app::demo_named(name, overrides, shutdown).await
+            app::demo_command(name, overrides, shutdown).await
         }
         Command::Sim(args) => {
             // A simulator has nothing to re-read: a SIGHUP is logged as such and ignored.
             drop(hangups);
-            gateway::sim::run(args, shutdown)
-                .await
-                .map_err(gateway::app::AppError::from)
+            app::exit_code(
+                gateway::sim::run(args, shutdown)
+                    .await
+                    .map_err(AppError::from),
+            )
         }
         Command::Fleet(command) => {
             drop(hangups);
-            return ExitCode::from(gateway::zenoh_bridge::fleet_cli::run(command, shutdown).await);
+            gateway::zenoh_bridge::fleet_cli::run(command, shutdown).await
         }
-        Command::Tags(command) => return tags_command(&command),
+        Command::Tags(command) => tag_csv::command(&command),
         Command::Scan(args) => {
             drop(hangups);
-            return match gateway::scan::run(args, shutdown).await {
-                Ok(()) => ExitCode::SUCCESS,
-                Err(e @ gateway::scan::ScanError::Usage(_)) => {
-                    eprintln!("gateway scan: {e}");
-                    ExitCode::from(EX_USAGE)
-                }
-                Err(e) => {
-                    eprintln!("gateway scan: {e}");
-                    ExitCode::FAILURE
-                }
-            };
+            gateway::scan::command(args, shutdown).await
         }
-        Command::Check { config } => {
-            return match gateway::app::check_command(&config) {
-                0 => ExitCode::SUCCESS,
-                code => ExitCode::from(u8::try_from(code).unwrap_or(1)),
-            };
-        }
+        Command::Check { config } => u8::try_from(app::check_command(&config)).unwrap_or(1),
     };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            tracing::error!(error = %e, "gateway stopped");
-            eprintln!("gateway: {e}");
-            ExitCode::from(e.exit_code())
-        }
-    }
+    ExitCode::from(code)
 }

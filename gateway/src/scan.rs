@@ -169,6 +169,22 @@ pub fn init_logging() {
         .try_init();
 }
 
+/// Runs `gateway scan`; the exit code: 0, 64 (sysexits.h EX_USAGE) on a usage error, 1 when the
+/// scan failed, with the error on stderr.
+pub async fn command(args: ScanArgs, shutdown: CancellationToken) -> u8 {
+    match run(args, shutdown).await {
+        Ok(()) => 0,
+        Err(e @ ScanError::Usage(_)) => {
+            eprintln!("gateway scan: {e}");
+            64 // sysexits.h EX_USAGE
+        }
+        Err(e) => {
+            eprintln!("gateway scan: {e}");
+            1
+        }
+    }
+}
+
 /// Scans the bus and prints what answers on stdout (a line per address, or TOML with
 /// `--toml`); progress on stderr when it is a terminal. Stops early when `shutdown` is
 /// cancelled, printing what it found so far.

@@ -31,7 +31,7 @@ use tracing::{info, warn};
 use super::hangup_log::{hangup_line, HANGUP_LOG, HANGUP_WARN_LOG};
 use super::supervisor::Supervisor;
 
-use crate::config::{ConfigErrors, ConfigIssue};
+use crate::config::ConfigIssue;
 
 /// Handles every SIGHUP counted by `hangups` (the counter [`super::handle_signals`] raises)
 /// until `shutdown`; a SIGHUP that arrived before this started is handled at once.
@@ -70,16 +70,7 @@ pub(crate) async fn reload(sup: &Arc<Supervisor>) {
 /// Reads, checks and applies the configuration file at `path`.
 async fn reload_file(sup: &Arc<Supervisor>, path: &Path) {
     let file = path.to_owned();
-    let checked = tokio::task::spawn_blocking(move || {
-        let config = super::load_config(&file)?;
-        let issues = super::check::run_issues(&config);
-        if issues.is_empty() {
-            Ok(config)
-        } else {
-            Err(ConfigErrors { issues })
-        }
-    })
-    .await;
+    let checked = tokio::task::spawn_blocking(move || super::load_for_run(&file)).await;
     let config = match checked {
         Ok(Ok(config)) => config,
         Ok(Err(errors)) => return refused(path, &errors.issues),

@@ -104,6 +104,87 @@ pub enum TagCsvError {
     Write { file: PathBuf, why: String },
 }
 
+/// `gateway tags export | import`.
+#[derive(Debug, clap::Subcommand)]
+pub enum TagsCommand {
+    /// Print the tag list as CSV (header name,table,address,type,byte_order,bit,registers,scale,
+    /// offset,decimals,unit,writable,description).
+    Export {
+        #[command(flatten)]
+        owner: TagsOwnerArgs,
+    },
+    /// Replace the tag list in the config file with the tags of a CSV file (checked first as
+    /// `gateway check` does; nothing is written on any problem; the file is replaced atomically,
+    /// its comments kept, the previous version as FILE.prev).
+    Import {
+        #[command(flatten)]
+        owner: TagsOwnerArgs,
+        /// The CSV file (`-` for standard input).
+        csv: PathBuf,
+    },
+}
+
+/// Whose tag list: `--line L --device D`, or `--template NAME` (a `[templates.NAME]`).
+#[derive(Debug, clap::Args)]
+pub struct TagsOwnerArgs {
+    /// The config file.
+    #[arg(long, short)]
+    config: PathBuf,
+    /// The line of the device.
+    #[arg(long, requires = "device", conflicts_with = "template")]
+    line: Option<String>,
+    /// The device.
+    #[arg(long, requires = "line", conflicts_with = "template")]
+    device: Option<String>,
+    /// A template of the config's [templates] instead of a device.
+    #[arg(long, required_unless_present = "line")]
+    template: Option<String>,
+}
+
+// === impl TagsOwnerArgs ===
+
+impl TagsOwnerArgs {
+    fn owner(&self) -> TagOwner {
+        match (&self.line, &self.device, &self.template) {
+            (Some(line), Some(device), _) => TagOwner::Device {
+                line: line.clone(),
+                device: device.clone(),
+            },
+            (_, _, template) => TagOwner::Template(template.clone().unwrap_or_default()),
+        }
+    }
+}
+
+/// Runs `gateway tags`; the exit code: 0 done, 1 problems (printed on stderr), 2 no such file or
+/// owner.
+pub fn command(command: &TagsCommand) -> u8 {
+    let result = match command {
+        TagsCommand::Export { owner } => {
+            export(&owner.config, &owner.owner()).map(|csv| print!("{csv}"))
+        }
+        TagsCommand::Import { owner, csv } => open_csv(csv).and_then(|reader| {
+            import_from(&owner.config, &owner.owner(), reader).map(|n| {
+                println!(
+                    "ok: {n} tags written to {} ({})",
+                    owner.config.display(),
+                    owner.owner().path()
+                );
+            })
+        }),
+    };
+    match result {
+        Ok(()) => 0,
+        Err(e @ TagCsvError::Problems(_)) => {
+            eprintln!("{e}\nnothing written");
+            1
+        }
+        Err(e) => {
+            eprintln!("gateway tags: {e}");
+            2
+        }
+    }
+}
+
 /// The tag list of `owner` in the configuration file `config` as CSV.
 pub fn export(config: &Path, owner: &TagOwner) -> Result<String, TagCsvError> {
     let doc = read_document(config)?;
