@@ -2,6 +2,8 @@
 //! poll groups. The profiles themselves, their limits and tags are proto-core's
 //! (`proto_core::profiles::registry`); the config names them and may only lower the limits.
 
+mod check;
+
 use std::time::Duration;
 
 use proto_core::modbus::Table;

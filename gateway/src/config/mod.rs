@@ -46,6 +46,7 @@
 //! exactly) are the app's: it passes them as a [`Check`] to [`load_with`], [`parse_with`] or
 //! [`Config::from_table_with`], and their issues come in the same answer as the reader's.
 
+pub(crate) mod check;
 mod cpmem;
 mod device;
 mod http;

@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
+use super::check::{Check, Line};
 use super::reader::{int_value, show_duration, Cx, Fields};
 use super::section::{AckConfig, ProtocolSection, TelegramKeys};
 use super::serial::{Baud, Interface, SerialConfig};
@@ -456,11 +457,18 @@ impl AsciiConfig {
 
 // === impl ProtocolSection for the telegram lines ===
 
-impl ProtocolSection for Proc3964Config {
-    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
-        check_3964_link(cx, path, serial, (self.character_delay, self.ack_delay));
+impl Check<Line<'_>> for Proc3964Config {
+    fn check(&self, line: &Line<'_>, cx: &mut Cx) {
+        check_3964_link(
+            cx,
+            line.path,
+            line.serial,
+            (self.character_delay, self.ack_delay),
+        );
     }
+}
 
+impl ProtocolSection for Proc3964Config {
     fn unit_id(&self) -> Option<u8> {
         self.unit_id
     }
@@ -474,11 +482,13 @@ impl ProtocolSection for Proc3964Config {
     }
 }
 
-impl ProtocolSection for AsciiConfig {
-    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
-        check_ascii(cx, path, serial, self);
+impl Check<Line<'_>> for AsciiConfig {
+    fn check(&self, line: &Line<'_>, cx: &mut Cx) {
+        check_ascii(cx, line.path, line.serial, self);
     }
+}
 
+impl ProtocolSection for AsciiConfig {
     fn unit_id(&self) -> Option<u8> {
         self.unit_id
     }
