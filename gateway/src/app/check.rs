@@ -109,7 +109,7 @@ fn start_checks() -> [&'static dyn for<'a> Check<Start<'a>>; 7] {
 }
 
 /// The path checks of a REST change, in the order of the answer, each next to what its paths
-/// guard: the serial ports (`config/serial.rs`), the `[gateway]` directories themselves
+/// guard: the lines' serial ports (`config/line.rs`), the `[gateway]` directories themselves
 /// (`config/check.rs`), the CP memory file, the journals, the template directories
 /// (`config/template.rs`), the token files, the zenoh file and the TLS files.
 fn path_checks() -> [&'static dyn for<'a> Check<ApiChange<'a>>; 9] {

@@ -2,12 +2,10 @@
 //! (003 6.1 "Character frame"), and the kernel RS485 options for two-wire lines.
 
 use std::fmt;
-use std::path::Path;
 use std::time::Duration;
 
 use serde::{Deserialize, Serialize, Serializer};
 
-use super::check::{inside, ApiChange, Check};
 use super::reader::{Cx, Fields};
 
 /// 003 6.2.1, 6.3.3, 6.4.2.1, 6.4.5.1: "Baud rate ... Default value 9600" for every protocol.
@@ -362,54 +360,6 @@ fn read_rs485(cx: &mut Cx, mut f: Fields<'_>) -> Rs485Config {
 /// over the REST API (refused): the same words.
 pub(crate) fn no_such_port(port: &str) -> String {
     format!("no such serial port {port}")
-}
-
-/// The serial ports a REST change names (`port`, `port_b`): a port that exists, not a demo
-/// `pty:`, under `[gateway] port_dirs`.
-pub(crate) struct SerialPorts;
-
-impl Check<ApiChange<'_>> for SerialPorts {
-    fn check(&self, change: &ApiChange<'_>, cx: &mut Cx) {
-        let dirs = &change.in_force.gateway.port_dirs;
-        for (name, line) in &change.new.lines {
-            let old = change.in_force.lines.get(name);
-            let ports = [
-                (
-                    "port",
-                    Some(line.serial.port.as_str()),
-                    old.map(|o| o.serial.port.as_str()),
-                ),
-                (
-                    "port_b",
-                    line.second_port(),
-                    old.and_then(|o| o.second_port()),
-                ),
-            ];
-            for (key, port, old_port) in ports {
-                let Some(port) = port.filter(|p| !p.is_empty() && Some(*p) != old_port) else {
-                    continue;
-                };
-                let path = format!("lines.{name}.{key}");
-                if port.starts_with(PTY_PREFIX) {
-                    cx.issue(
-                        path,
-                        "a pty: port is created by `gateway demo` at start only; name an \
-                         existing port",
-                    );
-                } else if !Path::new(port).exists() {
-                    cx.issue(path, no_such_port(port));
-                } else if !inside(Path::new(port), dirs) {
-                    cx.issue(
-                        path,
-                        format!(
-                            "{port} is outside [gateway] port_dirs {dirs:?}: a change over the \
-                             API names serial ports there only"
-                        ),
-                    );
-                }
-            }
-        }
-    }
 }
 
 #[cfg(test)]
