@@ -171,6 +171,35 @@ pub(crate) fn parent_dir(path: &Path) -> &Path {
     }
 }
 
+/// A key that takes effect only with another key's value: `key` is ignored unless `needs` is
+/// one of `values` (`default` when `needs` is not given). A key given at `key_default`, its
+/// own default, says nothing the gateway does not do (deploy/gateway.example.toml lists every
+/// key so); `None`: any value is reported (`end_chars = [0x03]` with the char-delay criterion
+/// is the mistake of expecting ETX to end a telegram).
+pub(crate) struct Needs {
+    pub(crate) key: &'static str,
+    pub(crate) key_default: Option<&'static str>,
+    pub(crate) needs: &'static str,
+    pub(crate) values: &'static [&'static str],
+    pub(crate) default: &'static str,
+}
+
+pub(crate) const fn needs(
+    key: &'static str,
+    key_default: Option<&'static str>,
+    needs: &'static str,
+    values: &'static [&'static str],
+    default: &'static str,
+) -> Needs {
+    Needs {
+        key,
+        key_default,
+        needs,
+        values,
+        default,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -4,9 +4,11 @@
 
 use std::collections::BTreeMap;
 
-use super::check::{Check, Device, Line};
+use super::check::{Check, Device, Line, Needs};
+use super::device::SCANNER_NEEDS;
 use super::line::LineConfig;
 use super::reader::Cx;
+use super::telegram::ASCII_NEEDS;
 use super::{Config, ConfigIssue};
 
 /// Every cross-field problem of `config`.
@@ -158,96 +160,6 @@ fn claim_unit(cx: &mut Cx, units: &mut BTreeMap<u8, String>, unit: u8, path: Str
         units.insert(unit, owner.to_owned());
     }
 }
-
-/// A key that takes effect only with another key's value: `key` is ignored unless `needs` is
-/// one of `values` (`default` when `needs` is not given). A key given at `key_default`, its
-/// own default, says nothing the gateway does not do (deploy/gateway.example.toml lists every
-/// key so); `None`: any value is reported (`end_chars = [0x03]` with the char-delay criterion
-/// is the mistake of expecting ETX to end a telegram).
-struct Needs {
-    key: &'static str,
-    key_default: Option<&'static str>,
-    needs: &'static str,
-    values: &'static [&'static str],
-    default: &'static str,
-}
-
-const fn needs(
-    key: &'static str,
-    key_default: Option<&'static str>,
-    needs: &'static str,
-    values: &'static [&'static str],
-    default: &'static str,
-) -> Needs {
-    Needs {
-        key,
-        key_default,
-        needs,
-        values,
-        default,
-    }
-}
-
-/// An ASCII line's keys that only one end criterion or flow control reads (003 6.2.1; the V24
-/// times 000 6.2.1), with their defaults (config/telegram.rs).
-const ASCII_NEEDS: &[Needs] = &[
-    needs(
-        "end_chars",
-        None,
-        "end_criterion",
-        &["end-chars"],
-        "char-delay",
-    ),
-    needs(
-        "fixed_length",
-        Some("240"),
-        "end_criterion",
-        &["fixed-length"],
-        "char-delay",
-    ),
-    needs(
-        "xon_code",
-        Some("17"),
-        "flow_control",
-        &["xon-xoff"],
-        "none",
-    ),
-    needs(
-        "xoff_code",
-        Some("19"),
-        "flow_control",
-        &["xon-xoff"],
-        "none",
-    ),
-    needs(
-        "xon_wait",
-        Some("20s"),
-        "flow_control",
-        &["xon-xoff", "rts-cts"],
-        "none",
-    ),
-    needs(
-        "rts_hold_time",
-        Some("10ms"),
-        "flow_control",
-        &["auto-v24"],
-        "none",
-    ),
-    needs(
-        "data_output_wait",
-        Some("10ms"),
-        "flow_control",
-        &["auto-v24"],
-        "none",
-    ),
-];
-
-/// The communication scanner's settings, read only when it runs (config/device.rs defaults).
-const SCANNER_NEEDS: &[Needs] = &[
-    needs("inputs", Some("2"), "enabled", &["true"], "false"),
-    needs("outputs", Some("2"), "enabled", &["true"], "false"),
-    needs("period", Some("100ms"), "enabled", &["true"], "false"),
-];
 
 /// Whether a value the file gives is `default` (numbers and durations compared by value).
 fn is_default(value: &toml::Value, default: &str) -> bool {
