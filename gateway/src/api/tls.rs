@@ -138,16 +138,22 @@ pub(crate) fn http_tls_issues(config: &Config) -> Vec<ConfigIssue> {
 
 /// An `[http.tls]` error as an issue at the key of the file.
 pub(crate) fn http_tls_issue(e: &TlsError) -> ConfigIssue {
+    tls_issue(e, "HTTPS", "http.tls", HTTPS_KEYS)
+}
+
+/// A TLS settings error of `section` (`name` in the message) as an issue at the key of its file
+/// (`keys`: the certificate's, the private key's, the CA's), or at the section.
+pub(crate) fn tls_issue(e: &TlsError, name: &str, section: &str, keys: [&str; 3]) -> ConfigIssue {
     let key = match e {
         TlsError::File { what, .. } => match *what {
-            "certificate" => HTTPS_KEYS[0],
-            "private key" => HTTPS_KEYS[1],
-            _ => HTTPS_KEYS[2],
+            "certificate" => keys[0],
+            "private key" => keys[1],
+            _ => keys[2],
         },
-        TlsError::Settings(_) => "http.tls",
+        TlsError::Settings(_) => section,
     };
     ConfigIssue {
         path: key.to_owned(),
-        message: format!("HTTPS: {e}"),
+        message: format!("{name}: {e}"),
     }
 }

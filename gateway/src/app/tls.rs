@@ -14,6 +14,7 @@ use tracing::{info, warn};
 use super::build::unit_write_ranges;
 use super::reload_notice::Reload;
 use super::{server_options, AppError};
+use crate::api::tls::tls_issue;
 use crate::config::check::{ApiChange, Check, Start};
 use crate::config::{
     Config, ConfigIssue, Cx, FunctionClassConfig, ModbusTcpConfig, ModbusTlsConfig,
@@ -227,20 +228,12 @@ fn tls_issues(config: &Config) -> Vec<ConfigIssue> {
     };
     match TlsServer::new(files(tls), roles(tls)) {
         Ok(_) => Vec::new(),
-        Err(e) => {
-            let key = match &e {
-                modbus_tcp::TlsError::File { what, .. } => match *what {
-                    "certificate" => TLS_KEYS[0],
-                    "private key" => TLS_KEYS[1],
-                    _ => TLS_KEYS[2],
-                },
-                modbus_tcp::TlsError::Settings(_) => "modbus_tcp.tls",
-            };
-            vec![ConfigIssue {
-                path: key.to_owned(),
-                message: format!("Modbus/TCP Security: {e}"),
-            }]
-        }
+        Err(e) => vec![tls_issue(
+            &e,
+            "Modbus/TCP Security",
+            "modbus_tcp.tls",
+            TLS_KEYS,
+        )],
     }
 }
 

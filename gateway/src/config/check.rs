@@ -139,11 +139,7 @@ pub(crate) fn confine(
 /// Whether `path` (resolved: symbolic links and `..` followed; a file that does not exist yet by
 /// its directory) lies inside one of `dirs`.
 pub(crate) fn inside(path: &Path, dirs: &[PathBuf]) -> bool {
-    let resolved = std::fs::canonicalize(path).or_else(|_| {
-        let name = path.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
-        std::fs::canonicalize(parent_dir(path)).map(|dir| dir.join(name))
-    });
-    let Ok(resolved) = resolved else {
+    let Ok(resolved) = resolve(path) else {
         return false;
     };
     dirs.iter().any(|dir| {
@@ -152,15 +148,18 @@ pub(crate) fn inside(path: &Path, dirs: &[PathBuf]) -> bool {
     })
 }
 
-/// `path` resolved as [`inside`] resolves it (links and `..` followed; a file that does not
-/// exist by its directory), or as given when its directory does not exist either.
+/// `path` resolved as [`inside`] resolves it, or as given when its directory does not exist
+/// either.
 pub(crate) fn resolved(path: &Path) -> PathBuf {
-    std::fs::canonicalize(path)
-        .or_else(|_| {
-            let name = path.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
-            std::fs::canonicalize(parent_dir(path)).map(|dir| dir.join(name))
-        })
-        .unwrap_or_else(|_| path.to_owned())
+    resolve(path).unwrap_or_else(|_| path.to_owned())
+}
+
+/// `path` with symbolic links and `..` followed; a file that does not exist by its directory.
+fn resolve(path: &Path) -> std::io::Result<PathBuf> {
+    std::fs::canonicalize(path).or_else(|_| {
+        let name = path.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
+        std::fs::canonicalize(parent_dir(path)).map(|dir| dir.join(name))
+    })
 }
 
 /// The directory a file `path` names lies in (`.` for a bare name).
