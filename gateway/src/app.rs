@@ -40,9 +40,8 @@ mod tls;
 mod zenoh;
 
 pub use check::{
-    ack_warnings, api_path_issues, check_command, check_report, config_issues, confine,
-    ignored_keys_of, inside, load_config, port_issues, run_issues, security_warnings, start_issues,
-    unpolled_tags, Door,
+    ack_warnings, api_path_issues, check_command, check_report, config_issues, ignored_keys_of,
+    load_config, port_issues, run_issues, security_warnings, start_issues, unpolled_tags, Door,
 };
 pub use demo::{demo, demo_named};
 pub use metrics::{Metrics, METRIC_NAMES};
@@ -457,7 +456,7 @@ async fn serve_http(
     let state = ApiState::from_config(Arc::clone(&backend) as _, http, store)
         .map_err(|e| {
             AppError::Config(config::ConfigErrors {
-                issues: vec![check::token_issue(http, &e)],
+                issues: vec![crate::api::auth::token_issue(http, &e)],
             })
         })?
         .with_routes(metrics_route(Arc::clone(sup)))
@@ -482,7 +481,7 @@ async fn serve_http(
         Some(cfg) => {
             let tls = crate::api::HttpTls::new(cfg).map_err(|e| {
                 AppError::Config(config::ConfigErrors {
-                    issues: vec![check::http_tls_issue(&e)],
+                    issues: vec![crate::api::tls::http_tls_issue(&e)],
                 })
             })?;
             tls::spawn_reloader("HTTPS", sup.reload.subscribe(), shutdown.clone(), {

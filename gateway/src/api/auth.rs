@@ -16,6 +16,10 @@
 //! they differ. Who made a change ([`Caller`]: the client address and the token's name) goes
 //! to the handlers for the audit.
 
+mod check;
+
+pub(crate) use check::{token_issue, ApiTokens};
+
 use std::fmt;
 use std::io;
 use std::net::SocketAddr;

@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize, Serializer};
 use super::backend::ApiBackend;
 use super::error::{ApiError, Issue};
 use super::model::{SendRequest, SignalsPatch, TagWrite};
-use crate::config::{Check, Config, ConfigErrors};
+use crate::config::{Config, ConfigErrors, ExtraCheck};
 
 /// The media type of TOML documents.
 pub const TOML_MEDIA_TYPE: &str = "application/toml";
@@ -144,7 +144,7 @@ pub(crate) const LINE_EXPECTED: &str =
 pub(crate) fn config_document(
     format: Format,
     body: &[u8],
-    check: Check<'_>,
+    check: ExtraCheck<'_>,
     in_force: &Config,
 ) -> Result<(Config, BodyDocument), ApiError> {
     let mut document = document(format, body, CONFIG_EXPECTED)?;
@@ -242,7 +242,7 @@ fn not_json(body: &[u8], e: &serde_json::Error, expected: &str) -> String {
 pub(crate) fn config(
     format: Format,
     body: &[u8],
-    check: Check<'_>,
+    check: ExtraCheck<'_>,
     in_force: &Config,
 ) -> Result<Config, ApiError> {
     config_document(format, body, check, in_force).map(|(config, _)| config)

@@ -9,12 +9,13 @@
 //! (the handshake fails otherwise); without, any client may connect and the bearer token guards
 //! the changes as over HTTP.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::{Arc, PoisonError, RwLock};
 
 use tokio_rustls::TlsAcceptor;
 
-use crate::config::HttpTlsConfig;
+use crate::config::check::{ApiChange, Check, Start};
+use crate::config::{Config, ConfigIssue, Cx, HttpTlsConfig};
 use crate::modbus_tcp::tls::server_config;
 use crate::modbus_tcp::TlsError;
 
@@ -91,4 +92,68 @@ fn acceptor(cfg: &HttpTlsConfig) -> Result<TlsAcceptor, TlsError> {
     // The listener speaks HTTP/1.1 only.
     config.alpn_protocols = vec![b"http/1.1".to_vec()];
     Ok(TlsAcceptor::from(Arc::new(config)))
+}
+
+/// `[http.tls]`'s files: at start read and made into TLS settings as `run` makes them (a
+/// missing, unreadable or unusable file is an issue at its key, with the path); through the
+/// REST API each confined to `[gateway] config_dirs`.
+pub(crate) struct HttpsFiles;
+
+/// The keys of `[http.tls]`'s files.
+const HTTPS_KEYS: [&str; 3] = ["http.tls.cert", "http.tls.key", "http.tls.ca"];
+
+impl Check<Start<'_>> for HttpsFiles {
+    fn check(&self, start: &Start<'_>, cx: &mut Cx) {
+        if !HTTPS_KEYS.iter().any(|k| start.refused(k)) {
+            cx.issues.extend(http_tls_issues(start.config));
+        }
+    }
+}
+
+impl Check<ApiChange<'_>> for HttpsFiles {
+    fn check(&self, change: &ApiChange<'_>, cx: &mut Cx) {
+        let new = change.new.http.tls.as_ref();
+        let old = change.in_force.http.tls.as_ref();
+        let files: [fn(&HttpTlsConfig) -> Option<&Path>; 3] = [
+            |t| Some(t.cert.as_path()),
+            |t| Some(t.key.as_path()),
+            |t| t.ca.as_deref(),
+        ];
+        for (key, file) in HTTPS_KEYS.iter().zip(files) {
+            change.config_file(cx, key, new.and_then(file), old.and_then(file));
+        }
+    }
+}
+
+/// `[http.tls]`'s files read and made into TLS settings as `run` makes them at start.
+pub(crate) fn http_tls_issues(config: &Config) -> Vec<ConfigIssue> {
+    let Some(tls) = config.http.tls.as_ref() else {
+        return Vec::new();
+    };
+    match HttpTls::new(tls) {
+        Ok(_) => Vec::new(),
+        Err(e) => vec![http_tls_issue(&e)],
+    }
+}
+
+/// An `[http.tls]` error as an issue at the key of the file.
+pub(crate) fn http_tls_issue(e: &TlsError) -> ConfigIssue {
+    tls_issue(e, "HTTPS", "http.tls", HTTPS_KEYS)
+}
+
+/// A TLS settings error of `section` (`name` in the message) as an issue at the key of its file
+/// (`keys`: the certificate's, the private key's, the CA's), or at the section.
+pub(crate) fn tls_issue(e: &TlsError, name: &str, section: &str, keys: [&str; 3]) -> ConfigIssue {
+    let key = match e {
+        TlsError::File { what, .. } => match *what {
+            "certificate" => keys[0],
+            "private key" => keys[1],
+            _ => keys[2],
+        },
+        TlsError::Settings(_) => section,
+    };
+    ConfigIssue {
+        path: key.to_owned(),
+        message: format!("{name}: {e}"),
+    }
 }

@@ -6,17 +6,19 @@
 //! write limits are one byte range for M, one for Q and one range of DB numbers (003 6.4.5
 //! "Limits"), so a write enable inside a byte or a DB is refused here, never silently widened.
 //!
-//! Beyond the file's rules, one function, [`start_issues`], holds the start checks, and every
-//! door calls it: `gateway check`, `gateway run` (exit 64 before any port opens), a SIGHUP
-//! re-read (`super::reload`), `POST /config/validate` and `PUT /config...` (through the
-//! supervisor's `validate`: 422, nothing saved). Before, the REST API saved what `run` refused at
+//! Beyond the file's rules, one function, [`start_issues`], collects the start checks (each a
+//! `config::check::Check` next to what it checks, listed in [`start_checks`] and
+//! [`path_checks`]), and every door calls it: `gateway check`, `gateway run` (exit 64 before any
+//! port opens), a SIGHUP re-read (`super::reload`), `POST /config/validate` and
+//! `PUT /config...` (through the supervisor's `validate`: 422, nothing saved). Before, the REST API saved what `run` refused at
 //! the next start, and systemd does not restart on 64: a gateway changed over REST stayed down
 //! after the next reboot. The checks: every REST token readable and at least 16 visible
 //! characters, no two alike; every line startable (telegram settings, CP memory); the zenoh
 //! settings loadable (`config_file` included); the Modbus/TCP Security files loadable; a
 //! persisted CP memory file readable. Through the REST API the paths a change names are confined
-//! first ([`api_path_issues`]: ports under `port_dirs`, the CP memory file under `state_dirs`,
-//! token, zenoh and TLS files under `config_dirs`), and a file outside is never opened.
+//! first ([`api_path_issues`]: ports under `port_dirs`, the CP memory file and journals under
+//! `state_dirs`, template directories, token, zenoh and TLS files under `config_dirs`), and a
+//! file outside is never opened.
 //!
 //! `gateway check` also opens every RS485 line's port as the line would and closes it again: a
 //! port whose driver refuses RS485 mode (a pseudo-terminal, a UART without RS485 support) never
@@ -31,10 +33,15 @@
 
 use std::path::Path;
 
-use crate::api::{Auth, TokenError};
-use crate::config::{self, Config, ConfigErrors, ConfigIssue, Interface};
-use crate::config::{HttpConfig, TokenSource};
-use crate::cpmem;
+use super::lines::LineStarts;
+use super::tls::ModbusTlsFiles;
+use crate::api::auth::ApiTokens;
+use crate::api::tls::HttpsFiles;
+use crate::config::check::{ApiChange, Check, GatewayDirs, Start};
+use crate::config::{self, Config, ConfigErrors, ConfigIssue, Cx, Interface};
+use crate::config::{no_such_port, SerialPorts, TemplateDirs, ZenohFile};
+use crate::cpmem::{self, persist::persist_dir_warnings, persist::PersistFile};
+use crate::mailbox::journal::Journals;
 use crate::serial::{self, OpenError};
 
 /// What the CP memory cannot serve exactly in the slave lines of `config`, each issue with its
@@ -84,6 +91,41 @@ pub fn run_issues(config: &Config) -> Vec<ConfigIssue> {
     start_issues(config, Door::File)
 }
 
+/// The start checks, in the order of the answer, each next to what it checks: the API tokens
+/// (`api/auth/check.rs`), each line's start (`app/lines.rs`), the zenoh file
+/// (`config/zenoh.rs`), the CP memory file (`cpmem/persist.rs`), the journals
+/// (`mailbox/journal/check.rs`), the Modbus/TCP Security files (`app/tls.rs`) and the HTTPS
+/// files (`api/tls.rs`).
+fn start_checks() -> [&'static dyn for<'a> Check<Start<'a>>; 7] {
+    [
+        &ApiTokens,
+        &LineStarts,
+        &ZenohFile,
+        &PersistFile,
+        &Journals,
+        &ModbusTlsFiles,
+        &HttpsFiles,
+    ]
+}
+
+/// The path checks of a REST change, in the order of the answer, each next to what its paths
+/// guard: the lines' serial ports (`config/line.rs`), the `[gateway]` directories themselves
+/// (`config/check.rs`), the CP memory file, the journals, the template directories
+/// (`config/template.rs`), the token files, the zenoh file and the TLS files.
+fn path_checks() -> [&'static dyn for<'a> Check<ApiChange<'a>>; 9] {
+    [
+        &SerialPorts,
+        &GatewayDirs,
+        &PersistFile,
+        &Journals,
+        &TemplateDirs,
+        &ApiTokens,
+        &ZenohFile,
+        &ModbusTlsFiles,
+        &HttpsFiles,
+    ]
+}
+
 /// The start checks, one function for every door (`gateway check`, `gateway run`, a SIGHUP
 /// re-read, `POST /config/validate`, `PUT /config` and `PUT /config/lines/{line}`): every token
 /// read from its file or variable (at least 16 visible characters, no two alike), what would
@@ -97,234 +139,33 @@ pub fn start_issues(config: &Config, door: Door<'_>) -> Vec<ConfigIssue> {
         Door::Api { in_force } => api_path_issues(config, in_force),
     };
     let refused: Vec<String> = issues.iter().map(|i| i.path.clone()).collect();
-    let refused = |key: &str| refused.iter().any(|p| p == key);
-    issues.extend(all_token_issues(
-        &config.http,
-        |name| std::env::var(name).ok(),
-        &refused,
-    ));
-    let layout = super::lines::slave_layout(config);
-    issues.extend(super::lines::start_issues(config, layout.as_ref()));
-    if !refused("zenoh.config_file") {
-        issues.extend(zenoh_issues(config));
+    let start = Start {
+        config,
+        refused: &refused,
+    };
+    let mut cx = Cx::default();
+    for check in start_checks() {
+        check.check(&start, &mut cx);
     }
-    if !refused("cp_memory.persist_file") {
-        issues.extend(cp_memory_issues(config));
-    }
-    issues.extend(journal_issues(config, &refused));
-    if !TLS_KEYS.iter().any(|k| refused(k)) {
-        issues.extend(tls_issues(config));
-    }
-    if !HTTP_TLS_KEYS.iter().any(|k| refused(k)) {
-        issues.extend(http_tls_issues(config));
-    }
+    issues.extend(cx.issues);
     issues
 }
-
-/// The keys of `[http.tls]`'s files.
-const HTTP_TLS_KEYS: [&str; 3] = ["http.tls.cert", "http.tls.key", "http.tls.ca"];
-
-/// The keys of the Modbus/TCP Security files.
-const TLS_KEYS: [&str; 3] = [
-    "modbus_tcp.tls.cert",
-    "modbus_tcp.tls.key",
-    "modbus_tcp.tls.ca",
-];
 
 /// The paths a change over the REST API names, each confined to the directories the host's file
 /// allows for it (`[gateway]` of `in_force`): a serial port (that must exist, and not be a
-/// demo `pty:`) under `port_dirs`, the CP memory file under `state_dirs`, token files, the zenoh
-/// config file and the TLS files under `config_dirs`. A path that is the one in force (the host
-/// set it) is not checked again. The directories themselves change only in the host's file.
+/// demo `pty:`) under `port_dirs`, the CP memory file and the journals under `state_dirs`,
+/// template directories, token files, the zenoh config file and the TLS files under
+/// `config_dirs`. A path that is the one in force (the host set it) is not checked again. The
+/// directories themselves change only in the host's file.
 ///
-/// A new key that names a file adds one [`confine`] call here.
+/// A new key that names a file is confined by its part's check in the [`ApiChange`] scope.
 pub fn api_path_issues(new: &Config, in_force: &Config) -> Vec<ConfigIssue> {
-    let dirs = &in_force.gateway;
-    let mut issues = Vec::new();
-    for (name, line) in &new.lines {
-        let old = in_force.lines.get(name);
-        let ports = [
-            (
-                "port",
-                Some(line.serial.port.as_str()),
-                old.map(|o| o.serial.port.as_str()),
-            ),
-            (
-                "port_b",
-                line.second_port(),
-                old.and_then(|o| o.second_port()),
-            ),
-        ];
-        for (key, port, old_port) in ports {
-            let Some(port) = port.filter(|p| !p.is_empty() && Some(*p) != old_port) else {
-                continue;
-            };
-            let path = format!("lines.{name}.{key}");
-            if port.starts_with(config::PTY_PREFIX) {
-                issues.push(issue(
-                    &path,
-                    "a pty: port is created by `gateway demo` at start only; name an existing port",
-                ));
-            } else if !Path::new(port).exists() {
-                issues.push(issue(&path, no_such_port(port)));
-            } else if !inside(Path::new(port), &dirs.port_dirs) {
-                issues.push(issue(
-                    &path,
-                    format!(
-                        "{port} is outside [gateway] port_dirs {:?}: a change over the API names \
-                         serial ports there only",
-                        dirs.port_dirs
-                    ),
-                ));
-            }
-        }
+    let change = ApiChange { new, in_force };
+    let mut cx = Cx::default();
+    for check in path_checks() {
+        check.check(&change, &mut cx);
     }
-    for (key, new_dirs, old_dirs) in [
-        ("gateway.port_dirs", &new.gateway.port_dirs, &dirs.port_dirs),
-        (
-            "gateway.state_dirs",
-            &new.gateway.state_dirs,
-            &dirs.state_dirs,
-        ),
-        (
-            "gateway.config_dirs",
-            &new.gateway.config_dirs,
-            &dirs.config_dirs,
-        ),
-    ] {
-        if new_dirs != old_dirs {
-            issues.push(issue(
-                key,
-                "changed only in the configuration file on the host, not over the API",
-            ));
-        }
-    }
-    let state = ("state_dirs", dirs.state_dirs.as_slice());
-    let conf = ("config_dirs", dirs.config_dirs.as_slice());
-    let mut confined = |key: &str,
-                        new: Option<&Path>,
-                        old: Option<&Path>,
-                        allowed: (&str, &[std::path::PathBuf])| {
-        issues.extend(confine(key, new, old, allowed));
-    };
-    confined(
-        "cp_memory.persist_file",
-        new.cp_memory.persist_file.as_deref(),
-        in_force.cp_memory.persist_file.as_deref(),
-        state,
-    );
-    // A journal is written like the persistence file: confined to the state directories.
-    for (name, line) in &new.lines {
-        confined(
-            &format!("lines.{name}.journal"),
-            line.journal(),
-            in_force.lines.get(name).and_then(|o| o.journal()),
-            state,
-        );
-    }
-    // Templates are read like the files of settings: from the configuration directories.
-    for (i, dir) in new.gateway.template_dirs.iter().enumerate() {
-        if !dirs.template_dirs.contains(dir) {
-            confined(
-                &format!("gateway.template_dirs[{i}]"),
-                Some(&config::template_dir_resolved(dir)),
-                None,
-                conf,
-            );
-        }
-    }
-    confined(
-        "http.token_file",
-        new.http.token_file.as_deref(),
-        in_force.http.token_file.as_deref(),
-        conf,
-    );
-    for (name, token) in &new.http.tokens {
-        let old = in_force.http.tokens.get(name);
-        confined(
-            &format!("http.tokens.{name}.token_file"),
-            token.token_file.as_deref(),
-            old.and_then(|t| t.token_file.as_deref()),
-            conf,
-        );
-    }
-    let zenoh_file = |c: &Config| c.zenoh.as_ref().and_then(|z| z.config_file.clone());
-    confined(
-        "zenoh.config_file",
-        zenoh_file(new).as_deref(),
-        zenoh_file(in_force).as_deref(),
-        conf,
-    );
-    let tls = new.modbus_tcp.tls.as_ref();
-    let old_tls = in_force.modbus_tcp.tls.as_ref();
-    let files: [fn(&config::ModbusTlsConfig) -> &Path; 3] = [|t| &t.cert, |t| &t.key, |t| &t.ca];
-    for (key, file) in TLS_KEYS.iter().zip(files) {
-        confined(key, tls.map(file), old_tls.map(file), conf);
-    }
-    let https = new.http.tls.as_ref();
-    let old_https = in_force.http.tls.as_ref();
-    confined(
-        HTTP_TLS_KEYS[0],
-        https.map(|t| t.cert.as_path()),
-        old_https.map(|t| t.cert.as_path()),
-        conf,
-    );
-    confined(
-        HTTP_TLS_KEYS[1],
-        https.map(|t| t.key.as_path()),
-        old_https.map(|t| t.key.as_path()),
-        conf,
-    );
-    confined(
-        HTTP_TLS_KEYS[2],
-        https.and_then(|t| t.ca.as_deref()),
-        old_https.and_then(|t| t.ca.as_deref()),
-        conf,
-    );
-    issues
-}
-
-/// A file a change over the REST API names at `key`, confined to `allowed` (the `[gateway]`
-/// key and its directories): an issue when `new` is set, is not `old` (the path in force, set
-/// by the host) and does not lie inside one of the directories ([`inside`]).
-pub fn confine(
-    key: &str,
-    new: Option<&Path>,
-    old: Option<&Path>,
-    (dirs_key, dirs): (&str, &[std::path::PathBuf]),
-) -> Option<ConfigIssue> {
-    let new = new?;
-    if Some(new) == old || inside(new, dirs) {
-        return None;
-    }
-    Some(issue(
-        key,
-        format!(
-            "{} is outside [gateway] {dirs_key} {dirs:?}: a change over the API names this file \
-             there only",
-            new.display()
-        ),
-    ))
-}
-
-/// Whether `path` (resolved: symbolic links and `..` followed; a file that does not exist yet by
-/// its directory) lies inside one of `dirs`.
-pub fn inside(path: &Path, dirs: &[std::path::PathBuf]) -> bool {
-    let resolved = std::fs::canonicalize(path).or_else(|_| {
-        let name = path.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
-        let parent = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p,
-            _ => Path::new("."),
-        };
-        std::fs::canonicalize(parent).map(|dir| dir.join(name))
-    });
-    let Ok(resolved) = resolved else {
-        return false;
-    };
-    dirs.iter().any(|dir| {
-        let dir = std::fs::canonicalize(dir).unwrap_or_else(|_| dir.clone());
-        resolved.starts_with(dir)
-    })
+    cx.issues
 }
 
 fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
@@ -332,294 +173,6 @@ fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
         path: path.to_owned(),
         message: message.into(),
     }
-}
-
-/// `[http.tls]`'s files read and made into TLS settings as `run` makes them at start: a missing,
-/// unreadable or unusable file is an issue at its key, with the path.
-fn http_tls_issues(config: &Config) -> Vec<ConfigIssue> {
-    let Some(tls) = config.http.tls.as_ref() else {
-        return Vec::new();
-    };
-    match crate::api::HttpTls::new(tls) {
-        Ok(_) => Vec::new(),
-        Err(e) => vec![http_tls_issue(&e)],
-    }
-}
-
-/// An `[http.tls]` error as an issue at the key of the file.
-pub(crate) fn http_tls_issue(e: &crate::modbus_tcp::TlsError) -> ConfigIssue {
-    let key = match e {
-        crate::modbus_tcp::TlsError::File { what, .. } => match *what {
-            "certificate" => "http.tls.cert",
-            "private key" => "http.tls.key",
-            _ => "http.tls.ca",
-        },
-        crate::modbus_tcp::TlsError::Settings(_) => "http.tls",
-    };
-    ConfigIssue {
-        path: key.to_owned(),
-        message: format!("HTTPS: {e}"),
-    }
-}
-
-/// Modbus/TCP Security's files read and made into TLS settings as `run` makes them at start
-/// (certificate chain, private key matching it, client CA): a missing, unreadable or unusable
-/// file is an issue at its key, with the path.
-fn tls_issues(config: &Config) -> Vec<ConfigIssue> {
-    let Some(tls) = config.modbus_tcp.tls.as_ref() else {
-        return Vec::new();
-    };
-    match crate::modbus_tcp::TlsServer::new(super::tls::files(tls), super::tls::roles(tls)) {
-        Ok(_) => Vec::new(),
-        Err(e) => {
-            let key = match &e {
-                crate::modbus_tcp::TlsError::File { what, .. } => match *what {
-                    "certificate" => "modbus_tcp.tls.cert",
-                    "private key" => "modbus_tcp.tls.key",
-                    _ => "modbus_tcp.tls.ca",
-                },
-                crate::modbus_tcp::TlsError::Settings(_) => "modbus_tcp.tls",
-            };
-            vec![ConfigIssue {
-                path: key.to_owned(),
-                message: format!("Modbus/TCP Security: {e}"),
-            }]
-        }
-    }
-}
-
-/// The zenoh session's settings as the bridge builds them at start: `config_file` read and
-/// parsed, the section's keys applied on top (an unreadable or invalid file stops `run`).
-fn zenoh_issues(config: &Config) -> Vec<ConfigIssue> {
-    let Some(zenoh) = config.zenoh.as_ref().filter(|z| z.enabled) else {
-        return Vec::new();
-    };
-    match zenoh.to_zenoh() {
-        Ok(_) => Vec::new(),
-        Err(e) => vec![ConfigIssue {
-            path: if zenoh.config_file.is_some() {
-                "zenoh.config_file".to_owned()
-            } else {
-                "zenoh".to_owned()
-            },
-            message: e.to_string(),
-        }],
-    }
-}
-
-/// The persisted CP memory, which `run` loads before the slave lines start: opened as `run`
-/// opens it ([`cpmem::probe_file`]): a directory, a file that is not a CP memory file (no
-/// header: it is never renamed or overwritten), a read-only directory or file system is an
-/// issue at `cp_memory.persist_file`. A missing file is created and removed again. A missing
-/// directory is not refused, as `run` does not refuse it (the memory starts zeroed, and saves
-/// are retried until the directory exists: systemd's `StateDirectory=` makes it when the
-/// service starts); `gateway check` warns about it ([`persist_dir_warnings`]). A REST change
-/// cannot name one (`state_dirs` confines it to existing directories).
-fn cp_memory_issues(config: &Config) -> Vec<ConfigIssue> {
-    let serves_memory = config
-        .lines
-        .values()
-        .any(|l| l.protocol.cp_memory_slave().is_some());
-    let Some(path) = config
-        .cp_memory
-        .persist_file
-        .as_ref()
-        .filter(|_| serves_memory)
-    else {
-        return Vec::new();
-    };
-    if missing_dir(path) {
-        return Vec::new();
-    }
-    match cpmem::probe_file(path) {
-        Ok(()) => Vec::new(),
-        Err(message) => vec![issue("cp_memory.persist_file", message)],
-    }
-}
-
-/// Whether the directory of `path` does not exist (a path under a regular file is not missing:
-/// `run` cannot read it).
-fn missing_dir(path: &Path) -> bool {
-    std::fs::metadata(parent_dir(path)).is_err_and(|e| e.kind() == std::io::ErrorKind::NotFound)
-}
-
-/// The directory a file `path` names lies in (`.` for a bare name).
-fn parent_dir(path: &Path) -> &Path {
-    match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    }
-}
-
-/// `gateway check`'s warning about a CP memory file whose directory does not exist (yet).
-pub(crate) fn persist_dir_warnings(config: &Config) -> Vec<ConfigIssue> {
-    let serves_memory = config
-        .lines
-        .values()
-        .any(|l| l.protocol.cp_memory_slave().is_some());
-    match &config.cp_memory.persist_file {
-        Some(path) if serves_memory && missing_dir(path) => vec![issue(
-            "cp_memory.persist_file",
-            format!(
-                "the directory {} does not exist: the memory starts zeroed and every save fails \
-                 (logged) until it exists (systemd's StateDirectory= makes it when the service \
-                 starts)",
-                parent_dir(path).display()
-            ),
-        )],
-        _ => Vec::new(),
-    }
-}
-
-/// The journals of the telegram lines, each opened as its line opens it at start
-/// ([`crate::mailbox::journal::probe`]): a directory, a file that is not a journal (no header:
-/// never renamed or overwritten), a read-only directory or file system, a missing directory is
-/// an issue at `lines.<line>.journal`; so is a journal that another line or the CP memory file
-/// names too (resolved: links and `..` followed). A journal whose key `refused` names (outside
-/// `state_dirs` in a REST change) is not opened.
-fn journal_issues(config: &Config, refused: &dyn Fn(&str) -> bool) -> Vec<ConfigIssue> {
-    let mut issues = Vec::new();
-    let mut seen: Vec<(String, std::path::PathBuf)> = Vec::new();
-    if let Some(persist) = &config.cp_memory.persist_file {
-        seen.push(("cp_memory.persist_file".to_owned(), resolved(persist)));
-    }
-    for (name, line) in &config.lines {
-        let Some(path) = line.journal() else {
-            continue;
-        };
-        let key = format!("lines.{name}.journal");
-        if refused(&key) {
-            continue;
-        }
-        let here = resolved(path);
-        if let Some((other, _)) = seen.iter().find(|(_, p)| *p == here) {
-            issues.push(issue(
-                &key,
-                format!(
-                    "{} is the file {other} names too: every line needs its own journal, apart \
-                     from the CP memory file",
-                    path.display()
-                ),
-            ));
-            continue;
-        }
-        seen.push((key.clone(), here));
-        if let Err(message) = crate::mailbox::journal::probe(path) {
-            issues.push(issue(&key, message));
-        }
-    }
-    issues
-}
-
-/// `path` resolved as [`inside`] resolves it (links and `..` followed; a file that does not
-/// exist by its directory), or as given when its directory does not exist either.
-pub(crate) fn resolved(path: &Path) -> std::path::PathBuf {
-    std::fs::canonicalize(path)
-        .or_else(|_| {
-            let name = path.file_name().ok_or(std::io::ErrorKind::InvalidInput)?;
-            let parent = match path.parent() {
-                Some(p) if !p.as_os_str().is_empty() => p,
-                _ => Path::new("."),
-            };
-            std::fs::canonicalize(parent).map(|dir| dir.join(name))
-        })
-        .unwrap_or_else(|_| path.to_owned())
-}
-
-/// The token of `[http]` as run reads it, with `env` for the process environment: the first
-/// problem only (what `run` stops on); [`all_token_issues`] finds every one.
-pub(crate) fn token_issues(
-    http: &HttpConfig,
-    env: impl Fn(&str) -> Option<String>,
-) -> Vec<ConfigIssue> {
-    match Auth::from_config_with(http, env) {
-        Ok(_) => Vec::new(),
-        Err(e) => vec![token_issue(http, &e)],
-    }
-}
-
-/// Every token of `[http]` read as run reads it, each on its own, so that every file or
-/// variable that cannot be had is an issue at its key; then, when all could be read, whether
-/// two are alike. A token whose key `refused` names (a file outside its directories) is not read.
-pub(crate) fn all_token_issues(
-    http: &HttpConfig,
-    env: impl Fn(&str) -> Option<String>,
-    refused: &dyn Fn(&str) -> bool,
-) -> Vec<ConfigIssue> {
-    let key = |source: &TokenSource| match source {
-        TokenSource::File(_) => "token_file",
-        TokenSource::Env(_) => "token_env",
-    };
-    let mut issues = Vec::new();
-    let mut skipped = false;
-    // One source at a time, as the default token of an otherwise empty section.
-    let alone = |source: TokenSource| HttpConfig {
-        token_file: match &source {
-            TokenSource::File(p) => Some(p.clone()),
-            TokenSource::Env(_) => None,
-        },
-        token_env: match source {
-            TokenSource::Env(n) => Some(n),
-            TokenSource::File(_) => None,
-        },
-        ..HttpConfig::default()
-    };
-    let sources = http.token_source().map(|s| (None, s)).into_iter().chain(
-        http.tokens
-            .iter()
-            .filter_map(|(name, t)| Some((Some(name.as_str()), t.source()?))),
-    );
-    for (name, source) in sources {
-        let path = match name {
-            None => format!("http.{}", key(&source)),
-            Some(name) => format!("http.tokens.{name}.{}", key(&source)),
-        };
-        if refused(&path) {
-            skipped = true;
-            continue;
-        }
-        if let Err(e) = Auth::from_config_with(&alone(source), &env) {
-            issues.push(ConfigIssue {
-                path,
-                message: match name {
-                    None => e.to_string(),
-                    Some(name) => format!("token {name}: {e}"),
-                },
-            });
-        }
-    }
-    if issues.is_empty() && !skipped {
-        issues.extend(token_issues(http, env));
-    }
-    issues
-}
-
-/// A token error as an issue at the key that names the token's source.
-pub(crate) fn token_issue(http: &HttpConfig, e: &TokenError) -> ConfigIssue {
-    let path = match e {
-        TokenError::Named { name, .. } => {
-            let key = match http.tokens.get(name).and_then(|t| t.source()) {
-                Some(TokenSource::Env(_)) => "token_env",
-                _ => "token_file",
-            };
-            format!("http.tokens.{name}.{key}")
-        }
-        TokenError::Duplicate(..) => "http.tokens".to_owned(),
-        _ => match http.token_source() {
-            Some(TokenSource::Env(_)) => "http.token_env".to_owned(),
-            _ => "http.token_file".to_owned(),
-        },
-    };
-    ConfigIssue {
-        path,
-        message: e.to_string(),
-    }
-}
-
-/// What a port that does not exist is called, by `gateway check` (a warning) and by a change
-/// over the REST API (refused): the same words.
-pub(crate) fn no_such_port(port: &str) -> String {
-    format!("no such serial port {port}")
 }
 
 /// What to set instead when a port's driver refuses RS485 mode.
@@ -1163,81 +716,9 @@ mod tests {
 }
 
 #[cfg(test)]
-mod token_tests {
+mod tls_tests {
     use super::*;
-
-    #[test]
-    fn modbus_tcp_security_files_are_loaded_as_run_loads_them() {
-        let dir = tempfile::tempdir().unwrap();
-        let ca_key = rcgen::KeyPair::generate().unwrap();
-        let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
-        ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
-        let ca = ca_params.self_signed(&ca_key).unwrap();
-        let key = rcgen::KeyPair::generate().unwrap();
-        let cert = rcgen::CertificateParams::new(vec!["localhost".to_owned()])
-            .unwrap()
-            .self_signed(&key)
-            .unwrap();
-        let path = |name: &str| dir.path().join(name);
-        std::fs::write(path("ca.crt"), ca.pem()).unwrap();
-        std::fs::write(path("server.crt"), cert.pem()).unwrap();
-        std::fs::write(path("server.key"), key.serialize_pem()).unwrap();
-        std::fs::write(path("empty.crt"), "").unwrap();
-        let config = |cert: &str, key: &str, ca: &str| {
-            config::parse(&format!(
-                "[modbus_tcp.tls]\ncert = \"{}\"\nkey = \"{}\"\nca = \"{}\"\n",
-                path(cert).display(),
-                path(key).display(),
-                path(ca).display()
-            ))
-            .expect("parses")
-        };
-        assert_eq!(
-            tls_issues(&config("server.crt", "server.key", "ca.crt")),
-            Vec::<ConfigIssue>::new()
-        );
-        for (c, k, a, at, file) in [
-            (
-                "absent.crt",
-                "server.key",
-                "ca.crt",
-                "modbus_tcp.tls.cert",
-                "absent.crt",
-            ),
-            (
-                "server.crt",
-                "absent.key",
-                "ca.crt",
-                "modbus_tcp.tls.key",
-                "absent.key",
-            ),
-            (
-                "server.crt",
-                "server.key",
-                "absent.crt",
-                "modbus_tcp.tls.ca",
-                "absent.crt",
-            ),
-            (
-                "server.crt",
-                "server.key",
-                "empty.crt",
-                "modbus_tcp.tls.ca",
-                "empty.crt",
-            ),
-        ] {
-            let issues = tls_issues(&config(c, k, a));
-            assert_eq!(issues.len(), 1, "{issues:?}");
-            assert_eq!(issues[0].path, at);
-            assert!(issues[0].message.contains(file), "{}", issues[0].message);
-        }
-        // run refuses the same before a port opens.
-        let issues = run_issues(&config("server.crt", "absent.key", "ca.crt"));
-        assert!(
-            issues.iter().any(|i| i.path == "modbus_tcp.tls.key"),
-            "{issues:?}"
-        );
-    }
+    use crate::api::tls::http_tls_issues;
 
     #[test]
     fn https_files_are_loaded_as_run_loads_them() {
@@ -1290,58 +771,6 @@ mod token_tests {
             assert_eq!(issues.len(), 1, "{issues:?}");
             assert_eq!(issues[0].path, at, "{issues:?}");
         }
-    }
-
-    #[test]
-    fn a_named_token_that_cannot_be_read_is_an_issue_at_its_key() {
-        let http = config::parse(
-            "[http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"OPS\"\n\
-             [http.tokens.eng]\nrole = \"admin\"\ntoken_file = \"/nonexistent/eng.token\"\n",
-        )
-        .expect("parses")
-        .http;
-        let issues = token_issues(&http, |_| Some("ops-token-0123456789".to_owned()));
-        assert_eq!(issues.len(), 1, "{issues:?}");
-        assert_eq!(issues[0].path, "http.tokens.eng.token_file");
-        assert!(
-            issues[0].message.contains("/nonexistent/eng.token"),
-            "{}",
-            issues[0].message
-        );
-        let issues = token_issues(&http, |_| None);
-        assert_eq!(issues[0].path, "http.tokens.eng.token_file");
-    }
-}
-
-#[cfg(test)]
-mod path_tests {
-    use super::*;
-    use std::path::Path;
-
-    #[test]
-    fn paths_are_resolved_before_they_are_compared() {
-        let dir = tempfile::tempdir().expect("temp dir");
-        let state = dir.path().join("state");
-        std::fs::create_dir(&state).expect("mkdir");
-        let dirs = [state.clone()];
-        assert!(
-            inside(&state.join("cp.bin"), &dirs),
-            "a new file in the directory"
-        );
-        assert!(!inside(&state.join("../cp.bin"), &dirs), "`..` out of it");
-        assert!(!inside(Path::new("/etc/passwd"), &dirs));
-        assert!(
-            !inside(&state.join("missing/cp.bin"), &dirs),
-            "no such directory"
-        );
-        // A link inside pointing outside is outside.
-        let link = state.join("escape");
-        std::os::unix::fs::symlink("/etc", &link).expect("symlink");
-        assert!(!inside(&link.join("passwd"), &dirs));
-        assert!(inside(
-            Path::new("/dev/null"),
-            &[std::path::PathBuf::from("/dev")]
-        ));
     }
 }
 
@@ -1479,41 +908,6 @@ mod api_path_tests {
         let issues = api_path_issues(&wider, &in_force);
         assert_eq!(issues.len(), 1);
         assert_eq!(issues[0].path, "gateway.config_dirs");
-    }
-
-    #[test]
-    fn every_token_problem_is_reported_at_its_key() {
-        let http = config::parse(
-            "[http]\ntoken_file = \"/nonexistent/admin.token\"\n\
-             [http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"OPS\"\n\
-             [http.tokens.hmi]\nrole = \"viewer\"\ntoken_env = \"HMI\"\n",
-        )
-        .expect("parses")
-        .http;
-        let issues = all_token_issues(&http, |_| None, &|_| false);
-        let paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
-        assert_eq!(
-            paths,
-            [
-                "http.token_file",
-                "http.tokens.hmi.token_env",
-                "http.tokens.ops.token_env"
-            ],
-            "{issues:#?}"
-        );
-        assert_eq!(
-            issues[2].message,
-            "token ops: the API token variable OPS is not set"
-        );
-        // All readable, two alike: one issue at http.tokens.
-        let http = config::parse(
-            "[http]\ntoken_env = \"A\"\n[http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"B\"\n",
-        )
-        .expect("parses")
-        .http;
-        let issues = all_token_issues(&http, |_| Some("same-token-0123456789".into()), &|_| false);
-        assert_eq!(issues.len(), 1, "{issues:#?}");
-        assert_eq!(issues[0].path, "http.tokens");
     }
 }
 

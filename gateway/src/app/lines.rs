@@ -11,7 +11,8 @@ use tokio_util::sync::CancellationToken;
 
 use super::AppError;
 use super::Metrics;
-use crate::config::{Config, LineConfig, ProtocolConfig};
+use crate::config::check::{Check, Start};
+use crate::config::{Config, Cx, LineConfig, ProtocolConfig};
 use crate::cpmem::{self, SharedCpMemory};
 use crate::feeds::gateway::RunningLine;
 use crate::image::ProcessImage;
@@ -89,17 +90,19 @@ pub(crate) fn start_line(
     })
 }
 
-/// The checks of [`start_line`] that need no task: what would make a line of `config` fail to
-/// start, each with its path.
-pub(crate) fn start_issues(
-    config: &Config,
-    layout: Option<&proto_core::cpmem::MemoryLayout>,
-) -> Vec<crate::config::ConfigIssue> {
-    config
-        .lines
-        .iter()
-        .flat_map(|(name, line)| protocol(&line.protocol).start_issues(name, line, layout))
-        .collect()
+/// The checks of [`start_line`] that need no task: what would make a line of the configuration
+/// fail to start, asked of each line's section ([`StartLine::start_issues`]) with the CP memory
+/// layout the slave lines need.
+pub(crate) struct LineStarts;
+
+impl Check<Start<'_>> for LineStarts {
+    fn check(&self, start: &Start<'_>, cx: &mut Cx) {
+        let layout = slave_layout(start.config);
+        for (name, line) in &start.config.lines {
+            let issues = protocol(&line.protocol).start_issues(name, line, layout.as_ref());
+            cx.issues.extend(issues);
+        }
+    }
 }
 
 /// The CP memory layout the slave lines of `config` need; `None` without slave lines.

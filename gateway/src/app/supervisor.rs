@@ -469,7 +469,7 @@ fn unit_map(
 /// the journal of another line in force (two numberings would mix) and must hold no telegrams
 /// of an earlier use. A line the change adds restores its journal as a start does.
 fn changed_journal_issues(new: &Config, in_force: &Config) -> Vec<ConfigIssue> {
-    use super::check::resolved;
+    use crate::config::check::resolved;
     let mut issues = Vec::new();
     for (name, line) in &new.lines {
         let (Some(path), Some(before)) = (line.journal(), in_force.lines.get(name)) else {

@@ -3,6 +3,7 @@
 //! change without dropping the clients that are connected.
 
 use std::net::SocketAddr;
+use std::path::Path;
 use std::sync::Arc;
 
 use tokio::sync::watch;
@@ -13,7 +14,11 @@ use tracing::{info, warn};
 use super::build::unit_write_ranges;
 use super::reload_notice::Reload;
 use super::{server_options, AppError};
-use crate::config::{FunctionClassConfig, ModbusTcpConfig, ModbusTlsConfig};
+use crate::api::tls::tls_issue;
+use crate::config::check::{ApiChange, Check, Start};
+use crate::config::{
+    Config, ConfigIssue, Cx, FunctionClassConfig, ModbusTcpConfig, ModbusTlsConfig,
+};
 use crate::modbus_tcp::{self, LiveOptions, RoleRights, Roles, ServerStats, TlsFiles, TlsServer};
 use crate::unit::SharedUnits;
 
@@ -182,4 +187,132 @@ pub(crate) fn spawn_reloader<E: std::fmt::Display>(
             }
         }
     });
+}
+
+/// Modbus/TCP Security's files: at start read and made into TLS settings as `run` makes them
+/// (certificate chain, private key matching it, client CA: a missing, unreadable or unusable
+/// file is an issue at its key, with the path); through the REST API each confined to
+/// `[gateway] config_dirs`.
+pub(crate) struct ModbusTlsFiles;
+
+/// The keys of the Modbus/TCP Security files.
+const TLS_KEYS: [&str; 3] = [
+    "modbus_tcp.tls.cert",
+    "modbus_tcp.tls.key",
+    "modbus_tcp.tls.ca",
+];
+
+impl Check<Start<'_>> for ModbusTlsFiles {
+    fn check(&self, start: &Start<'_>, cx: &mut Cx) {
+        if !TLS_KEYS.iter().any(|k| start.refused(k)) {
+            cx.issues.extend(tls_issues(start.config));
+        }
+    }
+}
+
+impl Check<ApiChange<'_>> for ModbusTlsFiles {
+    fn check(&self, change: &ApiChange<'_>, cx: &mut Cx) {
+        let new = change.new.modbus_tcp.tls.as_ref();
+        let old = change.in_force.modbus_tcp.tls.as_ref();
+        let files: [fn(&ModbusTlsConfig) -> &Path; 3] = [|t| &t.cert, |t| &t.key, |t| &t.ca];
+        for (key, file) in TLS_KEYS.iter().zip(files) {
+            change.config_file(cx, key, new.map(file), old.map(file));
+        }
+    }
+}
+
+/// Modbus/TCP Security's files read and made into TLS settings as `run` makes them at start.
+fn tls_issues(config: &Config) -> Vec<ConfigIssue> {
+    let Some(tls) = config.modbus_tcp.tls.as_ref() else {
+        return Vec::new();
+    };
+    match TlsServer::new(files(tls), roles(tls)) {
+        Ok(_) => Vec::new(),
+        Err(e) => vec![tls_issue(
+            &e,
+            "Modbus/TCP Security",
+            "modbus_tcp.tls",
+            TLS_KEYS,
+        )],
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::check::run_issues;
+    use super::*;
+    use crate::config;
+
+    #[test]
+    fn modbus_tcp_security_files_are_loaded_as_run_loads_them() {
+        let dir = tempfile::tempdir().unwrap();
+        let ca_key = rcgen::KeyPair::generate().unwrap();
+        let mut ca_params = rcgen::CertificateParams::new(Vec::<String>::new()).unwrap();
+        ca_params.is_ca = rcgen::IsCa::Ca(rcgen::BasicConstraints::Unconstrained);
+        let ca = ca_params.self_signed(&ca_key).unwrap();
+        let key = rcgen::KeyPair::generate().unwrap();
+        let cert = rcgen::CertificateParams::new(vec!["localhost".to_owned()])
+            .unwrap()
+            .self_signed(&key)
+            .unwrap();
+        let path = |name: &str| dir.path().join(name);
+        std::fs::write(path("ca.crt"), ca.pem()).unwrap();
+        std::fs::write(path("server.crt"), cert.pem()).unwrap();
+        std::fs::write(path("server.key"), key.serialize_pem()).unwrap();
+        std::fs::write(path("empty.crt"), "").unwrap();
+        let config = |cert: &str, key: &str, ca: &str| {
+            config::parse(&format!(
+                "[modbus_tcp.tls]\ncert = \"{}\"\nkey = \"{}\"\nca = \"{}\"\n",
+                path(cert).display(),
+                path(key).display(),
+                path(ca).display()
+            ))
+            .expect("parses")
+        };
+        assert_eq!(
+            tls_issues(&config("server.crt", "server.key", "ca.crt")),
+            Vec::<ConfigIssue>::new()
+        );
+        for (c, k, a, at, file) in [
+            (
+                "absent.crt",
+                "server.key",
+                "ca.crt",
+                "modbus_tcp.tls.cert",
+                "absent.crt",
+            ),
+            (
+                "server.crt",
+                "absent.key",
+                "ca.crt",
+                "modbus_tcp.tls.key",
+                "absent.key",
+            ),
+            (
+                "server.crt",
+                "server.key",
+                "absent.crt",
+                "modbus_tcp.tls.ca",
+                "absent.crt",
+            ),
+            (
+                "server.crt",
+                "server.key",
+                "empty.crt",
+                "modbus_tcp.tls.ca",
+                "empty.crt",
+            ),
+        ] {
+            let issues = tls_issues(&config(c, k, a));
+            assert_eq!(issues.len(), 1, "{issues:?}");
+            assert_eq!(issues[0].path, at);
+            assert!(issues[0].message.contains(file), "{}", issues[0].message);
+        }
+        // run refuses the same before a port opens.
+        let issues = run_issues(&config("server.crt", "absent.key", "ca.crt"));
+        assert!(
+            issues.iter().any(|i| i.path == "modbus_tcp.tls.key"),
+            "{issues:?}"
+        );
+    }
 }

@@ -2,6 +2,8 @@
 //! poll groups. The profiles themselves, their limits and tags are proto-core's
 //! (`proto_core::profiles::registry`); the config names them and may only lower the limits.
 
+mod check;
+
 use std::time::Duration;
 
 use proto_core::modbus::Table;
@@ -11,6 +13,7 @@ use proto_core::profiles::{
 };
 use serde::{Deserialize, Serialize};
 
+use super::check::{needs, Needs};
 use super::reader::{check_name, int_value, string_value, Cx, Fields};
 use super::tag::{read_range, read_tag, AddressRange, ModbusTable, TagConfig};
 
@@ -611,6 +614,14 @@ fn written_against(whole: toml::Table, base: &toml::Table) -> toml::Table {
     }
     out
 }
+
+/// The communication scanner's settings, read only when it runs, with their defaults (above):
+/// the rules by which `validate::ignored_keys` finds them without effect in a file.
+pub(super) const SCANNER_NEEDS: &[Needs] = &[
+    needs("inputs", Some("2"), "enabled", &["true"], "false"),
+    needs("outputs", Some("2"), "enabled", &["true"], "false"),
+    needs("period", Some("100ms"), "enabled", &["true"], "false"),
+];
 
 #[cfg(test)]
 mod tests {

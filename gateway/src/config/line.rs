@@ -2,14 +2,16 @@
 //! flat TOML table `[lines.<name>]` (003 6.1: the CP runs one protocol driver per interface).
 
 use std::collections::BTreeMap;
+use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use super::check::{inside, ApiChange, Check};
 use super::device::DeviceConfig;
 use super::modbus::{ModbusMasterAsciiConfig, ModbusMasterRtuConfig, ModbusSlaveRtuConfig};
 use super::reader::{check_name, Cx, Fields};
 use super::section::{AckConfig, ProtocolSection};
-use super::serial::{Baud, SerialConfig, DEFAULT_BAUD};
+use super::serial::{no_such_port, Baud, SerialConfig, DEFAULT_BAUD, PTY_PREFIX};
 use super::tap::{ModbusRtuTapConfig, Proc3964TapConfig};
 use super::telegram::{AsciiConfig, Proc3964Config};
 
@@ -213,7 +215,7 @@ impl LineConfig {
     }
 
     /// The `journal` of a telegram line, if set.
-    pub fn journal(&self) -> Option<&std::path::Path> {
+    pub fn journal(&self) -> Option<&Path> {
         self.protocol.section().telegrams().and_then(|t| t.journal)
     }
 
@@ -261,4 +263,52 @@ pub fn ack_mode(config: &super::Config, line: &LineConfig) -> AckConfig {
         } else {
             AckConfig::Explicit
         })
+}
+
+/// The serial ports a REST change names (`port`, `port_b`): a port that exists, not a demo
+/// `pty:`, under `[gateway] port_dirs`.
+pub(crate) struct SerialPorts;
+
+impl Check<ApiChange<'_>> for SerialPorts {
+    fn check(&self, change: &ApiChange<'_>, cx: &mut Cx) {
+        let dirs = &change.in_force.gateway.port_dirs;
+        for (name, line) in &change.new.lines {
+            let old = change.in_force.lines.get(name);
+            let ports = [
+                (
+                    "port",
+                    Some(line.serial.port.as_str()),
+                    old.map(|o| o.serial.port.as_str()),
+                ),
+                (
+                    "port_b",
+                    line.second_port(),
+                    old.and_then(|o| o.second_port()),
+                ),
+            ];
+            for (key, port, old_port) in ports {
+                let Some(port) = port.filter(|p| !p.is_empty() && Some(*p) != old_port) else {
+                    continue;
+                };
+                let path = format!("lines.{name}.{key}");
+                if port.starts_with(PTY_PREFIX) {
+                    cx.issue(
+                        path,
+                        "a pty: port is created by `gateway demo` at start only; name an \
+                         existing port",
+                    );
+                } else if !Path::new(port).exists() {
+                    cx.issue(path, no_such_port(port));
+                } else if !inside(Path::new(port), dirs) {
+                    cx.issue(
+                        path,
+                        format!(
+                            "{port} is outside [gateway] port_dirs {dirs:?}: a change over the \
+                             API names serial ports there only"
+                        ),
+                    );
+                }
+            }
+        }
+    }
 }

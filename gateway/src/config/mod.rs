@@ -42,10 +42,14 @@
 //! deserializing a [`Config`], [`HttpConfig`] or [`ZenohConfig`] with serde goes through the same
 //! reader.
 //!
+//! Every check that spans keys or opens a file a configuration names implements one trait,
+//! [`check::Check`], next to what it checks; the reader walks the lines' sections and devices
+//! (`validate`), the app collects the start and path checks (`app::check::start_issues`).
 //! Checks that need another part of the gateway (whether the CP memory can serve a slave line
-//! exactly) are the app's: it passes them as a [`Check`] to [`load_with`], [`parse_with`] or
+//! exactly) are the app's: it passes them as an [`ExtraCheck`] to [`load_with`], [`parse_with`] or
 //! [`Config::from_table_with`], and their issues come in the same answer as the reader's.
 
+pub(crate) mod check;
 mod cpmem;
 mod device;
 mod http;
@@ -83,7 +87,9 @@ pub use template::DEVICE_ONLY_KEYS as TEMPLATE_DEVICE_ONLY_KEYS;
 // `self::`: the module, not the zenoh crate.
 pub use self::zenoh::*;
 
-use reader::{check_name, Cx, Fields};
+pub(crate) use reader::Cx;
+use reader::{check_name, Fields};
+pub(crate) use template::TemplateDirs;
 
 /// `[gateway] name`: used as the zenoh prefix `gw/<name>` and in logs.
 pub const DEFAULT_GATEWAY_NAME: &str = "gateway";
@@ -244,14 +250,17 @@ impl Config {
     }
 
     /// A parsed `toml::Table` as a config, with `check`'s issues in the same answer.
-    pub fn from_table_with(table: &toml::Table, check: Check<'_>) -> Result<Self, ConfigErrors> {
+    pub fn from_table_with(
+        table: &toml::Table,
+        check: ExtraCheck<'_>,
+    ) -> Result<Self, ConfigErrors> {
         Self::from_table_in(table, check, BASE_DIR.get().cloned())
     }
 
     /// [`Self::from_table_with`], relative template directories taken from `base_dir`.
     fn from_table_in(
         table: &toml::Table,
-        check: Check<'_>,
+        check: ExtraCheck<'_>,
         base_dir: Option<PathBuf>,
     ) -> Result<Self, ConfigErrors> {
         let mut cx = Cx {
@@ -370,9 +379,9 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
 /// [`Config::from_table_with`]; they run on the config as read (a bad value replaced by its
 /// default) after the reader's own rules, which found the issues given as second argument, and
 /// their issues are reported with those in one answer.
-pub type Check<'a> = &'a dyn Fn(&Config, &[ConfigIssue]) -> Vec<ConfigIssue>;
+pub type ExtraCheck<'a> = &'a dyn Fn(&Config, &[ConfigIssue]) -> Vec<ConfigIssue>;
 
-/// The [`Check`] that finds nothing.
+/// The [`ExtraCheck`] that finds nothing.
 pub fn no_check(_: &Config, _: &[ConfigIssue]) -> Vec<ConfigIssue> {
     Vec::new()
 }
@@ -403,7 +412,7 @@ pub fn parse(text: &str) -> Result<Config, ConfigErrors> {
 }
 
 /// Parses and validates a configuration, with `check`'s issues in the same answer.
-pub fn parse_with(text: &str, check: Check<'_>) -> Result<Config, ConfigErrors> {
+pub fn parse_with(text: &str, check: ExtraCheck<'_>) -> Result<Config, ConfigErrors> {
     let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
         issues: vec![ConfigIssue {
             path: String::new(),
@@ -416,7 +425,7 @@ pub fn parse_with(text: &str, check: Check<'_>) -> Result<Config, ConfigErrors> 
 /// Parses and validates a configuration's text as if it were read from a file in `dir` (relative
 /// `template_dirs` are taken from there), with `check`'s issues in the same answer: a file's new
 /// text checked before it is written.
-pub fn parse_in(text: &str, check: Check<'_>, dir: &Path) -> Result<Config, ConfigErrors> {
+pub fn parse_in(text: &str, check: ExtraCheck<'_>, dir: &Path) -> Result<Config, ConfigErrors> {
     let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
         issues: vec![ConfigIssue {
             path: String::new(),
@@ -435,7 +444,7 @@ pub fn load(path: &Path) -> Result<Config, ConfigErrors> {
 /// same answer. Relative `template_dirs` are taken from the file's directory; the first file a
 /// process loads also gives that directory to the configurations it later reads from text (a
 /// change over the REST API, the text `GET /config` shows).
-pub fn load_with(path: &Path, check: Check<'_>) -> Result<Config, ConfigErrors> {
+pub fn load_with(path: &Path, check: ExtraCheck<'_>) -> Result<Config, ConfigErrors> {
     let text = std::fs::read_to_string(path).map_err(|e| ConfigErrors {
         issues: vec![ConfigIssue {
             path: String::new(),

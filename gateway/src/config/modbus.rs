@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
+use super::check::{Check, Line};
 use super::device::DeviceConfig;
 use super::reader::{check_name, Cx, Fields};
 use super::section::ProtocolSection;
@@ -480,11 +481,13 @@ impl ModbusTable {
 
 // === impl ProtocolSection for the Modbus lines ===
 
-impl ProtocolSection for ModbusMasterRtuConfig {
-    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
-        check_rtu_data_bits(cx, path, serial);
+impl Check<Line<'_>> for ModbusMasterRtuConfig {
+    fn check(&self, line: &Line<'_>, cx: &mut Cx) {
+        check_rtu_data_bits(cx, line.path, line.serial);
     }
+}
 
+impl ProtocolSection for ModbusMasterRtuConfig {
     fn transparent_units(&self) -> Option<std::ops::RangeInclusive<u8>> {
         self.transparent.range()
     }
@@ -497,6 +500,8 @@ impl ProtocolSection for ModbusMasterRtuConfig {
         Some(&mut self.devices)
     }
 }
+
+impl Check<Line<'_>> for ModbusMasterAsciiConfig {}
 
 impl ProtocolSection for ModbusMasterAsciiConfig {
     fn transparent_units(&self) -> Option<std::ops::RangeInclusive<u8>> {
@@ -512,12 +517,14 @@ impl ProtocolSection for ModbusMasterAsciiConfig {
     }
 }
 
-impl ProtocolSection for ModbusSlaveRtuConfig {
-    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
-        check_rtu_data_bits(cx, path, serial);
-        check_slave(cx, path, self);
+impl Check<Line<'_>> for ModbusSlaveRtuConfig {
+    fn check(&self, line: &Line<'_>, cx: &mut Cx) {
+        check_rtu_data_bits(cx, line.path, line.serial);
+        check_slave(cx, line.path, self);
     }
+}
 
+impl ProtocolSection for ModbusSlaveRtuConfig {
     fn unit_id(&self) -> Option<u8> {
         self.unit_id
     }

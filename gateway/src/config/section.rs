@@ -8,19 +8,16 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
+use super::check::{Check, Line};
 use super::device::DeviceConfig;
-use super::reader::Cx;
-use super::serial::SerialConfig;
 
 /// What a protocol's config section tells the rest of the configuration about its line. Each
 /// section implements it in its own file (`config/modbus.rs`, `config/tap.rs`,
 /// `config/telegram.rs`); the `section` method of [`super::ProtocolConfig`] is the one place
-/// that lists them. Every answer has the default of a line without that part.
-pub(crate) trait ProtocolSection {
-    /// The section's checks that span keys or need the serial settings (timing minimums by baud
-    /// rate, the protocol against the interface), each issue under `path` (`lines.<name>`).
-    fn check(&self, _cx: &mut Cx, _path: &str, _serial: &SerialConfig) {}
-
+/// that lists them. Every answer has the default of a line without that part. Its checks that
+/// span keys or need the serial settings (timing minimums by baud rate, the protocol against the
+/// interface) are its [`Check`] in the [`Line`] scope, in the same file.
+pub(crate) trait ProtocolSection: for<'a> Check<Line<'a>> {
     /// The devices the line polls or listens to.
     fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
         None

@@ -356,6 +356,12 @@ fn read_rs485(cx: &mut Cx, mut f: Fields<'_>) -> Rs485Config {
     c
 }
 
+/// What a port that does not exist is called, by `gateway check` (a warning) and by a change
+/// over the REST API (refused): the same words.
+pub(crate) fn no_such_port(port: &str) -> String {
+    format!("no such serial port {port}")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

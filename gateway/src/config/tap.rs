@@ -10,13 +10,13 @@ use std::time::Duration;
 
 use serde::Serialize;
 
+use super::check::{Check, Line};
 use super::device::DeviceConfig;
 use super::modbus::{
     check_rtu_data_bits, read_devices, DEFAULT_DELAY_MULTIPLIER, MAX_DELAY_MULTIPLIER,
 };
 use super::reader::{Cx, Fields};
 use super::section::ProtocolSection;
-use super::serial::SerialConfig;
 use super::telegram::{check_3964_link, mailbox_unit_id, Link3964};
 
 /// How long a request waits for its answer by default (see `proto_core::modbus::tap`).
@@ -129,12 +129,14 @@ impl Proc3964TapConfig {
 
 // === impl ProtocolSection for the tap lines ===
 
-impl ProtocolSection for ModbusRtuTapConfig {
-    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
-        check_rtu_data_bits(cx, path, serial);
-        check_tap(cx, path, self);
+impl Check<Line<'_>> for ModbusRtuTapConfig {
+    fn check(&self, line: &Line<'_>, cx: &mut Cx) {
+        check_rtu_data_bits(cx, line.path, line.serial);
+        check_tap(cx, line.path, self);
     }
+}
 
+impl ProtocolSection for ModbusRtuTapConfig {
     fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
         Some(&self.devices)
     }
@@ -164,11 +166,18 @@ fn check_tap(cx: &mut Cx, path: &str, tap: &ModbusRtuTapConfig) {
     }
 }
 
-impl ProtocolSection for Proc3964TapConfig {
-    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
-        check_3964_link(cx, path, serial, (self.character_delay, self.ack_delay));
+impl Check<Line<'_>> for Proc3964TapConfig {
+    fn check(&self, line: &Line<'_>, cx: &mut Cx) {
+        check_3964_link(
+            cx,
+            line.path,
+            line.serial,
+            (self.character_delay, self.ack_delay),
+        );
     }
+}
 
+impl ProtocolSection for Proc3964TapConfig {
     fn second_port(&self) -> Option<&str> {
         Some(&self.port_b)
     }

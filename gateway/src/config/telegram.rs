@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use serde::{Deserialize, Serialize};
 
+use super::check::{needs, Check, Line, Needs};
 use super::reader::{int_value, show_duration, Cx, Fields};
 use super::section::{AckConfig, ProtocolSection, TelegramKeys};
 use super::serial::{Baud, Interface, SerialConfig};
@@ -456,11 +457,18 @@ impl AsciiConfig {
 
 // === impl ProtocolSection for the telegram lines ===
 
-impl ProtocolSection for Proc3964Config {
-    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
-        check_3964_link(cx, path, serial, (self.character_delay, self.ack_delay));
+impl Check<Line<'_>> for Proc3964Config {
+    fn check(&self, line: &Line<'_>, cx: &mut Cx) {
+        check_3964_link(
+            cx,
+            line.path,
+            line.serial,
+            (self.character_delay, self.ack_delay),
+        );
     }
+}
 
+impl ProtocolSection for Proc3964Config {
     fn unit_id(&self) -> Option<u8> {
         self.unit_id
     }
@@ -474,11 +482,13 @@ impl ProtocolSection for Proc3964Config {
     }
 }
 
-impl ProtocolSection for AsciiConfig {
-    fn check(&self, cx: &mut Cx, path: &str, serial: &SerialConfig) {
-        check_ascii(cx, path, serial, self);
+impl Check<Line<'_>> for AsciiConfig {
+    fn check(&self, line: &Line<'_>, cx: &mut Cx) {
+        check_ascii(cx, line.path, line.serial, self);
     }
+}
 
+impl ProtocolSection for AsciiConfig {
     fn unit_id(&self) -> Option<u8> {
         self.unit_id
     }
@@ -593,6 +603,61 @@ fn check_ascii(cx: &mut Cx, path: &str, serial: &SerialConfig, a: &AsciiConfig) 
         );
     }
 }
+
+/// An ASCII line's keys that only one end criterion or flow control reads (003 6.2.1; the V24
+/// times 000 6.2.1), with their defaults (above): the rules by which `validate::ignored_keys`
+/// finds them without effect in a file.
+pub(super) const ASCII_NEEDS: &[Needs] = &[
+    needs(
+        "end_chars",
+        None,
+        "end_criterion",
+        &["end-chars"],
+        "char-delay",
+    ),
+    needs(
+        "fixed_length",
+        Some("240"),
+        "end_criterion",
+        &["fixed-length"],
+        "char-delay",
+    ),
+    needs(
+        "xon_code",
+        Some("17"),
+        "flow_control",
+        &["xon-xoff"],
+        "none",
+    ),
+    needs(
+        "xoff_code",
+        Some("19"),
+        "flow_control",
+        &["xon-xoff"],
+        "none",
+    ),
+    needs(
+        "xon_wait",
+        Some("20s"),
+        "flow_control",
+        &["xon-xoff", "rts-cts"],
+        "none",
+    ),
+    needs(
+        "rts_hold_time",
+        Some("10ms"),
+        "flow_control",
+        &["auto-v24"],
+        "none",
+    ),
+    needs(
+        "data_output_wait",
+        Some("10ms"),
+        "flow_control",
+        &["auto-v24"],
+        "none",
+    ),
+];
 
 #[cfg(test)]
 mod tests {

@@ -23,6 +23,7 @@ use std::sync::Arc;
 
 use toml::Value;
 
+use super::check::{ApiChange, Check};
 use super::device::DeviceConfig;
 use super::reader::{check_name, join, kind, string_value, Cx, Relocation};
 
@@ -310,6 +311,23 @@ fn base(found: &Found) -> Option<toml::Table> {
         return None;
     }
     device.written_whole().ok()
+}
+
+/// The template directories a REST change adds: templates are read like the files of
+/// settings, so each is confined to `[gateway] config_dirs`.
+pub(crate) struct TemplateDirs;
+
+impl Check<ApiChange<'_>> for TemplateDirs {
+    fn check(&self, change: &ApiChange<'_>, cx: &mut Cx) {
+        let known = &change.in_force.gateway.template_dirs;
+        for (i, dir) in change.new.gateway.template_dirs.iter().enumerate() {
+            if !known.contains(dir) {
+                let key = format!("gateway.template_dirs[{i}]");
+                let resolved = super::template_dir_resolved(dir);
+                change.config_file(cx, &key, Some(&resolved), None);
+            }
+        }
+    }
 }
 
 #[cfg(test)]

@@ -2,12 +2,13 @@
 //! minimums by baud rate, references between tags and poll groups). Every problem is reported;
 //! nothing stops at the first one.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 
-use super::device::DeviceConfig;
+use super::check::{Check, Device, Line, Needs};
+use super::device::SCANNER_NEEDS;
 use super::line::LineConfig;
-use super::reader::{serde_name, show_duration, Cx};
-use super::tag::{DataType, ModbusTable};
+use super::reader::Cx;
+use super::telegram::ASCII_NEEDS;
 use super::{Config, ConfigIssue};
 
 /// Every cross-field problem of `config`.
@@ -22,68 +23,95 @@ pub(crate) fn check(cx: &mut Cx, config: &Config) {
     let mut units: BTreeMap<u8, String> = BTreeMap::new();
     for (name, line) in &config.lines {
         let path = format!("lines.{name}");
-        if let Some(first) = ports.get(line.serial.port.as_str()) {
-            cx.issue(
-                format!("{path}.port"),
-                format!("port {:?} is already used by {first}", line.serial.port),
-            );
-        } else {
-            ports.insert(&line.serial.port, path.clone());
-        }
-        if let Some(port_b) = line.second_port().filter(|p| !p.is_empty()) {
-            if port_b == line.serial.port {
-                cx.issue(
-                    format!("{path}.port_b"),
-                    "port_b must be another port than port: each receives one direction of the \
-                     link (one partner's transmit line)",
-                );
-            } else if let Some(first) = ports.get(port_b) {
-                cx.issue(
-                    format!("{path}.port_b"),
-                    format!("port {port_b:?} is already used by {first}"),
-                );
-            } else {
-                ports.insert(port_b, path.clone());
-            }
-        }
+        claim_ports(cx, &mut ports, &path, line);
         if let Some(unit) = line.unit_id() {
             claim_unit(cx, &mut units, unit, format!("{path}.unit_id"), &path);
         }
-        let mut addresses: BTreeMap<u8, String> = BTreeMap::new();
-        for (dev_name, dev) in line.devices() {
-            let dev_path = format!("{path}.devices.{dev_name}");
-            claim_unit(
-                cx,
-                &mut units,
-                dev.unit_id,
-                format!("{dev_path}.unit_id"),
-                &dev_path,
-            );
-            if let Some(first) = addresses.get(&dev.address) {
-                cx.issue(
-                    format!("{dev_path}.address"),
-                    format!(
-                        "slave address {} is already used by {first} on this line",
-                        dev.address
-                    ),
-                );
-            } else {
-                addresses.insert(dev.address, dev_path.clone());
-            }
-            check_device(cx, &dev_path, dev);
-        }
-        check_line(cx, &path, line);
+        check_devices(cx, &mut units, &path, line);
+        let scope = Line {
+            path: &path,
+            serial: &line.serial,
+        };
+        line.protocol.section().check(&scope, cx);
     }
+    check_modbus_tcp(cx, config, &mut units);
+}
+
+/// The line's ports (`port`, `port_b`), each used by no line before it in `ports`.
+fn claim_ports<'a>(
+    cx: &mut Cx,
+    ports: &mut BTreeMap<&'a str, String>,
+    path: &str,
+    line: &'a LineConfig,
+) {
+    if let Some(first) = ports.get(line.serial.port.as_str()) {
+        cx.issue(
+            format!("{path}.port"),
+            format!("port {:?} is already used by {first}", line.serial.port),
+        );
+    } else {
+        ports.insert(&line.serial.port, path.to_owned());
+    }
+    if let Some(port_b) = line.second_port().filter(|p| !p.is_empty()) {
+        if port_b == line.serial.port {
+            cx.issue(
+                format!("{path}.port_b"),
+                "port_b must be another port than port: each receives one direction of the \
+                 link (one partner's transmit line)",
+            );
+        } else if let Some(first) = ports.get(port_b) {
+            cx.issue(
+                format!("{path}.port_b"),
+                format!("port {port_b:?} is already used by {first}"),
+            );
+        } else {
+            ports.insert(port_b, path.to_owned());
+        }
+    }
+}
+
+/// The line's devices: each unit id unique in the gateway, each slave address unique on the
+/// line, and each device's own checks ([`Device`] scope, `config/device/check.rs`).
+fn check_devices(cx: &mut Cx, units: &mut BTreeMap<u8, String>, path: &str, line: &LineConfig) {
+    let mut addresses: BTreeMap<u8, String> = BTreeMap::new();
+    for (dev_name, dev) in line.devices() {
+        let dev_path = format!("{path}.devices.{dev_name}");
+        claim_unit(
+            cx,
+            units,
+            dev.unit_id,
+            format!("{dev_path}.unit_id"),
+            &dev_path,
+        );
+        if let Some(first) = addresses.get(&dev.address) {
+            cx.issue(
+                format!("{dev_path}.address"),
+                format!(
+                    "slave address {} is already used by {first} on this line",
+                    dev.address
+                ),
+            );
+        } else {
+            addresses.insert(dev.address, dev_path.clone());
+        }
+        dev.check(&Device { path: &dev_path }, cx);
+    }
+}
+
+/// `[modbus_tcp]` against the lines: the diagnostic unit's id unique, the transparent units,
+/// every write range on a unit someone serves (not the read-only diagnostic unit), and the TLS
+/// listener on an address of its own.
+fn check_modbus_tcp(cx: &mut Cx, config: &Config, units: &mut BTreeMap<u8, String>) {
     if let Some(unit) = config.modbus_tcp.diagnostic_unit {
         claim_unit(
             cx,
-            &mut units,
+            units,
             unit,
             "modbus_tcp.diagnostic_unit".to_owned(),
             "modbus_tcp.diagnostic_unit",
         );
     }
-    super::modbus::check_transparent(cx, config, &units);
+    super::modbus::check_transparent(cx, config, units);
     for (i, r) in config.modbus_tcp.write_ranges.iter().enumerate() {
         if config.modbus_tcp.diagnostic_unit == Some(r.unit_id) {
             cx.issue(
@@ -133,357 +161,6 @@ fn claim_unit(cx: &mut Cx, units: &mut BTreeMap<u8, String>, unit: u8, path: Str
     }
 }
 
-fn check_line(cx: &mut Cx, path: &str, line: &LineConfig) {
-    line.protocol.section().check(cx, path, &line.serial);
-}
-
-fn check_device(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
-    if dev.offline_backoff_min > dev.offline_backoff_max {
-        cx.issue(
-            format!("{path}.offline_backoff_min"),
-            format!(
-                "{} is longer than offline_backoff_max = {}",
-                show_duration(dev.offline_backoff_min),
-                show_duration(dev.offline_backoff_max)
-            ),
-        );
-    }
-    if dev.bridge_gap >= dev.limits.read_registers {
-        cx.issue(
-            format!("{path}.bridge_gap"),
-            format!(
-                "must be below the read limit of {} registers, found {}",
-                dev.limits.read_registers, dev.bridge_gap
-            ),
-        );
-    }
-    let tables = dev.profile.tables();
-    let profile = serde_name(dev.profile);
-    // Tag names compare without letter case (ASCII), here as in REST and zenoh: `ETA` in a
-    // poll group is the profile's `eta`, and a device may not have two tags that differ only
-    // in case.
-    let mut names: BTreeSet<String> = dev
-        .profile
-        .tag_names()
-        .iter()
-        .map(|n| n.to_ascii_lowercase())
-        .collect();
-    for (i, tag) in dev.tags.iter().enumerate() {
-        let p = format!("{path}.tags[{i}]");
-        if !names.insert(tag.name.to_ascii_lowercase()) {
-            cx.issue(
-                format!("{p}.name"),
-                format!(
-                    "tag {:?} is defined twice (or by the {profile} profile; names compare without letter case)",
-                    tag.name
-                ),
-            );
-        }
-        if !tables.contains(&tag.table) {
-            cx.issue(
-                format!("{p}.table"),
-                format!(
-                    "the {profile} profile has no {} table",
-                    serde_name(tag.table)
-                ),
-            );
-        }
-        // A bool with a bit is a register's bit; on a bit table the bit is refused below.
-        let is_bool =
-            tag.data_type == DataType::Bool && (tag.bit.is_none() || !tag.table.is_register());
-        if is_bool == tag.table.is_register() {
-            let want = if tag.table.is_register() {
-                "u16, i16, u32, i32, u64, i64, f32, f64, string, or bool with a bit"
-            } else {
-                "bool (a string or a number needs registers)"
-            };
-            cx.issue(
-                format!("{p}.type"),
-                format!("a {} tag must be {want}", serde_name(tag.table)),
-            );
-        }
-        if tag.bit.is_some() {
-            if !tag.table.is_register() {
-                cx.issue(
-                    format!("{p}.bit"),
-                    format!(
-                        "a {} is a bit already; bit names a bit of a holding or input register",
-                        serde_name(tag.table)
-                    ),
-                );
-            } else if tag.data_type != DataType::Bool {
-                cx.issue(
-                    format!("{p}.type"),
-                    "a bit of a register is a bool: leave type out or give \"bool\"",
-                );
-            }
-        }
-        if tag.words_exceed(dev.limits.read_registers) && tag.table.is_register() {
-            cx.issue(
-                format!("{p}.registers"),
-                format!(
-                    "the value takes more registers than one read of this device carries (limits.read_registers = {})",
-                    dev.limits.read_registers
-                ),
-            );
-        }
-        if tag.writable && !tag.table.is_writable() {
-            cx.issue(
-                format!("{p}.writable"),
-                format!("{} addresses cannot be written", serde_name(tag.table)),
-            );
-        }
-        if u32::from(tag.address) + tag.width() > 65_536 {
-            cx.issue(format!("{p}.address"), "the value runs past address 65535");
-        }
-    }
-    check_overlaps(cx, path, dev);
-    let mut groups = BTreeSet::new();
-    for (i, group) in dev.poll.iter().enumerate() {
-        let p = format!("{path}.poll[{i}]");
-        if !groups.insert(group.name.as_str()) {
-            cx.issue(
-                format!("{p}.name"),
-                format!("poll group {:?} is defined twice", group.name),
-            );
-        }
-        for (j, tag) in group.tags.iter().enumerate() {
-            if !names.contains(&tag.to_ascii_lowercase()) {
-                cx.issue(
-                    format!("{p}.tags[{j}]"),
-                    format!("no tag {tag:?} in this device's tags or the {profile} profile"),
-                );
-            }
-        }
-        for (j, r) in group.ranges.iter().enumerate() {
-            if !tables.contains(&r.table) {
-                cx.issue(
-                    format!("{p}.ranges[{j}].table"),
-                    format!("the {profile} profile has no {} table", serde_name(r.table)),
-                );
-            }
-        }
-    }
-}
-
-/// Two values of one device over the same registers (or bits): a write of one changes the
-/// other and each read shows part of the other's value. A tag with `bit` names one bit of a
-/// register and may share it (a status word and its bits), and so may a tag of the same type
-/// over exactly the same registers (an alias: the value with another scale or decimals); every
-/// other tag is checked against
-/// the device's other tags and its profile's, and the later config tag is named with both.
-fn check_overlaps(cx: &mut Cx, path: &str, dev: &DeviceConfig) {
-    use proto_core::profiles::Table as T;
-    struct Span<'a> {
-        name: &'a str,
-        table: ModbusTable,
-        start: u32,
-        end: u32,
-        data_type: String,
-    }
-    let profile = dev.profile.device_profile();
-    let mut spans: Vec<Span<'_>> = profile
-        .iter()
-        .flat_map(|p| &p.tags)
-        .map(|t| Span {
-            name: &t.name,
-            table: match t.table {
-                T::Coils => ModbusTable::Coil,
-                T::DiscreteInputs => ModbusTable::Discrete,
-                T::InputRegisters => ModbusTable::Input,
-                T::HoldingRegisters => ModbusTable::Holding,
-            },
-            start: u32::from(t.address),
-            end: u32::from(t.address) + u32::from(t.words().max(1)),
-            data_type: format!("{:?}", t.data_type).to_ascii_lowercase(),
-        })
-        .collect();
-    let from_profile = spans.len();
-    // The spans by table and first register, and the widest span so far: a new span is compared
-    // only with the spans that can reach it (first register within the widest width below its
-    // end), not with every tag before it (100 000 tags were 5 * 10^9 comparisons).
-    let mut by_start: std::collections::HashMap<ModbusTable, BTreeMap<u32, Vec<usize>>> =
-        std::collections::HashMap::new();
-    let mut widest = 1u32;
-    for (j, span) in spans.iter().enumerate() {
-        widest = widest.max(span.end - span.start);
-        by_start
-            .entry(span.table)
-            .or_default()
-            .entry(span.start)
-            .or_default()
-            .push(j);
-    }
-    for (i, tag) in dev.tags.iter().enumerate() {
-        if tag.bit.is_some() && tag.table.is_register() {
-            continue;
-        }
-        let span = Span {
-            name: &tag.name,
-            table: tag.table,
-            start: u32::from(tag.address),
-            end: u32::from(tag.address) + tag.width().max(1),
-            data_type: serde_name(tag.data_type),
-        };
-        let show = |s: &Span<'_>| {
-            let last = s.end - 1;
-            let at = if last == s.start {
-                format!("{}", s.start)
-            } else {
-                format!("{}..{last}", s.start)
-            };
-            format!(
-                "{:?} ({} at {} {at})",
-                s.name,
-                s.data_type,
-                serde_name(s.table)
-            )
-        };
-        let mut near: Vec<usize> = by_start
-            .get(&span.table)
-            .map(|starts| {
-                starts
-                    .range(span.start.saturating_sub(widest - 1)..span.end)
-                    .flat_map(|(_, js)| js.iter().copied())
-                    .collect()
-            })
-            .unwrap_or_default();
-        near.sort_unstable();
-        for (j, other) in near
-            .into_iter()
-            .filter_map(|j| spans.get(j).map(|o| (j, o)))
-        {
-            // Two tags of the same name are reported as a duplicate name above.
-            let same_name = other.name.eq_ignore_ascii_case(span.name);
-            // The same registers read as the same type under another name (another scale,
-            // offset or decimals): one value shown twice, not two values in one place.
-            let alias = other.table == span.table
-                && other.start == span.start
-                && other.end == span.end
-                && other.data_type == span.data_type;
-            if other.table == span.table
-                && span.start < other.end
-                && other.start < span.end
-                && !same_name
-                && !alias
-            {
-                let whose = if j < from_profile {
-                    format!("the {} profile's tag", serde_name(dev.profile))
-                } else {
-                    "tag".to_owned()
-                };
-                cx.issue(
-                    format!("{path}.tags[{i}].address"),
-                    format!(
-                        "tag {} overlaps {whose} {}: two values cannot share registers (a bit \
-                         of a register is a bool tag with `bit`)",
-                        show(&span),
-                        show(other)
-                    ),
-                );
-            }
-        }
-        widest = widest.max(span.end - span.start);
-        by_start
-            .entry(span.table)
-            .or_default()
-            .entry(span.start)
-            .or_default()
-            .push(spans.len());
-        spans.push(span);
-    }
-}
-
-/// A key that takes effect only with another key's value: `key` is ignored unless `needs` is
-/// one of `values` (`default` when `needs` is not given). A key given at `key_default`, its
-/// own default, says nothing the gateway does not do (deploy/gateway.example.toml lists every
-/// key so); `None`: any value is reported (`end_chars = [0x03]` with the char-delay criterion
-/// is the mistake of expecting ETX to end a telegram).
-struct Needs {
-    key: &'static str,
-    key_default: Option<&'static str>,
-    needs: &'static str,
-    values: &'static [&'static str],
-    default: &'static str,
-}
-
-const fn needs(
-    key: &'static str,
-    key_default: Option<&'static str>,
-    needs: &'static str,
-    values: &'static [&'static str],
-    default: &'static str,
-) -> Needs {
-    Needs {
-        key,
-        key_default,
-        needs,
-        values,
-        default,
-    }
-}
-
-/// An ASCII line's keys that only one end criterion or flow control reads (003 6.2.1; the V24
-/// times 000 6.2.1), with their defaults (config/telegram.rs).
-const ASCII_NEEDS: &[Needs] = &[
-    needs(
-        "end_chars",
-        None,
-        "end_criterion",
-        &["end-chars"],
-        "char-delay",
-    ),
-    needs(
-        "fixed_length",
-        Some("240"),
-        "end_criterion",
-        &["fixed-length"],
-        "char-delay",
-    ),
-    needs(
-        "xon_code",
-        Some("17"),
-        "flow_control",
-        &["xon-xoff"],
-        "none",
-    ),
-    needs(
-        "xoff_code",
-        Some("19"),
-        "flow_control",
-        &["xon-xoff"],
-        "none",
-    ),
-    needs(
-        "xon_wait",
-        Some("20s"),
-        "flow_control",
-        &["xon-xoff", "rts-cts"],
-        "none",
-    ),
-    needs(
-        "rts_hold_time",
-        Some("10ms"),
-        "flow_control",
-        &["auto-v24"],
-        "none",
-    ),
-    needs(
-        "data_output_wait",
-        Some("10ms"),
-        "flow_control",
-        &["auto-v24"],
-        "none",
-    ),
-];
-
-/// The communication scanner's settings, read only when it runs (config/device.rs defaults).
-const SCANNER_NEEDS: &[Needs] = &[
-    needs("inputs", Some("2"), "enabled", &["true"], "false"),
-    needs("outputs", Some("2"), "enabled", &["true"], "false"),
-    needs("period", Some("100ms"), "enabled", &["true"], "false"),
-];
-
 /// Whether a value the file gives is `default` (numbers and durations compared by value).
 fn is_default(value: &toml::Value, default: &str) -> bool {
     match value {
@@ -506,102 +183,123 @@ fn is_default(value: &toml::Value, default: &str) -> bool {
 /// valid, but says something the gateway does not do. Read from the file's own table, so that
 /// only keys the file gives are reported.
 pub fn ignored_keys(table: &toml::Table) -> Vec<ConfigIssue> {
-    use toml::Value;
     let mut cx = Cx::default();
-    let text = |v: &Value| match v {
-        Value::String(s) => s.clone(),
+    for (name, line) in table_at(table, "lines").unwrap_or_default() {
+        if let Some(line) = line.as_table() {
+            ignored_in_line(&mut cx, &format!("lines.{name}"), line);
+        }
+    }
+    ignored_in_sections(&mut cx, table);
+    cx.issues
+}
+
+/// The table at `key` of `t`, if it is one.
+fn table_at(t: &toml::Table, key: &str) -> Option<toml::Table> {
+    t.get(key).and_then(toml::Value::as_table).cloned()
+}
+
+/// An ASCII line's keys its end criterion or flow control leaves without effect, and its
+/// devices' (the scanner's settings while it is off, a bool or string tag's transformation).
+fn ignored_in_line(cx: &mut Cx, path: &str, line: &toml::Table) {
+    if line.get("protocol").and_then(toml::Value::as_str) == Some("ascii") {
+        ignored_by_rules(cx, line, path, ASCII_NEEDS);
+    }
+    for (dev_name, dev) in table_at(line, "devices").unwrap_or_default() {
+        let Some(dev) = dev.as_table() else {
+            continue;
+        };
+        let dev_path = format!("{path}.devices.{dev_name}");
+        if let Some(scanner) = table_at(dev, "scanner") {
+            ignored_by_rules(cx, &scanner, &format!("{dev_path}.scanner"), SCANNER_NEEDS);
+        }
+        ignored_in_tags(cx, &dev_path, dev);
+    }
+}
+
+/// The keys of `t` (at `path`) that a rule of `list` finds without effect: given, not at their
+/// own default, and the key they need not at one of its values.
+fn ignored_by_rules(cx: &mut Cx, t: &toml::Table, path: &str, list: &[Needs]) {
+    let text = |v: &toml::Value| match v {
+        toml::Value::String(s) => s.clone(),
         other => other.to_string(),
     };
-    let rules = |cx: &mut Cx, t: &toml::Table, path: &str, list: &[Needs]| {
-        for rule in list {
-            let Some(given) = t.get(rule.key) else {
-                continue;
-            };
-            if rule.key_default.is_some_and(|d| is_default(given, d)) {
-                continue;
-            }
-            let value = t
-                .get(rule.needs)
-                .map_or_else(|| rule.default.to_owned(), text);
-            if !rule.values.contains(&value.as_str()) {
-                let shown = |v: &str| match v {
-                    "true" | "false" => v.to_owned(),
-                    _ => format!("{v:?}"),
-                };
-                let wanted = rule
-                    .values
-                    .iter()
-                    .map(|v| shown(v))
-                    .collect::<Vec<_>>()
-                    .join(" or ");
+    let shown = |v: &str| match v {
+        "true" | "false" => v.to_owned(),
+        _ => format!("{v:?}"),
+    };
+    for rule in list {
+        let Some(given) = t.get(rule.key) else {
+            continue;
+        };
+        if rule.key_default.is_some_and(|d| is_default(given, d)) {
+            continue;
+        }
+        let value = t
+            .get(rule.needs)
+            .map_or_else(|| rule.default.to_owned(), text);
+        if rule.values.contains(&value.as_str()) {
+            continue;
+        }
+        let wanted = rule
+            .values
+            .iter()
+            .map(|v| shown(v))
+            .collect::<Vec<_>>()
+            .join(" or ");
+        cx.issue(
+            format!("{path}.{}", rule.key),
+            format!(
+                "has no effect: {} is read only with {} = {wanted}, and {} is {}{}",
+                rule.key,
+                rule.needs,
+                rule.needs,
+                shown(&value),
+                if t.contains_key(rule.needs) {
+                    ""
+                } else {
+                    " (its default)"
+                }
+            ),
+        );
+    }
+}
+
+/// A bool or string tag's `scale`, `offset` and `decimals` other than their defaults: they
+/// apply to numbers only.
+fn ignored_in_tags(cx: &mut Cx, dev_path: &str, dev: &toml::Table) {
+    use toml::Value;
+    let tags = dev.get("tags").and_then(Value::as_array);
+    for (i, tag) in tags.into_iter().flatten().enumerate() {
+        let Some(tag) = tag.as_table() else {
+            continue;
+        };
+        let bit_table = matches!(
+            tag.get("table").and_then(Value::as_str),
+            Some("coil" | "discrete")
+        );
+        let kind = match tag.get("type").and_then(Value::as_str) {
+            Some(t @ ("bool" | "string")) => t,
+            None if bit_table || tag.contains_key("bit") => "bool",
+            _ => continue,
+        };
+        for (key, default) in [("scale", "1"), ("offset", "0"), ("decimals", "0")] {
+            if tag.get(key).is_some_and(|v| !is_default(v, default)) {
                 cx.issue(
-                    format!("{path}.{}", rule.key),
+                    format!("{dev_path}.tags[{i}].{key}"),
                     format!(
-                        "has no effect: {} is read only with {} = {wanted}, and {} is {}{}",
-                        rule.key,
-                        rule.needs,
-                        rule.needs,
-                        shown(&value),
-                        if t.contains_key(rule.needs) {
-                            ""
-                        } else {
-                            " (its default)"
-                        }
+                        "has no effect: a {kind} tag is not a number (scale, offset and \
+                         decimals apply to numbers)"
                     ),
                 );
             }
         }
-    };
-    let table_at = |t: &toml::Table, key: &str| t.get(key).and_then(Value::as_table).cloned();
-    for (name, line) in table_at(table, "lines").unwrap_or_default() {
-        let Some(line) = line.as_table() else {
-            continue;
-        };
-        let path = format!("lines.{name}");
-        if line.get("protocol").and_then(Value::as_str) == Some("ascii") {
-            rules(&mut cx, line, &path, ASCII_NEEDS);
-        }
-        for (dev_name, dev) in table_at(line, "devices").unwrap_or_default() {
-            let Some(dev) = dev.as_table() else {
-                continue;
-            };
-            let dev_path = format!("{path}.devices.{dev_name}");
-            if let Some(scanner) = table_at(dev, "scanner") {
-                rules(
-                    &mut cx,
-                    &scanner,
-                    &format!("{dev_path}.scanner"),
-                    SCANNER_NEEDS,
-                );
-            }
-            let tags = dev.get("tags").and_then(Value::as_array);
-            for (i, tag) in tags.into_iter().flatten().enumerate() {
-                let Some(tag) = tag.as_table() else {
-                    continue;
-                };
-                let bit_table = matches!(
-                    tag.get("table").and_then(Value::as_str),
-                    Some("coil" | "discrete")
-                );
-                let kind = match tag.get("type").and_then(Value::as_str) {
-                    Some(t @ ("bool" | "string")) => t,
-                    None if bit_table || tag.contains_key("bit") => "bool",
-                    _ => continue,
-                };
-                for (key, default) in [("scale", "1"), ("offset", "0"), ("decimals", "0")] {
-                    if tag.get(key).is_some_and(|v| !is_default(v, default)) {
-                        cx.issue(
-                            format!("{dev_path}.tags[{i}].{key}"),
-                            format!(
-                                "has no effect: a {kind} tag is not a number (scale, offset and \
-                                 decimals apply to numbers)"
-                            ),
-                        );
-                    }
-                }
-            }
-        }
     }
+}
+
+/// `[cp_memory] save_interval` without a persistence file, and
+/// `insecure_allow_unauthenticated_changes` with a token.
+fn ignored_in_sections(cx: &mut Cx, table: &toml::Table) {
+    use toml::Value;
     if let Some(cp) = table_at(table, "cp_memory") {
         if cp.contains_key("save_interval") && !cp.contains_key("persist_file") {
             cx.issue(
@@ -629,13 +327,13 @@ pub fn ignored_keys(table: &toml::Table) -> Vec<ConfigIssue> {
             );
         }
     }
-    cx.issues
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::Profile;
+    use crate::config::reader::serde_name;
+    use crate::config::{ModbusTable, Profile};
 
     #[test]
     fn the_ignored_keys_defaults_are_the_readers() {
