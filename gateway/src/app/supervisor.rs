@@ -1,18 +1,19 @@
 //! The supervisor of a running gateway: its lines (each with its own cancellation token), the
 //! Modbus TCP server, the zenoh bridge, and the configuration in force.
 //!
-//! A configuration change is applied by [`Supervisor::apply`]: its [`Plan`] says, as data, what
-//! changed, and the supervisor's steps stop and start only that, in the plan's order (the CP
-//! memory, the lines stopped, the lines started, the mirrors, the new snapshot, the servers). A line whose serial or protocol settings or
-//! devices changed is restarted as a whole (a line task takes its device list at start); a line
-//! that did not change keeps its task, its open port, its counters and its diagnostic buffer, and
-//! the Modbus TCP clients of its units keep their connections. A changed `[modbus_tcp]` limit
-//! (caps, idle and request timeouts, networks, read-only, write ranges, TLS files and roles) is
-//! put in force in the running servers (`modbus_tcp::LiveOptions`) for new connections and the
-//! next request of open ones, which stay connected; only a changed listen address (or plain
-//! Modbus TCP switched on or off) restarts a server. The zenoh session only when the gateway's name (its key
-//! prefix) changed. Other sections (`[cp_memory]`, `[http]`, `[zenoh]`) take effect at the next
-//! start of the process and are reported as pending. A SIGHUP re-read of the configuration file
+//! A configuration change is applied by [`Supervisor::apply`] (`apply.rs`): its [`plan::Plan`]
+//! says, as data, what changed, and the supervisor's steps stop and start only that, in the
+//! plan's order (the CP memory, the lines stopped, the lines started, the mirrors, the new
+//! snapshot, the servers). A line whose serial or protocol settings or devices changed is
+//! restarted as a whole (a line task takes its device list at start); a line that did not change
+//! keeps its task, its open port, its counters and its diagnostic buffer, and the Modbus TCP
+//! clients of its units keep their connections. A changed `[modbus_tcp]` limit (caps, idle and
+//! request timeouts, networks, read-only, write ranges, TLS files and roles) is put in force in
+//! the running servers (`modbus_tcp::LiveOptions`) for new connections and the next request of
+//! open ones, which stay connected; only a changed listen address (or plain Modbus TCP switched
+//! on or off) restarts a server. The zenoh session only when the gateway's name (its key prefix)
+//! changed. Other sections (`[cp_memory]`, `[http]`, `[zenoh]`) take effect at the next start of
+//! the process and are reported as pending. A SIGHUP re-read of the configuration file
 //! (`super::reload`) applies the file the same way, one change at a time with the REST API's
 //! (`change_lock`).
 //!
