@@ -197,7 +197,7 @@ impl ApiBackend for RestBackend {
     }
 
     fn config_issues(&self, config: &Config, found: &[ConfigIssue]) -> Vec<ConfigIssue> {
-        super::check::config_issues(config, found)
+        crate::cpmem::config::config_issues(config, found)
     }
 
     fn apply(&self, config: Arc<Config>) -> BoxFuture<'_, Result<ApplyReport, ApiError>> {
