@@ -40,8 +40,8 @@ mod tls;
 mod zenoh;
 
 pub use check::{
-    ack_warnings, api_path_issues, check_command, check_report, config_issues, ignored_keys_of,
-    load_config, port_issues, run_issues, security_warnings, start_issues, unpolled_tags, Door,
+    ack_warnings, api_path_issues, check_command, check_report, ignored_keys_of, load_config,
+    port_issues, run_issues, security_warnings, start_issues, unpolled_tags, Door,
 };
 pub use demo::{demo, demo_named};
 pub use metrics::{Metrics, METRIC_NAMES};

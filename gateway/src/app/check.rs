@@ -4,7 +4,9 @@
 //! The reader (`config`) knows the keys, their ranges and the rules between keys. Whether the
 //! CP memory can serve a slave line exactly is the CP memory's knowledge (`cpmem::config`): its
 //! write limits are one byte range for M, one for Q and one range of DB numbers (003 6.4.5
-//! "Limits"), so a write enable inside a byte or a DB is refused here, never silently widened.
+//! "Limits"), so a write enable inside a byte or a DB is refused there
+//! (`cpmem::config::config_issues`, which [`load_config`] hands the reader), never silently
+//! widened.
 //!
 //! Beyond the file's rules, one function, [`start_issues`], collects the start checks (each a
 //! `config::check::Check` next to what it checks, listed in [`start_checks`] and
@@ -44,32 +46,10 @@ use crate::cpmem::{self, persist::persist_dir_warnings, persist::PersistFile};
 use crate::mailbox::journal::Journals;
 use crate::serial::{self, OpenError};
 
-/// What the CP memory cannot serve exactly in the slave lines of `config`, each issue with its
-/// path. A key the reader reported already (in `found`) is not reported twice.
-pub fn config_issues(config: &Config, found: &[ConfigIssue]) -> Vec<ConfigIssue> {
-    let mut issues: Vec<ConfigIssue> = Vec::new();
-    for (name, line) in &config.lines {
-        let Some(slave) = line.protocol.cp_memory_slave() else {
-            continue;
-        };
-        for issue in cpmem::config::check(slave) {
-            let key = format!("lines.{name}.{}", issue.key);
-            let known = |i: &ConfigIssue| i.path.starts_with(&key);
-            if !found.iter().any(known) && !issues.iter().any(known) {
-                issues.push(ConfigIssue {
-                    path: key,
-                    message: issue.message,
-                });
-            }
-        }
-    }
-    issues
-}
-
 /// Reads, parses and validates the configuration file at `path`: the reader's rules and
-/// [`config_issues`], every problem in one answer.
+/// the CP memory's ([`cpmem::config::config_issues`]), every problem in one answer.
 pub fn load_config(path: &Path) -> Result<Config, ConfigErrors> {
-    config::load_with(path, &config_issues)
+    config::load_with(path, &cpmem::config::config_issues)
 }
 
 /// Where a configuration comes from, for [`start_issues`].

@@ -105,7 +105,7 @@ impl Gateway for Supervisor {
     }
 
     fn config_issues(&self, config: &Config, found: &[ConfigIssue]) -> Vec<ConfigIssue> {
-        super::check::config_issues(config, found)
+        crate::cpmem::config::config_issues(config, found)
     }
 
     fn apply(

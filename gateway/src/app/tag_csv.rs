@@ -321,7 +321,7 @@ pub fn import_from(
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let issues = match config::parse_in(&new_text, &super::check::config_issues, &dir) {
+    let issues = match config::parse_in(&new_text, &crate::cpmem::config::config_issues, &dir) {
         Ok(c) => {
             let mut issues = super::check::run_issues(&c);
             issues.extend(super::check::port_issues(&c).0);

@@ -16,7 +16,9 @@ use proto_core::cpmem::{
     WORDS_PER_DB,
 };
 
-use crate::config::{self, AddressRange, BitArea, ModbusSlaveRtuConfig, ModbusTable};
+use crate::config::{
+    self, AddressRange, BitArea, Config, ConfigIssue, ModbusSlaveRtuConfig, ModbusTable,
+};
 
 /// One problem converting a slave line's config: the key below the line's table
 /// (`write_enable[1]`, `coils`) and what is wrong.
@@ -39,6 +41,29 @@ fn issue(key: impl Into<String>, message: impl Into<String>) -> ConvertIssue {
         key: key.into(),
         message: message.into(),
     }
+}
+
+/// What the CP memory cannot serve exactly in the slave lines of `config`, each issue with its
+/// path (`lines.<line>.<key>`): the check the app hands the config reader
+/// (`config::ExtraCheck`). A key the reader reported already (in `found`) is not reported twice.
+pub fn config_issues(config: &Config, found: &[ConfigIssue]) -> Vec<ConfigIssue> {
+    let mut issues: Vec<ConfigIssue> = Vec::new();
+    for (name, line) in &config.lines {
+        let Some(slave) = line.protocol.cp_memory_slave() else {
+            continue;
+        };
+        for issue in check(slave) {
+            let key = format!("lines.{name}.{}", issue.key);
+            let known = |i: &ConfigIssue| i.path.starts_with(&key);
+            if !found.iter().any(known) && !issues.iter().any(known) {
+                issues.push(ConfigIssue {
+                    path: key,
+                    message: issue.message,
+                });
+            }
+        }
+    }
+    issues
 }
 
 /// Bits per timer or counter word (003 6.4.8.1).
