@@ -40,6 +40,7 @@ pub mod metrics;
 pub mod modbus_tcp;
 pub mod paced;
 pub mod persist;
+pub mod protocols;
 pub mod scan;
 pub mod serial;
 pub mod signals;

@@ -524,7 +524,10 @@ pub const CP_MEMORY_DEVICE: &str = "memory";
 /// PLC way (`DB800.DBW20`): register `(n - base) x 512 + w` of the holding table is word `w` of
 /// DB `n` (003 6.4.8), with the unit id; `None` when the line serves no unit. Writable where
 /// the line's write enables ("Limits") allow FC 06/16.
-fn cp_memory_tags(config: &Config, slave: &config::ModbusSlaveRtuConfig) -> Option<(u8, Vec<Tag>)> {
+fn cp_memory_tags(
+    config: &Config,
+    slave: &crate::protocols::ModbusSlaveRtuConfig,
+) -> Option<(u8, Vec<Tag>)> {
     let unit_id = slave.unit_id?;
     let blocks: Vec<(u16, u16)> = config
         .cp_memory
@@ -532,7 +535,7 @@ fn cp_memory_tags(config: &Config, slave: &config::ModbusSlaveRtuConfig) -> Opti
         .iter()
         .map(|b| (b.db, b.words))
         .collect();
-    let layout = crate::cpmem::config::memory_layout(
+    let layout = crate::protocols::modbus_slave::cpmem::memory_layout(
         [slave],
         (!blocks.is_empty()).then_some(blocks.as_slice()),
     );

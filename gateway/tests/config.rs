@@ -8,9 +8,11 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use gateway::config::{
-    self, ByteOrder, Config, DataBits, DataType, EndCriterion, FlowControl, Interface, LineConfig,
-    ModbusTable, OperatingMode, Overflow3964, Parity, Priority, Profile, ProtocolConfig,
+    self, ByteOrder, Config, DataBits, DataType, Interface, ModbusTable, Parity, Profile,
     ScannerConfig, StopBits,
+};
+use gateway::protocols::{
+    EndCriterion, FlowControl, LineConfig, OperatingMode, Overflow3964, Priority, ProtocolConfig,
 };
 
 #[path = "config/defaults.rs"]

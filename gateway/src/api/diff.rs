@@ -12,7 +12,8 @@
 use std::collections::BTreeMap;
 
 use super::model::ApplyReport;
-use crate::config::{Config, DeviceConfig, LineConfig};
+use crate::config::{Config, DeviceConfig};
+use crate::protocols::LineConfig;
 
 /// The changes from one configuration to the next.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]

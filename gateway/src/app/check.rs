@@ -45,7 +45,7 @@ pub fn config_issues(config: &Config, found: &[ConfigIssue]) -> Vec<ConfigIssue>
         let Some(slave) = line.protocol.cp_memory_slave() else {
             continue;
         };
-        for issue in cpmem::config::check(slave) {
+        for issue in crate::protocols::modbus_slave::cpmem::check(slave) {
             let key = format!("lines.{name}.{}", issue.key);
             let known = |i: &ConfigIssue| i.path.starts_with(&key);
             if !found.iter().any(known) && !issues.iter().any(known) {
@@ -664,7 +664,7 @@ pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
             continue;
         }
         let path = format!("lines.{name}.port");
-        match serial::probe(&crate::line::start::port_settings(&line.serial)) {
+        match serial::probe(&crate::protocols::start::port_settings(&line.serial)) {
             Ok(()) => {}
             Err(e @ OpenError::Rs485Refused { .. }) => {
                 errors.push(ConfigIssue {
@@ -771,7 +771,7 @@ pub fn ack_warnings(config: &Config) -> Vec<ConfigIssue> {
         }
         // A client other than REST that can acknowledge: a Modbus TCP mailbox or zenoh writes.
         let client = (modbus_on && line.unit_id().is_some()) || zenoh_writes;
-        let message = match config::ack_mode(config, line) {
+        let message = match crate::protocols::ack_mode(config, line) {
             config::AckConfig::Explicit if !client => {
                 format!(
                     "ack = \"explicit\" but no Modbus TCP unit_id and no zenoh writes \

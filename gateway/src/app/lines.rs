@@ -11,11 +11,12 @@ use tokio_util::sync::CancellationToken;
 
 use super::AppError;
 use super::Metrics;
-use crate::config::{Config, LineConfig, ProtocolConfig};
-use crate::cpmem::{self, SharedCpMemory};
+use crate::config::Config;
+use crate::cpmem::SharedCpMemory;
 use crate::image::ProcessImage;
-use crate::line::start::{StartDeps, StartLine};
 use crate::line::LineHandle;
+use crate::protocols::start::{StartDeps, StartLine};
+use crate::protocols::{LineConfig, ProtocolConfig};
 use crate::unit::UnitService;
 
 /// A running line and what it registered.
@@ -152,7 +153,7 @@ pub(super) fn slave_layout(config: &Config) -> Option<proto_core::cpmem::MemoryL
         .iter()
         .map(|b| (b.db, b.words))
         .collect();
-    Some(cpmem::config::memory_layout(
+    Some(crate::protocols::modbus_slave::cpmem::memory_layout(
         slaves,
         (!blocks.is_empty()).then_some(blocks.as_slice()),
     ))
@@ -162,14 +163,14 @@ pub(super) fn slave_layout(config: &Config) -> Option<proto_core::cpmem::MemoryL
 mod tests {
     use std::path::{Path, PathBuf};
 
-    /// At most this many files outside the protocols' own folders (`src/line/<folder>/`) name
+    /// At most this many files outside the protocols' own folders (`src/protocols/<folder>/`) name
     /// the protocols one by one.
     const MAX_LISTING_FILES: usize = 3;
 
     /// The variants of `ProtocolConfig`: those of the protocols' table in config/line.rs, which
     /// makes `ProtocolKind` with the same names.
     fn variants(_src: &Path) -> Vec<String> {
-        crate::config::ProtocolKind::ALL
+        crate::protocols::ProtocolKind::ALL
             .iter()
             .map(|kind| format!("{kind:?}"))
             .collect()
@@ -186,11 +187,11 @@ mod tests {
         }
     }
 
-    /// A file in a protocol's own folder: `line/<folder>/...` (`line/master/`,
-    /// `line/telegram/`, ...), where its adapter and its start live.
+    /// A file in a protocol's own folder: `protocols/<folder>/...` (`protocols/modbus_master/`,
+    /// `protocols/telegram/`, ...), where its adapter and its start live.
     fn in_protocol_folder(relative: &str) -> bool {
         relative
-            .strip_prefix("line/")
+            .strip_prefix("protocols/")
             .is_some_and(|rest| rest.contains('/'))
     }
 

@@ -16,8 +16,8 @@ use crate::api::model::{
 };
 use crate::api::{ApiBackend, ApiError, BoxFuture};
 use crate::config::{Config, ConfigIssue};
-use crate::line::telegram::TelegramSendError;
 use crate::line::LineHandle;
+use crate::protocols::telegram::TelegramSendError;
 use crate::signals::{Output, SignalError};
 use crate::tags::TagEntry;
 
@@ -514,7 +514,10 @@ impl ApiBackend for RestBackend {
 }
 
 impl RestBackend {
-    fn signals_client(&self, line: &str) -> Result<crate::line::telegram::SignalsClient, ApiError> {
+    fn signals_client(
+        &self,
+        line: &str,
+    ) -> Result<crate::protocols::telegram::SignalsClient, ApiError> {
         let snapshot = self.sup.snapshot();
         Self::line(&snapshot, line)?
             .handle

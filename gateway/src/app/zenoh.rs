@@ -6,7 +6,7 @@
 //! telegrams) run under that line's token and stop with it; a line started later gets its own.
 //! A write from zenoh takes the same path and checks as a Modbus TCP write ([`super::tag_io`]).
 
-use crate::line::telegram::TelegramSendError;
+use crate::protocols::telegram::TelegramSendError;
 use std::sync::{Arc, PoisonError, Weak};
 
 use proto_core::profiles::Value;

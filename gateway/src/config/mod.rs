@@ -49,16 +49,12 @@
 mod cpmem;
 mod device;
 mod http;
-mod line;
-mod modbus;
-mod reader;
-mod section;
+pub(crate) mod reader;
+pub(crate) mod section;
 mod serial;
 mod server;
-mod tag;
-mod tap;
-mod telegram;
-mod template;
+pub(crate) mod tag;
+pub(crate) mod template;
 pub mod validate;
 mod zenoh;
 
@@ -71,18 +67,15 @@ use serde::{Deserialize, Deserializer, Serialize};
 pub use cpmem::*;
 pub use device::*;
 pub use http::*;
-pub use line::*;
-pub use modbus::*;
 pub use section::{AckConfig, TelegramKeys};
 pub use serial::*;
 pub use server::*;
 pub use tag::*;
-pub use tap::*;
-pub use telegram::*;
 pub use template::DEVICE_ONLY_KEYS as TEMPLATE_DEVICE_ONLY_KEYS;
 // `self::`: the module, not the zenoh crate.
 pub use self::zenoh::*;
 
+use crate::protocols::LineConfig;
 use reader::{check_name, Cx, Fields};
 
 /// `[gateway] name`: used as the zenoh prefix `gw/<name>` and in logs.

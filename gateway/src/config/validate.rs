@@ -5,10 +5,10 @@
 use std::collections::{BTreeMap, BTreeSet};
 
 use super::device::DeviceConfig;
-use super::line::LineConfig;
 use super::reader::{serde_name, show_duration, Cx};
 use super::tag::{DataType, ModbusTable};
 use super::{Config, ConfigIssue};
+use crate::protocols::LineConfig;
 
 /// Every cross-field problem of `config`.
 pub fn validate(config: &Config) -> Vec<ConfigIssue> {
@@ -83,7 +83,7 @@ pub(crate) fn check(cx: &mut Cx, config: &Config) {
             "modbus_tcp.diagnostic_unit",
         );
     }
-    super::modbus::check_transparent(cx, config, &units);
+    crate::protocols::modbus_master::config::check_transparent(cx, config, &units);
     for (i, r) in config.modbus_tcp.write_ranges.iter().enumerate() {
         if config.modbus_tcp.diagnostic_unit == Some(r.unit_id) {
             cx.issue(
@@ -97,7 +97,7 @@ pub(crate) fn check(cx: &mut Cx, config: &Config) {
             && !config
                 .lines
                 .values()
-                .filter_map(super::modbus::transparent_units)
+                .filter_map(crate::protocols::modbus_master::config::transparent_units)
                 .any(|t| t.contains(&r.unit_id))
         {
             cx.issue(
@@ -639,10 +639,10 @@ mod tests {
 
     #[test]
     fn the_ignored_keys_defaults_are_the_readers() {
-        use crate::config::{
+        use crate::config::{DEFAULT_SCANNER_PERIOD, DEFAULT_SCANNER_WORDS};
+        use crate::protocols::{
             DEFAULT_ASCII_FIXED_LENGTH, DEFAULT_DATA_OUTPUT_WAIT, DEFAULT_RTS_HOLD_TIME,
-            DEFAULT_SCANNER_PERIOD, DEFAULT_SCANNER_WORDS, DEFAULT_XOFF_CODE, DEFAULT_XON_CODE,
-            DEFAULT_XON_WAIT,
+            DEFAULT_XOFF_CODE, DEFAULT_XON_CODE, DEFAULT_XON_WAIT,
         };
         let default = |list: &[Needs], key: &str| {
             let rule = list.iter().find(|r| r.key == key).expect("rule");

@@ -22,11 +22,8 @@
 pub mod altivar;
 pub mod bus;
 pub mod ksvario;
-pub mod master;
 pub mod meter;
 pub mod runner;
-mod slaves;
-pub mod telegram;
 
 use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;

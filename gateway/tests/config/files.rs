@@ -592,8 +592,8 @@ fn the_examples_commented_tap_line_is_valid() {
     let ProtocolConfig::ModbusRtuTap(t) = &tap.protocol else {
         panic!("a tap line: {tap:?}");
     };
-    assert_eq!(t.answer_timeout, config::DEFAULT_ANSWER_TIMEOUT);
-    assert_eq!(t.expected_cycle, config::DEFAULT_EXPECTED_CYCLE);
+    assert_eq!(t.answer_timeout, gateway::protocols::DEFAULT_ANSWER_TIMEOUT);
+    assert_eq!(t.expected_cycle, gateway::protocols::DEFAULT_EXPECTED_CYCLE);
     assert_eq!(t.delay_multiplier, 1);
     assert!(t.inter_character_check);
     assert_eq!(
@@ -617,10 +617,19 @@ fn the_examples_commented_3964r_tap_line_is_valid() {
     assert_eq!(tap.serial.port, "/dev/ttyS5");
     assert_eq!(t.port_b, "/dev/ttyS6");
     assert!(t.block_check);
-    assert_eq!(t.character_delay, config::DEFAULT_3964_CHARACTER_DELAY);
-    assert_eq!(t.ack_delay, config::DEFAULT_3964_ACK_DELAY);
-    assert_eq!(t.max_telegram_len, config::DEFAULT_3964_MAX_TELEGRAM_LEN);
-    assert_eq!(t.receive_buffer, config::DEFAULT_3964_RECEIVE_BUFFER);
+    assert_eq!(
+        t.character_delay,
+        gateway::protocols::DEFAULT_3964_CHARACTER_DELAY
+    );
+    assert_eq!(t.ack_delay, gateway::protocols::DEFAULT_3964_ACK_DELAY);
+    assert_eq!(
+        t.max_telegram_len,
+        gateway::protocols::DEFAULT_3964_MAX_TELEGRAM_LEN
+    );
+    assert_eq!(
+        t.receive_buffer,
+        gateway::protocols::DEFAULT_3964_RECEIVE_BUFFER
+    );
     assert_eq!(tap.unit_id(), Some(102));
     assert_eq!(c.check(), Ok(()));
 }
