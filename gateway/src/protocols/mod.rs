@@ -23,10 +23,12 @@ pub use modbus_master::{
     PROBE_TIMEOUT_FACTOR, SCANNER_WORDS,
 };
 pub use modbus_master::{TransparentSettings, TransparentUnit};
+pub use modbus_slave::config::*;
 pub use modbus_slave::{spawn_modbus_slave_line, CpMemoryView, SlaveCounters, SlaveLineSettings};
 pub use modbus_tap::config::*;
 pub use modbus_tap::{spawn_modbus_tap_line, TapLineSettings, TAP_PROTOCOL};
 pub use telegram::config::*;
+pub use telegram::Proc3964TapConfig;
 
 /// A line: where and how to talk, and what protocol to speak.
 #[derive(Debug, Clone, PartialEq, Serialize)]

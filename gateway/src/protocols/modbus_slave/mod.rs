@@ -9,6 +9,7 @@
 //! received is answered, and the line stops.
 
 mod build;
+pub(crate) mod config;
 pub mod cpmem;
 pub mod partner;
 

@@ -44,7 +44,10 @@ pub(crate) use client::Command;
 pub use client::{PendingSend, SendResult, SignalsClient, TelegramClient, TelegramSendError};
 pub use convert::{engine_protocol, mailbox_ack, params_3964, params_ascii, TelegramConfigError};
 pub use mailbox_unit::MailboxUnit;
-pub use tap::{spawn_3964_tap_line, Tap3964LineSettings, DEFAULT_TAP_MAILBOX, TAP_3964_PROTOCOL};
+pub use tap::{
+    spawn_3964_tap_line, Proc3964TapConfig, Tap3964LineSettings, DEFAULT_TAP_MAILBOX,
+    TAP_3964_PROTOCOL,
+};
 
 use crate::line::metrics::{LineFamilies, LineMetrics, LineTraffic};
 use crate::line::runtime::{

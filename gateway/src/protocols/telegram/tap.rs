@@ -22,6 +22,8 @@
 //! the connection request is 07 02h, a bad BCC 08 08h) with the side in the detail, and are
 //! counted in `gateway_frames_discarded_total{reason}`.
 
+pub(crate) mod config;
+
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, SystemTime};
 
@@ -47,6 +49,7 @@ use crate::line::{DEFAULT_DIAG_DEPTH, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::mailbox::{Delivery, Mailbox, MailboxSettings, Overflow};
 use crate::serial::PortSettings;
 use crate::signals::SignalError;
+pub use config::Proc3964TapConfig;
 
 /// The config's `protocol` key of a 3964(R) tap line.
 pub const TAP_3964_PROTOCOL: &str = "3964r-tap";
