@@ -19,9 +19,10 @@ use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
 use crate::api::ApiState;
-use crate::config::{self, Config};
+use crate::config;
 use crate::modbus_tcp::ServerOptions;
 use crate::persist::ConfigStore;
+use crate::plant::Config;
 use crate::unit::write_policy::WritePolicy;
 
 mod build;

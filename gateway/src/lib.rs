@@ -40,6 +40,7 @@ pub mod metrics;
 pub mod modbus_tcp;
 pub mod paced;
 pub mod persist;
+pub mod plant;
 pub mod protocols;
 pub mod scan;
 pub mod serial;

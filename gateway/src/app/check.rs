@@ -23,7 +23,7 @@
 //! works, so it is an error that says what to set instead; a port that does not exist or cannot
 //! be opened now (not plugged in, in use) is a warning, because the running line opens it again
 //! with back-off. It warns, too, about keys another key's value leaves without effect
-//! (`config::validate::ignored_keys`) and tags that no poll group reads.
+//! (`crate::plant::validate::ignored_keys`) and tags that no poll group reads.
 //!
 //! Exit codes: `gateway check` 0 (valid, warnings may be printed) or 1 (problems); `gateway run`
 //! 64 (the configuration is refused: file, token, line settings, zenoh or CP memory file) or 70
@@ -32,9 +32,10 @@
 use std::path::Path;
 
 use crate::api::{Auth, TokenError};
-use crate::config::{self, Config, ConfigErrors, ConfigIssue, Interface};
+use crate::config::{self, ConfigErrors, ConfigIssue, Interface};
 use crate::config::{HttpConfig, TokenSource};
 use crate::cpmem;
+use crate::plant::Config;
 use crate::serial::{self, OpenError};
 
 /// What the CP memory cannot serve exactly in the slave lines of `config`, each issue with its
@@ -62,7 +63,7 @@ pub fn config_issues(config: &Config, found: &[ConfigIssue]) -> Vec<ConfigIssue>
 /// Reads, parses and validates the configuration file at `path`: the reader's rules and
 /// [`config_issues`], every problem in one answer.
 pub fn load_config(path: &Path) -> Result<Config, ConfigErrors> {
-    config::load_with(path, &config_issues)
+    crate::plant::load_with(path, &config_issues)
 }
 
 /// Where a configuration comes from, for [`start_issues`].
@@ -227,7 +228,7 @@ pub fn api_path_issues(new: &Config, in_force: &Config) -> Vec<ConfigIssue> {
         if !dirs.template_dirs.contains(dir) {
             confined(
                 &format!("gateway.template_dirs[{i}]"),
-                Some(&config::template_dir_resolved(dir)),
+                Some(&crate::plant::template_dir_resolved(dir)),
                 None,
                 conf,
             );
@@ -771,7 +772,7 @@ pub fn ack_warnings(config: &Config) -> Vec<ConfigIssue> {
         }
         // A client other than REST that can acknowledge: a Modbus TCP mailbox or zenoh writes.
         let client = (modbus_on && line.unit_id().is_some()) || zenoh_writes;
-        let message = match crate::protocols::ack_mode(config, line) {
+        let message = match crate::protocols::ack_mode(zenoh_on, line) {
             config::AckConfig::Explicit if !client => {
                 format!(
                     "ack = \"explicit\" but no Modbus TCP unit_id and no zenoh writes \
@@ -971,13 +972,13 @@ fn endpoint_is_loopback(endpoint: &str) -> bool {
             .is_ok_and(|ip| ip.is_loopback())
 }
 
-/// The keys of the file at `path` that take no effect ([`config::validate::ignored_keys`]);
+/// The keys of the file at `path` that take no effect ([`crate::plant::validate::ignored_keys`]);
 /// none when it cannot be read or parsed (then the loader said so already).
 pub fn ignored_keys_of(path: &Path) -> Vec<ConfigIssue> {
     std::fs::read_to_string(path)
         .ok()
         .and_then(|text| text.parse::<toml::Table>().ok())
-        .map(|table| config::validate::ignored_keys(&table))
+        .map(|table| crate::plant::validate::ignored_keys(&table))
         .unwrap_or_default()
 }
 
@@ -1031,7 +1032,7 @@ mod tests {
         };
         let zenoh = "[zenoh]\nlisten = [\"tcp/127.0.0.1:7447\"]\n";
         let warned = |text: String| {
-            let config = config::parse(&text).expect("parses");
+            let config = crate::plant::parse(&text).expect("parses");
             ack_warnings(&config)
                 .into_iter()
                 .map(|w| (w.path, w.message))
@@ -1065,7 +1066,7 @@ mod tests {
 
     #[test]
     fn open_write_paths_are_warned_about() {
-        let open = config::parse(
+        let open = crate::plant::parse(
             "[modbus_tcp]\nlisten = \"0.0.0.0:502\"\n[http]\nlisten = \"0.0.0.0:8080\"\n\
              insecure_allow_unauthenticated_changes = true\n[zenoh]\nlisten = [\"tcp/0.0.0.0:7447\"]\nwrites = true\n",
         )
@@ -1074,7 +1075,7 @@ mod tests {
         assert_eq!(warnings.len(), 3, "{warnings:#?}");
         // A token over plain HTTP off loopback; not with [http.tls], not on loopback.
         let token = |listen: &str, tls: &str| {
-            config::parse(&format!(
+            crate::plant::parse(&format!(
                 "[http]\nlisten = \"{listen}\"\ntoken_env = \"T\"\n{tls}"
             ))
             .expect("parses")
@@ -1097,21 +1098,21 @@ mod tests {
         assert_eq!(http(&token("127.0.0.1:8080", "")), Vec::new());
         let paths: Vec<&str> = warnings.iter().map(|w| w.path.as_str()).collect();
         assert_eq!(paths, ["modbus_tcp", "http", "zenoh"]);
-        let closed = config::parse(
+        let closed = crate::plant::parse(
             "[modbus_tcp]\nlisten = \"0.0.0.0:502\"\nallowed_networks = [\"10.0.0.0/8\"]\n\
              [zenoh]\nlisten = [\"tcp/127.0.0.1:7447\"]\n",
         )
         .expect("parses");
         assert_eq!(security_warnings(&closed), Vec::<ConfigIssue>::new());
         // The demo's loopback listeners are not warned about.
-        let demo = config::parse(config::demo_toml()).expect("demo parses");
+        let demo = crate::plant::parse(crate::plant::demo_toml()).expect("demo parses");
         assert_eq!(security_warnings(&demo), Vec::<ConfigIssue>::new());
     }
 
     #[test]
     fn a_fabric_without_authentication_is_warned_about() {
         let zenoh = |section: &str| -> Vec<ConfigIssue> {
-            let c = config::parse(&format!("[zenoh]\n{section}")).expect("parses");
+            let c = crate::plant::parse(&format!("[zenoh]\n{section}")).expect("parses");
             security_warnings(&c)
                 .into_iter()
                 .filter(|w| w.path == "zenoh")
@@ -1184,7 +1185,7 @@ mod token_tests {
         std::fs::write(path("server.key"), key.serialize_pem()).unwrap();
         std::fs::write(path("empty.crt"), "").unwrap();
         let config = |cert: &str, key: &str, ca: &str| {
-            config::parse(&format!(
+            crate::plant::parse(&format!(
                 "[modbus_tcp.tls]\ncert = \"{}\"\nkey = \"{}\"\nca = \"{}\"\n",
                 path(cert).display(),
                 path(key).display(),
@@ -1259,7 +1260,7 @@ mod token_tests {
             let ca = ca
                 .map(|ca| format!("ca = \"{}\"\n", path(ca).display()))
                 .unwrap_or_default();
-            config::parse(&format!(
+            crate::plant::parse(&format!(
                 "[http.tls]\ncert = \"{}\"\nkey = \"{}\"\n{ca}",
                 path(cert).display(),
                 path(key).display(),
@@ -1294,7 +1295,7 @@ mod token_tests {
 
     #[test]
     fn a_named_token_that_cannot_be_read_is_an_issue_at_its_key() {
-        let http = config::parse(
+        let http = crate::plant::parse(
             "[http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"OPS\"\n\
              [http.tokens.eng]\nrole = \"admin\"\ntoken_file = \"/nonexistent/eng.token\"\n",
         )
@@ -1361,10 +1362,10 @@ mod api_path_tests {
                 d = dir.path().display()
             )
         };
-        let in_force = config::parse(&text("/opt/tls", "/opt/r.journal")).expect("parses");
+        let in_force = crate::plant::parse(&text("/opt/tls", "/opt/r.journal")).expect("parses");
         // The paths in force were set by the host: not checked again, even outside.
         assert_eq!(api_path_issues(&in_force, &in_force), Vec::new());
-        let changed = config::parse(&text("/etc/ssl", "/etc/r.journal")).expect("parses");
+        let changed = crate::plant::parse(&text("/etc/ssl", "/etc/r.journal")).expect("parses");
         let issues = api_path_issues(&changed, &in_force);
         let paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
         assert_eq!(
@@ -1393,7 +1394,7 @@ mod api_path_tests {
         std::fs::create_dir_all(&state).expect("mkdir");
         std::fs::create_dir_all(&conf).expect("mkdir");
         let journal = state.join("r.journal").display().to_string();
-        let inside_dirs = config::parse(&text(&conf, &journal)).expect("parses");
+        let inside_dirs = crate::plant::parse(&text(&conf, &journal)).expect("parses");
         assert_eq!(api_path_issues(&inside_dirs, &in_force), Vec::new());
     }
 
@@ -1413,7 +1414,7 @@ mod api_path_tests {
                 conf = conf.display()
             )
         };
-        let in_force = config::parse(&text(
+        let in_force = crate::plant::parse(&text(
             &token.display().to_string(),
             "/opt/zenoh.json5",
             "/opt/tls",
@@ -1422,8 +1423,8 @@ mod api_path_tests {
         // The paths in force were set by the host: not checked again, even outside.
         assert_eq!(api_path_issues(&in_force, &in_force), Vec::new());
         // Changed to paths outside config_dirs: every one refused at its key.
-        let changed =
-            config::parse(&text("/etc/shadow", "/etc/zenoh.json5", "/etc/ssl")).expect("parses");
+        let changed = crate::plant::parse(&text("/etc/shadow", "/etc/zenoh.json5", "/etc/ssl"))
+            .expect("parses");
         let issues = api_path_issues(&changed, &in_force);
         let paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
         assert_eq!(
@@ -1460,7 +1461,7 @@ mod api_path_tests {
             "/opt/zenoh.json5",
             "/opt/tls",
         );
-        let changed = config::parse(&inside_dir).expect("parses");
+        let changed = crate::plant::parse(&inside_dir).expect("parses");
         assert_eq!(api_path_issues(&changed, &in_force), Vec::new());
         let all = start_issues(
             &changed,
@@ -1483,7 +1484,7 @@ mod api_path_tests {
 
     #[test]
     fn every_token_problem_is_reported_at_its_key() {
-        let http = config::parse(
+        let http = crate::plant::parse(
             "[http]\ntoken_file = \"/nonexistent/admin.token\"\n\
              [http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"OPS\"\n\
              [http.tokens.hmi]\nrole = \"viewer\"\ntoken_env = \"HMI\"\n",
@@ -1506,7 +1507,7 @@ mod api_path_tests {
             "token ops: the API token variable OPS is not set"
         );
         // All readable, two alike: one issue at http.tokens.
-        let http = config::parse(
+        let http = crate::plant::parse(
             "[http]\ntoken_env = \"A\"\n[http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"B\"\n",
         )
         .expect("parses")
@@ -1632,7 +1633,7 @@ mod state_file_tests {
     }
 
     fn config(state: &Path, a: &Path, b: &Path, persist: &Path) -> Config {
-        config::parse(&format!(
+        crate::plant::parse(&format!(
             "[gateway]\nstate_dirs = [\"{state}\"]\n\
              [cp_memory]\npersist_file = \"{persist}\"\n\
              [lines.a]\nport = \"/dev/null\"\nprotocol = \"3964r\"\njournal = \"{a}\"\n\

@@ -15,7 +15,6 @@ use tokio_util::sync::CancellationToken;
 use tracing::info;
 
 use super::{run_from, AppError, Overrides};
-use crate::config;
 use crate::protocols::{LineConfig, ProtocolConfig, ASCII_CHARACTER_DELAY_RANGE};
 use crate::sim::{self, ModbusDevice};
 
@@ -34,7 +33,7 @@ pub async fn demo_named(
     overrides: Overrides,
     shutdown: CancellationToken,
 ) -> Result<(), AppError> {
-    let mut config = config::demo();
+    let mut config = crate::plant::demo();
     if let Some(name) = name {
         crate::zenoh_bridge::keys::check_chunk("gateway", &name)
             .map_err(|e| AppError::Setup(format!("--name: {e}")))?;
@@ -115,7 +114,7 @@ pub async fn demo_named(
     }
     // The REST API's start-up line says that changes need no token here (one WARN, the demo's
     // only one, on purpose); the HTTP server's start says that changes are kept in memory.
-    let result = run_from(config, Some(config::demo_toml()), overrides, shutdown).await;
+    let result = run_from(config, Some(crate::plant::demo_toml()), overrides, shutdown).await;
     sims.cancel();
     drop(keep);
     result

@@ -11,12 +11,12 @@ use tokio_util::sync::CancellationToken;
 
 use super::AppError;
 use super::Metrics;
-use crate::config::Config;
 use crate::cpmem::SharedCpMemory;
 use crate::image::ProcessImage;
 use crate::line::LineHandle;
-use crate::protocols::start::{StartDeps, StartLine};
-use crate::protocols::{LineConfig, ProtocolConfig};
+use crate::plant::Config;
+use crate::protocols::start::StartDeps;
+use crate::protocols::LineConfig;
 use crate::unit::UnitService;
 
 /// A running line and what it registered.
@@ -67,21 +67,6 @@ pub(crate) struct LineDeps<'a> {
     pub(crate) mirrored: &'a Mutex<Vec<(u8, AddressMap)>>,
 }
 
-/// The one table of protocols: each line's config section, as the part of its protocol that
-/// starts the line (each implements [`StartLine`] next to its adapter). Adding a protocol adds
-/// one arm here.
-fn protocol(config: &ProtocolConfig) -> &dyn StartLine {
-    match config {
-        ProtocolConfig::ModbusMasterRtu(c) => c,
-        ProtocolConfig::ModbusMasterAscii(c) => c,
-        ProtocolConfig::ModbusSlaveRtu(c) => c,
-        ProtocolConfig::ModbusRtuTap(c) => c,
-        ProtocolConfig::Proc3964(c) => c,
-        ProtocolConfig::Proc3964Tap(c) => c,
-        ProtocolConfig::Ascii(c) => c,
-    }
-}
-
 /// Starts line `name` of `deps.config` under its own token; `carried` is what the line it
 /// replaces left (its waiting telegrams, when both are telegram lines).
 pub(crate) fn start_line(
@@ -92,14 +77,17 @@ pub(crate) fn start_line(
 ) -> Result<RunningLine, AppError> {
     let token = deps.parent.child_token();
     let start = StartDeps {
-        config: deps.config,
+        gateway: &deps.config.gateway,
+        zenoh_on: deps.config.zenoh.as_ref().is_some_and(|z| z.enabled),
         image: deps.image,
         metrics: deps.metrics.line(),
         cp_memory: deps.cp_memory,
         token: token.clone(),
         carried,
     };
-    let handle = protocol(&line.protocol)
+    let handle = line
+        .protocol
+        .starter()
         .start(name, line, &start)
         .map_err(|e| AppError::Setup(e.to_string()))?;
     // The CP memory a slave line serves is mirrored into the image under its unit id, once.
@@ -133,7 +121,7 @@ pub(crate) fn start_issues(
     config
         .lines
         .iter()
-        .flat_map(|(name, line)| protocol(&line.protocol).start_issues(name, line, layout))
+        .flat_map(|(name, line)| line.protocol.starter().start_issues(name, line, layout))
         .collect()
 }
 

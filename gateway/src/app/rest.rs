@@ -15,8 +15,9 @@ use crate::api::model::{
     TagValue, Telegram, TelegramQueue, Timestamp, ZenohStatus,
 };
 use crate::api::{ApiBackend, ApiError, BoxFuture};
-use crate::config::{Config, ConfigIssue};
+use crate::config::ConfigIssue;
 use crate::line::LineHandle;
+use crate::plant::Config;
 use crate::protocols::telegram::TelegramSendError;
 use crate::signals::{Output, SignalError};
 use crate::tags::TagEntry;

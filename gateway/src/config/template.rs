@@ -314,7 +314,8 @@ fn base(found: &Found) -> Option<toml::Table> {
 
 #[cfg(test)]
 mod tests {
-    use crate::config::{self, Config};
+    use crate::config;
+    use crate::plant::Config;
 
     const TEMPLATE: &str = "profile = \"generic\"\n\
         tags = [\n\
@@ -360,7 +361,7 @@ mod tests {
              ]\n\n\
              [lines.m.devices.c]\ntemplate = \"inline\"\naddress = 3\n",
         );
-        let c = config::parse(&text).unwrap_or_else(|e| panic!("{e}"));
+        let c = crate::plant::parse(&text).unwrap_or_else(|e| panic!("{e}"));
         let d = devices(&c);
         let names =
             |n: &str| -> Vec<String> { d[n].tags.iter().map(|t| t.name.to_string()).collect() };
@@ -382,7 +383,7 @@ mod tests {
             .as_array()
             .expect("own tags");
         assert_eq!(b_tags.len(), 2, "{written}");
-        assert_eq!(config::parse(&written), Ok(c));
+        assert_eq!(crate::plant::parse(&written), Ok(c));
     }
 
     #[test]
@@ -399,7 +400,7 @@ mod tests {
              [lines.m.devices.b]\ntemplate = \"meter\"\naddress = 2\n\n\
              [lines.m.devices.c]\ntemplate = \"nowhere\"\naddress = 3\n",
         );
-        let issues = config::parse(&text).expect_err("refused").issues;
+        let issues = crate::plant::parse(&text).expect_err("refused").issues;
         let note = format!("(template \"meter\", file {})", file.display());
         let scale = issues
             .iter()
@@ -428,7 +429,7 @@ mod tests {
             broken.path(),
             "[lines.m.devices.a]\ntemplate = \"meter\"\naddress = 1\n",
         );
-        let issues = config::parse(&text).expect_err("refused").issues;
+        let issues = crate::plant::parse(&text).expect_err("refused").issues;
         assert_eq!(issues.len(), 1, "{issues:#?}");
         assert_eq!(issues[0].path, "templates.meter");
         assert!(
@@ -445,7 +446,7 @@ mod tests {
             "[lines.m.devices.a]\ntemplate = \"meter\"\naddress = 1\n\
              tags = [{ name = \"other\", table = \"input\", address = 0, scale = 0.0 }]\n",
         );
-        let issues = config::parse(&text).expect_err("refused").issues;
+        let issues = crate::plant::parse(&text).expect_err("refused").issues;
         assert!(
             issues
                 .iter()

@@ -14,6 +14,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::reader::{check_name, Cx, Fields};
 use crate::config::section::{AckConfig, ProtocolSection};
 use crate::config::{Baud, DeviceConfig, SerialConfig, DEFAULT_BAUD};
+use start::StartLine;
 
 pub use modbus_master::config::*;
 pub use modbus_master::{
@@ -73,6 +74,15 @@ macro_rules! protocols {
         impl ProtocolConfig {
             /// The protocol's own section: the one match over the protocols in the configuration.
             pub(crate) fn section(&self) -> &dyn ProtocolSection {
+                match self {
+                    $(Self::$variant(c) => c,)+
+                }
+            }
+
+            /// The protocol's own section, as the part of its protocol that starts the line (each
+            /// implements [`StartLine`] next to its adapter): the one match over the protocols in
+            /// starting a line.
+            pub(crate) fn starter(&self) -> &dyn StartLine {
                 match self {
                     $(Self::$variant(c) => c,)+
                 }
@@ -268,10 +278,9 @@ impl LineConfig {
     }
 }
 
-/// Who acknowledges the telegrams of `line` in `config`: its `ack`, else "on-publish" when the
-/// line has no Modbus TCP `unit_id` and zenoh is on (nobody else could), else "explicit".
-pub fn ack_mode(config: &crate::config::Config, line: &LineConfig) -> AckConfig {
-    let zenoh_on = config.zenoh.as_ref().is_some_and(|z| z.enabled);
+/// Who acknowledges the telegrams of `line`: its `ack`, else "on-publish" when the line has no
+/// Modbus TCP `unit_id` and zenoh is on (`zenoh_on`: nobody else could), else "explicit".
+pub fn ack_mode(zenoh_on: bool, line: &LineConfig) -> AckConfig {
     line.ack()
         .unwrap_or(if line.unit_id().is_none() && zenoh_on {
             AckConfig::OnPublish

@@ -12,7 +12,7 @@
 use proto_core::cpmem::MemoryLayout;
 use tokio_util::sync::CancellationToken;
 
-use crate::config::{self, Config, ConfigIssue};
+use crate::config::{self, ConfigIssue, GatewaySection};
 use crate::cpmem::SharedCpMemory;
 use crate::image::ProcessImage;
 use crate::line::metrics::LineFamilies;
@@ -22,9 +22,10 @@ use crate::serial::{self, PortSettings};
 
 /// What starting a line needs from the gateway.
 pub(crate) struct StartDeps<'a> {
-    /// The whole configuration (gateway-wide settings: the diagnostic buffer depth, the
-    /// acknowledgement default of telegram lines).
-    pub(crate) config: &'a Config,
+    /// The gateway-wide settings (the diagnostic buffer depth).
+    pub(crate) gateway: &'a GatewaySection,
+    /// Whether zenoh is on (the acknowledgement default of telegram lines, [`super::ack_mode`]).
+    pub(crate) zenoh_on: bool,
     /// The process image master and tap lines keep their devices' values in.
     pub(crate) image: &'a ProcessImage,
     /// Where the line counts its events, traffic and requests.

@@ -15,7 +15,8 @@ use gateway::api::model::{
 };
 use gateway::api::{ApiBackend, ApiError, BoxFuture, ConfigDiff};
 use gateway::audit::WriteResult;
-use gateway::config::{Config, ConfigIssue, Interface};
+use gateway::config::{ConfigIssue, Interface};
+use gateway::plant::Config;
 use gateway::protocols::{LineConfig, ProtocolConfig};
 use proto_core::event::EventId;
 

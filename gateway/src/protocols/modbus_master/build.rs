@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 
 use proto_core::modbus::master::{Framing, MasterConfig, OperatingMode};
 
-use crate::config::{self, Config, DeviceConfig};
+use crate::config::{self, DeviceConfig, GatewaySection};
 use crate::image::Table;
 use crate::line::{self, LineHandle};
 use crate::protocols::start::{port_settings, StartDeps, StartError, StartLine};
@@ -28,7 +28,7 @@ impl StartLine for ModbusMasterRtuConfig {
         line: &LineConfig,
         deps: &StartDeps<'_>,
     ) -> Result<LineHandle, StartError> {
-        let (settings, devices) = rtu_line(name, line, self, deps.config);
+        let (settings, devices) = rtu_line(name, line, self, deps.gateway);
         Ok(spawn(settings, devices, deps))
     }
 }
@@ -40,7 +40,7 @@ impl StartLine for ModbusMasterAsciiConfig {
         line: &LineConfig,
         deps: &StartDeps<'_>,
     ) -> Result<LineHandle, StartError> {
-        let (settings, devices) = ascii_line(name, line, self, deps.config);
+        let (settings, devices) = ascii_line(name, line, self, deps.gateway);
         Ok(spawn(settings, devices, deps))
     }
 }
@@ -64,7 +64,7 @@ fn rtu_line(
     name: &str,
     line: &LineConfig,
     m: &ModbusMasterRtuConfig,
-    config: &Config,
+    gateway: &GatewaySection,
 ) -> (LineSettings, Vec<DeviceSettings>) {
     let mut settings = LineSettings::rtu(name, port_settings(&line.serial));
     let timing = line::rtu_timing(&settings.port).with_multiplier(m.delay_multiplier);
@@ -77,7 +77,7 @@ fn rtu_line(
     };
     settings.commands_in_row = m.commands_in_row;
     settings.transparent = m.transparent.range().map(TransparentSettings::new);
-    with_devices(settings, &m.devices, config)
+    with_devices(settings, &m.devices, gateway)
 }
 
 /// The settings and devices of a Modbus master ASCII line.
@@ -85,7 +85,7 @@ fn ascii_line(
     name: &str,
     line: &LineConfig,
     m: &ModbusMasterAsciiConfig,
-    config: &Config,
+    gateway: &GatewaySection,
 ) -> (LineSettings, Vec<DeviceSettings>) {
     let mut settings = LineSettings::rtu(name, port_settings(&line.serial));
     settings.master = MasterConfig {
@@ -100,16 +100,16 @@ fn ascii_line(
     };
     settings.commands_in_row = m.commands_in_row;
     settings.transparent = m.transparent.range().map(TransparentSettings::new);
-    with_devices(settings, &m.devices, config)
+    with_devices(settings, &m.devices, gateway)
 }
 
 /// The gateway-wide settings of a master line, and its devices.
 fn with_devices(
     mut settings: LineSettings,
     devices: &BTreeMap<String, DeviceConfig>,
-    config: &Config,
+    gateway: &GatewaySection,
 ) -> (LineSettings, Vec<DeviceSettings>) {
-    settings.diag_depth = usize::from(config.gateway.diag_buffer_depth);
+    settings.diag_depth = usize::from(gateway.diag_buffer_depth);
     let devices = devices
         .iter()
         .map(|(name, device)| device_settings(name, device))

@@ -1,4 +1,4 @@
-//! Simulated Modbus slaves as a line engine: a [`ModbusDevice`] (one model or a [`super::bus::Bus`]
+//! Simulated Modbus slaves as a line engine: a [`ModbusDevice`] (one model or a [`crate::sim::bus::Bus`]
 //! of several) driven by the gateway's own line runtime, so that the simulators and the lines
 //! share one port task and one timing.
 //!
@@ -11,8 +11,10 @@
 //! gestartet"), plus an injected delay; the runtime's timer (a timerfd) wakes the engine then.
 //! Bytes kept while a frame is incomplete are bounded by [`MAX_PENDING`].
 
+use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
+use proto_core::checksum::crc16_modbus;
 use proto_core::event::EventId;
 use proto_core::modbus::rtu::{self, CharTiming, FrameLen};
 use proto_core::monitor::Framing;
@@ -21,15 +23,127 @@ use proto_core::time::Instant;
 use tokio_serial::SerialPort;
 use tokio_util::sync::CancellationToken;
 
-use crate::sim::ModbusDevice;
-use std::sync::Arc;
-
 use crate::line::runtime::{
     self, GivenPort, LineBase, LineCapabilities, LineCommands, LineEngine, LineHandle,
     LineLifecycle, LinePort, LineSignals, SecondPort, Stop,
 };
 use crate::line::{Clock, DEFAULT_REOPEN_MAX, DEFAULT_REOPEN_MIN};
 use crate::serial::PortSettings;
+
+/// A simulated Modbus RTU slave.
+pub trait ModbusDevice: Send {
+    /// Handles one received frame (address, PDU, CRC) and returns the frame to send back, or
+    /// `None` when the device stays silent.
+    fn handle_frame(&mut self, adu: &[u8]) -> Option<Vec<u8>>;
+
+    /// Advances the device's own clock by `elapsed`: the process behind the registers moves on
+    /// and time-outs run. The default does nothing.
+    fn tick(&mut self, elapsed: Duration) {
+        let _ = elapsed;
+    }
+
+    /// The faults injected into the device's answers (the runner applies `delay`).
+    fn faults(&self) -> Faults {
+        Faults::default()
+    }
+
+    /// Bytes the line picks up after the answer just sent, once the answer has ended (the runner
+    /// sends them after a silence of more than t3.5, so they are a burst of their own). The
+    /// default is none.
+    fn after_answer(&mut self) -> Option<Vec<u8>> {
+        None
+    }
+}
+
+impl<D: ModbusDevice + ?Sized> ModbusDevice for Box<D> {
+    fn handle_frame(&mut self, adu: &[u8]) -> Option<Vec<u8>> {
+        (**self).handle_frame(adu)
+    }
+
+    fn tick(&mut self, elapsed: Duration) {
+        (**self).tick(elapsed);
+    }
+
+    fn faults(&self) -> Faults {
+        (**self).faults()
+    }
+
+    fn after_answer(&mut self) -> Option<Vec<u8>> {
+        (**self).after_answer()
+    }
+}
+
+/// A device shared with the code that started it (a test reads its registers or changes its
+/// faults while it serves). The lock is held for one frame or one tick, never across an await.
+impl<D: ModbusDevice> ModbusDevice for Arc<Mutex<D>> {
+    fn handle_frame(&mut self, adu: &[u8]) -> Option<Vec<u8>> {
+        self.lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .handle_frame(adu)
+    }
+
+    fn tick(&mut self, elapsed: Duration) {
+        self.lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .tick(elapsed);
+    }
+
+    fn faults(&self) -> Faults {
+        self.lock().unwrap_or_else(PoisonError::into_inner).faults()
+    }
+
+    fn after_answer(&mut self) -> Option<Vec<u8>> {
+        self.lock()
+            .unwrap_or_else(PoisonError::into_inner)
+            .after_answer()
+    }
+}
+
+/// Faults to inject for tests of the gateway's error handling. The default injects none.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Faults {
+    /// Never answer (the master sees "no reply", 003 7.2 08 30h).
+    pub silent: bool,
+    /// Wait this long before answering, on top of the normal turnaround.
+    pub delay: Duration,
+    /// Send answers with a wrong CRC (003 7.2 0E 57h).
+    pub bad_crc: bool,
+    /// Send answers with another slave address (003 7.2 08 31h).
+    pub wrong_address: bool,
+}
+
+// === impl Faults ===
+
+impl Faults {
+    /// The answer as the faults change it.
+    pub fn apply(&self, answer: Option<Vec<u8>>) -> Option<Vec<u8>> {
+        if self.silent {
+            return None;
+        }
+        let mut frame = answer?;
+        if self.wrong_address {
+            if let Some(address) = frame.first_mut() {
+                *address = address.wrapping_add(1).max(1);
+            }
+            reseal(&mut frame);
+        }
+        if self.bad_crc {
+            if let Some(last) = frame.last_mut() {
+                *last ^= 0xFF;
+            }
+        }
+        Some(frame)
+    }
+}
+
+/// Recomputes the CRC of a frame after its bytes changed.
+fn reseal(frame: &mut Vec<u8>) {
+    if frame.len() >= rtu::MIN_FRAME_LEN {
+        frame.truncate(frame.len() - 2);
+        let crc = crc16_modbus(frame);
+        frame.extend_from_slice(&crc.to_le_bytes());
+    }
+}
 
 /// How often the devices' own clock advances (the drive's ramps, its time-out).
 const TICK: Duration = Duration::from_millis(100);

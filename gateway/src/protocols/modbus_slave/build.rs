@@ -29,7 +29,7 @@ impl StartLine for ModbusSlaveRtuConfig {
             })?;
         let mut settings =
             SlaveLineSettings::new(name.to_owned(), port_settings(&line.serial), params);
-        settings.diag_depth = usize::from(deps.config.gateway.diag_buffer_depth);
+        settings.diag_depth = usize::from(deps.gateway.diag_buffer_depth);
         settings.metrics = Some(deps.metrics.clone());
         settings.unit_id = self.unit_id;
         Ok(spawn_modbus_slave_line(

@@ -21,7 +21,7 @@ impl StartLine for ModbusRtuTapConfig {
         settings.tap.answer_timeout = self.answer_timeout;
         settings.tap.check_inter_character = self.inter_character_check;
         settings.expected_cycle = self.expected_cycle;
-        settings.diag_depth = usize::from(deps.config.gateway.diag_buffer_depth);
+        settings.diag_depth = usize::from(deps.gateway.diag_buffer_depth);
         settings.metrics = Some(deps.metrics.clone());
         let devices = self
             .devices

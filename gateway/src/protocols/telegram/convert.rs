@@ -308,9 +308,9 @@ fn start_telegram_line(
     deps: &StartDeps<'_>,
 ) -> Result<LineHandle, StartError> {
     let mut settings = settings.map_err(|e| StartError(format!("line {name}: {e}")))?;
-    settings.diag_depth = usize::from(deps.config.gateway.diag_buffer_depth);
+    settings.diag_depth = usize::from(deps.gateway.diag_buffer_depth);
     settings.metrics = Some(deps.metrics.clone());
-    settings.mailbox.ack = mailbox_ack(crate::protocols::ack_mode(deps.config, line));
+    settings.mailbox.ack = mailbox_ack(crate::protocols::ack_mode(deps.zenoh_on, line));
     settings.carried = deps.carried.clone();
     try_spawn_telegram_line(settings, deps.token.clone())
         .map_err(|e| StartError(format!("line {name}: {e}")))
@@ -353,7 +353,7 @@ impl StartLine for Proc3964TapConfig {
         settings.tap.max_len = self.max_telegram_len;
         settings.mailbox_depth = usize::from(self.receive_buffer);
         settings.unit_id = self.unit_id;
-        settings.diag_depth = usize::from(deps.config.gateway.diag_buffer_depth);
+        settings.diag_depth = usize::from(deps.gateway.diag_buffer_depth);
         settings.metrics = Some(deps.metrics.clone());
         Ok(spawn_3964_tap_line(settings, deps.token.clone()))
     }
@@ -372,19 +372,18 @@ pub fn mailbox_ack(ack: cfg::AckConfig) -> AckMode {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config;
 
     fn port() -> PortSettings {
         PortSettings::new("/dev/null", 9600)
     }
 
-    fn line(config: &config::Config, name: &str) -> LineConfig {
+    fn line(config: &crate::plant::Config, name: &str) -> LineConfig {
         config.lines.get(name).cloned().expect("demo line")
     }
 
     #[test]
     fn the_demo_lines_make_telegram_lines_with_the_manuals_defaults() {
-        let demo = config::demo();
+        let demo = crate::plant::demo();
         let r3964 = TelegramLineSettings::from_config("r3964", &line(&demo, "r3964"), port())
             .expect("3964r line");
         let TelegramProtocol::P3964(p) = &r3964.protocol else {

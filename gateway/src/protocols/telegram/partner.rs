@@ -430,7 +430,7 @@ mod tests {
 
     #[test]
     fn the_demo_partners_mirror_their_lines() {
-        let demo = crate::config::demo();
+        let demo = crate::plant::demo();
         let r3964 = demo.lines.get("r3964").expect("demo line");
         let sim = TelegramSim::for_line(r3964)
             .expect("telegram line")

@@ -4,11 +4,12 @@
 
 use std::collections::{BTreeMap, BTreeSet};
 
-use super::device::DeviceConfig;
-use super::reader::{serde_name, show_duration, Cx};
-use super::tag::{DataType, ModbusTable};
-use super::{Config, ConfigIssue};
-use crate::protocols::LineConfig;
+use super::Config;
+use crate::config::reader::{serde_name, show_duration, Cx};
+use crate::config::tag::{DataType, ModbusTable};
+use crate::config::ConfigIssue;
+use crate::config::DeviceConfig;
+use crate::protocols::{transparent_units, LineConfig};
 
 /// Every cross-field problem of `config`.
 pub fn validate(config: &Config) -> Vec<ConfigIssue> {
@@ -83,7 +84,7 @@ pub(crate) fn check(cx: &mut Cx, config: &Config) {
             "modbus_tcp.diagnostic_unit",
         );
     }
-    crate::protocols::modbus_master::config::check_transparent(cx, config, &units);
+    check_transparent(cx, config, &units);
     for (i, r) in config.modbus_tcp.write_ranges.iter().enumerate() {
         if config.modbus_tcp.diagnostic_unit == Some(r.unit_id) {
             cx.issue(
@@ -97,7 +98,7 @@ pub(crate) fn check(cx: &mut Cx, config: &Config) {
             && !config
                 .lines
                 .values()
-                .filter_map(crate::protocols::modbus_master::config::transparent_units)
+                .filter_map(transparent_units)
                 .any(|t| t.contains(&r.unit_id))
         {
             cx.issue(
@@ -632,6 +633,55 @@ pub fn ignored_keys(table: &toml::Table) -> Vec<ConfigIssue> {
     cx.issues
 }
 
+/// Two transparent lines may not claim the same unit id; where a device or unit of the gateway
+/// (`claimed`) holds the id, it wins and the overlap is harmless.
+fn check_transparent(cx: &mut Cx, config: &Config, claimed: &BTreeMap<u8, String>) {
+    let transparent: Vec<(&String, std::ops::RangeInclusive<u8>)> = config
+        .lines
+        .iter()
+        .filter_map(|(name, line)| transparent_units(line).map(|units| (name, units)))
+        .collect();
+    for (i, (name, units)) in transparent.iter().enumerate() {
+        for (first, other) in transparent.iter().take(i) {
+            let shared: Vec<u8> = units
+                .clone()
+                .filter(|u| other.contains(u) && !claimed.contains_key(u))
+                .collect();
+            if !shared.is_empty() {
+                cx.issue(
+                    format!("lines.{name}.transparent_units"),
+                    format!(
+                        "unit ids {} are forwarded by lines.{first} too: two transparent lines \
+                         may not claim the same unit id (narrow transparent_units)",
+                        show_ids(&shared)
+                    ),
+                );
+            }
+        }
+    }
+}
+
+/// Unit ids as runs: `1..=9, 11, 13..=247`.
+fn show_ids(ids: &[u8]) -> String {
+    let mut runs: Vec<(u8, u8)> = Vec::new();
+    for &id in ids {
+        match runs.last_mut() {
+            Some((_, last)) if last.checked_add(1) == Some(id) => *last = id,
+            _ => runs.push((id, id)),
+        }
+    }
+    runs.iter()
+        .map(|&(a, b)| {
+            if a == b {
+                a.to_string()
+            } else {
+                format!("{a}..={b}")
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -753,8 +803,8 @@ mod tests {
         let zero = "[[lines.m.devices.atv.poll]]\nname = \"zero\"\nperiod = \"0s\"\n\
              ranges = [{ table = \"holding\", start = 65535, count = 2 }, \
              { table = \"holding\", start = 1, count = 0 }]\n";
-        assert!(crate::config::parse(&device(2, 63, "1s", "")).is_ok());
-        let issues = crate::config::parse(&device(0, 200, "1s", zero))
+        assert!(crate::plant::parse(&device(2, 63, "1s", "")).is_ok());
+        let issues = crate::plant::parse(&device(0, 200, "1s", zero))
             .expect_err("refused")
             .issues;
         let shown: Vec<String> = issues
@@ -776,7 +826,7 @@ mod tests {
             "{shown:#?}"
         );
         assert!(shown[4].contains("poll[1].ranges[1].count"), "{shown:#?}");
-        let issues = crate::config::parse(&device(2, 63, "5s", ""))
+        let issues = crate::plant::parse(&device(2, 63, "5s", ""))
             .expect_err("refused")
             .issues;
         assert_eq!(issues.len(), 1, "{issues:#?}");
