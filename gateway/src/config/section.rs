@@ -1,7 +1,7 @@
 //! What every protocol's config section answers for its line, whatever the protocol: the seam
 //! between the configuration's common checks and views (ports, unit ids, devices, telegrams) and
-//! the sections of `config/modbus.rs`, `config/tap.rs` and `config/telegram.rs`, which implement
-//! it. A leaf: it knows none of the sections.
+//! the protocols' sections (`protocols/<protocol>/config.rs`), which implement it. A leaf: it knows
+//! none of the sections.
 
 use std::collections::BTreeMap;
 use std::path::Path;
@@ -13,9 +13,9 @@ use super::reader::Cx;
 use super::serial::SerialConfig;
 
 /// What a protocol's config section tells the rest of the configuration about its line. Each
-/// section implements it in its own file (`config/modbus.rs`, `config/tap.rs`,
-/// `config/telegram.rs`); the `section` method of [`super::ProtocolConfig`] is the one place
-/// that lists them. Every answer has the default of a line without that part.
+/// section implements it in its protocol's folder (`protocols/<protocol>/config.rs`); the
+/// `section` method of `ProtocolConfig`, made by the protocols' table, is the one place that lists
+/// them. Every answer has the default of a line without that part.
 pub(crate) trait ProtocolSection {
     /// The section's checks that span keys or need the serial settings (timing minimums by baud
     /// rate, the protocol against the interface), each issue under `path` (`lines.<name>`).

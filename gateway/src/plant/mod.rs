@@ -12,7 +12,7 @@
 //! converted to its domain type (`SocketAddr`, `IpNet`, `Duration` through humantime, enums,
 //! [`Baud`](crate::config::Baud), zenoh endpoints and key prefixes) and checked against the
 //! manual's range; keys nobody asked for are refused with their path. A bad value is reported and
-//! replaced by its default so that the walk goes on; then [`validate::check`] runs the checks that
+//! replaced by its default so that the walk goes on; then `validate::check` runs the checks that
 //! span several keys. Every problem is a [`ConfigIssue`] with its path. This is what serde's
 //! `deny_unknown_fields` would give, but with every problem of the file in one answer instead of
 //! the first one, and with the flat line tables (`port`, `baud` and the protocol's parameters

@@ -425,7 +425,7 @@ const fn needs(
 }
 
 /// An ASCII line's keys that only one end criterion or flow control reads (003 6.2.1; the V24
-/// times 000 6.2.1), with their defaults (config/telegram.rs).
+/// times 000 6.2.1), with their defaults (protocols/telegram/config.rs).
 const ASCII_NEEDS: &[Needs] = &[
     needs(
         "end_chars",

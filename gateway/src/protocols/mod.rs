@@ -1,5 +1,20 @@
-//! One serial line: its serial settings and its protocol with the protocol's parameters, in one
-//! flat TOML table `[lines.<name>]` (003 6.1: the CP runs one protocol driver per interface).
+//! The line protocols, one folder each, and the one table that lists them.
+//!
+//! A line is its serial settings and its protocol with the protocol's parameters, in one flat
+//! TOML table `[lines.<name>]` (003 6.1: the CP runs one protocol driver per interface). Each
+//! protocol's folder holds its config section (`config.rs`), its adapter over the line runtime,
+//! its start (`build.rs`, `convert.rs`: `start::StartLine`) and its simulated partner
+//! (`partner.rs`):
+//! - [`modbus_master`]: Modbus master RTU and ASCII, polling devices into the process image; its
+//!   partner is the simulated slave bus (the device models of [`crate::sim`]);
+//! - [`modbus_slave`]: Modbus slave RTU serving the CP memory; its partner the simulated serial
+//!   master (the demo's HMI);
+//! - [`modbus_tap`]: listen-only Modbus RTU;
+//! - [`telegram`]: 3964(R) and ASCII lines with their mailboxes and partners, and the
+//!   listen-only 3964(R) tap (`telegram/tap/`).
+//!
+//! The `protocols!` table below makes [`ProtocolConfig`], [`ProtocolKind`] and their one match
+//! each; a new protocol is its folder and one row here.
 
 pub mod modbus_master;
 pub mod modbus_slave;
@@ -126,50 +141,8 @@ protocols! {
 
 /// A protocol's section reads its keys from the line's table (`baud`: the line's, for the
 /// protocols whose defaults follow it).
-trait ReadSection {
+pub(crate) trait ReadSection {
     fn read_section(cx: &mut Cx, f: &mut Fields<'_>, baud: Baud) -> Self;
-}
-
-impl ReadSection for ModbusMasterRtuConfig {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
-        Self::read(cx, f)
-    }
-}
-
-impl ReadSection for ModbusMasterAsciiConfig {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
-        Self::read(cx, f)
-    }
-}
-
-impl ReadSection for ModbusSlaveRtuConfig {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
-        Self::read(cx, f)
-    }
-}
-
-impl ReadSection for ModbusRtuTapConfig {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
-        Self::read(cx, f)
-    }
-}
-
-impl ReadSection for Proc3964Config {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
-        Self::read(cx, f)
-    }
-}
-
-impl ReadSection for Proc3964TapConfig {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
-        Self::read(cx, f)
-    }
-}
-
-impl ReadSection for AsciiConfig {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, baud: Baud) -> Self {
-        Self::read(cx, f, baud)
-    }
 }
 
 // === impl ProtocolKind ===
@@ -331,5 +304,90 @@ mod tests {
         // The multiplier (003 6.4.2.1, 1..10) on top: 2 at 38400 Bd gives 2 ms.
         let doubled = rtu_timing(&PortSettings::new("/dev/null", 38_400)).with_multiplier(2);
         assert_eq!(doubled.t3_5().as_micros(), 2_005);
+    }
+
+    /// The only files outside the protocols' own folders (`src/protocols/<folder>/`) that may
+    /// name the protocols one by one: the table and the demo's simulated partners.
+    const LISTING_FILES: [&str; 2] = ["protocols/mod.rs", "app/demo.rs"];
+
+    /// The variants of `ProtocolConfig`: those of the protocols' table, which makes
+    /// `ProtocolKind` with the same names.
+    fn variants() -> Vec<String> {
+        ProtocolKind::ALL
+            .iter()
+            .map(|kind| format!("{kind:?}"))
+            .collect()
+    }
+
+    fn rust_files(dir: &std::path::Path, found: &mut Vec<std::path::PathBuf>) {
+        for entry in std::fs::read_dir(dir).expect("source directory") {
+            let path = entry.expect("directory entry").path();
+            if path.is_dir() {
+                rust_files(&path, found);
+            } else if path.extension().is_some_and(|e| e == "rs") {
+                found.push(path);
+            }
+        }
+    }
+
+    /// A file in a protocol's own folder: `protocols/<folder>/...` (`protocols/modbus_master/`,
+    /// `protocols/telegram/`, ...), where its section, adapter, start and partner live.
+    fn in_protocol_folder(relative: &str) -> bool {
+        relative
+            .strip_prefix("protocols/")
+            .is_some_and(|rest| rest.contains('/'))
+    }
+
+    #[test]
+    fn the_protocols_are_named_only_in_their_table_their_folders_and_the_demo() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+        let src = root.join("src");
+        let variants = variants();
+        assert!(
+            variants.len() >= 7,
+            "ProtocolConfig's variants not found in the protocols' table: {variants:?}"
+        );
+        let mut files = Vec::new();
+        rust_files(&src, &mut files);
+        let mut listing: Vec<String> = files
+            .iter()
+            .filter_map(|path| {
+                let relative = path.strip_prefix(&src).ok()?.to_string_lossy().into_owned();
+                let text = std::fs::read_to_string(path).ok()?;
+                let names_one = variants.iter().any(|v| {
+                    text.contains(&format!("ProtocolConfig::{v}"))
+                        || text.contains(&format!("ProtocolKind::{v}"))
+                        || text.contains(&format!("{v} = \""))
+                });
+                (names_one && !in_protocol_folder(&relative)).then_some(relative)
+            })
+            .collect();
+        listing.sort();
+        let stray: Vec<&String> = listing
+            .iter()
+            .filter(|f| !LISTING_FILES.contains(&f.as_str()))
+            .collect();
+        assert!(
+            stray.is_empty(),
+            "the protocols are named one by one in {stray:?}, outside their table \
+             (protocols/mod.rs), their own folders (protocols/<folder>/) and the demo \
+             (app/demo.rs). A protocol answers for its line through config::ProtocolSection and \
+             protocols::start::StartLine; see \"Adding a line protocol\" in docs/architecture.md"
+        );
+        assert!(
+            listing.contains(&"protocols/mod.rs".to_owned()),
+            "the protocols' table is not in protocols/mod.rs: {listing:?}"
+        );
+        let architecture = std::fs::read_to_string(root.join("../docs/architecture.md"))
+            .expect("docs/architecture.md");
+        let unnamed: Vec<&String> = listing
+            .iter()
+            .filter(|f| !architecture.contains(&format!("`{f}`")))
+            .collect();
+        assert!(
+            unnamed.is_empty(),
+            "docs/architecture.md (\"Adding a line protocol\") does not name {unnamed:?}, which \
+             name the protocols: list them among the files a new protocol touches"
+        );
     }
 }

@@ -1,12 +1,12 @@
 //! Starting a line from its config section: the seam each protocol implements next to its
 //! adapter.
 //!
-//! A protocol's config section (`crate::protocols::ModbusMasterRtuConfig`, `crate::protocols::Proc3964Config`, ...)
-//! implements [`StartLine`] in the protocol's own folder (`line/master/build.rs`,
-//! `line/modbus_slave/build.rs`, `line/modbus_tap/build.rs`, `line/telegram/convert.rs`): it turns
-//! the section into its adapter's settings and spawns the line. The app holds the one table that
-//! finds a line's section (`app/lines.rs`), so a section only ever builds its own line and there
-//! is no "not a line of this protocol" case. What every protocol shares, the port settings of the
+//! A protocol's config section (`ModbusMasterRtuConfig`, `Proc3964Config`, ...) implements
+//! [`StartLine`] in the protocol's own folder (`modbus_master/build.rs`, `modbus_slave/build.rs`,
+//! `modbus_tap/build.rs`, `telegram/convert.rs`): it turns the section into its adapter's settings
+//! and spawns the line. The protocols' table finds a line's section
+//! (`ProtocolConfig::starter`), so a section only ever builds its own line and there is no "not a
+//! line of this protocol" case. What every protocol shares, the port settings of the
 //! serial section, lives here.
 
 use proto_core::cpmem::MemoryLayout;

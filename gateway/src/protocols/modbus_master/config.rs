@@ -8,8 +8,10 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::reader::{check_name, Cx, Fields};
 use crate::config::section::ProtocolSection;
+use crate::config::Baud;
 use crate::config::DeviceConfig;
 use crate::config::{DataBits, SerialConfig};
+use crate::protocols::ReadSection;
 
 /// 003 6.4.2.1/6.4.2.2 "Reply monitoring time ... Range: 5 ... 65500ms".
 pub const REPLY_TIMEOUT_RANGE: (Duration, Duration) =
@@ -281,6 +283,20 @@ impl ModbusMasterAsciiConfig {
             transparent: Transparent::read(cx, f),
             devices: read_devices(cx, f),
         }
+    }
+}
+
+// === impl ReadSection ===
+
+impl ReadSection for ModbusMasterRtuConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
+        Self::read(cx, f)
+    }
+}
+
+impl ReadSection for ModbusMasterAsciiConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
+        Self::read(cx, f)
     }
 }
 

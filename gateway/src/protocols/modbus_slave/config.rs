@@ -6,11 +6,13 @@ use serde::Serialize;
 use crate::config::reader::{Cx, Fields};
 use crate::config::section::ProtocolSection;
 use crate::config::tag::{self, AddressRange};
+use crate::config::Baud;
 use crate::config::SerialConfig;
 use crate::protocols::modbus_master::config::{
     check_rtu_data_bits, OperatingMode, DEFAULT_DELAY_MULTIPLIER, DEFAULT_OPERATING_MODE,
     MAX_DELAY_MULTIPLIER,
 };
+use crate::protocols::ReadSection;
 
 /// 003 6.4.5.1 "Slave address ... Range of values: 1 ... 255", default 222.
 pub const DEFAULT_SLAVE_ADDRESS: u8 = 222;
@@ -209,6 +211,14 @@ impl ModbusSlaveRtuConfig {
             input_db,
             write_enable,
         }
+    }
+}
+
+// === impl ReadSection ===
+
+impl ReadSection for ModbusSlaveRtuConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
+        Self::read(cx, f)
     }
 }
 

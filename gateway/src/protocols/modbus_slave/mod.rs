@@ -4,7 +4,7 @@
 //!
 //! An adapter of the line runtime over a proto-core [`Slave`] engine that borrows the
 //! [`SharedCpMemory`] for one request at a time: the engine's events go to the status (diagnostic
-//! buffer, counters, STATUS word, [`LineEvent`](super::LineEvent) broadcast) and the memory
+//! buffer, counters, STATUS word, [`LineEvent`](crate::line::LineEvent) broadcast) and the memory
 //! (image mirrors, persistence). On shutdown the port is no longer read, the request already
 //! received is answered, and the line stops.
 

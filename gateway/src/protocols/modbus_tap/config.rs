@@ -10,11 +10,13 @@ use serde::Serialize;
 
 use crate::config::reader::{Cx, Fields};
 use crate::config::section::ProtocolSection;
+use crate::config::Baud;
 use crate::config::DeviceConfig;
 use crate::config::SerialConfig;
 use crate::protocols::modbus_master::config::{
     check_rtu_data_bits, read_devices, DEFAULT_DELAY_MULTIPLIER, MAX_DELAY_MULTIPLIER,
 };
+use crate::protocols::ReadSection;
 
 /// How long a request waits for its answer by default (see `proto_core::modbus::tap`).
 pub const DEFAULT_ANSWER_TIMEOUT: Duration = proto_core::modbus::tap::DEFAULT_ANSWER_TIMEOUT;
@@ -75,6 +77,14 @@ impl ModbusRtuTapConfig {
             expected_cycle,
             devices: read_devices(cx, f),
         }
+    }
+}
+
+// === impl ReadSection ===
+
+impl ReadSection for ModbusRtuTapConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
+        Self::read(cx, f)
     }
 }
 

@@ -9,6 +9,7 @@ use serde::{Deserialize, Serialize};
 use crate::config::reader::{int_value, show_duration, Cx, Fields};
 use crate::config::section::{AckConfig, ProtocolSection, TelegramKeys};
 use crate::config::{Baud, Interface, SerialConfig};
+use crate::protocols::ReadSection;
 
 /// 003 6.3.3 "with block check ... Default value activated" (3964R).
 pub const DEFAULT_3964_BLOCK_CHECK: bool = true;
@@ -152,7 +153,7 @@ pub struct Proc3964Config {
     /// policy for sends.
     pub sends: bool,
     /// Who acknowledges received telegrams; unset: "on-publish" when the line has no `unit_id`
-    /// and zenoh is on, else "explicit" ([`ack_mode`]).
+    /// and zenoh is on, else "explicit" ([`ack_mode`](crate::protocols::ack_mode)).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ack: Option<AckConfig>,
     /// The file that keeps the waiting telegrams over a restart (`journal`).
@@ -196,7 +197,7 @@ pub struct AsciiConfig {
     /// policy for sends.
     pub sends: bool,
     /// Who acknowledges received telegrams; unset: "on-publish" when the line has no `unit_id`
-    /// and zenoh is on, else "explicit" ([`ack_mode`]).
+    /// and zenoh is on, else "explicit" ([`ack_mode`](crate::protocols::ack_mode)).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ack: Option<AckConfig>,
     /// The file that keeps the waiting telegrams over a restart (`journal`).
@@ -451,6 +452,20 @@ impl AsciiConfig {
             ack: f.choice(cx, "ack"),
             journal: journal_path(cx, f),
         }
+    }
+}
+
+// === impl ReadSection ===
+
+impl ReadSection for Proc3964Config {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
+        Self::read(cx, f)
+    }
+}
+
+impl ReadSection for AsciiConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, baud: Baud) -> Self {
+        Self::read(cx, f, baud)
     }
 }
 

@@ -6,7 +6,7 @@
 //! the new telegram, or under XON/XOFF or RTS/CTS holds the partner back, 003 6.2.1; off: the
 //! newest telegram replaces the held one, without an event).
 //!
-//! The port settings come from the serial section's one conversion (`line::start`), so that every
+//! The port settings come from the serial section's one conversion (`protocols::start`), so that every
 //! line opens its port the same way. The 3964(R), ASCII and 3964(R) tap sections start their lines
 //! here ([`StartLine`]).
 

@@ -9,8 +9,10 @@ use serde::Serialize;
 
 use crate::config::reader::{Cx, Fields};
 use crate::config::section::ProtocolSection;
+use crate::config::Baud;
 use crate::config::SerialConfig;
 use crate::protocols::telegram::config::{check_3964_link, mailbox_unit_id, Link3964};
+use crate::protocols::ReadSection;
 
 /// `protocol = "3964r-tap"`: listens to both directions of a 3964(R) point-to-point link through
 /// a Y-cable, `port` receiving what partner A transmits and `port_b` what partner B transmits.
@@ -55,6 +57,14 @@ impl Proc3964TapConfig {
             receive_buffer: link.receive_buffer,
             unit_id: mailbox_unit_id(cx, f),
         }
+    }
+}
+
+// === impl ReadSection ===
+
+impl ReadSection for Proc3964TapConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
+        Self::read(cx, f)
     }
 }
 
