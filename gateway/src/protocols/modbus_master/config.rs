@@ -228,8 +228,8 @@ fn reply_timeout(cx: &mut Cx, f: &mut Fields<'_>, cite: &str) -> Duration {
     f.duration_or(cx, "reply_timeout", lo..=hi, DEFAULT_REPLY_TIMEOUT, cite)
 }
 
-impl ModbusMasterRtuConfig {
-    pub(crate) fn read(cx: &mut Cx, f: &mut Fields<'_>) -> Self {
+impl ReadSection for ModbusMasterRtuConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
         const CITE: &str = "003 6.4.2.1";
         Self {
             reply_timeout: reply_timeout(cx, f, CITE),
@@ -256,8 +256,8 @@ impl ModbusMasterRtuConfig {
     }
 }
 
-impl ModbusMasterAsciiConfig {
-    pub(crate) fn read(cx: &mut Cx, f: &mut Fields<'_>) -> Self {
+impl ReadSection for ModbusMasterAsciiConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
         const CITE: &str = "003 6.4.2.2";
         let (lo, hi) = MASTER_ASCII_CHARACTER_DELAY_RANGE;
         Self {
@@ -283,20 +283,6 @@ impl ModbusMasterAsciiConfig {
             transparent: Transparent::read(cx, f),
             devices: read_devices(cx, f),
         }
-    }
-}
-
-// === impl ReadSection ===
-
-impl ReadSection for ModbusMasterRtuConfig {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
-        Self::read(cx, f)
-    }
-}
-
-impl ReadSection for ModbusMasterAsciiConfig {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
-        Self::read(cx, f)
     }
 }
 

@@ -139,8 +139,8 @@ fn read_area(cx: &mut Cx, f: &mut Fields<'_>, key: &'static str, default: BitAre
     area
 }
 
-impl ModbusSlaveRtuConfig {
-    pub(crate) fn read(cx: &mut Cx, f: &mut Fields<'_>) -> Self {
+impl ReadSection for ModbusSlaveRtuConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
         const CITE: &str = "003 6.4.5.1";
         let address = f.int_or(cx, "address", 1..=u8::MAX, DEFAULT_SLAVE_ADDRESS, CITE);
         let operating_mode = f.choice_or(cx, "operating_mode", DEFAULT_OPERATING_MODE);
@@ -211,14 +211,6 @@ impl ModbusSlaveRtuConfig {
             input_db,
             write_enable,
         }
-    }
-}
-
-// === impl ReadSection ===
-
-impl ReadSection for ModbusSlaveRtuConfig {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
-        Self::read(cx, f)
     }
 }
 

@@ -51,10 +51,10 @@ pub struct ModbusRtuTapConfig {
     pub devices: BTreeMap<String, DeviceConfig>,
 }
 
-// === impl ModbusRtuTapConfig ===
+// === impl ReadSection ===
 
-impl ModbusRtuTapConfig {
-    pub(crate) fn read(cx: &mut Cx, f: &mut Fields<'_>) -> Self {
+impl ReadSection for ModbusRtuTapConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
         let (lo, hi) = ANSWER_TIMEOUT_RANGE;
         let answer_timeout =
             f.duration_or(cx, "answer_timeout", lo..=hi, DEFAULT_ANSWER_TIMEOUT, "");
@@ -77,14 +77,6 @@ impl ModbusRtuTapConfig {
             expected_cycle,
             devices: read_devices(cx, f),
         }
-    }
-}
-
-// === impl ReadSection ===
-
-impl ReadSection for ModbusRtuTapConfig {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
-        Self::read(cx, f)
     }
 }
 

@@ -323,8 +323,8 @@ pub(crate) fn mailbox_unit_id(cx: &mut Cx, f: &mut Fields<'_>) -> Option<u8> {
     mailbox_unit(cx, f)
 }
 
-impl Proc3964Config {
-    pub(crate) fn read(cx: &mut Cx, f: &mut Fields<'_>) -> Self {
+impl ReadSection for Proc3964Config {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
         const CITE: &str = "003 6.3.3";
         let link = Link3964::read(cx, f);
         Self {
@@ -364,8 +364,8 @@ impl Proc3964Config {
     }
 }
 
-impl AsciiConfig {
-    pub(crate) fn read(cx: &mut Cx, f: &mut Fields<'_>, baud: Baud) -> Self {
+impl ReadSection for AsciiConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, baud: Baud) -> Self {
         const CITE: &str = "003 6.2.1";
         let (lo, hi) = ASCII_CHARACTER_DELAY_RANGE;
         let zvz_default = DEFAULT_ASCII_CHARACTER_DELAY.max(min_ascii_character_delay(baud));
@@ -452,20 +452,6 @@ impl AsciiConfig {
             ack: f.choice(cx, "ack"),
             journal: journal_path(cx, f),
         }
-    }
-}
-
-// === impl ReadSection ===
-
-impl ReadSection for Proc3964Config {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
-        Self::read(cx, f)
-    }
-}
-
-impl ReadSection for AsciiConfig {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, baud: Baud) -> Self {
-        Self::read(cx, f, baud)
     }
 }
 

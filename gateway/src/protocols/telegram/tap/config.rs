@@ -39,10 +39,10 @@ pub struct Proc3964TapConfig {
     pub unit_id: Option<u8>,
 }
 
-// === impl Proc3964TapConfig ===
+// === impl ReadSection ===
 
-impl Proc3964TapConfig {
-    pub(crate) fn read(cx: &mut Cx, f: &mut Fields<'_>) -> Self {
+impl ReadSection for Proc3964TapConfig {
+    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
         let port_b = f.required_string(cx, "port_b").unwrap_or_default();
         if f.has("port_b") && port_b.is_empty() {
             cx.issue(f.at("port_b"), "must not be empty");
@@ -57,14 +57,6 @@ impl Proc3964TapConfig {
             receive_buffer: link.receive_buffer,
             unit_id: mailbox_unit_id(cx, f),
         }
-    }
-}
-
-// === impl ReadSection ===
-
-impl ReadSection for Proc3964TapConfig {
-    fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
-        Self::read(cx, f)
     }
 }
 
