@@ -22,7 +22,7 @@ use gateway::config::{
     DEFAULT_FULL_PROBE_EVERY, DEFAULT_OFFLINE_AFTER, DEFAULT_OFFLINE_BACKOFF_MIN,
     DEFAULT_PROBE_TIMEOUT_MIN,
 };
-use gateway::line::PROBE_TIMEOUT_FACTOR;
+use gateway::protocols::PROBE_TIMEOUT_FACTOR;
 
 use crate::device::{Bus, FlatDevice};
 use crate::poll::{polled, polls_ok, rig, trouble, Rig};

@@ -24,11 +24,11 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use gateway::image::{ImageConfig, ProcessImage, Table};
-use gateway::line::{
-    spawn_modbus_master_line, AddrRange, DeviceLimits, DeviceSettings, LineHandle, LineSettings,
-    PollGroup,
-};
+use gateway::line::LineHandle;
 use gateway::paced::{self, Direction, LinkCounters, PacedDuplex, PacedSettings};
+use gateway::protocols::{
+    spawn_modbus_master_line, AddrRange, DeviceLimits, DeviceSettings, LineSettings, PollGroup,
+};
 use gateway::serial::PortSettings;
 use gateway::sim::{serve_modbus, ModbusDevice};
 use proto_core::modbus::rtu::CharTiming;

@@ -439,7 +439,7 @@ mod tests {
 
     #[test]
     fn the_gateways_listeners_are_loopback_ports_the_kernel_picks() {
-        let config = gateway::config::parse(&head("bench")).expect("the head is a valid config");
+        let config = gateway::plant::parse(&head("bench")).expect("the head is a valid config");
         for addr in [config.modbus_tcp.listen, config.http.listen] {
             assert!(addr.ip().is_loopback(), "{addr}");
             assert_eq!(addr.port(), 0, "{addr}");

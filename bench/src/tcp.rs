@@ -12,8 +12,9 @@ use std::time::{Duration, Instant};
 
 use gateway::app::MetricsRegistry;
 use gateway::image::{ImageConfig, ProcessImage};
-use gateway::line::{spawn_modbus_master_line, DeviceSettings, LineHandle, LineSettings};
+use gateway::line::LineHandle;
 use gateway::modbus_tcp::{self, ServerOptions, ServerStats, TlsServer};
+use gateway::protocols::{spawn_modbus_master_line, DeviceSettings, LineSettings};
 use gateway::serial::PortSettings;
 use gateway::sim::serve_modbus;
 use gateway::unit::UnitMap;

@@ -17,12 +17,12 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use gateway::line::telegram::{spawn_telegram_line, TelegramLineSettings, TelegramProtocol};
 use gateway::mailbox::journal::size_bound;
 use gateway::mailbox::Mailbox;
 use gateway::paced::{self, PacedSettings};
+use gateway::protocols::telegram::partner::{partner_3964r, TelegramSim};
+use gateway::protocols::telegram::{spawn_telegram_line, TelegramLineSettings, TelegramProtocol};
 use gateway::serial::PortSettings;
-use gateway::sim::telegram::{partner_3964r, TelegramSim};
 use proto_core::proc3964::{Params3964, Settings3964};
 use tokio_util::sync::CancellationToken;
 

@@ -19,7 +19,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use gateway::line::TransparentSettings;
+use gateway::protocols::TransparentSettings;
 use gateway::sim::bus::Bus;
 use gateway::sim::ModbusDevice;
 use tokio_util::sync::CancellationToken;

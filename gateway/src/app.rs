@@ -19,9 +19,10 @@ use tokio_util::sync::CancellationToken;
 use tracing::{info, warn};
 
 use crate::api::ApiState;
-use crate::config::{self, Config};
+use crate::config;
 use crate::modbus_tcp::ServerOptions;
 use crate::persist::ConfigStore;
+use crate::plant::Config;
 use crate::unit::write_policy::WritePolicy;
 
 mod build;
@@ -162,13 +163,32 @@ impl From<crate::sim::SimError> for AppError {
 /// gateway and the simulators, `warn` for the commands that print an answer: `fleet`'s table
 /// should not drown in zenoh's session notices).
 pub fn init_logging(default: &str) {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(default));
+    let filter = std::env::var(tracing_subscriber::EnvFilter::DEFAULT_ENV)
+        .ok()
+        .and_then(|spec| tracing_subscriber::EnvFilter::try_new(with_protocols(&spec)).ok())
+        .unwrap_or_else(|| tracing_subscriber::EnvFilter::new(default));
     let _ = tracing_subscriber::fmt()
         .with_env_filter(filter)
         .with_writer(std::io::stderr)
         .with_ansi(std::io::IsTerminal::is_terminal(&std::io::stderr()))
         .try_init();
+}
+
+/// `spec` with every directive for `gateway::line` given for `gateway::protocols` too: the
+/// protocols' adapters log under their folder (`gateway::protocols::modbus_master::driver`), and
+/// `RUST_LOG=info,gateway::line=debug` shows every transaction of the serial lines, as the README
+/// says.
+fn with_protocols(spec: &str) -> String {
+    let mut out = spec.to_owned();
+    for directive in spec.split(',').map(str::trim) {
+        if let Some(rest) = directive.strip_prefix("gateway::line") {
+            if rest.is_empty() || rest.starts_with(['=', '[']) {
+                out.push_str(",gateway::protocols");
+                out.push_str(rest);
+            }
+        }
+    }
+    out
 }
 
 /// Installs the process's signal handlers at once and handles them until `shutdown`: SIGINT and
@@ -555,5 +575,29 @@ fn server_options(cfg: &config::ModbusTcpConfig) -> ServerOptions {
             write_ranges: build::write_ranges(cfg),
         },
         request_timeout: cfg.request_timeout,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::with_protocols;
+
+    #[test]
+    fn a_filter_for_the_lines_covers_the_protocols_adapters() {
+        assert_eq!(
+            with_protocols("info,gateway::line=debug"),
+            "info,gateway::line=debug,gateway::protocols=debug"
+        );
+        assert_eq!(
+            with_protocols("gateway::line"),
+            "gateway::line,gateway::protocols"
+        );
+        // Other targets, and a module under line/, are left as they are.
+        assert_eq!(
+            with_protocols("warn,gateway::line::status=debug,gateway::linex=trace"),
+            "warn,gateway::line::status=debug,gateway::linex=trace"
+        );
+        let filter = tracing_subscriber::EnvFilter::try_new(with_protocols("gateway::line=debug"));
+        assert!(filter.is_ok(), "{filter:?}");
     }
 }

@@ -2,12 +2,16 @@
 //! process image, the Modbus TCP server and the device simulators.
 //!
 //! Module ownership (one concern each):
-//! - [`config`]: the TOML configuration as plain data (every section's types, one reader, one
-//!   error type), the rules between its keys, and the defaults and ranges of every key; it
-//!   imports no other module of the gateway, they import it;
+//! - [`config`]: the TOML configuration's shared sections as plain data (one reader, one error
+//!   type, the defaults and ranges of their keys); it names no protocol and imports no other
+//!   module of the gateway, they import it;
 //! - [`serial`]: opening ports with line settings, RS485 mode, reopen with back-off;
-//! - [`line`]: the line runtime (one port task per line, whatever the protocol) with one adapter
-//!   per protocol, the poll scheduler;
+//! - [`line`]: the line runtime (one port task per line, whatever the protocol): the engine
+//!   contract, status, monitor, the line's metric families;
+//! - [`protocols`]: one folder per line protocol (config section, adapter, start, simulated
+//!   partner) and the one table of protocols;
+//! - [`plant`]: the configuration root (`Config`: the sections and the lines), reading a document
+//!   and the checks across the whole of it;
 //! - [`cpmem`]: the CP memory (M, Q, I, T, C, DBs) shared by slave lines, Modbus TCP and the image;
 //! - [`image`]: the process image (value, quality, timestamp per register);
 //! - [`mailbox`]: telegram lines' received telegrams and sends as Modbus TCP registers;
@@ -40,6 +44,8 @@ pub mod metrics;
 pub mod modbus_tcp;
 pub mod paced;
 pub mod persist;
+pub mod plant;
+pub mod protocols;
 pub mod scan;
 pub mod serial;
 pub mod signals;

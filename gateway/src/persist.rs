@@ -31,7 +31,8 @@ use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, PoisonError, Weak};
 
-use crate::config::{self, Config, ConfigErrors};
+use crate::config::ConfigErrors;
+use crate::plant::Config;
 
 /// Where the running configuration is kept.
 #[derive(Debug)]
@@ -101,7 +102,7 @@ impl ConfigText {
     /// (e.g. the demo's `pty:` placeholders replaced by the ports it made); `config` written out
     /// whole when `text` is not a configuration.
     pub fn new(text: &str, config: &Arc<Config>) -> Self {
-        match config::parse(text) {
+        match crate::plant::parse(text) {
             Ok(read) if read == **config => Self {
                 text: PackedText::new(text),
                 config: Arc::clone(config),
@@ -111,7 +112,7 @@ impl ConfigText {
                     .ok()
                     .zip(toml::Table::try_from(&**config).ok())
                     .and_then(|(old, new)| edit::edit_in_place(text, &old, &new))
-                    .filter(|edited| config::parse(edited).is_ok_and(|c| c == **config));
+                    .filter(|edited| crate::plant::parse(edited).is_ok_and(|c| c == **config));
                 match edited {
                     Some(text) => Self {
                         text: PackedText::new(&text),
@@ -126,7 +127,7 @@ impl ConfigText {
 
     /// `text` if it reads as `config` (and nothing else).
     pub fn read(text: String, config: &Arc<Config>) -> Option<Self> {
-        config::parse(&text).ok().filter(|c| c == &**config)?;
+        crate::plant::parse(&text).ok().filter(|c| c == &**config)?;
         Some(Self {
             text: PackedText::new(&text),
             config: Arc::clone(config),
@@ -254,12 +255,12 @@ impl ConfigStore {
 
     /// Reads, parses and validates the configuration file.
     pub fn load(&self) -> Result<Config, ConfigErrors> {
-        config::load(&self.path)
+        crate::plant::load(&self.path)
     }
 
     /// Reads, parses and validates the version before the last save.
     pub fn load_previous(&self) -> Result<Config, ConfigErrors> {
-        config::load(&self.previous_path())
+        crate::plant::load(&self.previous_path())
     }
 
     /// Writes `config` as TOML in place of the file (see the module documentation).
@@ -281,7 +282,7 @@ impl ConfigStore {
         let edited = fs::read_to_string(&self.path)
             .ok()
             .and_then(|text| edit::edit_in_place(&text, &old_table, &new_table))
-            .filter(|text| config::parse(text).is_ok_and(|c| c == *new));
+            .filter(|text| crate::plant::parse(text).is_ok_and(|c| c == *new));
         match edited {
             Some(text) => self.save_atomic(&text),
             None => {

@@ -7,7 +7,7 @@
 //! it does not give that, FC 17 "report server ID" (6.13).
 //!
 //! Why it is built this way: the scan is a Modbus master line with no devices, the gateway's own
-//! ([`crate::line::spawn_modbus_master_line`]): the proto-core master engine, the port opened by
+//! ([`crate::protocols::spawn_modbus_master_line`]): the proto-core master engine, the port opened by
 //! [`crate::serial::open`] with the line's frame, the same RTU timing and reply monitoring; a
 //! request to an address without a device is an ordinary command. Before the line starts, the
 //! port is opened once to see whether another process holds it: a running gateway opens its
@@ -23,9 +23,10 @@ use proto_core::modbus::pdu::{ExceptionCode, Request, Response};
 use tokio::time::Instant;
 use tokio_util::sync::CancellationToken;
 
-use crate::config::REPLY_TIMEOUT_RANGE;
 use crate::image::ProcessImage;
-use crate::line::{self, CommandError, LineClient, LineSettings, QueueError};
+use crate::line;
+use crate::protocols::REPLY_TIMEOUT_RANGE;
+use crate::protocols::{CommandError, LineClient, LineSettings, QueueError};
 use crate::serial::{self, OpenError, PortSettings, StopBits};
 use crate::sim::Parity;
 
@@ -202,7 +203,7 @@ pub async fn run(args: ScanArgs, shutdown: CancellationToken) -> Result<(), Scan
     settings.master.retries = 0;
     settings.queue_depth = 2;
     let line_stop = CancellationToken::new();
-    let handle = line::spawn_modbus_master_line(
+    let handle = crate::protocols::spawn_modbus_master_line(
         settings,
         Vec::new(),
         ProcessImage::default(),

@@ -42,8 +42,9 @@ use proto_core::profiles::{
     self, BitUpdate, DataType, DeviceProfile, EncodeError, Quality, Tag, Value,
 };
 
-use crate::config::{self, Config, DeviceConfig};
+use crate::config::{self, DeviceConfig};
 use crate::image::{ProcessImage, Table};
+use crate::plant::Config;
 
 mod metrics;
 
@@ -524,7 +525,10 @@ pub const CP_MEMORY_DEVICE: &str = "memory";
 /// PLC way (`DB800.DBW20`): register `(n - base) x 512 + w` of the holding table is word `w` of
 /// DB `n` (003 6.4.8), with the unit id; `None` when the line serves no unit. Writable where
 /// the line's write enables ("Limits") allow FC 06/16.
-fn cp_memory_tags(config: &Config, slave: &config::ModbusSlaveRtuConfig) -> Option<(u8, Vec<Tag>)> {
+fn cp_memory_tags(
+    config: &Config,
+    slave: &crate::protocols::ModbusSlaveRtuConfig,
+) -> Option<(u8, Vec<Tag>)> {
     let unit_id = slave.unit_id?;
     let blocks: Vec<(u16, u16)> = config
         .cp_memory
@@ -532,7 +536,7 @@ fn cp_memory_tags(config: &Config, slave: &config::ModbusSlaveRtuConfig) -> Opti
         .iter()
         .map(|b| (b.db, b.words))
         .collect();
-    let layout = crate::cpmem::config::memory_layout(
+    let layout = crate::protocols::modbus_slave::cpmem::memory_layout(
         [slave],
         (!blocks.is_empty()).then_some(blocks.as_slice()),
     );
@@ -759,7 +763,7 @@ mod tests {
 
     #[tokio::test]
     async fn demo_tags_decode_values_units_and_special_values() {
-        let config = config::demo();
+        let config = crate::plant::demo();
         let dir = TagDirectory::from_config(&config);
         let eta = dir
             .find("drive", "atv71", "eta")
@@ -802,7 +806,7 @@ mod tests {
 
     #[tokio::test]
     async fn the_cp_memory_of_a_slave_line_is_tags_named_the_plc_way() {
-        let config = config::demo();
+        let config = crate::plant::demo();
         let dir = TagDirectory::from_config(&config);
         let word = dir
             .find("hmi", CP_MEMORY_DEVICE, "DB800.DBW20")
@@ -835,7 +839,7 @@ mod tests {
 
     #[test]
     fn a_value_the_tag_cannot_hold_exactly_is_refused_with_the_nearest_values() {
-        let dir = TagDirectory::from_config(&config::demo());
+        let dir = TagDirectory::from_config(&crate::plant::demo());
         // ACC: 0.1 s steps, 0.1..=999.9 s (raw 1..=9999).
         let acc = dir.find("drive", "atv71", "ACC").expect("ACC");
         assert_eq!(
@@ -883,12 +887,12 @@ mod tests {
 
     #[test]
     fn a_config_tag_with_a_scale_names_its_steps() {
-        let text = config::demo_toml().replace(
+        let text = crate::plant::demo_toml().replace(
             "[lines.ksvario.devices.ksvario]\nprofile = \"ksvario\"\naddress = 17\nunit_id = 17\n",
             "[lines.ksvario.devices.ksvario]\nprofile = \"ksvario\"\naddress = 17\nunit_id = 17\n\
              tags = [{ name = \"mode\", table = \"holding\", address = 3415, type = \"u16\", writable = true, scale = 0.5 }]\n",
         );
-        let config = config::parse(&text).expect("valid");
+        let config = crate::plant::parse(&text).expect("valid");
         let dir = TagDirectory::from_config(&config);
         let mode = dir.find("ksvario", "ksvario", "mode").expect("mode");
         assert_eq!(
@@ -900,14 +904,14 @@ mod tests {
 
     /// The demo config with `tags` (inline tables) on the KS vario, and its directory.
     fn with_ksvario_tags(tags: &str) -> TagDirectory {
-        let text = config::demo_toml().replace(
+        let text = crate::plant::demo_toml().replace(
             "[lines.ksvario.devices.ksvario]\nprofile = \"ksvario\"\naddress = 17\nunit_id = 17\n",
             &format!(
                 "[lines.ksvario.devices.ksvario]\nprofile = \"ksvario\"\naddress = 17\nunit_id = 17\n\
                  tags = [{tags}]\n"
             ),
         );
-        TagDirectory::from_config(&config::parse(&text).expect("valid"))
+        TagDirectory::from_config(&crate::plant::parse(&text).expect("valid"))
     }
 
     #[test]
@@ -980,7 +984,7 @@ mod tests {
     #[test]
     fn new_tag_kinds_are_written_exactly_or_refused_with_a_reason() {
         // The demo's meter has a tag of each kind.
-        let dir = TagDirectory::from_config(&config::demo());
+        let dir = TagDirectory::from_config(&crate::plant::demo());
         let find = |name| dir.find("ksvario", "meter", name).expect(name);
         let op = |name, value: Value| TagDirectory::write_op(find(name), &value);
         // u64, registers reversed: exact beyond 2^53 and i64::MAX.
@@ -1098,11 +1102,12 @@ mod tests {
         ];
         let marker = "  # f32 low word first: holding 60..61";
         assert!(
-            config::demo_toml().contains(marker),
+            crate::plant::demo_toml().contains(marker),
             "the demo's meter changed"
         );
-        let text = config::demo_toml().replace(marker, &format!("{}\n{marker}", tags.join("\n")));
-        TagDirectory::from_config(&config::parse(&text).expect("valid"))
+        let text =
+            crate::plant::demo_toml().replace(marker, &format!("{}\n{marker}", tags.join("\n")));
+        TagDirectory::from_config(&crate::plant::parse(&text).expect("valid"))
     }
 
     #[test]
@@ -1245,7 +1250,7 @@ mod tests {
 
     #[test]
     fn names_compare_without_case_and_answer_with_the_profiles_spelling() {
-        let dir = TagDirectory::from_config(&config::demo());
+        let dir = TagDirectory::from_config(&crate::plant::demo());
         for asked in ["sfr", "SFR", "SFr"] {
             let entry = dir.find("drive", "atv71", asked).expect("SFr");
             assert_eq!(entry.name(), "SFr");
@@ -1254,7 +1259,7 @@ mod tests {
 
     #[test]
     fn writes_are_checked_against_the_tag() {
-        let dir = TagDirectory::from_config(&config::demo());
+        let dir = TagDirectory::from_config(&crate::plant::demo());
         let eta = dir.find("drive", "atv71", "ETA").expect("ETA");
         assert!(matches!(
             TagDirectory::write_request(eta, 1.0),

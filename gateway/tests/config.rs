@@ -8,9 +8,11 @@ use std::path::PathBuf;
 use std::time::Duration;
 
 use gateway::config::{
-    self, ByteOrder, Config, DataBits, DataType, EndCriterion, FlowControl, Interface, LineConfig,
-    ModbusTable, OperatingMode, Overflow3964, Parity, Priority, Profile, ProtocolConfig,
-    ScannerConfig, StopBits,
+    ByteOrder, DataBits, DataType, Interface, ModbusTable, Parity, Profile, ScannerConfig, StopBits,
+};
+use gateway::plant::Config;
+use gateway::protocols::{
+    EndCriterion, FlowControl, LineConfig, OperatingMode, Overflow3964, Priority, ProtocolConfig,
 };
 
 #[path = "config/defaults.rs"]
@@ -42,14 +44,14 @@ fn ms(n: u64) -> Duration {
 
 /// The issues of `text` as (path, message) pairs; panics if it parses.
 fn issues(text: &str) -> Vec<(String, String)> {
-    match config::parse(text) {
+    match gateway::plant::parse(text) {
         Ok(c) => panic!("expected issues, parsed {c:#?}"),
         Err(e) => e.issues.into_iter().map(|i| (i.path, i.message)).collect(),
     }
 }
 
 fn parse(text: &str) -> Config {
-    config::parse(text).unwrap_or_else(|e| panic!("{e}\n---\n{text}"))
+    gateway::plant::parse(text).unwrap_or_else(|e| panic!("{e}\n---\n{text}"))
 }
 
 /// A config with one line `a` of `protocol` plus `extra` keys in the line table.

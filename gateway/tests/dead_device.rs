@@ -9,9 +9,9 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use gateway::image::{ProcessImage, Quality, Table};
-use gateway::line::{
-    spawn_modbus_master_line, AddrRange, DeviceLimits, DeviceSettings, LineHandle, LineSettings,
-    PollGroup,
+use gateway::line::LineHandle;
+use gateway::protocols::{
+    spawn_modbus_master_line, AddrRange, DeviceLimits, DeviceSettings, LineSettings, PollGroup,
 };
 use gateway::serial::PortSettings;
 use gateway::sim::altivar::AltivarSim;

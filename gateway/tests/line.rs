@@ -11,9 +11,9 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use gateway::image::{ProcessImage, Quality, Table};
-use gateway::line::{
-    spawn_modbus_master_line, AddrRange, DeviceLimits, DeviceSettings, LineHandle, LineSettings,
-    PollGroup, EVENT_PORT_LOST, EVENT_PORT_SETUP,
+use gateway::line::{LineHandle, EVENT_PORT_LOST, EVENT_PORT_SETUP};
+use gateway::protocols::{
+    spawn_modbus_master_line, AddrRange, DeviceLimits, DeviceSettings, LineSettings, PollGroup,
 };
 use gateway::serial::{Interface, PortSettings, Rs485};
 use gateway::unit::UnitService;
@@ -570,7 +570,7 @@ async fn a_full_queue_answers_0x06_and_no_answer_0x0b() {
 
     // Each times out (08 30h) for its own client: a command without an answer does not put the
     // device offline, so the second is sent too.
-    let no_reply = Err(gateway::line::CommandError::NoReply {
+    let no_reply = Err(gateway::protocols::CommandError::NoReply {
         slave: 9,
         event: EventId::new(0x08, 0x30),
     });

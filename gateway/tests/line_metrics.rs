@@ -6,8 +6,10 @@ use std::time::Duration;
 
 use gateway::app::Metrics;
 use gateway::image::{ProcessImage, Table};
-use gateway::line::{spawn_modbus_master_line, AddrRange, DeviceSettings, LineSettings, PollGroup};
 use gateway::metrics::encode_text;
+use gateway::protocols::{
+    spawn_modbus_master_line, AddrRange, DeviceSettings, LineSettings, PollGroup,
+};
 use gateway::serial::PortSettings;
 use gateway::sim::{altivar::AltivarSim, serve_modbus};
 use gateway::unit::UnitService;

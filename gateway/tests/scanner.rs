@@ -8,7 +8,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Duration;
 
 use gateway::image::{ProcessImage, Quality, Table};
-use gateway::line::{
+use gateway::protocols::{
     spawn_modbus_master_line, DeviceLimits, DeviceSettings, LineSettings, ScannerSettings,
 };
 use gateway::serial::PortSettings;

@@ -13,9 +13,10 @@ use std::time::Duration;
 
 use gateway::cpmem::{spawn_persistence, LoadStatus, PersistSettings, SharedCpMemory};
 use gateway::image::{ProcessImage, Quality, Table};
-use gateway::line::{spawn_modbus_slave_line, SlaveLineSettings, EVENT_PORT_SETUP};
+use gateway::line::EVENT_PORT_SETUP;
+use gateway::protocols::modbus_slave::partner::{spawn_sim_master, SimMasterSettings};
+use gateway::protocols::{spawn_modbus_slave_line, SlaveLineSettings};
 use gateway::serial::PortSettings;
-use gateway::sim::master::{spawn_sim_master, SimMasterSettings};
 use proto_core::cpmem::{AddressMap, MemoryLayout, OperatingMode, SlaveParams};
 use proto_core::event::ids;
 use proto_core::modbus::rtu::{decode_frame, encode_frame};

@@ -11,9 +11,10 @@ use std::time::Duration;
 
 use gateway::app::Metrics;
 use gateway::image::{ProcessImage, Table};
-use gateway::line::{spawn_modbus_tap_line, DeviceSettings, LineHandle, TapLineSettings};
+use gateway::line::LineHandle;
 use gateway::metrics::encode_text;
 use gateway::modbus_tcp::{bind, serve, ServerOptions, ServerStats};
+use gateway::protocols::{spawn_modbus_tap_line, DeviceSettings, TapLineSettings};
 use gateway::serial::PortSettings;
 use gateway::unit::{SharedUnits, UnitMap};
 use prometheus::Registry;

@@ -10,8 +10,8 @@ mod telegram_line {
 
 use std::time::Duration;
 
-use gateway::line::telegram::{spawn_telegram_line, TelegramProtocol, TelegramSendError};
 use gateway::mailbox::{layout, Overflow};
+use gateway::protocols::telegram::{spawn_telegram_line, TelegramProtocol, TelegramSendError};
 use gateway::serial::Interface;
 use gateway::signals::{Output, Signal, SignalError};
 use proto_core::event::ids;
@@ -542,8 +542,8 @@ async fn a_lost_port_fails_the_send_and_the_line_reopens() {
 
 #[tokio::test]
 async fn the_ascii_simulator_opens_its_port_sends_its_own_and_echoes() {
+    use gateway::protocols::telegram::partner::{run_telegram_sim, TelegramDevice};
     use gateway::serial::PortSettings;
-    use gateway::sim::telegram::{run_telegram_sim, TelegramDevice};
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
 
     let (mut line_end, path, _keep) = pty();

@@ -20,7 +20,7 @@ use serde_json::Value;
 /// The `user_dlts` entry that hands link type 147 (USER0) to Wireshark's Modbus RTU dissector.
 const MBRTU_USER_DLT: &str = r#"uat:user_dlts:"User 0 (DLT=147)","mbrtu","0","","0","""#;
 
-/// What the demo polls on its drive line (gateway/src/config/demo.toml): (slave, function,
+/// What the demo polls on its drive line (gateway/src/plant/demo.toml): (slave, function,
 /// start, quantity).
 const DEMO_DRIVE_POLLS: &[(u64, u64, u64, u64)] = &[
     (2, 3, 3201, 9),

@@ -8,7 +8,7 @@ use gateway_tests::Gateway;
 use tokio_modbus::client::{tcp, Context, Reader, Writer};
 use tokio_modbus::prelude::Slave;
 
-/// The demo's mailbox units (gateway/src/config/demo.toml).
+/// The demo's mailbox units (gateway/src/plant/demo.toml).
 const R3964_UNIT: u8 = 100;
 const ASCII_UNIT: u8 = 101;
 

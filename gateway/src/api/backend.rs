@@ -18,7 +18,8 @@ use super::model::{
     ScalarValue, SendResult, Signals, SignalsPatch, TagValue, TelegramQueue,
 };
 use crate::audit::{WritePath, WriteResult};
-use crate::config::{Config, ConfigIssue};
+use crate::config::ConfigIssue;
+use crate::plant::Config;
 
 /// A boxed future that can move between threads.
 pub type BoxFuture<'a, T> = Pin<Box<dyn Future<Output = T> + Send + 'a>>;

@@ -17,7 +17,8 @@ use serde::{Deserialize, Serialize, Serializer};
 use super::backend::ApiBackend;
 use super::error::{ApiError, Issue};
 use super::model::{SendRequest, SignalsPatch, TagWrite};
-use crate::config::{Config, ConfigErrors, ExtraCheck};
+use crate::config::ConfigErrors;
+use crate::plant::{Config, ExtraCheck};
 
 /// The media type of TOML documents.
 pub const TOML_MEDIA_TYPE: &str = "application/toml";
@@ -182,7 +183,7 @@ fn template_dirs_confined(table: &toml::Table, in_force: &Config) -> Result<(), 
         if in_force.gateway.template_dirs.iter().any(|d| d == dir) {
             continue;
         }
-        let resolved = canonical(&crate::config::template_dir_resolved(dir));
+        let resolved = canonical(&crate::plant::template_dir_resolved(dir));
         if !allowed.iter().any(|a| resolved.starts_with(a)) {
             issues.push(Issue {
                 path: format!("gateway.template_dirs[{i}]"),
@@ -651,11 +652,11 @@ mod tests {
     use axum::http::HeaderValue;
 
     use super::*;
-    use crate::config::no_check;
+    use crate::plant::no_check;
 
     #[test]
     fn json_and_toml_give_the_same_config() {
-        let demo = crate::config::demo();
+        let demo = crate::plant::demo();
         let json = serde_json::to_vec(&demo).unwrap();
         assert_eq!(
             config(Format::Json, &json, &no_check, &Config::default()).unwrap(),
@@ -792,7 +793,7 @@ mod tests {
 
     #[test]
     fn the_overrides_a_get_showed_are_left_out_of_a_config_body() {
-        let demo = crate::config::demo();
+        let demo = crate::plant::demo();
         let mut json = serde_json::to_value(&demo).unwrap();
         json["overrides"] = serde_json::json!([{"key": "http.listen", "in_force": "127.0.0.1:1"}]);
         let body = serde_json::to_vec(&json).unwrap();

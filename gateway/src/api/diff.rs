@@ -12,7 +12,9 @@
 use std::collections::BTreeMap;
 
 use super::model::ApplyReport;
-use crate::config::{Config, DeviceConfig, LineConfig};
+use crate::config::DeviceConfig;
+use crate::plant::Config;
+use crate::protocols::LineConfig;
 
 /// The changes from one configuration to the next.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -151,7 +153,8 @@ fn changed_devices(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::{demo, Baud};
+    use crate::config::Baud;
+    use crate::plant::demo;
 
     #[test]
     fn no_change_is_empty() {

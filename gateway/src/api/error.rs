@@ -15,7 +15,7 @@ use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 use crate::config::ConfigIssue;
-use crate::line::{CommandError, QueueError};
+use crate::protocols::{CommandError, QueueError};
 use crate::tags::TagWriteError;
 use proto_core::modbus::pdu::ExceptionCode;
 

@@ -78,8 +78,8 @@ pub use error::{ApiError, ErrorBody, ErrorDetail, Issue};
 pub use server::{serve, DEFAULT_HEADER_READ_TIMEOUT, DEFAULT_MAX_CONNECTIONS};
 pub use tls::HttpTls;
 
-use crate::config::Config;
 use crate::persist::{ConfigStore, ConfigText, KeptText};
+use crate::plant::Config;
 
 /// The prefix of the versioned API.
 pub const API_PREFIX: &str = "/api/v1";

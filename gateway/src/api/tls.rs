@@ -14,10 +14,12 @@ use std::sync::{Arc, PoisonError, RwLock};
 
 use tokio_rustls::TlsAcceptor;
 
-use crate::config::check::{ApiChange, Check, Start};
-use crate::config::{Config, ConfigIssue, Cx, HttpTlsConfig};
+use crate::config::check::Check;
+use crate::config::{ConfigIssue, Cx, HttpTlsConfig};
 use crate::modbus_tcp::tls::server_config;
 use crate::modbus_tcp::TlsError;
+use crate::plant::check::{ApiChange, Start};
+use crate::plant::Config;
 
 /// The HTTPS settings of a running listener, replaceable while it runs.
 #[derive(Clone, Debug)]

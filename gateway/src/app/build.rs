@@ -1,6 +1,6 @@
 //! From the validated config to the Modbus TCP server's write policy.
 //!
-//! The lines are built by their own protocols (`line::start`: each config section converts and
+//! The lines are built by their own protocols (`protocols::start`: each config section converts and
 //! starts its line next to its adapter); what stays here is the servers' part.
 
 use crate::config::{self, ModbusTable};

@@ -2,10 +2,11 @@
 //! own rules: what `gateway check` and `gateway run` report, and what the REST API refuses.
 //!
 //! The reader (`config`) knows the keys, their ranges and the rules between keys. Whether the
-//! CP memory can serve a slave line exactly is the CP memory's knowledge (`cpmem::config`): its
+//! CP memory can serve a slave line exactly is the slave protocol's knowledge
+//! (`protocols/modbus_slave/cpmem.rs`): its
 //! write limits are one byte range for M, one for Q and one range of DB numbers (003 6.4.5
 //! "Limits"), so a write enable inside a byte or a DB is refused there
-//! (`cpmem::config::config_issues`, which [`load_config`] hands the reader), never silently
+//! (`crate::plant::check::config_issues`, which [`load_config`] hands the reader), never silently
 //! widened.
 //!
 //! Beyond the file's rules, one function, [`start_issues`], collects the start checks (each a
@@ -27,7 +28,7 @@
 //! works, so it is an error that says what to set instead; a port that does not exist or cannot
 //! be opened now (not plugged in, in use) is a warning, because the running line opens it again
 //! with back-off. It warns, too, about keys another key's value leaves without effect
-//! (`config::validate::ignored_keys`) and tags that no poll group reads.
+//! (`crate::plant::validate::ignored_keys`) and tags that no poll group reads.
 //!
 //! Exit codes: `gateway check` 0 (valid, warnings may be printed) or 1 (problems); `gateway run`
 //! 64 (the configuration is refused: file, token, line settings, zenoh or CP memory file) or 70
@@ -39,17 +40,19 @@ use super::lines::LineStarts;
 use super::tls::ModbusTlsFiles;
 use crate::api::auth::ApiTokens;
 use crate::api::tls::HttpsFiles;
-use crate::config::check::{ApiChange, Check, GatewayDirs, Start};
-use crate::config::{self, Config, ConfigErrors, ConfigIssue, Cx, Interface};
-use crate::config::{no_such_port, SerialPorts, TemplateDirs, ZenohFile};
-use crate::cpmem::{self, persist::persist_dir_warnings, persist::PersistFile};
-use crate::mailbox::journal::Journals;
+use crate::config::check::Check;
+use crate::config::{self, no_such_port, ConfigErrors, ConfigIssue, Cx, Interface};
+use crate::plant::check::{
+    persist_dir_warnings, ApiChange, GatewayDirs, Journals, PersistFile, SerialPorts, Start,
+    TemplateDirs, ZenohFile,
+};
+use crate::plant::Config;
 use crate::serial::{self, OpenError};
 
 /// Reads, parses and validates the configuration file at `path`: the reader's rules and
-/// the CP memory's ([`cpmem::config::config_issues`]), every problem in one answer.
+/// the CP memory's ([`crate::plant::check::config_issues`]), every problem in one answer.
 pub fn load_config(path: &Path) -> Result<Config, ConfigErrors> {
-    config::load_with(path, &cpmem::config::config_issues)
+    crate::plant::load_with(path, &crate::plant::check::config_issues)
 }
 
 /// Where a configuration comes from, for [`start_issues`].
@@ -71,11 +74,10 @@ pub fn run_issues(config: &Config) -> Vec<ConfigIssue> {
     start_issues(config, Door::File)
 }
 
-/// The start checks, in the order of the answer, each next to what it checks: the API tokens
-/// (`api/auth/check.rs`), each line's start (`app/lines.rs`), the zenoh file
-/// (`config/zenoh.rs`), the CP memory file (`cpmem/persist.rs`), the journals
-/// (`mailbox/journal/check.rs`), the Modbus/TCP Security files (`app/tls.rs`) and the HTTPS
-/// files (`api/tls.rs`).
+/// The start checks, in the order of the answer: the API tokens (`api/auth/check.rs`), each
+/// line's start (`app/lines.rs`), the zenoh file, the CP memory file and the journals
+/// (`plant/check.rs`), the Modbus/TCP Security files (`app/tls.rs`) and the HTTPS files
+/// (`api/tls.rs`).
 fn start_checks() -> [&'static dyn for<'a> Check<Start<'a>>; 7] {
     [
         &ApiTokens,
@@ -89,9 +91,9 @@ fn start_checks() -> [&'static dyn for<'a> Check<Start<'a>>; 7] {
 }
 
 /// The path checks of a REST change, in the order of the answer, each next to what its paths
-/// guard: the lines' serial ports (`config/line.rs`), the `[gateway]` directories themselves
-/// (`config/check.rs`), the CP memory file, the journals, the template directories
-/// (`config/template.rs`), the token files, the zenoh file and the TLS files.
+/// guard: the lines' serial ports, the `[gateway]` directories themselves, the CP memory file,
+/// the journals, the template directories (`plant/check.rs`), the token files, the zenoh file
+/// and the TLS files.
 fn path_checks() -> [&'static dyn for<'a> Check<ApiChange<'a>>; 9] {
     [
         &SerialPorts,
@@ -197,7 +199,7 @@ pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
             continue;
         }
         let path = format!("lines.{name}.port");
-        match serial::probe(&crate::line::start::port_settings(&line.serial)) {
+        match serial::probe(&crate::protocols::start::port_settings(&line.serial)) {
             Ok(()) => {}
             Err(e @ OpenError::Rs485Refused { .. }) => {
                 errors.push(ConfigIssue {
@@ -304,7 +306,7 @@ pub fn ack_warnings(config: &Config) -> Vec<ConfigIssue> {
         }
         // A client other than REST that can acknowledge: a Modbus TCP mailbox or zenoh writes.
         let client = (modbus_on && line.unit_id().is_some()) || zenoh_writes;
-        let message = match config::ack_mode(config, line) {
+        let message = match crate::protocols::ack_mode(zenoh_on, line) {
             config::AckConfig::Explicit if !client => {
                 format!(
                     "ack = \"explicit\" but no Modbus TCP unit_id and no zenoh writes \
@@ -504,13 +506,13 @@ fn endpoint_is_loopback(endpoint: &str) -> bool {
             .is_ok_and(|ip| ip.is_loopback())
 }
 
-/// The keys of the file at `path` that take no effect ([`config::validate::ignored_keys`]);
+/// The keys of the file at `path` that take no effect ([`crate::plant::validate::ignored_keys`]);
 /// none when it cannot be read or parsed (then the loader said so already).
 pub fn ignored_keys_of(path: &Path) -> Vec<ConfigIssue> {
     std::fs::read_to_string(path)
         .ok()
         .and_then(|text| text.parse::<toml::Table>().ok())
-        .map(|table| config::validate::ignored_keys(&table))
+        .map(|table| crate::plant::validate::ignored_keys(&table))
         .unwrap_or_default()
 }
 
@@ -564,7 +566,7 @@ mod tests {
         };
         let zenoh = "[zenoh]\nlisten = [\"tcp/127.0.0.1:7447\"]\n";
         let warned = |text: String| {
-            let config = config::parse(&text).expect("parses");
+            let config = crate::plant::parse(&text).expect("parses");
             ack_warnings(&config)
                 .into_iter()
                 .map(|w| (w.path, w.message))
@@ -598,7 +600,7 @@ mod tests {
 
     #[test]
     fn open_write_paths_are_warned_about() {
-        let open = config::parse(
+        let open = crate::plant::parse(
             "[modbus_tcp]\nlisten = \"0.0.0.0:502\"\n[http]\nlisten = \"0.0.0.0:8080\"\n\
              insecure_allow_unauthenticated_changes = true\n[zenoh]\nlisten = [\"tcp/0.0.0.0:7447\"]\nwrites = true\n",
         )
@@ -607,7 +609,7 @@ mod tests {
         assert_eq!(warnings.len(), 3, "{warnings:#?}");
         // A token over plain HTTP off loopback; not with [http.tls], not on loopback.
         let token = |listen: &str, tls: &str| {
-            config::parse(&format!(
+            crate::plant::parse(&format!(
                 "[http]\nlisten = \"{listen}\"\ntoken_env = \"T\"\n{tls}"
             ))
             .expect("parses")
@@ -630,21 +632,21 @@ mod tests {
         assert_eq!(http(&token("127.0.0.1:8080", "")), Vec::new());
         let paths: Vec<&str> = warnings.iter().map(|w| w.path.as_str()).collect();
         assert_eq!(paths, ["modbus_tcp", "http", "zenoh"]);
-        let closed = config::parse(
+        let closed = crate::plant::parse(
             "[modbus_tcp]\nlisten = \"0.0.0.0:502\"\nallowed_networks = [\"10.0.0.0/8\"]\n\
              [zenoh]\nlisten = [\"tcp/127.0.0.1:7447\"]\n",
         )
         .expect("parses");
         assert_eq!(security_warnings(&closed), Vec::<ConfigIssue>::new());
         // The demo's loopback listeners are not warned about.
-        let demo = config::parse(config::demo_toml()).expect("demo parses");
+        let demo = crate::plant::parse(crate::plant::demo_toml()).expect("demo parses");
         assert_eq!(security_warnings(&demo), Vec::<ConfigIssue>::new());
     }
 
     #[test]
     fn a_fabric_without_authentication_is_warned_about() {
         let zenoh = |section: &str| -> Vec<ConfigIssue> {
-            let c = config::parse(&format!("[zenoh]\n{section}")).expect("parses");
+            let c = crate::plant::parse(&format!("[zenoh]\n{section}")).expect("parses");
             security_warnings(&c)
                 .into_iter()
                 .filter(|w| w.path == "zenoh")
@@ -720,7 +722,7 @@ mod tls_tests {
             let ca = ca
                 .map(|ca| format!("ca = \"{}\"\n", path(ca).display()))
                 .unwrap_or_default();
-            config::parse(&format!(
+            crate::plant::parse(&format!(
                 "[http.tls]\ncert = \"{}\"\nkey = \"{}\"\n{ca}",
                 path(cert).display(),
                 path(key).display(),
@@ -770,10 +772,10 @@ mod api_path_tests {
                 d = dir.path().display()
             )
         };
-        let in_force = config::parse(&text("/opt/tls", "/opt/r.journal")).expect("parses");
+        let in_force = crate::plant::parse(&text("/opt/tls", "/opt/r.journal")).expect("parses");
         // The paths in force were set by the host: not checked again, even outside.
         assert_eq!(api_path_issues(&in_force, &in_force), Vec::new());
-        let changed = config::parse(&text("/etc/ssl", "/etc/r.journal")).expect("parses");
+        let changed = crate::plant::parse(&text("/etc/ssl", "/etc/r.journal")).expect("parses");
         let issues = api_path_issues(&changed, &in_force);
         let paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
         assert_eq!(
@@ -802,7 +804,7 @@ mod api_path_tests {
         std::fs::create_dir_all(&state).expect("mkdir");
         std::fs::create_dir_all(&conf).expect("mkdir");
         let journal = state.join("r.journal").display().to_string();
-        let inside_dirs = config::parse(&text(&conf, &journal)).expect("parses");
+        let inside_dirs = crate::plant::parse(&text(&conf, &journal)).expect("parses");
         assert_eq!(api_path_issues(&inside_dirs, &in_force), Vec::new());
     }
 
@@ -822,7 +824,7 @@ mod api_path_tests {
                 conf = conf.display()
             )
         };
-        let in_force = config::parse(&text(
+        let in_force = crate::plant::parse(&text(
             &token.display().to_string(),
             "/opt/zenoh.json5",
             "/opt/tls",
@@ -831,8 +833,8 @@ mod api_path_tests {
         // The paths in force were set by the host: not checked again, even outside.
         assert_eq!(api_path_issues(&in_force, &in_force), Vec::new());
         // Changed to paths outside config_dirs: every one refused at its key.
-        let changed =
-            config::parse(&text("/etc/shadow", "/etc/zenoh.json5", "/etc/ssl")).expect("parses");
+        let changed = crate::plant::parse(&text("/etc/shadow", "/etc/zenoh.json5", "/etc/ssl"))
+            .expect("parses");
         let issues = api_path_issues(&changed, &in_force);
         let paths: Vec<&str> = issues.iter().map(|i| i.path.as_str()).collect();
         assert_eq!(
@@ -869,7 +871,7 @@ mod api_path_tests {
             "/opt/zenoh.json5",
             "/opt/tls",
         );
-        let changed = config::parse(&inside_dir).expect("parses");
+        let changed = crate::plant::parse(&inside_dir).expect("parses");
         assert_eq!(api_path_issues(&changed, &in_force), Vec::new());
         let all = start_issues(
             &changed,
@@ -898,6 +900,7 @@ mod state_file_tests {
     //! refuses is refused at the file's key.
 
     use super::*;
+    use crate::cpmem;
     use proptest::prelude::*;
     use std::collections::BTreeMap;
     use std::path::PathBuf;
@@ -1006,7 +1009,7 @@ mod state_file_tests {
     }
 
     fn config(state: &Path, a: &Path, b: &Path, persist: &Path) -> Config {
-        config::parse(&format!(
+        crate::plant::parse(&format!(
             "[gateway]\nstate_dirs = [\"{state}\"]\n\
              [cp_memory]\npersist_file = \"{persist}\"\n\
              [lines.a]\nport = \"/dev/null\"\nprotocol = \"3964r\"\njournal = \"{a}\"\n\

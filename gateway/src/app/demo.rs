@@ -15,7 +15,7 @@ use tokio_util::sync::CancellationToken;
 use tracing::info;
 
 use super::{run_from, AppError, Overrides};
-use crate::config::{self, LineConfig, ProtocolConfig, ASCII_CHARACTER_DELAY_RANGE};
+use crate::protocols::{LineConfig, ProtocolConfig, ASCII_CHARACTER_DELAY_RANGE};
 use crate::sim::{self, ModbusDevice};
 
 /// The delay-time multiplier of the Modbus lines of `gateway demo --paced` (003 6.4.2.1: 1..10).
@@ -33,7 +33,7 @@ pub async fn demo_named(
     overrides: Overrides,
     shutdown: CancellationToken,
 ) -> Result<(), AppError> {
-    let mut config = config::demo();
+    let mut config = crate::plant::demo();
     if let Some(name) = name {
         crate::zenoh_bridge::keys::check_chunk("gateway", &name)
             .map_err(|e| AppError::Setup(format!("--name: {e}")))?;
@@ -114,7 +114,7 @@ pub async fn demo_named(
     }
     // The REST API's start-up line says that changes need no token here (one WARN, the demo's
     // only one, on purpose); the HTTP server's start says that changes are kept in memory.
-    let result = run_from(config, Some(config::demo_toml()), overrides, shutdown).await;
+    let result = run_from(config, Some(crate::plant::demo_toml()), overrides, shutdown).await;
     sims.cancel();
     drop(keep);
     result
@@ -215,21 +215,30 @@ fn start_simulator(
         ProtocolConfig::ModbusSlaveRtu(cfg) => {
             // A simulated HMI polls the gateway's slave line and writes a cycle counter into
             // holding register 10 (DB 800, DBW 20), so that values and counters move.
-            let layout = crate::cpmem::config::memory_layout([cfg], None);
-            let params = crate::cpmem::config::slave_params(cfg, &layout).map_err(|issues| {
-                let text: Vec<String> = issues.iter().map(ToString::to_string).collect();
-                AppError::Setup(format!("line {name}: {}", text.join("; ")))
-            })?;
-            let mut settings = sim::master::SimMasterSettings::for_slave(&params, Some(10));
+            let layout = crate::protocols::modbus_slave::cpmem::memory_layout([cfg], None);
+            let params = crate::protocols::modbus_slave::cpmem::slave_params(cfg, &layout)
+                .map_err(|issues| {
+                    let text: Vec<String> = issues.iter().map(ToString::to_string).collect();
+                    AppError::Setup(format!("line {name}: {}", text.join("; ")))
+                })?;
+            let mut settings =
+                crate::protocols::modbus_slave::partner::SimMasterSettings::for_slave(
+                    &params,
+                    Some(10),
+                );
             settings.baud = line.serial.baud.get();
             settings.bits_per_char = line.serial.bits_per_char();
-            sim::master::spawn_sim_master(stream, settings, shutdown.clone());
+            crate::protocols::modbus_slave::partner::spawn_sim_master(
+                stream,
+                settings,
+                shutdown.clone(),
+            );
             Ok(())
         }
         ProtocolConfig::Proc3964(_) | ProtocolConfig::Ascii(_) => {
             // The partner echoes every telegram and sends one of its own every second (the
             // 3964R partner at the other priority, the ASCII partner ending with ETX).
-            let partner = sim::telegram::TelegramSim::for_line(line)
+            let partner = crate::protocols::telegram::partner::TelegramSim::for_line(line)
                 .ok_or_else(|| AppError::Setup(format!("line {name}: no telegram partner")))?
                 .map_err(|e| AppError::Setup(format!("line {name}: {e}")))?;
             let partner = match telegram_every {

@@ -13,9 +13,10 @@ use crate::api::model::{
 };
 use crate::api::{ApiError, BoxFuture};
 use crate::audit::AuditMetrics;
-use crate::config::{Config, ConfigIssue};
+use crate::config::ConfigIssue;
 use crate::feeds::gateway::{line_view, Gateway, InForce, RunningLine};
 use crate::image::ProcessImage;
+use crate::plant::Config;
 use crate::tags::TagDirectory;
 use crate::unit::write_policy::WritePolicy;
 use crate::unit::SharedUnits;
@@ -105,7 +106,7 @@ impl Gateway for Supervisor {
     }
 
     fn config_issues(&self, config: &Config, found: &[ConfigIssue]) -> Vec<ConfigIssue> {
-        crate::cpmem::config::config_issues(config, found)
+        crate::plant::check::config_issues(config, found)
     }
 
     fn apply(

@@ -11,12 +11,15 @@ use tokio_util::sync::CancellationToken;
 
 use super::AppError;
 use super::Metrics;
-use crate::config::check::{Check, Start};
-use crate::config::{Config, Cx, LineConfig, ProtocolConfig};
-use crate::cpmem::{self, SharedCpMemory};
+use crate::config::check::Check;
+use crate::config::Cx;
+use crate::cpmem::SharedCpMemory;
 use crate::feeds::gateway::RunningLine;
 use crate::image::ProcessImage;
-use crate::line::start::{StartDeps, StartLine};
+use crate::plant::check::Start;
+use crate::plant::Config;
+use crate::protocols::start::StartDeps;
+use crate::protocols::LineConfig;
 
 /// What starting a line needs from the gateway.
 pub(crate) struct LineDeps<'a> {
@@ -33,21 +36,6 @@ pub(crate) struct LineDeps<'a> {
     pub(crate) mirrored: &'a Mutex<Vec<(u8, AddressMap)>>,
 }
 
-/// The one table of protocols: each line's config section, as the part of its protocol that
-/// starts the line (each implements [`StartLine`] next to its adapter). Adding a protocol adds
-/// one arm here.
-fn protocol(config: &ProtocolConfig) -> &dyn StartLine {
-    match config {
-        ProtocolConfig::ModbusMasterRtu(c) => c,
-        ProtocolConfig::ModbusMasterAscii(c) => c,
-        ProtocolConfig::ModbusSlaveRtu(c) => c,
-        ProtocolConfig::ModbusRtuTap(c) => c,
-        ProtocolConfig::Proc3964(c) => c,
-        ProtocolConfig::Proc3964Tap(c) => c,
-        ProtocolConfig::Ascii(c) => c,
-    }
-}
-
 /// Starts line `name` of `deps.config` under its own token; `carried` is what the line it
 /// replaces left (its waiting telegrams, when both are telegram lines).
 pub(crate) fn start_line(
@@ -58,14 +46,17 @@ pub(crate) fn start_line(
 ) -> Result<RunningLine, AppError> {
     let token = deps.parent.child_token();
     let start = StartDeps {
-        config: deps.config,
+        gateway: &deps.config.gateway,
+        zenoh_on: deps.config.zenoh.as_ref().is_some_and(|z| z.enabled),
         image: deps.image,
         metrics: deps.metrics.line(),
         cp_memory: deps.cp_memory,
         token: token.clone(),
         carried,
     };
-    let handle = protocol(&line.protocol)
+    let handle = line
+        .protocol
+        .starter()
         .start(name, line, &start)
         .map_err(|e| AppError::Setup(e.to_string()))?;
     // The CP memory a slave line serves is mirrored into the image under its unit id, once.
@@ -99,7 +90,10 @@ impl Check<Start<'_>> for LineStarts {
     fn check(&self, start: &Start<'_>, cx: &mut Cx) {
         let layout = slave_layout(start.config);
         for (name, line) in &start.config.lines {
-            let issues = protocol(&line.protocol).start_issues(name, line, layout.as_ref());
+            let issues = line
+                .protocol
+                .starter()
+                .start_issues(name, line, layout.as_ref());
             cx.issues.extend(issues);
         }
     }
@@ -121,89 +115,8 @@ pub(super) fn slave_layout(config: &Config) -> Option<proto_core::cpmem::MemoryL
         .iter()
         .map(|b| (b.db, b.words))
         .collect();
-    Some(cpmem::config::memory_layout(
+    Some(crate::protocols::modbus_slave::cpmem::memory_layout(
         slaves,
         (!blocks.is_empty()).then_some(blocks.as_slice()),
     ))
-}
-
-#[cfg(test)]
-mod tests {
-    use std::path::{Path, PathBuf};
-
-    /// At most this many files outside the protocols' own folders (`src/line/<folder>/`) name
-    /// the protocols one by one.
-    const MAX_LISTING_FILES: usize = 3;
-
-    /// The variants of `ProtocolConfig`: those of the protocols' table in config/line.rs, which
-    /// makes `ProtocolKind` with the same names.
-    fn variants(_src: &Path) -> Vec<String> {
-        crate::config::ProtocolKind::ALL
-            .iter()
-            .map(|kind| format!("{kind:?}"))
-            .collect()
-    }
-
-    fn rust_files(dir: &Path, found: &mut Vec<PathBuf>) {
-        for entry in std::fs::read_dir(dir).expect("source directory") {
-            let path = entry.expect("directory entry").path();
-            if path.is_dir() {
-                rust_files(&path, found);
-            } else if path.extension().is_some_and(|e| e == "rs") {
-                found.push(path);
-            }
-        }
-    }
-
-    /// A file in a protocol's own folder: `line/<folder>/...` (`line/master/`,
-    /// `line/telegram/`, ...), where its adapter and its start live.
-    fn in_protocol_folder(relative: &str) -> bool {
-        relative
-            .strip_prefix("line/")
-            .is_some_and(|rest| rest.contains('/'))
-    }
-
-    #[test]
-    fn the_protocols_are_listed_in_at_most_three_files_which_the_architecture_names() {
-        let root = Path::new(env!("CARGO_MANIFEST_DIR"));
-        let src = root.join("src");
-        let variants = variants(&src);
-        assert!(
-            variants.len() >= 7,
-            "ProtocolConfig's variants not found in config/line.rs: {variants:?}"
-        );
-        let mut files = Vec::new();
-        rust_files(&src, &mut files);
-        let mut listing: Vec<String> = files
-            .iter()
-            .filter_map(|path| {
-                let relative = path.strip_prefix(&src).ok()?.to_string_lossy().into_owned();
-                let text = std::fs::read_to_string(path).ok()?;
-                let names_one = variants
-                    .iter()
-                    .any(|v| text.contains(&format!("ProtocolConfig::{v}")));
-                (names_one && !in_protocol_folder(&relative)).then_some(relative)
-            })
-            .collect();
-        listing.sort();
-        assert!(
-            listing.len() <= MAX_LISTING_FILES,
-            "the ProtocolConfig variants are matched in {} files outside the protocols' own \
-             folders, at most {MAX_LISTING_FILES} are allowed: {listing:?}. A protocol answers \
-             for its line through config::ProtocolSection and line::start::StartLine; see \
-             \"Adding a line protocol\" in docs/architecture.md",
-            listing.len()
-        );
-        let architecture = std::fs::read_to_string(root.join("../docs/architecture.md"))
-            .expect("docs/architecture.md");
-        let unnamed: Vec<&String> = listing
-            .iter()
-            .filter(|f| !architecture.contains(&format!("`{f}`")))
-            .collect();
-        assert!(
-            unnamed.is_empty(),
-            "docs/architecture.md (\"Adding a line protocol\") does not name {unnamed:?}, which \
-             match the ProtocolConfig variants: list them among the files a new protocol touches"
-        );
-    }
 }

@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 
 use toml_edit::{Array, ArrayOfTables, DocumentMut, InlineTable, Item, Table, Value};
 
-use crate::config::{self, ConfigIssue};
+use crate::config::ConfigIssue;
 use crate::persist::ConfigStore;
 
 /// The columns, in order (a tag's keys; `type` is the data type).
@@ -321,7 +321,8 @@ pub fn import_from(
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let issues = match config::parse_in(&new_text, &crate::cpmem::config::config_issues, &dir) {
+    let issues = match crate::plant::parse_in(&new_text, &crate::plant::check::config_issues, &dir)
+    {
         Ok(c) => {
             let mut issues = super::check::run_issues(&c);
             issues.extend(super::check::port_issues(&c).0);

@@ -15,11 +15,11 @@ use super::build::unit_write_ranges;
 use super::reload_notice::Reload;
 use super::{server_options, AppError};
 use crate::api::tls::tls_issue;
-use crate::config::check::{ApiChange, Check, Start};
-use crate::config::{
-    Config, ConfigIssue, Cx, FunctionClassConfig, ModbusTcpConfig, ModbusTlsConfig,
-};
+use crate::config::check::Check;
+use crate::config::{ConfigIssue, Cx, FunctionClassConfig, ModbusTcpConfig, ModbusTlsConfig};
 use crate::modbus_tcp::{self, LiveOptions, RoleRights, Roles, ServerStats, TlsFiles, TlsServer};
+use crate::plant::check::{ApiChange, Start};
+use crate::plant::Config;
 use crate::unit::SharedUnits;
 
 /// The running Modbus/TCP Security server.
@@ -241,7 +241,6 @@ fn tls_issues(config: &Config) -> Vec<ConfigIssue> {
 mod tests {
     use super::super::check::run_issues;
     use super::*;
-    use crate::config;
 
     #[test]
     fn modbus_tcp_security_files_are_loaded_as_run_loads_them() {
@@ -261,7 +260,7 @@ mod tests {
         std::fs::write(path("server.key"), key.serialize_pem()).unwrap();
         std::fs::write(path("empty.crt"), "").unwrap();
         let config = |cert: &str, key: &str, ca: &str| {
-            config::parse(&format!(
+            crate::plant::parse(&format!(
                 "[modbus_tcp.tls]\ncert = \"{}\"\nkey = \"{}\"\nca = \"{}\"\n",
                 path(cert).display(),
                 path(key).display(),

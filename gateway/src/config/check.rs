@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 
 use super::reader::Cx;
 use super::serial::SerialConfig;
-use super::{Config, ConfigIssue};
+use super::ConfigIssue;
 
 /// A check of a configuration in scope `S`: the issues it finds go into `cx`, each with its
 /// path.
@@ -36,81 +36,6 @@ pub(crate) struct Line<'a> {
 pub(crate) struct Device<'a> {
     /// `lines.<line>.devices.<name>`.
     pub(crate) path: &'a str,
-}
-
-/// A whole configuration at start, through any door: what would keep `run` from starting (the
-/// files it names opened as `run` opens them). A key in `refused` (its path outside the
-/// directories a REST change may name) is not opened.
-pub(crate) struct Start<'a> {
-    /// The configuration checked.
-    pub(crate) config: &'a Config,
-    /// The keys the path checks of a REST change refused already.
-    pub(crate) refused: &'a [String],
-}
-
-impl Start<'_> {
-    /// Whether the path checks refused `key` (its file is then not opened).
-    pub(crate) fn refused(&self, key: &str) -> bool {
-        self.refused.iter().any(|p| p == key)
-    }
-}
-
-/// A change over the REST API: the paths `new` names, confined to the directories the
-/// `[gateway]` of `in_force` allows for them. A path that is the one in force (the host set it)
-/// is not checked again. A new key that names a file confines it in its part's check.
-pub(crate) struct ApiChange<'a> {
-    /// The configuration the change makes.
-    pub(crate) new: &'a Config,
-    /// The configuration in force, which the change is made from.
-    pub(crate) in_force: &'a Config,
-}
-
-impl ApiChange<'_> {
-    /// A file written like the CP memory file, at `key`: confined to `state_dirs`.
-    pub(crate) fn state_file(
-        &self,
-        cx: &mut Cx,
-        key: &str,
-        new: Option<&Path>,
-        old: Option<&Path>,
-    ) {
-        let dirs = ("state_dirs", self.in_force.gateway.state_dirs.as_slice());
-        cx.issues.extend(confine(key, new, old, dirs));
-    }
-
-    /// A file the gateway reads its settings or secrets from, at `key`: confined to
-    /// `config_dirs`.
-    pub(crate) fn config_file(
-        &self,
-        cx: &mut Cx,
-        key: &str,
-        new: Option<&Path>,
-        old: Option<&Path>,
-    ) {
-        let dirs = ("config_dirs", self.in_force.gateway.config_dirs.as_slice());
-        cx.issues.extend(confine(key, new, old, dirs));
-    }
-}
-
-/// The directories of `[gateway]` that confine a REST change: changed only in the host's file.
-pub(crate) struct GatewayDirs;
-
-impl Check<ApiChange<'_>> for GatewayDirs {
-    fn check(&self, change: &ApiChange<'_>, cx: &mut Cx) {
-        let (new, old) = (&change.new.gateway, &change.in_force.gateway);
-        for (key, new_dirs, old_dirs) in [
-            ("gateway.port_dirs", &new.port_dirs, &old.port_dirs),
-            ("gateway.state_dirs", &new.state_dirs, &old.state_dirs),
-            ("gateway.config_dirs", &new.config_dirs, &old.config_dirs),
-        ] {
-            if new_dirs != old_dirs {
-                cx.issue(
-                    key,
-                    "changed only in the configuration file on the host, not over the API",
-                );
-            }
-        }
-    }
 }
 
 /// A file a change over the REST API names at `key`, confined to `allowed` (the `[gateway]`

@@ -617,7 +617,7 @@ fn written_against(whole: toml::Table, base: &toml::Table) -> toml::Table {
 
 /// The communication scanner's settings, read only when it runs, with their defaults (above):
 /// the rules by which `validate::ignored_keys` finds them without effect in a file.
-pub(super) const SCANNER_NEEDS: &[Needs] = &[
+pub(crate) const SCANNER_NEEDS: &[Needs] = &[
     needs("inputs", Some("2"), "enabled", &["true"], "false"),
     needs("outputs", Some("2"), "enabled", &["true"], "false"),
     needs("period", Some("100ms"), "enabled", &["true"], "false"),

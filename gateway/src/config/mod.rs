@@ -18,78 +18,46 @@
 //! address = 2
 //! ```
 //!
-//! Every section's types live here (`[gateway]`, `[modbus_tcp]`, `[cp_memory]`, `[http]`,
-//! `[zenoh]`, `[lines.*]` with their devices), with the defaults and ranges of their keys. The
-//! config is plain data: this module imports no other module of the gateway (the lines, the CP
-//! memory, the API and the zenoh bridge import it). `deploy/gateway.example.toml` lists every key
-//! with its default and the manual section it comes from. A `port` that starts with `pty:` (as
-//! in the embedded demo) names a pseudo-terminal that `gateway demo` creates and puts in its
-//! place.
-//!
-//! # How it reads
-//!
-//! [`parse`] reads the TOML into a `toml::Table` (a syntax error is one issue with line and
-//! column), then walks it table by table with one reader (`reader::Fields`): each key is
-//! converted to its domain type (`SocketAddr`, `IpNet`, `Duration` through humantime, enums,
-//! [`Baud`], zenoh endpoints and key prefixes) and checked against the manual's range; keys
-//! nobody asked for are refused with their path. A bad value is reported and replaced by its
-//! default so that the walk goes on; then [`validate::validate`] runs the checks that span
-//! several keys. Every problem is a [`ConfigIssue`] with its path. This is what serde's
-//! `deny_unknown_fields` would give, but with every problem of the file in one answer instead of
-//! the first one, and with the flat line tables (`port`, `baud` and the protocol's parameters
-//! side by side) that `#[serde(flatten)]` cannot combine with `deny_unknown_fields`. Serializing
-//! uses serde (`toml::to_string(&config)`), and parsing the output gives the same `Config` back;
-//! deserializing a [`Config`], [`HttpConfig`] or [`ZenohConfig`] with serde goes through the same
-//! reader.
-//!
-//! Every check that spans keys or opens a file a configuration names implements one trait,
-//! [`check::Check`], next to what it checks; the reader walks the lines' sections and devices
-//! (`validate`), the app collects the start and path checks (`app::check::start_issues`).
-//! Checks that need another part of the gateway (whether the CP memory can serve a slave line
-//! exactly) are the app's: it passes them as an [`ExtraCheck`] to [`load_with`], [`parse_with`] or
-//! [`Config::from_table_with`], and their issues come in the same answer as the reader's.
+//! The sections every part of the configuration shares (`[gateway]`, `[modbus_tcp]`,
+//! `[cp_memory]`, `[http]`, `[zenoh]`, the serial keys of a line, devices, tags and templates),
+//! with the defaults and ranges of their keys, the one reader (`reader::Fields`) and the one error
+//! type ([`ConfigIssue`]). It names no protocol and imports no other module of the gateway: each
+//! protocol's section lives in its folder under `protocols/`, and the document that holds them all
+//! ([`crate::plant::Config`], read by [`crate::plant::parse`]) sits above both.
+//! `deploy/gateway.example.toml` lists every key with its default and the manual section it comes
+//! from. A `port` that starts with `pty:` (as in the embedded demo) names a pseudo-terminal that
+//! `gateway demo` creates and puts in its place.
 
 pub(crate) mod check;
 mod cpmem;
 mod device;
 mod http;
-mod line;
-mod modbus;
-mod reader;
-mod section;
+pub(crate) mod reader;
+pub(crate) mod section;
 mod serial;
 mod server;
-mod tag;
-mod tap;
-mod telegram;
-mod template;
-pub mod validate;
+pub(crate) mod tag;
+pub(crate) mod template;
 mod zenoh;
 
-use std::collections::BTreeMap;
 use std::fmt;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use serde::{Deserialize, Deserializer, Serialize};
 
 pub use cpmem::*;
 pub use device::*;
 pub use http::*;
-pub use line::*;
-pub use modbus::*;
 pub use section::{AckConfig, TelegramKeys};
 pub use serial::*;
 pub use server::*;
 pub use tag::*;
-pub use tap::*;
-pub use telegram::*;
 pub use template::DEVICE_ONLY_KEYS as TEMPLATE_DEVICE_ONLY_KEYS;
 // `self::`: the module, not the zenoh crate.
 pub use self::zenoh::*;
 
 pub(crate) use reader::Cx;
-use reader::{check_name, Fields};
-pub(crate) use template::TemplateDirs;
+use reader::Fields;
 
 /// `[gateway] name`: used as the zenoh prefix `gw/<name>` and in logs.
 pub const DEFAULT_GATEWAY_NAME: &str = "gateway";
@@ -103,29 +71,6 @@ pub fn default_gateway_name() -> String {
 }
 pub fn default_diag_buffer_depth() -> u16 {
     DEFAULT_DIAG_BUFFER_DEPTH
-}
-
-/// The embedded demo configuration (`gateway demo`).
-const DEMO_TOML: &str = include_str!("demo.toml");
-
-/// The whole configuration.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct Config {
-    pub gateway: GatewaySection,
-    pub modbus_tcp: ModbusTcpConfig,
-    /// The CP memory served by `modbus-slave-rtu` lines and their unit ids.
-    pub cp_memory: CpMemoryConfig,
-    /// The zenoh session (`[zenoh]`); none: the gateway joins no zenoh fabric.
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub zenoh: Option<ZenohConfig>,
-    /// The REST API and `/metrics` (`[http]`): where they listen, the token, the limits.
-    pub http: HttpConfig,
-    /// Lines by name.
-    pub lines: BTreeMap<String, LineConfig>,
-    /// Device templates by name (`[templates.NAME]`), as written: a device naming one is read
-    /// with the template's keys merged in (see the `template` module).
-    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
-    pub templates: BTreeMap<String, toml::Table>,
 }
 
 /// The `[gateway]` section.
@@ -209,183 +154,6 @@ impl fmt::Display for ConfigErrors {
 
 impl std::error::Error for ConfigErrors {}
 
-impl Default for Config {
-    /// What an empty file gives: no lines.
-    fn default() -> Self {
-        Self {
-            gateway: GatewaySection::default(),
-            modbus_tcp: ModbusTcpConfig::default(),
-            cp_memory: CpMemoryConfig::new(),
-            zenoh: None,
-            http: HttpConfig::default(),
-            lines: BTreeMap::new(),
-            templates: BTreeMap::new(),
-        }
-    }
-}
-
-// === impl Config ===
-
-impl Config {
-    /// Runs every rule of [`parse`] on a config built or changed in code (e.g. a line replaced
-    /// through the REST API): the config is written out and read back.
-    pub fn check(&self) -> Result<(), ConfigErrors> {
-        let table = toml::Table::try_from(self).map_err(|e| ConfigErrors {
-            issues: vec![ConfigIssue {
-                path: String::new(),
-                message: format!("cannot serialize the config: {e}"),
-            }],
-        })?;
-        Self::from_table(&table).map(drop)
-    }
-
-    /// The number of devices over all lines.
-    pub fn device_count(&self) -> usize {
-        self.lines.values().map(|l| l.devices().count()).sum()
-    }
-
-    /// A parsed `toml::Table` as a config.
-    pub fn from_table(table: &toml::Table) -> Result<Self, ConfigErrors> {
-        Self::from_table_with(table, &no_check)
-    }
-
-    /// A parsed `toml::Table` as a config, with `check`'s issues in the same answer.
-    pub fn from_table_with(
-        table: &toml::Table,
-        check: ExtraCheck<'_>,
-    ) -> Result<Self, ConfigErrors> {
-        Self::from_table_in(table, check, BASE_DIR.get().cloned())
-    }
-
-    /// [`Self::from_table_with`], relative template directories taken from `base_dir`.
-    fn from_table_in(
-        table: &toml::Table,
-        check: ExtraCheck<'_>,
-        base_dir: Option<PathBuf>,
-    ) -> Result<Self, ConfigErrors> {
-        let mut cx = Cx {
-            base_dir,
-            ..Cx::default()
-        };
-        let config = read_root(&mut cx, table);
-        validate::check(&mut cx, &config);
-        let more = check(&config, &cx.issues);
-        cx.issues.extend(more);
-        cx.relocate();
-        if cx.issues.is_empty() {
-            Ok(config)
-        } else {
-            Err(ConfigErrors { issues: cx.issues })
-        }
-    }
-}
-
-/// Reads a config through [`parse`]'s rules, so that `toml::from_str::<Config>` and other serde
-/// formats refuse unknown keys and report every problem too.
-impl<'de> Deserialize<'de> for Config {
-    fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
-        let table = toml::Table::deserialize(deserializer)?;
-        Self::from_table(&table).map_err(serde::de::Error::custom)
-    }
-}
-
-fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
-    let mut root = Fields::new(table, String::new());
-    let gateway = match root.table(cx, "gateway") {
-        None => GatewaySection::default(),
-        Some(mut f) => {
-            let name = f.string_or(cx, "name", DEFAULT_GATEWAY_NAME);
-            check_name(cx, &f.at("name"), &name);
-            let diag_buffer_depth = f.int_or(
-                cx,
-                "diag_buffer_depth",
-                1..=MAX_DIAG_BUFFER_DEPTH,
-                DEFAULT_DIAG_BUFFER_DEPTH,
-                "003 7.3",
-            );
-            let mut dirs = |cx: &mut Cx, key, default: &str| {
-                if !f.has(key) {
-                    let _ = f.raw(key);
-                    return vec![PathBuf::from(default)];
-                }
-                f.array(cx, key)
-                    .into_iter()
-                    .filter_map(|(path, v)| reader::string_value(cx, v, &path))
-                    .map(PathBuf::from)
-                    .collect()
-            };
-            let port_dirs = dirs(cx, "port_dirs", DEFAULT_PORT_DIR);
-            let state_dirs = dirs(cx, "state_dirs", DEFAULT_STATE_DIR);
-            let config_dirs = dirs(cx, "config_dirs", DEFAULT_CONFIG_DIR);
-            let template_dirs = f
-                .array(cx, "template_dirs")
-                .into_iter()
-                .filter_map(|(path, v)| reader::string_value(cx, v, &path))
-                .map(PathBuf::from)
-                .collect();
-            f.finish(cx);
-            GatewaySection {
-                name,
-                diag_buffer_depth,
-                port_dirs,
-                state_dirs,
-                config_dirs,
-                template_dirs,
-            }
-        }
-    };
-    let modbus_tcp = match root.table(cx, "modbus_tcp") {
-        None => ModbusTcpConfig::default(),
-        Some(f) => ModbusTcpConfig::read(cx, f),
-    };
-    let cp_memory = match root.table(cx, "cp_memory") {
-        None => CpMemoryConfig::new(),
-        Some(f) => CpMemoryConfig::read(cx, f),
-    };
-    let zenoh = root.table(cx, "zenoh").map(|f| ZenohConfig::read(cx, f));
-    let http = match root.table(cx, "http") {
-        None => HttpConfig::default(),
-        Some(f) => HttpConfig::read(cx, f),
-    };
-    let templates = template::read_templates(cx, root.raw("templates"), &gateway.template_dirs);
-    let mut lines = BTreeMap::new();
-    if table.get("lines").is_some_and(toml::Value::is_array) {
-        let _ = root.raw("lines");
-        cx.issue(
-            "lines",
-            "write each line as a table [lines.<name>], not as [[lines]]",
-        );
-    } else {
-        for (name, path, value) in root.named_tables(cx, "lines") {
-            if let Some(line) = LineConfig::read(cx, &name, &path, value) {
-                lines.insert(name, line);
-            }
-        }
-    }
-    root.finish(cx);
-    Config {
-        gateway,
-        modbus_tcp,
-        cp_memory,
-        zenoh,
-        http,
-        lines,
-        templates,
-    }
-}
-
-/// Checks that need another part of the gateway (e.g. whether the CP memory can serve a slave
-/// line exactly). The app passes them to [`parse_with`], [`load_with`] or
-/// [`Config::from_table_with`]; they run on the config as read (a bad value replaced by its
-/// default) after the reader's own rules, which found the issues given as second argument, and
-/// their issues are reported with those in one answer.
-pub type ExtraCheck<'a> = &'a dyn Fn(&Config, &[ConfigIssue]) -> Vec<ConfigIssue>;
-
-/// The [`ExtraCheck`] that finds nothing.
-pub fn no_check(_: &Config, _: &[ConfigIssue]) -> Vec<ConfigIssue> {
-    Vec::new()
-}
-
 /// Reads one section through its reader, for the section types' `Deserialize`: unknown keys are
 /// refused and every problem is reported, with paths under `path`.
 fn read_section<'de, D, T>(
@@ -406,91 +174,8 @@ where
     }
 }
 
-/// Parses and validates a configuration.
-pub fn parse(text: &str) -> Result<Config, ConfigErrors> {
-    parse_with(text, &no_check)
-}
-
-/// Parses and validates a configuration, with `check`'s issues in the same answer.
-pub fn parse_with(text: &str, check: ExtraCheck<'_>) -> Result<Config, ConfigErrors> {
-    let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
-        issues: vec![ConfigIssue {
-            path: String::new(),
-            message: syntax_message(text, &e),
-        }],
-    })?;
-    Config::from_table_with(&table, check)
-}
-
-/// Parses and validates a configuration's text as if it were read from a file in `dir` (relative
-/// `template_dirs` are taken from there), with `check`'s issues in the same answer: a file's new
-/// text checked before it is written.
-pub fn parse_in(text: &str, check: ExtraCheck<'_>, dir: &Path) -> Result<Config, ConfigErrors> {
-    let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
-        issues: vec![ConfigIssue {
-            path: String::new(),
-            message: syntax_message(text, &e),
-        }],
-    })?;
-    Config::from_table_in(&table, check, Some(dir.to_path_buf()))
-}
-
-/// Reads, parses and validates the configuration file at `path`.
-pub fn load(path: &Path) -> Result<Config, ConfigErrors> {
-    load_with(path, &no_check)
-}
-
-/// Reads, parses and validates the configuration file at `path`, with `check`'s issues in the
-/// same answer. Relative `template_dirs` are taken from the file's directory; the first file a
-/// process loads also gives that directory to the configurations it later reads from text (a
-/// change over the REST API, the text `GET /config` shows).
-pub fn load_with(path: &Path, check: ExtraCheck<'_>) -> Result<Config, ConfigErrors> {
-    let text = std::fs::read_to_string(path).map_err(|e| ConfigErrors {
-        issues: vec![ConfigIssue {
-            path: String::new(),
-            message: format!("cannot read {}: {e}", path.display()),
-        }],
-    })?;
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let _ = BASE_DIR.set(dir.clone());
-    let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
-        issues: vec![ConfigIssue {
-            path: String::new(),
-            message: syntax_message(&text, &e),
-        }],
-    })?;
-    Config::from_table_in(&table, check, Some(dir))
-}
-
-/// `dir` of `[gateway] template_dirs` as a configuration read from text takes it: a relative
-/// directory from the directory of the first configuration file the process loaded.
-pub fn template_dir_resolved(dir: &Path) -> PathBuf {
-    match BASE_DIR.get() {
-        Some(base) if dir.is_relative() => base.join(dir),
-        _ => dir.to_path_buf(),
-    }
-}
-
-/// The directory relative template directories are taken from when a configuration is read from
-/// text: the directory of the first configuration file the process loaded.
-static BASE_DIR: std::sync::OnceLock<PathBuf> = std::sync::OnceLock::new();
-
-/// The embedded demo configuration: lines `drive`, `ksvario`, `r3964`, `ascii` on `pty:` ports.
-pub fn demo() -> Config {
-    // The demo file is part of the binary and checked by tests; a failure is a build defect.
-    parse(DEMO_TOML).unwrap_or_else(|e| panic!("embedded demo.toml is invalid:\n{e}"))
-}
-
-/// The text of the embedded demo configuration.
-pub fn demo_toml() -> &'static str {
-    DEMO_TOML
-}
-
 /// `syntax error at line L, column C: <what>`.
-fn syntax_message(text: &str, e: &toml::de::Error) -> String {
+pub(crate) fn syntax_message(text: &str, e: &toml::de::Error) -> String {
     let what = e.message().trim().replace('\n', "; ");
     match e.span() {
         Some(span) => {

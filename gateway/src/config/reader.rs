@@ -543,7 +543,7 @@ impl<'a> Fields<'a> {
 }
 
 /// The TOML spelling of a unit-like enum value.
-pub(super) fn serde_name<T: serde::Serialize>(value: T) -> String {
+pub(crate) fn serde_name<T: serde::Serialize>(value: T) -> String {
     Value::try_from(value)
         .ok()
         .and_then(|v| v.as_str().map(str::to_owned))

@@ -1,6 +1,6 @@
 //! What every protocol's config section answers for its line, whatever the protocol: the seam
 //! between the configuration's common checks and views (ports, unit ids, devices, telegrams) and
-//! the sections of `config/modbus.rs`, `config/tap.rs` and `config/telegram.rs`, which implement
+//! the sections in the protocols' folders (`protocols/<protocol>/config.rs`), which implement
 //! it. A leaf: it knows none of the sections.
 
 use std::collections::BTreeMap;
@@ -12,11 +12,11 @@ use super::check::{Check, Line};
 use super::device::DeviceConfig;
 
 /// What a protocol's config section tells the rest of the configuration about its line. Each
-/// section implements it in its own file (`config/modbus.rs`, `config/tap.rs`,
-/// `config/telegram.rs`); the `section` method of [`super::ProtocolConfig`] is the one place
-/// that lists them. Every answer has the default of a line without that part. Its checks that
-/// span keys or need the serial settings (timing minimums by baud rate, the protocol against the
-/// interface) are its [`Check`] in the [`Line`] scope, in the same file.
+/// section implements it in its protocol's folder (`protocols/<protocol>/config.rs`); the
+/// `section` method of `ProtocolConfig`, made by the protocols' table, is the one place that lists
+/// them. Every answer has the default of a line without that part. Its checks that span keys or
+/// need the serial settings (timing minimums by baud rate, the protocol against the interface)
+/// are its [`Check`] in the [`Line`] scope, in the same file.
 pub(crate) trait ProtocolSection: for<'a> Check<Line<'a>> {
     /// The devices the line polls or listens to.
     fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {

@@ -46,6 +46,11 @@ impl ModbusTable {
     pub fn is_register(self) -> bool {
         matches!(self, Self::Holding | Self::Input)
     }
+
+    /// Whether Modbus can write this table (coils with FC 05/15, holding registers with FC 06/16).
+    pub fn is_writable(self) -> bool {
+        matches!(self, Self::Coil | Self::Holding)
+    }
 }
 
 impl From<ModbusTable> for Table {

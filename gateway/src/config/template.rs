@@ -23,7 +23,6 @@ use std::sync::Arc;
 
 use toml::Value;
 
-use super::check::{ApiChange, Check};
 use super::device::DeviceConfig;
 use super::reader::{check_name, join, kind, string_value, Cx, Relocation};
 
@@ -313,26 +312,10 @@ fn base(found: &Found) -> Option<toml::Table> {
     device.written_whole().ok()
 }
 
-/// The template directories a REST change adds: templates are read like the files of
-/// settings, so each is confined to `[gateway] config_dirs`.
-pub(crate) struct TemplateDirs;
-
-impl Check<ApiChange<'_>> for TemplateDirs {
-    fn check(&self, change: &ApiChange<'_>, cx: &mut Cx) {
-        let known = &change.in_force.gateway.template_dirs;
-        for (i, dir) in change.new.gateway.template_dirs.iter().enumerate() {
-            if !known.contains(dir) {
-                let key = format!("gateway.template_dirs[{i}]");
-                let resolved = super::template_dir_resolved(dir);
-                change.config_file(cx, &key, Some(&resolved), None);
-            }
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
-    use crate::config::{self, Config};
+    use crate::config;
+    use crate::plant::Config;
 
     const TEMPLATE: &str = "profile = \"generic\"\n\
         tags = [\n\
@@ -378,7 +361,7 @@ mod tests {
              ]\n\n\
              [lines.m.devices.c]\ntemplate = \"inline\"\naddress = 3\n",
         );
-        let c = config::parse(&text).unwrap_or_else(|e| panic!("{e}"));
+        let c = crate::plant::parse(&text).unwrap_or_else(|e| panic!("{e}"));
         let d = devices(&c);
         let names =
             |n: &str| -> Vec<String> { d[n].tags.iter().map(|t| t.name.to_string()).collect() };
@@ -400,7 +383,7 @@ mod tests {
             .as_array()
             .expect("own tags");
         assert_eq!(b_tags.len(), 2, "{written}");
-        assert_eq!(config::parse(&written), Ok(c));
+        assert_eq!(crate::plant::parse(&written), Ok(c));
     }
 
     #[test]
@@ -417,7 +400,7 @@ mod tests {
              [lines.m.devices.b]\ntemplate = \"meter\"\naddress = 2\n\n\
              [lines.m.devices.c]\ntemplate = \"nowhere\"\naddress = 3\n",
         );
-        let issues = config::parse(&text).expect_err("refused").issues;
+        let issues = crate::plant::parse(&text).expect_err("refused").issues;
         let note = format!("(template \"meter\", file {})", file.display());
         let scale = issues
             .iter()
@@ -446,7 +429,7 @@ mod tests {
             broken.path(),
             "[lines.m.devices.a]\ntemplate = \"meter\"\naddress = 1\n",
         );
-        let issues = config::parse(&text).expect_err("refused").issues;
+        let issues = crate::plant::parse(&text).expect_err("refused").issues;
         assert_eq!(issues.len(), 1, "{issues:#?}");
         assert_eq!(issues[0].path, "templates.meter");
         assert!(
@@ -463,7 +446,7 @@ mod tests {
             "[lines.m.devices.a]\ntemplate = \"meter\"\naddress = 1\n\
              tags = [{ name = \"other\", table = \"input\", address = 0, scale = 0.0 }]\n",
         );
-        let issues = config::parse(&text).expect_err("refused").issues;
+        let issues = crate::plant::parse(&text).expect_err("refused").issues;
         assert!(
             issues
                 .iter()

@@ -63,7 +63,6 @@ use std::time::Duration;
 use ::zenoh::key_expr::OwnedKeyExpr;
 use serde::{Deserialize, Deserializer, Serialize};
 
-use super::check::{ApiChange, Check, Start};
 use super::reader::{string_value, Cx, Fields};
 
 /// A deadband: a finite amount, 0 or more (checked when read).
@@ -497,37 +496,5 @@ fn endpoints(cx: &mut Cx, f: &mut Fields<'_>, key: &'static str) -> Option<Vec<E
 impl<'de> Deserialize<'de> for ZenohConfig {
     fn deserialize<D: Deserializer<'de>>(deserializer: D) -> Result<Self, D::Error> {
         super::read_section(deserializer, "zenoh", Self::read)
-    }
-}
-
-/// `[zenoh] config_file`: at start, the session's settings as the bridge builds them (the file
-/// read and parsed, the section's keys applied on top: an unreadable or invalid file stops
-/// `run`); through the REST API, the file confined to `[gateway] config_dirs`.
-pub(crate) struct ZenohFile;
-
-impl Check<Start<'_>> for ZenohFile {
-    fn check(&self, start: &Start<'_>, cx: &mut Cx) {
-        if start.refused("zenoh.config_file") {
-            return;
-        }
-        let Some(zenoh) = start.config.zenoh.as_ref().filter(|z| z.enabled) else {
-            return;
-        };
-        if let Err(e) = zenoh.to_zenoh() {
-            let key = if zenoh.config_file.is_some() {
-                "zenoh.config_file"
-            } else {
-                "zenoh"
-            };
-            cx.issue(key, e.to_string());
-        }
-    }
-}
-
-impl Check<ApiChange<'_>> for ZenohFile {
-    fn check(&self, change: &ApiChange<'_>, cx: &mut Cx) {
-        let file = |c: &super::Config| c.zenoh.as_ref().and_then(|z| z.config_file.clone());
-        let (new, old) = (file(change.new), file(change.in_force));
-        change.config_file(cx, "zenoh.config_file", new.as_deref(), old.as_deref());
     }
 }

@@ -10,7 +10,8 @@
 //! - the process image, which mirrors the mapped part of the memory under a unit id
 //!   ([`SharedCpMemory::mirror_to`]) so that zenoh and REST see it like any other tag;
 //! - optionally a file ([`persist`]): loaded at start, saved periodically and at shutdown;
-//! - [`config`]: a `modbus-slave-rtu` line's config as slave parameters and memory layout.
+//! - a `modbus-slave-rtu` line's config becomes slave parameters and a memory layout in
+//!   [`crate::protocols::modbus_slave::cpmem`].
 //!
 //! Every change goes through [`SharedCpMemory::write_bits`], [`SharedCpMemory::write_registers`],
 //! [`SharedCpMemory::update`] or, for the serial engine's own writes,
@@ -18,7 +19,6 @@
 //! and refreshes the mirrors while the memory lock is held, so the image never shows an older
 //! state than the memory after a later write.
 
-pub mod config;
 mod mirror;
 pub mod persist;
 mod unit;

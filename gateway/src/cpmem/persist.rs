@@ -31,8 +31,7 @@ use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
 use super::SharedCpMemory;
-use crate::config::check::{parent_dir, ApiChange, Check, Start};
-use crate::config::{Config, ConfigIssue, Cx};
+use crate::config::check::parent_dir;
 
 /// The first 8 bytes of a memory file.
 const MAGIC: &[u8; 8] = b"GWCPMEM1";
@@ -461,87 +460,10 @@ pub fn spawn_persistence(
     })
 }
 
-/// `[cp_memory] persist_file`: at start, the persisted CP memory opened as `run` opens it
-/// before the slave lines start ([`probe`]); through the REST API, the file confined to
-/// `[gateway] state_dirs`.
-pub(crate) struct PersistFile;
-
-impl Check<Start<'_>> for PersistFile {
-    fn check(&self, start: &Start<'_>, cx: &mut Cx) {
-        if !start.refused(PERSIST_KEY) {
-            cx.issues.extend(persist_file_issues(start.config));
-        }
-    }
-}
-
-impl Check<ApiChange<'_>> for PersistFile {
-    fn check(&self, change: &ApiChange<'_>, cx: &mut Cx) {
-        let file = |c: &Config| c.cp_memory.persist_file.clone();
-        let (new, old) = (file(change.new), file(change.in_force));
-        change.state_file(cx, PERSIST_KEY, new.as_deref(), old.as_deref());
-    }
-}
-
-/// The key of the persistence file.
-const PERSIST_KEY: &str = "cp_memory.persist_file";
-
-/// The persisted CP memory of a configuration with slave lines, opened as `run` opens it
-/// ([`probe`]): a directory, a file that is not a CP memory file (no header: it is never
-/// renamed or overwritten), a read-only directory or file system is an issue at
-/// `cp_memory.persist_file`. A missing file is created and removed again. A missing directory
-/// is not refused, as `run` does not refuse it (the memory starts zeroed, and saves are retried
-/// until the directory exists: systemd's `StateDirectory=` makes it when the service starts);
-/// `gateway check` warns about it ([`persist_dir_warnings`]). A REST change cannot name one
-/// (`state_dirs` confines it to existing directories).
-fn persist_file_issues(config: &Config) -> Vec<ConfigIssue> {
-    let Some(path) = config
-        .cp_memory
-        .persist_file
-        .as_ref()
-        .filter(|_| serves_memory(config))
-    else {
-        return Vec::new();
-    };
-    if missing_dir(path) {
-        return Vec::new();
-    }
-    match probe(path) {
-        Ok(()) => Vec::new(),
-        Err(message) => vec![ConfigIssue {
-            path: PERSIST_KEY.to_owned(),
-            message,
-        }],
-    }
-}
-
-/// Whether a line of `config` serves the CP memory.
-fn serves_memory(config: &Config) -> bool {
-    config
-        .lines
-        .values()
-        .any(|l| l.protocol.cp_memory_slave().is_some())
-}
-
 /// Whether the directory of `path` does not exist (a path under a regular file is not missing:
 /// `run` cannot read it).
-fn missing_dir(path: &Path) -> bool {
+pub(crate) fn missing_dir(path: &Path) -> bool {
     std::fs::metadata(parent_dir(path)).is_err_and(|e| e.kind() == io::ErrorKind::NotFound)
-}
-
-/// `gateway check`'s warning about a CP memory file whose directory does not exist (yet).
-pub(crate) fn persist_dir_warnings(config: &Config) -> Vec<ConfigIssue> {
-    match &config.cp_memory.persist_file {
-        Some(path) if serves_memory(config) && missing_dir(path) => vec![ConfigIssue {
-            path: PERSIST_KEY.to_owned(),
-            message: format!(
-                "the directory {} does not exist: the memory starts zeroed and every save fails \
-                 (logged) until it exists (systemd's StateDirectory= makes it when the service \
-                 starts)",
-                parent_dir(path).display()
-            ),
-        }],
-        _ => Vec::new(),
-    }
 }
 
 #[cfg(test)]

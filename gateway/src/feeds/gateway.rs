@@ -15,9 +15,10 @@ use crate::api::model::{
 };
 use crate::api::{ApiError, BoxFuture};
 use crate::audit::AuditMetrics;
-use crate::config::{Config, ConfigIssue};
+use crate::config::ConfigIssue;
 use crate::image::ProcessImage;
 use crate::line::LineHandle;
+use crate::plant::Config;
 use crate::tags::TagDirectory;
 use crate::unit::write_policy::WritePolicy;
 use crate::unit::{SharedUnits, UnitService};

@@ -18,9 +18,10 @@ use crate::api::model::{
 };
 use crate::api::{ApiBackend, ApiError, BoxFuture};
 use crate::audit::{self, WritePath, WriteResult};
-use crate::config::{Config, ConfigIssue};
-use crate::line::telegram::TelegramSendError;
+use crate::config::ConfigIssue;
 use crate::line::LineHandle;
+use crate::plant::Config;
+use crate::protocols::telegram::TelegramSendError;
 use crate::signals::{Output, SignalError};
 use crate::tags::TagEntry;
 
@@ -411,7 +412,10 @@ impl ApiBackend for RestBackend {
 }
 
 impl RestBackend {
-    fn signals_client(&self, line: &str) -> Result<crate::line::telegram::SignalsClient, ApiError> {
+    fn signals_client(
+        &self,
+        line: &str,
+    ) -> Result<crate::protocols::telegram::SignalsClient, ApiError> {
         let snapshot = self.gateway.in_force();
         Self::line(&*snapshot, line)?
             .handle

@@ -12,7 +12,7 @@ use super::gateway::Gateway;
 use super::tag_io::{self, WriteRefused};
 use super::zenoh as feeds;
 use crate::api::model::ScalarValue;
-use crate::line::telegram::TelegramSendError;
+use crate::protocols::telegram::TelegramSendError;
 use crate::tags::TagWriteError;
 use crate::zenoh_bridge::accounting::{self, WriteReason};
 use crate::zenoh_bridge::{BackendFuture, BridgeBackend, TagValue};

@@ -48,9 +48,6 @@
 //! writes at most half of what was appended since the previous one, so the cost per telegram
 //! stays constant.
 
-mod check;
-
-pub(crate) use check::Journals;
 use std::collections::VecDeque;
 use std::fs::{self, File, OpenOptions};
 use std::io::{self, Read, Seek, SeekFrom, Write};

@@ -20,7 +20,7 @@
 //! numbering goes on. Who acknowledges is the line's [`AckMode`]: a client (Modbus TCP, REST,
 //! zenoh `<line>/ack`) or the zenoh feed once it published the telegram.
 //!
-//! The telegram line's `MailboxUnit` (in [`crate::line::telegram`]) serves the mailbox under the
+//! The telegram line's `MailboxUnit` (in [`crate::protocols::telegram`]) serves the mailbox under the
 //! line's unit id; [`layout`] documents the registers.
 
 pub mod journal;

@@ -6,7 +6,7 @@ use tokio::sync::mpsc;
 
 use super::layout::*;
 use super::*;
-use crate::line::telegram::{Command, MailboxUnit, TelegramClient, TelegramSendError};
+use crate::protocols::telegram::{Command, MailboxUnit, TelegramClient, TelegramSendError};
 
 fn mailbox(depth: usize, overflow: Overflow) -> Arc<Mailbox> {
     Mailbox::new(

@@ -56,7 +56,7 @@ fn a_save_keeps_the_previous_version_and_leaves_no_temporary_file() {
 #[test]
 fn a_kept_text_shares_the_configuration_in_force_and_lets_a_replaced_one_go() {
     let text = format!("# the operator's comment\n{}", version(3));
-    let first = Arc::new(config::parse(&text).unwrap());
+    let first = Arc::new(crate::plant::parse(&text).unwrap());
     let shown = ConfigText::read(text.clone(), &first).expect("the text reads as it");
     assert!(std::ptr::eq(shown.config(), &*first), "shared, not a copy");
     let kept = shown.keep();
@@ -70,7 +70,7 @@ fn a_kept_text_shares_the_configuration_in_force_and_lets_a_replaced_one_go() {
 
     // Replaced: the kept text does not hold the old configuration ...
     let renamed = text.replace("name = \"v3\"", "name = \"renamed\"");
-    let second = Arc::new(config::parse(&renamed).unwrap());
+    let second = Arc::new(crate::plant::parse(&renamed).unwrap());
     let gone = Arc::downgrade(&first);
     drop(first);
     assert!(
@@ -89,7 +89,7 @@ fn a_kept_text_shares_the_configuration_in_force_and_lets_a_replaced_one_go() {
 fn save_writes_a_config_that_loads_back_equal() {
     let dir = tempfile::tempdir().unwrap();
     let store = ConfigStore::new(dir.path().join("gateway.toml"));
-    let demo = config::demo();
+    let demo = crate::plant::demo();
     store.save(&demo).unwrap();
     assert_eq!(store.load().unwrap(), demo);
 }
@@ -248,7 +248,7 @@ fn a_kept_text_is_packed_and_reads_back_exactly() {
         text.find("\n[lines.m.devices.d1]").expect("a device"),
         "\n[lines.m]\nport = \"/dev/ttyS0\"\nprotocol = \"modbus-master-rtu\"\n",
     );
-    let config = Arc::new(config::parse(&text).expect("the test's configuration reads"));
+    let config = Arc::new(crate::plant::parse(&text).expect("the test's configuration reads"));
     let kept = ConfigText::read(text.clone(), &config).expect("the text reads as its config");
     assert_eq!(kept.text(), text);
     assert_eq!(kept.keep().text(), text);

@@ -10,9 +10,9 @@ use tokio_serial::SerialPortBuilderExt;
 use tokio_util::sync::CancellationToken;
 
 use super::bus::Bus;
-use super::slaves::{spawn_line, DeviceEngine};
 use super::{Faults, ModbusDevice, SimModel};
 use crate::line::runtime::Unmarked;
+use crate::protocols::modbus_master::partner::{spawn_line, DeviceEngine};
 /// Slave addresses a device may have (Modbus over Serial Line V1.02, 2.2: 1..247; 001 3.1 and
 /// 002 "Adressen" say the same).
 const SLAVE_ADDRESSES: core::ops::RangeInclusive<u8> = 1..=247;
@@ -271,8 +271,10 @@ impl SimArgs {
 /// Runs the simulator the arguments describe until `shutdown` is cancelled.
 pub async fn run(args: SimArgs, shutdown: CancellationToken) -> Result<(), SimError> {
     let telegram = match args.device.as_slice() {
-        [DeviceKind::Proc3964r] => Some(super::telegram::TelegramDevice::P3964r),
-        [DeviceKind::Ascii] => Some(super::telegram::TelegramDevice::Ascii),
+        [DeviceKind::Proc3964r] => {
+            Some(crate::protocols::telegram::partner::TelegramDevice::P3964r)
+        }
+        [DeviceKind::Ascii] => Some(crate::protocols::telegram::partner::TelegramDevice::Ascii),
         _ => None,
     };
     if let Some(device) = telegram {
@@ -293,9 +295,11 @@ pub async fn run(args: SimArgs, shutdown: CancellationToken) -> Result<(), SimEr
             crate::serial::StopBits::One
         };
         tracing::info!(device = ?args.device, port = %args.port, baud = args.baud, every = ?args.every, "simulator serving");
-        return super::telegram::run_telegram_sim(device, port, args.every, shutdown)
-            .await
-            .map_err(|e| SimError::Telegram(e.to_string()));
+        return crate::protocols::telegram::partner::run_telegram_sim(
+            device, port, args.every, shutdown,
+        )
+        .await
+        .map_err(|e| SimError::Telegram(e.to_string()));
     }
     let device = args.device()?;
     if args.data_bits != 8 {

@@ -236,8 +236,8 @@ mod tests {
     use crate::image::{ImageConfig, Table};
 
     /// The demo's tags with ACC good (1.3 s) and ETA "not available" (0x8000) in the image.
-    fn demo() -> (crate::config::Config, Arc<TagDirectory>, ProcessImage) {
-        let config = crate::config::demo();
+    fn demo() -> (crate::plant::Config, Arc<TagDirectory>, ProcessImage) {
+        let config = crate::plant::demo();
         let tags = Arc::new(TagDirectory::from_config(&config));
         let image = ProcessImage::new(ImageConfig::default());
         for (tag, word) in [("ACC", 13), ("ETA", 0x8000)] {

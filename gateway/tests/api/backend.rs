@@ -15,7 +15,9 @@ use gateway::api::model::{
 };
 use gateway::api::{ApiBackend, ApiError, BoxFuture, ConfigDiff};
 use gateway::audit::WriteResult;
-use gateway::config::{Config, ConfigIssue, Interface, LineConfig, ProtocolConfig};
+use gateway::config::{ConfigIssue, Interface};
+use gateway::plant::Config;
+use gateway::protocols::{LineConfig, ProtocolConfig};
 use proto_core::event::EventId;
 
 /// A port path the backend refuses at validation, as a real gateway refuses a missing device.

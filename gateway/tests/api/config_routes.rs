@@ -32,7 +32,7 @@ async fn get_config_answers_json_with_an_etag_or_toml_on_request() {
         .await;
     assert_eq!(toml_reply.status, 200);
     assert_eq!(toml_reply.header("content-type"), Some("application/toml"));
-    let parsed = gateway::config::parse(&toml_reply.text).expect("the TOML answer parses");
+    let parsed = gateway::plant::parse(&toml_reply.text).expect("the TOML answer parses");
     assert_eq!(parsed, test_config());
     assert_eq!(toml_reply.header("etag"), Some(etag.as_str()));
 }
@@ -99,7 +99,7 @@ async fn a_baud_rate_change_restarts_only_its_line() {
     assert_eq!(api.gw.modbus_tcp_starts(), 1);
     // Persisted: the file holds the new rate, the previous file the old one.
     assert_eq!(api.stored().lines["drive"].serial.baud.get(), 9600);
-    let prev = gateway::config::load(&api.store_path.as_ref().unwrap().with_extension("toml.prev"))
+    let prev = gateway::plant::load(&api.store_path.as_ref().unwrap().with_extension("toml.prev"))
         .unwrap();
     assert_eq!(prev.lines["drive"].serial.baud.get(), 19200);
     assert_eq!(current(&api).await["lines"]["drive"]["baud"], 9600);
@@ -271,7 +271,7 @@ async fn toml_bodies_are_accepted_and_bad_bodies_refused() {
 /// changed keys are written.
 #[tokio::test]
 async fn a_change_edits_the_operators_file_in_place() {
-    let file = gateway::config::demo_toml().replace(
+    let file = gateway::plant::demo_toml().replace(
         "[lines.ascii]\n",
         "[lines.ascii]\ninterface = \"rs232\" # the partner has modem signals\n",
     );

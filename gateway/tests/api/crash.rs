@@ -11,8 +11,9 @@ use std::sync::Arc;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
 use gateway::api::{self, ApiState, Auth, Token};
-use gateway::config::{Baud, Config};
+use gateway::config::Baud;
 use gateway::persist::ConfigStore;
+use gateway::plant::Config;
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::net::TcpListener;
 use tokio::process::Command;

@@ -5,8 +5,9 @@ use std::time::Duration;
 
 use gateway::api::model::ScalarValue;
 use gateway::api::{self, ApiState, Auth, Token};
-use gateway::config::{self, Config, Interface};
+use gateway::config::{self, Interface};
 use gateway::persist::ConfigStore;
+use gateway::plant::Config;
 use reqwest::header::HeaderMap;
 use reqwest::Method;
 use serde_json::Value;
@@ -20,7 +21,7 @@ pub(crate) const TOKEN: &str = "test-token-0123456789abcdef";
 
 /// The demo configuration with the ASCII line on RS232 (so that it has modem signals).
 pub(crate) fn test_config() -> Config {
-    let mut c = config::demo();
+    let mut c = gateway::plant::demo();
     c.lines
         .get_mut("ascii")
         .expect("demo line")
@@ -213,7 +214,7 @@ pub(crate) async fn start_with(setup: Setup) -> TestApi {
         match &setup.file_text {
             Some(text) => {
                 assert_eq!(
-                    config::parse(text).expect("the test file is valid"),
+                    gateway::plant::parse(text).expect("the test file is valid"),
                     setup.config
                 );
                 store.save_atomic(text).expect("initial save");
@@ -293,7 +294,7 @@ impl TestApi {
     /// The configuration file's contents, parsed.
     pub(crate) fn stored(&self) -> Config {
         let path = self.store_path.as_ref().expect("a store");
-        config::load(path).expect("the stored configuration loads")
+        gateway::plant::load(path).expect("the stored configuration loads")
     }
 }
 

@@ -6,7 +6,7 @@ use super::*;
 
 #[test]
 fn demo_follows_the_spec() {
-    let c = config::demo();
+    let c = gateway::plant::demo();
     assert_eq!(c.gateway.name, "demo");
     assert_eq!(
         c.modbus_tcp.listen,
@@ -83,7 +83,7 @@ fn demo_follows_the_spec() {
 
 #[test]
 fn demo_and_example_round_trip_through_serialize() {
-    for c in [config::demo(), parse(&EXAMPLE)] {
+    for c in [gateway::plant::demo(), parse(&EXAMPLE)] {
         let text = toml::to_string(&c).expect("serialize");
         assert_eq!(parse(&text), c, "round trip of\n{text}");
     }
@@ -155,7 +155,7 @@ fn example_contains_every_key() {
 
 #[test]
 fn configs_changed_in_code_are_checked_by_the_same_rules() {
-    let mut c = config::demo();
+    let mut c = gateway::plant::demo();
     assert_eq!(c.check(), Ok(()));
     let ProtocolConfig::ModbusMasterRtu(m) = &mut c.lines.get_mut("drive").expect("drive").protocol
     else {
@@ -241,7 +241,9 @@ unit_id = 2
         .1
         .contains("unit id 2 is already used by lines.drive.devices.atv"));
     // Display: one line per issue, `path: message`.
-    let shown = config::parse(text).expect_err("invalid").to_string();
+    let shown = gateway::plant::parse(text)
+        .expect_err("invalid")
+        .to_string();
     let lines: Vec<_> = shown.lines().collect();
     assert_eq!(lines.len(), 3);
     assert!(
@@ -379,17 +381,20 @@ fn check_reports_counts_or_issues() {
     assert_eq!(gateway::app::check_command(&bad), 1);
 
     let missing = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("no-such-config.toml");
-    let err = config::load(&missing).expect_err("missing file");
+    let err = gateway::plant::load(&missing).expect_err("missing file");
     assert!(err.issues[0].message.starts_with("cannot read"), "{err}");
 }
 
 #[test]
 fn load_reads_the_example() {
     let path = temp_file("config-load-example.toml", &EXAMPLE);
-    assert_eq!(config::load(&path).expect("example loads"), parse(&EXAMPLE));
     assert_eq!(
-        config::parse(config::demo_toml()).expect("demo parses"),
-        config::demo()
+        gateway::plant::load(&path).expect("example loads"),
+        parse(&EXAMPLE)
+    );
+    assert_eq!(
+        gateway::plant::parse(gateway::plant::demo_toml()).expect("demo parses"),
+        gateway::plant::demo()
     );
 }
 
@@ -592,8 +597,8 @@ fn the_examples_commented_tap_line_is_valid() {
     let ProtocolConfig::ModbusRtuTap(t) = &tap.protocol else {
         panic!("a tap line: {tap:?}");
     };
-    assert_eq!(t.answer_timeout, config::DEFAULT_ANSWER_TIMEOUT);
-    assert_eq!(t.expected_cycle, config::DEFAULT_EXPECTED_CYCLE);
+    assert_eq!(t.answer_timeout, gateway::protocols::DEFAULT_ANSWER_TIMEOUT);
+    assert_eq!(t.expected_cycle, gateway::protocols::DEFAULT_EXPECTED_CYCLE);
     assert_eq!(t.delay_multiplier, 1);
     assert!(t.inter_character_check);
     assert_eq!(
@@ -617,10 +622,19 @@ fn the_examples_commented_3964r_tap_line_is_valid() {
     assert_eq!(tap.serial.port, "/dev/ttyS5");
     assert_eq!(t.port_b, "/dev/ttyS6");
     assert!(t.block_check);
-    assert_eq!(t.character_delay, config::DEFAULT_3964_CHARACTER_DELAY);
-    assert_eq!(t.ack_delay, config::DEFAULT_3964_ACK_DELAY);
-    assert_eq!(t.max_telegram_len, config::DEFAULT_3964_MAX_TELEGRAM_LEN);
-    assert_eq!(t.receive_buffer, config::DEFAULT_3964_RECEIVE_BUFFER);
+    assert_eq!(
+        t.character_delay,
+        gateway::protocols::DEFAULT_3964_CHARACTER_DELAY
+    );
+    assert_eq!(t.ack_delay, gateway::protocols::DEFAULT_3964_ACK_DELAY);
+    assert_eq!(
+        t.max_telegram_len,
+        gateway::protocols::DEFAULT_3964_MAX_TELEGRAM_LEN
+    );
+    assert_eq!(
+        t.receive_buffer,
+        gateway::protocols::DEFAULT_3964_RECEIVE_BUFFER
+    );
     assert_eq!(tap.unit_id(), Some(102));
     assert_eq!(c.check(), Ok(()));
 }

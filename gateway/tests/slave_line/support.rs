@@ -9,8 +9,9 @@ use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
 use gateway::cpmem::{CpMemoryUnit, SharedCpMemory};
-use gateway::line::{spawn_modbus_slave_line, LineHandle, SlaveLineSettings};
+use gateway::line::LineHandle;
 use gateway::modbus_tcp::{bind, serve, ServerOptions, ServerStats};
+use gateway::protocols::{spawn_modbus_slave_line, SlaveLineSettings};
 use gateway::serial::PortSettings;
 use gateway::unit::UnitMap;
 use proto_core::cpmem::{AddressMap, MemoryLayout, OperatingMode, SlaveParams, WriteLimits};

@@ -5,12 +5,12 @@ use std::net::SocketAddr;
 use std::sync::{Arc, RwLock};
 use std::time::Duration;
 
-use gateway::line::telegram::{spawn_telegram_line, TelegramLineSettings, TelegramProtocol};
 use gateway::line::LineHandle;
 use gateway::mailbox::{MailboxSettings, Overflow};
 use gateway::modbus_tcp::{bind, serve, ServerOptions, ServerStats};
+use gateway::protocols::telegram::partner::{partner_3964r, partner_ascii, TelegramSim};
+use gateway::protocols::telegram::{spawn_telegram_line, TelegramLineSettings, TelegramProtocol};
 use gateway::serial::PortSettings;
-use gateway::sim::telegram::{partner_3964r, partner_ascii, TelegramSim};
 use gateway::unit::{SharedUnits, UnitMap};
 use proto_core::event::EventId;
 use proto_core::proc3964::{Params3964, Priority, Settings3964};

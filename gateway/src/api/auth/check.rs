@@ -2,8 +2,9 @@
 //! `run` reads it (at least 16 visible characters, no two alike); through the REST API, each
 //! token file confined to `[gateway] config_dirs`.
 
-use crate::config::check::{ApiChange, Check, Start};
+use crate::config::check::Check;
 use crate::config::{ConfigIssue, Cx, HttpConfig, TokenSource};
+use crate::plant::check::{ApiChange, Start};
 
 use super::{Auth, TokenError};
 
@@ -126,11 +127,10 @@ pub(crate) fn token_issue(http: &HttpConfig, e: &TokenError) -> ConfigIssue {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config;
 
     #[test]
     fn a_named_token_that_cannot_be_read_is_an_issue_at_its_key() {
-        let http = config::parse(
+        let http = crate::plant::parse(
             "[http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"OPS\"\n\
              [http.tokens.eng]\nrole = \"admin\"\ntoken_file = \"/nonexistent/eng.token\"\n",
         )
@@ -150,7 +150,7 @@ mod tests {
 
     #[test]
     fn every_token_problem_is_reported_at_its_key() {
-        let http = config::parse(
+        let http = crate::plant::parse(
             "[http]\ntoken_file = \"/nonexistent/admin.token\"\n\
              [http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"OPS\"\n\
              [http.tokens.hmi]\nrole = \"viewer\"\ntoken_env = \"HMI\"\n",
@@ -173,7 +173,7 @@ mod tests {
             "token ops: the API token variable OPS is not set"
         );
         // All readable, two alike: one issue at http.tokens.
-        let http = config::parse(
+        let http = crate::plant::parse(
             "[http]\ntoken_env = \"A\"\n[http.tokens.ops]\nrole = \"operator\"\ntoken_env = \"B\"\n",
         )
         .expect("parses")

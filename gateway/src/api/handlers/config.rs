@@ -30,9 +30,9 @@ use crate::api::error::{ApiError, ErrorBody, Issue};
 use crate::api::model::{ConfigChangeResult, ConfigOverride, ValidationResult};
 use crate::api::{ApiBackend, ApiState};
 use crate::audit::WriteResult;
-use crate::config::Config;
 use crate::persist::edit;
 use crate::persist::ConfigText;
+use crate::plant::Config;
 use toml_edit::DocumentMut;
 
 /// The configuration as JSON: the TOML file's tables and keys (see

@@ -14,11 +14,11 @@ use crate::api::model::ApplyReport;
 use crate::api::ApiError;
 use crate::app::lines::{self, LineDeps};
 use crate::app::GRACE_PERIOD;
-use crate::config::Config;
 use crate::cpmem::SharedCpMemory;
 use crate::feeds::gateway::RunningLine;
 use crate::mailbox::Carried;
 use crate::modbus_tcp;
+use crate::plant::Config;
 use proto_core::cpmem::AddressMap;
 
 // === impl Supervisor ===

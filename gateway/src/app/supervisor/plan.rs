@@ -14,7 +14,7 @@ use proto_core::cpmem::MemoryLayout;
 use crate::api::model::ApplyReport;
 use crate::api::ConfigDiff;
 use crate::app::lines::slave_layout;
-use crate::config::Config;
+use crate::plant::Config;
 
 /// A line the change stops: removed, or restarted under its new settings.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -107,7 +107,7 @@ fn line_stop(name: &str, in_force: &Config, new: &Config) -> LineStop {
         .filter(|d| !kept.contains(d))
         .cloned()
         .collect();
-    let protocol = |l: &crate::config::LineConfig| l.protocol.kind().as_str();
+    let protocol = |l: &crate::protocols::LineConfig| l.protocol.kind().as_str();
     LineStop {
         name: name.to_owned(),
         restarts: after.is_some(),
@@ -121,7 +121,8 @@ fn line_stop(name: &str, in_force: &Config, new: &Config) -> LineStop {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::{demo, Baud};
+    use crate::config::Baud;
+    use crate::plant::demo;
 
     fn names(plan: &Plan) -> Vec<&str> {
         plan.stop.iter().map(|s| s.name.as_str()).collect()
