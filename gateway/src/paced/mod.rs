@@ -28,7 +28,6 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::task::JoinHandle;
 use tokio_serial::{SerialPort, SerialStream};
 use tokio_util::sync::CancellationToken;
@@ -248,15 +247,24 @@ pub async fn spawn_with(
     let (master_b, slave_b) = SerialStream::pair().map_err(io::Error::from)?;
     let a = pty_name(&slave_a)?;
     let b = pty_name(&slave_b)?;
-    // The slave ends stay open while the relay runs: the paths remain valid, and a side that
-    // closes its end does not hang up the master.
-    let (counters, handle) = relay_both(
+    let counters = Arc::new(LinkCounters::default());
+    let parts = |direction, counters: &Arc<DirectionCounters>| RelayParts {
         settings,
-        faults,
-        shutdown,
-        (master_a, master_b),
-        (slave_a, slave_b),
-    );
+        direction,
+        faults: faults.clone(),
+        counters: Arc::clone(counters),
+        shutdown: shutdown.clone(),
+    };
+    let to_b = parts(Direction::AToB, &counters.a_to_b);
+    let to_a = parts(Direction::BToA, &counters.b_to_a);
+    let handle = tokio::spawn(async move {
+        // The slave ends stay open while the relay runs: the paths remain valid, and a side that
+        // closes its end does not hang up the master.
+        let _keep = (slave_a, slave_b);
+        let (read_a, write_a) = tokio::io::split(master_a);
+        let (read_b, write_b) = tokio::io::split(master_b);
+        tokio::try_join!(pace(read_a, write_b, to_b), pace(read_b, write_a, to_a)).map(|_| ())
+    });
     let link = PacedLink {
         a,
         b,
@@ -294,22 +302,6 @@ pub fn paced_duplex(
     let settings = settings.check()?;
     let (a, relay_a) = tokio::io::duplex(relay::DUPLEX_BUFFER);
     let (b, relay_b) = tokio::io::duplex(relay::DUPLEX_BUFFER);
-    let (counters, handle) = relay_both(settings, faults, shutdown, (relay_a, relay_b), ());
-    Ok((PacedDuplex { a, b, counters }, handle))
-}
-
-/// Spawns the relay of both directions between the streams `a` and `b`, keeping `keep` open
-/// while it runs.
-fn relay_both<S>(
-    settings: PacedSettings,
-    faults: Option<Arc<dyn FaultHook>>,
-    shutdown: CancellationToken,
-    (a, b): (S, S),
-    keep: impl Send + 'static,
-) -> (Arc<LinkCounters>, JoinHandle<io::Result<()>>)
-where
-    S: AsyncRead + AsyncWrite + Send + 'static,
-{
     let counters = Arc::new(LinkCounters::default());
     let parts = |direction, counters: &Arc<DirectionCounters>| RelayParts {
         settings,
@@ -321,12 +313,11 @@ where
     let to_b = parts(Direction::AToB, &counters.a_to_b);
     let to_a = parts(Direction::BToA, &counters.b_to_a);
     let handle = tokio::spawn(async move {
-        let _keep = keep;
-        let (read_a, write_a) = tokio::io::split(a);
-        let (read_b, write_b) = tokio::io::split(b);
+        let (read_a, write_a) = tokio::io::split(relay_a);
+        let (read_b, write_b) = tokio::io::split(relay_b);
         tokio::try_join!(pace(read_a, write_b, to_b), pace(read_b, write_a, to_a)).map(|_| ())
     });
-    (counters, handle)
+    Ok((PacedDuplex { a, b, counters }, handle))
 }
 
 #[cfg(test)]
