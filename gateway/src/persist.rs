@@ -18,8 +18,7 @@
 //! keys and the keys left out stay; only what changed is written. The REST API keeps the text
 //! ([`ConfigText`]) and merges the client's document into it ([`edit::merge_table`]: the
 //! client's keys and order where the file had nothing, the file's spelling where the value is
-//! the same); a change made in code goes through [`ConfigStore::save_change`] (the difference of
-//! two configurations). A file that cannot be edited so (missing, not TOML, or no longer the
+//! the same). A file that cannot be edited so (missing, not TOML, or no longer the
 //! configuration in force) is replaced by the whole new configuration.
 //!
 //! Only one writer may save at a time: [`ConfigStore::save_atomic`] holds an in-process lock, and
@@ -267,29 +266,6 @@ impl ConfigStore {
     pub fn save(&self, config: &Config) -> Result<(), PersistError> {
         let text = toml::to_string(config).map_err(|e| PersistError::Serialize(e.to_string()))?;
         self.save_atomic(&text)
-    }
-
-    /// Writes the change from `old` (the configuration in force, read from this file) to `new`
-    /// into the file in place: comments, order and the keys left out are kept, only the keys
-    /// whose values changed are written. When the edited file would not read back as `new` (the
-    /// file is missing, is not TOML, or was changed by hand since it was loaded), the whole
-    /// configuration is written as by [`save`](Self::save).
-    pub fn save_change(&self, old: &Config, new: &Config) -> Result<(), PersistError> {
-        let serialize = |c: &Config| {
-            toml::Table::try_from(c).map_err(|e| PersistError::Serialize(e.to_string()))
-        };
-        let (old_table, new_table) = (serialize(old)?, serialize(new)?);
-        let edited = fs::read_to_string(&self.path)
-            .ok()
-            .and_then(|text| edit::edit_in_place(&text, &old_table, &new_table))
-            .filter(|text| crate::plant::parse(text).is_ok_and(|c| c == *new));
-        match edited {
-            Some(text) => self.save_atomic(&text),
-            None => {
-                tracing::warn!(file = %self.path.display(), "the configuration file could not be edited in place (missing, not TOML, or changed since it was read): writing the whole configuration");
-                self.save(new)
-            }
-        }
     }
 
     /// Writes `text` in place of the file, keeping the current file as `<file>.prev`.

@@ -63,11 +63,6 @@ impl Signal {
             Self::Ri => "RI",
         }
     }
-
-    /// Whether the gateway drives it (DTR, RTS); the others are inputs.
-    pub const fn is_output(self) -> bool {
-        matches!(self, Self::Dtr | Self::Rts)
-    }
 }
 
 impl fmt::Display for Signal {
@@ -323,6 +318,13 @@ mod tests {
     use tokio_serial::SerialStream;
 
     use super::*;
+
+    impl Signal {
+        /// Whether the gateway drives it (DTR, RTS); the others are inputs.
+        const fn is_output(self) -> bool {
+            matches!(self, Self::Dtr | Self::Rts)
+        }
+    }
 
     #[test]
     fn names_and_directions() {

@@ -61,26 +61,6 @@ impl LineTimer {
         }
     }
 
-    /// A timer that always uses tokio's sleep (the fallback of other systems).
-    pub fn coarse() -> Self {
-        Self {
-            #[cfg(target_os = "linux")]
-            fd: None,
-        }
-    }
-
-    /// Whether the timer wakes finer than tokio's millisecond ticks (a timerfd).
-    pub fn is_precise(&self) -> bool {
-        #[cfg(target_os = "linux")]
-        {
-            self.fd.is_some()
-        }
-        #[cfg(not(target_os = "linux"))]
-        {
-            false
-        }
-    }
-
     /// Sleeps until `deadline` has passed on tokio's clock (at once if it has already).
     pub async fn sleep_until(&mut self, deadline: Instant) {
         #[cfg(target_os = "linux")]

@@ -74,7 +74,7 @@ pub use auth::{Auth, AuthMode, Token, TokenError};
 pub use backend::{ApiBackend, BoxFuture};
 pub use body::{etag, TOML_MEDIA_TYPE};
 pub use diff::ConfigDiff;
-pub use error::{ApiError, ErrorBody, ErrorDetail, Issue};
+pub use error::ApiError;
 pub use server::{serve, DEFAULT_HEADER_READ_TIMEOUT, DEFAULT_MAX_CONNECTIONS};
 pub use tls::HttpTls;
 

@@ -236,19 +236,6 @@ impl ProcessImage {
         );
     }
 
-    /// Stores values with an explicit quality (a profile marking special values, for example).
-    pub fn store_with_quality(
-        &self,
-        unit: u8,
-        table: Table,
-        start: u16,
-        values: &[u16],
-        quality: Quality,
-        period: Option<Duration>,
-    ) {
-        self.store(unit, table, start, values.iter().copied(), quality, period);
-    }
-
     /// Updates registers that are already in the image (after a write through to the device or an
     /// on-demand read), keeping their poll period; addresses not in the image are left out.
     pub fn refresh_words(&self, unit: u8, table: Table, start: u16, values: &[u16]) {

@@ -4,6 +4,21 @@ use tokio::sync::broadcast::error::TryRecvError;
 
 use super::*;
 
+impl ProcessImage {
+    /// Stores values with an explicit quality (a profile marking special values, for example).
+    fn store_with_quality(
+        &self,
+        unit: u8,
+        table: Table,
+        start: u16,
+        values: &[u16],
+        quality: Quality,
+        period: Option<Duration>,
+    ) {
+        self.store(unit, table, start, values.iter().copied(), quality, period);
+    }
+}
+
 #[tokio::test(start_paused = true)]
 async fn a_stored_range_reads_back_good_and_turns_stale_after_factor_periods() {
     let image = ProcessImage::new(ImageConfig {

@@ -648,11 +648,6 @@ impl Mailbox {
         self.len() == 0
     }
 
-    /// The last sequence number acknowledged (0 before the first).
-    pub fn last_acknowledged(&self) -> u16 {
-        self.lock().last_acked
-    }
-
     /// Releases the oldest waiting telegram if `seq` is its number. Repeating the last
     /// acknowledged number is accepted and does nothing, so that a client may repeat a write
     /// whose answer it lost.

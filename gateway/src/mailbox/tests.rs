@@ -8,6 +8,13 @@ use super::layout::*;
 use super::*;
 use crate::protocols::telegram::{Command, MailboxUnit, TelegramClient, TelegramSendError};
 
+impl Mailbox {
+    /// The last sequence number acknowledged (0 before the first).
+    fn last_acknowledged(&self) -> u16 {
+        self.lock().last_acked
+    }
+}
+
 fn mailbox(depth: usize, overflow: Overflow) -> Arc<Mailbox> {
     Mailbox::new(
         "test",

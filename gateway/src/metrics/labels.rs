@@ -158,10 +158,7 @@ pub fn function_label_at(index: usize) -> &'static str {
 /// `"2B"`) for the known functions, `"other"` for the rest (a code with bit 7 set included: that is
 /// no request). Pass the request's code, also when the answer was an exception.
 pub fn function_label(function: u8) -> &'static str {
-    FUNCTION_LABELS
-        .iter()
-        .find(|(known, _)| *known == function)
-        .map_or(FUNCTION_OTHER, |(_, label)| label)
+    function_label_at(function_index(function))
 }
 
 #[cfg(test)]

@@ -24,7 +24,7 @@ mod http;
 pub mod labels;
 
 pub use http::serve_metrics;
-pub use labels::{function_label, Direction, RequestResult};
+pub use labels::{Direction, RequestResult};
 
 /// The registry in the Prometheus text exposition format 0.0.4, for `/metrics`.
 ///

@@ -14,7 +14,7 @@ use std::time::Duration;
 
 use tokio_serial::{SerialPortBuilderExt, SerialStream};
 
-pub use backoff::{Backoff, InvalidBackoff};
+pub use backoff::Backoff;
 pub use uart::{counters as uart_counters, UartCounters};
 
 /// Data bits of a character.

@@ -9,6 +9,28 @@ use tokio::time::Instant;
 
 use super::*;
 
+impl LineTimer {
+    /// A timer that always uses tokio's sleep (the fallback of other systems).
+    fn coarse() -> Self {
+        Self {
+            #[cfg(target_os = "linux")]
+            fd: None,
+        }
+    }
+
+    /// Whether the timer wakes finer than tokio's millisecond ticks (a timerfd).
+    fn is_precise(&self) -> bool {
+        #[cfg(target_os = "linux")]
+        {
+            self.fd.is_some()
+        }
+        #[cfg(not(target_os = "linux"))]
+        {
+            false
+        }
+    }
+}
+
 /// Short deadlines, a fraction of a millisecond to a few milliseconds ahead.
 const AHEAD: [Duration; 5] = [
     Duration::from_micros(100),

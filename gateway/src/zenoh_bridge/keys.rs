@@ -98,25 +98,6 @@ pub fn check_chunk(what: &'static str, name: &str) -> Result<(), KeyError> {
     Ok(())
 }
 
-/// Checks a line name (for config validation).
-pub fn check_line_name(name: &str) -> Result<(), KeyError> {
-    check_chunk("line", name)
-}
-
-/// Checks a device name (for config validation): one chunk and not reserved.
-pub fn check_device_name(name: &str) -> Result<(), KeyError> {
-    check_chunk("device", name)?;
-    if RESERVED_DEVICE_NAMES.contains(&name) {
-        return Err(KeyError::Reserved(name.to_owned()));
-    }
-    Ok(())
-}
-
-/// Checks a tag name (for config validation).
-pub fn check_tag_name(name: &str) -> Result<(), KeyError> {
-    check_chunk("tag", name)
-}
-
 /// Checks a configured prefix: a canonical key expression without wildcards.
 pub fn check_prefix(prefix: &str) -> Result<OwnedKeyExpr, KeyError> {
     crate::config::check_prefix(prefix).map_err(|reason| KeyError::BadPrefix {
@@ -347,6 +328,25 @@ pub fn intersects(query: &str, key: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Checks a line name (for config validation).
+    fn check_line_name(name: &str) -> Result<(), KeyError> {
+        check_chunk("line", name)
+    }
+
+    /// Checks a device name (for config validation): one chunk and not reserved.
+    fn check_device_name(name: &str) -> Result<(), KeyError> {
+        check_chunk("device", name)?;
+        if RESERVED_DEVICE_NAMES.contains(&name) {
+            return Err(KeyError::Reserved(name.to_owned()));
+        }
+        Ok(())
+    }
+
+    /// Checks a tag name (for config validation).
+    fn check_tag_name(name: &str) -> Result<(), KeyError> {
+        check_chunk("tag", name)
+    }
 
     fn keys() -> Keys {
         Keys::new("gw/demo").unwrap()

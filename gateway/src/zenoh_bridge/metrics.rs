@@ -455,18 +455,6 @@ impl BridgeStats {
             .collect()
     }
 
-    /// Every command counter with its `kind` and `result` labels.
-    pub fn command_counts(&self) -> Vec<(&'static str, &'static str, u64)> {
-        CommandKind::ALL
-            .iter()
-            .flat_map(|k| {
-                CommandOutcome::ALL
-                    .iter()
-                    .map(move |r| (k.as_str(), r.as_str(), self.commands(*k, *r)))
-            })
-            .collect()
-    }
-
     /// The counters as JSON (for the gateway status queryable).
     pub fn to_json(&self) -> serde_json::Value {
         let map = |v: Vec<(&'static str, u64)>| {
@@ -488,6 +476,20 @@ impl BridgeStats {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    impl BridgeStats {
+        /// Every command counter with its `kind` and `result` labels.
+        fn command_counts(&self) -> Vec<(&'static str, &'static str, u64)> {
+            CommandKind::ALL
+                .iter()
+                .flat_map(|k| {
+                    CommandOutcome::ALL
+                        .iter()
+                        .map(move |r| (k.as_str(), r.as_str(), self.commands(*k, *r)))
+                })
+                .collect()
+        }
+    }
 
     #[test]
     fn labels_are_unique_and_indexes_match() {

@@ -103,10 +103,10 @@ use serde_json::{json, Value};
 use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
-pub use crate::config::{Deadband, PublishConfig, TagPolicy, TagRule};
-pub use config::{Endpoint, Mode, Prefix, ZenohConfig};
+pub use crate::config::{Deadband, TagPolicy, TagRule};
+pub use config::{Endpoint, Mode, ZenohConfig};
 pub use handle::BridgeHandle;
-pub use keys::{KeyError, Keys};
+use keys::{KeyError, Keys};
 pub use metrics::{BridgeStats, CommandKind, CommandOutcome, DropReason, PublicationKind};
 
 use policy::Publishing;

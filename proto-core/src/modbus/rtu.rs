@@ -73,11 +73,6 @@ impl CharTiming {
         }
     }
 
-    /// The same as [`CharTiming::new`] (the name the style guide uses).
-    pub fn from_line(baud: u32, bits_per_char: u8) -> Self {
-        Self::new(baud, bits_per_char)
-    }
-
     /// The inter-character timeout t1.5.
     pub const fn t1_5(&self) -> Duration {
         self.t15

@@ -124,13 +124,6 @@ pub mod diag {
     }
 }
 
-/// Whether a float is the "not defined" special value 1.5E37 (compared with a relative tolerance
-/// of 1e-6, so that a value that went through a double-precision conversion still matches).
-pub fn is_float_not_defined(value: f32) -> bool {
-    let target = f64::from(FLOAT_NOT_DEFINED);
-    (f64::from(value) - target).abs() <= target * 1e-6
-}
-
 /// The transfer format an address selects (001 4.1, bits 15..14).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Format {

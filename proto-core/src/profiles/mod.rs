@@ -670,8 +670,3 @@ pub fn join64(words: &[u16], order: ByteOrder) -> u64 {
 pub fn split(value: u32, order: ByteOrder) -> Vec<u16> {
     order.registers(&value.to_be_bytes())
 }
-
-/// Splits 64 bits into four registers in the given byte order.
-pub fn split64(value: u64, order: ByteOrder) -> Vec<u16> {
-    order.registers(&value.to_be_bytes())
-}

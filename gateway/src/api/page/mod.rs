@@ -49,19 +49,12 @@ const SNAPSHOT_MARK: &str = "<!--snapshot-->";
 
 /// The path of the style sheet.
 pub const CSS_PATH: &str = "/page/page.css";
-/// The path of the script's entry module.
-pub const JS_PATH: &str = "/page/page.js";
 /// Where the script's modules are served: `/page/<name>.js`.
 const JS_DIR: &str = "/page/";
 
 /// Nothing but this origin: no request of the page leaves the gateway.
 const CSP: &str = "default-src 'none'; script-src 'self'; style-src 'self'; img-src 'self' data:; \
      connect-src 'self'; form-action 'self'; base-uri 'none'; frame-ancestors 'none'";
-
-/// The bytes of every embedded asset, for the size budget (300 KB).
-pub fn asset_bytes() -> usize {
-    INDEX_HTML.len() + PAGE_CSS.len() + MODULES.iter().map(|(_, js)| js.len()).sum::<usize>()
-}
 
 /// The page's routes, merged beside the API's (outside its OpenAPI document).
 pub(crate) fn routes() -> Router<ApiState> {
@@ -305,6 +298,14 @@ fn esc(text: &str) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The path of the script's entry module.
+    const JS_PATH: &str = "/page/page.js";
+
+    /// The bytes of every embedded asset, for the size budget (300 KB).
+    fn asset_bytes() -> usize {
+        INDEX_HTML.len() + PAGE_CSS.len() + MODULES.iter().map(|(_, js)| js.len()).sum::<usize>()
+    }
 
     /// The issue's budget for the page's assets.
     const ASSET_BUDGET: usize = 300 * 1024;

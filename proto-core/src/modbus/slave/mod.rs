@@ -205,16 +205,6 @@ impl<M: MemoryAccess> Slave<M> {
         &self.memory
     }
 
-    /// The memory handle, e.g. to update inputs between requests.
-    pub fn memory_mut(&mut self) -> &mut M {
-        &mut self.memory
-    }
-
-    /// Gives the memory handle back.
-    pub fn into_memory(self) -> M {
-        self.memory
-    }
-
     /// Bytes received at `now` (the arrival of the chunk's last byte).
     ///
     /// Ends and serves a frame whose silence already passed, then collects the bytes; the frame
