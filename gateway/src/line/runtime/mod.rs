@@ -198,6 +198,16 @@ pub(crate) struct Stop {
     pub(crate) grace: Option<Duration>,
 }
 
+impl Stop {
+    /// Stops at once, as a device switched off: the port no longer read, the queue closed, no
+    /// grace (the simulators and the listen-only taps, which have nothing in flight of their own).
+    pub(crate) const AT_ONCE: Self = Self {
+        read: false,
+        close_queue: true,
+        grace: Some(Duration::ZERO),
+    };
+}
+
 /// What the runtime needs from a line protocol: the proto-core engine with what the protocol does
 /// with its results. Inputs are bytes, time and commands; outputs are bytes, RS232 actions,
 /// deadlines and the events the adapter hands on itself (status, image, mailbox).

@@ -319,11 +319,7 @@ impl<D> LineCommands for DeviceEngine<D> {
 impl<D> LineLifecycle for DeviceEngine<D> {
     fn stop(&mut self) -> Stop {
         // A simulated device stops at once, as one switched off.
-        Stop {
-            read: false,
-            close_queue: true,
-            grace: Some(Duration::ZERO),
-        }
+        Stop::AT_ONCE
     }
 
     fn done(&self) -> bool {

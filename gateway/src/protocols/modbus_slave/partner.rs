@@ -347,11 +347,7 @@ impl LineCommands for SimMaster {
 
 impl LineLifecycle for SimMaster {
     fn stop(&mut self) -> Stop {
-        Stop {
-            read: false,
-            close_queue: true,
-            grace: Some(Duration::ZERO),
-        }
+        Stop::AT_ONCE
     }
 
     fn done(&self) -> bool {

@@ -331,11 +331,7 @@ impl LineCommands for TapLine {
 impl LineLifecycle for TapLine {
     /// Nothing to finish: the line stops at once.
     fn stop(&mut self) -> Stop {
-        Stop {
-            read: false,
-            close_queue: true,
-            grace: Some(Duration::ZERO),
-        }
+        Stop::AT_ONCE
     }
 
     fn done(&self) -> bool {

@@ -368,11 +368,7 @@ impl<E> LineCommands for Partner<E> {
 impl<E> LineLifecycle for Partner<E> {
     fn stop(&mut self) -> Stop {
         // A simulated partner stops at once, as one switched off.
-        Stop {
-            read: false,
-            close_queue: true,
-            grace: Some(Duration::ZERO),
-        }
+        Stop::AT_ONCE
     }
 
     fn done(&self) -> bool {

@@ -226,11 +226,7 @@ impl LineCommands for TapLine {
 
 impl LineLifecycle for TapLine {
     fn stop(&mut self) -> Stop {
-        Stop {
-            read: false,
-            close_queue: true,
-            grace: Some(Duration::ZERO),
-        }
+        Stop::AT_ONCE
     }
 
     fn done(&self) -> bool {
