@@ -59,6 +59,43 @@ pub(crate) async fn sleep_until_opt(deadline: Option<Instant>) {
     }
 }
 
+/// Writes the [`LineEngine`](super::runtime::LineEngine) calls an adapter hands unchanged to
+/// the proto-core engine in its field `$engine`: `rx` (`handle_rx`, `handle_line_error`),
+/// `timeout` (`handle_timeout`, `poll_timeout`) and `tx` (`poll_transmit`).
+macro_rules! engine_calls {
+    ($engine:ident: rx) => {
+        fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
+            self.$engine.handle_rx(now, bytes);
+        }
+
+        fn handle_line_error(
+            &mut self,
+            now: proto_core::time::Instant,
+            error: proto_core::serial_marks::LineError,
+        ) {
+            self.$engine.handle_line_error(now, error);
+        }
+    };
+    ($engine:ident: timeout) => {
+        fn handle_timeout(&mut self, now: proto_core::time::Instant) {
+            self.$engine.handle_timeout(now);
+        }
+
+        fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
+            self.$engine.poll_timeout()
+        }
+    };
+    ($engine:ident: tx) => {
+        fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+            self.$engine.poll_transmit()
+        }
+    };
+    ($engine:ident: $($part:ident),+) => {
+        $($crate::line::driver::engine_calls!($engine: $part);)+
+    };
+}
+pub(crate) use engine_calls;
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -21,7 +21,6 @@ use proto_core::cpmem::SlaveParams;
 use proto_core::event::EventId;
 use proto_core::modbus::rtu::CharTiming;
 use proto_core::modbus::slave::{self, DiscardReason, Outcome, Slave, SlaveEvent};
-use proto_core::serial_marks::LineError;
 use tokio::time::Instant;
 use tokio_serial::SerialPort;
 use tokio_util::sync::CancellationToken;
@@ -250,25 +249,7 @@ impl LineEngine for SlaveLine {
         );
     }
 
-    fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
-        self.slave.handle_rx(now, bytes);
-    }
-
-    fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError) {
-        self.slave.handle_line_error(now, error);
-    }
-
-    fn handle_timeout(&mut self, now: proto_core::time::Instant) {
-        self.slave.handle_timeout(now);
-    }
-
-    fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
-        self.slave.poll_timeout()
-    }
-
-    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
-        self.slave.poll_transmit()
-    }
+    crate::line::driver::engine_calls!(slave: rx, timeout, tx);
 
     fn transmitted(&mut self, _written: Instant, _len: usize, _end: proto_core::time::Instant) {
         self.shared.metrics().sent_telegram();

@@ -17,7 +17,6 @@ use std::time::Duration;
 use proto_core::cpmem::{AddressMap, SlaveParams};
 use proto_core::modbus::master::{Master, MasterConfig, MasterEvent, Outcome};
 use proto_core::modbus::pdu::Request;
-use proto_core::serial_marks::LineError;
 use tokio::io::{AsyncRead, AsyncWrite};
 use tokio::task::JoinHandle;
 use tokio::time::Instant;
@@ -263,25 +262,7 @@ impl LineEngine for SimMaster {
         self.in_flight = false;
     }
 
-    fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
-        self.master.handle_rx(now, bytes);
-    }
-
-    fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError) {
-        self.master.handle_line_error(now, error);
-    }
-
-    fn handle_timeout(&mut self, now: proto_core::time::Instant) {
-        self.master.handle_timeout(now);
-    }
-
-    fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
-        self.master.poll_timeout()
-    }
-
-    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
-        self.master.poll_transmit()
-    }
+    crate::line::driver::engine_calls!(master: rx, timeout, tx);
 
     fn transmitted(&mut self, _written: Instant, _len: usize, end: proto_core::time::Instant) {
         self.master.handle_tx_done(end);

@@ -289,13 +289,7 @@ impl LineEngine for TapLine {
         self.tap.handle_line_error(now, error);
     }
 
-    fn handle_timeout(&mut self, now: proto_core::time::Instant) {
-        self.tap.handle_timeout(now);
-    }
-
-    fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
-        self.tap.poll_timeout()
-    }
+    crate::line::driver::engine_calls!(tap: timeout);
 
     /// Never anything: the tap only listens.
     fn poll_transmit(&mut self) -> Option<Vec<u8>> {

@@ -163,150 +163,101 @@ impl TelegramLineSettings {
         line: &LineConfig,
         port: PortSettings,
     ) -> Result<Self, TelegramConfigError> {
-        match &line.protocol {
-            ProtocolConfig::Proc3964(c) => Self::from_3964(name, line, c, port),
-            ProtocolConfig::Ascii(c) => Self::from_ascii(name, line, c, port),
-            _ => Err(TelegramConfigError::NotATelegramLine(name.to_owned())),
-        }
-    }
-
-    /// The settings of the 3964(R) line `name`, section `c`, on `port`.
-    fn from_3964(
-        name: &str,
-        line: &LineConfig,
-        c: &Proc3964Config,
-        port: PortSettings,
-    ) -> Result<Self, TelegramConfigError> {
-        let params = params_3964(&line.serial, c).map_err(|e| invalid(name, e))?;
-        let overflow = match c.overflow {
-            crate::protocols::Overflow3964::Refuse => Overflow::Refuse,
-            crate::protocols::Overflow3964::DropOldest => Overflow::DropOldest,
+        use crate::protocols::{FlowControl as Flow, Overflow3964};
+        let invalid = |source| TelegramConfigError::Invalid {
+            line: name.to_owned(),
+            source,
         };
-        let mailbox = MailboxSettings {
-            queue_depth: usize::from(c.receive_buffer),
+        let (protocol, overflow, depth, max_len, send_queue) = match &line.protocol {
+            ProtocolConfig::Proc3964(c) => {
+                let overflow = match c.overflow {
+                    Overflow3964::Refuse => Overflow::Refuse,
+                    Overflow3964::DropOldest => Overflow::DropOldest,
+                };
+                let params = params_3964(&line.serial, c).map_err(invalid)?;
+                let protocol = TelegramProtocol::P3964(params);
+                (
+                    protocol,
+                    overflow,
+                    c.receive_buffer,
+                    c.max_telegram_len,
+                    c.send_queue,
+                )
+            }
+            ProtocolConfig::Ascii(c) => {
+                // Only XON/XOFF and RTS/CTS can hold the partner back (003 6.2.1); under the
+                // automatic V24 handling "Bei Überlauf des Empfangspuffers erfolgt keine Reaktion
+                // des CP" (000 5.4).
+                let overflow = match (c.prevent_overwrite, c.flow_control) {
+                    (false, _) => Overflow::Overwrite,
+                    (true, Flow::XonXoff | Flow::RtsCts) => Overflow::Refuse,
+                    (true, Flow::None | Flow::AutoV24) => Overflow::DropNew,
+                };
+                let protocol =
+                    TelegramProtocol::Ascii(params_ascii(&line.serial, c).map_err(invalid)?);
+                (
+                    protocol,
+                    overflow,
+                    c.receive_buffer,
+                    c.max_telegram_len,
+                    c.send_queue,
+                )
+            }
+            _ => return Err(TelegramConfigError::NotATelegramLine(name.to_owned())),
+        };
+        let mut settings = Self::new(name, port, protocol);
+        settings.mailbox = MailboxSettings {
+            queue_depth: usize::from(depth),
             overflow,
-            ack: c.ack.map_or(AckMode::Explicit, mailbox_ack),
+            ack: line.ack().map_or(AckMode::Explicit, mailbox_ack),
         };
-        let protocol = TelegramProtocol::P3964(params);
-        let settings = Self::new(name, port, protocol);
-        Ok(settings.with_mailbox(line, mailbox, c.max_telegram_len, c.send_queue))
-    }
-
-    /// The settings of the ASCII line `name`, section `c`, on `port`.
-    fn from_ascii(
-        name: &str,
-        line: &LineConfig,
-        c: &AsciiConfig,
-        port: PortSettings,
-    ) -> Result<Self, TelegramConfigError> {
-        let params = params_ascii(&line.serial, c).map_err(|e| invalid(name, e))?;
-        // Only XON/XOFF and RTS/CTS can hold the partner back (003 6.2.1); under the automatic
-        // V24 handling "Bei Überlauf des Empfangspuffers erfolgt keine Reaktion des CP"
-        // (000 5.4).
-        let overflow = match (c.prevent_overwrite, c.flow_control) {
-            (false, _) => Overflow::Overwrite,
-            (
-                true,
-                crate::protocols::FlowControl::XonXoff | crate::protocols::FlowControl::RtsCts,
-            ) => Overflow::Refuse,
-            (
-                true,
-                crate::protocols::FlowControl::None | crate::protocols::FlowControl::AutoV24,
-            ) => Overflow::DropNew,
-        };
-        let mailbox = MailboxSettings {
-            queue_depth: usize::from(c.receive_buffer),
-            overflow,
-            ack: c.ack.map_or(AckMode::Explicit, mailbox_ack),
-        };
-        let protocol = TelegramProtocol::Ascii(params);
-        let settings = Self::new(name, port, protocol);
-        Ok(settings.with_mailbox(line, mailbox, c.max_telegram_len, c.send_queue))
-    }
-
-    /// The mailbox and the sending keys both telegram protocols share.
-    fn with_mailbox(
-        mut self,
-        line: &LineConfig,
-        mailbox: MailboxSettings,
-        max_len: u16,
-        send_queue: u16,
-    ) -> Self {
-        self.mailbox = mailbox;
-        self.max_len = usize::from(max_len);
-        self.send_queue = usize::from(send_queue);
-        self.unit_id = line.unit_id();
-        self.sends = line.sends();
-        self.journal = line.journal().map(ToOwned::to_owned);
-        self
-    }
-}
-
-fn invalid(name: &str, source: ConfigError) -> TelegramConfigError {
-    TelegramConfigError::Invalid {
-        line: name.to_owned(),
-        source,
+        settings.max_len = usize::from(max_len);
+        settings.send_queue = usize::from(send_queue);
+        settings.unit_id = line.unit_id();
+        settings.sends = line.sends();
+        settings.journal = line.journal().map(ToOwned::to_owned);
+        Ok(settings)
     }
 }
 
 // === impl StartLine for the telegram sections ===
 
-impl StartLine for Proc3964Config {
-    fn start(
-        &self,
-        name: &str,
-        line: &LineConfig,
-        deps: &StartDeps<'_>,
-    ) -> Result<LineHandle, StartError> {
-        let settings =
-            TelegramLineSettings::from_3964(name, line, self, port_settings(&line.serial));
-        start_telegram_line(name, line, settings, deps)
-    }
+/// The 3964(R) and ASCII sections start alike: their settings come from the line's section
+/// ([`TelegramLineSettings::from_config`]).
+macro_rules! start_telegram_sections {
+    ($($section:ty),+) => {$(
+        impl StartLine for $section {
+            fn start(
+                &self,
+                name: &str,
+                line: &LineConfig,
+                deps: &StartDeps<'_>,
+            ) -> Result<LineHandle, StartError> {
+                start_telegram_line(name, line, deps)
+            }
 
-    fn start_issues(
-        &self,
-        name: &str,
-        line: &LineConfig,
-        _layout: Option<&MemoryLayout>,
-    ) -> Vec<ConfigIssue> {
-        let settings =
-            TelegramLineSettings::from_3964(name, line, self, port_settings(&line.serial));
-        telegram_issues(name, line, settings.err())
-    }
+            fn start_issues(
+                &self,
+                name: &str,
+                line: &LineConfig,
+                _layout: Option<&MemoryLayout>,
+            ) -> Vec<ConfigIssue> {
+                telegram_issues(name, line)
+            }
+        }
+    )+};
 }
 
-impl StartLine for AsciiConfig {
-    fn start(
-        &self,
-        name: &str,
-        line: &LineConfig,
-        deps: &StartDeps<'_>,
-    ) -> Result<LineHandle, StartError> {
-        let settings =
-            TelegramLineSettings::from_ascii(name, line, self, port_settings(&line.serial));
-        start_telegram_line(name, line, settings, deps)
-    }
-
-    fn start_issues(
-        &self,
-        name: &str,
-        line: &LineConfig,
-        _layout: Option<&MemoryLayout>,
-    ) -> Vec<ConfigIssue> {
-        let settings =
-            TelegramLineSettings::from_ascii(name, line, self, port_settings(&line.serial));
-        telegram_issues(name, line, settings.err())
-    }
-}
+start_telegram_sections!(Proc3964Config, AsciiConfig);
 
 /// Starts a telegram line with the gateway-wide settings: the diagnostic depth and the
 /// acknowledgement default, which needs the whole configuration.
 fn start_telegram_line(
     name: &str,
     line: &LineConfig,
-    settings: Result<TelegramLineSettings, TelegramConfigError>,
     deps: &StartDeps<'_>,
 ) -> Result<LineHandle, StartError> {
+    let settings = TelegramLineSettings::from_config(name, line, port_settings(&line.serial));
     let mut settings = settings.map_err(|e| StartError(format!("line {name}: {e}")))?;
     settings.diag_depth = usize::from(deps.gateway.diag_buffer_depth);
     settings.metrics = Some(deps.metrics.clone());
@@ -316,22 +267,18 @@ fn start_telegram_line(
         .map_err(|e| StartError(format!("line {name}: {e}")))
 }
 
-/// What would keep a telegram line from starting: the parameter its engine refuses
-/// (`refused`). Its journal is opened by the start check of every door
-/// (`app::check::start_issues`), which knows whether a REST change may name the file at all.
-fn telegram_issues(
-    name: &str,
-    _line: &LineConfig,
-    refused: Option<TelegramConfigError>,
-) -> Vec<ConfigIssue> {
-    let mut issues = Vec::new();
-    if let Some(e) = refused {
-        issues.push(ConfigIssue {
+/// What would keep a telegram line from starting: the parameter its engine refuses. Its journal
+/// is opened by the start check of every door (`app::check::start_issues`), which knows whether
+/// a REST change may name the file at all.
+fn telegram_issues(name: &str, line: &LineConfig) -> Vec<ConfigIssue> {
+    TelegramLineSettings::from_config(name, line, port_settings(&line.serial))
+        .err()
+        .map(|e| ConfigIssue {
             path: format!("lines.{name}"),
             message: e.to_string(),
-        });
-    }
-    issues
+        })
+        .into_iter()
+        .collect()
 }
 
 impl StartLine for Proc3964TapConfig {

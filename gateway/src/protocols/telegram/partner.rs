@@ -304,17 +304,7 @@ impl<E: TelegramEngine> LineEngine for Partner<E> {
         self.engine.handle_line_error(at, error);
     }
 
-    fn handle_timeout(&mut self, now: proto_core::time::Instant) {
-        self.engine.handle_timeout(now);
-    }
-
-    fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
-        self.engine.poll_timeout()
-    }
-
-    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
-        self.engine.poll_transmit()
-    }
+    crate::line::driver::engine_calls!(engine: timeout, tx);
 
     fn transmitted(&mut self, _written: Instant, _len: usize, end: proto_core::time::Instant) {
         self.tx_end = Some(end);

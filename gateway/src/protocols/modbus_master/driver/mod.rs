@@ -15,7 +15,6 @@ use proto_core::modbus::master::{
     Attempts, Framing, Master, MasterEvent, Outcome, RequestId, SubmitError,
 };
 use proto_core::modbus::pdu::{Request, Response};
-use proto_core::serial_marks::LineError;
 use tokio::sync::mpsc;
 use tokio::time::Instant;
 use tokio_serial::SerialPort;
@@ -246,25 +245,7 @@ impl LineEngine for MasterLine {
         self.scanners.unprime_all();
     }
 
-    fn handle_rx(&mut self, now: proto_core::time::Instant, bytes: &[u8]) {
-        self.master.handle_rx(now, bytes);
-    }
-
-    fn handle_line_error(&mut self, now: proto_core::time::Instant, error: LineError) {
-        self.master.handle_line_error(now, error);
-    }
-
-    fn handle_timeout(&mut self, now: proto_core::time::Instant) {
-        self.master.handle_timeout(now);
-    }
-
-    fn poll_timeout(&self) -> Option<proto_core::time::Instant> {
-        self.master.poll_timeout()
-    }
-
-    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
-        self.master.poll_transmit()
-    }
+    crate::line::driver::engine_calls!(master: rx, timeout, tx);
 
     fn transmitted(&mut self, written: Instant, _len: usize, end: proto_core::time::Instant) {
         self.sent_at.get_or_insert(written);
