@@ -71,6 +71,16 @@ pub struct ApiError {
     retry_after: Option<u32>,
 }
 
+/// The errors that are their status, their code (the constructor's name) and a message.
+macro_rules! plain_errors {
+    ($($(#[doc = $doc:literal])* $name:ident = $status:ident;)+) => {$(
+        $(#[doc = $doc])*
+        pub fn $name(message: impl Into<String>) -> Self {
+            Self::new(StatusCode::$status, stringify!($name), message)
+        }
+    )+};
+}
+
 // === impl ApiError ===
 
 impl ApiError {
@@ -85,9 +95,30 @@ impl ApiError {
         }
     }
 
-    /// 400: a body that is not JSON, a path or query that does not parse.
-    pub fn bad_request(message: impl Into<String>) -> Self {
-        Self::new(StatusCode::BAD_REQUEST, "bad_request", message)
+    plain_errors! {
+        /// 400: a body that is not JSON, a path or query that does not parse.
+        bad_request = BAD_REQUEST;
+        /// 403: the request is understood and authenticated (or cannot be) but not allowed.
+        forbidden = FORBIDDEN;
+        /// 409: the request does not fit the current state (a telegram request on a line that has
+        /// no telegrams, an acknowledge of a telegram that is not the oldest).
+        conflict = CONFLICT;
+        /// 412: `If-Match` names another version of the configuration.
+        precondition_failed = PRECONDITION_FAILED;
+        /// 413: the body is larger than `[http] body_limit`.
+        payload_too_large = PAYLOAD_TOO_LARGE;
+        /// 415: the body is not `application/json` (or TOML where TOML is accepted).
+        unsupported_media_type = UNSUPPORTED_MEDIA_TYPE;
+        /// 422: well-formed JSON that is not what the endpoint takes.
+        invalid_body = UNPROCESSABLE_ENTITY;
+        /// 504: the device did not answer within the line's reply monitoring and retries.
+        device_timeout = GATEWAY_TIMEOUT;
+        /// 504: the request took longer than `[http] request_timeout`.
+        timeout = GATEWAY_TIMEOUT;
+        /// 500: a valid configuration could not be written; nothing was applied.
+        persist_failed = INTERNAL_SERVER_ERROR;
+        /// 500: a defect; the message is logged and kept short for the client.
+        internal = INTERNAL_SERVER_ERROR;
     }
 
     /// 401 without `Authorization`; `challenge` is the `WWW-Authenticate` value.
@@ -96,11 +127,6 @@ impl ApiError {
             challenge: Some(challenge),
             ..Self::new(StatusCode::UNAUTHORIZED, "unauthorized", message)
         }
-    }
-
-    /// 403: the request is understood and authenticated (or cannot be) but not allowed.
-    pub fn forbidden(message: impl Into<String>) -> Self {
-        Self::new(StatusCode::FORBIDDEN, "forbidden", message)
     }
 
     /// 404 for the `kind` (`line`, `device`, `tag`, ...) named `name`.
@@ -130,40 +156,6 @@ impl ApiError {
         )
     }
 
-    /// 409: the request does not fit the current state (a telegram request on a line that has no
-    /// telegrams, an acknowledge of a telegram that is not the oldest).
-    pub fn conflict(message: impl Into<String>) -> Self {
-        Self::new(StatusCode::CONFLICT, "conflict", message)
-    }
-
-    /// 412: `If-Match` names another version of the configuration.
-    pub fn precondition_failed(message: impl Into<String>) -> Self {
-        Self::new(
-            StatusCode::PRECONDITION_FAILED,
-            "precondition_failed",
-            message,
-        )
-    }
-
-    /// 413: the body is larger than `[http] body_limit`.
-    pub fn payload_too_large(message: impl Into<String>) -> Self {
-        Self::new(StatusCode::PAYLOAD_TOO_LARGE, "payload_too_large", message)
-    }
-
-    /// 415: the body is not `application/json` (or TOML where TOML is accepted).
-    pub fn unsupported_media_type(message: impl Into<String>) -> Self {
-        Self::new(
-            StatusCode::UNSUPPORTED_MEDIA_TYPE,
-            "unsupported_media_type",
-            message,
-        )
-    }
-
-    /// 422: well-formed JSON that is not what the endpoint takes.
-    pub fn invalid_body(message: impl Into<String>) -> Self {
-        Self::new(StatusCode::UNPROCESSABLE_ENTITY, "invalid_body", message)
-    }
-
     /// 422 with every problem of a configuration.
     pub fn validation(issues: Vec<Issue>) -> Self {
         let message = match issues.len() {
@@ -188,10 +180,7 @@ impl ApiError {
 
     /// 503: the line's queue is full or the line is restarting; try again shortly.
     pub fn busy(message: impl Into<String>) -> Self {
-        Self {
-            retry_after: Some(1),
-            ..Self::new(StatusCode::SERVICE_UNAVAILABLE, "busy", message)
-        }
+        Self::busy_for(message, 1)
     }
 
     /// 503: no place for the request now (a connection or stream limit of the listener); try
@@ -210,26 +199,6 @@ impl ApiError {
             retry_after: Some(1),
             ..Self::new(StatusCode::SERVICE_UNAVAILABLE, "not_ready", "not ready")
         }
-    }
-
-    /// 504: the device did not answer within the line's reply monitoring and retries.
-    pub fn device_timeout(message: impl Into<String>) -> Self {
-        Self::new(StatusCode::GATEWAY_TIMEOUT, "device_timeout", message)
-    }
-
-    /// 504: the request took longer than `[http] request_timeout`.
-    pub fn timeout(message: impl Into<String>) -> Self {
-        Self::new(StatusCode::GATEWAY_TIMEOUT, "timeout", message)
-    }
-
-    /// 500: a valid configuration could not be written; nothing was applied.
-    pub fn persist_failed(message: impl Into<String>) -> Self {
-        Self::new(StatusCode::INTERNAL_SERVER_ERROR, "persist_failed", message)
-    }
-
-    /// 500: a defect; the message is logged and kept short for the client.
-    pub fn internal(message: impl Into<String>) -> Self {
-        Self::new(StatusCode::INTERNAL_SERVER_ERROR, "internal", message)
     }
 
     /// An error for a bare status that some layer produced without a body.

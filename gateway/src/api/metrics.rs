@@ -3,104 +3,54 @@
 
 use prometheus::{IntCounterVec, IntGauge, IntGaugeVec, Opts, Registry};
 
-/// Why the HTTP listener refused or cut a connection or a request
-/// (`gateway_http_rejected_total{reason}`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum HttpRejectReason {
-    /// The client is outside `[http] allowed_networks`: closed at accept.
-    Network,
-    /// The client address had `max_connections_per_client` connections: a request other than
-    /// `/metrics`, `/healthz`, `/readyz` answered 503, or the connection closed at accept when
-    /// the places held back for those were taken too.
-    ClientLimit,
-    /// Every one of `max_connections` was taken: as `client_limit`.
-    ConnectionLimit,
-    /// Every one of `max_streams` was taken: an SSE follow or a timed capture answered 503.
-    StreamLimit,
-    /// A response the client did not read within `write_timeout`: the connection was closed.
-    WriteTimeout,
-    /// A request head (or the next one on a kept-alive connection) that did not arrive within
-    /// the header read timeout: the connection was closed.
-    HeaderTimeout,
-    /// A connection waiting for a request head, closed to give its place to a new one.
-    Evicted,
-    /// A TLS handshake that failed or did not complete in time.
-    TlsHandshake,
-    /// `accept()` failed (out of file descriptors, connection aborted, ...).
-    AcceptError,
-    /// Every place was taken and the client address is backed off (its connections recently
-    /// ended without a request: evicted or timed out waiting for a head or a body), so it may
-    /// not take another client's place: closed at accept.
-    Backoff,
-    /// A change (a method other than GET, HEAD, OPTIONS) whose `Origin` is not the listener's
-    /// own origin: 403.
-    Origin,
-    /// A request whose `Host` is not one of the listener's names nor in `[http] hosts`: 403.
-    Host,
-}
+use crate::metrics::labels::label_enum;
 
-// === impl HttpRejectReason ===
-
-impl HttpRejectReason {
-    /// Every reason, for pre-creating series.
-    pub const ALL: [Self; 12] = [
-        Self::Network,
-        Self::ClientLimit,
-        Self::ConnectionLimit,
-        Self::StreamLimit,
-        Self::WriteTimeout,
-        Self::HeaderTimeout,
-        Self::Evicted,
-        Self::TlsHandshake,
-        Self::AcceptError,
-        Self::Backoff,
-        Self::Origin,
-        Self::Host,
-    ];
-
-    /// The `reason` label value.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::Network => "network",
-            Self::ClientLimit => "client_limit",
-            Self::ConnectionLimit => "connection_limit",
-            Self::StreamLimit => "stream_limit",
-            Self::WriteTimeout => "write_timeout",
-            Self::HeaderTimeout => "header_timeout",
-            Self::Evicted => "evicted",
-            Self::TlsHandshake => "tls_handshake",
-            Self::AcceptError => "accept_error",
-            Self::Backoff => "backoff",
-            Self::Origin => "origin",
-            Self::Host => "host",
-        }
+label_enum! {
+    /// Why the HTTP listener refused or cut a connection or a request
+    /// (`gateway_http_rejected_total{reason}`).
+    pub enum HttpRejectReason {
+        /// The client is outside `[http] allowed_networks`: closed at accept.
+        Network = "network",
+        /// The client address had `max_connections_per_client` connections: a request other than
+        /// `/metrics`, `/healthz`, `/readyz` answered 503, or the connection closed at accept when
+        /// the places held back for those were taken too.
+        ClientLimit = "client_limit",
+        /// Every one of `max_connections` was taken: as `client_limit`.
+        ConnectionLimit = "connection_limit",
+        /// Every one of `max_streams` was taken: an SSE follow or a timed capture answered 503.
+        StreamLimit = "stream_limit",
+        /// A response the client did not read within `write_timeout`: the connection was closed.
+        WriteTimeout = "write_timeout",
+        /// A request head (or the next one on a kept-alive connection) that did not arrive within
+        /// the header read timeout: the connection was closed.
+        HeaderTimeout = "header_timeout",
+        /// A connection waiting for a request head, closed to give its place to a new one.
+        Evicted = "evicted",
+        /// A TLS handshake that failed or did not complete in time.
+        TlsHandshake = "tls_handshake",
+        /// `accept()` failed (out of file descriptors, connection aborted, ...).
+        AcceptError = "accept_error",
+        /// Every place was taken and the client address is backed off (its connections recently
+        /// ended without a request: evicted or timed out waiting for a head or a body), so it may
+        /// not take another client's place: closed at accept.
+        Backoff = "backoff",
+        /// A change (a method other than GET, HEAD, OPTIONS) whose `Origin` is not the listener's
+        /// own origin: 403.
+        Origin = "origin",
+        /// A request whose `Host` is not one of the listener's names nor in `[http] hosts`: 403.
+        Host = "host",
     }
 }
 
-/// Which places of the listener a connection holds (`gateway_http_connections{pool}`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum ConnectionPool {
-    /// The `max_connections` places every request may use.
-    General,
-    /// The places held back for `/metrics`, `/healthz` and `/readyz`.
-    Health,
-    /// The places held back for the same paths for clients of `[http] monitoring_networks`.
-    Monitoring,
-}
-
-// === impl ConnectionPool ===
-
-impl ConnectionPool {
-    /// Both pools, for pre-creating series.
-    pub const ALL: [Self; 3] = [Self::General, Self::Health, Self::Monitoring];
-
-    /// The `pool` label value.
-    pub const fn as_label(self) -> &'static str {
-        match self {
-            Self::General => "general",
-            Self::Health => "health",
-            Self::Monitoring => "monitoring",
-        }
+label_enum! {
+    /// Which places of the listener a connection holds (`gateway_http_connections{pool}`).
+    pub enum ConnectionPool {
+        /// The `max_connections` places every request may use.
+        General = "general",
+        /// The places held back for `/metrics`, `/healthz` and `/readyz`.
+        Health = "health",
+        /// The places held back for the same paths for clients of `[http] monitoring_networks`.
+        Monitoring = "monitoring",
     }
 }
 
@@ -157,14 +107,14 @@ impl HttpMetrics {
             metrics.rejected.with_label_values(&[reason.as_str()]);
         }
         for pool in ConnectionPool::ALL {
-            metrics.connections.with_label_values(&[pool.as_label()]);
+            metrics.connections.with_label_values(&[pool.as_str()]);
         }
         Ok(metrics)
     }
 
     /// The gauge of open HTTP connections of `pool`.
     pub fn connections(&self, pool: ConnectionPool) -> IntGauge {
-        self.connections.with_label_values(&[pool.as_label()])
+        self.connections.with_label_values(&[pool.as_str()])
     }
 
     /// The gauge of HTTP streams being served.

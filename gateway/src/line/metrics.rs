@@ -29,7 +29,7 @@ use proto_core::modbus::{rtu, slave};
 use proto_core::proc3964::tap::Fault;
 
 use super::image_age::ImageAge;
-use crate::metrics::labels::{function_label, Direction, RequestResult};
+use crate::metrics::labels::{function_label, label_enum, Direction, RequestResult};
 
 /// The `device` label of master requests to slave address 0 (broadcast, 003 6.4.3 "ADDR").
 pub(crate) const BROADCAST_DEVICE: &str = "broadcast";
@@ -254,63 +254,28 @@ impl From<Fault> for FrameDiscard {
     }
 }
 
-/// Why a line's frame monitor let a frame go: the `reason` label of
-/// `gateway_monitor_dropped_total`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum MonitorDrop {
-    /// Pushed out of the full ring by a newer frame.
-    Overwritten,
-    /// Missed by a live follower that fell behind.
-    Lagged,
-}
-
-// === impl MonitorDrop ===
-
-impl MonitorDrop {
-    /// Every reason, for pre-creating series.
-    pub const ALL: [Self; 2] = [Self::Overwritten, Self::Lagged];
-
-    /// The `reason` label.
-    pub const fn as_label(self) -> &'static str {
-        match self {
-            Self::Overwritten => "overwritten",
-            Self::Lagged => "lagged",
-        }
+label_enum! {
+    /// Why a line's frame monitor let a frame go: the `reason` label of
+    /// `gateway_monitor_dropped_total`.
+    pub enum MonitorDrop {
+        /// Pushed out of the full ring by a newer frame.
+        Overwritten = "overwritten",
+        /// Missed by a live follower that fell behind.
+        Lagged = "lagged",
     }
 }
 
-/// The `kind` label of `gateway_poll_cycle_seconds`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum PollCycleKind {
-    /// The configured period.
-    Planned,
-    /// The longest cycle the fairness rule of the line allows.
-    Bound,
-    /// The last cycle.
-    Achieved,
-    /// The longest cycle seen while the device answered.
-    AchievedMax,
-}
-
-// === impl PollCycleKind ===
-
-impl PollCycleKind {
-    /// Every kind.
-    pub const ALL: [Self; 4] = [
-        Self::Planned,
-        Self::Bound,
-        Self::Achieved,
-        Self::AchievedMax,
-    ];
-
-    /// The label value.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Planned => "planned",
-            Self::Bound => "bound",
-            Self::Achieved => "achieved",
-            Self::AchievedMax => "achieved_max",
-        }
+label_enum! {
+    /// The `kind` label of `gateway_poll_cycle_seconds`.
+    pub enum PollCycleKind {
+        /// The configured period.
+        Planned = "planned",
+        /// The longest cycle the fairness rule of the line allows.
+        Bound = "bound",
+        /// The last cycle.
+        Achieved = "achieved",
+        /// The longest cycle seen while the device answered.
+        AchievedMax = "achieved_max",
     }
 }
 
@@ -453,17 +418,22 @@ impl LineFamilies {
                 &["line", "reason"],
             )?,
         };
-        registry.register(Box::new(families.events.clone()))?;
-        registry.register(Box::new(families.telegrams.clone()))?;
-        registry.register(Box::new(families.bytes.clone()))?;
-        registry.register(Box::new(families.line_up.clone()))?;
-        registry.register(Box::new(families.modbus_requests.clone()))?;
-        registry.register(Box::new(families.poll_duration.clone()))?;
-        registry.register(Box::new(families.device_up.clone()))?;
-        registry.register(Box::new(families.image_age.clone()))?;
-        registry.register(Box::new(families.poll_cycle.clone()))?;
-        registry.register(Box::new(families.frames_discarded.clone()))?;
-        registry.register(Box::new(families.monitor_dropped.clone()))?;
+        macro_rules! register {
+            ($($family:ident),+) => {$(registry.register(Box::new(families.$family.clone()))?;)+};
+        }
+        register!(
+            events,
+            telegrams,
+            bytes,
+            line_up,
+            modbus_requests,
+            poll_duration,
+            device_up,
+            image_age,
+            poll_cycle,
+            frames_discarded,
+            monitor_dropped
+        );
         Ok(families)
     }
 
@@ -481,7 +451,7 @@ impl LineFamilies {
         }
         for reason in MonitorDrop::ALL {
             self.monitor_dropped
-                .with_label_values(&[line, reason.as_label()]);
+                .with_label_values(&[line, reason.as_str()]);
         }
     }
 
@@ -512,7 +482,7 @@ impl LineFamilies {
         for reason in MonitorDrop::ALL {
             let _ = self
                 .monitor_dropped
-                .remove_label_values(&[line, reason.as_label()]);
+                .remove_label_values(&[line, reason.as_str()]);
         }
     }
 
@@ -537,7 +507,7 @@ impl LineFamilies {
     /// monitor keeps it and counts without a label lookup.
     pub fn monitor_dropped(&self, line: &str, reason: MonitorDrop) -> IntCounter {
         self.monitor_dropped
-            .with_label_values(&[line, reason.as_label()])
+            .with_label_values(&[line, reason.as_str()])
     }
 
     /// Counts one event raised on `line` (every event of 003 7.2, start-up included).

@@ -7,27 +7,43 @@
 
 use proto_core::modbus::pdu::ExceptionCode;
 
-/// Direction of telegrams and bytes on a serial line, as seen from the gateway.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Direction {
-    /// Received from the partner or device.
-    Rx,
-    /// Sent by the gateway.
-    Tx,
-}
-
-// === impl Direction ===
-
-impl Direction {
-    /// Both directions, for pre-creating series.
-    pub const ALL: [Self; 2] = [Self::Rx, Self::Tx];
-
-    /// The `direction` label value.
-    pub const fn as_str(self) -> &'static str {
-        match self {
-            Self::Rx => "rx",
-            Self::Tx => "tx",
+/// A label of a closed set, written once: the enum (each variant with its doc and its label
+/// value), `ALL` (every value, for pre-creating series) and `as_str` (the label value).
+macro_rules! label_enum {
+    (
+        $(#[doc = $doc:literal])*
+        pub enum $name:ident {
+            $($(#[doc = $vdoc:literal])* $variant:ident = $label:literal,)+
         }
+    ) => {
+        $(#[doc = $doc])*
+        #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+        pub enum $name {
+            $($(#[doc = $vdoc])* $variant,)+
+        }
+
+        impl $name {
+            /// Every value, for pre-creating series.
+            pub const ALL: [Self; [$($label),+].len()] = [$(Self::$variant),+];
+
+            /// The label value.
+            pub const fn as_str(self) -> &'static str {
+                match self {
+                    $(Self::$variant => $label,)+
+                }
+            }
+        }
+    };
+}
+pub(crate) use label_enum;
+
+label_enum! {
+    /// Direction of telegrams and bytes on a serial line, as seen from the gateway.
+    pub enum Direction {
+        /// Received from the partner or device.
+        Rx = "rx",
+        /// Sent by the gateway.
+        Tx = "tx",
     }
 }
 

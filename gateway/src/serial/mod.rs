@@ -265,7 +265,7 @@ fn open_error(settings: &PortSettings, source: tokio_serial::Error) -> OpenError
 }
 
 /// The port's builder with the settings' frame and no flow control.
-fn builder(settings: &PortSettings) -> tokio_serial::SerialPortBuilder {
+pub(crate) fn builder(settings: &PortSettings) -> tokio_serial::SerialPortBuilder {
     let data_bits = match settings.data_bits {
         DataBits::Seven => tokio_serial::DataBits::Seven,
         DataBits::Eight => tokio_serial::DataBits::Eight,

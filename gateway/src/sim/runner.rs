@@ -55,20 +55,6 @@ impl DeviceKind {
     }
 }
 
-impl PartialEq for DeviceKind {
-    fn eq(&self, other: &Self) -> bool {
-        self.name() == other.name()
-    }
-}
-
-impl Eq for DeviceKind {}
-
-impl std::hash::Hash for DeviceKind {
-    fn hash<H: std::hash::Hasher>(&self, state: &mut H) {
-        self.name().hash(state);
-    }
-}
-
 impl clap::ValueEnum for DeviceKind {
     fn value_variants<'a>() -> &'a [Self] {
         &DEVICE_KINDS
@@ -254,6 +240,28 @@ impl SimArgs {
         })
     }
 
+    /// The port the arguments describe.
+    fn port_settings(&self) -> crate::serial::PortSettings {
+        use crate::serial::{DataBits, Parity as P, StopBits};
+        let mut port = crate::serial::PortSettings::new(self.port.clone(), self.baud);
+        port.parity = match self.parity {
+            Parity::None => P::None,
+            Parity::Odd => P::Odd,
+            Parity::Even => P::Even,
+        };
+        port.data_bits = if self.data_bits == 7 {
+            DataBits::Seven
+        } else {
+            DataBits::Eight
+        };
+        port.stop_bits = if self.stop_bits == 2 {
+            StopBits::Two
+        } else {
+            StopBits::One
+        };
+        port
+    }
+
     /// The faults `--fault` injects into the device's answers (noise is added by [`Noisy`]).
     pub fn faults(&self) -> Faults {
         let mut faults = Faults::default();
@@ -277,23 +285,8 @@ pub async fn run(args: SimArgs, shutdown: CancellationToken) -> Result<(), SimEr
         [DeviceKind::Ascii] => Some(crate::protocols::telegram::partner::TelegramDevice::Ascii),
         _ => None,
     };
+    let port = args.port_settings();
     if let Some(device) = telegram {
-        let mut port = crate::serial::PortSettings::new(args.port.clone(), args.baud);
-        port.parity = match args.parity {
-            Parity::None => crate::serial::Parity::None,
-            Parity::Odd => crate::serial::Parity::Odd,
-            Parity::Even => crate::serial::Parity::Even,
-        };
-        port.data_bits = if args.data_bits == 7 {
-            crate::serial::DataBits::Seven
-        } else {
-            crate::serial::DataBits::Eight
-        };
-        port.stop_bits = if args.stop_bits == 2 {
-            crate::serial::StopBits::Two
-        } else {
-            crate::serial::StopBits::One
-        };
         tracing::info!(device = ?args.device, port = %args.port, baud = args.baud, every = ?args.every, "simulator serving");
         return crate::protocols::telegram::partner::run_telegram_sim(
             device, port, args.every, shutdown,
@@ -306,18 +299,8 @@ pub async fn run(args: SimArgs, shutdown: CancellationToken) -> Result<(), SimEr
         // Modbus over Serial Line V1.02, 2.5.1: RTU characters have 8 data bits.
         return Err(SimError::InvalidSettings("Modbus RTU needs 8 data bits"));
     }
-    let port = tokio_serial::new(args.port.as_str(), args.baud)
-        .parity(match args.parity {
-            Parity::None => tokio_serial::Parity::None,
-            Parity::Odd => tokio_serial::Parity::Odd,
-            Parity::Even => tokio_serial::Parity::Even,
-        })
-        .data_bits(tokio_serial::DataBits::Eight)
-        .stop_bits(if args.stop_bits == 2 {
-            tokio_serial::StopBits::Two
-        } else {
-            tokio_serial::StopBits::One
-        })
+    // Opened without the error marks of `serial::open`: the simulator reads bytes as they are.
+    let port = crate::serial::builder(&port)
         .open_native_async()
         .map_err(|source| SimError::Open {
             port: args.port.clone(),

@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 
 use proto_core::modbus::master::{Framing, MasterConfig, OperatingMode};
 
-use crate::config::{self, DeviceConfig, GatewaySection};
+use crate::config::{self, DeviceConfig};
 use crate::image::Table;
 use crate::line::{self, LineHandle};
 use crate::protocols::start::{port_settings, StartDeps, StartError, StartLine};
@@ -17,7 +17,7 @@ use crate::protocols::{
     AddrRange, DeviceLimits, DeviceSettings, LineSettings, PollGroup, ProbeSettings,
     ScannerSettings, TransparentSettings,
 };
-use crate::protocols::{LineConfig, ModbusMasterAsciiConfig, ModbusMasterRtuConfig};
+use crate::protocols::{LineConfig, ModbusMasterAsciiConfig, ModbusMasterRtuConfig, Transparent};
 
 // === impl StartLine for the master sections ===
 
@@ -28,8 +28,23 @@ impl StartLine for ModbusMasterRtuConfig {
         line: &LineConfig,
         deps: &StartDeps<'_>,
     ) -> Result<LineHandle, StartError> {
-        let (settings, devices) = rtu_line(name, line, self, deps.gateway);
-        Ok(spawn(settings, devices, deps))
+        let mut settings = LineSettings::rtu(name, port_settings(&line.serial));
+        let timing = line::rtu_timing(&settings.port).with_multiplier(self.delay_multiplier);
+        settings.master = MasterConfig {
+            framing: Framing::Rtu { timing },
+            reply_timeout: self.reply_timeout,
+            retries: self.retries,
+            turnaround_delay: self.turnaround_delay,
+            mode: operating_mode(self.operating_mode),
+        };
+        let forwarded = &self.transparent;
+        Ok(spawn(
+            settings,
+            self.commands_in_row,
+            forwarded,
+            &self.devices,
+            deps,
+        ))
     }
 }
 
@@ -40,81 +55,51 @@ impl StartLine for ModbusMasterAsciiConfig {
         line: &LineConfig,
         deps: &StartDeps<'_>,
     ) -> Result<LineHandle, StartError> {
-        let (settings, devices) = ascii_line(name, line, self, deps.gateway);
-        Ok(spawn(settings, devices, deps))
+        let mut settings = LineSettings::rtu(name, port_settings(&line.serial));
+        settings.master = MasterConfig {
+            framing: Framing::Ascii {
+                char_delay: self.character_delay,
+                registers32: self.registers32,
+            },
+            reply_timeout: self.reply_timeout,
+            retries: 0,
+            turnaround_delay: self.turnaround_delay,
+            mode: operating_mode(self.operating_mode),
+        };
+        let forwarded = &self.transparent;
+        Ok(spawn(
+            settings,
+            self.commands_in_row,
+            forwarded,
+            &self.devices,
+            deps,
+        ))
     }
 }
 
+/// Starts a master line with the keys both sections share (`commands_in_row`, the transparent
+/// forwarding, the devices) and the gateway-wide settings.
 fn spawn(
     mut settings: LineSettings,
-    devices: Vec<DeviceSettings>,
+    commands_in_row: u32,
+    transparent: &Transparent,
+    devices: &BTreeMap<String, DeviceConfig>,
     deps: &StartDeps<'_>,
 ) -> LineHandle {
+    settings.commands_in_row = commands_in_row;
+    settings.transparent = transparent.range().map(TransparentSettings::new);
+    settings.diag_depth = usize::from(deps.gateway.diag_buffer_depth);
     settings.metrics = Some(deps.metrics.clone());
+    let devices = devices
+        .iter()
+        .map(|(name, device)| device_settings(name, device))
+        .collect();
     crate::protocols::spawn_modbus_master_line(
         settings,
         devices,
         deps.image.clone(),
         deps.token.clone(),
     )
-}
-
-/// The settings and devices of a Modbus master RTU line.
-fn rtu_line(
-    name: &str,
-    line: &LineConfig,
-    m: &ModbusMasterRtuConfig,
-    gateway: &GatewaySection,
-) -> (LineSettings, Vec<DeviceSettings>) {
-    let mut settings = LineSettings::rtu(name, port_settings(&line.serial));
-    let timing = line::rtu_timing(&settings.port).with_multiplier(m.delay_multiplier);
-    settings.master = MasterConfig {
-        framing: Framing::Rtu { timing },
-        reply_timeout: m.reply_timeout,
-        retries: m.retries,
-        turnaround_delay: m.turnaround_delay,
-        mode: operating_mode(m.operating_mode),
-    };
-    settings.commands_in_row = m.commands_in_row;
-    settings.transparent = m.transparent.range().map(TransparentSettings::new);
-    with_devices(settings, &m.devices, gateway)
-}
-
-/// The settings and devices of a Modbus master ASCII line.
-fn ascii_line(
-    name: &str,
-    line: &LineConfig,
-    m: &ModbusMasterAsciiConfig,
-    gateway: &GatewaySection,
-) -> (LineSettings, Vec<DeviceSettings>) {
-    let mut settings = LineSettings::rtu(name, port_settings(&line.serial));
-    settings.master = MasterConfig {
-        framing: Framing::Ascii {
-            char_delay: m.character_delay,
-            registers32: m.registers32,
-        },
-        reply_timeout: m.reply_timeout,
-        retries: 0,
-        turnaround_delay: m.turnaround_delay,
-        mode: operating_mode(m.operating_mode),
-    };
-    settings.commands_in_row = m.commands_in_row;
-    settings.transparent = m.transparent.range().map(TransparentSettings::new);
-    with_devices(settings, &m.devices, gateway)
-}
-
-/// The gateway-wide settings of a master line, and its devices.
-fn with_devices(
-    mut settings: LineSettings,
-    devices: &BTreeMap<String, DeviceConfig>,
-    gateway: &GatewaySection,
-) -> (LineSettings, Vec<DeviceSettings>) {
-    settings.diag_depth = usize::from(gateway.diag_buffer_depth);
-    let devices = devices
-        .iter()
-        .map(|(name, device)| device_settings(name, device))
-        .collect();
-    (settings, devices)
 }
 
 fn operating_mode(mode: crate::protocols::OperatingMode) -> OperatingMode {

@@ -54,16 +54,6 @@ pub const DEFAULT_REGISTERS32: bool = false;
 /// V1.02, 2.2: 1..247).
 pub const DEFAULT_TRANSPARENT_UNITS: (u8, u8) = (1, 247);
 
-pub fn default_reply_timeout() -> Duration {
-    DEFAULT_REPLY_TIMEOUT
-}
-pub fn default_operating_mode() -> OperatingMode {
-    DEFAULT_OPERATING_MODE
-}
-pub fn default_delay_multiplier() -> u8 {
-    DEFAULT_DELAY_MULTIPLIER
-}
-
 /// 003 6.4.2.1 "Operating mode": in interference suppression, transmission errors and breaks
 /// are ignored while the driver is idle.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
@@ -165,20 +155,10 @@ impl Transparent {
             let (lo, hi) = DEFAULT_TRANSPARENT_UNITS;
             match v.as_array().map(Vec::as_slice) {
                 Some([from, to]) => {
-                    let from = crate::config::reader::int_value(
-                        cx,
-                        from,
-                        &format!("{path}[0]"),
-                        lo..=hi,
-                        CITE,
-                    );
-                    let to = crate::config::reader::int_value(
-                        cx,
-                        to,
-                        &format!("{path}[1]"),
-                        lo..=hi,
-                        CITE,
-                    );
+                    let [from, to] = [(0, from), (1, to)].map(|(i, v)| {
+                        let at = format!("{path}[{i}]");
+                        crate::config::reader::int_value(cx, v, &at, lo..=hi, CITE)
+                    });
                     if let (Some(from), Some(to)) = (from, to) {
                         if from > to {
                             cx.issue(
@@ -295,35 +275,28 @@ impl Check<Line<'_>> for ModbusMasterRtuConfig {
     }
 }
 
-impl ProtocolSection for ModbusMasterRtuConfig {
-    fn transparent_units(&self) -> Option<std::ops::RangeInclusive<u8>> {
-        self.transparent.range()
-    }
-
-    fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
-        Some(&self.devices)
-    }
-
-    fn devices_mut(&mut self) -> Option<&mut BTreeMap<String, DeviceConfig>> {
-        Some(&mut self.devices)
-    }
-}
-
 impl Check<Line<'_>> for ModbusMasterAsciiConfig {}
 
-impl ProtocolSection for ModbusMasterAsciiConfig {
-    fn transparent_units(&self) -> Option<std::ops::RangeInclusive<u8>> {
-        self.transparent.range()
-    }
+/// Both master sections forward and list their devices alike.
+macro_rules! master_sections {
+    ($($section:ty),+) => {$(
+        impl ProtocolSection for $section {
+            fn transparent_units(&self) -> Option<std::ops::RangeInclusive<u8>> {
+                self.transparent.range()
+            }
 
-    fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
-        Some(&self.devices)
-    }
+            fn devices(&self) -> Option<&BTreeMap<String, DeviceConfig>> {
+                Some(&self.devices)
+            }
 
-    fn devices_mut(&mut self) -> Option<&mut BTreeMap<String, DeviceConfig>> {
-        Some(&mut self.devices)
-    }
+            fn devices_mut(&mut self) -> Option<&mut BTreeMap<String, DeviceConfig>> {
+                Some(&mut self.devices)
+            }
+        }
+    )+};
 }
+
+master_sections!(ModbusMasterRtuConfig, ModbusMasterAsciiConfig);
 
 /// Modbus RTU frames have 8 data bits (003 6.4.2.1), on a master, a slave and a tap line alike.
 pub(crate) fn check_rtu_data_bits(cx: &mut Cx, path: &str, serial: &SerialConfig) {

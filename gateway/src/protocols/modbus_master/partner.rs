@@ -17,7 +17,6 @@ use std::time::Duration;
 use proto_core::checksum::crc16_modbus;
 use proto_core::event::EventId;
 use proto_core::modbus::rtu::{self, CharTiming, FrameLen};
-use proto_core::monitor::Framing;
 use proto_core::serial_marks::LineError;
 use proto_core::time::Instant;
 use tokio_serial::SerialPort;
@@ -336,10 +335,6 @@ impl<D> LineLifecycle for DeviceEngine<D> {
     fn port_failed(&mut self, id: EventId, reason: String) {
         tracing::info!(event = %id, %reason, "simulated bus: port closed, the devices stop");
         self.on_lost.cancel();
-    }
-
-    fn monitor_framing(&self) -> Framing {
-        Framing::RAW
     }
 }
 

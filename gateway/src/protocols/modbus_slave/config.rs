@@ -26,10 +26,6 @@ pub const DBS_PER_BLOCK: u16 = 128;
 /// 003 6.4.8: "a maximum data block length of 512 data words".
 pub const WORDS_PER_DB: u16 = 512;
 
-pub fn default_slave_address() -> u8 {
-    DEFAULT_SLAVE_ADDRESS
-}
-
 /// One area of the bit-addressed CP memory: Modbus bit addresses `start..start+count` map to the
 /// PLC area from byte (or timer/counter number) `plc` on (003 6.4.8.1: "Param-start-address" and
 /// "PLC-area"). `count = 0` switches the area off.

@@ -24,7 +24,7 @@ use tokio::time::Instant;
 use tokio_serial::SerialPort;
 use tokio_util::sync::CancellationToken;
 
-use crate::image::{ImageError, ProcessImage, Quality, Table};
+use crate::image::{ImageError, ProcessImage, Quality};
 use crate::line::metrics::{LineFamilies, LineTraffic, BROADCAST_DEVICE, UNKNOWN_DEVICE};
 use crate::line::runtime::{
     self, LineBase, LineCapabilities, LineEngine, LineHandle, PortOpener, SerialOpener, Stop,
@@ -206,18 +206,8 @@ impl TapUnit {
     /// device answers; 0x0B for values not seen (yet) or stale (the tap cannot ask the device);
     /// 01 for every other function, writes above all.
     fn answer(&self, request: &Request, out: &mut Vec<u8>) -> Result<(), ExceptionCode> {
-        let (table, address, quantity) = match *request {
-            Request::ReadCoils { address, quantity } => (Table::Coils, address, quantity),
-            Request::ReadDiscreteInputs { address, quantity } => {
-                (Table::DiscreteInputs, address, quantity)
-            }
-            Request::ReadHoldingRegisters { address, quantity } => {
-                (Table::HoldingRegisters, address, quantity)
-            }
-            Request::ReadInputRegisters { address, quantity } => {
-                (Table::InputRegisters, address, quantity)
-            }
-            _ => return Err(ExceptionCode::IllegalFunction),
+        let Some((table, address, quantity)) = request.read_range() else {
+            return Err(ExceptionCode::IllegalFunction);
         };
         let online = self.shared.device_online(self.index);
         let mark = out.len();

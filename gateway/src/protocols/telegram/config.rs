@@ -249,7 +249,8 @@ fn check_step(cx: &mut Cx, path: String, d: Duration, step: Duration, cite: &str
     }
 }
 
-fn mailbox_unit(cx: &mut Cx, f: &mut Fields<'_>) -> Option<u8> {
+/// The Modbus TCP unit id of a telegram mailbox (`unit_id`).
+pub(crate) fn mailbox_unit_id(cx: &mut Cx, f: &mut Fields<'_>) -> Option<u8> {
     f.int(cx, "unit_id", 1..=u8::MAX, "")
 }
 
@@ -319,11 +320,6 @@ fn journal_path(cx: &mut Cx, f: &mut Fields<'_>) -> Option<PathBuf> {
     Some(PathBuf::from(path))
 }
 
-/// The Modbus TCP unit id of a telegram mailbox (`unit_id`).
-pub(crate) fn mailbox_unit_id(cx: &mut Cx, f: &mut Fields<'_>) -> Option<u8> {
-    mailbox_unit(cx, f)
-}
-
 impl ReadSection for Proc3964Config {
     fn read_section(cx: &mut Cx, f: &mut Fields<'_>, _baud: Baud) -> Self {
         const CITE: &str = "003 6.3.3";
@@ -357,7 +353,7 @@ impl ReadSection for Proc3964Config {
                 DEFAULT_SEND_QUEUE,
                 "",
             ),
-            unit_id: mailbox_unit(cx, f),
+            unit_id: mailbox_unit_id(cx, f),
             sends: f.bool_or(cx, "sends", DEFAULT_SENDS),
             ack: f.choice(cx, "ack"),
             journal: journal_path(cx, f),
@@ -448,7 +444,7 @@ impl ReadSection for AsciiConfig {
                 DEFAULT_SEND_QUEUE,
                 "",
             ),
-            unit_id: mailbox_unit(cx, f),
+            unit_id: mailbox_unit_id(cx, f),
             sends: f.bool_or(cx, "sends", DEFAULT_SENDS),
             ack: f.choice(cx, "ack"),
             journal: journal_path(cx, f),
@@ -469,39 +465,32 @@ impl Check<Line<'_>> for Proc3964Config {
     }
 }
 
-impl ProtocolSection for Proc3964Config {
-    fn unit_id(&self) -> Option<u8> {
-        self.unit_id
-    }
-
-    fn telegrams(&self) -> Option<TelegramKeys<'_>> {
-        Some(TelegramKeys {
-            sends: self.sends,
-            ack: self.ack,
-            journal: self.journal.as_deref(),
-        })
-    }
-}
-
 impl Check<Line<'_>> for AsciiConfig {
     fn check(&self, line: &Line<'_>, cx: &mut Cx) {
         check_ascii(cx, line.path, line.serial, self);
     }
 }
 
-impl ProtocolSection for AsciiConfig {
-    fn unit_id(&self) -> Option<u8> {
-        self.unit_id
-    }
+/// Both telegram sections offer their mailbox and its keys alike.
+macro_rules! telegram_sections {
+    ($($section:ty),+) => {$(
+        impl ProtocolSection for $section {
+            fn unit_id(&self) -> Option<u8> {
+                self.unit_id
+            }
 
-    fn telegrams(&self) -> Option<TelegramKeys<'_>> {
-        Some(TelegramKeys {
-            sends: self.sends,
-            ack: self.ack,
-            journal: self.journal.as_deref(),
-        })
-    }
+            fn telegrams(&self) -> Option<TelegramKeys<'_>> {
+                Some(TelegramKeys {
+                    sends: self.sends,
+                    ack: self.ack,
+                    journal: self.journal.as_deref(),
+                })
+            }
+        }
+    )+};
 }
+
+telegram_sections!(Proc3964Config, AsciiConfig);
 
 /// The checks a 3964(R) line and a 3964(R) tap share: a full-duplex link, and the character
 /// and acknowledgement delay times (`times`) at least the baud rate's minimum.

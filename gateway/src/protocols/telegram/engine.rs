@@ -68,21 +68,49 @@ pub(crate) trait TelegramEngine: Send + 'static {
     fn output_owner(&self) -> OutputOwner;
 }
 
+/// The calls both engines answer with their own method of the same name.
+macro_rules! inherent_calls {
+    () => {
+        fn send(&mut self, now: Instant, telegram: Vec<u8>) -> Result<TelegramId, SendError> {
+            Self::send(self, now, telegram)
+        }
+        fn handle_rx(&mut self, now: Instant, bytes: &[u8]) {
+            Self::handle_rx(self, now, bytes);
+        }
+        fn handle_line_error(&mut self, now: Instant, error: LineError) {
+            Self::handle_line_error(self, now, error);
+        }
+        fn handle_tx_done(&mut self, now: Instant) {
+            Self::handle_tx_done(self, now);
+        }
+        fn handle_timeout(&mut self, now: Instant) {
+            Self::handle_timeout(self, now);
+        }
+        fn poll_transmit(&mut self) -> Option<Vec<u8>> {
+            Self::poll_transmit(self)
+        }
+        fn poll_event(&mut self) -> Option<TelegramEvent> {
+            Self::poll_event(self)
+        }
+        fn poll_timeout(&self) -> Option<Instant> {
+            Self::poll_timeout(self)
+        }
+        fn take_received(&mut self) -> Option<Vec<u8>> {
+            Self::take_received(self)
+        }
+        fn is_idle(&self) -> bool {
+            Self::is_idle(self)
+        }
+    };
+}
+
 impl TelegramEngine for Proc3964 {
+    inherent_calls!();
     fn protocol(&self) -> &'static str {
         match self.params().settings().variant {
             proto_core::proc3964::Variant::P3964 => "3964",
             proto_core::proc3964::Variant::P3964R => "3964R",
         }
-    }
-    fn send(&mut self, now: Instant, telegram: Vec<u8>) -> Result<TelegramId, SendError> {
-        Self::send(self, now, telegram)
-    }
-    fn handle_rx(&mut self, now: Instant, bytes: &[u8]) {
-        Self::handle_rx(self, now, bytes);
-    }
-    fn handle_line_error(&mut self, now: Instant, error: LineError) {
-        Self::handle_line_error(self, now, error);
     }
     /// Half duplex: no byte before the end of our own transmission. The estimate assumes the
     /// configured baud rate; a pseudo-terminal carries the bytes at once, and the partner's
@@ -94,26 +122,8 @@ impl TelegramEngine for Proc3964 {
         tx_end.map_or(now, |end| end.max(now))
     }
     fn handle_signals(&mut self, _now: Instant, _signals: Signals) {}
-    fn handle_tx_done(&mut self, now: Instant) {
-        Self::handle_tx_done(self, now);
-    }
-    fn handle_timeout(&mut self, now: Instant) {
-        Self::handle_timeout(self, now);
-    }
     fn poll_action(&mut self) -> Option<Action> {
         None
-    }
-    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
-        Self::poll_transmit(self)
-    }
-    fn poll_event(&mut self) -> Option<TelegramEvent> {
-        Self::poll_event(self)
-    }
-    fn poll_timeout(&self) -> Option<Instant> {
-        Self::poll_timeout(self)
-    }
-    fn take_received(&mut self) -> Option<Vec<u8>> {
-        Self::take_received(self)
     }
     fn awaiting_confirm(&self) -> bool {
         Self::awaiting_confirm(self)
@@ -124,9 +134,6 @@ impl TelegramEngine for Proc3964 {
     fn set_receive_ready(&mut self, ready: bool) {
         Self::set_receive_ready(self, ready);
     }
-    fn is_idle(&self) -> bool {
-        Self::is_idle(self)
-    }
     fn watches_signals(&self) -> bool {
         false
     }
@@ -136,17 +143,9 @@ impl TelegramEngine for Proc3964 {
 }
 
 impl TelegramEngine for AsciiDriver {
+    inherent_calls!();
     fn protocol(&self) -> &'static str {
         "ASCII"
-    }
-    fn send(&mut self, now: Instant, telegram: Vec<u8>) -> Result<TelegramId, SendError> {
-        Self::send(self, now, telegram)
-    }
-    fn handle_rx(&mut self, now: Instant, bytes: &[u8]) {
-        Self::handle_rx(self, now, bytes);
-    }
-    fn handle_line_error(&mut self, now: Instant, error: LineError) {
-        Self::handle_line_error(self, now, error);
     }
     /// Full duplex (003 6.2): the receiver runs while we send, and the character delay time is
     /// measured between the received bytes' own arrivals, whatever we transmit meanwhile.
@@ -156,26 +155,8 @@ impl TelegramEngine for AsciiDriver {
     fn handle_signals(&mut self, now: Instant, signals: Signals) {
         Self::handle_signals(self, now, signals);
     }
-    fn handle_tx_done(&mut self, now: Instant) {
-        Self::handle_tx_done(self, now);
-    }
-    fn handle_timeout(&mut self, now: Instant) {
-        Self::handle_timeout(self, now);
-    }
     fn poll_action(&mut self) -> Option<Action> {
         Self::poll_action(self)
-    }
-    fn poll_transmit(&mut self) -> Option<Vec<u8>> {
-        Self::poll_transmit(self)
-    }
-    fn poll_event(&mut self) -> Option<TelegramEvent> {
-        Self::poll_event(self)
-    }
-    fn poll_timeout(&self) -> Option<Instant> {
-        Self::poll_timeout(self)
-    }
-    fn take_received(&mut self) -> Option<Vec<u8>> {
-        Self::take_received(self)
     }
     /// A received ASCII telegram counts as received once it is in the mailbox: there is no
     /// acknowledgement to hold back (003 6.2).
@@ -184,9 +165,6 @@ impl TelegramEngine for AsciiDriver {
     }
     fn confirm_received(&mut self, _now: Instant, _result: Result<(), EventId>) {}
     fn set_receive_ready(&mut self, _ready: bool) {}
-    fn is_idle(&self) -> bool {
-        Self::is_idle(self)
-    }
     fn watches_signals(&self) -> bool {
         matches!(
             self.params().settings().flow,

@@ -395,61 +395,37 @@ fn open_mailbox(settings: &TelegramLineSettings) -> Result<OpenedMailbox, Journa
         .carried
         .clone()
         .filter(|c| !same_journal(c.journal.as_deref(), settings.journal.as_deref()));
-    let Some(carried) = carried else {
-        return match &settings.journal {
-            Some(path) => {
-                let (mailbox, restored) = Mailbox::with_journal(
-                    &settings.name,
-                    settings.mailbox,
-                    settings.max_len,
-                    path,
-                )?;
-                Ok((mailbox, Some(restored)))
-            }
-            None => Ok((
-                Mailbox::new(&settings.name, settings.mailbox, settings.max_len),
-                None,
-            )),
-        };
-    };
-    let (waiting, last_seq, last_acked) = (
-        carried.telegrams.len(),
-        carried.last_seq,
-        carried.last_acked,
-    );
-    let from = carried
-        .journal
-        .as_deref()
-        .map_or_else(|| "memory".to_owned(), |p| p.display().to_string());
-    let opened = match &settings.journal {
-        Some(path) => {
-            crate::mailbox::journal::take_over(path, last_seq, last_acked, &carried.telegrams)?;
-            let (mailbox, restored) =
-                Mailbox::with_journal(&settings.name, settings.mailbox, settings.max_len, path)?;
+    let (name, mailbox, max_len) = (&settings.name, settings.mailbox, settings.max_len);
+    if let (Some(c), Some(path)) = (&carried, &settings.journal) {
+        crate::mailbox::journal::take_over(path, c.last_seq, c.last_acked, &c.telegrams)?;
+    }
+    let opened = match (&settings.journal, &carried) {
+        (Some(path), _) => {
+            let (mailbox, restored) = Mailbox::with_journal(name, mailbox, max_len, path)?;
             (mailbox, Some(restored))
         }
-        None => (
-            Mailbox::with_carried(
-                &settings.name,
-                settings.mailbox,
-                settings.max_len,
-                carried.clone(),
-            ),
+        (None, Some(c)) => (
+            Mailbox::with_carried(name, mailbox, max_len, c.clone()),
             None,
         ),
+        (None, None) => (Mailbox::new(name, mailbox, max_len), None),
     };
-    let to = settings
-        .journal
-        .as_deref()
-        .map_or_else(|| "memory".to_owned(), |p| p.display().to_string());
+    let Some(carried) = carried else {
+        return Ok(opened);
+    };
+    let (last_seq, last_acked) = (carried.last_seq, carried.last_acked);
+    let place = |journal: Option<&std::path::Path>| {
+        journal.map_or_else(|| "memory".to_owned(), |p| p.display().to_string())
+    };
+    let waiting = carried.telegrams.len();
     // A line without a journal before and after, with nothing waiting, has nothing to say.
     if waiting > 0 || carried.journal.is_some() || settings.journal.is_some() {
         tracing::info!(
             line = %settings.name,
             waiting,
             last_seq,
-            from = %from,
-            to = %to,
+            from = %place(carried.journal.as_deref()),
+            to = %place(settings.journal.as_deref()),
             "waiting telegrams carried over to the restarted line with their numbers"
         );
     }

@@ -26,29 +26,14 @@ use self::drive::{Drive, Inputs};
 use self::words::{addressed, read_block, Word, WordMap};
 use super::{answer_frame, exception_frame, pdu_frame, Answer, Faults, ModbusDevice, BROADCAST};
 
-/// The FC 43 objects (002 "Identifikation": vendor, product code, version "MMmm", device name).
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub struct Identity {
-    /// Object 00: vendor name (always "Telemecanique").
-    pub vendor: String,
-    /// Object 01: product code.
-    pub product_code: String,
-    /// Object 02: version "MMmm".
-    pub revision: String,
-    /// Object 06: the device name the user gave the drive.
-    pub device_name: String,
-}
-
-impl Default for Identity {
-    fn default() -> Self {
-        Self {
-            vendor: "Telemecanique".to_owned(),
-            product_code: "ATV71HU15M3".to_owned(),
-            revision: "0201".to_owned(),
-            device_name: "MACHINE 4".to_owned(),
-        }
-    }
-}
+/// The FC 43 objects by id (002 "Identifikation": 00 vendor, always "Telemecanique"; 01 product
+/// code; 02 version "MMmm"; 06 the device name the user gave the drive).
+const IDENTITY: [(u8, &str); 4] = [
+    (0x00, "Telemecanique"),
+    (0x01, "ATV71HU15M3"),
+    (0x02, "0201"),
+    (0x06, "MACHINE 4"),
+];
 
 /// The drive's Modbus counters (002 "Modbus-Zähler"; FC 08 sub-functions 0C and 0E).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
@@ -91,7 +76,6 @@ pub struct AltivarSim {
     /// The "Controller Inside" card's server (AMOA) and the Ethernet card's (AMOC), when on.
     controller_inside: Option<Card>,
     ethernet_card: Option<Card>,
-    identity: Identity,
     counters: Counters,
     drive: Drive,
     /// Whether `tick` moves the drive (off: values stay as set, e.g. to replay a manual's frame).
@@ -132,7 +116,6 @@ impl AltivarSim {
             words,
             controller_inside: None,
             ethernet_card: None,
-            identity: Identity::default(),
             counters: Counters::default(),
             drive: Drive::new(chcf),
             dynamics: true,
@@ -169,16 +152,6 @@ impl AltivarSim {
             }
             Card { address, words }
         });
-    }
-
-    /// The FC 43 identity.
-    pub fn identity(&self) -> &Identity {
-        &self.identity
-    }
-
-    /// Replaces the FC 43 identity.
-    pub fn set_identity(&mut self, identity: Identity) {
-        self.identity = identity;
     }
 
     /// What FC 03 reads at `address`: `None` when the word does not exist or is protected.
@@ -373,16 +346,10 @@ impl AltivarSim {
         if *mei != MEI_READ_DEVICE_ID || !(0x01..=0x03).contains(read_code) {
             return negative(ID_ERROR_REQUEST);
         }
-        let all = [
-            (0x00, &self.identity.vendor),
-            (0x01, &self.identity.product_code),
-            (0x02, &self.identity.revision),
-            (0x06, &self.identity.device_name),
-        ];
-        let Some(first) = all.iter().position(|(id, _)| id == object_id) else {
+        let Some(first) = IDENTITY.iter().position(|(id, _)| id == object_id) else {
             return negative(ID_ERROR_OBJECT);
         };
-        let objects = all
+        let objects = IDENTITY
             .iter()
             .skip(first)
             .map(|(id, text)| {
