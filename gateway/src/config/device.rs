@@ -57,12 +57,6 @@ pub const BACKOFF_RANGE: (Duration, Duration) =
 /// Shortest and longest poll period.
 pub const POLL_PERIOD_RANGE: (Duration, Duration) =
     (Duration::from_millis(10), Duration::from_secs(86_400));
-pub fn default_offline_backoff_min() -> Duration {
-    DEFAULT_OFFLINE_BACKOFF_MIN
-}
-pub fn default_offline_backoff_max() -> Duration {
-    DEFAULT_OFFLINE_BACKOFF_MAX
-}
 
 /// A device's type: a profile of proto-core's registry
 /// ([`registry::PROFILES`]: `altivar71`, `ksvario`, ...) or `generic` (any Modbus device

@@ -42,19 +42,6 @@ pub fn default_max_connections_per_client(max_connections: u32) -> u32 {
     max_connections.div_ceil(2).max(1)
 }
 
-pub fn default_listen() -> SocketAddr {
-    DEFAULT_LISTEN
-}
-pub fn default_max_connections() -> u32 {
-    DEFAULT_MAX_CONNECTIONS
-}
-pub fn default_idle_timeout() -> Duration {
-    DEFAULT_IDLE_TIMEOUT
-}
-pub fn default_request_timeout() -> Duration {
-    DEFAULT_REQUEST_TIMEOUT
-}
-
 /// Addresses of one unit that Modbus TCP clients may write.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct UnitRange {
