@@ -255,22 +255,14 @@ impl Replayed {
     pub fn from_bytes(bytes: &[u8]) -> Self {
         let mut out = Self::default();
         let total = bytes.len() as u64;
-        if bytes.len() < MAGIC.len() {
-            if !MAGIC.starts_with(bytes) {
-                out.loss = Some(Loss {
-                    offset: 0,
-                    bytes: total,
-                    reason: "not a journal",
-                });
-            }
-            return out;
-        }
-        if &bytes[..MAGIC.len()] != MAGIC {
+        if !MAGIC.starts_with(&bytes[..bytes.len().min(MAGIC.len())]) {
             out.loss = Some(Loss {
                 offset: 0,
                 bytes: total,
                 reason: "not a journal",
             });
+        }
+        if out.loss.is_some() || bytes.len() < MAGIC.len() {
             return out;
         }
         let mut at = MAGIC.len();
