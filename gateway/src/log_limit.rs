@@ -89,6 +89,10 @@ impl Limiter {
                 key = OVERFLOW_KEY.to_owned();
             }
         }
+        let fresh = Seen {
+            logged: now,
+            suppressed: 0,
+        };
         match keys.get_mut(&key) {
             Some(seen) if now.saturating_duration_since(seen.logged) < self.interval => {
                 seen.suppressed = seen.suppressed.saturating_add(1);
@@ -96,20 +100,11 @@ impl Limiter {
             }
             Some(seen) => {
                 let answer = (seen.suppressed, now.saturating_duration_since(seen.logged));
-                *seen = Seen {
-                    logged: now,
-                    suppressed: 0,
-                };
+                *seen = fresh;
                 Some(answer)
             }
             None => {
-                keys.insert(
-                    key,
-                    Seen {
-                        logged: now,
-                        suppressed: 0,
-                    },
-                );
+                keys.insert(key, fresh);
                 Some((0, Duration::ZERO))
             }
         }

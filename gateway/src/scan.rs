@@ -173,16 +173,14 @@ pub fn init_logging() {
 /// Runs `gateway scan`; the exit code: 0, 64 (sysexits.h EX_USAGE) on a usage error, 1 when the
 /// scan failed, with the error on stderr.
 pub async fn command(args: ScanArgs, shutdown: CancellationToken) -> u8 {
-    match run(args, shutdown).await {
-        Ok(()) => 0,
-        Err(e @ ScanError::Usage(_)) => {
-            eprintln!("gateway scan: {e}");
-            64 // sysexits.h EX_USAGE
-        }
-        Err(e) => {
-            eprintln!("gateway scan: {e}");
-            1
-        }
+    let Err(e) = run(args, shutdown).await else {
+        return 0;
+    };
+    eprintln!("gateway scan: {e}");
+    if matches!(e, ScanError::Usage(_)) {
+        64 // sysexits.h EX_USAGE
+    } else {
+        1
     }
 }
 
@@ -462,32 +460,18 @@ pub fn toml_document(args: &ScanArgs, found: &[Found]) -> String {
             let _ = writeln!(out, "# {}", identity.describe().replace('\n', " "));
         }
         let _ = writeln!(out, "address = {}", f.address);
-        match profile_of(f.identity.as_ref()) {
-            Some(profile) => {
-                let _ = writeln!(out, "profile = \"{profile}\"");
-            }
-            None => {
-                let _ = writeln!(out, "profile = \"generic\"");
-                match f.exception {
-                    None => {
-                        let _ = writeln!(
-                            out,
-                            "# holding register 0 answered; replace with the device's tags"
-                        );
-                    }
-                    Some(code) => {
-                        let _ = writeln!(
-                            out,
-                            "# holding register 0 answered exception {:02X}; replace with the device's tags",
-                            u8::from(code)
-                        );
-                    }
-                }
-                let _ = writeln!(
-                    out,
-                    "tags = [{{ name = \"register_0\", table = \"holding\", address = 0 }}]"
-                );
-            }
+        let profile = profile_of(f.identity.as_ref());
+        let _ = writeln!(out, "profile = \"{}\"", profile.unwrap_or("generic"));
+        if profile.is_none() {
+            let exception = f
+                .exception
+                .map(|code| format!(" exception {:02X}", u8::from(code)))
+                .unwrap_or_default();
+            let _ = writeln!(
+                out,
+                "# holding register 0 answered{exception}; replace with the device's tags\n\
+                 tags = [{{ name = \"register_0\", table = \"holding\", address = 0 }}]"
+            );
         }
     }
     out

@@ -360,19 +360,6 @@ impl TagDirectory {
         })
     }
 
-    /// The Modbus request that writes the number `value` (engineering units) to a tag that is
-    /// not a bit, checked against the tag's type, range and write permission.
-    pub fn write_request(entry: &TagEntry, value: f64) -> Result<Request, TagWriteError> {
-        match Self::write_op(entry, &Value::Float(value))? {
-            TagWriteOp::Request(request) => Ok(request),
-            TagWriteOp::Bit(_) => Err(TagWriteError::Value {
-                tag: full_name(entry),
-                value: value.to_string(),
-                reason: "a bit tag is written by read-modify-write".to_owned(),
-            }),
-        }
-    }
-
     /// What writes `value` to the tag: a number in engineering units, a whole number (exact up
     /// to 64 bits), a bool, or a text for a string tag; checked against the tag's type, range
     /// and write permission.
@@ -760,6 +747,21 @@ mod tests {
 
     use super::*;
     use crate::image::ImageConfig;
+
+    impl TagDirectory {
+        /// The Modbus request that writes the number `value` (engineering units) to a tag that is
+        /// not a bit, checked against the tag's type, range and write permission.
+        fn write_request(entry: &TagEntry, value: f64) -> Result<Request, TagWriteError> {
+            match Self::write_op(entry, &Value::Float(value))? {
+                TagWriteOp::Request(request) => Ok(request),
+                TagWriteOp::Bit(_) => Err(TagWriteError::Value {
+                    tag: full_name(entry),
+                    value: value.to_string(),
+                    reason: "a bit tag is written by read-modify-write".to_owned(),
+                }),
+            }
+        }
+    }
 
     #[tokio::test]
     async fn demo_tags_decode_values_units_and_special_values() {

@@ -35,14 +35,6 @@ pub trait UnitService: Send + Sync + 'static {
     /// and nothing appended either) means the answer takes [`Self::call`]. An answer given here
     /// must be the one `call` would give; the Modbus TCP server tries this first on every request
     /// and saves the boxed future, the response's allocations and the request timer.
-    /// Changes bits of one holding register by read-modify-write as one exchange of the line
-    /// (see `LineClient::mask_write`). Units that are not a polled device answer exception
-    /// 01 "illegal function" (the default).
-    fn mask_write(&self, update: BitUpdate) -> UnitFuture {
-        let _ = update;
-        Box::pin(std::future::ready(Err(ExceptionCode::IllegalFunction)))
-    }
-
     fn answer_now(
         &self,
         request: &Request,
@@ -50,6 +42,14 @@ pub trait UnitService: Send + Sync + 'static {
     ) -> Option<Result<(), ExceptionCode>> {
         let _ = (request, out);
         None
+    }
+
+    /// Changes bits of one holding register by read-modify-write as one exchange of the line
+    /// (see `LineClient::mask_write`). Units that are not a polled device answer exception
+    /// 01 "illegal function" (the default).
+    fn mask_write(&self, update: BitUpdate) -> UnitFuture {
+        let _ = update;
+        Box::pin(std::future::ready(Err(ExceptionCode::IllegalFunction)))
     }
 
     /// Whether the unit only listens to another master's traffic (a device on a tap line): it

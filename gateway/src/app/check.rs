@@ -40,7 +40,7 @@ use super::lines::LineStarts;
 use super::tls::ModbusTlsFiles;
 use crate::api::auth::ApiTokens;
 use crate::api::tls::HttpsFiles;
-use crate::config::check::Check;
+use crate::config::check::{issue, Check};
 use crate::config::{self, no_such_port, ConfigErrors, ConfigIssue, Cx, Interface};
 use crate::plant::check::{
     persist_dir_warnings, ApiChange, GatewayDirs, Journals, PersistFile, SerialPorts, Start,
@@ -150,13 +150,6 @@ pub fn api_path_issues(new: &Config, in_force: &Config) -> Vec<ConfigIssue> {
     cx.issues
 }
 
-fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
-    ConfigIssue {
-        path: path.to_owned(),
-        message: message.into(),
-    }
-}
-
 /// What to set instead when a port's driver refuses RS485 mode.
 const RS485_INSTEAD: &str = "with an adapter that switches its transmitter itself (automatic \
      send/receive, as most USB-RS485 adapters do) set interface = \"rs422\" (the port as it is, \
@@ -184,7 +177,7 @@ pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
             if !Path::new(port).exists() {
                 present = false;
                 warnings.push(issue(
-                    &format!("lines.{name}.{key}"),
+                    format!("lines.{name}.{key}"),
                     format!(
                         "{} (the line opens it with back-off until it appears)",
                         no_such_port(port)
@@ -198,29 +191,17 @@ pub fn port_issues(config: &Config) -> (Vec<ConfigIssue>, Vec<ConfigIssue>) {
         {
             continue;
         }
-        let path = format!("lines.{name}.port");
+        let interface = format!("lines.{name}.interface");
         match serial::probe(&crate::protocols::start::port_settings(&line.serial)) {
             Ok(()) => {}
             Err(e @ OpenError::Rs485Refused { .. }) => {
-                errors.push(ConfigIssue {
-                    path: format!("lines.{name}.interface"),
-                    message: format!("{e}; {RS485_INSTEAD}"),
-                });
+                errors.push(issue(&interface, format!("{e}; {RS485_INSTEAD}")));
             }
-            Err(e @ OpenError::Flags { .. }) => {
-                errors.push(ConfigIssue {
-                    path: format!("lines.{name}.interface"),
-                    message: e.to_string(),
-                });
-            }
-            Err(e @ (OpenError::Open { .. } | OpenError::NotFound { .. })) => {
-                warnings.push(ConfigIssue {
-                    path,
-                    message: format!(
-                        "{e}; RS485 mode not tested (the line opens the port again with back-off)"
-                    ),
-                });
-            }
+            Err(e @ OpenError::Flags { .. }) => errors.push(issue(&interface, e.to_string())),
+            Err(e @ (OpenError::Open { .. } | OpenError::NotFound { .. })) => warnings.push(issue(
+                format!("lines.{name}.port"),
+                format!("{e}; RS485 mode not tested (the line opens the port again with back-off)"),
+            )),
         }
     }
     (errors, warnings)
@@ -266,25 +247,24 @@ pub fn unpolled_tags(config: &Config) -> Vec<ConfigIssue> {
                     continue;
                 }
                 match device.tags.iter().position(|t| &*t.name == name) {
-                    Some(i) => warnings.push(ConfigIssue {
-                        path: format!("{path}.tags[{i}]"),
-                        message: format!(
-                            "tag {:?} is read by no poll group: it is read from the device only on demand and never published on change",
-                            name
+                    Some(i) => warnings.push(issue(
+                        format!("{path}.tags[{i}]"),
+                        format!(
+                            "tag {name:?} is read by no poll group: it is read from the device only on demand and never published on change"
                         ),
-                    }),
+                    )),
                     None => from_profile.push(name),
                 }
             }
             if !from_profile.is_empty() {
-                warnings.push(ConfigIssue {
-                    path: format!("{path}.poll"),
-                    message: format!(
+                warnings.push(issue(
+                    format!("{path}.poll"),
+                    format!(
                         "{} tags of the profile are read by no poll group (read on demand only, never published on change): {}",
                         from_profile.len(),
                         listed(&from_profile)
                     ),
-                });
+                ));
             }
         }
     }
@@ -322,10 +302,7 @@ pub fn ack_warnings(config: &Config) -> Vec<ConfigIssue> {
             ),
             _ => continue,
         };
-        warnings.push(ConfigIssue {
-            path: format!("lines.{name}.ack"),
-            message,
-        });
+        warnings.push(issue(format!("lines.{name}.ack"), message));
     }
     warnings
 }
@@ -333,12 +310,7 @@ pub fn ack_warnings(config: &Config) -> Vec<ConfigIssue> {
 /// The first names of a list, and how many more there are.
 fn listed(names: &[&str]) -> String {
     const SHOWN: usize = 12;
-    let mut text = names
-        .iter()
-        .take(SHOWN)
-        .copied()
-        .collect::<Vec<_>>()
-        .join(", ");
+    let mut text = names[..names.len().min(SHOWN)].join(", ");
     if names.len() > SHOWN {
         text.push_str(&format!(" and {} more", names.len() - SHOWN));
     }
@@ -365,12 +337,7 @@ pub fn check_command(path: &Path) -> i32 {
 /// neither refuses the configuration: the demo and a lab bench run like that on purpose.
 pub fn security_warnings(config: &Config) -> Vec<ConfigIssue> {
     let mut warnings = Vec::new();
-    let mut warn = |path: &str, message: String| {
-        warnings.push(ConfigIssue {
-            path: path.to_owned(),
-            message,
-        });
-    };
+    let mut warn = |path: &str, message: String| warnings.push(issue(path, message));
     let tcp = &config.modbus_tcp;
     let reachable = |ip: std::net::IpAddr| !ip.is_loopback();
     if tcp.enabled

@@ -37,6 +37,7 @@ mod apply;
 mod plan;
 use super::{server_options, AppError, MetricsRegistry, Overrides, GRACE_PERIOD};
 use crate::api::BoxFuture;
+use crate::config::check::issue;
 use crate::config::ConfigIssue;
 use crate::cpmem::{self, SharedCpMemory};
 use crate::feeds::gateway::RunningLine;
@@ -512,13 +513,6 @@ fn changed_journal_issues(new: &Config, in_force: &Config) -> Vec<ConfigIssue> {
         }
     }
     issues
-}
-
-fn issue(path: &str, message: impl Into<String>) -> ConfigIssue {
-    ConfigIssue {
-        path: path.to_owned(),
-        message: message.into(),
-    }
 }
 
 type Persistence = Option<(CancellationToken, JoinHandle<()>)>;

@@ -226,13 +226,15 @@ pub fn open_csv(path: &Path) -> Result<Box<dyn BufRead>, TagCsvError> {
             MAX_CSV_BYTES / (1024 * 1024)
         ))
     };
-    if path.as_os_str() == "-" {
-        let stdin = std::io::stdin().lock().take(MAX_CSV_BYTES + 1);
-        return Ok(Box::new(Bounded {
-            inner: std::io::BufReader::new(stdin),
+    let bounded = |inner: Box<dyn Read>| -> Box<dyn BufRead> {
+        Box::new(Bounded {
+            inner: std::io::BufReader::new(inner.take(MAX_CSV_BYTES + 1)),
             read: 0,
             error: Some(too_large(None).to_string()),
-        }));
+        })
+    };
+    if path.as_os_str() == "-" {
+        return Ok(bounded(Box::new(std::io::stdin().lock())));
     }
     let file = std::fs::File::open(path)
         .map_err(|e| TagCsvError::File(format!("cannot read {}: {e}", path.display())))?;
@@ -244,11 +246,7 @@ pub fn open_csv(path: &Path) -> Result<Box<dyn BufRead>, TagCsvError> {
         return Err(too_large(Some(size)));
     }
     // The file may still grow while it is read: the same bound applies to what is read.
-    Ok(Box::new(Bounded {
-        inner: std::io::BufReader::new(file.take(MAX_CSV_BYTES + 1)),
-        read: 0,
-        error: Some(too_large(None).to_string()),
-    }))
+    Ok(bounded(Box::new(file)))
 }
 
 /// A reader that fails once more than [`MAX_CSV_BYTES`] came through it.
@@ -301,12 +299,7 @@ pub fn import_from(
     owner: &TagOwner,
     csv: impl BufRead,
 ) -> Result<usize, TagCsvError> {
-    let text = std::fs::read_to_string(config)
-        .map_err(|e| TagCsvError::File(format!("cannot read {}: {e}", config.display())))?;
-    let mut doc: DocumentMut = text
-        .parse()
-        .map_err(|e| TagCsvError::File(format!("{} is not TOML: {e}", config.display())))?;
-    drop(text);
+    let mut doc = read_document(config)?;
     find(&doc, owner)?;
     let (tags, mut problems) = tags_of_csv(csv);
     if !problems.is_empty() {
@@ -317,12 +310,8 @@ pub fn import_from(
     set_tags(&mut doc, owner, tags.into_iter().map(|(_, tag)| tag));
     let new_text = doc.to_string();
     drop(doc);
-    let dir = match config.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    let issues = match crate::plant::parse_in(&new_text, &crate::plant::check::config_issues, &dir)
-    {
+    let dir = crate::config::check::parent_dir(config);
+    let issues = match crate::plant::parse_in(&new_text, &crate::plant::check::config_issues, dir) {
         Ok(c) => {
             let mut issues = super::check::run_issues(&c);
             issues.extend(super::check::port_issues(&c).0);

@@ -51,14 +51,14 @@ pub(crate) fn confine(
     if Some(new) == old || inside(new, dirs) {
         return None;
     }
-    Some(ConfigIssue {
-        path: key.to_owned(),
-        message: format!(
+    Some(issue(
+        key,
+        format!(
             "{} is outside [gateway] {dirs_key} {dirs:?}: a change over the API names this file \
              there only",
             new.display()
         ),
-    })
+    ))
 }
 
 /// Whether `path` (resolved: symbolic links and `..` followed; a file that does not exist yet by
@@ -87,12 +87,53 @@ fn resolve(path: &Path) -> std::io::Result<PathBuf> {
     })
 }
 
+/// An issue at `path`.
+pub(crate) fn issue(path: impl Into<String>, message: impl Into<String>) -> ConfigIssue {
+    ConfigIssue {
+        path: path.into(),
+        message: message.into(),
+    }
+}
+
 /// The directory a file `path` names lies in (`.` for a bare name).
 pub(crate) fn parent_dir(path: &Path) -> &Path {
     match path.parent() {
         Some(p) if !p.as_os_str().is_empty() => p,
         _ => Path::new("."),
     }
+}
+
+/// What a path that is not a regular file is, for a refusal.
+pub(crate) fn not_regular(meta: &std::fs::Metadata) -> &'static str {
+    if meta.is_dir() {
+        "a directory"
+    } else {
+        "not a regular file (a device, pipe or socket)"
+    }
+}
+
+/// Creates `path` (which must not exist) and removes it again: a start check leaves no file.
+pub(crate) fn create_and_remove(path: &Path) -> std::io::Result<()> {
+    drop(
+        std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(path)?,
+    );
+    std::fs::remove_file(path)
+}
+
+/// Whether the directory of `path` takes a new file beside it, as `writer` writes one: the
+/// check creates and removes `<path>.probe-<pid>`.
+pub(crate) fn takes_new_file(path: &Path, writer: &str) -> Result<(), String> {
+    let mut name = path.as_os_str().to_owned();
+    name.push(format!(".probe-{}", std::process::id()));
+    create_and_remove(Path::new(&name)).map_err(|e| {
+        format!(
+            "the directory of {} takes no new file ({writer} writes one): {e}",
+            path.display()
+        )
+    })
 }
 
 /// A key that takes effect only with another key's value: `key` is ignored unless `needs` is

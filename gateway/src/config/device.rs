@@ -57,12 +57,6 @@ pub const BACKOFF_RANGE: (Duration, Duration) =
 /// Shortest and longest poll period.
 pub const POLL_PERIOD_RANGE: (Duration, Duration) =
     (Duration::from_millis(10), Duration::from_secs(86_400));
-pub fn default_offline_backoff_min() -> Duration {
-    DEFAULT_OFFLINE_BACKOFF_MIN
-}
-pub fn default_offline_backoff_max() -> Duration {
-    DEFAULT_OFFLINE_BACKOFF_MAX
-}
 
 /// A device's type: a profile of proto-core's registry
 /// ([`registry::PROFILES`]: `altivar71`, `ksvario`, ...) or `generic` (any Modbus device
@@ -368,23 +362,21 @@ fn read_limits(cx: &mut Cx, f: &mut Fields<'_>, profile: Profile) -> RequestLimi
     };
     let read_registers = one(cx, "read_registers", max.read_registers, 1);
     let write_registers = one(cx, "write_registers", max.write_registers, 1);
-    let rw_read_registers = one(cx, "rw_read_registers", rw_read(&max), 0);
-    let rw_write_registers = one(cx, "rw_write_registers", rw_write(&max), 0);
-    let read_bits = one(cx, "read_bits", max.read_bits, 0);
-    let write_bits = one(cx, "write_bits", max.write_bits, 0);
-    t.finish(cx);
-    RequestLimits {
+    let read_write = ReadWriteLimits {
+        read: one(cx, "rw_read_registers", rw_read(&max), 0),
+        write: one(cx, "rw_write_registers", rw_write(&max), 0),
+    };
+    let limits = RequestLimits {
         read_registers,
         write_registers,
-        read_bits,
-        write_bits,
+        read_bits: one(cx, "read_bits", max.read_bits, 0),
+        write_bits: one(cx, "write_bits", max.write_bits, 0),
         // A profile without FC 23 keeps none; 0 / 0 in the config leaves the quantities 0.
-        read_write: max.read_write.map(|_| ReadWriteLimits {
-            read: rw_read_registers,
-            write: rw_write_registers,
-        }),
+        read_write: max.read_write.map(|_| read_write),
         max_adu_len: max.max_adu_len,
-    }
+    };
+    t.finish(cx);
+    limits
 }
 
 fn read_poll(cx: &mut Cx, path: &str, value: &toml::Value) -> Option<PollGroup> {
@@ -434,68 +426,62 @@ impl DeviceConfig {
         let address = read_address(cx, &mut f);
         let unit_id = f.int(cx, "unit_id", 1..=u8::MAX, "");
         let limits = read_limits(cx, &mut f, profile.unwrap_or(Profile::GENERIC));
-        let (lo, hi) = BACKOFF_RANGE;
-        let offline_backoff_min = f.duration_or(
-            cx,
-            "offline_backoff_min",
-            lo..=hi,
-            DEFAULT_OFFLINE_BACKOFF_MIN,
-            "",
-        );
-        let offline_backoff_max = f.duration_or(
-            cx,
-            "offline_backoff_max",
-            lo..=hi,
-            DEFAULT_OFFLINE_BACKOFF_MAX,
-            "",
-        );
-        let (lo, hi) = PROBE_TIMEOUT_MIN_RANGE;
-        let probe_timeout_min = f.duration_or(
-            cx,
-            "probe_timeout_min",
-            lo..=hi,
-            DEFAULT_PROBE_TIMEOUT_MIN,
-            "003 6.4.2.1",
-        );
-        let (lo, hi) = FULL_PROBE_EVERY_RANGE;
-        let full_probe_every = f.int_or(
-            cx,
-            "full_probe_every",
-            lo..=hi,
-            DEFAULT_FULL_PROBE_EVERY,
-            "",
-        );
-        let (lo, hi) = OFFLINE_AFTER_RANGE;
-        let offline_after = f.int_or(
-            cx,
-            "offline_after",
-            lo..=hi,
-            DEFAULT_OFFLINE_AFTER,
-            "003 6.3.3",
-        );
-        let bridge_gap = f.int_or(cx, "bridge_gap", 0..=u16::MAX, DEFAULT_BRIDGE_GAP, "");
-        let scanner = read_scanner(cx, &mut f, profile, &limits);
-        let (tags, poll) = read_tags_and_poll(cx, &mut f, profile);
-        f.finish(cx);
-        let address = address?;
-        Some(Self {
+        let (blo, bhi) = BACKOFF_RANGE;
+        let (plo, phi) = PROBE_TIMEOUT_MIN_RANGE;
+        let (flo, fhi) = FULL_PROBE_EVERY_RANGE;
+        let (olo, ohi) = OFFLINE_AFTER_RANGE;
+        let mut device = Self {
             template: None,
             template_base: None,
             // A bad profile is reported above; generic stands in (it accepts every table).
             profile: profile.unwrap_or(Profile::GENERIC),
-            address,
-            unit_id: unit_id.unwrap_or(address),
+            address: address.unwrap_or_default(),
+            unit_id: unit_id.or(address).unwrap_or_default(),
+            offline_backoff_min: f.duration_or(
+                cx,
+                "offline_backoff_min",
+                blo..=bhi,
+                DEFAULT_OFFLINE_BACKOFF_MIN,
+                "",
+            ),
+            offline_backoff_max: f.duration_or(
+                cx,
+                "offline_backoff_max",
+                blo..=bhi,
+                DEFAULT_OFFLINE_BACKOFF_MAX,
+                "",
+            ),
+            probe_timeout_min: f.duration_or(
+                cx,
+                "probe_timeout_min",
+                plo..=phi,
+                DEFAULT_PROBE_TIMEOUT_MIN,
+                "003 6.4.2.1",
+            ),
+            full_probe_every: f.int_or(
+                cx,
+                "full_probe_every",
+                flo..=fhi,
+                DEFAULT_FULL_PROBE_EVERY,
+                "",
+            ),
+            offline_after: f.int_or(
+                cx,
+                "offline_after",
+                olo..=ohi,
+                DEFAULT_OFFLINE_AFTER,
+                "003 6.3.3",
+            ),
+            bridge_gap: f.int_or(cx, "bridge_gap", 0..=u16::MAX, DEFAULT_BRIDGE_GAP, ""),
+            scanner: read_scanner(cx, &mut f, profile, &limits),
             limits,
-            offline_backoff_min,
-            offline_backoff_max,
-            probe_timeout_min,
-            full_probe_every,
-            offline_after,
-            bridge_gap,
-            tags,
-            poll,
-            scanner,
-        })
+            tags: Vec::new(),
+            poll: Vec::new(),
+        };
+        (device.tags, device.poll) = read_tags_and_poll(cx, &mut f, profile);
+        f.finish(cx);
+        address?;
+        Some(device)
     }
 }
 

@@ -270,119 +270,127 @@ pub enum TokenSource {
     Env(String),
 }
 
+impl TokenSource {
+    /// The file when one is set, else the variable.
+    fn of(file: Option<&PathBuf>, env: Option<&String>) -> Option<Self> {
+        file.map(|f| Self::File(f.clone()))
+            .or_else(|| env.map(|e| Self::Env(e.clone())))
+    }
+}
+
 // === impl HttpConfig ===
 
 impl HttpConfig {
     /// Reads the `[http]` table: every key converted and checked, every problem with its path.
     pub(crate) fn read(cx: &mut Cx, mut f: Fields<'_>) -> Self {
-        let listen = f.parsed_or(
-            cx,
-            "listen",
-            "socket address (e.g. \"127.0.0.1:8080\")",
-            DEFAULT_HTTP_LISTEN,
-        );
-        let token_file = f.string(cx, "token_file").map(PathBuf::from);
-        let token_env = f.string(cx, "token_env");
-        let insecure_allow_unauthenticated_changes = f.bool_or(
-            cx,
-            "insecure_allow_unauthenticated_changes",
-            DEFAULT_INSECURE,
-        );
-        let (lo, hi) = BODY_LIMIT_RANGE;
-        let body_limit = f
-            .int::<u32>(cx, "body_limit", narrow(lo)..=narrow(hi), "")
-            .map_or(DEFAULT_BODY_LIMIT, u64::from);
-        let (lo, hi) = HTTP_REQUEST_TIMEOUT_RANGE;
-        let request_timeout = f.duration_or(
-            cx,
-            "request_timeout",
-            lo..=hi,
-            DEFAULT_HTTP_REQUEST_TIMEOUT,
-            "",
-        );
-        let (lo, hi) = HTTP_MAX_CONNECTIONS_RANGE;
-        let max_connections = f.int_or(
-            cx,
-            "max_connections",
-            lo..=hi,
-            DEFAULT_HTTP_MAX_CONNECTIONS,
-            "",
-        );
-        let max_connections_per_client = f.int_or(
-            cx,
-            "max_connections_per_client",
-            lo..=hi,
-            DEFAULT_HTTP_MAX_CONNECTIONS_PER_CLIENT,
-            "",
-        );
-        let (lo, hi) = HTTP_MAX_STREAMS_RANGE;
-        let max_streams = f.int_or(cx, "max_streams", lo..=hi, DEFAULT_HTTP_MAX_STREAMS, "");
-        let (lo, hi) = HTTP_IO_TIMEOUT_RANGE;
-        let write_timeout =
-            f.duration_or(cx, "write_timeout", lo..=hi, DEFAULT_HTTP_WRITE_TIMEOUT, "");
-        let header_read_timeout = f.duration_or(
-            cx,
-            "header_read_timeout",
-            lo..=hi,
-            DEFAULT_HTTP_HEADER_READ_TIMEOUT,
-            "",
-        );
-        let tls = f.table(cx, "tls").map(|t| HttpTlsConfig::read(cx, t));
-        let allowed_networks = networks(cx, &mut f, "allowed_networks", "10.0.0.0/8");
-        let monitoring_networks = networks(cx, &mut f, "monitoring_networks", "10.0.9.0/24");
-        if monitoring_networks.len() > HTTP_LIST_MAX {
-            cx.issue(
-                f.at("monitoring_networks"),
-                format!("at most {HTTP_LIST_MAX} networks"),
-            );
-        }
-        let hosts = hosts(cx, &mut f);
-        let tag_metrics = f.bool_or(cx, "tag_metrics", DEFAULT_TAG_METRICS);
-        let tag_metrics_filter = tag_metrics_filter(cx, &mut f);
+        let (blo, bhi) = BODY_LIMIT_RANGE;
+        let (rlo, rhi) = HTTP_REQUEST_TIMEOUT_RANGE;
+        let (clo, chi) = HTTP_MAX_CONNECTIONS_RANGE;
+        let (slo, shi) = HTTP_MAX_STREAMS_RANGE;
+        let (ilo, ihi) = HTTP_IO_TIMEOUT_RANGE;
+        let mut config = Self {
+            listen: f.parsed_or(
+                cx,
+                "listen",
+                "socket address (e.g. \"127.0.0.1:8080\")",
+                DEFAULT_HTTP_LISTEN,
+            ),
+            token_file: f.string(cx, "token_file").map(PathBuf::from),
+            token_env: f.string(cx, "token_env"),
+            insecure_allow_unauthenticated_changes: f.bool_or(
+                cx,
+                "insecure_allow_unauthenticated_changes",
+                DEFAULT_INSECURE,
+            ),
+            body_limit: f
+                .int::<u32>(cx, "body_limit", narrow(blo)..=narrow(bhi), "")
+                .map_or(DEFAULT_BODY_LIMIT, u64::from),
+            request_timeout: f.duration_or(
+                cx,
+                "request_timeout",
+                rlo..=rhi,
+                DEFAULT_HTTP_REQUEST_TIMEOUT,
+                "",
+            ),
+            max_connections: f.int_or(
+                cx,
+                "max_connections",
+                clo..=chi,
+                DEFAULT_HTTP_MAX_CONNECTIONS,
+                "",
+            ),
+            max_connections_per_client: f.int_or(
+                cx,
+                "max_connections_per_client",
+                clo..=chi,
+                DEFAULT_HTTP_MAX_CONNECTIONS_PER_CLIENT,
+                "",
+            ),
+            max_streams: f.int_or(cx, "max_streams", slo..=shi, DEFAULT_HTTP_MAX_STREAMS, ""),
+            write_timeout: f.duration_or(
+                cx,
+                "write_timeout",
+                ilo..=ihi,
+                DEFAULT_HTTP_WRITE_TIMEOUT,
+                "",
+            ),
+            header_read_timeout: f.duration_or(
+                cx,
+                "header_read_timeout",
+                ilo..=ihi,
+                DEFAULT_HTTP_HEADER_READ_TIMEOUT,
+                "",
+            ),
+            tls: f.table(cx, "tls").map(|t| HttpTlsConfig::read(cx, t)),
+            allowed_networks: networks(cx, &mut f, "allowed_networks", "10.0.0.0/8", usize::MAX),
+            monitoring_networks: networks(
+                cx,
+                &mut f,
+                "monitoring_networks",
+                "10.0.9.0/24",
+                HTTP_LIST_MAX,
+            ),
+            hosts: hosts(cx, &mut f),
+            tag_metrics: f.bool_or(cx, "tag_metrics", DEFAULT_TAG_METRICS),
+            tag_metrics_filter: tag_metrics_filter(cx, &mut f),
+            tokens: BTreeMap::new(),
+        };
         if f.has("token_file") && f.has("token_env") {
             cx.issue(f.at("token_env"), "set token_file or token_env, not both");
         }
-        check_token_place(cx, &f, token_file.as_ref(), token_env.as_ref());
-        let tokens = tokens(cx, &mut f);
+        check_token_place(
+            cx,
+            &f,
+            config.token_file.as_ref(),
+            config.token_env.as_ref(),
+        );
+        config.tokens = tokens(cx, &mut f);
         f.finish(cx);
-        Self {
-            listen,
-            token_file,
-            token_env,
-            insecure_allow_unauthenticated_changes,
-            body_limit,
-            request_timeout,
-            max_connections,
-            max_connections_per_client,
-            max_streams,
-            write_timeout,
-            header_read_timeout,
-            allowed_networks,
-            monitoring_networks,
-            hosts,
-            tag_metrics,
-            tag_metrics_filter,
-            tokens,
-            tls,
-        }
+        config
     }
 
     /// Where the token comes from, if anywhere.
     pub fn token_source(&self) -> Option<TokenSource> {
-        match (&self.token_file, &self.token_env) {
-            (Some(f), _) => Some(TokenSource::File(f.clone())),
-            (None, Some(e)) => Some(TokenSource::Env(e.clone())),
-            (None, None) => None,
-        }
+        TokenSource::of(self.token_file.as_ref(), self.token_env.as_ref())
     }
 }
 
-/// The networks of list `key`, each as `IpNet` (`example` in the message of one that is not).
-fn networks(cx: &mut Cx, f: &mut Fields<'_>, key: &'static str, example: &str) -> Vec<IpNet> {
+/// The networks of list `key`, each as `IpNet` (`example` in the message of one that is not),
+/// at most `max`.
+fn networks(
+    cx: &mut Cx,
+    f: &mut Fields<'_>,
+    key: &'static str,
+    example: &str,
+    max: usize,
+) -> Vec<IpNet> {
     let what = format!("network (e.g. \"{example}\")");
     let mut networks = Vec::new();
     for (path, v) in f.array(cx, key) {
         networks.extend(parsed_value::<IpNet>(cx, v, &path, &what));
+    }
+    if networks.len() > max {
+        cx.issue(f.at(key), format!("at most {max} networks"));
     }
     networks
 }
@@ -493,11 +501,7 @@ impl TokenConfig {
 
     /// Where the token comes from (the file when both are set, which the reader refuses).
     pub fn source(&self) -> Option<TokenSource> {
-        match (&self.token_file, &self.token_env) {
-            (Some(f), _) => Some(TokenSource::File(f.clone())),
-            (None, Some(e)) => Some(TokenSource::Env(e.clone())),
-            (None, None) => None,
-        }
+        TokenSource::of(self.token_file.as_ref(), self.token_env.as_ref())
     }
 }
 

@@ -45,22 +45,6 @@ fn is_default_monitor_frames(n: &u32) -> bool {
 /// The prefix of a port created by `gateway demo` (a pseudo-terminal), e.g. `pty:drive`.
 pub const PTY_PREFIX: &str = "pty:";
 
-pub fn default_baud() -> Baud {
-    DEFAULT_BAUD
-}
-pub fn default_data_bits() -> DataBits {
-    DEFAULT_DATA_BITS
-}
-pub fn default_parity() -> Parity {
-    DEFAULT_PARITY
-}
-pub fn default_stop_bits() -> StopBits {
-    DEFAULT_STOP_BITS
-}
-pub fn default_interface() -> Interface {
-    DEFAULT_INTERFACE
-}
-
 /// A baud rate the gateway supports: the CP 341's list (003 6.2.1: 300 ... 76800) widened by
 /// 150 and 115200: the gateway runs 150..115200 Bd, beyond the CP's 76800.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize)]
@@ -177,13 +161,6 @@ pub enum Interface {
     Rs422,
     /// RS485 two-wire half duplex (003 6.2.1 "Half-duplex (RS485)").
     Rs485,
-}
-
-impl Interface {
-    /// Whether sending and receiving can overlap.
-    pub fn is_full_duplex(self) -> bool {
-        !matches!(self, Self::Rs485)
-    }
 }
 
 /// The kernel RS485 settings (`struct serial_rs485`), used only with `interface = "rs485"`.

@@ -42,19 +42,6 @@ pub fn default_max_connections_per_client(max_connections: u32) -> u32 {
     max_connections.div_ceil(2).max(1)
 }
 
-pub fn default_listen() -> SocketAddr {
-    DEFAULT_LISTEN
-}
-pub fn default_max_connections() -> u32 {
-    DEFAULT_MAX_CONNECTIONS
-}
-pub fn default_idle_timeout() -> Duration {
-    DEFAULT_IDLE_TIMEOUT
-}
-pub fn default_request_timeout() -> Duration {
-    DEFAULT_REQUEST_TIMEOUT
-}
-
 /// Addresses of one unit that Modbus TCP clients may write.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct UnitRange {
@@ -187,48 +174,39 @@ impl ModbusTcpConfig {
             DEFAULT_MAX_CONNECTIONS,
             "",
         );
-        let max_connections_per_client = f.int_or(
-            cx,
-            "max_connections_per_client",
-            1..=MAX_MAX_CONNECTIONS,
-            default_max_connections_per_client(max_connections),
-            "",
-        );
-        let idle_timeout = f.duration_or(cx, "idle_timeout", ilo..=ihi, DEFAULT_IDLE_TIMEOUT, "");
-        let request_timeout = f.duration_or(
-            cx,
-            "request_timeout",
-            rlo..=rhi,
-            DEFAULT_REQUEST_TIMEOUT,
-            "",
-        );
-        let mut allowed_networks = Vec::new();
-        for (path, v) in f.array(cx, "allowed_networks") {
-            allowed_networks.extend(parsed_value::<IpNet>(
-                cx,
-                v,
-                &path,
-                "network (e.g. \"10.0.0.0/8\")",
-            ));
-        }
-        let read_only = f.bool_or(cx, "read_only", DEFAULT_READ_ONLY);
-        let write_ranges = unit_ranges(cx, &mut f);
-        let diagnostic_unit = f.int(cx, "diagnostic_unit", 1..=u8::MAX, "");
-        let tls = f.table(cx, "tls").map(|t| ModbusTlsConfig::read(cx, t));
-        f.finish(cx);
-        Self {
+        let config = Self {
             enabled,
             listen,
             max_connections,
-            max_connections_per_client,
-            idle_timeout,
-            request_timeout,
-            allowed_networks,
-            read_only,
-            write_ranges,
-            diagnostic_unit,
-            tls,
-        }
+            max_connections_per_client: f.int_or(
+                cx,
+                "max_connections_per_client",
+                1..=MAX_MAX_CONNECTIONS,
+                default_max_connections_per_client(max_connections),
+                "",
+            ),
+            idle_timeout: f.duration_or(cx, "idle_timeout", ilo..=ihi, DEFAULT_IDLE_TIMEOUT, ""),
+            request_timeout: f.duration_or(
+                cx,
+                "request_timeout",
+                rlo..=rhi,
+                DEFAULT_REQUEST_TIMEOUT,
+                "",
+            ),
+            allowed_networks: f
+                .array(cx, "allowed_networks")
+                .into_iter()
+                .filter_map(|(path, v)| {
+                    parsed_value::<IpNet>(cx, v, &path, "network (e.g. \"10.0.0.0/8\")")
+                })
+                .collect(),
+            read_only: f.bool_or(cx, "read_only", DEFAULT_READ_ONLY),
+            write_ranges: unit_ranges(cx, &mut f),
+            diagnostic_unit: f.int(cx, "diagnostic_unit", 1..=u8::MAX, ""),
+            tls: f.table(cx, "tls").map(|t| ModbusTlsConfig::read(cx, t)),
+        };
+        f.finish(cx);
+        config
     }
 }
 
@@ -247,16 +225,13 @@ impl ModbusTlsConfig {
                 .map(PathBuf::from)
                 .unwrap_or_default()
         };
-        let cert = file(cx, "cert");
-        let key = file(cx, "key");
-        let ca = file(cx, "ca");
+        let (cert, key, ca) = (file(cx, "cert"), file(cx, "key"), file(cx, "ca"));
         let mut roles = BTreeMap::new();
         for (name, path, v) in f.named_tables(cx, "roles") {
             check_name(cx, &path, &name);
-            let Some(t) = Fields::of(cx, v, path) else {
-                continue;
-            };
-            roles.insert(name, RoleConfig::read(cx, t));
+            if let Some(t) = Fields::of(cx, v, path) {
+                roles.insert(name, RoleConfig::read(cx, t));
+            }
         }
         f.finish(cx);
         Self {

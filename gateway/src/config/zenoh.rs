@@ -422,53 +422,40 @@ impl ZenohConfig {
                 .map_err(|e| cx.issue(f.at("prefix"), e))
                 .ok()
         });
-        let lease = f.duration(cx, "lease", MIN_LEASE..=MAX_LEASE, "");
-        let writes = f.bool_or(cx, "writes", DEFAULT_ZENOH_WRITES);
-        let config_file = f.string(cx, "config_file").map(PathBuf::from);
-        let mut queue = |key, default| {
-            f.int::<u32>(cx, key, 1..=u32::MAX, "")
-                .and_then(|n| usize::try_from(n).ok())
-                .map_or(nonzero(default), nonzero)
-        };
-        let telegram_queue = queue("telegram_queue", DEFAULT_TELEGRAM_QUEUE);
-        let event_queue = queue("event_queue", DEFAULT_EVENT_QUEUE);
-        let tag_queue = queue("tag_queue", DEFAULT_TAG_QUEUE);
-        let result_queue = queue("result_queue", DEFAULT_RESULT_QUEUE);
-        let command_queue = queue("command_queue", DEFAULT_COMMAND_QUEUE);
-        let query_queue = queue("query_queue", DEFAULT_QUERY_QUEUE);
-        let max_payload = f
-            .int::<u32>(
-                cx,
-                "max_payload",
-                1..=u32::try_from(MAX_MAX_PAYLOAD).unwrap_or(u32::MAX),
-                "",
-            )
-            .and_then(|n| usize::try_from(n).ok())
-            .map_or(nonzero(DEFAULT_MAX_PAYLOAD), nonzero);
-        let publish = f
-            .table(cx, "publish")
-            .map(|t| PublishConfig::read(cx, t))
-            .unwrap_or_default();
-        f.finish(cx);
-        Self {
+        let mut config = Self {
             enabled,
             mode,
             listen,
             connect,
             multicast_scouting,
             prefix,
-            lease,
-            writes,
-            config_file,
-            telegram_queue,
-            event_queue,
-            tag_queue,
-            result_queue,
-            command_queue,
-            query_queue,
-            max_payload,
-            publish,
+            lease: f.duration(cx, "lease", MIN_LEASE..=MAX_LEASE, ""),
+            writes: f.bool_or(cx, "writes", DEFAULT_ZENOH_WRITES),
+            config_file: f.string(cx, "config_file").map(PathBuf::from),
+            ..Self::default()
+        };
+        for (key, field, max) in [
+            ("telegram_queue", &mut config.telegram_queue, u32::MAX),
+            ("event_queue", &mut config.event_queue, u32::MAX),
+            ("tag_queue", &mut config.tag_queue, u32::MAX),
+            ("result_queue", &mut config.result_queue, u32::MAX),
+            ("command_queue", &mut config.command_queue, u32::MAX),
+            ("query_queue", &mut config.query_queue, u32::MAX),
+            (
+                "max_payload",
+                &mut config.max_payload,
+                MAX_MAX_PAYLOAD as u32,
+            ),
+        ] {
+            if let Some(n) = f.int::<u32>(cx, key, 1..=max, "") {
+                *field = nonzero(n as usize);
+            }
         }
+        if let Some(t) = f.table(cx, "publish") {
+            config.publish = PublishConfig::read(cx, t);
+        }
+        f.finish(cx);
+        config
     }
 }
 

@@ -31,7 +31,7 @@ use tokio::task::JoinHandle;
 use tokio_util::sync::CancellationToken;
 
 use super::SharedCpMemory;
-use crate::config::check::parent_dir;
+use crate::config::check::{create_and_remove, not_regular, parent_dir, takes_new_file};
 
 /// The first 8 bytes of a memory file.
 const MAGIC: &[u8; 8] = b"GWCPMEM1";
@@ -263,33 +263,26 @@ pub fn save_atomic(path: &Path, bytes: &[u8]) -> Result<(), PersistError> {
         path: path.to_owned(),
         source,
     };
-    let mut tmp_name = path.as_os_str().to_owned();
-    tmp_name.push(".tmp");
-    let tmp = PathBuf::from(tmp_name);
-    {
-        let mut file = std::fs::File::create(&tmp).map_err(io_err)?;
-        file.write_all(bytes).map_err(io_err)?;
-        file.sync_all().map_err(io_err)?;
-    }
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let mut file = std::fs::File::create(&tmp).map_err(io_err)?;
+    file.write_all(bytes).map_err(io_err)?;
+    file.sync_all().map_err(io_err)?;
+    drop(file);
     std::fs::rename(&tmp, path).map_err(io_err)?;
-    let dir = match path.parent() {
-        Some(dir) if !dir.as_os_str().is_empty() => dir,
-        _ => Path::new("."),
-    };
     // Directories open read-only on Unix; fsync makes the new entry durable.
-    std::fs::File::open(dir)
+    std::fs::File::open(parent_dir(path))
         .and_then(|d| d.sync_all())
         .map_err(io_err)
 }
 
 /// Why `path`, which is not a regular file, cannot be the memory file.
 fn not_a_file(path: &Path, meta: &std::fs::Metadata) -> String {
-    let kind = if meta.is_dir() {
-        "a directory"
-    } else {
-        "not a regular file (a device, pipe or socket)"
-    };
-    format!("{} is {kind}, not a CP memory file", path.display())
+    format!(
+        "{} is {}, not a CP memory file",
+        path.display(),
+        not_regular(meta)
+    )
 }
 
 /// Why a file without the header is refused.
@@ -313,15 +306,6 @@ fn foreign(path: &Path) -> String {
 pub fn probe(path: &Path) -> Result<(), String> {
     use std::io::Read as _;
     let shown = path.display();
-    let create_and_remove = |p: &Path| {
-        drop(
-            std::fs::OpenOptions::new()
-                .write(true)
-                .create_new(true)
-                .open(p)?,
-        );
-        std::fs::remove_file(p)
-    };
     match std::fs::metadata(path) {
         Ok(meta) if !meta.is_file() => Err(not_a_file(path, &meta)),
         Ok(_) => {
@@ -332,11 +316,7 @@ pub fn probe(path: &Path) -> Result<(), String> {
             if !head.is_empty() && head != MAGIC {
                 return Err(foreign(path));
             }
-            let mut probe_name = path.as_os_str().to_owned();
-            probe_name.push(format!(".probe-{}", std::process::id()));
-            create_and_remove(Path::new(&probe_name)).map_err(|e| {
-                format!("the directory of {shown} takes no new file (a save writes one): {e}")
-            })
+            takes_new_file(path, "a save")
         }
         Err(e) if e.kind() == io::ErrorKind::NotFound => {
             create_and_remove(path).map_err(|e| format!("cannot create {shown}: {e}"))
@@ -359,32 +339,24 @@ impl SharedCpMemory {
                 return Err(PersistError::Foreign(not_a_file(path, &meta)));
             }
         }
-        let bytes = match std::fs::read(path) {
-            Ok(bytes) if !bytes.is_empty() && !bytes.starts_with(MAGIC) => {
-                return Err(PersistError::Foreign(foreign(path)));
-            }
-            Ok(bytes) if bytes.is_empty() => {
-                let report = LoadReport {
-                    status: LoadStatus::NoFile,
-                    differences: Vec::new(),
-                };
-                return Ok((Self::new(layout), report));
-            }
-            Ok(bytes) => bytes,
-            Err(err) if err.kind() == io::ErrorKind::NotFound => {
-                let report = LoadReport {
-                    status: LoadStatus::NoFile,
-                    differences: Vec::new(),
-                };
-                return Ok((Self::new(layout), report));
-            }
-            Err(source) => {
-                return Err(PersistError::Io {
-                    path: path.to_owned(),
-                    source,
-                })
-            }
+        let io_err = |source| PersistError::Io {
+            path: path.to_owned(),
+            source,
         };
+        let bytes = match std::fs::read(path) {
+            Err(err) if err.kind() == io::ErrorKind::NotFound => Vec::new(),
+            read => read.map_err(io_err)?,
+        };
+        if bytes.is_empty() {
+            let report = LoadReport {
+                status: LoadStatus::NoFile,
+                differences: Vec::new(),
+            };
+            return Ok((Self::new(layout), report));
+        }
+        if !bytes.starts_with(MAGIC) {
+            return Err(PersistError::Foreign(foreign(path)));
+        }
         match decode(&layout, &bytes) {
             Ok((memory, differences)) => {
                 for difference in &differences {
@@ -400,10 +372,7 @@ impl SharedCpMemory {
                 let mut moved = path.as_os_str().to_owned();
                 moved.push(".corrupt");
                 let moved_to = PathBuf::from(moved);
-                std::fs::rename(path, &moved_to).map_err(|source| PersistError::Io {
-                    path: path.to_owned(),
-                    source,
-                })?;
+                std::fs::rename(path, &moved_to).map_err(io_err)?;
                 tracing::error!(path = %path.display(), moved_to = %moved_to.display(), error = %err, "memory file damaged; starting with zeroed memory");
                 let report = LoadReport {
                     status: LoadStatus::Corrupt {

@@ -54,6 +54,8 @@ use std::io::{self, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
+use crate::config::check::{create_and_remove, not_regular, parent_dir, takes_new_file};
+
 /// The first bytes of every journal (name and format version 01).
 pub const MAGIC: &[u8; 8] = b"GWMBXJ01";
 /// Bytes a record adds to its payload: length (4), kind (1), CRC (4).
@@ -253,22 +255,14 @@ impl Replayed {
     pub fn from_bytes(bytes: &[u8]) -> Self {
         let mut out = Self::default();
         let total = bytes.len() as u64;
-        if bytes.len() < MAGIC.len() {
-            if !MAGIC.starts_with(bytes) {
-                out.loss = Some(Loss {
-                    offset: 0,
-                    bytes: total,
-                    reason: "not a journal",
-                });
-            }
-            return out;
-        }
-        if &bytes[..MAGIC.len()] != MAGIC {
+        if !MAGIC.starts_with(&bytes[..bytes.len().min(MAGIC.len())]) {
             out.loss = Some(Loss {
                 offset: 0,
                 bytes: total,
                 reason: "not a journal",
             });
+        }
+        if out.loss.is_some() || bytes.len() < MAGIC.len() {
             return out;
         }
         let mut at = MAGIC.len();
@@ -345,27 +339,23 @@ impl Journal {
     ///
     /// The file is not a journal, or cannot be read, created or written.
     pub fn open(path: &Path) -> Result<(Self, Replayed), JournalError> {
-        let err = |step| {
-            let path = path.to_owned();
-            move |source| JournalError { path, step, source }
-        };
         // A FIFO or a device would block or be written to: only a regular file is opened.
         match fs::metadata(path) {
             Ok(meta) if !meta.is_file() => {
-                return Err(err("open")(not_a_journal(kind_of(&meta))));
+                return Err(err(path, "open")(not_a_journal(not_regular(&meta))));
             }
             _ => {}
         }
         let mut bytes = Vec::new();
         match File::open(path) {
             Ok(mut f) => {
-                f.read_to_end(&mut bytes).map_err(err("read"))?;
+                f.read_to_end(&mut bytes).map_err(err(path, "read"))?;
             }
             Err(e) if e.kind() == io::ErrorKind::NotFound => {}
-            Err(e) => return Err(err("open")(e)),
+            Err(e) => return Err(err(path, "open")(e)),
         }
         if let Err(why) = header_check(&bytes) {
-            return Err(err("check the header")(not_a_journal(&why)));
+            return Err(err(path, "check the header")(not_a_journal(&why)));
         }
         // A compaction that a crash interrupted leaves its temporary file: never read.
         let _ = fs::remove_file(temp_path(path));
@@ -377,18 +367,19 @@ impl Journal {
             .write(true)
             .truncate(false)
             .open(path)
-            .map_err(err("open"))?;
+            .map_err(err(path, "open"))?;
         let mut size = replayed.readable_len(total).min(total);
         if size < MAGIC.len() as u64 {
-            file.set_len(0).map_err(err("truncate"))?;
-            file.write_all(MAGIC).map_err(err("write"))?;
+            file.set_len(0).map_err(err(path, "truncate"))?;
+            file.write_all(MAGIC).map_err(err(path, "write"))?;
             size = MAGIC.len() as u64;
         } else if size < total {
-            file.set_len(size).map_err(err("truncate"))?;
+            file.set_len(size).map_err(err(path, "truncate"))?;
         }
-        file.seek(SeekFrom::Start(size)).map_err(err("seek"))?;
-        file.sync_all().map_err(err("sync"))?;
-        sync_dir(path).map_err(err("sync directory"))?;
+        file.seek(SeekFrom::Start(size))
+            .map_err(err(path, "seek"))?;
+        file.sync_all().map_err(err(path, "sync"))?;
+        sync_dir(path).map_err(err(path, "sync directory"))?;
         let live = replayed.telegrams.iter().map(telegram_record_len).sum();
         Ok((
             Self {
@@ -517,10 +508,6 @@ fn write_whole<'a>(
     waiting: impl Iterator<Item = &'a JournaledTelegram>,
 ) -> Result<(File, u64, u64), JournalError> {
     let temp = temp_path(path);
-    let err = |step| {
-        let path = path.to_owned();
-        move |source| JournalError { path, step, source }
-    };
     let mut bytes = MAGIC.to_vec();
     Record::State {
         last_seq,
@@ -538,13 +525,13 @@ fn write_whole<'a>(
         .truncate(true)
         .read(true)
         .open(&temp)
-        .map_err(err("create the compacted file"))?;
+        .map_err(err(path, "create the compacted file"))?;
     file.write_all(&bytes)
         .and_then(|()| file.sync_all())
-        .map_err(err("write the compacted file"))?;
-    fs::rename(&temp, path).map_err(err("rename the compacted file"))?;
-    sync_dir(path).map_err(err("sync directory"))?;
-    file.seek(SeekFrom::End(0)).map_err(err("seek"))?;
+        .map_err(err(path, "write the compacted file"))?;
+    fs::rename(&temp, path).map_err(err(path, "rename the compacted file"))?;
+    sync_dir(path).map_err(err(path, "sync directory"))?;
+    file.seek(SeekFrom::End(0)).map_err(err(path, "seek"))?;
     Ok((file, bytes.len() as u64, live))
 }
 
@@ -571,21 +558,18 @@ pub fn header_check(bytes: &[u8]) -> Result<(), String> {
     )
 }
 
+/// The error of `step` on the journal at `path`.
+fn err(path: &Path, step: &'static str) -> impl FnOnce(io::Error) -> JournalError {
+    let path = path.to_owned();
+    move |source| JournalError { path, step, source }
+}
+
 /// The error of a file that is not a journal.
 fn not_a_journal(why: &str) -> io::Error {
     io::Error::new(
         io::ErrorKind::InvalidData,
         format!("not a journal: {why}; the file is left as it is"),
     )
-}
-
-/// What a path that is not a regular file is.
-fn kind_of(meta: &fs::Metadata) -> &'static str {
-    if meta.is_dir() {
-        "a directory"
-    } else {
-        "not a regular file (a device, pipe or socket)"
-    }
 }
 
 /// What the start check found at a journal's path.
@@ -619,9 +603,10 @@ pub struct Probe {
 pub fn probe(path: &Path) -> Result<Probe, String> {
     let shown = path.display();
     match fs::metadata(path) {
-        Ok(meta) if !meta.is_file() => {
-            Err(format!("{shown} is {}, not a journal file", kind_of(&meta)))
-        }
+        Ok(meta) if !meta.is_file() => Err(format!(
+            "{shown} is {}, not a journal file",
+            not_regular(&meta)
+        )),
         Ok(_) => {
             let mut file = OpenOptions::new()
                 .read(true)
@@ -642,11 +627,7 @@ pub fn probe(path: &Path) -> Result<Probe, String> {
             file.read_to_end(&mut bytes)
                 .map_err(|e| format!("cannot read {shown}: {e}"))?;
             let replayed = Replayed::from_bytes(&bytes);
-            let mut probe_name = path.as_os_str().to_owned();
-            probe_name.push(format!(".probe-{}", std::process::id()));
-            create_and_remove(Path::new(&probe_name)).map_err(|e| {
-                format!("the directory of {shown} takes no new file (a compaction writes one): {e}")
-            })?;
+            takes_new_file(path, "a compaction")?;
             Ok(Probe {
                 exists: true,
                 waiting: replayed.telegrams.len(),
@@ -656,10 +637,7 @@ pub fn probe(path: &Path) -> Result<Probe, String> {
         Err(e) if e.kind() == io::ErrorKind::NotFound => match create_and_remove(path) {
             Ok(()) => Ok(Probe::default()),
             Err(e) if e.kind() == io::ErrorKind::NotFound => {
-                let dir = match path.parent() {
-                    Some(p) if !p.as_os_str().is_empty() => p,
-                    _ => Path::new("."),
-                };
+                let dir = parent_dir(path);
                 if dir.is_dir() {
                     // A directory that takes no files of this kind (/proc answers ENOENT).
                     Err(format!("cannot create {shown}: {e}"))
@@ -676,12 +654,6 @@ pub fn probe(path: &Path) -> Result<Probe, String> {
     }
 }
 
-/// Creates `path` (which must not exist) and removes it again.
-fn create_and_remove(path: &Path) -> io::Result<()> {
-    drop(OpenOptions::new().write(true).create_new(true).open(path)?);
-    fs::remove_file(path)
-}
-
 /// Writes a journal at `path` that holds `waiting` and the counters: the telegrams a line
 /// carries into a new journal when its `journal` path changes. A file already at `path` must
 /// be a journal (or empty) with no telegram waiting; it is replaced as a compaction replaces it
@@ -696,25 +668,24 @@ pub fn take_over(
     last_acked: u16,
     waiting: &[JournaledTelegram],
 ) -> Result<(), JournalError> {
-    let err = |step| {
-        let path = path.to_owned();
-        move |source| JournalError { path, step, source }
-    };
     match fs::metadata(path) {
-        Ok(meta) if !meta.is_file() => return Err(err("open")(not_a_journal(kind_of(&meta)))),
+        Ok(meta) if !meta.is_file() => {
+            return Err(err(path, "open")(not_a_journal(not_regular(&meta))))
+        }
         Ok(_) => {
-            let bytes = fs::read(path).map_err(err("read"))?;
-            header_check(&bytes).map_err(|why| err("check the header")(not_a_journal(&why)))?;
+            let bytes = fs::read(path).map_err(err(path, "read"))?;
+            header_check(&bytes)
+                .map_err(|why| err(path, "check the header")(not_a_journal(&why)))?;
             let own = Replayed::from_bytes(&bytes).telegrams.len();
             if own > 0 {
-                return Err(err("take over")(io::Error::new(
+                return Err(err(path, "take over")(io::Error::new(
                     io::ErrorKind::AlreadyExists,
                     format!("{own} telegrams of an earlier use wait in it"),
                 )));
             }
         }
         Err(e) if e.kind() == io::ErrorKind::NotFound => {}
-        Err(e) => return Err(err("open")(e)),
+        Err(e) => return Err(err(path, "open")(e)),
     }
     write_whole(path, last_seq, last_acked, waiting.iter()).map(drop)
 }
@@ -755,11 +726,7 @@ fn temp_path(path: &Path) -> PathBuf {
 
 /// Flushes the directory of `path`, so that a created or renamed file survives a power loss.
 fn sync_dir(path: &Path) -> io::Result<()> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    File::open(dir)?.sync_all()
+    File::open(parent_dir(path))?.sync_all()
 }
 
 #[cfg(test)]

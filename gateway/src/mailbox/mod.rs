@@ -176,6 +176,17 @@ pub struct TelegramRx {
     pub side: Option<proto_core::proc3964::tap::Side>,
 }
 
+impl TelegramRx {
+    /// The telegram as a journal keeps it (and a replaced line carries it).
+    fn journaled(&self) -> JournaledTelegram {
+        JournaledTelegram {
+            seq: self.seq,
+            received: self.received,
+            data: self.data.to_vec(),
+        }
+    }
+}
+
 /// What became of a telegram handed to the mailbox.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Delivery {
@@ -394,15 +405,7 @@ impl Mailbox {
     pub fn carry(&self) -> Carried {
         let state = self.lock();
         Carried {
-            telegrams: state
-                .queue
-                .iter()
-                .map(|t| JournaledTelegram {
-                    seq: t.seq,
-                    received: t.received,
-                    data: t.data.to_vec(),
-                })
-                .collect(),
+            telegrams: state.queue.iter().map(TelegramRx::journaled).collect(),
             last_seq: state.last_seq,
             last_acked: state.last_acked,
             journal: state.journal.as_ref().map(|j| j.path().to_owned()),
@@ -435,15 +438,8 @@ impl Mailbox {
         let Some(journal) = state.journal.as_mut() else {
             return;
         };
-        let waiting: Vec<JournaledTelegram> = state
-            .queue
-            .iter()
-            .map(|t| JournaledTelegram {
-                seq: t.seq,
-                received: t.received,
-                data: t.data.to_vec(),
-            })
-            .collect();
+        let waiting: Vec<JournaledTelegram> =
+            state.queue.iter().map(TelegramRx::journaled).collect();
         if let Err(e) = journal.compact(state.last_seq, state.last_acked, waiting.iter()) {
             crate::warn_limited!(
                 format!("journal compaction {}", journal.path().display()),
@@ -592,18 +588,18 @@ impl Mailbox {
         let delivery = if state.queue.len() < self.settings.queue_depth {
             state.queue.push_back(telegram.clone());
             Delivery::Kept { seq }
-        } else if self.settings.overflow == Overflow::DropOldest {
-            let old = state.queue.pop_front();
-            let dropped = old.as_ref().map_or(0, |t| t.seq);
-            removed = old;
+        } else if matches!(
+            self.settings.overflow,
+            Overflow::DropOldest | Overflow::Overwrite
+        ) {
+            removed = state.queue.pop_front();
+            let old = removed.as_ref().map_or(0, |t| t.seq);
             state.queue.push_back(telegram.clone());
-            Delivery::DroppedOldest { seq, dropped }
-        } else if self.settings.overflow == Overflow::Overwrite {
-            let old = state.queue.pop_front();
-            let replaced = old.as_ref().map_or(0, |t| t.seq);
-            removed = old;
-            state.queue.push_back(telegram.clone());
-            Delivery::Overwritten { seq, replaced }
+            if self.settings.overflow == Overflow::DropOldest {
+                Delivery::DroppedOldest { seq, dropped: old }
+            } else {
+                Delivery::Overwritten { seq, replaced: old }
+            }
         } else {
             Delivery::DroppedNew { seq }
         };

@@ -10,7 +10,7 @@
 use std::path::{Path, PathBuf};
 
 use super::Config;
-use crate::config::check::{confine, inside, parent_dir, resolved, Check};
+use crate::config::check::{confine, inside, issue, parent_dir, resolved, Check};
 use crate::config::{no_such_port, PTY_PREFIX};
 use crate::config::{ConfigIssue, Cx};
 use crate::cpmem::persist::{missing_dir, probe};
@@ -184,13 +184,11 @@ fn persist_file_issues(config: &Config) -> Vec<ConfigIssue> {
     if missing_dir(path) {
         return Vec::new();
     }
-    match probe(path) {
-        Ok(()) => Vec::new(),
-        Err(message) => vec![ConfigIssue {
-            path: PERSIST_KEY.to_owned(),
-            message,
-        }],
-    }
+    probe(path)
+        .err()
+        .map(|m| issue(PERSIST_KEY, m))
+        .into_iter()
+        .collect()
 }
 
 /// Whether a line of `config` serves the CP memory.
@@ -204,15 +202,15 @@ fn serves_memory(config: &Config) -> bool {
 /// `gateway check`'s warning about a CP memory file whose directory does not exist (yet).
 pub(crate) fn persist_dir_warnings(config: &Config) -> Vec<ConfigIssue> {
     match &config.cp_memory.persist_file {
-        Some(path) if serves_memory(config) && missing_dir(path) => vec![ConfigIssue {
-            path: PERSIST_KEY.to_owned(),
-            message: format!(
+        Some(path) if serves_memory(config) && missing_dir(path) => vec![issue(
+            PERSIST_KEY,
+            format!(
                 "the directory {} does not exist: the memory starts zeroed and every save fails \
                  (logged) until it exists (systemd's StateDirectory= makes it when the service \
                  starts)",
                 parent_dir(path).display()
             ),
-        }],
+        )],
         _ => Vec::new(),
     }
 }
@@ -230,10 +228,7 @@ pub(crate) fn config_issues(config: &Config, found: &[ConfigIssue]) -> Vec<Confi
             let key = format!("lines.{name}.{}", issue.key);
             let known = |i: &ConfigIssue| i.path.starts_with(&key);
             if !found.iter().any(known) && !issues.iter().any(known) {
-                issues.push(ConfigIssue {
-                    path: key,
-                    message: issue.message,
-                });
+                issues.push(self::issue(key, issue.message));
             }
         }
     }

@@ -223,10 +223,6 @@ pub fn open(settings: &PortSettings) -> Result<SerialStream, OpenError> {
     let port = builder(settings)
         .open_native_async()
         .map_err(|source| open_error(settings, source))?;
-    uart::mark_line_errors(&port).map_err(|source| OpenError::Flags {
-        path: settings.path.clone(),
-        source,
-    })?;
     set_interface(&port, settings)?;
     Ok(port)
 }
@@ -237,10 +233,6 @@ pub fn probe(settings: &PortSettings) -> Result<(), OpenError> {
     let port = builder(settings)
         .open_native()
         .map_err(|source| open_error(settings, source))?;
-    uart::mark_line_errors(&port).map_err(|source| OpenError::Flags {
-        path: settings.path.clone(),
-        source,
-    })?;
     set_interface(&port, settings)
 }
 
@@ -286,11 +278,16 @@ pub(crate) fn builder(settings: &PortSettings) -> tokio_serial::SerialPortBuilde
         .flow_control(tokio_serial::FlowControl::None)
 }
 
-/// Switches the kernel's RS485 mode on when the settings ask for it.
+/// Sets the input flags that keep line errors in the stream and switches the kernel's RS485 mode
+/// on when the settings ask for it.
 fn set_interface(
     port: &impl std::os::fd::AsRawFd,
     settings: &PortSettings,
 ) -> Result<(), OpenError> {
+    uart::mark_line_errors(port).map_err(|source| OpenError::Flags {
+        path: settings.path.clone(),
+        source,
+    })?;
     if let Interface::Rs485(rs485) = settings.interface {
         rs485::enable(
             port,
