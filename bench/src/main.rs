@@ -89,7 +89,7 @@ pub(crate) fn monitor_frames() -> usize {
 enum Group {
     /// Poll rate against the best case (16 rows and the t3.5 row).
     Poll,
-    /// One dead device among ten.
+    /// One dead device among ten, three among nine.
     Dead,
     /// Cached Modbus TCP reads against the bare server.
     Tcp,
@@ -265,10 +265,16 @@ async fn run(args: &Args) -> Vec<Row> {
             (Duration::from_millis(200), false),
             (Duration::from_secs(2), true),
         ] {
-            match dead::dead_device(&plan, timeout, recover).await {
+            match dead::dead_device(&plan, dead::ONE_OF_TEN, timeout, recover).await {
                 Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
                 Err(e) => push(&mut rows, failed("1 dead device of 10", e)),
             }
+        }
+        eprintln!("three dead devices among nine");
+        let timeout = gateway::protocols::DEFAULT_REPLY_TIMEOUT;
+        match dead::dead_device(&plan, dead::THREE_OF_NINE, timeout, false).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(&mut rows, failed("3 dead devices of 9", e)),
         }
     }
     if wanted(Group::Tcp) {

@@ -153,6 +153,99 @@ fn example_contains_every_key() {
     );
 }
 
+/// The example's commented keys made live as the comments beside them say ("remove the leading
+/// `# `"), as (what, candidate texts): a key in a live table alone, or else together with the
+/// commented keys of its comment run (`transparent_units` needs `transparent`); a key in a
+/// commented-out table with its whole block, from the first `# [table]` line of its comment run to
+/// the run's end.
+fn example_with_comments_made_live() -> Vec<(String, Vec<String>)> {
+    let lines: Vec<&str> = EXAMPLE.lines().collect();
+    let is_key = |l: &str| {
+        l.strip_prefix("# ").is_some_and(|rest| {
+            rest.split_once(" = ").is_some_and(|(k, _)| {
+                !k.is_empty() && k.chars().all(|c| c.is_ascii_lowercase() || c == '_')
+            }) && rest.parse::<toml::Table>().is_ok() // not prose such as "value = raw * scale"
+        })
+    };
+    let is_dead_header = |l: &str| {
+        l.strip_prefix("# ").is_some_and(|r| {
+            let r = r.split(" #").next().unwrap_or(r).trim_end();
+            r.starts_with('[')
+                && r.ends_with(']')
+                && r.trim_matches(['[', ']'])
+                    .chars()
+                    .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '.')
+        })
+    };
+    let live = |from: usize, to: usize, only: Option<usize>| -> String {
+        let mut out: Vec<&str> = lines.clone();
+        for (k, line) in out.iter_mut().enumerate().take(to).skip(from) {
+            if only.is_none_or(|o| o == k) && (only.is_some() || line.starts_with('#')) {
+                *line = line.strip_prefix("# ").unwrap_or(&line[1..]);
+            }
+        }
+        out.join("\n")
+    };
+    let mut seen_blocks = BTreeSet::new();
+    let mut out = Vec::new();
+    for (i, line) in lines.iter().enumerate() {
+        if !is_key(line) {
+            continue;
+        }
+        let mut start = i;
+        while start > 0 && lines[start - 1].starts_with('#') {
+            start -= 1;
+        }
+        let mut end = i;
+        while end < lines.len() && lines[end].starts_with('#') {
+            end += 1;
+        }
+        match (start..i).find(|&h| is_dead_header(lines[h])) {
+            Some(h) => {
+                if seen_blocks.insert(h) {
+                    let what = format!("the block {} (line {})", lines[h], h + 1);
+                    out.push((what, vec![live(h, end, None)]));
+                }
+            }
+            None => {
+                let keys_of_run = {
+                    let mut out: Vec<&str> = lines.clone();
+                    for line in out.iter_mut().take(end).skip(start) {
+                        if is_key(line) {
+                            *line = &line[2..];
+                        }
+                    }
+                    out.join("\n")
+                };
+                let what = format!("{} (line {})", &line[2..], i + 1);
+                out.push((what, vec![live(i, i + 1, Some(i)), keys_of_run]));
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn every_commented_key_of_the_example_is_valid_where_it_stands() {
+    let found = example_with_comments_made_live();
+    assert!(
+        found.len() >= 16,
+        "only {} commented keys or blocks",
+        found.len()
+    );
+    let failed: Vec<String> = found
+        .iter()
+        .filter_map(|(what, texts)| {
+            let errors: Vec<String> = texts
+                .iter()
+                .filter_map(|t| gateway::plant::parse(t).err().map(|e| e.to_string()))
+                .collect();
+            (errors.len() == texts.len()).then(|| format!("{what}: {}", errors.join(" / ")))
+        })
+        .collect();
+    assert!(failed.is_empty(), "{failed:#?}");
+}
+
 #[test]
 fn configs_changed_in_code_are_checked_by_the_same_rules() {
     let mut c = gateway::plant::demo();
