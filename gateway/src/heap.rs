@@ -1,7 +1,8 @@
-//! Handing freed heap memory back to the kernel once the gateway has started.
+//! Handing freed heap memory back to the kernel once the gateway has started, and after each
+//! SIGHUP re-read and REST change of the configuration.
 //!
-//! Reading the configuration builds the whole TOML document in memory (for 10 000 tags, a file
-//! of 600 KB, several MiB of small allocations) and drops it once the config is read. glibc's
+//! Reading the configuration builds TOML tables in memory (one line's at a time, `plant::parse`;
+//! a REST change whole documents) and drops them once the config is read. glibc's
 //! malloc keeps what was freed for later allocations and returns memory to the kernel only from
 //! the top of its heap; the document's pages lie under the config, the lines and the image that
 //! were allocated after it, so they would stay resident for the life of the process (7 MiB of the

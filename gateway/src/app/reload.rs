@@ -64,6 +64,8 @@ pub(crate) async fn reload(sup: &Arc<Supervisor>) {
             }
         }
     }
+    // What the re-read freed (the file's text, the configuration replaced) goes back.
+    crate::heap::release_free_memory();
     sup.reload.notify();
 }
 

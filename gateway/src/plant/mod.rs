@@ -7,18 +7,20 @@
 //!
 //! # How it reads
 //!
-//! [`parse`] reads the TOML into a `toml::Table` (a syntax error is one issue with line and
-//! column), then walks it table by table with one reader (`config::reader::Fields`): each key is
-//! converted to its domain type (`SocketAddr`, `IpNet`, `Duration` through humantime, enums,
-//! [`Baud`](crate::config::Baud), zenoh endpoints and key prefixes) and checked against the
-//! manual's range; keys nobody asked for are refused with their path. A bad value is reported and
-//! replaced by its default so that the walk goes on; then `validate::check` runs the checks that
-//! span several keys. Every problem is a [`ConfigIssue`] with its path. This is what serde's
-//! `deny_unknown_fields` would give, but with every problem of the file in one answer instead of
-//! the first one, and with the flat line tables (`port`, `baud` and the protocol's parameters
-//! side by side) that `#[serde(flatten)]` cannot combine with `deny_unknown_fields`. Serializing
-//! uses serde (`toml::to_string(&config)`), and parsing the output gives the same `Config` back;
-//! deserializing a [`Config`] with serde goes through the same reader.
+//! [`parse`] reads the TOML into `toml::Table`s (a syntax error is one issue with line and
+//! column): the tables outside `lines`, then each line's in turn, parsed from its own pieces of
+//! the text and dropped once read (`read_text`: a whole document at once takes some 40 times its
+//! text for a moment), and walks them table by table with one reader (`config::reader::Fields`):
+//! each key is converted to its domain type (`SocketAddr`, `IpNet`, `Duration` through
+//! humantime, enums, [`Baud`](crate::config::Baud), zenoh endpoints and key prefixes) and checked
+//! against the manual's range; keys nobody asked for are refused with their path. A bad value is
+//! reported and replaced by its default so that the walk goes on; then `validate::check` runs the
+//! checks that span several keys. Every problem is a [`ConfigIssue`] with its path. This is what
+//! serde's `deny_unknown_fields` would give, but with every problem of the file in one answer
+//! instead of the first one, and with the flat line tables (`port`, `baud` and the protocol's
+//! parameters side by side) that `#[serde(flatten)]` cannot combine with `deny_unknown_fields`.
+//! Serializing uses serde (`toml::to_string(&config)`), and parsing the output gives the same
+//! `Config` back; deserializing a [`Config`] with serde goes through the same reader.
 //!
 //! Checks that need another part of the gateway (whether the CP memory can serve a slave line
 //! exactly) are the app's: it passes them as an [`ExtraCheck`] to [`load_with`], [`parse_with`] or
@@ -28,6 +30,7 @@ pub(crate) mod check;
 pub mod validate;
 
 use std::collections::BTreeMap;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Deserializer, Serialize};
@@ -109,12 +112,14 @@ impl Config {
         table: &toml::Table,
         check: ExtraCheck<'_>,
     ) -> Result<Self, ConfigErrors> {
-        Self::from_table_in(table, check, BASE_DIR.get().cloned())
+        Self::from_table_in(table, None, check, BASE_DIR.get().cloned())
     }
 
-    /// [`Self::from_table_with`], relative template directories taken from `base_dir`.
+    /// [`Self::from_table_with`], relative template directories taken from `base_dir`; the
+    /// lines from `pieces` when given (`table` has none then).
     fn from_table_in(
         table: &toml::Table,
+        pieces: Option<Pieces<'_>>,
         check: ExtraCheck<'_>,
         base_dir: Option<PathBuf>,
     ) -> Result<Self, ConfigErrors> {
@@ -122,7 +127,7 @@ impl Config {
             base_dir,
             ..Cx::default()
         };
-        let config = read_root(&mut cx, table);
+        let config = read_root(&mut cx, table, pieces)?;
         validate::check(&mut cx, &config);
         let more = check(&config, &cx.issues);
         cx.issues.extend(more);
@@ -144,7 +149,12 @@ impl<'de> Deserialize<'de> for Config {
     }
 }
 
-fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
+/// The root table read; a line's piece that does not parse is the document's syntax error.
+fn read_root(
+    cx: &mut Cx,
+    table: &toml::Table,
+    pieces: Option<Pieces<'_>>,
+) -> Result<Config, ConfigErrors> {
     let mut root = Fields::new(table, String::new());
     let gateway = match root.table(cx, "gateway") {
         None => GatewaySection::default(),
@@ -204,7 +214,23 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
     };
     let templates = template::read_templates(cx, root.raw("templates"), &gateway.template_dirs);
     let mut lines = BTreeMap::new();
-    if table.get("lines").is_some_and(toml::Value::is_array) {
+    if let Some(Pieces { text, lines: cut }) = pieces {
+        let _ = root.raw("lines");
+        for (name, ranges) in cut {
+            let piece: String = ranges.into_iter().map(|r| &text[r]).collect();
+            // The whole text fails as its piece does, and says where in the file.
+            let parsed = piece.parse::<toml::Table>().map_err(|e| {
+                parse_whole(text)
+                    .err()
+                    .unwrap_or_else(|| syntax_errors(&piece, &e))
+            })?;
+            let path = reader::join("lines", &name);
+            let value = parsed.get("lines").and_then(|l| l.get(&name));
+            if let Some(line) = value.and_then(|v| LineConfig::read(cx, &name, &path, v)) {
+                lines.insert(name, line);
+            }
+        }
+    } else if table.get("lines").is_some_and(toml::Value::is_array) {
         let _ = root.raw("lines");
         cx.issue(
             "lines",
@@ -218,7 +244,7 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         }
     }
     root.finish(cx);
-    Config {
+    Ok(Config {
         gateway,
         modbus_tcp,
         cp_memory,
@@ -226,7 +252,98 @@ fn read_root(cx: &mut Cx, table: &toml::Table) -> Config {
         http,
         lines,
         templates,
+    })
+}
+
+/// A configuration's text with each line's tables (`[lines.NAME]`, `[lines.NAME.devices.D]`,
+/// `[[lines.NAME.devices.D.poll]]` ...) cut out, by line name: where they are in `text`.
+struct Pieces<'t> {
+    text: &'t str,
+    lines: LineRanges,
+}
+
+/// Where each line's tables are in a text, by line name.
+type LineRanges = BTreeMap<String, Vec<Range<usize>>>;
+
+/// Reads a configuration's text. Parsing a whole TOML document takes some 40 times its size for
+/// a moment (every token, every parser event, then the tables: 290 MiB for the 6 MB of 100 000
+/// tags), so the text is first cut ([`cut`]) into the tables outside `lines` and each line's
+/// tables, and each line is parsed, read and dropped in turn. That reads as the whole document
+/// would: the pieces are the document's own statements, in its order, and no two of them can
+/// define the same table. What does not cut or parse so (`[lines]` written as one table, a
+/// syntax error) is parsed whole, as it always was, for the same answer and the same message.
+fn read_text(
+    text: &str,
+    check: ExtraCheck<'_>,
+    base_dir: Option<PathBuf>,
+) -> Result<Config, ConfigErrors> {
+    let cut = cut(text).and_then(|(rest, lines)| {
+        let root: toml::Table = rest.parse().ok()?;
+        (!root.contains_key("lines")).then_some((root, Pieces { text, lines }))
+    });
+    match cut {
+        Some((root, pieces)) => Config::from_table_in(&root, Some(pieces), check, base_dir),
+        None => Config::from_table_in(&parse_whole(text)?, None, check, base_dir),
     }
+}
+
+/// `text` parsed as one TOML table; a syntax error is the one issue.
+fn parse_whole(text: &str) -> Result<toml::Table, ConfigErrors> {
+    text.parse().map_err(|e| syntax_errors(text, &e))
+}
+
+fn syntax_errors(text: &str, e: &toml::de::Error) -> ConfigErrors {
+    ConfigErrors {
+        issues: vec![ConfigIssue {
+            path: String::new(),
+            message: syntax_message(text, e),
+        }],
+    }
+}
+
+/// `text` without the lines' tables, and where each line's tables are; `None` when the text does
+/// not lex as TOML (its brackets do not pair) or a table header does not parse. A table header
+/// is a `[` first on its line outside any value (the lexer keeps strings and comments whole).
+fn cut(text: &str) -> Option<(String, LineRanges)> {
+    use toml_parser::lexer::TokenKind;
+    // Where each piece starts and the line it belongs to (none: the rest).
+    let mut starts: Vec<(usize, Option<String>)> = vec![(0, None)];
+    let (mut depth, mut line_start) = (0usize, true);
+    for token in toml_parser::Source::new(text).lex() {
+        match token.kind() {
+            TokenKind::LeftSquareBracket if depth == 0 && line_start => {
+                let at = token.span().start();
+                let end = text[at..].find('\n').map_or(text.len(), |n| at + n + 1);
+                let header: toml::Table = text[at..end].parse().ok()?;
+                let line = match header.get("lines") {
+                    Some(toml::Value::Table(t)) => t.keys().next().cloned(),
+                    _ => None,
+                };
+                starts.push((at, line));
+                depth = 1;
+            }
+            TokenKind::LeftSquareBracket | TokenKind::LeftCurlyBracket => depth += 1,
+            TokenKind::RightSquareBracket | TokenKind::RightCurlyBracket => {
+                depth = depth.checked_sub(1)?;
+            }
+            _ => {}
+        }
+        line_start = match token.kind() {
+            TokenKind::Newline => true,
+            TokenKind::Whitespace => line_start,
+            _ => false,
+        };
+    }
+    let mut rest = String::new();
+    let mut lines = LineRanges::new();
+    let ends: Vec<usize> = starts.iter().skip(1).map(|(at, _)| *at).collect();
+    for ((start, line), end) in starts.into_iter().zip(ends.into_iter().chain([text.len()])) {
+        match line {
+            Some(name) => lines.entry(name).or_default().push(start..end),
+            None => rest.push_str(&text[start..end]),
+        }
+    }
+    Some((rest, lines))
 }
 
 /// Checks that need another part of the gateway (e.g. whether the CP memory can serve a slave
@@ -248,26 +365,14 @@ pub fn parse(text: &str) -> Result<Config, ConfigErrors> {
 
 /// Parses and validates a configuration, with `check`'s issues in the same answer.
 pub fn parse_with(text: &str, check: ExtraCheck<'_>) -> Result<Config, ConfigErrors> {
-    let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
-        issues: vec![ConfigIssue {
-            path: String::new(),
-            message: syntax_message(text, &e),
-        }],
-    })?;
-    Config::from_table_with(&table, check)
+    read_text(text, check, BASE_DIR.get().cloned())
 }
 
 /// Parses and validates a configuration's text as if it were read from a file in `dir` (relative
 /// `template_dirs` are taken from there), with `check`'s issues in the same answer: a file's new
 /// text checked before it is written.
 pub fn parse_in(text: &str, check: ExtraCheck<'_>, dir: &Path) -> Result<Config, ConfigErrors> {
-    let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
-        issues: vec![ConfigIssue {
-            path: String::new(),
-            message: syntax_message(text, &e),
-        }],
-    })?;
-    Config::from_table_in(&table, check, Some(dir.to_path_buf()))
+    read_text(text, check, Some(dir.to_path_buf()))
 }
 
 /// Reads, parses and validates the configuration file at `path`.
@@ -291,13 +396,7 @@ pub fn load_with(path: &Path, check: ExtraCheck<'_>) -> Result<Config, ConfigErr
         _ => PathBuf::from("."),
     };
     let _ = BASE_DIR.set(dir.clone());
-    let table: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigErrors {
-        issues: vec![ConfigIssue {
-            path: String::new(),
-            message: syntax_message(&text, &e),
-        }],
-    })?;
-    Config::from_table_in(&table, check, Some(dir))
+    read_text(&text, check, Some(dir))
 }
 
 /// `dir` of `[gateway] template_dirs` as a configuration read from text takes it: a relative
@@ -322,4 +421,60 @@ pub fn demo() -> Config {
 /// The text of the embedded demo configuration.
 pub fn demo_toml() -> &'static str {
     DEMO_TOML
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// What the whole document reads as, parsed at once.
+    fn whole(text: &str) -> Result<Config, ConfigErrors> {
+        Config::from_table_in(&parse_whole(text)?, None, &no_check, None)
+    }
+
+    const LINE: &str = "port = \"/dev/ttyS1\"\nprotocol = \"modbus-master-rtu\"\n";
+    const DEVICE: &str = "profile = \"generic\"\naddress = 2\n\
+                          tags = [\n  { name = \"t0\", table = \"holding\", address = 0 },\n]\n";
+
+    #[test]
+    fn a_file_cut_into_its_lines_reads_as_the_whole_file() {
+        let texts = [
+            // Lines apart, a line's tables not together, comments and a header indented.
+            format!(
+                "[gateway]\nname = \"g\"\n[lines.b]\n{LINE}\n  [lines.a] # first\n\
+                 port = \"/dev/ttyS2\"\nprotocol = \"3964r\"\n[http]\nlisten = \"127.0.0.1:0\"\n\
+                 [lines.b.devices.d]\n{DEVICE}\
+                 [[lines.b.devices.d.poll]]\nname = \"p\"\nperiod = \"1s\"\ntags = [\"t0\"]\n"
+            ),
+            // A quoted line name; a multi-line string whose line looks like a header.
+            format!("[lines.\"q\"]\n{LINE}description = \"\"\"\n[lines.x]\n\"\"\"\n"),
+            // Issues in two lines and at the root, in the order of the whole file.
+            format!("unknown = 1\n[lines.b]\n{LINE}baud = 7\n[lines.a]\n{LINE}parity = \"odd?\"\n"),
+            // A line's piece with a syntax error: the whole file's message, line and column.
+            format!("[lines.a]\n{LINE}[lines.b]\n{LINE}baud = = 9\n"),
+            // Two definitions of one line table.
+            format!("[lines.a]\n{LINE}[gateway]\n[lines.a]\n{LINE}"),
+            // Lines not cut: written in `[lines]` or inline, or as an array of tables.
+            "[lines]\na = { port = \"/dev/ttyS1\", protocol = \"modbus-master-rtu\" }\n".to_owned(),
+            format!("[[lines]]\n{LINE}"),
+            "[lines.a]\nport = [\n".to_owned(),
+            "]\n[lines.a]\n".to_owned(),
+        ];
+        for text in &texts {
+            assert_eq!(read_text(text, &no_check, None), whole(text), "{text}");
+        }
+        let (rest, lines) = cut(&texts[0]).expect("cut");
+        assert_eq!(
+            rest,
+            "[gateway]\nname = \"g\"\n[http]\nlisten = \"127.0.0.1:0\"\n"
+        );
+        assert_eq!(lines.keys().collect::<Vec<_>>(), ["a", "b"]);
+        assert_eq!(lines["b"].len(), 3);
+        assert_eq!(read_text(&texts[0], &no_check, None).err(), None);
+        assert!(
+            read_text(&texts[3], &no_check, None).is_err_and(|e| e.issues[0]
+                .message
+                .starts_with("TOML syntax error at line 7, column 8"))
+        );
+    }
 }

@@ -466,9 +466,11 @@ where
         }
         result
     });
-    let result = task
-        .await
-        .map_err(|e| ApiError::internal(format!("the change task failed: {e}")))??;
+    let result = task.await;
+    // What the change read and merged (whole documents) goes back to the system.
+    crate::heap::release_free_memory();
+    let result =
+        result.map_err(|e| ApiError::internal(format!("the change task failed: {e}")))??;
     let mut response = Json(&result).into_response();
     set_etag(&mut response, &result.etag);
     Ok(response)
