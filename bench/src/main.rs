@@ -67,6 +67,10 @@ struct Args {
     /// The gateway binary for the zenoh and memory rows (default: next to this executable).
     #[arg(long, value_name = "PATH")]
     gateway: Option<PathBuf>,
+    /// A second gateway binary (the previous main, say) measured beside the first in the same
+    /// run; its figures go in the reference column.
+    #[arg(long, value_name = "PATH")]
+    baseline_gateway: Option<PathBuf>,
     /// Only these groups of rows (comma separated; default: all).
     #[arg(long, value_enum, value_delimiter = ',')]
     only: Vec<Group>,
@@ -333,7 +337,7 @@ async fn run(args: &Args) -> Vec<Row> {
             "ceiling, 32 lines / 100 000 points (gateway binary {})",
             bin.display()
         );
-        match ceiling::ceiling(&bin, &plan).await {
+        match ceiling::ceiling(&bin, args.baseline_gateway.as_deref(), &plan).await {
             Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
             Err(e) => ceiling::ROWS.iter().for_each(|name| {
                 push(

@@ -60,11 +60,12 @@ pub fn spawn_tag_feed<F>(
                 Ok(change) => {
                     let Some(tags) = tags() else { return };
                     let count = u16::try_from(change.values.len()).unwrap_or(u16::MAX);
-                    for entry in tags.overlapping(change.unit, change.table, change.start, count) {
-                        if let Some(value) = tag_value(&tags, &image, entry) {
-                            bridge.publish_tag(entry.line(), entry.device(), entry.name(), value);
-                        }
-                    }
+                    let overlapping =
+                        tags.overlapping(change.unit, change.table, change.start, count);
+                    bridge.publish_tags(overlapping.filter_map(|entry| {
+                        let value = tag_value(&tags, &image, entry)?;
+                        Some(([entry.line(), entry.device(), entry.name()], value))
+                    }));
                 }
                 Err(RecvError::Lagged(n)) => {
                     // The newest values follow; publishing skipped ones would be stale.

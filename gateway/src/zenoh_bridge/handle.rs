@@ -102,20 +102,34 @@ impl BridgeHandle {
         pushed
     }
 
-    /// Queues a tag value for `<prefix>/<line>/<device>/<tag>`; a newer value of the same tag
-    /// replaces one not yet published. The key is written into the outbox (no allocation per
-    /// value), checked as a key expression once when it becomes pending, and published as it is.
+    /// Queues a tag value for `<prefix>/<line>/<device>/<tag>`: see [`Self::publish_tags`].
     pub fn publish_tag(&self, line: &str, device: &str, tag: &str, value: TagValue) {
-        if self.check(&[line, device, tag]).is_err() {
-            return;
-        }
+        self.publish_tags([([line, device, tag], value)]);
+    }
+
+    /// Queues tag values, each `([line, device, tag], value)` for `<prefix>/<line>/<device>/<tag>`,
+    /// into the outbox at once (one lock, one wake-up of the publisher thread at most); a newer
+    /// value of the same tag replaces one not yet published. The key is written into the outbox
+    /// (no allocation per value), checked as a key expression once when it becomes pending, and
+    /// published as it is.
+    pub fn publish_tags<'a>(&self, tags: impl IntoIterator<Item = ([&'a str; 3], TagValue)>) {
         let now = tokio::time::Instant::now();
-        match self.publishing.admit((line, device, tag), &value, now) {
-            Verdict::Publish => self
-                .outbox
-                .push_tag(&[self.keys.prefix(), line, device, tag], value),
-            Verdict::WithinDeadband => self.stats.suppressed_by_deadband(),
-        }
+        let prefix = self.keys.prefix();
+        let admitted: Vec<([&str; 4], TagValue)> = tags
+            .into_iter()
+            .filter(|([line, device, tag], value)| {
+                self.check(&[line, device, tag]).is_ok()
+                    && match self.publishing.admit((line, device, tag), value, now) {
+                        Verdict::Publish => true,
+                        Verdict::WithinDeadband => {
+                            self.stats.suppressed_by_deadband();
+                            false
+                        }
+                    }
+            })
+            .map(|([line, device, tag], value)| ([prefix, line, device, tag], value))
+            .collect();
+        self.outbox.push_tags(admitted);
     }
 
     /// Queues a monitored frame (JSON) for `<prefix>/<line>/frames`. `Err` when it was dropped
@@ -234,11 +248,17 @@ pub(super) async fn heartbeats(
             if first {
                 // Values read before the bridge started were never announced to it: publish
                 // those of tags with a policy once, which starts their heartbeats.
-                for (line, device, tag, value) in backend.query_tags(None, None, None) {
-                    if handle.publishing.has_policy(&line, &device, &tag) {
-                        handle.publish_tag(&line, &device, &tag, value);
-                    }
-                }
+                let current = backend.query_tags(None, None, None);
+                handle.publish_tags(
+                    current
+                        .iter()
+                        .filter(|(line, device, tag, _)| {
+                            handle.publishing.has_policy(line, device, tag)
+                        })
+                        .map(|(line, device, tag, value)| {
+                            ([line.as_str(), device, tag], value.clone())
+                        }),
+                );
             }
             for (line, device, tag) in handle.publishing.due(now) {
                 let current = backend

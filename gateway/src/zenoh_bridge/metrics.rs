@@ -285,9 +285,14 @@ impl BridgeMetrics {
 
     /// Counts one publication of `kind`.
     pub fn published(&self, kind: PublicationKind) {
+        self.published_many(kind, 1);
+    }
+
+    /// Counts `count` publications of `kind`.
+    pub fn published_many(&self, kind: PublicationKind, count: u64) {
         self.publications
             .with_label_values(&[kind.metric_label()])
-            .inc();
+            .inc_by(count);
     }
 
     /// Counts one reply of a queryable.
@@ -366,8 +371,13 @@ impl BridgeStats {
     }
 
     pub(crate) fn published(&self, kind: PublicationKind) {
-        self.publications[kind as usize].fetch_add(1, Ordering::Relaxed);
-        self.each(|m| m.published(kind));
+        self.published_many(kind, 1);
+    }
+
+    /// Counts `count` publications of one kind (a chunk of tag values at once).
+    pub(crate) fn published_many(&self, kind: PublicationKind, count: u64) {
+        self.publications[kind as usize].fetch_add(count, Ordering::Relaxed);
+        self.each(|m| m.published_many(kind, count));
     }
 
     /// The audit's Prometheus family the commands are counted in, if any.

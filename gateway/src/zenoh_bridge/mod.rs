@@ -2,7 +2,7 @@
 //! fabric, through one session per gateway.
 //!
 //! The rest of the gateway sees two narrow types and knows nothing of zenoh:
-//! - [`BridgeHandle`] (cheap to clone): `publish_telegram`, `publish_tag`, `publish_event`,
+//! - [`BridgeHandle`] (cheap to clone): `publish_telegram`, `publish_tag(s)`, `publish_event`,
 //!   `device_online`. None of them waits: they queue into bounded queues and count what does
 //!   not fit (policy in [`config`]).
 //! - [`BridgeBackend`] (implemented by the gateway): answers tag and status queries from the

@@ -14,7 +14,7 @@
 //! declared publisher holds state in the session and in zenoh's routing tables (its interest in
 //! matching subscribers), about 3 KiB each, 35 MiB for 10 000 tags; a put keeps nothing between
 //! samples and sends the same message. A tag's key expression is checked once, when the key
-//! becomes pending ([`BridgeHandle::publish_tag`](super::BridgeHandle::publish_tag)), and
+//! becomes pending ([`BridgeHandle::publish_tags`](super::BridgeHandle::publish_tags)), and
 //! published as it is. The pending tag values are kept compact ([`super::tag_queue`]): with
 //! 100 000 tags pending the outbox holds 6.6 MiB, and each take hands the thread at most
 //! [`CHUNK`](super::tag_queue::CHUNK) of them, so no batch of every pending tag is ever built.
@@ -33,6 +33,7 @@ use std::time::{Duration, SystemTime};
 use zenoh::bytes::Encoding;
 use zenoh::pubsub::Publisher;
 use zenoh::qos::CongestionControl;
+use zenoh::sample::Locality;
 use zenoh::{Session, Wait};
 
 use super::metrics::{BridgeStats, DropReason, PublicationKind};
@@ -86,6 +87,9 @@ struct Pending {
     session: Option<Session>,
     /// No more items are accepted; the thread drains and exits.
     closed: bool,
+    /// The thread waits for items: a producer wakes it (otherwise it takes them when it is done
+    /// with what it holds, without a wake-up call per item).
+    idle: bool,
 }
 
 impl Pending {
@@ -100,6 +104,7 @@ impl Pending {
             presence_order: VecDeque::new(),
             session: None,
             closed: false,
+            idle: false,
         }
     }
 
@@ -207,31 +212,66 @@ impl Outbox {
             return Err(reason);
         }
         queue.push_back(msg);
-        drop(p);
-        self.wake.notify_one();
+        self.wake_if_idle(p);
         Ok(())
     }
 
-    /// Sets the pending value of the tag key made of `key` joined by `/`; a pending older value
-    /// is replaced (counted as superseded). A key not pending yet is checked as a key
-    /// expression (a bad one is dropped and counted) and waits behind the others.
+    /// Sets the pending value of the tag key made of `key` joined by `/`: see [`Self::push_tags`].
     pub(crate) fn push_tag(&self, key: &[&str], value: TagValue) {
+        self.push_tags([(key, value)]);
+    }
+
+    /// Sets the pending value of each tag key (its parts joined by `/`), all under one lock and
+    /// with one wake-up of the thread at most; a pending older value is replaced (counted as
+    /// superseded). A key not pending yet is checked as a key expression (a bad one is dropped
+    /// and counted) and waits behind the others.
+    pub(crate) fn push_tags<'a, K: AsRef<[&'a str]>>(
+        &self,
+        tags: impl IntoIterator<Item = (K, TagValue)>,
+    ) {
         let mut p = self.lock();
-        if p.closed {
-            drop(p);
-            self.stats.dropped(DropReason::BridgeClosed);
-            return;
-        }
-        let pushed = p.tags.push(key, value);
-        drop(p);
-        match pushed {
-            Pushed::New => self.wake.notify_one(),
-            Pushed::Superseded => self.stats.dropped(DropReason::TagSuperseded),
-            Pushed::Full => self.stats.dropped(DropReason::TagQueueFull),
-            Pushed::BadKey(key, error) => {
-                self.stats.dropped(DropReason::BadKey);
-                crate::warn_limited!("zenoh bad tag key", %key, %error, "tag value not published on zenoh");
+        let mut drops = [0u64; 3];
+        let mut bad = None;
+        let mut new = false;
+        for (key, value) in tags {
+            if p.closed {
+                drops[0] += 1;
+                continue;
             }
+            match p.tags.push(key.as_ref(), value) {
+                Pushed::New => new = true,
+                Pushed::Superseded => drops[1] += 1,
+                Pushed::Full => drops[2] += 1,
+                Pushed::BadKey(key, error) => {
+                    self.stats.dropped(DropReason::BadKey);
+                    bad = Some((key, error));
+                }
+            }
+        }
+        if new {
+            self.wake_if_idle(p);
+        } else {
+            drop(p);
+        }
+        let reasons = [
+            DropReason::BridgeClosed,
+            DropReason::TagSuperseded,
+            DropReason::TagQueueFull,
+        ];
+        for (reason, n) in reasons.into_iter().zip(drops).filter(|(_, n)| *n > 0) {
+            self.stats.dropped_many(reason, n);
+        }
+        if let Some((key, error)) = bad {
+            crate::warn_limited!("zenoh bad tag key", %key, %error, "tag value not published on zenoh");
+        }
+    }
+
+    /// Lets go of the outbox and wakes the thread if it waits for items.
+    fn wake_if_idle(&self, p: MutexGuard<'_, Pending>) {
+        let idle = p.idle;
+        drop(p);
+        if idle {
+            self.wake.notify_one();
         }
     }
 
@@ -256,8 +296,7 @@ impl Outbox {
             p.presence_order.push_back(key.clone());
             p.presence.insert(key, online);
         }
-        drop(p);
-        self.wake.notify_one();
+        self.wake_if_idle(p);
     }
 
     /// Hands the open session to the publisher thread.
@@ -281,11 +320,13 @@ impl Outbox {
                 (Some(_), false, _) => break,
                 (_, true, true) | (None, _, true) => return None,
                 _ => {
+                    p.idle = true;
                     p = self
                         .wake
                         .wait_timeout(p, IDLE_WAIT)
                         .unwrap_or_else(|e| e.into_inner())
                         .0;
+                    p.idle = false;
                 }
             }
         }
@@ -332,9 +373,11 @@ impl PublisherThread {
                 self.publish_message(&session, msg);
             }
             if let Some(chunk) = batch.tags {
-                for i in 0..chunk.len() {
-                    self.put_tag(&session, &chunk, i);
-                }
+                let published = (0..chunk.len())
+                    .filter(|&i| self.put_tag(&session, &chunk, i))
+                    .count();
+                self.stats
+                    .published_many(PublicationKind::Tag, published as u64);
                 self.outbox.recycle(chunk);
             }
         }
@@ -345,22 +388,26 @@ impl PublisherThread {
     }
 
     /// Tag value `i` of `chunk`: a session put with the options a tag publisher had (congestion
-    /// control drop, default priority, not express), JSON, the session's timestamp.
-    fn put_tag(&self, session: &Session, chunk: &Chunk, i: usize) {
+    /// control drop, default priority, not express), JSON, the session's timestamp, for remote
+    /// subscribers only (the gateway's own subscribe to commands, never to values: the session
+    /// does not match each put against them). `true` when it was published (the caller counts
+    /// those of a chunk at once); a failure is counted here.
+    fn put_tag(&self, session: &Session, chunk: &Chunk, i: usize) -> bool {
         let key = chunk.key(i);
         let mut payload = Vec::with_capacity(TAG_PAYLOAD);
         if let Err(e) = chunk.write_payload(i, &mut payload) {
             self.stats.dropped(DropReason::PublishError);
             crate::warn_limited!("zenoh tag payload not written", %key, error = %e, "zenoh tag payload not written");
-            return;
+            return false;
         }
         let result = session
             .put(key, payload)
             .congestion_control(congestion(PublicationKind::Tag))
+            .allowed_destination(Locality::Remote)
             .encoding(Encoding::APPLICATION_JSON)
             .timestamp(session.new_timestamp())
             .wait();
-        self.count(PublicationKind::Tag, key, result);
+        self.failed(PublicationKind::Tag, key, result)
     }
 
     /// A telegram, an event (declared publisher) or a command result (session put).
@@ -407,21 +454,21 @@ impl PublisherThread {
                 .attachment(attachment)
                 .wait()
         };
-        let ok = result.is_ok();
-        self.count(kind, &key, result);
+        let ok = self.failed(kind, &key, result);
+        if ok {
+            self.stats.published(kind);
+        }
         if let Some(done) = done {
             let _ = done.send(ok);
         }
     }
 
-    fn count(&self, kind: PublicationKind, key: &str, result: zenoh::Result<()>) {
-        match result {
-            Ok(()) => self.stats.published(kind),
-            Err(e) => {
-                self.stats.dropped(DropReason::PublishError);
-                crate::warn_limited!(format!("zenoh put failed {}", kind.as_str()), %key, kind = kind.as_str(), error = %e, "zenoh put failed");
-            }
-        }
+    /// Whether the put went through; a failure is counted and logged.
+    fn failed(&self, kind: PublicationKind, key: &str, result: zenoh::Result<()>) -> bool {
+        let Err(e) = result else { return true };
+        self.stats.dropped(DropReason::PublishError);
+        crate::warn_limited!(format!("zenoh put failed {}", kind.as_str()), %key, kind = kind.as_str(), error = %e, "zenoh put failed");
+        false
     }
 }
 
