@@ -67,6 +67,10 @@ struct Args {
     /// The gateway binary for the zenoh and memory rows (default: next to this executable).
     #[arg(long, value_name = "PATH")]
     gateway: Option<PathBuf>,
+    /// A second gateway binary (the previous main) for the rows that start the real binary,
+    /// measured in the same run and printed beside the gateway's figures.
+    #[arg(long, value_name = "PATH")]
+    baseline_gateway: Option<PathBuf>,
     /// Only these groups of rows (comma separated; default: all).
     #[arg(long, value_enum, value_delimiter = ',')]
     only: Vec<Group>,
@@ -285,10 +289,10 @@ async fn run(args: &Args) -> Vec<Row> {
     }
     if wanted(Group::Write) {
         eprintln!("writes through Modbus TCP");
-        let row = tcp::write_latency(&plan)
-            .await
-            .unwrap_or_else(|e| failed("TCP write to a device", e));
-        push(&mut rows, row);
+        match tcp::write_latency(&plan).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(&mut rows, failed("TCP write to a device", e)),
+        }
     }
     if wanted(Group::Closed) {
         eprintln!("closed-loop writer and on-demand reader beside a cached reader");
@@ -306,10 +310,13 @@ async fn run(args: &Args) -> Vec<Row> {
     }
     if wanted(Group::Zenoh) {
         eprintln!("zenoh (gateway binary {})", bin.display());
-        let row = process::zenoh_latency(&bin, &plan)
-            .await
-            .unwrap_or_else(|e| failed("zenoh: serial frame end -> subscriber", e));
-        push(&mut rows, row);
+        match process::zenoh_latency(&bin, args.baseline_gateway.as_deref(), &plan).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(
+                &mut rows,
+                failed("zenoh: serial frame end -> subscriber", e),
+            ),
+        }
         let row = process::zenoh_throughput(&bin, &plan)
             .await
             .unwrap_or_else(|e| failed("zenoh: tag samples/s", e));

@@ -20,7 +20,7 @@ use crate::child::{free_port, Gateway};
 use crate::device::{Bus, FlatDevice};
 use crate::mbap::Client;
 use crate::report::{Row, Target};
-use crate::stats::{ms, percentile};
+use crate::stats::{ms, percentile, tail};
 use crate::Plan;
 
 /// The baud rate of every generated line (the pty ignores it; the engines time by it).
@@ -147,9 +147,79 @@ pub(crate) async fn zenoh_client(endpoint: &str) -> std::io::Result<zenoh::Sessi
 type Received = (Instant, Vec<u8>);
 
 /// Serial frame end (the telegram's end character written into the pty) to the subscriber's
-/// callback, p99.
-pub(crate) async fn zenoh_latency(bin: &Path, plan: &Plan) -> std::io::Result<Row> {
-    let name = "zenoh: serial frame end -> subscriber, p99".to_owned();
+/// callback: p99 and max, for `bin` and, beside it in the same run, for `baseline` (the previous
+/// gateway).
+pub(crate) async fn zenoh_latency(
+    bin: &Path,
+    baseline: Option<&Path>,
+    plan: &Plan,
+) -> std::io::Result<Vec<Row>> {
+    let ours = deliveries(bin, plan).await?;
+    let base = match baseline {
+        Some(path) => Some(deliveries(path, plan).await),
+        None => None,
+    };
+    let mut note = format!(
+        "{} telegrams of 8 bytes on an ASCII line (end character ETX), one at a time, each \
+         acknowledged in the mailbox; {}; lost {}; subscriber: zenoh client on tcp/127.0.0.1, \
+         scouting off",
+        plan.telegrams,
+        tail(&ours.latencies),
+        ours.lost,
+    );
+    if let Some(stalls) = &ours.stalls {
+        let _ = write!(note, "; {}", stalls.lines().next().unwrap_or_default());
+    }
+    match &base {
+        Some(Ok(b)) => {
+            let _ = write!(
+                note,
+                "; previous gateway: {}; lost {}",
+                tail(&b.latencies),
+                b.lost
+            );
+        }
+        Some(Err(e)) => {
+            let _ = write!(note, "; previous gateway failed: {e}");
+        }
+        None => {}
+    }
+    let row = |what: &str, p: f64, limit: f64, note: String| {
+        let value = percentile(&ours.latencies, p);
+        Row {
+            name: format!("zenoh: serial frame end -> subscriber, {what}"),
+            measured: ms(value),
+            reference: match &base {
+                Some(Ok(b)) => format!("{} previous", ms(percentile(&b.latencies, p))),
+                _ => "-".into(),
+            },
+            score: if ours.lost == 0 && !ours.panicked {
+                value.as_secs_f64() * 1e3
+            } else {
+                f64::NAN
+            },
+            target: Target::at_most(limit).with_unit(" ms"),
+            note,
+        }
+    };
+    Ok(vec![
+        row("p99", 99.0, 0.5, note),
+        row("max", 100.0, 2.0, String::new()),
+    ])
+}
+
+/// What one gateway binary delivered in the zenoh latency run.
+struct Deliveries {
+    latencies: Vec<Duration>,
+    lost: usize,
+    panicked: bool,
+    /// Its stall table (a gateway built with `stall-watch`).
+    stalls: Option<String>,
+}
+
+/// The telegrams of the zenoh latency run through the gateway `bin`, from the end of each
+/// telegram's frame to the subscriber's callback.
+async fn deliveries(bin: &Path, plan: &Plan) -> std::io::Result<Deliveries> {
     let shutdown = CancellationToken::new();
     let _stop = shutdown.clone().drop_guard();
     let (path, mut port) = pty(&shutdown)?;
@@ -223,27 +293,18 @@ pub(crate) async fn zenoh_latency(bin: &Path, plan: &Plan) -> std::io::Result<Ro
         }
         tokio::time::sleep(Duration::from_millis(2)).await;
     }
-    let p99 = percentile(&latencies, 99.0);
     let panicked = gw.panicked();
-    drop(gw);
-    Ok(Row {
-        name,
-        measured: ms(p99),
-        reference: "-".into(),
-        score: if lost == 0 && !panicked {
-            p99.as_secs_f64() * 1e3
-        } else {
-            f64::NAN
-        },
-        target: Target::at_most(2.0).with_unit(" ms"),
-        note: format!(
-            "{} telegrams of 8 bytes on an ASCII line (end character ETX), one at a time, each \
-             acknowledged in the mailbox; p50 {}, max {}; lost {lost}; subscriber: zenoh client \
-             on tcp/127.0.0.1, scouting off",
-            latencies.len(),
-            ms(percentile(&latencies, 50.0)),
-            ms(percentile(&latencies, 100.0)),
-        ),
+    let stalls = tokio::task::spawn_blocking(move || gw.stalls())
+        .await
+        .map_err(std::io::Error::other)?;
+    if let Some(table) = &stalls {
+        eprintln!("  stalls of {}:\n{table}", bin.display());
+    }
+    Ok(Deliveries {
+        latencies,
+        lost,
+        panicked,
+        stalls,
     })
 }
 
