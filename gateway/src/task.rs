@@ -3,10 +3,12 @@
 //!
 //! A build with the `stall-watch` feature times each poll of every such task: a poll longer than
 //! [`STALL`] holds a worker of the runtime (a blocking call, a large render, a busy loop) and
-//! delays every task behind it. Each one is logged at WARN under `gateway::task` with the task's
-//! name, the place that spawned it and the poll's length, and counted per task; [`stalls`] is the
-//! table of them (the binary prints it on stderr when it ends). Without the feature (the
-//! default) [`watch`] hands the future back unchanged and nothing is timed.
+//! delays every task behind it. It also times each wake-up until the poll it asked for: longer
+//! than [`STALL`], the task waited for a worker (held by another task, or the process by the
+//! machine). Each one is logged at WARN under `gateway::task` with the task's name, the place that
+//! spawned it and the time, and counted per task; [`stalls`] is the table of them (the binary
+//! prints it on stderr when it ends). Without the feature (the default) [`watch`] hands the
+//! future back unchanged and nothing is timed.
 
 use std::future::Future;
 
@@ -40,6 +42,7 @@ pub fn watch<F: Future>(name: &'static str, future: F) -> watched::Watched<F> {
         name,
         site: std::panic::Location::caller(),
         future: Box::pin(future),
+        stamp: None,
     }
 }
 
@@ -59,15 +62,37 @@ mod watched {
     use std::future::Future;
     use std::panic::Location;
     use std::pin::Pin;
-    use std::sync::{Mutex, PoisonError};
-    use std::task::{Context, Poll};
+    use std::sync::{Arc, Mutex, PoisonError};
+    use std::task::{Context, Poll, Wake, Waker};
     use std::time::{Duration, Instant};
 
-    /// A future whose polls are timed.
+    const POLLS: &str = "polls > 1 ms";
+    const LATE: &str = "wake-ups polled > 1 ms late";
+
+    /// A future whose polls are timed, and the time from each wake-up to the poll it asked for.
     pub struct Watched<F> {
         pub(super) name: &'static str,
         pub(super) site: &'static Location<'static>,
         pub(super) future: Pin<Box<F>>,
+        /// The waker the last poll handed on, with the moment it was first woken.
+        pub(super) stamp: Option<Arc<Stamp>>,
+    }
+
+    /// The runtime's waker, noting when it is first woken.
+    pub(super) struct Stamp {
+        waker: Waker,
+        woken: Mutex<Option<Instant>>,
+    }
+
+    impl Wake for Stamp {
+        fn wake(self: Arc<Self>) {
+            self.wake_by_ref();
+        }
+
+        fn wake_by_ref(self: &Arc<Self>) {
+            lock(&self.woken).get_or_insert_with(Instant::now);
+            self.waker.wake_by_ref();
+        }
     }
 
     impl<F: Future> Future for Watched<F> {
@@ -75,39 +100,74 @@ mod watched {
 
         fn poll(mut self: Pin<&mut Self>, cx: &mut Context<'_>) -> Poll<F::Output> {
             let start = Instant::now();
-            let poll = self.future.as_mut().poll(cx);
+            let woken = self.stamp.take().and_then(|s| *lock(&s.woken));
+            if let Some(late) = woken.map(|at| start.saturating_duration_since(at)) {
+                if late > super::STALL {
+                    record(self.name, self.site, LATE, late);
+                }
+            }
+            let stamp = Arc::new(Stamp {
+                waker: cx.waker().clone(),
+                woken: Mutex::new(None),
+            });
+            let waker = Waker::from(Arc::clone(&stamp));
+            self.stamp = Some(stamp);
+            let poll = self.future.as_mut().poll(&mut Context::from_waker(&waker));
             let took = start.elapsed();
             if took > super::STALL {
-                record(self.name, self.site, took);
+                record(self.name, self.site, POLLS, took);
             }
             poll
         }
     }
 
-    /// Per task and spawn site: count, longest, total.
-    type Table = BTreeMap<(&'static str, String), (u64, Duration, Duration)>;
+    fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+        m.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// Per task, spawn site and kind: count, longest, total.
+    type Table = BTreeMap<(&'static str, String, &'static str), (u64, Duration, Duration)>;
 
     static STALLS: Mutex<Table> = Mutex::new(BTreeMap::new());
 
-    fn record(task: &'static str, site: &'static Location<'static>, took: Duration) {
-        tracing::warn!(task, %site, poll_ms = took.as_secs_f64() * 1e3, "stall: a poll held a worker");
-        let mut stalls = STALLS.lock().unwrap_or_else(PoisonError::into_inner);
-        let entry = stalls.entry((task, site.to_string())).or_default();
+    fn record(
+        task: &'static str,
+        site: &'static Location<'static>,
+        what: &'static str,
+        took: Duration,
+    ) {
+        let ms = took.as_secs_f64() * 1e3;
+        if what == POLLS {
+            tracing::warn!(task, %site, poll_ms = ms, "stall: a poll held a worker");
+        } else {
+            tracing::warn!(task, %site, late_ms = ms, "stall: a woken task waited for a worker");
+        }
+        let mut stalls = lock(&STALLS);
+        let entry = stalls.entry((task, site.to_string(), what)).or_default();
         entry.0 += 1;
         entry.1 = entry.1.max(took);
         entry.2 += took;
     }
 
     pub(super) fn table() -> String {
-        let stalls = STALLS.lock().unwrap_or_else(PoisonError::into_inner);
+        let stalls = lock(&STALLS);
         let mut rows: Vec<_> = stalls.iter().collect();
         rows.sort_by_key(|(_, (count, ..))| std::cmp::Reverse(*count));
-        let all: u64 = rows.iter().map(|(_, (count, ..))| count).sum();
-        let mut out = format!("stall-watch: {all} polls > 1 ms\n");
-        for ((task, site), (count, longest, total)) in rows {
+        let all = |kind: &str| -> u64 {
+            rows.iter()
+                .filter(|((.., what), _)| *what == kind)
+                .map(|(_, (count, ..))| count)
+                .sum()
+        };
+        let mut out = format!(
+            "stall-watch: {} {POLLS}, {} {LATE}\n",
+            all(POLLS),
+            all(LATE)
+        );
+        for ((task, site, what), (count, longest, total)) in &rows {
             let _ = writeln!(
                 out,
-                "stall: task {task} spawned at {site}: {count} polls > 1 ms, longest {:.3} ms, \
+                "stall: task {task} spawned at {site}: {count} {what}, longest {:.3} ms, \
                  total {:.3} ms",
                 longest.as_secs_f64() * 1e3,
                 total.as_secs_f64() * 1e3,
@@ -139,6 +199,31 @@ mod tests {
             "{row}"
         );
         assert!(row.contains(": 1 polls > 1 ms, longest "), "{row}");
+    }
+
+    #[tokio::test]
+    async fn a_task_woken_while_the_worker_is_held_is_reported_late() {
+        let notify = std::sync::Arc::new(tokio::sync::Notify::new());
+        let waiter = spawn("woken-late", {
+            let notify = notify.clone();
+            async move { notify.notified().await }
+        });
+        tokio::task::yield_now().await;
+        spawn("wakes-then-blocks", async move {
+            notify.notify_one();
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        })
+        .await
+        .expect("the task ends");
+        waiter.await.expect("the task ends");
+        let table = stalls();
+        assert!(
+            table
+                .lines()
+                .any(|l| l.contains("task woken-late")
+                    && l.contains(": 1 wake-ups polled > 1 ms late")),
+            "{table}"
+        );
     }
 
     #[tokio::test]
