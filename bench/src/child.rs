@@ -150,8 +150,9 @@ impl Gateway {
         lock(&self.output).iter().any(|l| l.contains("panicked at"))
     }
 
-    /// Stops it (SIGTERM) and returns the table of stalls it printed when it ended: `None`
-    /// from a gateway built without the `stall-watch` feature.
+    /// Stops it (SIGTERM) and returns the table of stalls it printed when it ended, then the
+    /// first 20 stalls it logged (with their time, to tell the start from the run): `None` from a
+    /// gateway built without the `stall-watch` feature.
     pub(crate) fn stalls(mut self) -> Option<String> {
         self.terminate();
         self.readers.drain(..).for_each(|r| drop(r.join()));
@@ -162,7 +163,18 @@ impl Gateway {
             .skip_while(|l| !l.starts_with("stall-watch: "))
             .filter(|l| l.starts_with("stall"))
             .collect();
-        (!table.is_empty()).then(|| table.join("\n"))
+        let logged = output
+            .iter()
+            .map(String::as_str)
+            .filter(|l| l.contains("gateway::task") && l.contains("stall: a "))
+            .take(20);
+        (!table.is_empty()).then(|| {
+            table
+                .into_iter()
+                .chain(logged)
+                .collect::<Vec<_>>()
+                .join("\n")
+        })
     }
 
     /// SIGTERM, then SIGKILL after 15 s; nothing once it has ended.
