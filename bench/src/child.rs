@@ -40,6 +40,8 @@ pub(crate) struct Gateway {
     /// Where it serves Modbus TCP.
     pub(crate) modbus_tcp: SocketAddr,
     output: Arc<Mutex<Vec<String>>>,
+    /// The threads reading its stdout and stderr, ending with them.
+    readers: Vec<std::thread::JoinHandle<()>>,
 }
 
 // === impl Gateway ===
@@ -74,21 +76,25 @@ impl Gateway {
                     .ok_or_else(|| std::io::Error::other("no stderr"))?,
             ),
         ];
-        for stream in streams {
-            let tx = tx.clone();
-            let output = Arc::clone(&output);
-            std::thread::spawn(move || {
-                for line in BufReader::new(stream).lines().map_while(Result::ok) {
-                    lock(&output).push(line.clone());
-                    let _ = tx.send(line);
-                }
-            });
-        }
+        let readers = streams
+            .into_iter()
+            .map(|stream| {
+                let tx = tx.clone();
+                let output = Arc::clone(&output);
+                std::thread::spawn(move || {
+                    for line in BufReader::new(stream).lines().map_while(Result::ok) {
+                        lock(&output).push(line.clone());
+                        let _ = tx.send(line);
+                    }
+                })
+            })
+            .collect();
         drop(tx);
         let mut gateway = Self {
             child,
             modbus_tcp: SocketAddr::from(([127, 0, 0, 1], 0)),
             output,
+            readers,
         };
         let deadline = Instant::now() + START_TIMEOUT;
         loop {
@@ -143,10 +149,39 @@ impl Gateway {
     pub(crate) fn panicked(&self) -> bool {
         lock(&self.output).iter().any(|l| l.contains("panicked at"))
     }
-}
 
-impl Drop for Gateway {
-    fn drop(&mut self) {
+    /// Stops it (SIGTERM) and returns the table of stalls it printed when it ended, then the
+    /// first 20 stalls it logged (with their time, to tell the start from the run): `None` from a
+    /// gateway built without the `stall-watch` feature.
+    pub(crate) fn stalls(mut self) -> Option<String> {
+        self.terminate();
+        self.readers.drain(..).for_each(|r| drop(r.join()));
+        let output = lock(&self.output);
+        let table: Vec<&str> = output
+            .iter()
+            .map(String::as_str)
+            .skip_while(|l| !l.starts_with("stall-watch: "))
+            .filter(|l| l.starts_with("stall"))
+            .collect();
+        let logged = output
+            .iter()
+            .map(String::as_str)
+            .filter(|l| l.contains("gateway::task") && l.contains("stall: a "))
+            .take(20);
+        (!table.is_empty()).then(|| {
+            table
+                .into_iter()
+                .chain(logged)
+                .collect::<Vec<_>>()
+                .join("\n")
+        })
+    }
+
+    /// SIGTERM, then SIGKILL after 15 s; nothing once it has ended.
+    fn terminate(&mut self) {
+        if let Ok(Some(_)) = self.child.try_wait() {
+            return;
+        }
         let _ = Command::new("kill")
             .args(["-TERM", &self.child.id().to_string()])
             .status();
@@ -159,6 +194,12 @@ impl Drop for Gateway {
         }
         let _ = self.child.kill();
         let _ = self.child.wait();
+    }
+}
+
+impl Drop for Gateway {
+    fn drop(&mut self) {
+        self.terminate();
     }
 }
 

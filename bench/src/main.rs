@@ -295,10 +295,10 @@ async fn run(args: &Args) -> Vec<Row> {
     }
     if wanted(Group::Write) {
         eprintln!("writes through Modbus TCP");
-        let row = tcp::write_latency(&plan)
-            .await
-            .unwrap_or_else(|e| failed("TCP write to a device", e));
-        push(&mut rows, row);
+        match tcp::write_latency(&plan).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(&mut rows, failed("TCP write to a device", e)),
+        }
     }
     if wanted(Group::Closed) {
         eprintln!("closed-loop writer and on-demand reader beside a cached reader");
@@ -316,10 +316,13 @@ async fn run(args: &Args) -> Vec<Row> {
     }
     if wanted(Group::Zenoh) {
         eprintln!("zenoh (gateway binary {})", bin.display());
-        let row = process::zenoh_latency(&bin, &plan)
-            .await
-            .unwrap_or_else(|e| failed("zenoh: serial frame end -> subscriber", e));
-        push(&mut rows, row);
+        match process::zenoh_latency(&bin, args.baseline_gateway.as_deref(), &plan).await {
+            Ok(r) => r.into_iter().for_each(|row| push(&mut rows, row)),
+            Err(e) => push(
+                &mut rows,
+                failed("zenoh: serial frame end -> subscriber", e),
+            ),
+        }
         let row = process::zenoh_throughput(&bin, &plan)
             .await
             .unwrap_or_else(|e| failed("zenoh: tag samples/s", e));

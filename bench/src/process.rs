@@ -20,7 +20,7 @@ use crate::child::{free_port, Gateway};
 use crate::device::{Bus, FlatDevice};
 use crate::mbap::Client;
 use crate::report::{Row, Target};
-use crate::stats::{ms, percentile};
+use crate::stats::{ms, percentile, tail};
 use crate::Plan;
 
 /// The baud rate of every generated line (the pty ignores it; the engines time by it).
@@ -147,67 +147,179 @@ pub(crate) async fn zenoh_client(endpoint: &str) -> std::io::Result<zenoh::Sessi
 type Received = (Instant, Vec<u8>);
 
 /// Serial frame end (the telegram's end character written into the pty) to the subscriber's
-/// callback, p99.
-pub(crate) async fn zenoh_latency(bin: &Path, plan: &Plan) -> std::io::Result<Row> {
-    let name = "zenoh: serial frame end -> subscriber, p99".to_owned();
+/// callback: p99 and max, for `bin` and, beside it in the same run, for `baseline` (the previous
+/// gateway). Both gateways run at once and take the telegrams in turn, one each, so that the
+/// machine's load of the moment hits both alike.
+pub(crate) async fn zenoh_latency(
+    bin: &Path,
+    baseline: Option<&Path>,
+    plan: &Plan,
+) -> std::io::Result<Vec<Row>> {
     let shutdown = CancellationToken::new();
     let _stop = shutdown.clone().drop_guard();
-    let (path, mut port) = pty(&shutdown)?;
-    let config = format!(
-        "{}[lines.tg]\nport = \"{path}\"\nprotocol = \"ascii\"\nbaud = {BAUD}\ndata_bits = 8\n\
-         parity = \"none\"\nstop_bits = 1\nend_criterion = \"end-chars\"\nend_chars = [0x03]\n\
-         unit_id = {MAILBOX_UNIT}\n",
-        head("bench")
-    );
-    let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
-    let gw = start(
-        bin,
-        "zenoh-latency",
-        config,
-        &["--zenoh-listen".to_owned(), endpoint.clone()],
-    )
-    .await?;
-    let session = zenoh_client(&endpoint).await?;
-    let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Received>();
-    let _subscriber = session
-        .declare_subscriber("gw/bench/tg/rx")
-        .callback(move |sample| {
-            let at = Instant::now();
-            let _ = tx.send((at, sample.payload().to_bytes().into_owned()));
-        })
-        .await
-        .map_err(|e| std::io::Error::other(e.to_string()))?;
-    let mut mailbox = Client::connect(gw.modbus_tcp).await?;
-
-    // Until the subscription has reached the gateway.
-    let deadline = Instant::now() + Duration::from_secs(20);
-    loop {
-        port.write_all(b"W\x03").await?;
-        if let Ok(Some(_)) = tokio::time::timeout(Duration::from_millis(200), rx.recv()).await {
-            break;
-        }
-        if Instant::now() > deadline {
-            return Err(std::io::Error::other(format!(
-                "no telegram reached the subscriber:\n{}",
-                gw.output()
-            )));
+    let mut ours = Probe::start(bin, &shutdown).await?;
+    let mut base = match baseline {
+        Some(path) => Some(Probe::start(path, &shutdown).await),
+        None => None,
+    };
+    for i in 0..plan.telegrams {
+        ours.send(i).await?;
+        if let Some(Ok(b)) = &mut base {
+            if let Err(e) = b.send(i).await {
+                base = Some(Err(e));
+            }
         }
     }
-    // Warm-up telegrams sent before the subscription was in place are waiting in the mailbox
-    // without having reached the subscriber: release them all.
-    tokio::time::sleep(Duration::from_millis(300)).await;
-    while rx.try_recv().is_ok() {}
-    drain_mailbox(&mut mailbox).await?;
+    let ours = ours.finish().await?;
+    let base = match base {
+        Some(Ok(b)) => Some(b.finish().await),
+        Some(Err(e)) => Some(Err(e)),
+        None => None,
+    };
+    let mut note = format!(
+        "{} telegrams of 8 bytes on an ASCII line (end character ETX), one at a time, each \
+         acknowledged in the mailbox; {}; lost {}; subscriber: zenoh client on tcp/127.0.0.1, \
+         scouting off",
+        plan.telegrams,
+        tail(&ours.latencies),
+        ours.lost,
+    );
+    if let Some(stalls) = &ours.stalls {
+        let _ = write!(note, "; {}", stalls.lines().next().unwrap_or_default());
+    }
+    match &base {
+        Some(Ok(b)) => {
+            let _ = write!(
+                note,
+                "; previous gateway, telegrams in turn with this one: {}; lost {}",
+                tail(&b.latencies),
+                b.lost
+            );
+        }
+        Some(Err(e)) => {
+            let _ = write!(note, "; previous gateway failed: {e}");
+        }
+        None => {}
+    }
+    let row = |what: &str, p: f64, limit: f64, note: String| {
+        let value = percentile(&ours.latencies, p);
+        Row {
+            name: format!("zenoh: serial frame end -> subscriber, {what}"),
+            measured: ms(value),
+            reference: match &base {
+                Some(Ok(b)) => format!("{} previous", ms(percentile(&b.latencies, p))),
+                _ => "-".into(),
+            },
+            score: if ours.lost == 0 && !ours.panicked {
+                value.as_secs_f64() * 1e3
+            } else {
+                f64::NAN
+            },
+            target: Target::at_most(limit).with_unit(" ms"),
+            note,
+        }
+    };
+    Ok(vec![
+        row("p99", 99.0, 0.5, note),
+        row("max", 100.0, 2.0, String::new()),
+    ])
+}
 
-    let mut latencies = Vec::with_capacity(plan.telegrams);
-    let mut lost = 0usize;
-    for i in 0..plan.telegrams {
+/// What one gateway binary delivered in the zenoh latency run.
+struct Deliveries {
+    latencies: Vec<Duration>,
+    lost: usize,
+    panicked: bool,
+    /// Its stall table (a gateway built with `stall-watch`).
+    stalls: Option<String>,
+}
+
+/// One gateway of the zenoh latency run: its telegram line's pty, a subscriber of the line's
+/// telegrams, a Modbus TCP client of its mailbox.
+struct Probe {
+    bin: std::path::PathBuf,
+    gw: Gateway,
+    port: SerialStream,
+    rx: tokio::sync::mpsc::UnboundedReceiver<Received>,
+    mailbox: Client,
+    _session: zenoh::Session,
+    _subscriber: zenoh::pubsub::Subscriber<()>,
+    latencies: Vec<Duration>,
+    lost: usize,
+}
+
+// === impl Probe ===
+
+impl Probe {
+    /// Starts the gateway `bin` and waits until its telegrams reach the subscriber.
+    async fn start(bin: &Path, shutdown: &CancellationToken) -> std::io::Result<Self> {
+        let (path, mut port) = pty(shutdown)?;
+        let config = format!(
+            "{}[lines.tg]\nport = \"{path}\"\nprotocol = \"ascii\"\nbaud = {BAUD}\n\
+             data_bits = 8\nparity = \"none\"\nstop_bits = 1\nend_criterion = \"end-chars\"\n\
+             end_chars = [0x03]\nunit_id = {MAILBOX_UNIT}\n",
+            head("bench")
+        );
+        let endpoint = format!("tcp/127.0.0.1:{}", free_port()?);
+        let gw = start(
+            bin,
+            "zenoh-latency",
+            config,
+            &["--zenoh-listen".to_owned(), endpoint.clone()],
+        )
+        .await?;
+        let session = zenoh_client(&endpoint).await?;
+        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<Received>();
+        let subscriber = session
+            .declare_subscriber("gw/bench/tg/rx")
+            .callback(move |sample| {
+                let at = Instant::now();
+                let _ = tx.send((at, sample.payload().to_bytes().into_owned()));
+            })
+            .await
+            .map_err(|e| std::io::Error::other(e.to_string()))?;
+        let mut mailbox = Client::connect(gw.modbus_tcp).await?;
+
+        // Until the subscription has reached the gateway.
+        let deadline = Instant::now() + Duration::from_secs(20);
+        loop {
+            port.write_all(b"W\x03").await?;
+            if let Ok(Some(_)) = tokio::time::timeout(Duration::from_millis(200), rx.recv()).await {
+                break;
+            }
+            if Instant::now() > deadline {
+                return Err(std::io::Error::other(format!(
+                    "no telegram reached the subscriber:\n{}",
+                    gw.output()
+                )));
+            }
+        }
+        // Warm-up telegrams sent before the subscription was in place are waiting in the
+        // mailbox without having reached the subscriber: release them all.
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        while rx.try_recv().is_ok() {}
+        drain_mailbox(&mut mailbox).await?;
+        Ok(Self {
+            bin: bin.to_owned(),
+            gw,
+            port,
+            rx,
+            mailbox,
+            _session: session,
+            _subscriber: subscriber,
+            latencies: Vec::new(),
+            lost: 0,
+        })
+    }
+
+    /// Telegram `i`: written, waited for at the subscriber, released in the mailbox.
+    async fn send(&mut self, i: usize) -> std::io::Result<()> {
         let telegram = format!("T{i:06}\x03");
-        port.write_all(telegram.as_bytes()).await?;
+        self.port.write_all(telegram.as_bytes()).await?;
         let sent = Instant::now();
         let wanted = format!("T{i:06}");
         let got = loop {
-            match tokio::time::timeout(Duration::from_secs(2), rx.recv()).await {
+            match tokio::time::timeout(Duration::from_secs(2), self.rx.recv()).await {
                 Ok(Some(r)) if r.1.starts_with(wanted.as_bytes()) => break Some(r),
                 Ok(Some(_)) => continue,
                 _ => break None,
@@ -215,36 +327,33 @@ pub(crate) async fn zenoh_latency(bin: &Path, plan: &Plan) -> std::io::Result<Ro
         };
         match got {
             Some((at, _)) => {
-                latencies.push(at.saturating_duration_since(sent));
+                self.latencies.push(at.saturating_duration_since(sent));
                 // Release the telegram (and any before it) so that the mailbox never fills up.
-                drain_mailbox(&mut mailbox).await?;
+                drain_mailbox(&mut self.mailbox).await?;
             }
-            None => lost += 1,
+            None => self.lost += 1,
         }
         tokio::time::sleep(Duration::from_millis(2)).await;
+        Ok(())
     }
-    let p99 = percentile(&latencies, 99.0);
-    let panicked = gw.panicked();
-    drop(gw);
-    Ok(Row {
-        name,
-        measured: ms(p99),
-        reference: "-".into(),
-        score: if lost == 0 && !panicked {
-            p99.as_secs_f64() * 1e3
-        } else {
-            f64::NAN
-        },
-        target: Target::at_most(2.0).with_unit(" ms"),
-        note: format!(
-            "{} telegrams of 8 bytes on an ASCII line (end character ETX), one at a time, each \
-             acknowledged in the mailbox; p50 {}, max {}; lost {lost}; subscriber: zenoh client \
-             on tcp/127.0.0.1, scouting off",
-            latencies.len(),
-            ms(percentile(&latencies, 50.0)),
-            ms(percentile(&latencies, 100.0)),
-        ),
-    })
+
+    /// Stops the gateway: what it delivered, and its stall table.
+    async fn finish(self) -> std::io::Result<Deliveries> {
+        let panicked = self.gw.panicked();
+        let gw = self.gw;
+        let stalls = tokio::task::spawn_blocking(move || gw.stalls())
+            .await
+            .map_err(std::io::Error::other)?;
+        if let Some(table) = &stalls {
+            eprintln!("  stalls of {}:\n{table}", self.bin.display());
+        }
+        Ok(Deliveries {
+            latencies: self.latencies,
+            lost: self.lost,
+            panicked,
+            stalls,
+        })
+    }
 }
 
 /// Tag samples per second a subscriber receives while two lines poll 125 changing registers as

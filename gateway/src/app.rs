@@ -209,7 +209,7 @@ pub fn handle_signals(shutdown: CancellationToken) -> Hangups {
             warn!("cannot install signal handlers; stop the gateway with SIGKILL");
             return rx;
         };
-        tokio::spawn(async move {
+        crate::task::spawn("signals", async move {
             // SIGHUP lines are rate-limited (`hangup_log::HANGUP_LOG`); the number left out is told
             // once the window is over.
             let mut tell_at = None;
@@ -250,7 +250,7 @@ pub fn handle_signals(shutdown: CancellationToken) -> Hangups {
         });
     }
     #[cfg(not(unix))]
-    tokio::spawn(async move {
+    crate::task::spawn("signals", async move {
         let _tx = tx;
         tokio::select! {
             _ = tokio::signal::ctrl_c() => info!("Ctrl-C received, stopping"),
@@ -390,17 +390,16 @@ pub(crate) async fn run_from(
         }
     };
     if let Some(hangups) = overrides.hangups.clone() {
-        tokio::spawn(reload::on_hangup(
-            Arc::clone(&sup),
-            hangups,
-            shutdown.child_token(),
-        ));
+        crate::task::spawn(
+            "reload on SIGHUP",
+            reload::on_hangup(Arc::clone(&sup), hangups, shutdown.child_token()),
+        );
     }
     if overrides.acknowledge_mailboxes {
-        tokio::spawn(demo::consume_mailboxes(
-            Arc::clone(&sup),
-            shutdown.child_token(),
-        ));
+        crate::task::spawn(
+            "demo mailbox consumer",
+            demo::consume_mailboxes(Arc::clone(&sup), shutdown.child_token()),
+        );
     }
     let (local, _) = sup.tcp_listen();
     info!(%local, units = ?sup.units.read().map(|u| u.unit_ids()).unwrap_or_default(), "Modbus TCP listening");
@@ -530,7 +529,7 @@ async fn serve_http(
     info!(%local, scheme, "HTTP listening: /api/v1, /healthz, /readyz, /metrics");
     // A fixed line on stdout that scripts and tests wait for (the same with HTTPS).
     println!("http listening on {local}");
-    Ok(tokio::spawn(async move {
+    Ok(crate::task::spawn("http server", async move {
         if let Err(e) = crate::api::serve(listener, state, shutdown.cancelled_owned()).await {
             warn!(error = %e, "HTTP server ended with an error");
         }

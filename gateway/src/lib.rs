@@ -21,6 +21,8 @@
 //! - [`paced`]: a paced link, a virtual serial cable with the timing of a real one;
 //! - [`sim`]: simulated devices on a serial port (`gateway sim`);
 //! - [`timer`]: a timer finer than tokio's milliseconds for the lines' t3.5 and the paced link;
+//! - [`task`]: every task spawned in one place with a name (polls over 1 ms reported in a
+//!   `stall-watch` build);
 //! - [`zenoh_bridge`]: telegrams, tag values, queries, writes, events and presence on zenoh;
 //! - [`api`]: the REST API under `/api/v1`, health, readiness and the OpenAPI document;
 //! - [`persist`]: the configuration file, replaced atomically with the previous version kept;
@@ -52,6 +54,7 @@ pub mod signals;
 pub mod sigpipe;
 pub mod sim;
 pub mod tags;
+pub mod task;
 pub mod timer;
 pub mod unit;
 pub mod zenoh_bridge;

@@ -127,7 +127,10 @@ fn main() -> ExitCode {
             return ExitCode::from(app::EX_SOFTWARE);
         }
     };
-    runtime.block_on(async_main(cli.command))
+    let code = runtime.block_on(gateway::task::watch("main", async_main(cli.command)));
+    // Empty unless built with `stall-watch`.
+    eprint!("{}", gateway::task::stalls());
+    code
 }
 
 async fn async_main(command: Command) -> ExitCode {

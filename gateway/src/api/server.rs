@@ -127,15 +127,18 @@ pub async fn serve(
             gate.count(HttpRejectReason::Evicted);
         }
         let local = stream.local_addr().ok();
-        tokio::spawn(connection(
-            stream,
-            peer,
-            local,
-            admitted.place,
-            gate.clone(),
-            service.clone(),
-            graceful.watcher(),
-        ));
+        crate::task::spawn(
+            "http connection",
+            connection(
+                stream,
+                peer,
+                local,
+                admitted.place,
+                gate.clone(),
+                service.clone(),
+                graceful.watcher(),
+            ),
+        );
     }
     drop(listener);
     tracing::info!(

@@ -205,7 +205,7 @@ fn start_simulator(
             };
             let token = shutdown.clone();
             let line_name = name.to_owned();
-            tokio::spawn(async move {
+            crate::task::spawn("demo simulated device", async move {
                 if let Err(e) = sim::serve_modbus(stream, sim, timing, token).await {
                     tracing::error!(line = %line_name, error = %e, "simulated device stopped");
                 }
@@ -245,7 +245,10 @@ fn start_simulator(
                 Some(every) => partner.every(every),
                 None => partner,
             };
-            tokio::spawn(partner.serve(stream, shutdown.clone()));
+            crate::task::spawn(
+                "demo telegram partner",
+                partner.serve(stream, shutdown.clone()),
+            );
             Ok(())
         }
         _ => {

@@ -294,7 +294,7 @@ impl Supervisor {
             Arc::clone(&self.tcp_stats),
         );
         let flag = Arc::clone(&up);
-        let task = tokio::spawn(async move {
+        let task = crate::task::spawn("modbus-tcp server", async move {
             match serve.await {
                 Ok(()) => {}
                 Err(e) => warn!(error = %e, "Modbus TCP server ended with an error"),

@@ -90,7 +90,7 @@ pub(crate) fn start(
         token.clone(),
         Arc::clone(stats),
     );
-    let task = tokio::spawn(async move {
+    let task = crate::task::spawn("modbus-tcp security server", async move {
         if let Err(e) = serve.await {
             warn!(error = %e, "Modbus/TCP Security server ended with an error");
         }
@@ -161,7 +161,7 @@ pub(crate) fn spawn_reloader<E: std::fmt::Display>(
     token: CancellationToken,
     reload: impl Fn() -> Result<(), E> + Send + 'static,
 ) {
-    tokio::spawn(async move {
+    crate::task::spawn("tls reloader", async move {
         loop {
             tokio::select! {
                 () = token.cancelled() => return,

@@ -403,7 +403,7 @@ pub fn spawn_persistence(
     settings: PersistSettings,
     shutdown: CancellationToken,
 ) -> JoinHandle<()> {
-    tokio::spawn(async move {
+    crate::task::spawn("cp memory persistence", async move {
         let mut saved = memory.generation();
         let mut ticker = tokio::time::interval(settings.interval.max(Duration::from_millis(10)));
         ticker.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);

@@ -50,7 +50,7 @@ pub fn spawn_tag_feed<F>(
     let bridge = bridge.clone();
     let mut changes = image.subscribe();
     let token = token.clone();
-    tokio::spawn(async move {
+    crate::task::spawn("zenoh tag feed", async move {
         loop {
             let change = tokio::select! {
                 () = token.cancelled() => return,
@@ -90,7 +90,7 @@ where
 {
     let bridge = bridge.clone();
     let token = token.clone();
-    tokio::spawn(async move {
+    crate::task::spawn("zenoh presence feed", async move {
         let mut online: BTreeSet<(String, String)> = BTreeSet::new();
         let mut open: BTreeSet<String> = BTreeSet::new();
         let mut ticker = tokio::time::interval(PRESENCE_PERIOD);
@@ -141,7 +141,7 @@ pub fn spawn_line_feeds(
     {
         let bridge = bridge.clone();
         let (token, line_token) = (token.clone(), line_token.clone());
-        tokio::spawn(async move {
+        crate::task::spawn("zenoh event feed", async move {
             loop {
                 let received = tokio::select! {
                     () = token.cancelled() => return,
@@ -179,7 +179,7 @@ pub fn spawn_line_feeds(
     let bridge = bridge.clone();
     let (token, line_token) = (token.clone(), line_token.clone());
     let name = name.to_owned();
-    tokio::spawn(async move {
+    crate::task::spawn("zenoh telegram feed", async move {
         loop {
             let received = tokio::select! {
                 () = token.cancelled() => return,
@@ -229,7 +229,7 @@ fn spawn_on_publish_feed(
 ) {
     let bridge = bridge.clone();
     let (token, line_token) = (token.clone(), line_token.clone());
-    tokio::spawn(async move {
+    crate::task::spawn("zenoh on-publish telegram feed", async move {
         loop {
             while let Some(t) = mailbox.head() {
                 let pushed = bridge.publish_telegram_confirmed(
@@ -281,7 +281,7 @@ fn spawn_frame_feed(
     let mut frames = monitor.subscribe();
     let bridge = bridge.clone();
     let (token, line_token) = (token.clone(), line_token.clone());
-    tokio::spawn(async move {
+    crate::task::spawn("zenoh frame feed", async move {
         let ended = monitor.ended();
         tokio::pin!(ended);
         loop {

@@ -222,17 +222,13 @@ fn admit(
             _client: client,
             _open: shared.stats.count_accepted(),
         };
-        tracker.spawn(connection::run(
-            stream,
-            peer,
-            shared,
-            shutdown,
-            places,
-            Authority::Open,
+        tracker.spawn(crate::task::watch(
+            "modbus-tcp connection",
+            connection::run(stream, peer, shared, shutdown, places, Authority::Open),
         ));
         return;
     };
-    tracker.spawn(async move {
+    tracker.spawn(crate::task::watch("modbus-tcp tls handshake", async move {
         let handshake_timeout = options.idle_timeout.min(HANDSHAKE_TIMEOUT);
         let handshake = tokio::time::timeout(handshake_timeout, tls.acceptor().accept(stream));
         let result = tokio::select! {
@@ -269,7 +265,7 @@ fn admit(
             _open: shared.stats.count_accepted(),
         };
         connection::run(stream, peer, shared, shutdown, places, authority).await;
-    });
+    }));
 }
 
 /// Log lines about refused connections (network filter, connection caps): the first few of a

@@ -257,7 +257,7 @@ pub async fn spawn_with(
     };
     let to_b = parts(Direction::AToB, &counters.a_to_b);
     let to_a = parts(Direction::BToA, &counters.b_to_a);
-    let handle = tokio::spawn(async move {
+    let handle = crate::task::spawn("paced pty relay", async move {
         // The slave ends stay open while the relay runs: the paths remain valid, and a side that
         // closes its end does not hang up the master.
         let _keep = (slave_a, slave_b);
@@ -312,7 +312,7 @@ pub fn paced_duplex(
     };
     let to_b = parts(Direction::AToB, &counters.a_to_b);
     let to_a = parts(Direction::BToA, &counters.b_to_a);
-    let handle = tokio::spawn(async move {
+    let handle = crate::task::spawn("paced duplex relay", async move {
         let (read_a, write_a) = tokio::io::split(relay_a);
         let (read_b, write_b) = tokio::io::split(relay_b);
         tokio::try_join!(pace(read_a, write_b, to_b), pace(read_b, write_a, to_a)).map(|_| ())

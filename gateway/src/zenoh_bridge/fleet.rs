@@ -526,7 +526,7 @@ pub(crate) async fn follow(
     let permits = Arc::new(tokio::sync::Semaphore::new(DESCRIBE_AT_ONCE));
     let describe = |key: String| {
         let (session, view, permits) = (session.clone(), view.clone(), permits.clone());
-        tokio::spawn(async move {
+        crate::task::spawn("zenoh fleet describe", async move {
             let Ok(_permit) = permits.acquire().await else {
                 return;
             };

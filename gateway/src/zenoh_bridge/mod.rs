@@ -360,14 +360,20 @@ impl Bridge {
             publishing,
         };
         if let Some(tick) = handle.publishing.tick() {
-            tokio::spawn(handle::heartbeats(
-                handle.clone(),
-                parts.backend.clone(),
-                tick,
-                shutdown.clone(),
-            ));
+            crate::task::spawn(
+                "zenoh heartbeats",
+                handle::heartbeats(
+                    handle.clone(),
+                    parts.backend.clone(),
+                    tick,
+                    shutdown.clone(),
+                ),
+            );
         }
-        let driver = tokio::spawn(session::drive(parts, session, zcfg, thread, shutdown));
+        let driver = crate::task::spawn(
+            "zenoh session driver",
+            session::drive(parts, session, zcfg, thread, shutdown),
+        );
         Ok((
             Self {
                 driver,

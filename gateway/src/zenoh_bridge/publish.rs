@@ -449,6 +449,7 @@ impl PublisherThread {
             session
                 .put(key.as_str(), payload)
                 .congestion_control(congestion(kind))
+                .express(express(kind))
                 .encoding(encoding)
                 .timestamp(session.new_timestamp())
                 .attachment(attachment)
@@ -482,6 +483,16 @@ fn congestion(kind: PublicationKind) -> CongestionControl {
     }
 }
 
+/// Telegrams, events and results are sent express: zenoh hands each to the link at once, in a
+/// batch of its own. A message that is not express waits in the batch being filled, and when the
+/// link's task finds that batch still being written to it backs off for up to
+/// `transport/link/tx/queue/batching/time_limit` (1 ms) on tokio's timer, whose ticks are a
+/// millisecond: up to 2 ms in the tail of a telegram's delivery. Tag values and frames, the
+/// bulk, keep being batched.
+fn express(kind: PublicationKind) -> bool {
+    congestion(kind) == CongestionControl::Block
+}
+
 /// A publisher for `key`, with the congestion control of its kind.
 fn declare(
     session: &Session,
@@ -491,6 +502,7 @@ fn declare(
     session
         .declare_publisher(key.to_owned())
         .congestion_control(congestion(kind))
+        .express(express(kind))
         .wait()
 }
 

@@ -76,12 +76,15 @@ pub(super) async fn drive(
     if let Some(session) = &session {
         parts.stats.set_session_open(true);
         // The fleet is followed whoever holds this gateway's name.
-        tokio::spawn(fleet::follow(
-            session.clone(),
-            parts.keys.clone(),
-            parts.fleet.clone(),
-            shutdown.clone(),
-        ));
+        crate::task::spawn(
+            "zenoh fleet follow",
+            fleet::follow(
+                session.clone(),
+                parts.keys.clone(),
+                parts.fleet.clone(),
+                shutdown.clone(),
+            ),
+        );
         // Publications, queryables, subscribers and the token only once the name is ours.
         let ours = parts.on_duplicate == OnDuplicate::Exit
             || fleet::take_name(
@@ -163,12 +166,15 @@ async fn declare(
         },
         tokio::runtime::Handle::current(),
     );
-    tokio::spawn(subscribe::dispatch(
-        commands.clone(),
-        command_rx,
-        parts.backend.clone(),
-        shutdown.clone(),
-    ));
+    crate::task::spawn(
+        "zenoh subscriber dispatch",
+        subscribe::dispatch(
+            commands.clone(),
+            command_rx,
+            parts.backend.clone(),
+            shutdown.clone(),
+        ),
+    );
     let (queries, query_rx) =
         Queries::new(parts.stats.clone(), parts.query_queue, parts.max_payload);
     let answerer = Arc::new(Answerer {
@@ -182,7 +188,10 @@ async fn declare(
             "listen": parts.listen,
         }),
     });
-    tokio::spawn(queryable::serve(answerer, query_rx, shutdown.clone()));
+    crate::task::spawn(
+        "zenoh queryable",
+        queryable::serve(answerer, query_rx, shutdown.clone()),
+    );
 
     let mut subscribers = Vec::new();
     for key in [keys.tx_pattern(), keys.set_pattern(), keys.ack_pattern()] {

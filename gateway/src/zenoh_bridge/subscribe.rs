@@ -396,12 +396,10 @@ pub(crate) async fn dispatch(
                     continue;
                 }
                 let (tx, wrx) = mpsc::channel(commands.per_line);
-                tokio::spawn(line_worker(
-                    commands.clone(),
-                    wrx,
-                    backend.clone(),
-                    shutdown.clone(),
-                ));
+                crate::task::spawn(
+                    "zenoh line worker",
+                    line_worker(commands.clone(), wrx, backend.clone(), shutdown.clone()),
+                );
                 workers.entry(cmd.line.clone()).insert_entry(tx).into_mut()
             }
         };

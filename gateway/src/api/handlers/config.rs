@@ -453,7 +453,7 @@ where
 {
     let if_match = headers.clone();
     let edit: Edit = Box::new(edit);
-    let task = tokio::spawn(async move {
+    let task = crate::task::spawn("rest config change", async move {
         let result = change_in_task(&state, &if_match, edit).await;
         match &result {
             Ok(r) => state.backend().audit(

@@ -540,7 +540,7 @@ pub(crate) fn spawn<E: LineEngine, O: PortOpener>(
         first,
         second,
     };
-    let task = tokio::spawn(task.run());
+    let task = crate::task::spawn("line port task", task.run());
     LineHandle {
         name,
         protocol,

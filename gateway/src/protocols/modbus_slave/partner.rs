@@ -178,7 +178,7 @@ where
     let stop = shutdown.child_token();
     let make = |clock| SimMaster::new(settings, clock, Arc::clone(&stats), stop.clone());
     let line = spawn_line("sim-master", make, Unmarked(port), char_time, stop.clone());
-    let task = tokio::spawn(line.join());
+    let task = crate::task::spawn("sim master join", line.join());
     SimMasterHandle { stats, task }
 }
 

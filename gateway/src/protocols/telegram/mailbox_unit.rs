@@ -55,7 +55,10 @@ impl MailboxUnit {
                 })?;
                 if let Some(started) = started {
                     let mailbox = Arc::clone(&self.mailbox);
-                    tokio::spawn(wait_for_result(mailbox, started.req, started.pending));
+                    crate::task::spawn(
+                        "mailbox send result",
+                        wait_for_result(mailbox, started.req, started.pending),
+                    );
                 }
                 Ok(())
             }
