@@ -234,13 +234,14 @@ async fn run(args: &Args) -> Vec<Row> {
 
     if wanted(Group::Poll) {
         eprintln!("poll rate against the best case");
-        let (mut violations, mut requests) = (0, 0);
+        let (mut violations, mut requests, mut own) = (0, 0, Vec::new());
         for baud in poll::BAUDS {
             for n in poll::REGISTERS {
                 match poll::poll_rate(baud, n, &plan).await {
                     Ok(run) => {
                         violations += run.violations;
                         requests += run.requests;
+                        own.extend(run.own);
                         push(&mut rows, run.row);
                     }
                     Err(e) => push(&mut rows, failed(&format!("poll rate {baud} Bd, N={n}"), e)),
@@ -260,6 +261,7 @@ async fn run(args: &Args) -> Vec<Row> {
                     .into(),
             },
         );
+        push(&mut rows, poll::own_time_row(&own));
     }
     if wanted(Group::Dead) {
         eprintln!("one dead device among ten");

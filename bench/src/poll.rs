@@ -32,11 +32,12 @@ use gateway::protocols::{
 use gateway::serial::PortSettings;
 use gateway::sim::{serve_modbus, ModbusDevice};
 use proto_core::modbus::rtu::CharTiming;
+use tokio::sync::broadcast;
 use tokio_util::sync::CancellationToken;
 
 use crate::device::FlatDevice;
 use crate::report::{Row, Target};
-use crate::stats::{mean, ms};
+use crate::stats::{mean, ms, percentile};
 use crate::tap::{device_relay, lock, DeviceLog, MasterTap};
 use crate::Plan;
 
@@ -165,6 +166,62 @@ pub(crate) struct PollRun {
     pub(crate) violations: u64,
     /// Requests seen.
     pub(crate) requests: u64,
+    /// The master's own time before each request beyond t3.5 (see [`OwnTime`]).
+    pub(crate) own: Vec<Duration>,
+}
+
+/// The gateway's own time per cycle, from its frame monitor: from the moment the line read the
+/// answer's last byte to the moment it had written the next request, minus the t3.5 of silence
+/// it must leave (003 6.4.3). The tap's "master gap" adds two pty hops (the answer into the line's
+/// port, the request out of it), which belong to neither the gateway nor the wire.
+#[derive(Default)]
+struct OwnTime {
+    /// The last byte of the last received frame, if the last frame was received.
+    answer_end: Option<Duration>,
+    /// Each request's time beyond t3.5 after the answer before it.
+    beyond: Vec<Duration>,
+}
+
+// === impl OwnTime ===
+
+impl OwnTime {
+    fn frame(&mut self, frame: &gateway::line::Frame, t35: Duration) {
+        if frame.direction == proto_core::monitor::Direction::Tx {
+            if let Some(end) = self.answer_end.take() {
+                let gap = frame.first_mono.saturating_sub(end);
+                self.beyond.push(gap.saturating_sub(t35));
+            }
+        } else {
+            self.answer_end = Some(frame.last_mono);
+        }
+    }
+}
+
+/// The row of the gateway's own time per cycle over every poll-rate run: median and p99 of the
+/// time beyond t3.5 (target: median <= 30 us, so that 115200 Bd N = 1 reaches 0.95 of the best
+/// case).
+pub(crate) fn own_time_row(own: &[Duration]) -> Row {
+    let name = "master's own time per cycle beyond t3.5, median".to_owned();
+    if own.is_empty() {
+        return failed(name, "no frames: the rows ran without the frame monitor");
+    }
+    let us = |d: Duration| d.as_secs_f64() * 1e6;
+    let median = percentile(own, 50.0);
+    Row {
+        name,
+        measured: format!("{:.1} us", us(median)),
+        reference: "-".into(),
+        score: us(median),
+        target: Target::at_most(30.0).with_unit(" us"),
+        note: format!(
+            "{} requests of the poll-rate runs; line read the answer's last byte -> line wrote \
+             the next request, minus the line's t3.5 (frame monitor's times); p99 {:.1} us, max \
+             {:.1} us",
+            own.len(),
+            us(percentile(own, 99.0)),
+            us(percentile(own, 100.0)),
+        ),
+    }
 }
 
 /// Polls `n` registers flat out at `baud` and compares the rate with the best case.
@@ -189,6 +246,7 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
             ),
             violations: 0,
             requests: 0,
+            own: Vec::new(),
         });
     }
     // Long enough for the plan's number of cycles (estimated with a 1 ms turnaround).
@@ -201,7 +259,28 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
         (log.exchanges.len(), log.violations, log.gaps.len())
     };
     let d0 = lock(&rig.device).turnarounds.len();
-    tokio::time::sleep(window).await;
+    let mut own = OwnTime::default();
+    match rig.line.monitor().map(|m| m.subscribe()) {
+        Some(mut frames) => {
+            let end = tokio::time::sleep(window);
+            tokio::pin!(end);
+            loop {
+                tokio::select! {
+                    () = &mut end => break,
+                    frame = frames.recv() => match frame {
+                        Ok(frame) => own.frame(&frame, master_t35),
+                        // Frames missed: the pair around the gap is not known.
+                        Err(broadcast::error::RecvError::Lagged(_)) => own.answer_end = None,
+                        Err(broadcast::error::RecvError::Closed) => {
+                            end.as_mut().await;
+                            break;
+                        }
+                    },
+                }
+            }
+        }
+        None => tokio::time::sleep(window).await,
+    }
     let (p1, t1) = (polls_ok(&rig.line, 0..1), Instant::now());
     let (serial, violations, requests, gap, cycle) = {
         let log = lock(&rig.master.log);
@@ -276,6 +355,7 @@ pub(crate) async fn poll_rate(baud: u32, n: u16, plan: &Plan) -> std::io::Result
         },
         violations,
         requests,
+        own: own.beyond,
     })
 }
 

@@ -9,9 +9,14 @@
 //! gaps inside a frame longer than t3.5.
 //!
 //! [`LineTimer`] on Linux arms a timerfd (`CLOCK_MONOTONIC`, absolute deadline) registered with
-//! tokio's reactor: the kernel's high-resolution timer wakes the reactor at the deadline, within
-//! tens of microseconds when a core is free. Nothing busy-waits. Where there is no timerfd (other
-//! systems, or creating one failed, or no tokio runtime) it falls back to tokio's sleep.
+//! tokio's reactor: the kernel's high-resolution timer wakes the reactor, and the task runs tens of
+//! microseconds later when a core is free. That wake-up lateness is most of what a master line
+//! spends between an answer's end and its next request (at 115200 Bd a cycle of one register takes
+//! 3.6 ms), so the timer learns it: it is armed ahead of the deadline by the running mean of how
+//! late its last expiries were served (at most [`MAX_LEAD`]), and a wake-up that comes before the
+//! deadline spins the rest (`std::hint::spin_loop`, on average the spread of the lateness, never
+//! more than the lead). Where there is no timerfd (other systems, or creating one failed, or no
+//! tokio runtime) it falls back to tokio's sleep.
 //!
 //! The deadline is a [`tokio::time::Instant`] and a sleep ends only once
 //! `tokio::time::Instant::now()` has reached it, checked against the clock after every wake-up:
@@ -31,6 +36,11 @@
 use std::time::Duration;
 
 use tokio::time::Instant;
+
+/// The most a timerfd is armed ahead of its deadline, and so the longest a wake-up spins: the
+/// lateness of a wake-up on a free core (tens of microseconds); a machine busier than that is
+/// served late whatever the lead.
+pub const MAX_LEAD: Duration = Duration::from_micros(50);
 
 /// A one-shot timer precise to tens of microseconds on Linux (see the module doc).
 #[derive(Debug)]
@@ -126,6 +136,8 @@ mod timerfd {
     use tokio::io::Interest;
     use tokio::time::Instant;
 
+    use super::MAX_LEAD;
+
     /// The longest a timerfd is armed ahead; a later deadline is reached by re-arming on the way
     /// (the tokio sleep alongside wakes the task then).
     const MAX_AHEAD: Duration = Duration::from_secs(24 * 3600);
@@ -145,8 +157,12 @@ mod timerfd {
     #[derive(Debug)]
     pub(super) struct TimerFd {
         fd: AsyncFd<OwnedFd>,
-        /// The deadline the timerfd is armed for and has not yet reported.
+        /// The instant the timerfd is armed for (its deadline less the lead) and has not yet
+        /// reported.
         armed: Option<Instant>,
+        /// How far ahead of a deadline the timerfd is armed: the running mean (weight 1/8) of
+        /// how late the expiries were served, at most [`MAX_LEAD`].
+        lead: Duration,
     }
 
     // === impl TimerFd ===
@@ -168,16 +184,25 @@ mod timerfd {
             // which is the whole safety contract of `register_with_interest`.
             #[allow(deprecated)]
             let fd = AsyncFd::with_interest(fd, Interest::READABLE)?;
-            Ok(Self { fd, armed: None })
+            Ok(Self {
+                fd,
+                armed: None,
+                lead: Duration::ZERO,
+            })
         }
 
         /// Waits until the timerfd has fired for `deadline` and tokio's clock has reached it.
         pub(super) async fn wait(&mut self, deadline: Instant) -> io::Result<Waited> {
             loop {
-                if Instant::now() >= deadline {
+                let now = Instant::now();
+                if now >= deadline {
                     return Ok(Waited::Deadline);
                 }
-                self.arm(deadline)?;
+                let Some(wake_at) = deadline.checked_sub(self.lead).filter(|at| *at > now) else {
+                    // Sooner than a wake-up would come.
+                    return Ok(spin_until(deadline));
+                };
+                self.arm(wake_at)?;
                 let mut ready = self.fd.readable().await?;
                 let mut expirations = [0u8; 8];
                 let fired = match rustix::io::read(ready.get_inner(), &mut expirations) {
@@ -188,28 +213,30 @@ mod timerfd {
                 };
                 ready.clear_ready();
                 if fired {
-                    // Disarmed until the next `arm`. It was armed no earlier than the deadline
-                    // on the monotonic clock, which tokio's clock reads unless it is paused.
+                    // Disarmed until the next `arm`. It was armed no earlier than `wake_at` on
+                    // the monotonic clock, which tokio's clock reads unless it is paused.
                     self.armed = None;
-                    if Instant::now() < deadline {
+                    let now = Instant::now();
+                    if now < wake_at {
                         return Ok(Waited::ClockPaused);
                     }
-                    return Ok(Waited::Deadline);
+                    let late = (now - wake_at).min(MAX_LEAD);
+                    self.lead = (self.lead * 7 + late) / 8;
+                    // Early by at most the lead: the rest is shorter than a wake-up.
+                    return Ok(spin_until(deadline));
                 }
             }
         }
 
-        /// Arms the timerfd for `deadline` (tokio's clock) unless it already is.
-        fn arm(&mut self, deadline: Instant) -> io::Result<()> {
-            if self.armed == Some(deadline) {
+        /// Arms the timerfd for `at` (tokio's clock) unless it already is.
+        fn arm(&mut self, at: Instant) -> io::Result<()> {
+            if self.armed == Some(at) {
                 return Ok(());
             }
             // tokio's clock first, then the monotonic clock: the second read is the later one, so
-            // the absolute expiry is never before the deadline (tokio's clock is std's Instant,
+            // the absolute expiry is never before `at` (tokio's clock is std's Instant,
             // CLOCK_MONOTONIC on Linux, whenever it is not paused).
-            let ahead = deadline
-                .saturating_duration_since(Instant::now())
-                .min(MAX_AHEAD);
+            let ahead = at.saturating_duration_since(Instant::now()).min(MAX_AHEAD);
             let now = clock_gettime(ClockId::Monotonic);
             let value = add(now, ahead);
             timerfd_settime(
@@ -220,7 +247,7 @@ mod timerfd {
                     it_value: value,
                 },
             )?;
-            self.armed = Some(deadline);
+            self.armed = Some(at);
             Ok(())
         }
 
@@ -248,6 +275,19 @@ mod timerfd {
                 Err(err) => Err(err.into()),
             }
         }
+    }
+
+    /// Spins until tokio's clock reaches `deadline`, at most [`MAX_LEAD`] away; `ClockPaused` when
+    /// it has not after twice that on the real clock (tokio's clock is paused).
+    fn spin_until(deadline: Instant) -> Waited {
+        let start = std::time::Instant::now();
+        while Instant::now() < deadline {
+            if start.elapsed() > MAX_LEAD * 2 {
+                return Waited::ClockPaused;
+            }
+            std::hint::spin_loop();
+        }
+        Waited::Deadline
     }
 
     /// An `it_value` of zero disarms a timerfd.
