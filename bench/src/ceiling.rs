@@ -129,7 +129,16 @@ pub(crate) async fn ceiling(
             p.display()
         ))
     );
-    let cpu = |f: &Figures| format!("{:.3} cores for {:.0} tag updates/s", f.cores, f.updates);
+    // The CPU grows with the samples published: per sample it compares runs whose share of
+    // the updates published differs (the machine's other load decides it).
+    let cpu = |f: &Figures| {
+        format!(
+            "{:.3} cores for {:.0} tag updates/s, {:.1} us per sample received",
+            f.cores,
+            f.updates,
+            1e6 * f.cores / f.samples.max(1.0)
+        )
+    };
     let share = |f: &Figures| {
         format!(
             "{:.0} samples/s of {:.0} updates/s ({:.1} %)",
