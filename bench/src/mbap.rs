@@ -83,6 +83,32 @@ impl Client {
         Ok(())
     }
 
+    /// `depth` FC 03 reads of 125 holding registers from 0 of `unit` written at once (a client
+    /// that pipelines), then their answers, in order; an exception or a malformed answer is an
+    /// error.
+    pub(crate) async fn read_125_pipelined(&mut self, unit: u8, depth: usize) -> io::Result<()> {
+        let mut requests = Vec::with_capacity(12 * depth);
+        let mut ids = Vec::with_capacity(depth);
+        for _ in 0..depth {
+            let h = self.header(unit, 5);
+            requests.extend_from_slice(&h);
+            requests.extend_from_slice(&[0x03, 0, 0, 0, 125]);
+            ids.push([h[0], h[1]]);
+        }
+        self.stream.write_all(&requests).await?;
+        self.answer.resize(FC03_125_ANSWER * depth, 0);
+        self.stream.read_exact(&mut self.answer).await?;
+        for (answer, id) in self.answer.chunks_exact(FC03_125_ANSWER).zip(&ids) {
+            if answer.get(..2) != Some(&id[..]) || answer.get(7..9) != Some(&[0x03, 250]) {
+                return Err(io::Error::other(format!(
+                    "unexpected answer {:02X?}",
+                    answer.get(..9).unwrap_or_default()
+                )));
+            }
+        }
+        Ok(())
+    }
+
     /// FC 03: reads one holding register of `unit`; an exception or a malformed answer is an
     /// error.
     pub(crate) async fn read_one(&mut self, unit: u8, address: u16) -> io::Result<u16> {

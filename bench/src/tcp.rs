@@ -158,8 +158,12 @@ async fn bare_server(shutdown: &CancellationToken) -> std::io::Result<SocketAddr
     let server = tokio_modbus::server::tcp::Server::new(listener);
     let stop = shutdown.clone();
     tokio::spawn(async move {
-        let on_connected = |stream, peer| {
+        let on_connected = |stream: tokio::net::TcpStream, peer| {
             let service = FlatService(Arc::clone(&image));
+            // As the gateway's server does: an answer written behind another that is not yet
+            // acknowledged goes out at once (without it, Nagle and the client's delayed ACK hold
+            // each second answer of a pipelined burst for 40 ms).
+            let _ = stream.set_nodelay(true);
             async move {
                 tokio_modbus::server::tcp::accept_tcp_connection(stream, peer, |_| {
                     Ok(Some(service.clone()))
@@ -214,10 +218,15 @@ fn worker_cpu() -> Duration {
     Duration::from_millis(ticks * 1000 / USER_HZ)
 }
 
-/// `connections` clients reading 125 registers as fast as answers come, for `duration`, on a
-/// runtime of their own on a separate thread.
-async fn load(addr: SocketAddr, connections: usize, duration: Duration) -> std::io::Result<Load> {
-    load_over(addr, None, connections, duration).await
+/// `connections` clients reading 125 registers as fast as answers come, `depth` requests written
+/// at once (1: one at a time), for `duration`, on a runtime of their own on a separate thread.
+async fn load(
+    addr: SocketAddr,
+    connections: usize,
+    depth: usize,
+    duration: Duration,
+) -> std::io::Result<Load> {
+    load_over(addr, None, connections, depth, duration).await
 }
 
 /// [`load`] over TLS with `tls`'s client certificate, or plain without.
@@ -225,6 +234,7 @@ async fn load_over(
     addr: SocketAddr,
     tls: Option<TlsConnector>,
     connections: usize,
+    depth: usize,
     duration: Duration,
 ) -> std::io::Result<Load> {
     let (tx, rx) = tokio::sync::oneshot::channel();
@@ -237,6 +247,7 @@ async fn load_over(
                     addr,
                     tls.as_ref(),
                     connections,
+                    depth,
                     duration,
                 ))
             });
@@ -250,6 +261,7 @@ async fn load_on_this_thread(
     addr: SocketAddr,
     tls: Option<&TlsConnector>,
     connections: usize,
+    depth: usize,
     duration: Duration,
 ) -> std::io::Result<Load> {
     let mut clients = Vec::with_capacity(connections);
@@ -268,7 +280,11 @@ async fn load_on_this_thread(
                 let mut latencies = Vec::with_capacity(65_536);
                 while Instant::now() < until {
                     let t = Instant::now();
-                    client.read_125(UNIT).await?;
+                    if depth > 1 {
+                        client.read_125_pipelined(UNIT, depth).await?;
+                    } else {
+                        client.read_125(UNIT).await?;
+                    }
                     latencies.push(t.elapsed());
                 }
                 Ok::<_, std::io::Error>(latencies)
@@ -278,7 +294,7 @@ async fn load_on_this_thread(
     let mut out = Load::default();
     for task in tasks {
         let latencies = task.await.map_err(std::io::Error::other)??;
-        out.requests += latencies.len() as u64;
+        out.requests += (latencies.len() * depth) as u64;
         out.latencies.extend(latencies);
     }
     out.elapsed = start.elapsed();
@@ -304,7 +320,12 @@ async fn until_answers_over(addr: SocketAddr, tls: Option<&TlsConnector>) -> std
     }
 }
 
-/// Throughput and p99 rows for 1 and 16 connections.
+/// Requests a pipelining client of the cached rows writes at once.
+const PIPELINED: usize = 8;
+
+/// Throughput and p99 rows for 1 and 16 connections, and for 1 connection writing
+/// [`PIPELINED`] requests at once (p99 of the whole burst). Target: 1.2 x the bare server's
+/// requests/s, p99 no worse than its.
 pub(crate) async fn cached_reads(plan: &Plan) -> std::io::Result<Vec<Row>> {
     let shutdown = CancellationToken::new();
     let _stop = shutdown.clone().drop_guard();
@@ -313,7 +334,7 @@ pub(crate) async fn cached_reads(plan: &Plan) -> std::io::Result<Vec<Row>> {
     until_answers(gateway).await?;
     until_answers(bare).await?;
     let mut rows = Vec::new();
-    for connections in [1usize, 16] {
+    for (connections, depth) in [(1usize, 1usize), (16, 1), (1, PIPELINED)] {
         let (mut gw, mut reference) = (Load::default(), Load::default());
         for round in 0..plan.tcp_rounds {
             let order = if round % 2 == 0 {
@@ -322,7 +343,7 @@ pub(crate) async fn cached_reads(plan: &Plan) -> std::io::Result<Vec<Row>> {
                 [(gateway, true), (bare, false)]
             };
             for (addr, is_gateway) in order {
-                let run = load(addr, connections, plan.tcp_slice).await?;
+                let run = load(addr, connections, depth, plan.tcp_slice).await?;
                 let into = if is_gateway { &mut gw } else { &mut reference };
                 into.requests += run.requests;
                 into.elapsed += run.elapsed;
@@ -353,20 +374,24 @@ pub(crate) async fn cached_reads(plan: &Plan) -> std::io::Result<Vec<Row>> {
             cpu(&reference),
             cpu(&gw) / cpu(&reference).max(1e-12),
         );
+        let shape = match depth {
+            1 => format!("{connections} conn"),
+            _ => format!("{connections} conn x {depth} pipelined"),
+        };
         rows.push(Row {
-            name: format!("TCP FC03 x125 cached, {connections} conn: requests/s / bare"),
+            name: format!("TCP FC03 x125 cached, {shape}: requests/s / bare"),
             measured: format!("{gw_rate:.0}/s"),
             reference: format!("{bare_rate:.0}/s"),
             score: gw_rate / bare_rate,
-            target: Target::at_least(1.0),
+            target: Target::at_least(1.2),
             note: conditions,
         });
         rows.push(Row {
-            name: format!("TCP FC03 x125 cached, {connections} conn: p99 / bare p99"),
+            name: format!("TCP FC03 x125 cached, {shape}: p99 / bare p99"),
             measured: ms(gw_p99),
             reference: ms(bare_p99),
             score: gw_p99.as_secs_f64() / bare_p99.as_secs_f64().max(1e-12),
-            target: Target::at_most(2.0),
+            target: Target::at_most(1.0),
             note: String::new(),
         });
     }
@@ -401,11 +426,12 @@ pub(crate) async fn cached_reads_tls(plan: &Plan) -> std::io::Result<Vec<Row>> {
                         secure,
                         Some(tls.connector.clone()),
                         connections,
+                        1,
                         plan.tcp_slice,
                     )
                     .await?
                 } else {
-                    load(plain, connections, plan.tcp_slice).await?
+                    load(plain, connections, 1, plan.tcp_slice).await?
                 };
                 let into = if is_tls { &mut over_tls } else { &mut over_tcp };
                 into.requests += run.requests;

@@ -291,6 +291,54 @@ async fn transaction_ids_are_echoed_and_pipelined_requests_answered_in_order() {
     server.stop().await;
 }
 
+#[tokio::test]
+async fn a_pipelined_burst_is_answered_in_one_write() {
+    let server = start(ServerOptions::default()).await;
+    let mut stream = server.raw().await;
+    let (mut burst, mut expected) = (Vec::new(), Vec::new());
+    for i in 0u8..10 {
+        burst.extend_from_slice(&adu(u16::from(i), 1, &[0x03, 0, 30 + i, 0, 1]));
+        expected.extend_from_slice(&adu(u16::from(i), 1, &[0x03, 2, 0, 30 + i]));
+    }
+    stream.write_all(&burst).await.expect("one write");
+    // The ten answers left in one segment: the first read takes them all.
+    let mut answers = vec![0u8; 2 * expected.len()];
+    let n = within("answers", stream.read(&mut answers))
+        .await
+        .expect("read");
+    assert_eq!(answers.get(..n), Some(&expected[..]));
+    server.stop().await;
+}
+
+#[tokio::test]
+async fn answers_before_a_waiting_unit_leave_before_it_answers() {
+    let memory = MemoryUnit::new(10);
+    let (started_tx, mut started_rx) = tokio::sync::mpsc::unbounded_channel();
+    let slow = SlowUnit {
+        inner: memory.clone(),
+        delay: Duration::from_secs(2),
+        started: started_tx,
+    };
+    let mut map = UnitMap::new();
+    map.insert(1, memory.clone());
+    map.insert(2, Arc::new(slow));
+    let server = start_with(ServerOptions::default(), map, memory).await;
+    let mut stream = server.raw().await;
+    let mut burst = adu(1, 1, &[0x03, 0, 4, 0, 1]);
+    burst.extend_from_slice(&adu(2, 2, &[0x03, 0, 5, 0, 1]));
+    stream.write_all(&burst).await.expect("one write");
+    within("request reaches the slow unit", started_rx.recv())
+        .await
+        .expect("started");
+    // Unit 1's answer is there while unit 2 still waits (2 s); unit 2's follows.
+    let first = tokio::time::timeout(Duration::from_secs(1), read_adu(&mut stream))
+        .await
+        .expect("the first answer before the slow unit's");
+    assert_eq!(first, adu(1, 1, &[0x03, 2, 0, 4]));
+    assert_eq!(read_adu(&mut stream).await, adu(2, 2, &[0x03, 2, 0, 5]));
+    server.stop().await;
+}
+
 // === bad input ===
 
 #[tokio::test]

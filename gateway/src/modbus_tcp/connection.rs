@@ -5,12 +5,16 @@
 //! moves only when a request has been answered, so a client that trickles bytes without finishing
 //! a frame is closed as idle as well.
 //!
-//! The response is built in one buffer per connection (header room, then the PDU the unit writes)
-//! and leaves in one write.
+//! Each response is built in one buffer per connection (header room, then the PDU the unit writes)
+//! and appended to the burst's answers: the responses to every complete frame a read brought (a
+//! client that pipelines) leave in one write, after the last of them. A unit that has to wait (the
+//! device answers) sends what is answered before it first, so no answer waits for another's device.
 
+use std::future::{poll_fn, Future};
 use std::io;
 use std::net::SocketAddr;
 use std::sync::Arc;
+use std::task::Poll;
 
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
 use tokio::net::TcpStream;
@@ -93,6 +97,8 @@ async fn serve<S: ClientStream>(
     let mut chunk = [0u8; READ_CHUNK];
     // The response ADU: the header's room, then the PDU written by `answer`.
     let mut adu = Vec::with_capacity(MAX_ADU_LEN);
+    // The responses of the burst not yet written, in order.
+    let mut answered: Vec<u8> = Vec::with_capacity(MAX_ADU_LEN);
     let mut deadline = deadline_after(idle);
     // One timer and one shutdown waiter for the connection's life, not one per request: the
     // timer is armed for the deadline it had when armed, and when it fires early (the deadline
@@ -102,12 +108,13 @@ async fn serve<S: ClientStream>(
     let cancelled = shutdown.cancelled();
     tokio::pin!(cancelled);
     loop {
-        // Answer every complete frame already received, in order.
-        loop {
+        // Answer every complete frame already received, in order; a bad frame closes the
+        // connection after the answers before it.
+        let closing = loop {
             let frame = match next_frame(&mut reader, peer, shared) {
                 Ok(Some(frame)) => frame,
-                Ok(None) => break,
-                Err(reason) => return reason,
+                Ok(None) => break None,
+                Err(reason) => break Some(reason),
             };
             if shared.options.generation() != generation {
                 generation = shared.options.generation();
@@ -117,36 +124,56 @@ async fn serve<S: ClientStream>(
             let header = frame.header;
             adu.clear();
             adu.resize(HEADER_LEN, 0);
-            if let Err(reject) = answer(
-                shared,
-                &options,
-                authority,
-                peer,
-                header.unit_id,
-                frame.pdu,
-                &mut adu,
-            )
-            .await
-            {
+            let result = {
+                let answering = answer(
+                    shared,
+                    &options,
+                    authority,
+                    peer,
+                    header.unit_id,
+                    frame.pdu,
+                    &mut adu,
+                );
+                tokio::pin!(answering);
+                match poll_fn(|cx| Poll::Ready(answering.as_mut().poll(cx))).await {
+                    Poll::Ready(result) => result,
+                    Poll::Pending => {
+                        // The unit waits: the answers before it leave first.
+                        if let Err(reason) = write_response(stream, peer, &answered, idle).await {
+                            return reason;
+                        }
+                        answered.clear();
+                        answering.await
+                    }
+                }
+            };
+            if let Err(reject) = result {
                 crate::warn_limited!(
                     "modbus_tcp/no_function",
                     %peer, transaction_id = header.transaction_id,
                     "frame without function code, closing the connection"
                 );
                 shared.stats.count_frame_rejected(reject);
-                return CloseReason::BadFrame;
+                break Some(CloseReason::BadFrame);
             }
             // `answer` never gives more than `MAX_PDU_LEN` bytes.
             if !complete_frame(header, &mut adu) {
-                return CloseReason::BadFrame;
+                break Some(CloseReason::BadFrame);
             }
-            if let Err(reason) = write_response(stream, peer, &adu, idle).await {
+            answered.extend_from_slice(&adu);
+        };
+        if !answered.is_empty() {
+            if let Err(reason) = write_response(stream, peer, &answered, idle).await {
                 return reason;
             }
+            answered.clear();
             deadline = deadline_after(idle);
             if shutdown.is_cancelled() {
                 return CloseReason::Shutdown;
             }
+        }
+        if let Some(reason) = closing {
+            return reason;
         }
         // A request that is there is read before a shutdown is noticed: it is answered, and the
         // check after the answer closes the connection.
@@ -215,7 +242,7 @@ fn received(
     }
 }
 
-/// Writes a response: at once when the socket takes it whole (the usual case on plain TCP, no
+/// Writes responses (none: nothing to do): at once when the socket takes it whole (the usual case on plain TCP, no
 /// timer), else the rest (and, on TLS, the flush of the record) within `idle`. `Err`: why the
 /// connection closes.
 async fn write_response<S: ClientStream>(
@@ -224,6 +251,9 @@ async fn write_response<S: ClientStream>(
     adu: &[u8],
     idle: std::time::Duration,
 ) -> Result<(), CloseReason> {
+    if adu.is_empty() {
+        return Ok(());
+    }
     let written = match stream.write_now(adu) {
         Ok(n) => n,
         Err(error) => {
