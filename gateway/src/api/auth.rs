@@ -217,10 +217,7 @@ impl Auth {
 
     /// No token: every change is refused.
     pub fn locked() -> Self {
-        Self {
-            tokens: Vec::new(),
-            insecure: false,
-        }
+        Self::with_tokens(Vec::new())
     }
 
     /// No token: every change is accepted. For demos only.

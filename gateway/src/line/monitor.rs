@@ -87,6 +87,17 @@ struct Ring {
     next_seq: u64,
 }
 
+impl Ring {
+    /// The frames with a sequence number above `since`, oldest first.
+    fn above(&self, since: u64) -> Vec<Frame> {
+        self.frames
+            .iter()
+            .filter(|f| f.seq > since)
+            .cloned()
+            .collect()
+    }
+}
+
 /// A line's frame monitor: the ring of its last frames, shared by the line's task (which fills
 /// it) and its readers (REST, zenoh, captures).
 #[derive(Debug)]
@@ -183,13 +194,7 @@ impl FrameMonitor {
     /// first, and the sequence number the next frame will have.
     pub fn frames_since(&self, since: u64) -> (Vec<Frame>, u64) {
         let ring = self.lock();
-        let frames = ring
-            .frames
-            .iter()
-            .filter(|f| f.seq > since)
-            .cloned()
-            .collect();
-        (frames, ring.next_seq)
+        (ring.above(since), ring.next_seq)
     }
 
     /// The frames above `since` and, from the same instant on, every new frame: nothing is
@@ -197,14 +202,7 @@ impl FrameMonitor {
     /// [`Self::count_lagged`]).
     pub fn follow(&self, since: u64) -> (Vec<Frame>, broadcast::Receiver<Arc<Frame>>) {
         let ring = self.lock();
-        let live = self.live.subscribe();
-        let frames = ring
-            .frames
-            .iter()
-            .filter(|f| f.seq > since)
-            .cloned()
-            .collect();
-        (frames, live)
+        (ring.above(since), self.live.subscribe())
     }
 
     /// Every new frame from now on.
