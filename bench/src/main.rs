@@ -22,7 +22,10 @@
 //! - `/metrics` with `[http] tag_metrics = true` at 10 000 tags: scrape time and size
 //!   (`tag_metrics`, real binary);
 //! - the mailbox journal: 3964R telegrams per second at 9600 Bd with and without `journal`, and
-//!   the journal's largest size against its bound (`telegram`).
+//!   the journal's largest size against its bound (`telegram`);
+//! - reading the configuration at 10 000 and 100 000 tags: exec to serving, the peak resident
+//!   memory of the start, of a SIGHUP re-read and of a REST replace, and the resident memory after
+//!   a re-read (`startup`, real binary; `--baseline-gateway` runs a second binary beside it).
 //!
 //! Run `cargo build --release` first (the zenoh and memory rows start `target/release/gateway`),
 //! then `target/release/gateway-bench` (about 7 minutes) or `--quick` (about a minute). Progress
@@ -37,6 +40,7 @@ mod mbap;
 mod poll;
 mod process;
 mod report;
+mod startup;
 mod stats;
 mod tag_metrics;
 mod tap;
@@ -68,7 +72,8 @@ struct Args {
     #[arg(long, value_name = "PATH")]
     gateway: Option<PathBuf>,
     /// A second gateway binary (the previous main, say) measured beside the first in the same
-    /// run; its figures go in the reference column.
+    /// run, for the rows that start the real binary (ceiling, zenoh latency, start-up); its
+    /// figures go in the reference column or in rows of their own.
     #[arg(long, value_name = "PATH")]
     baseline_gateway: Option<PathBuf>,
     /// Only these groups of rows (comma separated; default: all).
@@ -115,6 +120,9 @@ enum Group {
     Journal,
     /// `/metrics` with the process values of 10 000 tags.
     TagMetrics,
+    /// Reading the configuration at 10 000 and 100 000 tags: time to serve, peak memory of the
+    /// start and of re-reads, memory after a re-read.
+    Startup,
 }
 
 /// How long each measurement runs.
@@ -375,6 +383,17 @@ async fn run(args: &Args) -> Vec<Row> {
             .await
             .unwrap_or_else(|e| failed("/metrics with tag_metrics, 10000 tags", e));
         push(&mut rows, row);
+    }
+    if wanted(Group::Startup) {
+        eprintln!(
+            "reading the configuration (gateway binary {})",
+            bin.display()
+        );
+        let baseline = args.baseline_gateway.as_deref();
+        startup::startup(&bin, baseline)
+            .await
+            .into_iter()
+            .for_each(|row| push(&mut rows, row));
     }
     if wanted(Group::Journal) {
         eprintln!("mailbox journal: 3964R telegrams/s with and without");
