@@ -207,44 +207,30 @@ fn hint(path: &str, err: &tokio_serial::Error) -> &'static str {
     }
 }
 
-/// The answer when the port of `path` cannot `action` `signal`, for `reason` (`hint`: a hint at
-/// the cause).
 fn unsupported(
-    path: &str,
-    signal: Signal,
-    action: &'static str,
-    reason: impl Into<String>,
-    hint: &'static str,
-) -> SignalError {
-    let (path, reason) = (path.to_owned(), reason.into());
-    SignalError::Unsupported {
-        path,
-        signal,
-        action,
-        reason,
-        hint,
-    }
-}
-
-/// The answer when the port's driver refuses to `action` `signal`.
-fn refused(
     path: &str,
     signal: Signal,
     action: &'static str,
     err: &tokio_serial::Error,
 ) -> SignalError {
-    unsupported(
-        path,
+    SignalError::Unsupported {
+        path: path.to_owned(),
         signal,
         action,
-        err.description.clone(),
-        hint(path, err),
-    )
+        reason: err.description.clone(),
+        hint: hint(path, err),
+    }
 }
 
 /// The answer for a port without modem lines (an in-process stream).
 pub(crate) fn no_modem(path: &str, signal: Signal, action: &'static str) -> SignalError {
-    unsupported(path, signal, action, "the port has no modem lines", "")
+    SignalError::Unsupported {
+        path: path.to_owned(),
+        signal,
+        action,
+        reason: "the port has no modem lines".into(),
+        hint: "",
+    }
 }
 
 /// Reads one input of `port` (DSR, CTS, DCD, RI); an output (DTR, RTS) is answered from
@@ -270,11 +256,17 @@ pub fn read(
             } else {
                 state.rts
             };
-            let never = "an output cannot be read back and was not set since the port opened";
-            return set.ok_or_else(|| unsupported(path, signal, "read", never, ""));
+            return set.ok_or_else(|| SignalError::Unsupported {
+                path: path.to_owned(),
+                signal,
+                action: "read",
+                reason: "an output cannot be read back and was not set since the port opened"
+                    .into(),
+                hint: "",
+            });
         }
     };
-    result.map_err(|err| refused(path, signal, "read", &err))
+    result.map_err(|err| unsupported(path, signal, "read", &err))
 }
 
 /// Reads every input of `port` and the outputs as last set (V24_STAT).
@@ -313,7 +305,7 @@ pub fn set(
         Output::Dtr => port.write_data_terminal_ready(on),
         Output::Rts => port.write_request_to_send(on),
     };
-    result.map_err(|err| refused(path, output.signal(), "set", &err))?;
+    result.map_err(|err| unsupported(path, output.signal(), "set", &err))?;
     match output {
         Output::Dtr => state.dtr = Some(on),
         Output::Rts => state.rts = Some(on),
