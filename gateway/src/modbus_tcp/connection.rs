@@ -124,28 +124,11 @@ async fn serve<S: ClientStream>(
             let header = frame.header;
             adu.clear();
             adu.resize(HEADER_LEN, 0);
-            let result = {
-                let answering = answer(
-                    shared,
-                    &options,
-                    authority,
-                    peer,
-                    header.unit_id,
-                    frame.pdu,
-                    &mut adu,
-                );
-                tokio::pin!(answering);
-                match poll_fn(|cx| Poll::Ready(answering.as_mut().poll(cx))).await {
-                    Poll::Ready(result) => result,
-                    Poll::Pending => {
-                        // The unit waits: the answers before it leave first.
-                        if let Err(reason) = write_response(stream, peer, &answered, idle).await {
-                            return reason;
-                        }
-                        answered.clear();
-                        answering.await
-                    }
-                }
+            let (unit, pdu) = (header.unit_id, frame.pdu);
+            let answering = answer(shared, &options, authority, peer, unit, pdu, &mut adu);
+            let result = match in_order(stream, peer, &mut answered, idle, answering).await {
+                Ok(result) => result,
+                Err(reason) => return reason,
             };
             if let Err(reject) = result {
                 crate::warn_limited!(
@@ -192,6 +175,26 @@ async fn serve<S: ClientStream>(
         };
         if let Err(reason) = received(read, &chunk, &mut reader, peer) {
             return reason;
+        }
+    }
+}
+
+/// What `answering` gives; when it waits (its unit waits for a device), the answers before it
+/// in `answered` leave first, so that a client's earlier requests are not held behind it.
+async fn in_order<S: ClientStream, F: Future>(
+    stream: &mut S,
+    peer: SocketAddr,
+    answered: &mut Vec<u8>,
+    idle: std::time::Duration,
+    answering: F,
+) -> Result<F::Output, CloseReason> {
+    tokio::pin!(answering);
+    match poll_fn(|cx| Poll::Ready(answering.as_mut().poll(cx))).await {
+        Poll::Ready(result) => Ok(result),
+        Poll::Pending => {
+            write_response(stream, peer, answered, idle).await?;
+            answered.clear();
+            Ok(answering.await)
         }
     }
 }

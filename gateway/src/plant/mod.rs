@@ -149,6 +149,48 @@ impl<'de> Deserialize<'de> for Config {
     }
 }
 
+/// The `[gateway]` section.
+fn read_gateway(cx: &mut Cx, mut f: Fields<'_>) -> GatewaySection {
+    let name = f.string_or(cx, "name", DEFAULT_GATEWAY_NAME);
+    check_name(cx, &f.at("name"), &name);
+    let diag_buffer_depth = f.int_or(
+        cx,
+        "diag_buffer_depth",
+        1..=MAX_DIAG_BUFFER_DEPTH,
+        DEFAULT_DIAG_BUFFER_DEPTH,
+        "003 7.3",
+    );
+    let mut dirs = |cx: &mut Cx, key, default: &str| {
+        if !f.has(key) {
+            let _ = f.raw(key);
+            return vec![PathBuf::from(default)];
+        }
+        f.array(cx, key)
+            .into_iter()
+            .filter_map(|(path, v)| reader::string_value(cx, v, &path))
+            .map(PathBuf::from)
+            .collect()
+    };
+    let port_dirs = dirs(cx, "port_dirs", DEFAULT_PORT_DIR);
+    let state_dirs = dirs(cx, "state_dirs", DEFAULT_STATE_DIR);
+    let config_dirs = dirs(cx, "config_dirs", DEFAULT_CONFIG_DIR);
+    let template_dirs = f
+        .array(cx, "template_dirs")
+        .into_iter()
+        .filter_map(|(path, v)| reader::string_value(cx, v, &path))
+        .map(PathBuf::from)
+        .collect();
+    f.finish(cx);
+    GatewaySection {
+        name,
+        diag_buffer_depth,
+        port_dirs,
+        state_dirs,
+        config_dirs,
+        template_dirs,
+    }
+}
+
 /// The root table read; a line's piece that does not parse is the document's syntax error.
 fn read_root(
     cx: &mut Cx,
@@ -158,46 +200,7 @@ fn read_root(
     let mut root = Fields::new(table, String::new());
     let gateway = match root.table(cx, "gateway") {
         None => GatewaySection::default(),
-        Some(mut f) => {
-            let name = f.string_or(cx, "name", DEFAULT_GATEWAY_NAME);
-            check_name(cx, &f.at("name"), &name);
-            let diag_buffer_depth = f.int_or(
-                cx,
-                "diag_buffer_depth",
-                1..=MAX_DIAG_BUFFER_DEPTH,
-                DEFAULT_DIAG_BUFFER_DEPTH,
-                "003 7.3",
-            );
-            let mut dirs = |cx: &mut Cx, key, default: &str| {
-                if !f.has(key) {
-                    let _ = f.raw(key);
-                    return vec![PathBuf::from(default)];
-                }
-                f.array(cx, key)
-                    .into_iter()
-                    .filter_map(|(path, v)| reader::string_value(cx, v, &path))
-                    .map(PathBuf::from)
-                    .collect()
-            };
-            let port_dirs = dirs(cx, "port_dirs", DEFAULT_PORT_DIR);
-            let state_dirs = dirs(cx, "state_dirs", DEFAULT_STATE_DIR);
-            let config_dirs = dirs(cx, "config_dirs", DEFAULT_CONFIG_DIR);
-            let template_dirs = f
-                .array(cx, "template_dirs")
-                .into_iter()
-                .filter_map(|(path, v)| reader::string_value(cx, v, &path))
-                .map(PathBuf::from)
-                .collect();
-            f.finish(cx);
-            GatewaySection {
-                name,
-                diag_buffer_depth,
-                port_dirs,
-                state_dirs,
-                config_dirs,
-                template_dirs,
-            }
-        }
+        Some(f) => read_gateway(cx, f),
     };
     let modbus_tcp = match root.table(cx, "modbus_tcp") {
         None => ModbusTcpConfig::default(),
