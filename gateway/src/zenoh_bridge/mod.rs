@@ -247,35 +247,6 @@ pub struct Bridge {
 
 // === impl Bridge ===
 
-/// The zenoh session, refused when another session holds the gateway's name and `on_duplicate`
-/// says exit; `None` for a client that is not connected yet (it retries in the background).
-async fn open_session(
-    zcfg: &zenoh::Config,
-    mode: Mode,
-    on_duplicate: OnDuplicate,
-    keys: &Keys,
-    gateway_name: &str,
-) -> Result<Option<zenoh::Session>, BridgeError> {
-    match zenoh::open(zcfg.clone()).await {
-        Ok(s) => {
-            if on_duplicate == OnDuplicate::Exit {
-                if let Err(e) = fleet::refuse_duplicate(&s, keys, gateway_name).await {
-                    if let Err(close) = s.close().await {
-                        tracing::debug!(error = %close, "zenoh session close failed");
-                    }
-                    return Err(e);
-                }
-            }
-            Ok(Some(s))
-        }
-        Err(e) if mode == Mode::Client => {
-            crate::warn_limited!("zenoh client not connected", error = %e, "zenoh client not connected yet, retrying in the background");
-            Ok(None)
-        }
-        Err(e) => Err(BridgeError::Open(e.to_string())),
-    }
-}
-
 impl Bridge {
     /// Opens the session (a client retries in the background), declares the subscribers,
     /// queryables and the gateway's liveliness token, and starts the publisher thread.
@@ -331,7 +302,24 @@ impl Bridge {
         };
         let outbox = Arc::new(Outbox::new(limits, stats.clone()));
 
-        let session = open_session(&zcfg, mode, on_duplicate, &keys, gateway_name).await?;
+        let session = match zenoh::open(zcfg.clone()).await {
+            Ok(s) => {
+                if on_duplicate == OnDuplicate::Exit {
+                    if let Err(e) = fleet::refuse_duplicate(&s, &keys, gateway_name).await {
+                        if let Err(close) = s.close().await {
+                            tracing::debug!(error = %close, "zenoh session close failed");
+                        }
+                        return Err(e);
+                    }
+                }
+                Some(s)
+            }
+            Err(e) if mode == Mode::Client => {
+                crate::warn_limited!("zenoh client not connected", error = %e, "zenoh client not connected yet, retrying in the background");
+                None
+            }
+            Err(e) => return Err(BridgeError::Open(e.to_string())),
+        };
 
         let thread = {
             let worker = PublisherThread::new(
