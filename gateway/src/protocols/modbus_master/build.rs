@@ -37,11 +37,10 @@ impl StartLine for ModbusMasterRtuConfig {
             turnaround_delay: self.turnaround_delay,
             mode: operating_mode(self.operating_mode),
         };
-        let forwarded = &self.transparent;
         Ok(spawn(
             settings,
             self.commands_in_row,
-            forwarded,
+            &self.transparent,
             &self.devices,
             deps,
         ))
@@ -66,11 +65,10 @@ impl StartLine for ModbusMasterAsciiConfig {
             turnaround_delay: self.turnaround_delay,
             mode: operating_mode(self.operating_mode),
         };
-        let forwarded = &self.transparent;
         Ok(spawn(
             settings,
             self.commands_in_row,
-            forwarded,
+            &self.transparent,
             &self.devices,
             deps,
         ))
